@@ -1,0 +1,19 @@
+# The README's quick start: `make demo` runs the main job, `make test` the test suite.
+# Each installs what it needs first (scripts/setup.sh is idempotent).
+.PHONY: setup demo test lint bench
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	.venv/bin/scratchfab run pipelines/demo.toml --out job-demo
+
+test: setup
+	.venv/bin/python -m pytest -q
+
+lint: setup
+	.venv/bin/ruff check scratchfab tests benchmarks
+	.venv/bin/mypy scratchfab
+
+bench: setup
+	for b in benchmarks/bench_*.py; do .venv/bin/python $$b; done

@@ -1,0 +1,88 @@
+"""Dr.Jit backend selection, with a clear error where the CPU backend cannot run.
+
+Dr.Jit's LLVM (CPU) backend loads a shared libLLVM at run time. Versions before 16 are
+refused or crash on kernels with min/max, so we look for 16 or newer ourselves, point
+Dr.Jit at it through ``DRJIT_LIBLLVM_PATH``, and fail with the fix spelled out otherwise.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+from types import ModuleType
+from typing import Literal
+
+from scratchfab.errors import BackendError
+
+BackendName = Literal["llvm", "cuda"]
+MIN_LLVM_MAJOR = 16
+_LIB_DIRS = (
+    "/usr/lib/x86_64-linux-gnu",
+    "/usr/lib/aarch64-linux-gnu",
+    "/usr/lib64",
+    "/usr/lib",
+    "/usr/local/lib",
+    "/opt/homebrew/opt/llvm/lib",
+    "/usr/local/opt/llvm/lib",
+)
+_FIX = (
+    "Dr.Jit's CPU backend needs a shared libLLVM 16 or newer: run `bash scripts/setup.sh` "
+    "(Debian/Ubuntu: `apt-get install libllvm19`), or set DRJIT_LIBLLVM_PATH to such a library"
+)
+
+
+def _llvm_major(path: str) -> int | None:
+    match = re.search(r"libLLVM(?:-|\.so\.)(\d+)", os.path.basename(path))
+    return int(match.group(1)) if match else None
+
+
+def find_libllvm() -> str | None:
+    """The newest shared libLLVM >= 16 on this machine, or None."""
+    best: tuple[int, str] | None = None
+    for folder in _LIB_DIRS:
+        for path in glob.glob(os.path.join(folder, "libLLVM*.so*")) + glob.glob(
+            os.path.join(folder, "libLLVM*.dylib")
+        ):
+            major = _llvm_major(path)
+            if major is not None and major >= MIN_LLVM_MAJOR and (best is None or major > best[0]):
+                best = (major, path)
+    return best[1] if best else None
+
+
+def ensure_llvm_path() -> None:
+    """Point Dr.Jit at a usable libLLVM before it is first used, or raise BackendError."""
+    configured = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if configured:
+        if not os.path.exists(configured):
+            raise BackendError(f"DRJIT_LIBLLVM_PATH={configured} does not exist. {_FIX}")
+        major = _llvm_major(configured)
+        if major is not None and major < MIN_LLVM_MAJOR:
+            raise BackendError(f"DRJIT_LIBLLVM_PATH={configured} is LLVM {major}. {_FIX}")
+        return
+    found = find_libllvm()
+    if found is None:
+        raise BackendError(f"no usable libLLVM found. {_FIX}")
+    os.environ["DRJIT_LIBLLVM_PATH"] = found
+
+
+def array_module(backend: BackendName = "llvm") -> ModuleType:
+    """The Dr.Jit AD array namespace of ``backend`` (``drjit.llvm.ad`` or ``drjit.cuda.ad``).
+
+    Raises:
+        BackendError: When the backend cannot run here, with the fix.
+    """
+    if backend == "llvm":
+        ensure_llvm_path()
+    import drjit as dr
+
+    jit_backend = dr.JitBackend.LLVM if backend == "llvm" else dr.JitBackend.CUDA
+    if not dr.has_backend(jit_backend):
+        if backend == "cuda":
+            raise BackendError(
+                "the CUDA backend needs an NVIDIA GPU and driver; use --backend llvm"
+            )
+        raise BackendError(f"Dr.Jit could not start its LLVM backend. {_FIX}")
+    import importlib
+
+    return importlib.import_module(f"drjit.{backend}.ad")

@@ -1,0 +1,17 @@
+"""Exceptions that mean "the user asked for something wrong", reported as one line."""
+
+from __future__ import annotations
+
+
+class ScratchfabError(Exception):
+    """A user-facing error: the CLI prints its message on one line and exits non-zero."""
+
+    exit_code = 2
+
+
+class ConfigError(ScratchfabError):
+    """A configuration or data file is invalid; the message names the file and the key or row."""
+
+
+class BackendError(ScratchfabError):
+    """The requested compute backend (Dr.Jit LLVM or CUDA) is not usable on this machine."""

@@ -1,0 +1,63 @@
+"""Atomic file writes: a reader never sees a half-written file, a failure never loses the old one."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) -> Iterator[IO[Any]]:
+    """Open a temporary file beside ``path``; rename it over ``path`` only on success.
+
+    Args:
+        path: The final file.
+        mode: ``"w"`` (text) or ``"wb"`` (binary).
+        **kwargs: Passed to :func:`open` (e.g. ``newline``, ``encoding``).
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    os.close(fd)
+    try:
+        if "b" not in mode:
+            kwargs.setdefault("encoding", "utf-8")
+        with open(tmp_name, mode, **kwargs) as handle:
+            yield handle
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp_name, target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp_name)
+        raise
+
+
+def write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` to ``path`` atomically (LF line ends)."""
+    with atomic_open(path, "w", newline="\n") as handle:
+        handle.write(text)
+
+
+def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically."""
+    with atomic_open(path, "wb") as handle:
+        handle.write(data)
+
+
+def save_npy(path: str | os.PathLike[str], array: np.ndarray) -> None:
+    """Save a numpy array to ``path`` atomically (``.npy`` format)."""
+    with atomic_open(path, "wb") as handle:
+        np.save(handle, array)
+
+
+def save_png(path: str | os.PathLike[str], image: Any) -> None:
+    """Save a Pillow image as PNG atomically."""
+    with atomic_open(path, "wb") as handle:
+        image.save(handle, format="PNG")

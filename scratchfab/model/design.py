@@ -1,0 +1,351 @@
+"""The design: board, light, scratch tool and views (SPEC sections 2, 3 and 5).
+
+Loaded from TOML into frozen dataclasses. Views may be given by position or by
+azimuth/elevation/distance, and ``fov_deg`` may be ``"auto"``; both are resolved at load
+time so that every :class:`View` the rest of the code sees has a position and a numeric
+field of view.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from scratchfab.errors import ConfigError
+from scratchfab.fileio import write_text
+from scratchfab.model.schema import load_toml, parse_table, spec, to_table
+
+Vec3 = tuple[float, float, float]
+
+#: Tables of a pipeline file that belong to stages, not to the design (SPEC section 5).
+STAGE_TABLES = ("pipeline", "optimize", "verify", "toolpath", "export", "stream")
+
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+
+@dataclass(frozen=True)
+class Board:
+    """The polished metal board, centred on the origin in the plane z = 0."""
+
+    width_mm: float = field(default=100.0, metadata=spec(gt=0))
+    height_mm: float = field(default=100.0, metadata=spec(gt=0))
+    roughness: float = field(default=0.05, metadata=spec(gt=0, le=1))
+    f0: float = field(default=0.91, metadata=spec(ge=0, le=1))
+    margin_mm: float = field(default=2.0, metadata=spec(ge=0))
+
+    def __post_init__(self) -> None:
+        if 2 * self.margin_mm >= min(self.width_mm, self.height_mm):
+            raise ValueError(
+                f"margin_mm ({self.margin_mm}) leaves no room on a "
+                f"{self.width_mm} x {self.height_mm} mm board"
+            )
+
+    @property
+    def half_extent(self) -> tuple[float, float]:
+        """Half width and half height in mm."""
+        return self.width_mm / 2, self.height_mm / 2
+
+
+@dataclass(frozen=True)
+class Light:
+    """The point light."""
+
+    position_mm: Vec3
+    intensity: float = field(default=1.0, metadata=spec(gt=0))
+
+    def __post_init__(self) -> None:
+        if self.position_mm[2] <= 0:
+            raise ValueError(
+                f"position_mm: the light must be in front of the board (z > 0), "
+                f"got z = {self.position_mm[2]}"
+            )
+
+
+@dataclass(frozen=True)
+class ScratchTool:
+    """The tool's dent and the layout bounds of ``design`` and ``optimize``."""
+
+    width_mm: float = field(default=0.1, metadata=spec(gt=0))
+    depth_mm: float = field(default=0.01, metadata=spec(gt=0))
+    count: int = field(default=5000, metadata=spec(gt=0))
+    min_length_mm: float = field(default=2.0, metadata=spec(gt=0))
+    max_length_mm: float = field(default=12.0, metadata=spec(gt=0))
+
+    def __post_init__(self) -> None:
+        if self.min_length_mm > self.max_length_mm:
+            raise ValueError(
+                f"min_length_mm ({self.min_length_mm}) is larger than "
+                f"max_length_mm ({self.max_length_mm})"
+            )
+
+
+@dataclass(frozen=True)
+class View:
+    """One camera (SPEC section 2) and its target image.
+
+    Either ``position_mm`` or all of ``azimuth_deg``, ``elevation_deg`` and
+    ``distance_mm`` are given. Azimuth turns from +z toward +x (positive: the viewer
+    stands to the right), elevation from the board's horizontal toward +y, both about
+    ``look_at_mm``.
+    """
+
+    name: str
+    target: str | None = None
+    position_mm: Vec3 | None = None
+    azimuth_deg: float | None = None
+    elevation_deg: float | None = None
+    distance_mm: float | None = field(default=None, metadata=spec(gt=0))
+    look_at_mm: Vec3 = (0.0, 0.0, 0.0)
+    up: Vec3 = (0.0, 1.0, 0.0)
+    fov_deg: float | str = 12.0
+    resolution: tuple[int, int] = (256, 256)
+    light_position_mm: Vec3 | None = None
+
+    def __post_init__(self) -> None:
+        if not _NAME_RE.match(self.name):
+            raise ValueError(
+                f"name {self.name!r} is not file-name safe (letters, digits, '_', '-', '.')"
+            )
+        polar = (self.azimuth_deg, self.elevation_deg, self.distance_mm)
+        if self.position_mm is None and any(v is None for v in polar):
+            raise ValueError(
+                f"view '{self.name}': give position_mm, or azimuth_deg, elevation_deg "
+                "and distance_mm"
+            )
+        if self.position_mm is not None and any(v is not None for v in polar):
+            raise ValueError(
+                f"view '{self.name}': give either position_mm or azimuth/elevation/distance, "
+                "not both"
+            )
+        if isinstance(self.fov_deg, str):
+            if self.fov_deg != "auto":
+                raise ValueError(
+                    f"view '{self.name}': fov_deg must be a number or \"auto\", "
+                    f"got {self.fov_deg!r}"
+                )
+        elif not 0 < self.fov_deg < 170:
+            raise ValueError(f"view '{self.name}': fov_deg must be in (0, 170), got {self.fov_deg}")
+        if min(self.resolution) < 1:
+            raise ValueError(
+                f"view '{self.name}': resolution must be two positive integers, "
+                f"got {list(self.resolution)}"
+            )
+        if self.light_position_mm is not None and self.light_position_mm[2] <= 0:
+            raise ValueError(
+                f"view '{self.name}': light_position_mm must be in front of the board "
+                f"(z > 0), got z = {self.light_position_mm[2]}"
+            )
+
+    @property
+    def width(self) -> int:
+        """Image width W in pixels."""
+        return self.resolution[0]
+
+    @property
+    def height(self) -> int:
+        """Image height H in pixels."""
+        return self.resolution[1]
+
+    @property
+    def camera_position(self) -> np.ndarray:
+        """The camera position in mm (only valid on resolved views)."""
+        assert self.position_mm is not None
+        return np.asarray(self.position_mm, dtype=np.float64)
+
+    @property
+    def fov(self) -> float:
+        """Numeric vertical field of view in degrees (only valid on resolved views)."""
+        assert not isinstance(self.fov_deg, str)
+        return float(self.fov_deg)
+
+
+@dataclass(frozen=True)
+class _DesignTables:
+    board: Board = Board()
+    light: Light | None = None
+    scratch: ScratchTool = ScratchTool()
+    views: tuple[View, ...] = ()
+
+
+@dataclass(frozen=True)
+class Design:
+    """A complete, resolved design.
+
+    Attributes:
+        board: The board.
+        light: The point light.
+        scratch: The tool and layout bounds.
+        views: Resolved views (positions and numeric fov filled in).
+        base_dir: Folder that relative target paths are resolved against.
+        source: The file it came from (for messages).
+    """
+
+    board: Board
+    light: Light
+    scratch: ScratchTool
+    views: tuple[View, ...]
+    base_dir: Path = Path(".")
+    source: str = "<design>"
+
+    def view(self, name: str) -> View:
+        """The view called ``name``."""
+        for v in self.views:
+            if v.name == name:
+                return v
+        raise KeyError(name)
+
+    def light_for(self, view: View) -> np.ndarray:
+        """The light position that applies to ``view`` (its own, or the design's)."""
+        pos = (
+            view.light_position_mm if view.light_position_mm is not None else self.light.position_mm
+        )
+        return np.asarray(pos, dtype=np.float64)
+
+    def target_path(self, view: View) -> Path | None:
+        """The absolute path of the view's target image, or None."""
+        if view.target is None:
+            return None
+        path = Path(view.target)
+        return path if path.is_absolute() else (self.base_dir / path).resolve()
+
+    def with_views(self, views: tuple[View, ...]) -> Design:
+        """A copy with other views."""
+        return replace(self, views=views)
+
+    def to_toml(self) -> str:
+        """The resolved design as TOML text (absolute target paths, every default filled in)."""
+        views = []
+        for v in self.views:
+            table = to_table(v)
+            for key in ("azimuth_deg", "elevation_deg", "distance_mm"):
+                table.pop(key, None)
+            target = self.target_path(v)
+            if target is not None:
+                table["target"] = str(target)
+            views.append(table)
+        data: dict[str, Any] = {
+            "board": to_table(self.board),
+            "light": to_table(self.light),
+            "scratch": to_table(self.scratch),
+            "views": views,
+        }
+        return tomli_w.dumps(data)
+
+    def save(self, path: str | Path) -> None:
+        """Write the resolved design atomically."""
+        write_text(path, self.to_toml())
+
+
+def polar_position(view: View) -> Vec3:
+    """Camera position from azimuth, elevation and distance about ``look_at_mm``."""
+    assert view.azimuth_deg is not None and view.elevation_deg is not None
+    assert view.distance_mm is not None
+    az = math.radians(view.azimuth_deg)
+    el = math.radians(view.elevation_deg)
+    d = view.distance_mm
+    lx, ly, lz = view.look_at_mm
+    return (
+        lx + d * math.cos(el) * math.sin(az),
+        ly + d * math.sin(el),
+        lz + d * math.cos(el) * math.cos(az),
+    )
+
+
+def auto_fov(view: View, board: Board, margin: float = 1.08) -> float:
+    """The vertical fov (degrees) at which the whole board fills the frame, with a margin."""
+    assert view.position_mm is not None
+    pos = np.asarray(view.position_mm, dtype=np.float64)
+    fwd = np.asarray(view.look_at_mm, dtype=np.float64) - pos
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, np.asarray(view.up, dtype=np.float64))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    hw, hh = board.half_extent
+    corners = np.array([[sx * hw, sy * hh, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+    rel = corners - pos
+    depth = rel @ fwd
+    if np.any(depth <= 0):
+        raise ValueError(f"view '{view.name}': the board is not in front of the camera")
+    aspect = view.width / view.height
+    ty = np.max(np.abs(rel @ up) / depth)
+    tx = np.max(np.abs(rel @ right) / depth) / aspect
+    return math.degrees(2 * math.atan(max(ty, tx) * margin))
+
+
+def resolve_view(view: View, board: Board) -> View:
+    """Fill in the position from polar coordinates and a numeric fov from ``"auto"``."""
+    if view.position_mm is None:
+        view = replace(
+            view,
+            position_mm=polar_position(view),
+            azimuth_deg=None,
+            elevation_deg=None,
+            distance_mm=None,
+        )
+    assert view.position_mm is not None
+    if view.position_mm[2] <= 0:
+        raise ValueError(
+            f"view '{view.name}': the camera must be in front of the board (z > 0), "
+            f"got z = {view.position_mm[2]:g}"
+        )
+    fwd = np.subtract(view.look_at_mm, view.position_mm)
+    if np.linalg.norm(fwd) == 0:
+        raise ValueError(f"view '{view.name}': look_at_mm equals position_mm")
+    if np.linalg.norm(np.cross(fwd, view.up)) < 1e-9 * np.linalg.norm(fwd):
+        raise ValueError(f"view '{view.name}': up is parallel to the viewing direction")
+    if view.fov_deg == "auto":
+        fov = auto_fov(view, board)
+        if not 0 < fov < 170:
+            raise ValueError(f"view '{view.name}': the board cannot fit in the frame")
+        view = replace(view, fov_deg=fov)
+    return view
+
+
+def design_from_mapping(
+    data: dict[str, Any], source: str, base_dir: Path, require_views: bool = True
+) -> Design:
+    """Build a resolved :class:`Design` from parsed TOML; stage tables are left for the pipeline."""
+    design_data = {k: v for k, v in data.items() if k not in STAGE_TABLES}
+    if "design" in design_data and isinstance(design_data["design"], dict):
+        raise ConfigError(
+            f"{source}: put board, light, scratch and views at the top level, not under [design]"
+        )
+    tables = parse_table(_DesignTables, design_data, source)
+    if tables.light is None:
+        raise ConfigError(f"{source}: light: missing required table [light]")
+    if require_views and not tables.views:
+        raise ConfigError(f"{source}: views: at least one [[views]] table is required")
+    names: set[str] = set()
+    resolved = []
+    for i, view in enumerate(tables.views):
+        if view.name in names:
+            raise ConfigError(f"{source}: views[{i}].name: duplicate view name '{view.name}'")
+        names.add(view.name)
+        try:
+            resolved.append(resolve_view(view, tables.board))
+        except ValueError as exc:
+            raise ConfigError(f"{source}: views[{i}]: {exc}") from None
+    return Design(
+        board=tables.board,
+        light=tables.light,
+        scratch=tables.scratch,
+        views=tuple(resolved),
+        base_dir=base_dir,
+        source=source,
+    )
+
+
+def load_design(path: str | Path, require_views: bool = True) -> Design:
+    """Load a design file (or the design part of a pipeline file).
+
+    Raises:
+        ConfigError: Naming the file and the key on any mistake.
+    """
+    file = Path(path)
+    return design_from_mapping(load_toml(file), str(file), file.resolve().parent, require_views)

@@ -1,0 +1,228 @@
+"""Strict parsing of TOML tables into frozen dataclasses.
+
+Every configuration file of scratchfab (design, pipeline, machine profile) goes through
+:func:`parse_table`: unknown keys are rejected with the nearest valid key, missing keys
+and wrong types are named with the file and the dotted key path, and numeric ranges
+declared in a field's metadata (``gt``, ``ge``, ``lt``, ``le``) are enforced.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal, TypeVar, Union, get_args, get_origin
+
+from scratchfab.errors import ConfigError
+
+T = TypeVar("T")
+
+
+def spec(
+    *,
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+    doc: str = "",
+) -> dict[str, Any]:
+    """Metadata for a dataclass field: numeric bounds checked by :func:`parse_table`."""
+    return {"gt": gt, "ge": ge, "lt": lt, "le": le, "doc": doc}
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file, turning I/O and syntax problems into one-line ConfigErrors."""
+    file = Path(path)
+    try:
+        raw = file.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError(f"{file}: file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{file}: is a directory, expected a TOML file") from None
+    except OSError as exc:
+        raise ConfigError(f"{file}: cannot read ({exc.strerror})") from None
+    try:
+        return tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise ConfigError(f"{file}: not a UTF-8 text file, expected TOML") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{file}: invalid TOML: {exc}") from None
+
+
+def _type_name(tp: Any) -> str:
+    origin = get_origin(tp)
+    if origin is Literal:
+        return " or ".join(repr(a) for a in get_args(tp))
+    if origin in (Union, types.UnionType):
+        return " or ".join(_type_name(a) for a in get_args(tp) if a is not type(None))
+    if origin is tuple:
+        args = get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return f"a list of {_type_name(args[0])}"
+        return f"a list of {len(args)} {_type_name(args[0])}s"
+    if dataclasses.is_dataclass(tp):
+        return "a table"
+    return {float: "a number", int: "an integer", str: "a string", bool: "true or false"}.get(
+        tp, getattr(tp, "__name__", str(tp))
+    )
+
+
+def _convert(value: Any, tp: Any, where: str) -> Any:
+    """Convert one TOML value to the annotated type ``tp`` or raise ConfigError."""
+    origin = get_origin(tp)
+    if tp is Any:
+        return value
+    if origin in (Union, types.UnionType):
+        if value is None and type(None) in get_args(tp):
+            return None
+        options = [o for o in get_args(tp) if o is not type(None)]
+        if len(options) == 1:
+            return _convert(value, options[0], where)
+        for option in options:
+            try:
+                return _convert(value, option, where)
+            except ConfigError:
+                continue
+        raise ConfigError(f"{where}: expected {_type_name(tp)}, got {value!r}")
+    if origin is Literal:
+        if value in get_args(tp):
+            return value
+        raise ConfigError(f"{where}: expected {_type_name(tp)}, got {value!r}")
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    if origin is tuple:
+        args = get_args(tp)
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{where}: expected {_type_name(tp)}, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(
+                f"{where}: expected {_type_name(tp)}, got {len(value)} values ({value!r})"
+            )
+        return tuple(
+            _convert(v, a, f"{where}[{i}]")
+            for i, (v, a) in enumerate(zip(value, args, strict=True))
+        )
+    if origin is dict:
+        key_tp, val_tp = get_args(tp)
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{where}: expected a table, got {value!r}")
+        return {
+            _convert(k, key_tp, where): _convert(v, val_tp, f"{where}.{k}")
+            for k, v in value.items()
+        }
+    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
+        return _parse(tp, value, where)
+    raise TypeError(f"unsupported schema type {tp!r} at {where}")  # programming error
+
+
+def _check_bounds(value: Any, meta: Mapping[str, Any], where: str) -> None:
+    if not isinstance(value, int | float) or isinstance(value, bool):
+        return
+    checks = (
+        ("gt", lambda v, b: v > b, "greater than"),
+        ("ge", lambda v, b: v >= b, "at least"),
+        ("lt", lambda v, b: v < b, "less than"),
+        ("le", lambda v, b: v <= b, "at most"),
+    )
+    for key, ok, words in checks:
+        bound = meta.get(key)
+        if bound is not None and not ok(value, bound):
+            lower = meta.get("gt") if meta.get("gt") is not None else meta.get("ge")
+            upper = meta.get("lt") if meta.get("lt") is not None else meta.get("le")
+            if lower is not None and upper is not None:
+                lo = "(" if meta.get("gt") is not None else "["
+                hi = ")" if meta.get("lt") is not None else "]"
+                raise ConfigError(
+                    f"{where}: expected a value in {lo}{lower}, {upper}{hi}, got {value}"
+                )
+            raise ConfigError(f"{where}: expected a value {words} {bound}, got {value}")
+
+
+def _parse(cls: type[T], data: Any, where: str) -> T:
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}: expected a table, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
+    for key in data:
+        if key not in fields:
+            close = difflib.get_close_matches(str(key), list(fields), n=1, cutoff=0.5)
+            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            valid = ", ".join(fields)
+            raise ConfigError(f"{where}: unknown key '{key}'{hint}; valid keys: {valid}")
+    kwargs: dict[str, Any] = {}
+    for name, field in fields.items():
+        key_where = f"{where}.{name}" if not where.endswith(":") else f"{where} {name}"
+        if name not in data:
+            if (
+                field.default is dataclasses.MISSING
+                and field.default_factory is dataclasses.MISSING
+            ):
+                raise ConfigError(f"{key_where}: missing required key ({_type_name(hints[name])})")
+            continue
+        value = _convert(data[name], hints[name], key_where)
+        items = value if isinstance(value, tuple) else (value,)
+        for item in items:
+            _check_bounds(item, field.metadata, key_where)
+        kwargs[name] = value
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:
+        raise ConfigError(f"{where.rstrip(':').rstrip('.')}: {exc}") from None
+
+
+def parse_table(cls: type[T], data: Any, source: str, key: str = "") -> T:
+    """Parse ``data`` (a TOML table) into dataclass ``cls``.
+
+    Args:
+        cls: A (frozen) dataclass. Field metadata from :func:`spec` gives numeric bounds;
+            ``__post_init__`` may raise ``ValueError`` for cross-field checks.
+        data: The table as read by :mod:`tomllib`.
+        source: The file name, used as the prefix of every error message.
+        key: The dotted key path of ``data`` inside the file ("" for the top level).
+
+    Raises:
+        ConfigError: One line naming ``source``, the key and what is expected.
+    """
+    where = f"{source}: {key}" if key else f"{source}:"
+    return _parse(cls, data, where)
+
+
+def to_table(obj: Any) -> Any:
+    """Turn a dataclass tree back into plain TOML-ready values (tuples become lists, None dropped)."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        out = {}
+        for f in dataclasses.fields(obj):
+            if not f.init:
+                continue
+            value = to_table(getattr(obj, f.name))
+            if value is not None:
+                out[f.name] = value
+        return out
+    if isinstance(obj, tuple | list):
+        return [to_table(v) for v in obj]
+    if isinstance(obj, dict):
+        return {k: to_table(v) for k, v in obj.items() if v is not None}
+    return obj

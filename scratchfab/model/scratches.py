@@ -1,0 +1,173 @@
+"""Scratch layouts: the CSV file of SPEC section 5 as numpy arrays in mm."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from scratchfab.errors import ConfigError
+from scratchfab.fileio import write_text
+from scratchfab.model.design import Board, ScratchTool
+
+REQUIRED_COLUMNS = ("x0", "y0", "x1", "y1")
+OPTIONAL_COLUMNS = ("width", "depth")
+
+
+@dataclass(frozen=True, eq=False)
+class ScratchSet:
+    """N straight scratches on the board.
+
+    Attributes:
+        p0: (N, 2) float64 start points in mm.
+        p1: (N, 2) float64 end points in mm.
+        width: (N,) full dent widths 2w in mm.
+        depth: (N,) dent depths d in mm.
+    """
+
+    p0: np.ndarray
+    p1: np.ndarray
+    width: np.ndarray
+    depth: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.p0)
+        if self.p0.shape != (n, 2) or self.p1.shape != (n, 2):
+            raise ValueError("p0 and p1 must both be (N, 2)")
+        if self.width.shape != (n,) or self.depth.shape != (n,):
+            raise ValueError("width and depth must be (N,)")
+
+    def __len__(self) -> int:
+        return len(self.p0)
+
+    @classmethod
+    def from_arrays(
+        cls,
+        p0: np.ndarray,
+        p1: np.ndarray,
+        width: float | np.ndarray,
+        depth: float | np.ndarray,
+    ) -> ScratchSet:
+        """Build a set, broadcasting scalar width and depth."""
+        p0 = np.asarray(p0, dtype=np.float64).reshape(-1, 2)
+        p1 = np.asarray(p1, dtype=np.float64).reshape(-1, 2)
+        n = len(p0)
+        w = np.broadcast_to(np.asarray(width, dtype=np.float64), (n,)).copy()
+        d = np.broadcast_to(np.asarray(depth, dtype=np.float64), (n,)).copy()
+        return cls(p0.copy(), p1.copy(), w, d)
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """Scratch lengths L in mm."""
+        return np.linalg.norm(self.p1 - self.p0, axis=1)
+
+    def subset(self, index: np.ndarray) -> ScratchSet:
+        """The scratches selected by an index or mask."""
+        return ScratchSet(self.p0[index], self.p1[index], self.width[index], self.depth[index])
+
+    def to_csv(self, tool: ScratchTool | None = None) -> str:
+        """CSV text; width/depth columns are written unless they all equal ``tool``'s."""
+        uniform = tool is not None and bool(
+            np.all(self.width == tool.width_mm) and np.all(self.depth == tool.depth_mm)
+        )
+        buf = io.StringIO()
+        writer = csv.writer(buf, lineterminator="\n")
+        writer.writerow(REQUIRED_COLUMNS if uniform else REQUIRED_COLUMNS + OPTIONAL_COLUMNS)
+        for i in range(len(self)):
+            row = [*self.p0[i], *self.p1[i]]
+            if not uniform:
+                row += [self.width[i], self.depth[i]]
+            writer.writerow([repr(float(v)) for v in row])
+        return buf.getvalue()
+
+    def save(self, path: str | Path, tool: ScratchTool | None = None) -> None:
+        """Write the CSV atomically."""
+        write_text(path, self.to_csv(tool))
+
+
+def load_scratches(
+    path: str | Path, tool: ScratchTool, board: Board | None = None, tolerance_mm: float = 1e-6
+) -> ScratchSet:
+    """Read a scratch CSV (SPEC section 5), checking every row.
+
+    Args:
+        path: The CSV file.
+        tool: Supplies width and depth where the file has no such columns.
+        board: When given, every endpoint must lie on the board.
+        tolerance_mm: Slack for the on-board check (rounding in the file).
+
+    Raises:
+        ConfigError: Naming the file, the row (1 = first data row, as a spreadsheet shows
+            it: line number in the file) and what is wrong.
+    """
+    file = Path(path)
+    try:
+        text = file.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{file}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{file}: cannot read as UTF-8 text ({exc})") from None
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = [h.strip() for h in next(reader)]
+    except StopIteration:
+        raise ConfigError(
+            f"{file}: empty file, expected a header x0,y0,x1,y1[,width,depth]"
+        ) from None
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    unknown = [c for c in header if c not in REQUIRED_COLUMNS + OPTIONAL_COLUMNS]
+    if missing or unknown:
+        raise ConfigError(
+            f"{file}: line 1: header must be x0,y0,x1,y1 optionally followed by width,depth; "
+            + (f"missing {', '.join(missing)}" if missing else f"unknown column {unknown[0]!r}")
+        )
+    col = {name: header.index(name) for name in header}
+    rows: list[list[float]] = []
+    for line_no, row in enumerate(reader, start=2):
+        if not row or all(not cell.strip() for cell in row):
+            continue
+        if len(row) != len(header):
+            raise ConfigError(
+                f"{file}: line {line_no}: expected {len(header)} values, got {len(row)}"
+            )
+        values = []
+        for name in REQUIRED_COLUMNS + OPTIONAL_COLUMNS:
+            if name not in col:
+                values.append(tool.width_mm if name == "width" else tool.depth_mm)
+                continue
+            cell = row[col[name]].strip()
+            try:
+                v = float(cell)
+            except ValueError:
+                raise ConfigError(
+                    f"{file}: line {line_no}: column {name}: expected a number, got {cell!r}"
+                ) from None
+            if not math.isfinite(v):
+                raise ConfigError(
+                    f"{file}: line {line_no}: column {name}: expected a finite number, got {cell}"
+                )
+            if name in OPTIONAL_COLUMNS and v <= 0:
+                raise ConfigError(
+                    f"{file}: line {line_no}: column {name}: expected a positive size, got {v}"
+                )
+            values.append(v)
+        x0, y0, x1, y1 = values[:4]
+        if x0 == x1 and y0 == y1:
+            raise ConfigError(f"{file}: line {line_no}: scratch has zero length")
+        if board is not None:
+            hw, hh = board.half_extent
+            for px, py in ((x0, y0), (x1, y1)):
+                if abs(px) > hw + tolerance_mm or abs(py) > hh + tolerance_mm:
+                    raise ConfigError(
+                        f"{file}: line {line_no}: scratch leaves the board: point ({px:g}, {py:g}) "
+                        f"is outside |x| <= {hw:g}, |y| <= {hh:g} mm"
+                    )
+        rows.append(values)
+    data = np.asarray(rows, dtype=np.float64).reshape(-1, 6)
+    return ScratchSet(
+        data[:, 0:2].copy(), data[:, 2:4].copy(), data[:, 4].copy(), data[:, 5].copy()
+    )

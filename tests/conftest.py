@@ -1,0 +1,59 @@
+"""Shared fixtures. Helpers add fixtures here by appending; never rewrite the file."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from scratchfab.backend import array_module
+from scratchfab.model.design import Design, design_from_mapping
+
+#: Heavy cases run in full only with SCRATCHFAB_FULL=1 (CI runs them reduced).
+FULL = os.environ.get("SCRATCHFAB_FULL") == "1"
+
+
+@pytest.fixture(scope="session")
+def m() -> ModuleType:
+    """Dr.Jit's LLVM AD array namespace (drjit.llvm.ad)."""
+    return array_module("llvm")
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    """A seeded generator; tests take randomness only from here or their own seeds."""
+    return np.random.default_rng(20231121)
+
+
+def make_design(views: int = 2, resolution: int = 32, size_mm: float = 40.0) -> Design:
+    """A small two-view design used across tests (left/right cameras, light above)."""
+    tables = {
+        "board": {"width_mm": size_mm, "height_mm": size_mm, "roughness": 0.05, "margin_mm": 1.0},
+        "light": {"position_mm": [0.0, 150.0, 300.0]},
+        "scratch": {
+            "width_mm": 0.1,
+            "depth_mm": 0.01,
+            "count": 200,
+            "min_length_mm": 1.0,
+            "max_length_mm": 6.0,
+        },
+        "views": [
+            {
+                "name": name,
+                "position_mm": [x, 0.0, 300.0],
+                "fov_deg": "auto",
+                "resolution": [resolution, resolution],
+            }
+            for name, x in [("left", -120.0), ("right", 120.0), ("top", 0.0)][:views]
+        ],
+    }
+    return design_from_mapping(tables, "<test design>", Path("."))
+
+
+@pytest.fixture
+def small_design() -> Design:
+    """Two views, 32x32 pixels, 40 mm board."""
+    return make_design()

@@ -1,0 +1,148 @@
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scratchfab.errors import ConfigError
+from scratchfab.model.camera import Camera, polygon_area
+from scratchfab.model.design import design_from_mapping, load_design
+from scratchfab.model.scratches import ScratchSet, load_scratches
+
+BASE = {
+    "board": {"width_mm": 100.0, "height_mm": 80.0},
+    "light": {"position_mm": [0.0, 300.0, 500.0]},
+    "views": [{"name": "left", "position_mm": [-180.0, 0.0, 500.0], "resolution": [64, 48]}],
+}
+
+
+def _with(path: str, value):
+    import copy
+
+    data = copy.deepcopy(BASE)
+    node = data
+    keys = path.split(".")
+    for k in keys[:-1]:
+        node = node[int(k)] if k.isdigit() else node[k]
+    node[keys[-1]] = value
+    return data
+
+
+BAD_DESIGNS = [
+    (_with("board.widht_mm", 1.0), "unknown key 'widht_mm' (did you mean 'width_mm'?)"),
+    (_with("board.width_mm", -1.0), "board.width_mm: expected a value greater than 0"),
+    (_with("board.width_mm", "wide"), "board.width_mm: expected a number"),
+    (_with("board.width_mm", float("nan")), "board.width_mm: expected a finite number"),
+    (_with("board.roughness", 0.0), "board.roughness: expected a value in (0, 1]"),
+    (_with("board.roughness", 1.5), "board.roughness: expected a value in (0, 1]"),
+    (_with("light.position_mm", [0.0, 1.0, 0.0]), "in front of the board (z > 0)"),
+    (_with("views.0.position_mm", [0.0, 1.0, -5.0]), "camera must be in front of the board"),
+    (_with("views.0.fov_deg", 170.0), "fov_deg must be in (0, 170)"),
+    (_with("views.0.fov_deg", 0.0), "fov_deg must be in (0, 170)"),
+    (_with("views", [{"name": "a", "position_mm": [0, 0, 1.0]}] * 2), "duplicate view name 'a'"),
+    (_with("views.0.resolution", [64]), "views[0].resolution: expected a list of 2"),
+    ({"board": {}, "views": BASE["views"]}, "missing required table [light]"),
+    (_with("views.0.name", "a/b"), "not file-name safe"),
+]
+
+
+@pytest.mark.parametrize(("data", "message"), BAD_DESIGNS)
+def test_design_errors_name_file_and_key(data, message):
+    with pytest.raises(ConfigError) as info:
+        design_from_mapping(data, "scene.toml", Path("."))
+    text = str(info.value)
+    assert text.startswith("scene.toml:")
+    assert message in text
+    assert "\n" not in text
+
+
+def test_design_roundtrip_and_polar_view(tmp_path):
+    data = _with(
+        "views",
+        [
+            {
+                "name": "v",
+                "azimuth_deg": 30.0,
+                "elevation_deg": 10.0,
+                "distance_mm": 400.0,
+                "fov_deg": "auto",
+                "target": "cat.png",
+                "resolution": [64, 48],
+            }
+        ],
+    )
+    design = design_from_mapping(data, "scene.toml", tmp_path)
+    view = design.views[0]
+    az, el = math.radians(30), math.radians(10)
+    assert np.allclose(
+        view.position_mm,
+        [400 * math.cos(el) * math.sin(az), 400 * math.sin(el), 400 * math.cos(el) * math.cos(az)],
+    )
+    assert 0 < view.fov < 170
+    out = tmp_path / "resolved.toml"
+    design.save(out)
+    again = load_design(out)
+    assert again.views[0].position_mm == pytest.approx(view.position_mm)
+    assert again.target_path(again.views[0]) == tmp_path / "cat.png"
+    # auto fov: every board corner inside the frame, and not by much
+    cam = Camera.from_view(view)
+    corners = np.array([[sx * 50, sy * 40, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+    st, front = cam.project(corners)
+    assert front.all()
+    assert (st[:, 0] >= 0).all() and (st[:, 0] <= 64).all()
+    assert (st[:, 1] >= 0).all() and (st[:, 1] <= 48).all()
+
+
+def test_camera_matches_spec_and_footprints_tile(small_design):
+    view = small_design.views[0]
+    cam = Camera.from_view(view)
+    # Ray through the image centre goes along f; project() inverts directions().
+    d = cam.directions(np.array(view.width / 2), np.array(view.height / 2))
+    assert np.allclose(d, cam.forward)
+    pts, valid = cam.center_grid()
+    assert valid.all()
+    st, _ = cam.project(np.concatenate([pts, np.zeros(pts.shape[:-1] + (1,))], axis=-1))
+    j, i = np.mgrid[0 : view.height, 0 : view.width]
+    assert np.allclose(st[..., 0], i + 0.5) and np.allclose(st[..., 1], j + 0.5)
+    quads, qvalid = cam.footprints()
+    area = polygon_area(quads)
+    assert qvalid.all() and (area > 0).all()  # counter-clockwise on the board
+    # Footprints tile the image of the frame: total area equals the frame's quadrilateral.
+    corner_pts, _ = cam.corner_grid()
+    frame = np.stack([corner_pts[0, 0], corner_pts[-1, 0], corner_pts[-1, -1], corner_pts[0, -1]])
+    assert area.sum() == pytest.approx(polygon_area(frame), rel=1e-9)
+    # Image top edge is +y on the board, left edge -x (SPEC section 5).
+    assert pts[0, 0, 1] > pts[-1, 0, 1] and pts[0, 0, 0] < pts[0, -1, 0]
+
+
+BAD_ROWS = [
+    ("x0,y0,x1,y1\n1,2,3\n", "line 2: expected 4 values, got 3"),
+    ("x0,y0,x1,y1\n1,2,1,2\n", "line 2: scratch has zero length"),
+    ("x0,y0,x1,y1\n0,0,1,nan\n", "line 2: column y1: expected a finite number"),
+    ("x0,y0,x1,y1\n0,0,1,abc\n", "line 2: column y1: expected a number, got 'abc'"),
+    ("x0,y0,x1,y1\n0,0,1,1\n0,0,60,0\n", "line 3: scratch leaves the board"),
+    ("x0,y0,x1,y1,width,depth\n0,0,1,1,-0.1,0.01\n", "column width: expected a positive size"),
+    ("x0,y0,x2,y1\n", "header must be x0,y0,x1,y1"),
+    ("", "empty file"),
+]
+
+
+@pytest.mark.parametrize(("text", "message"), BAD_ROWS)
+def test_scratch_csv_errors(tmp_path, small_design, text, message):
+    path = tmp_path / "s.csv"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        load_scratches(path, small_design.scratch, small_design.board)
+    assert str(info.value).startswith(str(path))
+    assert message in str(info.value)
+
+
+def test_scratch_csv_roundtrip(tmp_path, small_design, rng):
+    p0 = rng.uniform(-10, 10, (20, 2))
+    s = ScratchSet.from_arrays(p0, p0 + 1.5, rng.uniform(0.05, 0.2, 20), 0.01)
+    s.save(tmp_path / "s.csv", small_design.scratch)
+    back = load_scratches(tmp_path / "s.csv", small_design.scratch, small_design.board)
+    for a, b in [(s.p0, back.p0), (s.p1, back.p1), (s.width, back.width), (s.depth, back.depth)]:
+        assert np.array_equal(a, b)
