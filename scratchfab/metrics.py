@@ -1,0 +1,96 @@
+"""Quality measures that compare boards (SPEC section 7).
+
+All functions take linear images of one view's camera, shape (H, W); a target's NaN
+pixels lie off the board and are ignored.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+
+def board_mask(target: np.ndarray, *others: np.ndarray) -> np.ndarray:
+    """Pixels where ``target`` and every array in ``others`` are finite (the board)."""
+    mask = np.isfinite(target)
+    for other in others:
+        mask &= np.isfinite(other)
+    return mask
+
+
+def exposure(render: np.ndarray, target: np.ndarray) -> float:
+    """The scale s minimising |s R - T|^2 over the board pixels (0 for a black render)."""
+    mask = board_mask(target, render)
+    r = render[mask].astype(np.float64)
+    t = target[mask].astype(np.float64)
+    rr = float(r @ r)
+    return float(r @ t) / rr if rr > 0 else 0.0
+
+
+def psnr(render: np.ndarray, target: np.ndarray) -> float:
+    """PSNR in dB of the exposed render ``s R`` against ``T`` (peak 1)."""
+    mask = board_mask(target, render)
+    s = exposure(render, target)
+    err = s * render[mask].astype(np.float64) - target[mask].astype(np.float64)
+    mse = float(np.mean(err * err)) if err.size else 0.0
+    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
+
+
+def pearson(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Pearson correlation of two images over ``mask`` (0 when either is constant)."""
+    if mask is None:
+        mask = board_mask(a, b)
+    x = a[mask].astype(np.float64)
+    y = b[mask].astype(np.float64)
+    if x.size < 2:
+        return 0.0
+    x = x - x.mean()
+    y = y - y.mean()
+    den = math.sqrt(float(x @ x) * float(y @ y))
+    return float(x @ y) / den if den > 0 else 0.0
+
+
+def quality_report(
+    renders: Mapping[str, np.ndarray],
+    targets: Mapping[str, np.ndarray],
+    cross: Mapping[tuple[str, str], np.ndarray] | None = None,
+) -> dict[str, Any]:
+    """Exposure, PSNR, rho_kk and crosstalk x_kj for every view.
+
+    Args:
+        renders: R_k per view name.
+        targets: T_k per view name (NaN off the board).
+        cross: T_j->k keyed by (k, j): image j as view k's camera sees it. Without it,
+            only the diagonal is reported.
+
+    Returns:
+        ``{"views": {k: {"exposure", "psnr", "rho", "rho_to": {j: rho_kj},
+        "crosstalk": {j: x_kj}}}, "names": [...], "crosstalk_matrix": [[x_kj]]}`` with
+        NaN on the matrix diagonal (crosstalk is defined for j != k only).
+    """
+    names = list(renders)
+    views: dict[str, Any] = {}
+    for k in names:
+        render, target = renders[k], targets[k]
+        mask = board_mask(target, render)
+        entry: dict[str, Any] = {
+            "exposure": exposure(render, target),
+            "psnr": psnr(render, target),
+            "rho": pearson(render, target, mask),
+            "rho_to": {},
+            "crosstalk": {},
+        }
+        for j in names:
+            if j == k or cross is None or (k, j) not in cross:
+                continue
+            other = cross[(k, j)]
+            m = mask & np.isfinite(other)
+            rho_kj = pearson(render, other, m)
+            entry["rho_to"][j] = rho_kj
+            entry["crosstalk"][j] = rho_kj - pearson(target, other, m)
+        views[k] = entry
+    matrix = [[views[k]["crosstalk"].get(j, math.nan) for j in names] for k in names]
+    return {"names": names, "views": views, "crosstalk_matrix": matrix}
