@@ -1,0 +1,140 @@
+"""Pipeline files: a design plus one table of options per stage (SPEC section 5).
+
+Every table is parsed strictly (unknown keys are errors naming the nearest valid key),
+like the design itself.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from scratchfab.model.design import Design, design_from_mapping
+from scratchfab.model.schema import load_toml, parse_table, spec
+
+STAGES = ("design", "optimize", "verify", "toolpath", "export", "stream")
+
+
+@dataclass(frozen=True)
+class PipelineOptions:
+    """``[pipeline]``: the job as a whole, and the design stage's options.
+
+    Attributes:
+        name: Shown in the report.
+        out: Default job folder (relative to the current directory); ``--out`` overrides.
+        fit: How target images meet the board's aspect ("contain" or "cover").
+        seed: Seed of the initial layout.
+        force: Go on when the feasibility check fails.
+    """
+
+    name: str = "scratchfab job"
+    out: str | None = None
+    fit: Literal["contain", "cover"] = "contain"
+    seed: int = 0
+    force: bool = False
+
+
+@dataclass(frozen=True)
+class OptimizeOptions:
+    """``[optimize]``."""
+
+    iterations: int = field(default=200, metadata=spec(ge=0))
+    time_budget_s: float | None = field(default=None, metadata=spec(gt=0))
+    seed: int = 0
+    backend: Literal["llvm", "cuda"] = "llvm"
+    prune: bool = False
+    prune_tolerance: float = field(default=0.01, metadata=spec(ge=0))
+
+
+@dataclass(frozen=True)
+class VerifyOptions:
+    """``[verify]``."""
+
+    spp: int = field(default=64, metadata=spec(gt=0))
+    min_rho: float | None = field(default=0.8, metadata=spec(ge=-1, le=1))
+    sweep: int = field(default=0, metadata=spec(ge=0))
+    sky: bool = False
+    jitter: bool = False
+    backend: Literal["llvm", "cuda"] = "llvm"
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class ToolpathOptions:
+    """``[toolpath]``."""
+
+    machine: str = "grbl-3018-diamond"
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """``[export]``."""
+
+    formats: tuple[Literal["gcode", "dxf", "svg"], ...] = ("gcode", "dxf", "svg")
+
+
+@dataclass(frozen=True)
+class StreamOptions:
+    """``[stream]``: only run when ``port`` is set."""
+
+    port: str | None = None
+    protocol: Literal["counting", "simple"] = "counting"
+    baud: int = field(default=115200, metadata=spec(gt=0))
+    check: bool = False
+
+
+@dataclass(frozen=True)
+class _StageTables:
+    pipeline: PipelineOptions = PipelineOptions()
+    optimize: OptimizeOptions = OptimizeOptions()
+    verify: VerifyOptions = VerifyOptions()
+    toolpath: ToolpathOptions = ToolpathOptions()
+    export: ExportOptions = ExportOptions()
+    stream: StreamOptions = StreamOptions()
+
+
+@dataclass(frozen=True)
+class Pipeline:
+    """A parsed pipeline file."""
+
+    path: Path
+    design: Design
+    pipeline: PipelineOptions
+    optimize: OptimizeOptions
+    verify: VerifyOptions
+    toolpath: ToolpathOptions
+    export: ExportOptions
+    stream: StreamOptions
+
+    def machine_ref(self) -> str:
+        """The toolpath machine: a bundled name, or a path resolved against the pipeline file."""
+        ref = self.toolpath.machine
+        if ref.endswith(".toml") or "/" in ref:
+            candidate = Path(ref)
+            return str(candidate if candidate.is_absolute() else (self.path.parent / candidate))
+        return ref
+
+
+def load_pipeline(path: str | Path) -> Pipeline:
+    """Load and validate a pipeline file (design tables + stage tables).
+
+    Raises:
+        ConfigError: Naming the file and the key on any mistake.
+    """
+    file = Path(path)
+    data = load_toml(file)
+    design = design_from_mapping(data, str(file), file.resolve().parent)
+    stage_data = {k: v for k, v in data.items() if k in _StageTables.__dataclass_fields__}
+    tables = parse_table(_StageTables, stage_data, str(file))
+    return Pipeline(
+        path=file.resolve(),
+        design=design,
+        pipeline=tables.pipeline,
+        optimize=tables.optimize,
+        verify=tables.verify,
+        toolpath=tables.toolpath,
+        export=tables.export,
+        stream=tables.stream,
+    )

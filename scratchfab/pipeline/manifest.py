@@ -1,0 +1,112 @@
+"""The job manifest: which stage ran on which inputs, so unchanged stages are skipped.
+
+``JOB/manifest.json`` records, per stage, a fingerprint of its inputs (file contents,
+plus modification times for the user's own source files such as target images) and
+options, and the outputs it wrote. A stage is up to date when its fingerprint matches
+and its outputs exist; once a stage runs, every stage after it runs too.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from scratchfab.fileio import write_text
+
+MANIFEST_NAME = "manifest.json"
+
+
+def file_digest(path: Path, with_mtime: bool = False) -> str:
+    """SHA-256 of a file's bytes (and its mtime when ``with_mtime``); "missing" if absent."""
+    if not path.is_file():
+        return "missing"
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    if with_mtime:
+        digest.update(str(path.stat().st_mtime_ns).encode())
+    return digest.hexdigest()
+
+
+def _files_under(path: Path) -> list[Path]:
+    if path.is_dir():
+        return sorted(p for p in path.rglob("*") if p.is_file() and not p.name.startswith("."))
+    return [path]
+
+
+def fingerprint(
+    files: Iterable[Path], sources: Iterable[Path] = (), options: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """The inputs of a stage as a JSON-able record.
+
+    Args:
+        files: Files (or folders, taken whole) written by earlier stages: content only.
+        sources: The user's own files (targets, profiles): content and modification time,
+            so that touching one counts as a change.
+        options: The stage's options.
+    """
+    record: dict[str, str] = {}
+    for item in files:
+        for f in _files_under(Path(item)):
+            record[str(f)] = file_digest(f)
+    for item in sources:
+        for f in _files_under(Path(item)):
+            record[str(f)] = file_digest(f, with_mtime=True)
+    return {"files": record, "options": json.loads(json.dumps(options or {}, default=str))}
+
+
+@dataclass
+class Manifest:
+    """The manifest of one job folder."""
+
+    job: Path
+    stages: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    @classmethod
+    def load(cls, job: Path) -> Manifest:
+        """Read ``JOB/manifest.json`` (an empty manifest when absent or unreadable)."""
+        path = job / MANIFEST_NAME
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+            stages = data.get("stages", {}) if isinstance(data, dict) else {}
+        except (OSError, ValueError):
+            stages = {}
+        return cls(job, stages if isinstance(stages, dict) else {})
+
+    def save(self) -> None:
+        """Write the manifest atomically."""
+        write_text(
+            self.job / MANIFEST_NAME,
+            json.dumps({"stages": self.stages}, indent=2, sort_keys=True) + "\n",
+        )
+
+    def is_current(self, stage: str, inputs: Mapping[str, Any]) -> bool:
+        """True when ``stage`` last succeeded on exactly ``inputs`` and its outputs exist."""
+        entry = self.stages.get(stage)
+        if not entry or entry.get("status") != "done" or entry.get("inputs") != inputs:
+            return False
+        return all((self.job / out).exists() for out in entry.get("outputs", []))
+
+    def record(
+        self, stage: str, inputs: Mapping[str, Any], outputs: Iterable[str], seconds: float
+    ) -> None:
+        """Mark ``stage`` done on ``inputs`` with its outputs (relative to the job)."""
+        self.stages[stage] = {
+            "status": "done",
+            "inputs": dict(inputs),
+            "outputs": sorted(outputs),
+            "seconds": round(seconds, 3),
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        }
+        self.save()
+
+    def invalidate(self, stage: str, reason: str) -> None:
+        """Mark ``stage`` as not done (it failed or its inputs changed)."""
+        self.stages[stage] = {"status": "failed", "reason": reason}
+        self.save()
