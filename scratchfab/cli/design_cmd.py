@@ -1,0 +1,83 @@
+"""``scratchfab design``: the click layer over :mod:`scratchfab.design.stage`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from scratchfab.design.quick import parse_resolution, parse_size, quick_design
+from scratchfab.design.stage import run_design
+from scratchfab.errors import ConfigError
+
+
+@click.command("design")
+@click.argument("inputs", nargs=-1, required=True, metavar="DESIGN.toml | IMAGE...")
+@click.option(
+    "--out", "-o", "out", required=True, type=click.Path(file_okay=False), help="Job folder."
+)
+@click.option("--board", default=None, help="Quick form: board size WxH in mm (default 100x100).")
+@click.option(
+    "--fit",
+    type=click.Choice(["contain", "cover"]),
+    default=None,
+    help="Fit images to the board: whole picture (contain) or fill the board (cover).",
+)
+@click.option(
+    "--gamma", type=float, default=1.0, show_default=True, help="Exponent on linear values."
+)
+@click.option(
+    "--contrast", type=float, default=1.0, show_default=True, help="Contrast about the mean."
+)
+@click.option("--count", type=click.IntRange(min=1), default=None, help="Number of scratches.")
+@click.option("--resolution", default=None, help="Camera pixels per view: N or WxH.")
+@click.option("--seed", type=int, default=None, help="Seed of the initial layout (default 0).")
+@click.option("--force", is_flag=True, default=None, help="Go on despite feasibility errors.")
+def design(
+    inputs: tuple[str, ...],
+    out: str,
+    board: str | None,
+    fit: str | None,
+    gamma: float,
+    contrast: float,
+    count: int | None,
+    resolution: str | None,
+    seed: int | None,
+    force: bool | None,
+) -> None:
+    """Turn target images and a scene into a job's design folder.
+
+    Give a design or pipeline file, or (quick form) one image per view:
+
+        scratchfab design cat.png dog.png --board 100x100 --out JOB
+
+    Writes JOB/design/: design.toml, targets/, board/, scratches.csv and the
+    feasibility report; the quick form's design.toml can start the next run.
+    """
+    res = parse_resolution(resolution) if resolution is not None else None
+    toml = [p for p in inputs if p.lower().endswith(".toml")]
+    if toml:
+        if len(inputs) != 1:
+            raise ConfigError("give either one design/pipeline .toml file or image files, not both")
+        if board is not None:
+            raise ConfigError(
+                "--board only applies to the quick form (images); set [board] in the file"
+            )
+        source: object = inputs[0]
+    else:
+        size = parse_size(board, "--board") if board is not None else (100.0, 100.0)
+        source = quick_design([Path(p) for p in inputs], size, count, res)
+        res = None
+    result = run_design(
+        source,  # type: ignore[arg-type]
+        out,
+        force=force or None,
+        fit=fit,
+        gamma=gamma,
+        contrast=contrast,
+        count=count,
+        resolution=res,
+        seed=seed,
+        progress=click.echo,
+    )
+    click.echo(f"design file: {result.design_file}")

@@ -1,0 +1,105 @@
+"""Loading target images: any Pillow format to linear luminance in [0, 1].
+
+EXIF orientation is honoured, colour becomes luminance (Rec. 709 weights on linear
+channels), alpha is composited over black, and sRGB values are decoded with the exact
+piecewise sRGB transfer function (IEC 61966-2-1).
+"""
+
+from __future__ import annotations
+
+import io
+import warnings
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageOps, UnidentifiedImageError
+
+from scratchfab.errors import ConfigError
+
+#: Rec. 709 / sRGB luminance weights of linear R, G, B.
+LUMA_709 = np.array([0.2126, 0.7152, 0.0722])
+
+
+def srgb_to_linear(v: np.ndarray) -> np.ndarray:
+    """Exact sRGB EOTF: encoded values in [0, 1] to linear light."""
+    v = np.asarray(v, dtype=np.float64)
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(v: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`srgb_to_linear` (values clipped to [0, 1] first)."""
+    v = np.clip(np.asarray(v, dtype=np.float64), 0.0, 1.0)
+    return np.where(v <= 0.0031308, v * 12.92, 1.055 * v ** (1 / 2.4) - 0.055)
+
+
+def _open(path: Path) -> Image.Image:
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: image file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, expected an image file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    if not data:
+        raise ConfigError(f"{path}: empty file, expected an image")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            image = Image.open(io.BytesIO(data))
+            image.load()
+            return ImageOps.exif_transpose(image)
+    except UnidentifiedImageError:
+        raise ConfigError(f"{path}: not an image file Pillow can read") from None
+    except (Image.DecompressionBombWarning, Image.DecompressionBombError):
+        raise ConfigError(f"{path}: image is too large (decompression bomb check)") from None
+    except (OSError, ValueError, SyntaxError, EOFError) as exc:
+        raise ConfigError(f"{path}: corrupt or truncated image ({exc})") from None
+
+
+def _high_bit_gray(image: Image.Image) -> np.ndarray | None:
+    """Encoded gray values in [0, 1] of 16-bit / 32-bit integer and float images, else None."""
+    if image.mode.startswith("I;16"):
+        return np.asarray(image, dtype=np.float64) / 65535.0
+    if image.mode == "I":
+        arr = np.asarray(image, dtype=np.float64)
+        # Pillow opens 16-bit grayscale PNGs as "I" in some versions; their range is 16-bit.
+        return arr / (65535.0 if arr.max(initial=0) <= 65535 else float(arr.max()))
+    if image.mode == "F":
+        return np.clip(np.asarray(image, dtype=np.float64), 0.0, 1.0)
+    return None
+
+
+def load_image(path: str | Path) -> np.ndarray:
+    """Read an image file as linear luminance.
+
+    Args:
+        path: Any format Pillow reads (PNG incl. 16-bit and palette, JPEG incl. CMYK,
+            TIFF, WebP, ...).
+
+    Returns:
+        (h, w) float64 array in [0, 1], row 0 at the top of the (upright) picture.
+
+    Raises:
+        ConfigError: One line naming the file when it is missing, unreadable or corrupt.
+    """
+    file = Path(path)
+    image = _open(file)
+    gray = _high_bit_gray(image)
+    if gray is not None:
+        lin = srgb_to_linear(gray)
+    else:
+        has_alpha = image.mode in ("RGBA", "LA", "PA", "RGBa", "La") or (
+            "transparency" in image.info
+        )
+        try:
+            rgba = image.convert("RGBA" if has_alpha else "RGB")
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{file}: cannot convert {image.mode} image to RGB ({exc})") from None
+        arr = np.asarray(rgba, dtype=np.float64) / 255.0
+        lin = srgb_to_linear(arr[..., :3]) @ LUMA_709
+        if has_alpha:
+            lin = lin * arr[..., 3]
+    if lin.ndim != 2 or lin.size == 0:
+        raise ConfigError(f"{file}: image has no pixels")
+    return np.clip(lin, 0.0, 1.0)

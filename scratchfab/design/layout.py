@@ -1,0 +1,301 @@
+"""The initial scratch layout: blue-noise scratches that already show each target.
+
+Each view gets a share of ``scratch.count`` proportional to its target's energy on the
+board. Scratch centres are importance-sampled from the target's brightness (as the
+board shows it to that view) and thinned to blue noise by weighted sample elimination
+(Yuksel, "Sample Elimination for Generating Poisson Disk Sample Sets", 2015) with a
+radius that follows the local density. Each scratch is turned so that its profile's
+normals contain the view's half-vector at its centre (across-direction parallel to
+h_xy, see :mod:`scratchfab.design.feasibility`).
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Mapping
+
+import numpy as np
+from scipy import sparse
+from scipy.spatial import cKDTree
+
+from scratchfab.design.feasibility import (
+    across_directions,
+    board_points,
+    half_vectors,
+    lobe_deg,
+    tilt_deg,
+)
+from scratchfab.errors import ConfigError
+from scratchfab.model.camera import Camera
+from scratchfab.model.design import Board, Design, View
+from scratchfab.model.scratches import ScratchSet
+from scratchfab.render.profile import steepest_wall_deg
+
+#: Candidates drawn per kept scratch before elimination.
+CANDIDATES_PER_SAMPLE = 5
+#: Exponent of the elimination weight (1 - d / 2r)^alpha (Yuksel 2015 uses 8).
+ELIMINATION_ALPHA = 8.0
+#: Density grid points along the board's long side.
+DENSITY_GRID = 256
+
+
+def sample_view_target(target: np.ndarray, view: View, points: np.ndarray) -> np.ndarray:
+    """Brightness the view's target asks for at board points (..., 2), bilinear; 0 off the image."""
+    camera = Camera.from_view(view)
+    p3 = np.concatenate([points, np.zeros(points.shape[:-1] + (1,))], axis=-1)
+    st, in_front = camera.project(p3)
+    img = np.where(np.isfinite(target), target, 0.0)
+    H, W = img.shape
+    u = st[..., 0] - 0.5
+    v = st[..., 1] - 0.5
+    inside = (
+        in_front & (st[..., 0] >= 0) & (st[..., 0] <= W) & (st[..., 1] >= 0) & (st[..., 1] <= H)
+    )
+    u = np.clip(u, 0, W - 1)
+    v = np.clip(v, 0, H - 1)
+    u0 = np.minimum(np.floor(u).astype(np.intp), max(W - 2, 0))
+    v0 = np.minimum(np.floor(v).astype(np.intp), max(H - 2, 0))
+    u1 = np.minimum(u0 + 1, W - 1)
+    v1 = np.minimum(v0 + 1, H - 1)
+    fu = u - u0
+    fv = v - v0
+    val = (
+        img[v0, u0] * (1 - fu) * (1 - fv)
+        + img[v0, u1] * fu * (1 - fv)
+        + img[v1, u0] * (1 - fu) * fv
+        + img[v1, u1] * fu * fv
+    )
+    return np.where(inside, val, 0.0)
+
+
+def split_count(total: int, weights: np.ndarray) -> np.ndarray:
+    """Integers proportional to ``weights`` that sum to ``total`` (largest remainder)."""
+    w = np.asarray(weights, dtype=np.float64)
+    if w.sum() <= 0:
+        w = np.ones_like(w)
+    share = total * w / w.sum()
+    counts = np.floor(share).astype(np.int64)
+    rest = total - int(counts.sum())
+    order = np.argsort(-(share - counts), kind="stable")
+    counts[order[:rest]] += 1
+    return counts
+
+
+def eliminate(points: np.ndarray, radius: np.ndarray, keep: int) -> np.ndarray:
+    """Weighted sample elimination down to ``keep`` points (indices of the kept ones).
+
+    Args:
+        points: (M, 2) candidates.
+        radius: (M,) local Poisson-disk radius of each candidate.
+        keep: How many to keep.
+
+    Returns:
+        Sorted indices of the kept candidates.
+    """
+    m = len(points)
+    if keep >= m:
+        return np.arange(m)
+    tree = cKDTree(points)
+    neighbours = tree.query_ball_point(points, 2.0 * radius)
+    lengths = np.fromiter((len(n) for n in neighbours), dtype=np.int64, count=m)
+    rows = np.repeat(np.arange(m), lengths)
+    cols = np.fromiter((j for n in neighbours for j in n), dtype=np.int64, count=int(lengths.sum()))
+    off = rows != cols
+    rows, cols = rows[off], cols[off]
+    dist = np.linalg.norm(points[rows] - points[cols], axis=1)
+    w = (1.0 - dist / (2.0 * radius[rows])) ** ELIMINATION_ALPHA
+    # weight[i] = sum over neighbours j of w_ij; removing j lowers every i that counts j.
+    weight = np.bincount(rows, weights=w, minlength=m)
+    by_removed = sparse.csr_matrix((w, (cols, rows)), shape=(m, m))
+    indptr, indices, data = by_removed.indptr, by_removed.indices, by_removed.data
+    alive = np.ones(m, dtype=bool)
+    heap = [(-weight[i], i) for i in range(m)]
+    heapq.heapify(heap)
+    remaining = m
+    while remaining > keep:
+        neg, j = heapq.heappop(heap)
+        if not alive[j] or -neg != weight[j]:
+            continue
+        alive[j] = False
+        remaining -= 1
+        for k in range(indptr[j], indptr[j + 1]):
+            i = indices[k]
+            if alive[i]:
+                weight[i] -= data[k]
+                heapq.heappush(heap, (-weight[i], i))
+    return np.flatnonzero(alive)
+
+
+def _length_of(brightness: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """Scratch length for a relative brightness in [0, 1]: brighter places get longer strokes."""
+    return lo + (hi - lo) * np.clip(brightness, 0.0, 1.0)
+
+
+def _room(centre: np.ndarray, direction: np.ndarray, box: tuple[float, float]) -> np.ndarray:
+    """How far each centre can go along ``direction`` before leaving |x| <= X, |y| <= Y."""
+    room = np.full(len(centre), np.inf)
+    for axis, bound in enumerate(box):
+        d = direction[:, axis]
+        gap = np.where(d > 0, bound - centre[:, axis], bound + centre[:, axis])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            room = np.minimum(room, np.where(np.abs(d) > 1e-12, gap / np.abs(d), np.inf))
+    return np.maximum(room - 1e-9, 0.0)
+
+
+def _bright_run(
+    grid: np.ndarray, board: Board, centre: np.ndarray, direction: np.ndarray, limit: np.ndarray
+) -> np.ndarray:
+    """Distance from each centre along ``direction`` while the grid stays at least half as bright."""
+    rows, cols = grid.shape
+    hw, hh = board.half_extent
+    step = 0.5 * min(board.width_mm / cols, board.height_mm / rows)
+    steps = np.arange(1, int(np.ceil(limit.max() / step)) + 2) * step
+    pts = centre[:, None, :] + steps[None, :, None] * direction[:, None, :]
+    c = np.clip(((pts[..., 0] + hw) / board.width_mm * cols).astype(np.intp), 0, cols - 1)
+    r = np.clip(((hh - pts[..., 1]) / board.height_mm * rows).astype(np.intp), 0, rows - 1)
+    c0 = np.clip(((centre[:, 0] + hw) / board.width_mm * cols).astype(np.intp), 0, cols - 1)
+    r0 = np.clip(((hh - centre[:, 1]) / board.height_mm * rows).astype(np.intp), 0, rows - 1)
+    dark = grid[r, c] < 0.5 * grid[r0, c0][:, None]
+    first = np.where(dark.any(axis=1), dark.argmax(axis=1), len(steps))
+    return np.concatenate([[0.0], steps])[first]
+
+
+def view_densities(
+    design: Design, targets: Mapping[str, np.ndarray]
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Board grid points and, per view, the brightness to show there (0 where unreachable).
+
+    Only points whose centre region leaves room for a ``min_length_mm`` scratch inside
+    the margin in every direction count, so every sampled centre can take a scratch.
+    """
+    pts = board_points(design.board, DENSITY_GRID)
+    hw, hh = design.board.half_extent
+    inset = design.board.margin_mm + design.scratch.min_length_mm / 2
+    usable = (np.abs(pts[..., 0]) <= hw - inset) & (np.abs(pts[..., 1]) <= hh - inset)
+    reach = steepest_wall_deg(design.scratch.width_mm, design.scratch.depth_mm) + lobe_deg(
+        design.board.roughness
+    )
+    out: dict[str, np.ndarray] = {}
+    for view in design.views:
+        if view.name not in targets:
+            continue
+        b = sample_view_target(targets[view.name], view, pts)
+        lit = tilt_deg(half_vectors(design, view, pts)) <= reach
+        out[view.name] = np.where(usable & lit, np.clip(b, 0.0, None), 0.0)
+    return pts, out
+
+
+def initial_layout(design: Design, targets: Mapping[str, np.ndarray], seed: int) -> ScratchSet:
+    """Place exactly ``design.scratch.count`` scratches that show each target in its view.
+
+    Args:
+        design: The resolved design.
+        targets: View name -> (H, W) target in that view's camera pixels (NaN off the
+            board), as :func:`scratchfab.design.targets.view_targets` returns.
+        seed: Seed of the random generator.
+
+    Returns:
+        The layout (the views' scratches one after the other, see
+        :func:`layout_by_view`); all lie inside ``board.margin_mm`` with lengths in
+        ``[min_length_mm, max_length_mm]``.
+    """
+    parts = list(layout_by_view(design, targets, seed).values())
+    return ScratchSet(
+        np.concatenate([p.p0 for p in parts]),
+        np.concatenate([p.p1 for p in parts]),
+        np.concatenate([p.width for p in parts]),
+        np.concatenate([p.depth for p in parts]),
+    )
+
+
+def layout_by_view(
+    design: Design, targets: Mapping[str, np.ndarray], seed: int
+) -> dict[str, ScratchSet]:
+    """The initial layout split by the view each scratch is turned for.
+
+    Args:
+        design: The resolved design.
+        targets: View name -> (H, W) target in that view's camera pixels (NaN off the
+            board), as :func:`scratchfab.design.targets.view_targets` returns.
+        seed: Seed of the random generator.
+
+    Returns:
+        View name -> its scratches (possibly none); ``count`` scratches in all.
+    """
+    rng = np.random.default_rng(seed)
+    tool = design.scratch
+    hw, hh = design.board.half_extent
+    if min(hw, hh) - design.board.margin_mm <= tool.min_length_mm / 2:
+        raise ConfigError(
+            f"{design.source}: scratch.min_length_mm ({tool.min_length_mm:g}) does not fit "
+            f"inside the board's margin ({design.board.margin_mm:g} mm)"
+        )
+    pts, dens = view_densities(design, targets)
+    names = list(dens)
+    if not names:
+        raise ValueError("initial_layout needs at least one view with a target")
+    energy = np.array([dens[n].sum() for n in names])
+    if energy.sum() <= 0:
+        # Nothing bright anywhere: spread the scratches evenly over the usable board.
+        hw, hh = design.board.half_extent
+        inset = design.board.margin_mm + tool.min_length_mm / 2
+        flat = ((np.abs(pts[..., 0]) <= hw - inset) & (np.abs(pts[..., 1]) <= hh - inset)).astype(
+            float
+        )
+        dens = {n: flat for n in names}
+        energy = np.ones(len(names))
+    counts = split_count(tool.count, energy)
+    rows, cols = pts.shape[:2]
+    cell = np.array([design.board.width_mm / cols, design.board.height_mm / rows])
+    cell_area = float(cell[0] * cell[1])
+    hw, hh = design.board.half_extent
+    box = (hw - design.board.margin_mm, hh - design.board.margin_mm)
+    inset = design.board.margin_mm + tool.min_length_mm / 2
+    inner = np.array([hw - inset, hh - inset])
+    out: dict[str, ScratchSet] = {}
+    for name, n in zip(names, counts, strict=True):
+        if n == 0:
+            out[name] = ScratchSet.from_arrays(
+                np.zeros((0, 2)), np.zeros((0, 2)), tool.width_mm, tool.depth_mm
+            )
+            continue
+        view = design.view(name)
+        b = dens[name].ravel()
+        rel = b / b.max()
+        length = _length_of(rel, tool.min_length_mm, tool.max_length_mm)
+        # Centre density proportional to brightness / length: the lit area per board
+        # area (scratch count x length x width) then follows the target's brightness.
+        q = np.where(b > 0, rel / length, 0.0)
+        prob = q / q.sum()
+        m = CANDIDATES_PER_SAMPLE * int(n)
+        idx = rng.choice(len(prob), size=m, p=prob)
+        cand = pts.reshape(-1, 2)[idx] + (rng.random((m, 2)) - 0.5) * cell
+        cand = np.clip(cand, -inner, inner)
+        # Local point density n * prob / cell_area -> Poisson-disk radius (Yuksel's r_max).
+        local = n * prob[idx] / cell_area
+        radius = np.sqrt(1.0 / (2.0 * math.sqrt(3.0) * local))
+        kept = eliminate(cand, radius, int(n))
+        centre = cand[kept]
+        rel_c = rel[idx[kept]]
+        h = half_vectors(design, view, centre)
+        across = across_directions(h)
+        along = np.stack([-across[:, 1], across[:, 0]], axis=1)
+        # Each end runs up to half the length, stops where the target turns dark (so
+        # strokes do not bleed past edges), but never makes the scratch shorter than
+        # min_length; centres lie min_length/2 inside the margin, so that always fits.
+        half = _length_of(rel_c, tool.min_length_mm, tool.max_length_mm) / 2
+        ends = []
+        for sign in (-1.0, 1.0):
+            room = _room(centre, sign * along, box)
+            run = _bright_run(
+                dens[name], design.board, centre, sign * along, np.minimum(half, room)
+            )
+            ends.append(np.minimum(room, np.maximum(tool.min_length_mm / 2, np.minimum(half, run))))
+        out[name] = ScratchSet.from_arrays(
+            centre - ends[0][:, None] * along,
+            centre + ends[1][:, None] * along,
+            tool.width_mm,
+            tool.depth_mm,
+        )
+    return out

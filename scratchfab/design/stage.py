@@ -1,0 +1,243 @@
+"""The design stage: images and a scene in, ``JOB/design/`` out (SPEC section 6).
+
+Everything is computed first and written into a temporary folder beside
+``JOB/design``, which then replaces it in one rename, so a failed run leaves the old
+folder (or none) and never half of a new one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scratchfab.design.feasibility import FeasibilityReport, check_feasibility
+from scratchfab.design.layout import initial_layout
+from scratchfab.design.targets import (
+    FITS,
+    board_image,
+    board_image_png,
+    preview_png,
+    quantize_like_png,
+    warp_to_view,
+)
+from scratchfab.errors import ConfigError
+from scratchfab.fileio import save_npy, save_png, write_text
+from scratchfab.model.design import Design, design_from_mapping
+from scratchfab.model.schema import load_toml
+from scratchfab.model.scratches import ScratchSet
+
+Progress = Callable[[str], Any]
+
+
+@dataclass(frozen=True)
+class DesignResult:
+    """What the design stage made.
+
+    Attributes:
+        folder: ``JOB/design``.
+        design: The resolved design as written to ``design.toml`` (its targets are the
+            board-space images in ``JOB/design/board/``).
+        targets: View name -> (H, W) float32 target in camera pixels, NaN off the board.
+        scratches: The initial layout.
+        report: The feasibility report.
+    """
+
+    folder: Path
+    design: Design
+    targets: dict[str, np.ndarray]
+    scratches: ScratchSet
+    report: FeasibilityReport
+
+    @property
+    def design_file(self) -> Path:
+        """``JOB/design/design.toml``."""
+        return self.folder / "design.toml"
+
+
+def _pipeline_defaults(data: dict[str, Any], source: str) -> dict[str, Any]:
+    """The design stage's options from a pipeline file's ``[pipeline]`` table, if any."""
+    table = data.get("pipeline")
+    if table is None:
+        return {}
+    if not isinstance(table, dict):
+        raise ConfigError(f"{source}: pipeline: expected a table")
+    out = {}
+    for key in ("fit", "seed", "force"):
+        if key in table:
+            out[key] = table[key]
+    return out
+
+
+def load_source(
+    source: str | Path | Design,
+    count: int | None = None,
+    resolution: tuple[int, int] | None = None,
+) -> tuple[Design, dict[str, Any]]:
+    """The design to work on, with command-line overrides applied as if written in the file.
+
+    Returns:
+        (design, options from a pipeline file's ``[pipeline]`` table).
+    """
+    if isinstance(source, Design):
+        design = source
+        if count is not None:
+            design = replace(design, scratch=replace(design.scratch, count=count))
+        if resolution is not None:
+            raise ValueError("apply resolution when building a Design, not to a resolved one")
+        return design, {}
+    file = Path(source)
+    data = load_toml(file)
+    if count is not None:
+        data.setdefault("scratch", {})
+        if isinstance(data["scratch"], dict):
+            data["scratch"]["count"] = count
+    if resolution is not None and isinstance(data.get("views"), list):
+        for view in data["views"]:
+            if isinstance(view, dict):
+                view["resolution"] = list(resolution)
+    design = design_from_mapping(data, str(file), file.resolve().parent)
+    return design, _pipeline_defaults(data, str(file))
+
+
+def _origin_comment(design: Design, fit: str, gamma: float, contrast: float, seed: int) -> str:
+    lines = [
+        "# Resolved by `scratchfab design`. Each target is the board-space image made from",
+        f"# the original picture (fit = {fit}, gamma = {gamma:g}, contrast = {contrast:g}),",
+        "# so a run from this file reproduces targets/*.npy; layout seed = " + str(seed) + ".",
+    ]
+    for view in design.views:
+        lines.append(f"# {view.name}: {design.target_path(view)}")
+    return "\n".join(lines) + "\n"
+
+
+def run_design(
+    source: str | Path | Design,
+    out_job: str | Path,
+    force: bool | None = None,
+    fit: str | None = None,
+    gamma: float = 1.0,
+    contrast: float = 1.0,
+    count: int | None = None,
+    resolution: tuple[int, int] | None = None,
+    seed: int | None = None,
+    progress: Progress = print,
+) -> DesignResult:
+    """Run the design stage.
+
+    Args:
+        source: A design or pipeline TOML file (stage tables are skipped; a
+            ``[pipeline]`` table supplies ``fit``, ``seed`` and ``force`` defaults), or a
+            resolved :class:`Design` (the quick form).
+        out_job: The job folder; ``design/`` is (re)written inside it.
+        force: Go on although the feasibility check found errors.
+        fit: ``"contain"`` or ``"cover"`` (default ``"contain"``).
+        gamma: Exponent on the linear target values.
+        contrast: Contrast about the picture's mean (1 = unchanged).
+        count: Overrides ``[scratch] count``.
+        resolution: Overrides every view's ``resolution`` (W, H); file sources only.
+        seed: Seed of the initial layout (default 0).
+        progress: Called with one line per step.
+
+    Raises:
+        ConfigError: One line naming the file and what is wrong; nothing is written.
+    """
+    start = time.perf_counter()
+    design, defaults = load_source(source, count, resolution)
+    fit = fit if fit is not None else str(defaults.get("fit", "contain"))
+    seed = seed if seed is not None else int(defaults.get("seed", 0))
+    force = force if force is not None else bool(defaults.get("force", False))
+    if fit not in FITS:
+        raise ConfigError(f"{design.source}: fit must be one of {', '.join(FITS)}, got {fit!r}")
+    for i, view in enumerate(design.views):
+        if view.target is None:
+            raise ConfigError(f"{design.source}: views[{i}] ('{view.name}'): missing target image")
+
+    boards: dict[str, np.ndarray] = {}
+    cache: dict[Path, np.ndarray] = {}
+    for view in design.views:
+        path = design.target_path(view)
+        assert path is not None
+        if path not in cache:
+            cache[path] = quantize_like_png(board_image(path, design.board, fit, gamma, contrast))
+        boards[view.name] = cache[path]
+    progress(f"  loaded {len(cache)} target image(s)")
+
+    progress(
+        f"design: {len(design.views)} views, {design.scratch.count} scratches on a "
+        f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
+    )
+    report = check_feasibility(design)
+    for line in report.summary_lines():
+        progress(f"  {line}")
+    if not force:
+        report.raise_if_errors(design.source)
+
+    job = Path(out_job).resolve()
+    folder = job / "design"
+    targets: dict[str, np.ndarray] = {}
+    for view in design.views:
+        t0 = time.perf_counter()
+        targets[view.name] = warp_to_view(boards[view.name], design.board, view).astype(np.float32)
+        progress(
+            f"  target '{view.name}' {view.width}x{view.height} warped "
+            f"({time.perf_counter() - t0:.1f} s)"
+        )
+
+    t0 = time.perf_counter()
+    scratches = initial_layout(design, {k: v.astype(np.float64) for k, v in targets.items()}, seed)
+    progress(f"  initial layout: {len(scratches)} scratches ({time.perf_counter() - t0:.1f} s)")
+
+    resolved = design.with_views(
+        tuple(replace(v, target=str(folder / "board" / f"{v.name}.png")) for v in design.views)
+    )
+    resolved = replace(resolved, base_dir=folder, source=str(folder / "design.toml"))
+
+    job.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".design.", suffix=".tmp", dir=job))
+    try:
+        write_text(
+            tmp / "design.toml",
+            _origin_comment(design, fit, gamma, contrast, seed) + resolved.to_toml(),
+        )
+        for view in design.views:
+            save_png(tmp / "board" / f"{view.name}.png", board_image_png(boards[view.name]))
+            save_npy(tmp / "targets" / f"{view.name}.npy", targets[view.name])
+            save_png(tmp / "targets" / f"{view.name}.png", preview_png(targets[view.name]))
+            save_png(tmp / f"feasibility_{view.name}.png", report.map_image(view.name))
+        scratches.save(tmp / "scratches.csv", design.scratch)
+        write_text(tmp / "feasibility.json", json.dumps(report.to_json(), indent=2) + "\n")
+        _replace_folder(tmp, folder)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    progress(f"design: wrote {folder} ({time.perf_counter() - start:.1f} s)")
+    return DesignResult(folder, resolved, targets, scratches, report)
+
+
+def _replace_folder(new: Path, folder: Path) -> None:
+    """Put ``new`` in place of ``folder`` (renames only; the old one is removed after)."""
+    old = None
+    if folder.exists():
+        old = folder.with_name(f".{folder.name}.old.{os.getpid()}")
+        if old.exists():
+            shutil.rmtree(old)
+        os.replace(folder, old)
+    try:
+        os.replace(new, folder)
+    except BaseException:
+        if old is not None:
+            with contextlib.suppress(OSError):
+                os.replace(old, folder)
+        raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)

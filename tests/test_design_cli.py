@@ -1,0 +1,180 @@
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from scratchfab.cli import main
+from scratchfab.design.feasibility import check_feasibility
+from scratchfab.design.quick import quick_design
+from scratchfab.design.stage import run_design
+from scratchfab.design.targets import view_targets
+from scratchfab.model.camera import Camera
+from scratchfab.model.design import load_design
+from scratchfab.model.scratches import load_scratches
+
+ROOT = Path(__file__).resolve().parents[1]
+DEMO = ROOT / "scratchfab" / "data" / "demo"
+
+
+def _run(args, capsys):
+    main(args)
+    return capsys.readouterr().out
+
+
+def _fail(args, capsys) -> str:
+    with pytest.raises(SystemExit) as info:
+        main(args)
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err
+    return err
+
+
+def test_quick_form_writes_a_job_that_the_next_run_can_start_from(tmp_path, capsys):
+    job = tmp_path / "job"
+    args = [str(DEMO / "sun.png"), str(DEMO / "house.png"), "--board", "50x40"]
+    out = _run(
+        ["design", *args, "--count", "400", "--resolution", "40x32", "--out", str(job)], capsys
+    )
+    folder = job / "design"
+    assert f"design file: {folder / 'design.toml'}" in out
+    for rel in (
+        "design.toml",
+        "scratches.csv",
+        "feasibility.json",
+        "feasibility_sun.png",
+        "feasibility_house.png",
+        "targets/sun.npy",
+        "targets/sun.png",
+        "targets/house.npy",
+        "targets/house.png",
+        "board/sun.png",
+        "board/house.png",
+    ):
+        assert (folder / rel).is_file(), rel
+    assert not list(job.glob(".design*"))  # no temporary folders left behind
+    design = load_design(folder / "design.toml")
+    assert design.board.width_mm == 50.0 and design.board.height_mm == 40.0
+    assert design.scratch.count == 400
+    assert [v.resolution for v in design.views] == [(40, 32), (40, 32)]
+    assert all(Path(v.target).is_absolute() for v in design.views)  # type: ignore[arg-type]
+    report = json.loads((folder / "feasibility.json").read_text())
+    assert report["errors"] == [] and report["warnings"] == []
+    layout = load_scratches(folder / "scratches.csv", design.scratch, design.board)
+    assert len(layout) == 400
+    # The resolved design reproduces the targets exactly (a second, independent read of
+    # the board-space PNGs it points to) ...
+    targets = view_targets(design)
+    for name, t in targets.items():
+        saved = np.load(folder / "targets" / f"{name}.npy")
+        assert saved.dtype == np.float32 and saved.shape == (32, 40)
+        np.testing.assert_array_equal(np.isnan(saved), np.isnan(t))
+        np.testing.assert_allclose(saved, t.astype(np.float32), rtol=0, atol=0)
+    # ... and a run from it gives the same job.
+    job2 = tmp_path / "job2"
+    _run(["design", str(folder / "design.toml"), "--out", str(job2)], capsys)
+    assert (job2 / "design" / "scratches.csv").read_text() == (folder / "scratches.csv").read_text()
+    for name in targets:
+        np.testing.assert_array_equal(
+            np.load(job2 / "design" / "targets" / f"{name}.npy"),
+            np.load(folder / "targets" / f"{name}.npy"),
+        )
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_quick_form_places_views_that_see_the_whole_board_and_are_feasible(n):
+    images = [DEMO / "sun.png", DEMO / "house.png", DEMO / "sun.png"][:n]
+    design = quick_design(images, (100.0, 60.0))
+    names = [v.name for v in design.views]
+    assert len(set(names)) == n
+    hw, hh = design.board.half_extent
+    corners = np.array([[x, y, 0.0] for x in (-hw, hw) for y in (-hh, hh)])
+    for view in design.views:
+        st, front = Camera.from_view(view).project(corners)
+        assert np.all(front)
+        assert np.all((st[:, 0] > 0) & (st[:, 0] < view.width))
+        assert np.all((st[:, 1] > 0) & (st[:, 1] < view.height))
+    report = check_feasibility(design)
+    assert report.errors == []
+    assert all(v.reachable_fraction == 1.0 for v in report.views.values())
+
+
+def test_demo_pipeline_designs(tmp_path, capsys):
+    job = tmp_path / "demo"
+    out = _run(["design", str(ROOT / "pipelines" / "demo.toml"), "--out", str(job)], capsys)
+    assert "initial layout: 2000 scratches" in out
+    design = load_design(job / "design" / "design.toml")
+    assert [v.name for v in design.views] == ["sun", "house"]
+    assert np.load(job / "design" / "targets" / "sun.npy").shape == (80, 80)
+
+
+def _toml(tmp_path: Path, extra: str = "", target_b: str = "b.png") -> Path:
+    a = np.zeros((32, 32), np.uint8)
+    a[:, :16] = 255
+    Image.fromarray(a).save(tmp_path / "a.png")
+    Image.fromarray(a.T.copy()).save(tmp_path / "b.png")
+    path = tmp_path / "scene.toml"
+    views = ""
+    for name, target, az in (("a", "a.png", -22.0), ("b", target_b, 22.0)):
+        views += (
+            f'[[views]]\nname = "{name}"\ntarget = "{target}"\nazimuth_deg = {az}\n'
+            'elevation_deg = 0.0\ndistance_mm = 500.0\nfov_deg = "auto"\nresolution = [24, 24]\n'
+        )
+    path.write_text(
+        extra + "[board]\nwidth_mm = 40.0\nheight_mm = 40.0\nmargin_mm = 1.0\n"
+        "[light]\nposition_mm = [0.0, 187.3, 463.6]\n"
+        "[scratch]\ncount = 150\nmin_length_mm = 1.0\nmax_length_mm = 5.0\n" + views
+    )
+    return path
+
+
+def test_file_form_overrides_and_pipeline_options(tmp_path, capsys):
+    toml = _toml(
+        tmp_path, extra='[pipeline]\nfit = "cover"\nseed = 4\n[optimize]\niterations = 3\n'
+    )
+    res = run_design(toml, tmp_path / "j1", count=90, resolution=(20, 16), progress=lambda s: None)
+    assert len(res.scratches) == 90
+    assert res.targets["a"].shape == (16, 20)
+    assert "fit = cover" in (res.folder / "design.toml").read_text()
+    seeded = run_design(
+        toml,
+        tmp_path / "j2",
+        seed=4,
+        fit="cover",
+        count=90,
+        resolution=(20, 16),
+        progress=lambda s: None,
+    )
+    np.testing.assert_array_equal(res.scratches.p0, seeded.scratches.p0)
+    brighter = run_design(toml, tmp_path / "j3", gamma=0.5, progress=lambda s: None)
+    plain = run_design(toml, tmp_path / "j4", progress=lambda s: None)
+    board = np.isfinite(plain.targets["a"])
+    assert brighter.targets["a"][board].mean() >= plain.targets["a"][board].mean()
+
+
+def test_user_errors_are_one_line_and_keep_the_old_job(tmp_path, capsys):
+    toml = _toml(tmp_path)
+    job = tmp_path / "job"
+    _run(["design", str(toml), "--out", str(job)], capsys)
+    before = (job / "design" / "scratches.csv").read_text()
+    err = _fail(["design", str(toml), "--board", "10x10", "--out", str(job)], capsys)
+    assert "--board only applies to the quick form" in err
+    err = _fail(["design", str(DEMO / "sun.png"), "--board", "ten", "--out", str(job)], capsys)
+    assert "--board" in err and "'ten'" in err
+    err = _fail(["design", str(DEMO / "sun.png"), "--resolution", "0x5", "--out", str(job)], capsys)
+    assert "--resolution" in err
+    missing = tmp_path / "missing.toml"
+    missing.write_text(toml.read_text().replace('"b.png"', '"nowhere.png"'))
+    err = _fail(["design", str(missing), "--out", str(job)], capsys)
+    assert "nowhere.png" in err and "not found" in err
+    no_target = tmp_path / "no_target.toml"
+    no_target.write_text(toml.read_text().replace('target = "b.png"\n', ""))
+    err = _fail(["design", str(no_target), "--out", str(job)], capsys)
+    assert "'b'" in err and "missing target" in err
+    # The failed runs left the earlier job as it was.
+    assert (job / "design" / "scratches.csv").read_text() == before
+    assert not list(job.glob(".design*"))

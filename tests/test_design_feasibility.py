@@ -1,0 +1,148 @@
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from scratchfab.cli import main
+from scratchfab.design.feasibility import (
+    arc_distance_deg,
+    check_feasibility,
+    half_vectors,
+    lobe_deg,
+    tilt_deg,
+)
+from scratchfab.errors import ConfigError
+from scratchfab.model.design import design_from_mapping
+from scratchfab.render.profile import solve_wbar
+
+
+def _design(views, light=(0.0, 187.3, 463.6), roughness=0.05):
+    tables = {
+        "board": {"width_mm": 40.0, "height_mm": 40.0, "roughness": roughness, "margin_mm": 1.0},
+        "light": {"position_mm": list(light)},
+        "scratch": {"count": 300, "min_length_mm": 1.0, "max_length_mm": 6.0},
+        "views": [
+            {
+                "name": n,
+                "azimuth_deg": az,
+                "elevation_deg": el,
+                "distance_mm": 500.0,
+                "fov_deg": "auto",
+                "resolution": [32, 32],
+            }
+            for n, az, el in views
+        ],
+    }
+    return design_from_mapping(tables, "scene.toml", Path("."))
+
+
+def test_arc_distance_matches_brute_force_over_profile_normals(rng):
+    # Brute force: every normal n(x) of the dent (SPEC section 3) turned into the scratch's
+    # across-direction, and the smallest angle to h.
+    w, d = 0.05, 0.01
+    wbar = float(solve_wbar(2 * w, d))
+    x = np.linspace(-w, w, 200001)
+    den = wbar**2 + 4 * x**2
+    n_across = -4 * wbar * x / den
+    n_z = (wbar**2 - 4 * x**2) / den
+    steepest = math.degrees(2 * math.atan(2 * w / wbar))
+    for _ in range(40):
+        h = rng.normal(size=3)
+        h[2] = abs(h[2]) + 0.3
+        h /= np.linalg.norm(h)
+        phi = rng.uniform(0, 2 * np.pi)
+        across = np.array([math.cos(phi), math.sin(phi)])
+        normals = np.stack([n_across * across[0], n_across * across[1], n_z], axis=1)
+        brute = np.degrees(np.arccos(np.clip(normals @ h, -1, 1))).min()
+        got = float(arc_distance_deg(h[None], across[None], steepest)[0])
+        assert got == pytest.approx(brute, abs=2e-3)
+
+
+def test_reachability_against_profile_range():
+    design = _design([("a", -22.0, 0.0), ("b", 22.0, 0.0)])
+    report = check_feasibility(design)
+    assert report.ok, report.errors
+    for v in design.views:
+        # At the board's centre |wi + wo| = 2 cos(theta / 2) for the light-camera
+        # angle theta, so the tilt is acos((wi_z + wo_z) / (2 cos(theta / 2))).
+        wi = np.array([0.0, 187.3, 463.6])
+        wo = np.array(v.position_mm)
+        wi, wo = wi / np.linalg.norm(wi), wo / np.linalg.norm(wo)
+        theta = math.acos(wi @ wo)
+        centre_tilt = math.degrees(math.acos((wi[2] + wo[2]) / (2 * math.cos(theta / 2))))
+        h = half_vectors(design, v, np.zeros((1, 2)))
+        assert float(tilt_deg(h)[0]) == pytest.approx(centre_tilt, abs=1e-9)
+        fv = report.views[v.name]
+        assert fv.tilt_min_deg <= centre_tilt <= fv.tilt_max_deg
+        assert fv.reachable_fraction == 1.0
+    assert report.lobe_deg == pytest.approx(math.degrees(math.atan(0.05)))
+    data = json.loads(json.dumps(report.to_json()))
+    assert data["errors"] == [] and len(data["pairs"]) == 2
+
+
+def test_unreachable_view_is_refused_by_name():
+    design = _design([("near", -22.0, 0.0), ("far-away", 75.0, 0.0)])
+    report = check_feasibility(design)
+    assert len(report.errors) == 1
+    assert "'far-away'" in report.errors[0] and "unreachable" in report.errors[0]
+    assert report.views["far-away"].reachable_fraction < 0.5
+    with pytest.raises(ConfigError, match="far-away.*--force"):
+        report.raise_if_errors("scene.toml")
+
+
+def test_duplicate_view_is_refused_naming_both():
+    design = _design([("cat", -22.0, 0.0), ("dog", 22.0, 0.0), ("cat2", -22.0, 0.0)])
+    report = check_feasibility(design)
+    assert len(report.errors) == 1
+    msg = report.errors[0]
+    assert "'cat'" in msg and "'cat2'" in msg and "indistinguishable" in msg
+
+
+def test_mirror_views_with_light_on_axis_are_indistinguishable():
+    # The profile is symmetric: its normals tilt both ways across the scratch, so a
+    # scratch for the left view also lights the mirrored right view when the light sits
+    # straight in front (both half-vectors lean along x, in opposite directions).
+    design = _design([("left", -30.0, 0.0), ("right", 30.0, 0.0)], light=(0.0, 0.0, 500.0))
+    report = check_feasibility(design)
+    assert any("indistinguishable" in e for e in report.errors)
+    pair = report.pairs[0]
+    assert pair.separation_median_deg < lobe_deg(0.05)
+    # Raising the light turns the two half-vectors apart.
+    ok = check_feasibility(_design([("left", -22.0, 0.0), ("right", 22.0, 0.0)]))
+    assert ok.pairs[0].separation_median_deg > 5 * lobe_deg(0.05)
+    assert ok.pairs[0].expected_crosstalk < 1e-2
+
+
+def _png(path: Path) -> Path:
+    Image.new("L", (16, 16), 255).save(path)
+    return path
+
+
+def test_cli_refuses_unless_forced_and_writes_nothing(tmp_path, capsys):
+    a, b = _png(tmp_path / "a.png"), _png(tmp_path / "b.png")
+    toml = tmp_path / "scene.toml"
+    toml.write_text(
+        "[board]\nwidth_mm = 40.0\nheight_mm = 40.0\nmargin_mm = 1.0\n"
+        "[light]\nposition_mm = [0.0, 187.3, 463.6]\n"
+        "[scratch]\ncount = 100\nmin_length_mm = 1.0\nmax_length_mm = 4.0\n"
+        f'[[views]]\nname = "ok"\ntarget = "{a.name}"\nazimuth_deg = -22.0\n'
+        'elevation_deg = 0.0\ndistance_mm = 500.0\nfov_deg = "auto"\nresolution = [24, 24]\n'
+        f'[[views]]\nname = "steep"\ntarget = "{b.name}"\nazimuth_deg = 80.0\n'
+        'elevation_deg = 0.0\ndistance_mm = 500.0\nfov_deg = "auto"\nresolution = [24, 24]\n'
+    )
+    job = tmp_path / "job"
+    with pytest.raises(SystemExit) as info:
+        main(["design", str(toml), "--out", str(job)])
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "'steep'" in err and str(toml) in err
+    assert not (job / "design").exists()
+    main(["design", str(toml), "--out", str(job), "--force"])
+    report = json.loads((job / "design" / "feasibility.json").read_text())
+    assert any("'steep'" in e for e in report["errors"])
+    assert (job / "design" / "feasibility_steep.png").is_file()
