@@ -1,0 +1,146 @@
+"""``scratchfab verify-render``: the independent Mitsuba 3 check before metal is cut."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+from scratchfab.errors import ScratchfabError
+
+
+@click.command("verify-render")
+@click.argument("job", required=False, type=click.Path(path_type=Path))
+@click.option("--design", "design_file", type=click.Path(path_type=Path), help="Design TOML.")
+@click.option(
+    "--scratches", "scratch_file", type=click.Path(path_type=Path), help="Scratch CSV (mm)."
+)
+@click.option(
+    "--out", "out_dir", type=click.Path(path_type=Path), help="Output folder (default JOB/verify)."
+)
+@click.option(
+    "--spp",
+    type=click.IntRange(min=2),
+    default=4096,
+    show_default=True,
+    help="Samples per pixel (two independent halves; their difference gives the noise).",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Sampler and jitter seed.")
+@click.option("--sky", is_flag=True, help="Also render under sun and sky (writes OUT/sky/).")
+@click.option(
+    "--sky-strength",
+    type=click.FloatRange(min=0, min_open=True),
+    default=1.0,
+    show_default=True,
+    help="Sun-and-sky irradiance on the board relative to the design light's.",
+)
+@click.option(
+    "--sun",
+    "sun_direction",
+    type=(float, float, float),
+    default=(0.35, 0.8, 0.5),
+    show_default=True,
+    help="Direction toward the sun (x right, y up, z out of the board).",
+)
+@click.option(
+    "--sweep",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Render N cameras along a path through the views; writes OUT/sweep.gif.",
+)
+@click.option(
+    "--jitter",
+    is_flag=True,
+    help="Re-render with scratches perturbed by the machine's tolerances; report metric drops.",
+)
+@click.option(
+    "--machine",
+    help="Machine profile (bundled name or TOML) giving the jitter's position tolerance.",
+)
+@click.option(
+    "--min-rho",
+    type=click.FloatRange(-1, 1),
+    default=None,
+    help="Exit non-zero (3) when any view's rho_kk is below this.",
+)
+@click.option(
+    "--backend",
+    "--variant",
+    "backend",
+    type=click.Choice(["llvm", "cuda"]),
+    default="llvm",
+    show_default=True,
+    help="Mitsuba variant family: llvm (CPU) or cuda (NVIDIA GPU).",
+)
+def verify_render(
+    job: Path | None,
+    design_file: Path | None,
+    scratch_file: Path | None,
+    out_dir: Path | None,
+    spp: int,
+    seed: int,
+    sky: bool,
+    sky_strength: float,
+    sun_direction: tuple[float, float, float],
+    sweep: int,
+    jitter: bool,
+    machine: str | None,
+    min_rho: float | None,
+    backend: str,
+) -> None:
+    """Render a board in Mitsuba 3 and compare with the analytic render.
+
+    Either JOB (reads JOB/design, JOB/optimize; writes JOB/verify/) or --design FILE
+    --scratches CSV --out DIR. Writes <view>.npy and <view>.png like `render`, and
+    metrics.json: per view the relative L2 error against the analytic render, the noise
+    estimate, PSNR, rho_kk, crosstalk, spp and time.
+    """
+    from scratchfab.model.design import load_design
+    from scratchfab.model.scratches import load_scratches
+    from scratchfab.verify.jitter import Tolerance
+    from scratchfab.verify.scene import Sky
+    from scratchfab.verify.verify import (
+        VerifySettings,
+        design_targets,
+        run_verify,
+        run_verify_job,
+    )
+
+    if machine is not None and not jitter:
+        raise ScratchfabError("--machine only sets the --jitter tolerances; add --jitter")
+    if sum(abs(c) for c in sun_direction) == 0:
+        raise ScratchfabError("--sun: the direction must not be zero")
+    tolerance = None
+    if jitter:
+        tolerance = Tolerance.from_profile(machine) if machine else Tolerance()
+    settings = VerifySettings(
+        spp=spp,
+        seed=seed,
+        backend="cuda" if backend == "cuda" else "llvm",
+        sky=Sky(sun_direction=sun_direction, strength=sky_strength) if sky else None,
+        sweep=sweep,
+        jitter=tolerance,
+        min_rho=min_rho,
+    )
+    start = time.perf_counter()
+
+    def say(line: str) -> None:
+        click.echo(f"  {line}")
+
+    if job is not None:
+        if design_file is not None or scratch_file is not None or out_dir is not None:
+            raise ScratchfabError("give either JOB or --design/--scratches/--out, not both")
+        out = job / "verify"
+        run_verify_job(job, settings, progress=say)
+    else:
+        if design_file is None or scratch_file is None or out_dir is None:
+            raise ScratchfabError("give JOB, or all of --design FILE --scratches CSV --out DIR")
+        design = load_design(design_file)
+        scratches = load_scratches(scratch_file, design.scratch, design.board)
+        targets, cross = design_targets(design)
+        out = out_dir
+        click.echo(f"verifying {len(scratches)} scratches, {len(design.views)} views ({backend})")
+        run_verify(design, scratches, out, settings, targets=targets, cross=cross, progress=say)
+    click.echo(f"wrote {out} in {time.perf_counter() - start:.1f} s")

@@ -1,0 +1,137 @@
+"""A walking viewer: cameras along a path through and around the design views, as a GIF.
+
+The path runs in spherical coordinates about the board centre (azimuth from +z toward
++x, elevation toward +y, distance), through the design views in order of azimuth, and
+goes on beyond the first and last view by a fraction of the whole span, so the
+animation shows each image appear, hold near its own view and fade.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from PIL import Image
+
+from scratchfab.design.images import linear_to_srgb
+from scratchfab.model.design import Design, View
+
+#: Beyond the outermost views the path goes on by this fraction of the views' span.
+EXTEND = 0.5
+#: Azimuth span (degrees) of a sweep around a single view or views on one spot.
+MIN_SPAN_DEG = 30.0
+#: Frames are rendered at most this many pixels along their longer side.
+MAX_SIDE = 192
+#: Percentile of the positive pixels of all frames that maps to white.
+WHITE_PERCENTILE = 99.5
+
+
+@dataclass(frozen=True)
+class SweepFrame:
+    """One camera of the sweep.
+
+    Attributes:
+        view: The frame's camera (named ``frameNNN``, carrying its light).
+        param: Position along the path in degrees of arc from its start.
+    """
+
+    view: View
+    param: float
+
+
+def _polar(p: np.ndarray) -> np.ndarray:
+    x, y, z = p
+    dist = float(np.linalg.norm(p))
+    return np.array([math.atan2(x, z), math.asin(y / dist), dist])
+
+
+def _cartesian(az: float, el: float, dist: float) -> tuple[float, float, float]:
+    return (
+        dist * math.cos(el) * math.sin(az),
+        dist * math.sin(el),
+        dist * math.cos(el) * math.cos(az),
+    )
+
+
+def sweep_path(design: Design, frames: int) -> tuple[list[SweepFrame], dict[str, float]]:
+    """The sweep's cameras and each design view's position along the path.
+
+    Args:
+        design: The design; its views (and their lights) are the path's knots.
+        frames: Number of cameras, at least 2.
+
+    Returns:
+        (frames, {view name: param}) with params in degrees of arc along the path.
+    """
+    views = sorted(design.views, key=lambda v: (_polar(v.camera_position)[0], v.name))
+    knots = np.array([_polar(v.camera_position) for v in views])
+    fovs = np.array([v.fov for v in views])
+    lights = np.array([design.light_for(v) for v in views])
+    steps = np.hypot(np.diff(knots[:, 0]), np.diff(knots[:, 1]))
+    params = np.concatenate([[0.0], np.cumsum(np.degrees(steps))])
+    span = params[-1]
+    if span < 1e-6:
+        # One spot: sweep the azimuth across it.
+        half = math.radians(MIN_SPAN_DEG / 2)
+        knots = np.array([knots[0] - [half, 0, 0], knots[0], knots[0] + [half, 0, 0]])
+        fovs = np.repeat(fovs[:1], 3)
+        lights = np.repeat(lights[:1], 3, axis=0)
+        params = np.array([0.0, MIN_SPAN_DEG / 2, MIN_SPAN_DEG])
+        view_params = {v.name: MIN_SPAN_DEG / 2 for v in views}
+        lo, hi = 0.0, MIN_SPAN_DEG
+    else:
+        # Extend linearly along the end segments.
+        first = (knots[1] - knots[0]) / (params[1] - params[0])
+        last = (knots[-1] - knots[-2]) / (params[-1] - params[-2])
+        ext = EXTEND * span
+        knots = np.vstack([knots[0] - ext * first, knots, knots[-1] + ext * last])
+        fovs = np.concatenate([fovs[:1], fovs, fovs[-1:]])
+        lights = np.vstack([lights[:1], lights, lights[-1:]])
+        params = np.concatenate([[-ext], params, [span + ext]]) + ext
+        view_params = {v.name: float(p) for v, p in zip(views, params[1:-1], strict=True)}
+        lo, hi = 0.0, float(params[-1])
+    res = views[0].resolution
+    scale = min(1.0, MAX_SIDE / max(res))
+    resolution = (max(1, round(res[0] * scale)), max(1, round(res[1] * scale)))
+    out = []
+    for i, t in enumerate(np.linspace(lo, hi, max(frames, 2))):
+        az, el, dist = (float(np.interp(t, params, knots[:, k])) for k in range(3))
+        el = float(np.clip(el, -1.4, 1.4))
+        lx, ly, lz = (float(np.interp(t, params, lights[:, k])) for k in range(3))
+        view = View(
+            name=f"frame{i:03d}",
+            position_mm=_cartesian(az, el, dist),
+            fov_deg=float(np.interp(t, params, fovs)),
+            resolution=resolution,
+            light_position_mm=(lx, ly, lz) if lz > 0 else None,
+        )
+        out.append(SweepFrame(view, float(t)))
+    return out, view_params
+
+
+def nearest_frames(frames: list[SweepFrame], view_params: dict[str, float]) -> dict[str, int]:
+    """Index of the frame nearest each design view along the path."""
+    params = np.array([f.param for f in frames])
+    return {name: int(np.argmin(np.abs(params - p))) for name, p in view_params.items()}
+
+
+def gif_bytes(images: list[np.ndarray], frame_ms: int = 100) -> bytes:
+    """An endlessly looping grey GIF of linear images with one common exposure."""
+    stack = [np.nan_to_num(np.asarray(im, dtype=np.float64), nan=0.0) for im in images]
+    positive = np.concatenate([im[im > 0] for im in stack]) if stack else np.zeros(0)
+    white = float(np.percentile(positive, WHITE_PERCENTILE)) if positive.size else 1.0
+    white = white if white > 0 else 1.0
+    frames = [
+        Image.fromarray(
+            np.round(linear_to_srgb(np.clip(im / white, 0.0, 1.0)) * 255).astype(np.uint8),
+            mode="L",
+        )
+        for im in stack
+    ]
+    buf = io.BytesIO()
+    frames[0].save(
+        buf, format="GIF", save_all=True, append_images=frames[1:], duration=frame_ms, loop=0
+    )
+    return buf.getvalue()
