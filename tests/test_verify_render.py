@@ -1,0 +1,358 @@
+"""verify-render end to end: agreement with the analytic render, sweep, jitter, gate, CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image, ImageSequence
+
+from scratchfab.cli import main
+from scratchfab.design.targets import board_image, warp_to_view
+from scratchfab.metrics import pearson
+from scratchfab.model.design import Design, design_from_mapping, load_design
+from scratchfab.model.scratches import ScratchSet
+from scratchfab.render.layout import write_render_layout
+from scratchfab.render.renderer import render_scratches
+from scratchfab.verify.jitter import Tolerance, jitter_scratches
+from scratchfab.verify.sweep import sweep_path
+from scratchfab.verify.verify import (
+    DEFAULT_SPP,
+    BoardRenderer,
+    VerifySettings,
+    design_targets,
+    relative_l2,
+    run_verify,
+)
+
+SIZE = 12.0  # 12 mm at 32 px: footprints of ~0.4 mm, about four scratch widths
+
+
+def two_view_tables(resolution: int = 32, targets: dict[str, str] | None = None) -> dict:
+    views = []
+    for name, x in (("left", -120.0), ("right", 120.0)):
+        view = {
+            "name": name,
+            "position_mm": [x, 0.0, 300.0],
+            "fov_deg": "auto",
+            "resolution": [resolution, resolution],
+        }
+        if targets:
+            view["target"] = targets[name]
+        views.append(view)
+    return {
+        "board": {"width_mm": SIZE, "height_mm": SIZE, "roughness": 0.05, "margin_mm": 0.5},
+        "light": {"position_mm": [0.0, 150.0, 300.0]},
+        "scratch": {"width_mm": 0.1, "depth_mm": 0.01, "min_length_mm": 0.5},
+        "views": views,
+    }
+
+
+def two_view_design(resolution: int = 32, base: Path = Path("."), targets=None) -> Design:
+    return design_from_mapping(two_view_tables(resolution, targets), "<test>", base)
+
+
+def lit_scratches(
+    design: Design,
+    centres: np.ndarray,
+    view_index: np.ndarray,
+    rng: np.random.Generator,
+    spread_deg: float = 8.0,
+    lengths: tuple[float, float] = (1.0, 4.0),
+) -> ScratchSet:
+    """Scratches whose walls face the half-vector of their view (so they light there)."""
+    p0, p1 = [], []
+    for c, k in zip(centres, view_index, strict=True):
+        view = design.views[int(k)]
+        c3 = np.array([c[0], c[1], 0.0])
+        wi = design.light_for(view) - c3
+        wo = view.camera_position - c3
+        h = wi / np.linalg.norm(wi) + wo / np.linalg.norm(wo)
+        angle = math.atan2(h[1], h[0]) + math.pi / 2 + math.radians(rng.normal(0, spread_deg))
+        half = 0.5 * rng.uniform(*lengths)
+        u = half * np.array([math.cos(angle), math.sin(angle)])
+        p0.append(c - u)
+        p1.append(c + u)
+    lim = SIZE / 2 - 0.5
+    return ScratchSet.from_arrays(
+        np.clip(p0, -lim, lim), np.clip(p1, -lim, lim), design.scratch.width_mm, 0.01
+    )
+
+
+def seeded_board(design: Design, n: int, seed: int) -> ScratchSet:
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-SIZE / 2 + 1, SIZE / 2 - 1, (n, 2))
+    return lit_scratches(design, centres, rng.integers(0, len(design.views), n), rng)
+
+
+def half_board(design: Design, n: int, seed: int) -> ScratchSet:
+    """View 0 sees the left half lit, view 1 the top half."""
+    rng = np.random.default_rng(seed)
+    lim = SIZE / 2 - 1
+    left = np.column_stack([rng.uniform(-lim, 0, n), rng.uniform(-lim, lim, n)])
+    top = np.column_stack([rng.uniform(-lim, lim, n), rng.uniform(0, lim, n)])
+    return lit_scratches(
+        design, np.vstack([left, top]), np.repeat([0, 1], n), rng, lengths=(0.5, 1.5)
+    )
+
+
+def write_targets(folder: Path) -> dict[str, str]:
+    folder.mkdir(parents=True, exist_ok=True)
+    left = np.zeros((64, 64), np.uint8)
+    left[:, :32] = 255
+    top = np.zeros((64, 64), np.uint8)
+    top[:32, :] = 255
+    Image.fromarray(left).save(folder / "left.png")
+    Image.fromarray(top).save(folder / "top.png")
+    return {"left": "left.png", "right": "top.png"}
+
+
+@pytest.fixture(scope="module")
+def half_job(tmp_path_factory):
+    """A design file with targets and the half/half board as a CSV."""
+    root = tmp_path_factory.mktemp("verify")
+    names = write_targets(root)
+    design = two_view_design(base=root, targets=names)
+    design_file = root / "design.toml"
+    design.save(design_file)
+    scratches = half_board(design, 140, seed=3)
+    scratch_file = root / "scratches.csv"
+    scratches.save(scratch_file, design.scratch)
+    return root, load_design(design_file), scratches, design_file, scratch_file
+
+
+def test_verify_agrees_with_the_analytic_render_within_noise():
+    """The acceptance bound: relative L2 <= 2 % at the default spp, consistent with the noise."""
+    design = two_view_design()
+    scratches = seeded_board(design, 90, seed=11)
+    analytic = render_scratches(design, scratches)
+    renderer = BoardRenderer(design, scratches)
+    for i, view in enumerate(design.views):
+        result = renderer.render(view, DEFAULT_SPP, seed=i)
+        ref = analytic[view.name]
+        assert (ref > 0.2 * ref.max()).sum() > 30  # a board that shows something
+        err = relative_l2(result.image, ref)
+        assert 0 < result.noise < 0.02
+        assert err <= 0.02, (view.name, err, result.noise)
+        # What is left beyond the noise is the model difference (h varies over a pixel).
+        assert math.sqrt(max(err**2 - result.noise**2, 0.0)) < 0.01
+
+
+def test_single_scratch_lights_exactly_the_pixels_render_lights():
+    design = two_view_design()
+    rng = np.random.default_rng(2)
+    scratch = lit_scratches(
+        design, np.array([[1.3, -0.7]]), np.array([0]), rng, spread_deg=0.0, lengths=(3, 3)
+    )
+    analytic = render_scratches(design, scratch)["left"]
+    image = BoardRenderer(design, scratch).render(design.views[0], DEFAULT_SPP).image
+    peak = analytic.max()
+    lit_a = analytic > 0.05 * peak
+    lit_v = image > 0.05 * peak
+    clear = (analytic < 0.03 * peak) | (analytic > 0.08 * peak)
+    assert 4 <= lit_a.sum() < 40
+    np.testing.assert_array_equal(lit_a[clear], lit_v[clear])
+    assert np.unravel_index(np.argmax(image), image.shape) == np.unravel_index(
+        np.argmax(analytic), analytic.shape
+    )
+    jj, ii = np.mgrid[: image.shape[0], : image.shape[1]]
+
+    def centroid(img):
+        w = np.where(img > 0.05 * peak, img, 0.0)
+        return np.array([(w * ii).sum(), (w * jj).sum()]) / w.sum()
+
+    assert np.linalg.norm(centroid(image) - centroid(analytic)) < 0.05
+
+
+def test_sweep_frames_nearest_each_view_show_that_views_image(half_job, tmp_path):
+    root, design, scratches, _, _ = half_job
+    targets, cross = design_targets(design)
+    frames_n = 8
+    metrics = run_verify(
+        design,
+        scratches,
+        tmp_path / "out",
+        VerifySettings(spp=256, sweep=frames_n),
+        targets=targets,
+        cross=cross,
+    )
+    gif = Image.open(tmp_path / "out" / "sweep.gif")
+    frames = [np.asarray(f.convert("L"), dtype=np.float64) for f in ImageSequence.Iterator(gif)]
+    assert len(frames) == frames_n == metrics["sweep"]["frames"]
+    path, view_params = sweep_path(design, frames_n)
+    boards = {
+        "left": board_image(root / "left.png", design.board),
+        "right": board_image(root / "top.png", design.board),
+    }
+    nearest = metrics["sweep"]["nearest_frame"]
+    assert set(nearest) == {"left", "right"} and nearest["left"] != nearest["right"]
+    for name, index in nearest.items():
+        frame_view = path[index].view
+        assert frame_view.position_mm != design.view(name).position_mm  # not the view itself
+        corr = {
+            j: pearson(frames[index], warp_to_view(img, design.board, frame_view))
+            for j, img in boards.items()
+        }
+        assert max(corr, key=corr.get) == name, (name, corr)
+        assert corr[name] > 0.5
+
+
+def test_jitter_reports_metric_drops_that_grow_with_the_tolerance(half_job, tmp_path):
+    _, design, scratches, _, _ = half_job
+    targets, cross = design_targets(design)
+    drops = {}
+    for label, tol in (
+        ("tiny", Tolerance(position_mm=1e-6, angle_deg=1e-6, depth_fraction=1e-6)),
+        ("coarse", Tolerance(position_mm=1.0, angle_deg=15.0, depth_fraction=0.5)),
+    ):
+        metrics = run_verify(
+            design,
+            scratches,
+            tmp_path / label,
+            VerifySettings(spp=512, jitter=tol),
+            targets=targets,
+            cross=cross,
+        )
+        jit = metrics["jitter"]
+        assert jit["tolerance"]["position_mm"] == tol.position_mm
+        drops[label] = [jit["views"][v]["rho_drop"] for v in ("left", "right")]
+    assert max(abs(d) for d in drops["tiny"]) < 0.02
+    assert min(drops["coarse"]) > 0.1
+
+
+def test_jitter_moves_scratches_by_the_tolerance():
+    rng = np.random.default_rng(0)
+    base = ScratchSet.from_arrays(
+        rng.uniform(-5, 5, (4000, 2)), rng.uniform(-5, 5, (4000, 2)), 0.1, 0.01
+    )
+    tol = Tolerance(position_mm=0.02, angle_deg=0.5, depth_fraction=0.1)
+    moved = jitter_scratches(base, tol, np.random.default_rng(1))
+    shift = 0.5 * (moved.p0 + moved.p1) - 0.5 * (base.p0 + base.p1)
+    assert np.std(shift) == pytest.approx(0.02, rel=0.05)
+    np.testing.assert_allclose(moved.lengths, base.lengths, rtol=1e-12)
+    a0 = np.arctan2(*(base.p1 - base.p0).T[::-1])
+    a1 = np.arctan2(*(moved.p1 - moved.p0).T[::-1])
+    turn = np.angle(np.exp(1j * (a1 - a0)))
+    assert np.degrees(np.std(turn)) == pytest.approx(0.5, rel=0.05)
+    assert np.std(moved.depth / base.depth) == pytest.approx(0.1, rel=0.05)
+
+
+def test_cli_writes_the_render_layout_and_metrics(half_job, tmp_path):
+    _, design, scratches, design_file, scratch_file = half_job
+    out = tmp_path / "v"
+    targets, _ = design_targets(design)
+    main(
+        [
+            "verify-render",
+            "--design",
+            str(design_file),
+            "--scratches",
+            str(scratch_file),
+            "--out",
+            str(out),
+            "--spp",
+            "1024",
+        ]
+    )
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["names"] == ["left", "right"]
+    analytic = render_scratches(design, scratches)
+    for name in ("left", "right"):
+        img = np.load(out / f"{name}.npy")
+        assert img.dtype == np.float32 and img.shape == (32, 32)
+        assert Image.open(out / f"{name}.png").size == (32, 32)
+        v = metrics["views"][name]
+        assert v["spp"] >= 1024 and v["seconds"] > 0 and 0 < v["noise"] < 0.05
+        assert v["rel_l2"] == pytest.approx(relative_l2(img, analytic[name]), rel=1e-5)
+        rho_analytic = pearson(analytic[name], targets[name])
+        assert v["rho"] > 0.3 and abs(v["rho"] - rho_analytic) < 0.03
+        assert math.isfinite(v["psnr"])
+        other = "right" if name == "left" else "left"
+        assert set(v["crosstalk"]) == {other}
+    assert metrics["crosstalk_matrix"][0][0] is None
+    assert metrics["crosstalk_matrix"][0][1] == metrics["views"]["left"]["crosstalk"]["right"]
+
+
+def test_min_rho_gate_fails_after_writing_everything(half_job, tmp_path, capsys):
+    _, _, _, design_file, scratch_file = half_job
+    out = tmp_path / "gate"
+    args = ["verify-render", "--design", str(design_file), "--scratches", str(scratch_file)]
+    with pytest.raises(SystemExit) as exc:
+        main([*args, "--out", str(out), "--spp", "64", "--min-rho", "0.999"])
+    assert exc.value.code == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: view ") and "--min-rho" in err[0]
+    gate = json.loads((out / "metrics.json").read_text())["gate"]
+    assert gate == {
+        "min_rho": 0.999,
+        "passed": False,
+        "failing": ["left", "right"],
+        "unchecked": [],
+    }
+    main([*args, "--out", str(tmp_path / "pass"), "--spp", "64", "--min-rho", "0.3"])
+    assert json.loads((tmp_path / "pass" / "metrics.json").read_text())["gate"]["passed"]
+
+
+def test_job_mode_compares_with_the_optimize_renders(half_job, tmp_path):
+    _, design, scratches, _, _ = half_job
+    job = tmp_path / "job"
+    design.save(job / "design" / "design.toml")
+    scratches.save(job / "optimize" / "scratches.csv", design.scratch)
+    analytic = render_scratches(design, scratches)
+    write_render_layout(job / "optimize" / "renders", analytic)
+    targets, _ = design_targets(design)
+    for name, t in targets.items():
+        (job / "design" / "targets").mkdir(parents=True, exist_ok=True)
+        np.save(job / "design" / "targets" / f"{name}.npy", t.astype(np.float32))
+    main(["verify-render", str(job), "--spp", "256"])
+    metrics = json.loads((job / "verify" / "metrics.json").read_text())
+    assert metrics["comparison"] == str(job / "optimize" / "renders")
+    for name in ("left", "right"):
+        img = np.load(job / "verify" / f"{name}.npy")
+        assert metrics["views"][name]["rel_l2"] == pytest.approx(
+            relative_l2(img, analytic[name]), rel=1e-5
+        )
+        assert "crosstalk" in metrics["views"][name]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["{tmp}/nope"], "job folder not found"),
+        (["{tmp}", "--design", "{design}"], "not both"),
+        (["--design", "{design}", "--scratches", "{csv}"], "--out DIR"),
+        (["--design", "{design}", "--scratches", "{bad}", "--out", "{tmp}/o"], "line 3"),
+        (
+            ["--design", "{design}", "--scratches", "{csv}", "--out", "{tmp}/o", "--machine", "x"],
+            "--jitter",
+        ),
+        (
+            [
+                "--design",
+                "{design}",
+                "--scratches",
+                "{csv}",
+                "--out",
+                "{tmp}/o",
+                "--jitter",
+                "--machine",
+                "nosuch",
+            ],
+            "machine 'nosuch'",
+        ),
+    ],
+)
+def test_bad_input_is_one_line_and_writes_nothing(half_job, tmp_path, capsys, args, message):
+    _, _, _, design_file, scratch_file = half_job
+    bad = tmp_path / "bad.csv"
+    bad.write_text("x0,y0,x1,y1\n0,0,1,1\n0,0,zero,1\n")
+    fill = {"tmp": tmp_path, "design": design_file, "csv": scratch_file, "bad": bad}
+    with pytest.raises(SystemExit) as exc:
+        main(["verify-render", *[a.format(**fill) for a in args]])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
+    assert not (tmp_path / "o").exists()
