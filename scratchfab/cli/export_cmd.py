@@ -1,0 +1,78 @@
+"""``scratchfab export``: write a toolpath as G-code, DXF or SVG."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from scratchfab.errors import ScratchfabError
+from scratchfab.export import FORMATS, WRITERS, format_for
+from scratchfab.export import export as export_toolpath
+from scratchfab.machine.profile import load_profile
+from scratchfab.toolpath import Toolpath
+
+
+@click.command("export")
+@click.argument("job", required=False, type=click.Path(file_okay=False, path_type=Path))
+@click.option(
+    "--format",
+    "-f",
+    "fmt",
+    type=click.Choice(sorted(WRITERS)),
+    help=f"One of {', '.join(FORMATS)} (default: from -o's extension).",
+)
+@click.option(
+    "--output",
+    "-o",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Output file (default: JOB/export/board.<format>).",
+)
+@click.option(
+    "--toolpath",
+    "toolpath_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="toolpath.json (default: JOB/toolpath/toolpath.json).",
+)
+@click.option(
+    "--machine",
+    "-m",
+    default=None,
+    help="Check and write for this profile instead of the toolpath's own.",
+)
+def export(
+    job: Path | None,
+    fmt: str | None,
+    output: Path | None,
+    toolpath_file: Path | None,
+    machine: str | None,
+) -> None:
+    """Write JOB/export/board.gcode, .dxf or .svg from JOB/toolpath/toolpath.json.
+
+    G-code is checked before anything is written: every coordinate inside the machine's
+    envelope, every line within its length limit.
+    """
+    if toolpath_file is None:
+        if job is None:
+            raise ScratchfabError("give a JOB folder or --toolpath FILE")
+        toolpath_file = job / "toolpath" / "toolpath.json"
+    if output is None:
+        if fmt is None:
+            raise ScratchfabError(f"give --format ({', '.join(FORMATS)}) or -o FILE")
+        if job is None:
+            raise ScratchfabError("give -o FILE (no JOB folder to write into)")
+        output = job / "export" / f"board.{fmt}"
+    name = format_for(output, fmt)
+    tp = Toolpath.load(toolpath_file)
+    profile = load_profile(machine) if machine else None
+    stats = export_toolpath(tp, profile, output, name)
+    if "lines" in stats:
+        box = stats["bbox"]
+        extent = ", ".join(f"{k[0].upper()} {v[0]:g}..{v[1]:g}" for k, v in box.items() if v)
+        detail = (
+            f"{stats['lines']} lines, {stats['bytes']} bytes, "
+            f"longest line {stats['max_line_length']}; {extent}"
+        )
+    else:
+        detail = f"{len(tp)} scratches, {stats['bytes']} bytes"
+    click.echo(f"wrote {output}: {detail}")

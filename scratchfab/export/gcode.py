@@ -1,0 +1,214 @@
+"""G-code for GRBL 1.1 (SPEC section 6; the GRBL facts in shared/references).
+
+What the writer guarantees, because GRBL rejects or misreads anything else:
+
+- units and modes first (``G21 G90 G17 G94``); a feed on the first ``G1`` and wherever
+  it changes (GRBL has no default feed: error 22);
+- only words GRBL 1.1 runs (no ``M6``, no ``G64``: error 20), LF line ends,
+  comments without ``!``, ``?`` or ``~`` (realtime bytes, acted on even inside comments)
+  and lines no longer than the profile's ``max_line_length`` (GRBL: 79, error 11);
+- every coordinate, as written (rounded to ``decimals``), inside the profile's envelope,
+  checked before anything is written; a stroke outside is refused by number;
+- the job ends with the tool up, the spindle or servo off and the tool back at the
+  start position.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scratchfab.errors import ScratchfabError
+from scratchfab.fileio import write_bytes
+from scratchfab.machine.profile import MachineProfile
+from scratchfab.toolpath.plan import Toolpath
+
+_COMMENT_SAFE = re.compile(r"[^A-Za-z0-9 .,:_+=/-]")
+
+
+def fmt(value: float, decimals: int) -> str:
+    """A G-code number: ``decimals`` digits, trailing zeros dropped, never ``-0``."""
+    text = f"{value:.{decimals}f}"
+    if "." in text:
+        text = text.rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text
+
+
+def comment(text: str) -> str:
+    """A ``( ... )`` comment with only harmless characters (no realtime bytes, no parens)."""
+    return "(" + _COMMENT_SAFE.sub(" ", text).strip() + ")"
+
+
+class _Grid:
+    """Writes coordinates rounded to ``decimals``, never outside the envelope.
+
+    A value is rounded to the nearest multiple of 10^-decimals; should that leave the
+    envelope (a value within half a unit of its edge), the nearest multiple inside is
+    written instead.
+    """
+
+    def __init__(self, profile: MachineProfile) -> None:
+        self.dec = profile.gcode.decimals
+        unit = 10.0 ** (-self.dec)
+        env = profile.envelope
+        self.bounds: dict[str, tuple[float, float]] = {}
+        for axis, (lo, hi) in (("X", env.x_mm), ("Y", env.y_mm), ("Z", env.z_mm)):
+            first = math.ceil(lo / unit) - 1
+            while float(fmt(first * unit, self.dec)) < lo:
+                first += 1
+            last = math.floor(hi / unit) + 1
+            while float(fmt(last * unit, self.dec)) > hi:
+                last -= 1
+            if first > last:
+                raise ScratchfabError(
+                    f"envelope {axis.lower()}_mm {[lo, hi]} holds no value with "
+                    f"{self.dec} decimals; nothing written"
+                )
+            self.bounds[axis] = (
+                float(fmt(first * unit, self.dec)),
+                float(fmt(last * unit, self.dec)),
+            )
+
+    def word(self, axis: str, value: float) -> str:
+        lo, hi = self.bounds[axis]
+        q = round(value, self.dec)
+        if q < lo:
+            q = lo
+        elif q > hi:
+            q = hi
+        return f"{axis}{fmt(q, self.dec)}"
+
+
+def check_envelope(strokes: np.ndarray, rows: np.ndarray, profile: MachineProfile) -> None:
+    """Refuse a job that leaves the envelope, before anything is written.
+
+    Raises:
+        ScratchfabError: Naming the first stroke outside (1-based, cut order) and its
+            scratch row, or the profile value (start, Z height) that is outside.
+    """
+    env = profile.envelope
+    pts = strokes.reshape(-1, 2)
+    inside = env.contains_xy(pts)
+    if not np.all(inside):
+        k = int(np.flatnonzero(~inside)[0])
+        s = k // 2
+        x, y = pts[k]
+        raise ScratchfabError(
+            f"stroke {s + 1} (scratch row {int(rows[s]) + 1}) reaches ({x:g}, {y:g}), outside "
+            f"machine '{profile.name}' envelope x {list(env.x_mm)}, y {list(env.y_mm)}; "
+            "nothing written"
+        )
+    if not env.contains_xy(np.asarray(profile.start_mm))[0]:
+        raise ScratchfabError(
+            f"start_mm {list(profile.start_mm)} is outside the envelope; nothing written"
+        )
+    if profile.tool_control.mode != "servo":
+        for key in ("safe_mm", "engrave_mm"):
+            z = getattr(profile.z, key)
+            if not env.z_mm[0] <= z <= env.z_mm[1]:
+                raise ScratchfabError(
+                    f"z.{key} = {z:g} is outside the envelope z {list(env.z_mm)}; nothing written"
+                )
+
+
+def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> list[str]:
+    """The program as lines (without line ends), after the envelope check."""
+    prof = profile or toolpath.profile
+    check_envelope(toolpath.strokes, toolpath.source_rows, prof)
+    grid = _Grid(prof)
+    ctl = prof.tool_control
+    feeds = prof.feeds
+    stats = toolpath.stats
+    lines = [
+        "G21 G90 G17 G94",
+        comment(f"scratchfab toolpath for {prof.name}"),
+        comment(
+            f"{len(toolpath)} strokes, cut {stats.get('cut_length_mm', 0.0):.1f} mm, "
+            f"travel {stats.get('travel_length_mm', 0.0):.1f} mm, "
+            f"about {stats.get('estimated_time_s', 0.0) / 60:.1f} min"
+        ),
+    ]
+    modal_feed: list[float | None] = [None]
+
+    def xy(p: np.ndarray) -> str:
+        return f"{grid.word('X', p[0])} {grid.word('Y', p[1])}"
+
+    def feed_move(words: str, feed: float) -> str:
+        if modal_feed[0] != feed:
+            modal_feed[0] = feed
+            return f"G1 {words} F{fmt(feed, 1)}"
+        return f"G1 {words}"
+
+    def dwell() -> list[str]:
+        return [f"G4 P{fmt(ctl.dwell_s, 3)}"] if ctl.dwell_s > 0 else []
+
+    def travel(p: np.ndarray) -> str:
+        if feeds.travel_mm_min is None:
+            return f"G0 {xy(p)}"
+        return feed_move(xy(p), feeds.travel_mm_min)
+
+    safe = f"G0 {grid.word('Z', prof.z.safe_mm)}"
+    start = np.asarray(prof.start_mm, dtype=np.float64)
+    if ctl.mode == "servo":
+        lines += [ctl.command("off"), *dwell()]
+    else:
+        lines.append(safe)
+        if ctl.mode == "spindle":
+            lines += [ctl.command("on"), *dwell()]
+    lines.append(f"G0 {xy(start)}")
+    for a, b in toolpath.strokes:
+        lines.append(travel(a))
+        if ctl.mode == "servo":
+            lines += [ctl.command("on"), *dwell()]
+        else:
+            lines.append(feed_move(grid.word("Z", prof.z.engrave_mm), feeds.plunge_mm_min))
+        lines.append(feed_move(xy(b), feeds.engrave_mm_min))
+        if ctl.mode == "servo":
+            lines += [ctl.command("off"), *dwell()]
+        else:
+            lines.append(safe)
+    if ctl.mode != "servo":
+        lines.append(ctl.command("off") if ctl.mode == "spindle" else "M5")
+    lines += [travel(start), "M2"]
+    limit = prof.gcode.max_line_length
+    for number, line in enumerate(lines, start=1):
+        if len(line) > limit:
+            raise ScratchfabError(
+                f"G-code line {number} is {len(line)} characters, over the machine's "
+                f"max_line_length {limit}: {line[:40]}...; nothing written"
+            )
+    return lines
+
+
+def gcode_stats(lines: list[str], dec: int) -> dict[str, Any]:
+    """Line count, bytes, longest line and the bounding box of the X/Y/Z words."""
+    text_bytes = sum(len(line) + 1 for line in lines)
+    axes: dict[str, list[float]] = {"X": [], "Y": [], "Z": []}
+    for line in lines:
+        if line.startswith("("):
+            continue
+        for word in line.split():
+            if word[0] in axes:
+                axes[word[0]].append(float(word[1:]))
+    bbox = {f"{axis.lower()}_mm": [min(v), max(v)] if v else None for axis, v in axes.items()}
+    return {
+        "lines": len(lines),
+        "bytes": text_bytes,
+        "max_line_length": max((len(line) for line in lines), default=0),
+        "bbox": bbox,
+        "decimals": dec,
+    }
+
+
+def write_gcode(
+    toolpath: Toolpath, profile: MachineProfile | None, path: str | Path
+) -> dict[str, Any]:
+    """Write the G-code file atomically; returns :func:`gcode_stats` of what was written."""
+    prof = profile or toolpath.profile
+    lines = gcode_lines(toolpath, prof)
+    write_bytes(path, ("\n".join(lines) + "\n").encode("ascii"))
+    return gcode_stats(lines, prof.gcode.decimals)

@@ -1,0 +1,63 @@
+"""The exporters, by file extension: the one place that lists them."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from scratchfab.errors import ScratchfabError
+from scratchfab.export.dxf import write_dxf
+from scratchfab.export.gcode import write_gcode
+from scratchfab.export.svg import write_svg
+from scratchfab.machine.profile import MachineProfile
+from scratchfab.toolpath.plan import Toolpath
+
+Writer = Callable[[Toolpath, MachineProfile | None, str | Path], dict[str, Any]]
+
+#: extension (no dot) -> writer; "nc" is another name for G-code.
+WRITERS: dict[str, Writer] = {
+    "gcode": write_gcode,
+    "nc": write_gcode,
+    "dxf": write_dxf,
+    "svg": write_svg,
+}
+
+#: The formats ``scratchfab export --format`` offers.
+FORMATS = ("gcode", "dxf", "svg")
+
+
+def format_for(path: str | Path, format: str | None = None) -> str:
+    """The format named, or the one the file's extension implies.
+
+    Raises:
+        ScratchfabError: Unknown format or extension.
+    """
+    name = (format or Path(path).suffix.lstrip(".")).lower()
+    if name not in WRITERS:
+        known = ", ".join(sorted(WRITERS))
+        what = f"format '{format}'" if format else f"file extension of {path}"
+        raise ScratchfabError(f"unknown {what}; known: {known}")
+    return name
+
+
+def export(
+    toolpath: Toolpath,
+    profile: MachineProfile | None,
+    path: str | Path,
+    format: str | None = None,
+) -> dict[str, Any]:
+    """Write ``toolpath`` to ``path`` in ``format`` (default: from the extension).
+
+    Args:
+        toolpath: The ordered strokes.
+        profile: The machine (default: the toolpath's own profile).
+        path: The output file (written atomically; nothing is written on error).
+        format: ``gcode``, ``nc``, ``dxf`` or ``svg``.
+
+    Returns:
+        Figures for the report (G-code: lines, bytes, max_line_length, bbox).
+    """
+    name = format_for(path, format)
+    stats = WRITERS[name](toolpath, profile, path)
+    return {"format": name, "path": str(path), **stats}

@@ -1,0 +1,368 @@
+"""Machine profiles: what an engraver can do and where the board sits on it.
+
+A profile is a TOML file parsed strictly into :class:`MachineProfile` (unknown keys are
+rejected with the nearest valid key). Bundled profiles live in
+``scratchfab/data/machine_profiles/<name>.toml``; :func:`load_profile` takes such a name
+or a path. All lengths are millimetres in the machine's work coordinates (what the
+G-code's X, Y and Z words mean), feeds are mm/min, accelerations mm/s^2.
+
+Schema (every table and key; defaults in brackets)::
+
+    name = "GRBL 3018, diamond drag bit"   # free text
+    dialect = "grbl-1.1"                    # the only dialect so far
+    start_mm = [0.0, 0.0]                   # XY where a job starts and ends (tool up)
+
+    [envelope]              # reachable work coordinates, per axis [min, max]
+    x_mm = [-290.0, 0.0]    # GRBL after homing: negative space, -$130 <= X <= 0
+    y_mm = [-170.0, 0.0]    #                                     -$131 <= Y <= 0
+    z_mm = [-40.0, 0.0]     #                                     -$132 <= Z <= 0
+
+    [board]                 # where and how the board lies on the bed
+    origin = "lower-left"   # board corner (after rotation) placed at offset_mm:
+                            # lower-left | lower-right | upper-left | upper-right | center
+    offset_mm = [-250.0, -150.0]
+    rotation_deg = 0        # 0, 90, 180 or 270, counter-clockwise as seen from above
+
+    [z]                     # tool heights (z mode and spindle mode; unused for a servo)
+    safe_mm = 2.0           # travel height
+    engrave_mm = -0.05      # height while cutting
+
+    [feeds]
+    engrave_mm_min = 800.0
+    plunge_mm_min = 200.0
+    travel_mm_min = 3000.0  # [unset] unset: travel with G0 at the machine's max rates;
+                            # set: travel with G1 at this feed (kinder to a servo scribe)
+
+    [motion]                # for the time estimate and for comparing with GRBL's $$
+    max_rate_mm_min = [3000.0, 3000.0, 500.0]   # $110, $111, $112
+    acceleration_mm_s2 = [200.0, 200.0, 50.0]   # $120, $121, $122
+
+    [tool]                  # what the tool cuts (must agree with the design's [scratch])
+    width_mm = 0.1
+    depth_mm = 0.01
+    min_length_mm = 0.5     # shorter (clipped) strokes are dropped
+    tolerance_mm = 0.01     # positional tolerance: duplicate detection, envelope slack 0
+
+    [tool_control]
+    mode = "z"              # "z": Z moves only; "spindle": spindle on for the job, Z moves;
+                            # "servo": no Z, the on/off commands lower and lift the tool
+    on = "M3 S{power}"      # [as shown] template; {power} is replaced by power
+    off = "M5"
+    power = 1000.0
+    dwell_s = 0.0           # G4 pause after each on/off command (servo travel, spin-up)
+
+    [serial]
+    baud = 115200
+    rx_buffer_bytes = 128   # GRBL 1.1: 128
+
+    [gcode]
+    decimals = 3            # digits after the point for X, Y, Z
+    max_line_length = 79    # GRBL 1.1 accepts at most 79 characters per line
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from scratchfab.errors import ConfigError
+from scratchfab.model.schema import load_toml, parse_table, spec, to_table
+
+Range = tuple[float, float]
+Corner = Literal["lower-left", "lower-right", "upper-left", "upper-right", "center"]
+
+_FORBIDDEN_WORDS = ("M6", "G64")
+
+
+def _has_word(upper_line: str, word: str) -> bool:
+    """True if the G-code ``word`` (e.g. ``M6``) occurs with that value (``M06`` too, not ``M60``)."""
+    letter, value = word[0], float(word[1:])
+    for found, number in re.findall(r"([A-Z])([-+]?[0-9.]+)", upper_line):
+        try:
+            if found == letter and float(number) == value:
+                return True
+        except ValueError:
+            continue
+    return False
+
+
+def _number(value: float, decimals: int) -> str:
+    """A G-code number: fixed decimals, trailing zeros and a bare "-0" removed."""
+    text = f"{value:.{decimals}f}"
+    if "." in text:
+        text = text.rstrip("0").rstrip(".")
+    if text in ("-0", ""):
+        text = "0"
+    return text
+
+
+def _check_range(name: str, value: Range) -> None:
+    if not value[0] < value[1]:
+        raise ValueError(f"{name}: expected [min, max] with min < max, got {list(value)}")
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """Reachable work coordinates per axis, [min, max] in mm."""
+
+    x_mm: Range
+    y_mm: Range
+    z_mm: Range = (-1000.0, 1000.0)
+
+    def __post_init__(self) -> None:
+        for name in ("x_mm", "y_mm", "z_mm"):
+            _check_range(name, getattr(self, name))
+
+    @property
+    def max_travel_mm(self) -> tuple[float, float, float]:
+        """Travel per axis (max - min): what GRBL's $130, $131, $132 must at least allow."""
+        return (
+            self.x_mm[1] - self.x_mm[0],
+            self.y_mm[1] - self.y_mm[0],
+            self.z_mm[1] - self.z_mm[0],
+        )
+
+    def contains_xy(self, points: np.ndarray, slack: float = 0.0) -> np.ndarray:
+        """(N,) mask of (N, 2) points inside the XY envelope (closed, widened by ``slack``)."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        return (
+            (p[:, 0] >= self.x_mm[0] - slack)
+            & (p[:, 0] <= self.x_mm[1] + slack)
+            & (p[:, 1] >= self.y_mm[0] - slack)
+            & (p[:, 1] <= self.y_mm[1] + slack)
+        )
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where the board lies: its (rotated) ``origin`` corner at ``offset_mm``."""
+
+    offset_mm: tuple[float, float] = (0.0, 0.0)
+    origin: Corner = "lower-left"
+    rotation_deg: int = 0
+
+    def __post_init__(self) -> None:
+        if self.rotation_deg not in (0, 90, 180, 270):
+            raise ValueError(f"rotation_deg: expected 0, 90, 180 or 270, got {self.rotation_deg}")
+
+
+@dataclass(frozen=True)
+class Heights:
+    """Tool Z heights in mm."""
+
+    safe_mm: float = 2.0
+    engrave_mm: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.safe_mm <= self.engrave_mm:
+            raise ValueError(
+                f"safe_mm ({self.safe_mm}) must be above engrave_mm ({self.engrave_mm})"
+            )
+
+
+@dataclass(frozen=True)
+class Feeds:
+    """Feed rates in mm/min; ``travel_mm_min`` unset means G0 travel."""
+
+    engrave_mm_min: float = field(default=600.0, metadata=spec(gt=0))
+    plunge_mm_min: float = field(default=200.0, metadata=spec(gt=0))
+    travel_mm_min: float | None = field(default=None, metadata=spec(gt=0))
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Per-axis limits as GRBL holds them ($110-$112 and $120-$122)."""
+
+    max_rate_mm_min: tuple[float, float, float] = field(
+        default=(1000.0, 1000.0, 500.0), metadata=spec(gt=0)
+    )
+    acceleration_mm_s2: tuple[float, float, float] = field(
+        default=(10.0, 10.0, 10.0), metadata=spec(gt=0)
+    )
+
+
+@dataclass(frozen=True)
+class Tool:
+    """The cutting tool: the dent it makes and the limits of what it can cut."""
+
+    width_mm: float = field(metadata=spec(gt=0))
+    depth_mm: float = field(metadata=spec(gt=0))
+    min_length_mm: float = field(default=0.5, metadata=spec(ge=0))
+    tolerance_mm: float = field(default=0.01, metadata=spec(gt=0))
+
+
+@dataclass(frozen=True)
+class ToolControl:
+    """How the tool goes down and up."""
+
+    mode: Literal["z", "spindle", "servo"] = "z"
+    on: str = "M3 S{power}"
+    off: str = "M5"
+    power: float = field(default=1000.0, metadata=spec(ge=0))
+    dwell_s: float = field(default=0.0, metadata=spec(ge=0))
+
+    def __post_init__(self) -> None:
+        for name in ("on", "off"):
+            template = getattr(self, name)
+            try:
+                text = template.format(power=_number(self.power, 3))
+            except (KeyError, IndexError, ValueError) as exc:
+                raise ValueError(
+                    f"{name}: bad template {template!r} (only {{power}} may be used): {exc}"
+                ) from None
+            if not text.isascii() or "\n" in text or "\r" in text:
+                raise ValueError(f"{name}: the command must be a single line of ASCII")
+            if any(c in text for c in "!?~"):
+                raise ValueError(f"{name}: '!', '?' and '~' are GRBL realtime commands")
+            upper = text.upper().replace(" ", "")
+            for word in _FORBIDDEN_WORDS:
+                if _has_word(upper, word):
+                    raise ValueError(f"{name}: {word} is not supported by GRBL 1.1 (error 20)")
+
+    def command(self, which: Literal["on", "off"]) -> str:
+        """The on or off command with the power filled in."""
+        return getattr(self, which).format(power=_number(self.power, 3))
+
+
+@dataclass(frozen=True)
+class Serial:
+    """Serial link settings for streaming."""
+
+    baud: int = field(default=115200, metadata=spec(gt=0))
+    rx_buffer_bytes: int = field(default=128, metadata=spec(ge=16))
+
+
+@dataclass(frozen=True)
+class GcodeFormat:
+    """How G-code lines are written."""
+
+    decimals: int = field(default=3, metadata=spec(ge=0, le=6))
+    max_line_length: int = field(default=79, metadata=spec(ge=20))
+
+
+@dataclass(frozen=True)
+class MachineProfile:
+    """A machine profile (see the module docstring for the file format)."""
+
+    envelope: Envelope
+    tool: Tool
+    name: str = "machine"
+    dialect: Literal["grbl-1.1"] = "grbl-1.1"
+    start_mm: tuple[float, float] = (0.0, 0.0)
+    board: Placement = Placement()
+    z: Heights = Heights()
+    feeds: Feeds = Feeds()
+    motion: Motion = Motion()
+    tool_control: ToolControl = ToolControl()
+    serial: Serial = Serial()
+    gcode: GcodeFormat = GcodeFormat()
+    source: str = field(default="<profile>", compare=False, repr=False, init=False)
+
+    def __post_init__(self) -> None:
+        if not self.envelope.contains_xy(np.asarray(self.start_mm))[0]:
+            raise ValueError(
+                f"start_mm {list(self.start_mm)} is outside the envelope "
+                f"x {list(self.envelope.x_mm)}, y {list(self.envelope.y_mm)}"
+            )
+        if self.tool_control.mode != "servo":
+            lo, hi = self.envelope.z_mm
+            for key in ("safe_mm", "engrave_mm"):
+                value = getattr(self.z, key)
+                if not lo <= value <= hi:
+                    raise ValueError(
+                        f"z.{key} ({value}) is outside the envelope's z_mm {list(self.envelope.z_mm)}"
+                    )
+        rates = self.motion.max_rate_mm_min
+        feeds = [("engrave_mm_min", self.feeds.engrave_mm_min, min(rates[0], rates[1]))]
+        feeds.append(("plunge_mm_min", self.feeds.plunge_mm_min, rates[2]))
+        if self.feeds.travel_mm_min is not None:
+            feeds.append(("travel_mm_min", self.feeds.travel_mm_min, min(rates[0], rates[1])))
+        for key, value, limit in feeds:
+            if key == "plunge_mm_min" and self.tool_control.mode == "servo":
+                continue
+            if value > limit:
+                raise ValueError(
+                    f"feeds.{key} ({value:g}) exceeds the machine's max rate ({limit:g} mm/min)"
+                )
+
+    def to_table(self) -> dict[str, Any]:
+        """The profile as plain TOML-ready values (round-trips through :func:`profile_from_mapping`)."""
+        table: dict[str, Any] = to_table(self)
+        return table
+
+    def board_to_machine(self, points: np.ndarray, board_size: tuple[float, float]) -> np.ndarray:
+        """Map (N, 2) board points (SPEC frame, centred on the board) to machine XY.
+
+        The board is turned by ``rotation_deg`` about its centre, then shifted so that its
+        ``origin`` corner lies at ``offset_mm``.
+        """
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        turns = self.board.rotation_deg // 90
+        c, s = [(1, 0), (0, 1), (-1, 0), (0, -1)][turns]
+        rotated = np.stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1]], axis=1)
+        w, h = board_size
+        if turns % 2:
+            w, h = h, w
+        sx, sy = {
+            "lower-left": (1, 1),
+            "lower-right": (-1, 1),
+            "upper-left": (1, -1),
+            "upper-right": (-1, -1),
+            "center": (0, 0),
+        }[self.board.origin]
+        shift = np.array(
+            [self.board.offset_mm[0] + sx * w / 2, self.board.offset_mm[1] + sy * h / 2]
+        )
+        return rotated + shift
+
+    def board_outline(self, board_size: tuple[float, float]) -> np.ndarray:
+        """(4, 2) machine XY of the board corners, counter-clockwise."""
+        hw, hh = board_size[0] / 2, board_size[1] / 2
+        corners = np.array([[-hw, -hh], [hw, -hh], [hw, hh], [-hw, hh]])
+        return self.board_to_machine(corners, board_size)
+
+
+def profile_from_mapping(data: Any, source: str) -> MachineProfile:
+    """Parse a profile table (as read from TOML); errors name ``source`` and the key."""
+    profile = parse_table(MachineProfile, data, source)
+    object.__setattr__(profile, "source", source)
+    return profile
+
+
+def bundled_dir() -> Path:
+    """The folder of the bundled profiles."""
+    return Path(str(resources.files("scratchfab") / "data" / "machine_profiles"))
+
+
+def bundled_profiles() -> list[str]:
+    """Names of the bundled profiles (usable as ``--machine NAME``)."""
+    folder = bundled_dir()
+    if not folder.is_dir():
+        return []
+    return sorted(p.stem for p in folder.glob("*.toml"))
+
+
+def load_profile(name_or_path: str | Path) -> MachineProfile:
+    """Load a bundled profile by name, or any profile file by path.
+
+    Raises:
+        ConfigError: Unknown name, unreadable file, or a key that is wrong (named).
+    """
+    text = str(name_or_path)
+    path = Path(text)
+    looks_like_path = path.suffix == ".toml" or "/" in text or "\\" in text
+    if not looks_like_path:
+        bundled = bundled_dir() / f"{text}.toml"
+        if bundled.is_file():
+            path = bundled
+        elif not path.is_file():
+            names = ", ".join(bundled_profiles()) or "none"
+            raise ConfigError(
+                f"machine '{text}': not a bundled profile (bundled: {names}) nor a file"
+            )
+    return profile_from_mapping(load_toml(path), str(path))

@@ -1,0 +1,199 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import ezdxf
+import numpy as np
+import pytest
+from gcode_interp import GcodeError, cuts, interpret
+
+from scratchfab.errors import ScratchfabError
+from scratchfab.export import export, format_for
+from scratchfab.export.gcode import gcode_lines
+from scratchfab.machine.profile import load_profile, profile_from_mapping
+from scratchfab.model.design import Board
+from scratchfab.model.scratches import ScratchSet
+from scratchfab.toolpath import Toolpath, plan_toolpath
+
+
+def random_scratches(rng: np.random.Generator, n: int, half: float = 20.0) -> ScratchSet:
+    c = rng.uniform(-half + 1, half - 1, (n, 2))
+    th = rng.uniform(0, np.pi, n)
+    ln = rng.uniform(0.8, 6.0, n)
+    u = np.stack([np.cos(th), np.sin(th)], 1) * (ln / 2)[:, None]
+    p0 = np.clip(c - u, -half, half)
+    p1 = np.clip(c + u, -half, half)
+    return ScratchSet.from_arrays(p0, p1, 0.1, 0.01)
+
+
+def spindle_profile():
+    table = load_profile("grbl-3018-diamond").to_table()
+    table["tool_control"] = {"mode": "spindle", "on": "M3 S{power}", "power": 8000, "dwell_s": 1.5}
+    return profile_from_mapping(table, "<spindle>")
+
+
+PROFILES = {
+    "z": lambda: load_profile("grbl-3018-diamond"),
+    "servo": lambda: load_profile("grbl-plotter-scribe"),
+    "spindle": spindle_profile,
+}
+
+
+@pytest.fixture(params=sorted(PROFILES))
+def planned(request, rng):
+    profile = PROFILES[request.param]()
+    board = Board(width_mm=40.0, height_mm=40.0, margin_mm=1.0)
+    return plan_toolpath(random_scratches(rng, 300), board, profile), profile
+
+
+def threshold(profile):
+    if profile.tool_control.mode == "servo":
+        return None
+    return 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
+
+
+def test_gcode_round_trip_cuts_exactly_the_strokes(planned, tmp_path):
+    tp, profile = planned
+    out = tmp_path / "board.gcode"
+    stats = export(tp, None, out)
+    raw = out.read_bytes()
+    assert b"\r" not in raw and raw.endswith(b"\n")
+    text = raw.decode("ascii")
+    lines = text.rstrip("\n").split("\n")
+    assert lines[0] == "G21 G90 G17 G94"
+    assert stats["lines"] == len(lines) and stats["bytes"] == len(raw)
+    assert stats["max_line_length"] == max(map(len, lines)) <= profile.gcode.max_line_length
+    run = interpret(text, profile.gcode.max_line_length)
+    assert {17, 21, 90, 94} <= run.modes_before_motion
+    cutting, other = cuts(run, threshold(profile))
+    got = np.array([[m.start[:2], m.end[:2]] for m in cutting])
+    tol = 0.5 * 10.0**-profile.gcode.decimals + 1e-9
+    assert got.shape == tp.strokes.shape
+    assert np.max(np.abs(got - tp.strokes)) <= tol
+    assert all(m.kind == "G1" and m.feed == profile.feeds.engrave_mm_min for m in cutting)
+    # Tool down only on strokes: every other XY move runs with the tool up.
+    for m in other:
+        if m.start[:2] != m.end[:2]:
+            if threshold(profile) is None:
+                assert not m.spindle
+            else:
+                assert min(m.start[2], m.end[2]) >= profile.z.safe_mm - tol
+    # Ends tool up, spindle/servo off, at the start position.
+    assert run.ended and not run.spindle_at_end
+    assert run.final_position is not None
+    assert np.allclose(run.final_position[:2], profile.start_mm, atol=tol)
+    if threshold(profile) is not None:
+        assert run.final_position[2] == pytest.approx(profile.z.safe_mm)
+    box = stats["bbox"]
+    env = profile.envelope
+    assert env.x_mm[0] <= box["x_mm"][0] and box["x_mm"][1] <= env.x_mm[1]
+    assert env.y_mm[0] <= box["y_mm"][0] and box["y_mm"][1] <= env.y_mm[1]
+
+
+def test_gcode_estimate_matches_interpreted_moves(planned, tmp_path):
+    from scratchfab.toolpath.timing import move_times
+
+    tp, profile = planned
+    run = interpret("\n".join(gcode_lines(tp)) + "\n")
+    motion = profile.motion
+    total = sum(d for d in run.dwells)
+    for m in run.moves:
+        delta = np.nan_to_num(np.subtract(m.end, m.start))
+        feed = m.feed if m.feed is not None else np.inf
+        total += float(
+            move_times(delta[None], feed, motion.max_rate_mm_min, motion.acceleration_mm_s2)[0]
+        )
+    # The interpreter starts recording once X and Y are known: at the start position.
+    assert np.allclose(run.moves[0].start[:2], profile.start_mm)
+    assert tp.stats["estimated_time_s"] == pytest.approx(total, rel=1e-4)  # G-code is rounded
+
+
+def test_gcode_refuses_stroke_outside_envelope_and_writes_nothing(planned, tmp_path):
+    tp, profile = planned
+    strokes = tp.strokes.copy()
+    strokes[5, 1] = [profile.envelope.x_mm[1] + 1.0, strokes[5, 1, 1]]
+    bad = Toolpath(strokes, tp.source_rows, tp.board_mm, tp.outline, profile, tp.stats)
+    out = tmp_path / "board.gcode"
+    with pytest.raises(ScratchfabError, match=r"stroke 6 \(scratch row"):
+        export(bad, None, out)
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_gcode_refuses_overlong_lines(planned, tmp_path):
+    tp, profile = planned
+    table = profile.to_table()
+    table["gcode"]["max_line_length"] = 20
+    narrow = profile_from_mapping(table, "<narrow>")
+    with pytest.raises(ScratchfabError, match="max_line_length 20"):
+        export(tp, narrow, tmp_path / "x.gcode")
+    assert not (tmp_path / "x.gcode").exists()
+
+
+def test_interpreter_catches_what_grbl_refuses():
+    with pytest.raises(GcodeError) as err:
+        interpret("G21 G90\nG1 X1 Y1\n")
+    assert err.value.code == 22
+    with pytest.raises(GcodeError) as err:
+        interpret("G21 G90\nT1 M6\n")
+    assert err.value.code == 20
+    with pytest.raises(GcodeError):
+        interpret("G21 G90\n(pause!)\n")
+
+
+def test_dxf_reads_back_with_ezdxf(planned, tmp_path):
+    tp, _ = planned
+    out = tmp_path / "board.dxf"
+    export(tp, None, out, "dxf")
+    doc = ezdxf.readfile(out)
+    assert doc.units == ezdxf.units.MM
+    assert not doc.audit().has_errors
+    msp = doc.modelspace()
+    assert {e.dxftype() for e in msp} == {"LINE"}
+    lines = [e for e in msp if e.dxf.layer == "SCRATCHES"]
+    got = np.array([[tuple(e.dxf.start)[:2], tuple(e.dxf.end)[:2]] for e in lines])
+    assert np.allclose(got, tp.strokes, atol=1e-9)
+    outline = [e for e in msp if e.dxf.layer == "BOARD"]
+    corners = np.array([tuple(e.dxf.start)[:2] for e in outline])
+    assert np.allclose(corners, tp.outline, atol=1e-9)
+
+
+def test_svg_reads_back_with_svgelements(planned, tmp_path):
+    svgelements = pytest.importorskip("svgelements")
+    tp, _ = planned
+    out = tmp_path / "board.svg"
+    export(tp, None, out)
+    svg = svgelements.SVG.parse(str(out), ppi=25.4)  # 1 px = 1 mm
+    groups = {g.id: g for g in svg.elements() if isinstance(g, svgelements.Group) and g.id}
+    assert {"board", "scratches"} <= set(groups)
+    segs = []
+    for el in groups["scratches"].select():
+        if isinstance(el, svgelements.SimpleLine):
+            segs.append([[el.x1, -el.y1], [el.x2, -el.y2]])
+    got = np.array(segs)
+    # The viewBox is mapped onto the page: undo the translation the reader applied.
+    offset = got.reshape(-1, 2).min(axis=0) - tp.strokes.reshape(-1, 2).min(axis=0)
+    assert np.allclose(got - offset * [1, 1], tp.strokes, atol=1e-5)
+    assert len(list(groups["board"].select(lambda e: isinstance(e, svgelements.SimpleLine)))) == 4
+
+
+def test_svg_reads_back_with_vpype(planned, tmp_path):
+    vp = pytest.importorskip("vpype")
+    tp, _ = planned
+    out = tmp_path / "board.svg"
+    export(tp, None, out)
+    doc = vp.read_multilayer_svg(str(out), quantization=0.01)
+    assert len(doc.layers) == 2
+    px = 96.0 / 25.4
+    scratches = doc.layers[2]
+    got = np.array([[[ln[0].real, -ln[0].imag], [ln[-1].real, -ln[-1].imag]] for ln in scratches])
+    got = got / px
+    offset = got.reshape(-1, 2).min(axis=0) - tp.strokes.reshape(-1, 2).min(axis=0)
+    assert np.allclose(got - offset, tp.strokes, atol=1e-4)
+
+
+def test_format_registry():
+    assert format_for(Path("a.NC")) == "nc"
+    assert format_for(Path("a.gcode")) == "gcode"
+    assert format_for(Path("a.txt"), "svg") == "svg"
+    with pytest.raises(ScratchfabError, match="unknown file extension"):
+        format_for(Path("a.pdf"))

@@ -1,0 +1,130 @@
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+from shapely import affinity
+
+from scratchfab.errors import ConfigError
+from scratchfab.machine.profile import (
+    bundled_dir,
+    bundled_profiles,
+    load_profile,
+    profile_from_mapping,
+)
+from scratchfab.model.schema import load_toml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def base_table() -> dict:
+    return load_profile("grbl-3018-diamond").to_table()
+
+
+def test_bundled_profiles_load_and_round_trip():
+    names = bundled_profiles()
+    assert {"grbl-3018-diamond", "grbl-plotter-scribe"} <= set(names)
+    for name in names:
+        profile = load_profile(name)
+        assert profile.dialect == "grbl-1.1"
+        assert profile_from_mapping(profile.to_table(), "<again>") == profile
+        assert load_profile(bundled_dir() / f"{name}.toml") == profile
+    assert load_profile("grbl-plotter-scribe").tool_control.mode == "servo"
+    assert load_profile("grbl-3018-diamond").tool_control.mode == "z"
+
+
+def test_repo_root_copies_match_the_bundled_files():
+    root = sorted((ROOT / "machine_profiles").glob("*.toml"))
+    assert [p.stem for p in root] == bundled_profiles()
+    for path in root:
+        assert path.read_bytes() == (bundled_dir() / path.name).read_bytes()
+    assert (ROOT / "machine_profiles" / "README.md").is_file()
+
+
+def test_envelope_fields_for_grbl_settings():
+    p = load_profile("grbl-3018-diamond")
+    assert p.envelope.max_travel_mm == (300.0, 180.0, 45.0)
+    assert p.serial.baud == 115200 and p.serial.rx_buffer_bytes == 128
+    assert p.gcode.max_line_length <= 79
+    assert len(p.motion.max_rate_mm_min) == 3 and len(p.motion.acceleration_mm_s2) == 3
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "message"),
+    [
+        ("tool.widht_mm", 0.1, "did you mean 'width_mm'"),
+        ("feeds.engrave_mm_min", -5.0, "feeds.engrave_mm_min"),
+        ("board.rotation_deg", 45, "rotation_deg"),
+        ("board.origin", "middle", "board.origin"),
+        ("start_mm", [10.0, 10.0], "start_mm"),
+        ("z.engrave_mm", -50.0, "z.engrave_mm"),
+        ("z.safe_mm", -31.0, "safe_mm"),
+        ("feeds.engrave_mm_min", 5000.0, "max rate"),
+        ("envelope.x_mm", [0.0, -10.0], "x_mm"),
+        ("tool_control.on", "T1 M6", "M6"),
+        ("tool_control.off", "M5 (stop!)", "realtime"),
+        ("tool_control.on", "M3 S{speed}", "template"),
+        ("dialect", "marlin", "dialect"),
+    ],
+)
+def test_bad_profiles_name_the_key(path, value, message):
+    table = copy.deepcopy(base_table())
+    node = table
+    keys = path.split(".")
+    for k in keys[:-1]:
+        node = node[k]
+    node[keys[-1]] = value
+    with pytest.raises(ConfigError, match="my.toml") as err:
+        profile_from_mapping(table, "my.toml")
+    assert message in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_unknown_name_lists_bundled(tmp_path):
+    with pytest.raises(ConfigError, match="grbl-3018-diamond"):
+        load_profile("no-such-machine")
+    bad = tmp_path / "m.toml"
+    bad.write_text("name = 'x'\n[envelope]\nx_mm = [0, 1]\ny_mm = [0, 1]\n")
+    with pytest.raises(ConfigError, match="tool: missing required key"):
+        load_profile(bad)
+    table = load_toml(bundled_dir() / "grbl-plotter-scribe.toml")
+    assert profile_from_mapping(table, "x").feeds.travel_mm_min == 4000.0
+
+
+@pytest.mark.parametrize("rotation", [0, 90, 180, 270])
+@pytest.mark.parametrize(
+    "origin", ["lower-left", "lower-right", "upper-left", "upper-right", "center"]
+)
+def test_board_placement_matches_shapely(rotation, origin):
+    table = base_table()
+    table["board"] = {"origin": origin, "offset_mm": [-150.0, -90.0], "rotation_deg": rotation}
+    p = profile_from_mapping(table, "<t>")
+    w, h = 60.0, 30.0
+    rng = np.random.default_rng(rotation)
+    pts = rng.uniform([-w / 2, -h / 2], [w / 2, h / 2], (20, 2))
+    # Reference: rotate with shapely about the board centre, then move the named corner.
+    board = shapely.box(-w / 2, -h / 2, w / 2, h / 2)
+    turned = affinity.rotate(board, rotation, origin=(0, 0))
+    minx, miny, maxx, maxy = turned.bounds
+    anchor = {
+        "lower-left": (minx, miny),
+        "lower-right": (maxx, miny),
+        "upper-left": (minx, maxy),
+        "upper-right": (maxx, maxy),
+        "center": (0.0, 0.0),
+    }[origin]
+    dx, dy = -150.0 - anchor[0], -90.0 - anchor[1]
+    ref = [
+        affinity.translate(affinity.rotate(shapely.Point(q), rotation, origin=(0, 0)), dx, dy)
+        for q in pts
+    ]
+    want = np.array([[r.x, r.y] for r in ref])
+    assert np.allclose(p.board_to_machine(pts, (w, h)), want, atol=1e-9)
+    outline = shapely.Polygon(p.board_outline((w, h)))
+    assert outline.is_valid and outline.exterior.is_ccw
+    assert outline.equals_exact(affinity.translate(turned, dx, dy).normalize(), 1e-9) or (
+        outline.symmetric_difference(affinity.translate(turned, dx, dy)).area < 1e-9
+    )

@@ -1,0 +1,312 @@
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+from PIL import Image
+
+from scratchfab.cli import main
+from scratchfab.errors import ScratchfabError
+from scratchfab.machine.profile import load_profile, profile_from_mapping
+from scratchfab.model.design import Board, ScratchTool
+from scratchfab.model.scratches import ScratchSet
+from scratchfab.toolpath import OrderOptions, Toolpath, order_strokes, plan_toolpath
+from scratchfab.toolpath.geometry import clip_strokes, merge_collinear
+from scratchfab.toolpath.order import tour_travel
+from scratchfab.toolpath.timing import move_times, trapezoid_time
+
+
+def random_segments(rng, n, half=50.0, lo=1.0, hi=12.0):
+    c = rng.uniform(-half + hi / 2, half - hi / 2, (n, 2))
+    th = rng.uniform(0, np.pi, n)
+    ln = rng.uniform(lo, hi, n)
+    u = np.stack([np.cos(th), np.sin(th)], 1) * (ln / 2)[:, None]
+    return c - u, c + u
+
+
+def naive_travel(p0, p1, order, reverse, start):
+    pos = np.asarray(start, float)
+    total = 0.0
+    for k, r in zip(order, reverse, strict=True):
+        a, b = (p1[k], p0[k]) if r else (p0[k], p1[k])
+        total += math.dist(pos, a)
+        pos = b
+    return total + math.dist(pos, start)
+
+
+def naive_greedy(p0, p1, start):
+    """O(N^2) nearest-endpoint greedy with reversal, from ``start``."""
+    left = set(range(len(p0)))
+    pos = np.asarray(start, float)
+    order, rev = [], []
+    while left:
+        best = None
+        for k in left:
+            for r, a in ((False, p0[k]), (True, p1[k])):
+                d = math.dist(pos, a)
+                if best is None or d < best[0]:
+                    best = (d, k, r)
+        _, k, r = best
+        left.remove(k)
+        order.append(k)
+        rev.append(r)
+        pos = p0[k] if r else p1[k]
+    return np.array(order), np.array(rev)
+
+
+def test_order_is_a_permutation_and_travel_is_right(rng):
+    p0, p1 = random_segments(rng, 400)
+    start = (-60.0, -60.0)
+    res = order_strokes(p0, p1, start)
+    assert sorted(res.order.tolist()) == list(range(400))
+    assert res.travel_mm == pytest.approx(naive_travel(p0, p1, res.order, res.reverse, start))
+    assert res.travel_input_mm == pytest.approx(
+        naive_travel(p0, p1, np.arange(400), np.zeros(400, bool), start)
+    )
+    assert res.travel_mm <= res.travel_greedy_mm < res.travel_input_mm
+
+
+def test_greedy_step_matches_brute_force(rng):
+    p0, p1 = random_segments(rng, 150)
+    start = (55.0, -55.0)
+    res = order_strokes(p0, p1, start, OrderOptions(passes=0, neighbours=4))
+    order, rev = naive_greedy(p0, p1, start)
+    assert res.travel_greedy_mm == pytest.approx(naive_travel(p0, p1, order, rev, start))
+    assert np.array_equal(res.order, order) and np.array_equal(res.reverse, rev)
+
+
+def test_local_search_is_near_optimal_on_tiny_sets(rng):
+    from itertools import permutations, product
+
+    worst = 0.0
+    for _ in range(6):
+        p0, p1 = random_segments(rng, 5, half=20.0)
+        start = (0.0, -30.0)
+        best = min(
+            naive_travel(p0, p1, np.array(o), np.array(r), start)
+            for o in permutations(range(5))
+            for r in product([False, True], repeat=5)
+        )
+        got = order_strokes(p0, p1, start).travel_mm
+        assert got >= best - 1e-9
+        worst = max(worst, got / best)
+    assert worst < 1.15
+
+
+def test_never_worse_than_input_order():
+    # Already optimal in input order: a row of strokes leading away from the start and back.
+    xs = np.arange(10.0)
+    p0 = np.stack([xs, np.zeros(10)], 1)
+    p1 = p0 + [0.5, 0.0]
+    res = order_strokes(p0, p1, (-0.5, 0.0))
+    assert res.travel_mm <= res.travel_input_mm + 1e-12
+    assert res.travel_mm == pytest.approx(tour_travel(p0, p1, np.array([-0.5, 0.0])))
+
+
+def test_clip_against_dense_sampling(rng):
+    region = shapely.box(-10, -5, 10, 5)
+    p0 = rng.uniform(-15, 15, (300, 2))
+    p1 = rng.uniform(-15, 15, (300, 2))
+    keep, q0, q1 = clip_strokes(p0, p1, region)
+    t = np.linspace(0, 1, 20001)
+    for k in range(300):
+        pts = p0[k] + t[:, None] * (p1[k] - p0[k])
+        inside = (np.abs(pts[:, 0]) <= 10) & (np.abs(pts[:, 1]) <= 5)
+        length = np.linalg.norm(p1[k] - p0[k]) * inside.mean()
+        if k in keep:
+            j = int(np.flatnonzero(keep == k)[0])
+            assert np.linalg.norm(q1[j] - q0[j]) == pytest.approx(length, abs=2e-3 * 30)
+            assert np.dot(q1[j] - q0[j], p1[k] - p0[k]) > 0
+            for q in (q0[j], q1[j]):
+                assert abs(q[0]) <= 10 + 1e-9 and abs(q[1]) <= 5 + 1e-9
+        else:
+            assert length < 2e-3 * 30
+
+
+def test_merge_collinear_duplicates():
+    tol = 0.01
+    p0 = np.array(
+        [
+            [0.0, 0.0],  # A
+            [3.0, 0.004],  # overlaps A, within tolerance
+            [5.0, 0.0],  # collinear with A..B, touching B's end -> same group
+            [20.0, 0.0],  # collinear but far away -> alone
+            [0.0, 1.0],  # parallel, 1 mm off -> alone
+            [4.0, -0.003],  # reversed duplicate inside A..B
+        ]
+    )
+    p1 = np.array([[4.0, 0.0], [6.0, 0.004], [8.0, 0.0], [22.0, 0.0], [4.0, 1.0], [1.0, -0.003]])
+    q0, q1, groups = merge_collinear(p0, p1, tol)
+    assert len(q0) == 3
+    merged = [g for g in groups if len(g) > 1]
+    assert len(merged) == 1 and sorted(merged[0].tolist()) == [0, 1, 2, 5]
+    k = [i for i, g in enumerate(groups) if len(g) > 1][0]
+    ends = sorted([q0[k][0], q1[k][0]])
+    assert ends[0] == pytest.approx(0.0, abs=tol) and ends[1] == pytest.approx(8.0, abs=tol)
+    singles = sorted(int(g[0]) for g in groups if len(g) == 1)
+    assert singles == [3, 4]
+
+
+def test_trapezoid_matches_quadrature():
+    from scipy.integrate import quad
+
+    for length, feed, accel in [(50.0, 600.0, 100.0), (0.3, 600.0, 100.0), (5.0, 3000.0, 20.0)]:
+        vmax = feed / 60
+
+        def slowness(x, vmax=vmax, accel=accel, length=length):
+            # Fastest speed profile at x: accelerate from rest, cruise, brake to rest.
+            return 1.0 / min(vmax, math.sqrt(2 * accel * x), math.sqrt(2 * accel * (length - x)))
+
+        half = length / 2
+        want = quad(slowness, 0, half, limit=200)[0] + quad(slowness, half, length, limit=200)[0]
+        assert trapezoid_time(length, vmax, accel) == pytest.approx(want, rel=1e-6)
+        got = move_times(np.array([[length, 0.0, 0.0]]), feed, (1e9, 1e9, 1e9), (accel, 1, 1))
+        assert got[0] == pytest.approx(want, rel=1e-6)
+    # Diagonal move: each axis keeps its own limit.
+    d = np.array([[3.0, 4.0, 0.0]])
+    t = move_times(d, np.inf, (600.0, 300.0, 100.0), (100.0, 50.0, 10.0))[0]
+    assert t == pytest.approx(trapezoid_time(5.0, min(10 / 0.6, 5 / 0.8), min(100 / 0.6, 50 / 0.8)))
+
+
+def board_and_scratches(rng, n=200):
+    board = Board(width_mm=40.0, height_mm=40.0, margin_mm=1.0)
+    p0, p1 = random_segments(rng, n, half=20.0, lo=0.3, hi=6.0)
+    return board, ScratchSet.from_arrays(p0, p1, 0.1, 0.01)
+
+
+def test_plan_counts_clip_short_and_duplicates(rng):
+    board, s = board_and_scratches(rng)
+    p0 = np.vstack([s.p0, [[0.0, 0.0], [-30.0, 0.0]]])
+    p1 = np.vstack([s.p1, [[0.0, 0.2], [-25.0, 0.0]]])  # one too short, one off the board
+    p0 = np.vstack([p0, s.p0[:1]])  # and an exact duplicate of scratch 0
+    p1 = np.vstack([p1, s.p1[:1]])
+    scratches = ScratchSet.from_arrays(p0, p1, 0.1, 0.01)
+    profile = load_profile("grbl-3018-diamond")
+    tp = plan_toolpath(scratches, board, profile, ScratchTool())
+    st = tp.stats
+    assert st["input_count"] == len(scratches)
+    assert st["outside_count"] >= 1 and st["short_count"] >= 1 and st["merged_count"] >= 1
+    assert (
+        st["count"]
+        == len(tp)
+        == len(scratches) - st["outside_count"] - st["short_count"] - st["merged_count"]
+    )
+    lengths = np.linalg.norm(tp.strokes[:, 1] - tp.strokes[:, 0], axis=1)
+    assert lengths.min() >= profile.tool.min_length_mm
+    outline = shapely.Polygon(tp.outline).buffer(1e-9)
+    assert all(outline.contains(shapely.Point(q)) for q in tp.strokes.reshape(-1, 2))
+    assert st["travel_length_mm"] <= st["travel_input_order_mm"]
+    assert st["cut_length_mm"] == pytest.approx(lengths.sum())
+
+
+def test_plan_refuses_tool_mismatch_and_board_off_machine(rng):
+    board, s = board_and_scratches(rng, 20)
+    profile = load_profile("grbl-3018-diamond")
+    with pytest.raises(ScratchfabError, match="width_mm = 0.3"):
+        plan_toolpath(s, board, profile, ScratchTool(width_mm=0.3))
+    wide = ScratchSet(s.p0, s.p1, s.width.copy(), s.depth)
+    wide.width[7] = 0.2
+    with pytest.raises(ScratchfabError, match="scratch 8"):
+        plan_toolpath(wide, board, profile)
+    table = profile.to_table()
+    table["board"]["offset_mm"] = [500.0, 500.0]
+    with pytest.raises(ScratchfabError, match="outside the envelope"):
+        plan_toolpath(s, board, profile_from_mapping(table, "<far>"))
+
+
+def test_toolpath_json_round_trip(rng, tmp_path):
+    board, s = board_and_scratches(rng)
+    tp = plan_toolpath(s, board, load_profile("grbl-plotter-scribe"))
+    tp.save(tmp_path / "toolpath.json")
+    back = Toolpath.load(tmp_path / "toolpath.json")
+    assert np.array_equal(back.strokes, tp.strokes)
+    assert np.array_equal(back.source_rows, tp.source_rows)
+    assert back.profile == tp.profile and back.stats == tp.stats
+    data = json.loads((tmp_path / "toolpath.json").read_text())
+    assert data["statistics"]["count"] == len(tp)
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(ScratchfabError, match="bad.json"):
+        Toolpath.load(tmp_path / "bad.json")
+
+
+def make_job(tmp_path: Path, rng, optimize: bool) -> Path:
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from conftest import make_design
+
+    job = tmp_path / "job"
+    design = make_design()
+    design.save(job / "design" / "design.toml")
+    board, s = board_and_scratches(rng, 120)
+    s.save(job / "design" / "scratches.csv", design.scratch)
+    if optimize:
+        s.subset(np.arange(60)).save(job / "optimize" / "scratches.csv", design.scratch)
+    return job
+
+
+def test_cli_toolpath_and_export(rng, tmp_path, capsys):
+    job = make_job(tmp_path, rng, optimize=True)
+    main(["toolpath", str(job), "--machine", "grbl-3018-diamond"])
+    tp = Toolpath.load(job / "toolpath" / "toolpath.json")
+    assert tp.stats["input_count"] == 60
+    with Image.open(job / "toolpath" / "preview.png") as im:
+        assert im.size[0] > 100
+    for fmt in ("gcode", "dxf", "svg"):
+        main(["export", str(job), "--format", fmt])
+        assert (job / "export" / f"board.{fmt}").stat().st_size > 0
+    main(["export", str(job), "-o", str(tmp_path / "out.nc")])
+    assert (tmp_path / "out.nc").read_text().startswith("G21 G90 G17 G94\n")
+    out = capsys.readouterr().out
+    assert "strokes" in out and "lines" in out
+
+
+def test_cli_falls_back_to_design_scratches_and_standalone(rng, tmp_path, capsys):
+    job = make_job(tmp_path, rng, optimize=False)
+    main(["toolpath", str(job), "--machine", "grbl-plotter-scribe"])
+    assert "note:" in capsys.readouterr().err
+    assert Toolpath.load(job / "toolpath" / "toolpath.json").stats["input_count"] == 120
+    out = tmp_path / "alone"
+    main(
+        [
+            "toolpath",
+            "--machine",
+            "grbl-plotter-scribe",
+            "--scratches",
+            str(job / "design" / "scratches.csv"),
+            "--design",
+            str(job / "design" / "design.toml"),
+            "--out",
+            str(out),
+        ]
+    )
+    assert (out / "toolpath.json").is_file() and (out / "preview.png").is_file()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["toolpath", "{job}", "--machine", "nope"], "not a bundled profile"),
+        (["toolpath", "--machine", "grbl-3018-diamond"], "give a JOB folder"),
+        (["export", "{job}"], "give --format"),
+        (["export", "{job}", "-o", "{tmp}/x.pdf"], "unknown file extension"),
+        (["export", "{job}", "--format", "gcode"], "run `scratchfab toolpath` first"),
+        (["export", "{job}", "-f", "gcode", "-m", "grbl-plotter-scribe"], "outside"),
+    ],
+)
+def test_cli_errors_are_one_line(rng, tmp_path, capsys, args, message):
+    job = make_job(tmp_path, rng, optimize=True)
+    if "-m" in args:
+        main(["toolpath", str(job), "--machine", "grbl-3018-diamond"])
+    capsys.readouterr()
+    argv = [a.format(job=job, tmp=tmp_path) for a in args]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code != 0
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
+    assert not (job / "export").exists() or not any((job / "export").iterdir())
