@@ -178,3 +178,45 @@ def test_user_errors_are_one_line_and_keep_the_old_job(tmp_path, capsys):
     # The failed runs left the earlier job as it was.
     assert (job / "design" / "scratches.csv").read_text() == before
     assert not list(job.glob(".design*"))
+
+
+def test_one_pixel_and_black_images_still_make_a_job(tmp_path, capsys):
+    Image.new("L", (1, 1), 180).save(tmp_path / "dot.png")
+    Image.new("RGB", (20, 10), (0, 0, 0)).save(tmp_path / "night.jpg")
+    job = tmp_path / "job"
+    out = _run(
+        [
+            "design",
+            str(tmp_path / "dot.png"),
+            str(tmp_path / "night.jpg"),
+            "--board",
+            "30x30",
+            "--count",
+            "50",
+            "--resolution",
+            "16",
+            "--out",
+            str(job),
+        ],
+        capsys,
+    )
+    assert "initial layout: 50 scratches" in out
+    dot = np.load(job / "design" / "targets" / "dot.npy")
+    night = np.load(job / "design" / "targets" / "night.npy")
+    board = np.isfinite(dot)
+    # A 1x1 picture fills the board with its one value; a black one stays black.
+    inner = dot[board][dot[board] > 0.999 * np.nanmax(dot)]
+    assert inner.size > 50
+    assert float(inner.mean()) == pytest.approx(((180 / 255 + 0.055) / 1.055) ** 2.4, abs=1e-4)
+    assert np.nanmax(night) == 0.0
+    # All scratches go to the view that has something to show.
+    assert len((job / "design" / "scratches.csv").read_text().splitlines()) == 51
+
+
+def test_all_black_targets_spread_the_scratches_evenly(tmp_path):
+    Image.new("L", (8, 8), 0).save(tmp_path / "black.png")
+    design = quick_design([tmp_path / "black.png"], (30.0, 30.0), count=40, resolution=(16, 16))
+    res = run_design(design, tmp_path / "job", progress=lambda s: None)
+    assert len(res.scratches) == 40
+    mid = (res.scratches.p0 + res.scratches.p1) / 2
+    assert (mid[:, 0] < 0).sum() > 10 and (mid[:, 0] > 0).sum() > 10

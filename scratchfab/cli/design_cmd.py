@@ -9,6 +9,7 @@ import click
 from scratchfab.design.quick import parse_resolution, parse_size, quick_design
 from scratchfab.design.stage import run_design
 from scratchfab.errors import ConfigError
+from scratchfab.model.design import Design
 
 
 @click.command("design")
@@ -63,13 +64,13 @@ def design(
             raise ConfigError(
                 "--board only applies to the quick form (images); set [board] in the file"
             )
-        source: object = inputs[0]
+        source: str | Design = inputs[0]
     else:
         size = parse_size(board, "--board") if board is not None else (100.0, 100.0)
         source = quick_design([Path(p) for p in inputs], size, count, res)
         res = None
     result = run_design(
-        source,  # type: ignore[arg-type]
+        source,
         out,
         force=force or None,
         fit=fit,

@@ -45,28 +45,37 @@ def _open(path: Path) -> Image.Image:
         raise ConfigError(f"{path}: empty file, expected an image")
     try:
         with warnings.catch_warnings():
-            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             image = Image.open(io.BytesIO(data))
             image.load()
             return ImageOps.exif_transpose(image)
     except UnidentifiedImageError:
         raise ConfigError(f"{path}: not an image file Pillow can read") from None
-    except (Image.DecompressionBombWarning, Image.DecompressionBombError):
+    except Image.DecompressionBombError:
         raise ConfigError(f"{path}: image is too large (decompression bomb check)") from None
     except (OSError, ValueError, SyntaxError, EOFError) as exc:
         raise ConfigError(f"{path}: corrupt or truncated image ({exc})") from None
 
 
+#: Linear values of every 8-bit and 16-bit code (decoding by table is exact and fast).
+_LUT8 = srgb_to_linear(np.arange(256) / 255.0)
+_LUT16 = srgb_to_linear(np.arange(65536) / 65535.0)
+#: Rows converted at a time, so that large photos do not need several float copies.
+_CHUNK_ROWS = 256
+
+
 def _high_bit_gray(image: Image.Image) -> np.ndarray | None:
-    """Encoded gray values in [0, 1] of 16-bit / 32-bit integer and float images, else None."""
+    """Linear gray values of 16-bit / 32-bit integer and float images, else None."""
     if image.mode.startswith("I;16"):
-        return np.asarray(image, dtype=np.float64) / 65535.0
+        return _LUT16[np.asarray(image).astype(np.uint16)]
     if image.mode == "I":
-        arr = np.asarray(image, dtype=np.float64)
+        arr = np.asarray(image, dtype=np.int64)
         # Pillow opens 16-bit grayscale PNGs as "I" in some versions; their range is 16-bit.
-        return arr / (65535.0 if arr.max(initial=0) <= 65535 else float(arr.max()))
+        if arr.min(initial=0) >= 0 and arr.max(initial=0) <= 65535:
+            return _LUT16[arr]
+        return srgb_to_linear(np.clip(arr / float(max(arr.max(), 1)), 0.0, 1.0))
     if image.mode == "F":
-        return np.clip(np.asarray(image, dtype=np.float64), 0.0, 1.0)
+        return srgb_to_linear(np.clip(np.asarray(image, dtype=np.float64), 0.0, 1.0))
     return None
 
 
@@ -85,21 +94,22 @@ def load_image(path: str | Path) -> np.ndarray:
     """
     file = Path(path)
     image = _open(file)
-    gray = _high_bit_gray(image)
-    if gray is not None:
-        lin = srgb_to_linear(gray)
-    else:
+    lin = _high_bit_gray(image)
+    if lin is None:
         has_alpha = image.mode in ("RGBA", "LA", "PA", "RGBa", "La") or (
             "transparency" in image.info
         )
         try:
-            rgba = image.convert("RGBA" if has_alpha else "RGB")
+            rgba = np.asarray(image.convert("RGBA" if has_alpha else "RGB"))
         except (OSError, ValueError) as exc:
             raise ConfigError(f"{file}: cannot convert {image.mode} image to RGB ({exc})") from None
-        arr = np.asarray(rgba, dtype=np.float64) / 255.0
-        lin = srgb_to_linear(arr[..., :3]) @ LUMA_709
-        if has_alpha:
-            lin = lin * arr[..., 3]
+        lin = np.empty(rgba.shape[:2])
+        for r0 in range(0, rgba.shape[0], _CHUNK_ROWS):
+            block = rgba[r0 : r0 + _CHUNK_ROWS]
+            lum = _LUT8[block[..., :3]] @ LUMA_709
+            if has_alpha:
+                lum *= block[..., 3] / 255.0
+            lin[r0 : r0 + _CHUNK_ROWS] = lum
     if lin.ndim != 2 or lin.size == 0:
         raise ConfigError(f"{file}: image has no pixels")
     return np.clip(lin, 0.0, 1.0)

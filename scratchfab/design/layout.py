@@ -33,7 +33,7 @@ from scratchfab.model.scratches import ScratchSet
 from scratchfab.render.profile import steepest_wall_deg
 
 #: Candidates drawn per kept scratch before elimination.
-CANDIDATES_PER_SAMPLE = 5
+CANDIDATES_PER_SAMPLE = 4
 #: Exponent of the elimination weight (1 - d / 2r)^alpha (Yuksel 2015 uses 8).
 ELIMINATION_ALPHA = 8.0
 #: Density grid points along the board's long side.
@@ -106,10 +106,14 @@ def eliminate(points: np.ndarray, radius: np.ndarray, keep: int) -> np.ndarray:
     dist = np.linalg.norm(points[rows] - points[cols], axis=1)
     w = (1.0 - dist / (2.0 * radius[rows])) ** ELIMINATION_ALPHA
     # weight[i] = sum over neighbours j of w_ij; removing j lowers every i that counts j.
-    weight = np.bincount(rows, weights=w, minlength=m)
     by_removed = sparse.csr_matrix((w, (cols, rows)), shape=(m, m))
-    indptr, indices, data = by_removed.indptr, by_removed.indices, by_removed.data
-    alive = np.ones(m, dtype=bool)
+    # Plain Python lists and floats: the loop below is scalar work, where numpy scalars
+    # would make every heap comparison slow.
+    weight: list[float] = np.bincount(rows, weights=w, minlength=m).tolist()
+    indptr: list[int] = by_removed.indptr.tolist()
+    indices: list[int] = by_removed.indices.tolist()
+    data: list[float] = by_removed.data.tolist()
+    alive = [True] * m
     heap = [(-weight[i], i) for i in range(m)]
     heapq.heapify(heap)
     remaining = m
@@ -124,7 +128,7 @@ def eliminate(points: np.ndarray, radius: np.ndarray, keep: int) -> np.ndarray:
             if alive[i]:
                 weight[i] -= data[k]
                 heapq.heappush(heap, (-weight[i], i))
-    return np.flatnonzero(alive)
+    return np.flatnonzero(np.asarray(alive))
 
 
 def _length_of(brightness: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -236,23 +240,17 @@ def layout_by_view(
     if not names:
         raise ValueError("initial_layout needs at least one view with a target")
     energy = np.array([dens[n].sum() for n in names])
+    box = (hw - design.board.margin_mm, hh - design.board.margin_mm)
+    inner = np.array([box[0] - tool.min_length_mm / 2, box[1] - tool.min_length_mm / 2])
     if energy.sum() <= 0:
         # Nothing bright anywhere: spread the scratches evenly over the usable board.
-        hw, hh = design.board.half_extent
-        inset = design.board.margin_mm + tool.min_length_mm / 2
-        flat = ((np.abs(pts[..., 0]) <= hw - inset) & (np.abs(pts[..., 1]) <= hh - inset)).astype(
-            float
-        )
+        flat = np.all(np.abs(pts) <= inner, axis=-1).astype(float)
         dens = {n: flat for n in names}
         energy = np.ones(len(names))
     counts = split_count(tool.count, energy)
     rows, cols = pts.shape[:2]
     cell = np.array([design.board.width_mm / cols, design.board.height_mm / rows])
     cell_area = float(cell[0] * cell[1])
-    hw, hh = design.board.half_extent
-    box = (hw - design.board.margin_mm, hh - design.board.margin_mm)
-    inset = design.board.margin_mm + tool.min_length_mm / 2
-    inner = np.array([hw - inset, hh - inset])
     out: dict[str, ScratchSet] = {}
     for name, n in zip(names, counts, strict=True):
         if n == 0:

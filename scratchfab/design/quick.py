@@ -24,7 +24,7 @@ from scratchfab.model.design import Board, Design, ScratchTool, design_from_mapp
 from scratchfab.render.profile import steepest_wall_deg
 
 #: Share of the steepest wall used by the half-vector at the board's centre.
-TILT_SHARE = 0.7
+TILT_SHARE = 0.65
 #: Scratches per mm^2 of board for the default count (5000 on 100 x 100 mm).
 COUNT_PER_MM2 = 0.5
 #: Camera and light distance for boards up to 100 mm; larger boards scale it.
