@@ -1,0 +1,336 @@
+"""Closed-form footprint NDF of one scratch (SPEC sections 3, 4 and 8; supplement eqs. 1-9).
+
+For a pixel footprint P (a quadrilateral on the board) and a scratch S (the rectangle
+|x| <= w, 0 <= y <= L of its own frame: x across, y along from p0), this module computes
+
+    integral over P ∩ S of D(h . n(x)) dA      and      |P ∩ S|
+
+exactly, vectorised over (footprint, scratch) pairs in Dr.Jit and differentiable with
+respect to the scratch's endpoints, the half-vector and the footprint's corners.
+
+Method. The integrand depends on x only, so Green's theorem turns the area integral into
+-∮_P clamp(y, 0, L) f(x) dx along P's edges (eq. 3), with x clamped to the scratch's
+width (eq. 1) and, for the NDF, further to the part of the profile where h . n > 0
+(D = 0 elsewhere, SPEC section 4; that part is one interval because the other root of
+h . n = 0 lies at |t| >= 1). Writing clamp(y, 0, L) = y+ - (y - L)+ splits every edge,
+branch-free, into two pieces on which the weight S(x) is linear (eq. 4). In t = 2x/wbar,
+
+    D = alpha^2/pi * R(t),   R = (1 + t^2)^4 / (Q1(t)^2 Q2(t)^2)        (eq. 7)
+
+and R = c0 + sum over the four complex roots z of Q1, Q2 (eq. 8) of
+A/(t - z) + B/(t - z)^2 (partial fractions; the roots come in conjugate pairs, so the sum
+is twice the real part over z1 = root of Q1 and z2 = -1/z1 = root of Q2). Our closed forms
+for the coefficients (eq. 9's v, derived in ``tools/derive_ndf.py``):
+
+    q1 = 1 + r h_z,  q2 = 1 - r h_z,  beta = sqrt(1 - r^2 (h_x^2 + h_z^2)),  r^2 = 1 - alpha^2
+    z1 = (-r h_x + i beta) / q1,   c0 = 1 / (q1 q2)^2
+    B1 = -(1 + z1^2)^2 / (16 beta^2),   A1 = B1 (6 z1/(1 + z1^2) - q1 conj(z1) + i q1/beta)
+    B2 = B1 / z1^4,   A2 = A1 / z1^2 - 2 B1 / z1^3.
+
+Rather than differencing an antiderivative at the two ends of a piece [t_a, t_a + delta]
+(which cancels badly for short pieces, near-real roots and far roots), each piece is
+evaluated in relative form: with c = t_a - z and eps = delta / c,
+
+    integral of R            = delta   (c0   + 2 Re sum A/c l(eps)  + B/c^2 / (1 + eps))
+    integral of (t - t_a) R  = delta^2 (c0/2 + 2 Re sum A/c n1(eps) + B/c^2 n2(eps))
+
+where l = log(1 + eps)/eps, n1 = (1 - l)/eps, n2 = (l - 1/(1 + eps))/eps are the moments
+of 1/(1 + eps s) and 1/(1 + eps s)^2 over s in [0, 1]: a power series for |eps| < 1/4,
+the complex logarithm otherwise. arg(1 + eps) = arg(t_b - z) - arg(t_a - z) is continuous
+because Im z != 0.
+
+Precision: float64. The coefficients are as large as c0 ~ 1/alpha^4 while R >= 1, so
+float64 loses about log10(1/alpha^4) digits in the worst case (footprints in the far tail
+of a sharp lobe): measured worst error 1e-10 of the integral of |S| D for alpha >= 0.005
+(tests/test_ndf.py); float32 has no correct digit left in those cases. Pass Float64 arrays.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import drjit as dr
+import numpy as np
+
+_SERIES_RADIUS = 0.25
+_SERIES_TERMS = 27  # 0.25^27 / 29 < 1e-17
+
+Complex = tuple[Any, Any]
+
+
+def _cmul(a: Complex, b: Complex) -> Complex:
+    return a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]
+
+
+def _cdiv(a: Complex, b: Complex) -> Complex:
+    inv = dr.rcp(b[0] * b[0] + b[1] * b[1])
+    return (a[0] * b[0] + a[1] * b[1]) * inv, (a[1] * b[0] - a[0] * b[1]) * inv
+
+
+def _cselect(mask: Any, a: Complex, b: Complex) -> Complex:
+    return dr.select(mask, a[0], b[0]), dr.select(mask, a[1], b[1])
+
+
+def _moments(eps: Complex) -> tuple[Complex, Complex, Complex, Complex]:
+    """l, 1/(1 + eps), n1, n2 of the module docstring, accurate for every eps off [-inf, -1]."""
+    small = eps[0] * eps[0] + eps[1] * eps[1] < _SERIES_RADIUS**2
+    one_eps = (1.0 + eps[0], eps[1])
+    inv1 = _cdiv((1.0, 0.0), one_eps)
+    # series: n1 = sum_j (-eps)^j / (j + 2)   (eps kept small in the unselected lanes)
+    es = (dr.select(small, -eps[0], 0.0), dr.select(small, -eps[1], 0.0))
+    acc: Complex = (1.0 / (_SERIES_TERMS + 1), 0.0)
+    for j in range(_SERIES_TERMS - 2, -1, -1):
+        acc = _cmul(acc, es)
+        acc = (acc[0] + 1.0 / (j + 2), acc[1])
+    n1_s = acc
+    ell_s = (1.0 - (eps[0] * n1_s[0] - eps[1] * n1_s[1]), -(eps[0] * n1_s[1] + eps[1] * n1_s[0]))
+    n2_s = (inv1[0] - n1_s[0], inv1[1] - n1_s[1])
+    # logarithm (eps kept away from 0 in the unselected lanes)
+    ed = (dr.select(small, _SERIES_RADIUS, eps[0]), dr.select(small, 0.0, eps[1]))
+    od = (1.0 + ed[0], ed[1])
+    inv_d = _cdiv((1.0, 0.0), od)
+    log1p = (0.5 * dr.log(od[0] * od[0] + od[1] * od[1]), dr.atan2(od[1], od[0]))
+    ell_d = _cdiv(log1p, ed)
+    n1_d = _cdiv((1.0 - ell_d[0], -ell_d[1]), ed)
+    n2_d = _cdiv((ell_d[0] - inv_d[0], ell_d[1] - inv_d[1]), ed)
+    return (
+        _cselect(small, ell_s, ell_d),
+        inv1,
+        _cselect(small, n1_s, n1_d),
+        _cselect(small, n2_s, n2_d),
+    )
+
+
+class _Poles:
+    """Partial-fraction data of R(t) (eqs. 7-9) for one half-vector per lane."""
+
+    def __init__(self, hx: Any, hz: Any, alpha: Any) -> None:
+        a2 = alpha * alpha
+        r = dr.sqrt(1.0 - a2)
+        q1 = 1.0 + r * hz
+        # 1 - r^2 h_z^2 and beta^2 = 1 - r^2 (h_x^2 + h_z^2) without cancellation: c0 and the
+        # far root's terms cancel to ~alpha^4 relative when h is near the normal, so these
+        # must be accurate to a few ulps of themselves
+        one_hz2 = (1.0 - hz) * (1.0 + hz)
+        q2 = (one_hz2 + a2 * hz * hz) / q1
+        beta2 = one_hz2 - hx * hx + a2 * (hx * hx + hz * hz)
+        beta = dr.sqrt(dr.maximum(beta2, a2 * 1e-3))
+        z1 = (-r * hx / q1, beta / q1)
+        w1 = (1.0 + z1[0] * z1[0] - z1[1] * z1[1], 2.0 * z1[0] * z1[1])  # 1 + z1^2
+        w1sq = _cmul(w1, w1)
+        b1 = (-w1sq[0] / (16.0 * beta * beta), -w1sq[1] / (16.0 * beta * beta))
+        t6 = _cdiv((6.0 * z1[0], 6.0 * z1[1]), w1)
+        fac = (t6[0] - q1 * z1[0], t6[1] + q1 * z1[1] + q1 / beta)
+        a1 = _cmul(b1, fac)
+        inv_z = _cdiv((1.0, 0.0), z1)
+        inv_z2 = _cmul(inv_z, inv_z)
+        inv_z3 = _cmul(inv_z2, inv_z)
+        a2c = _cmul(a1, inv_z2)
+        b1z3 = _cmul(b1, inv_z3)
+        self.c0 = 1.0 / (q1 * q1 * q2 * q2)
+        self.roots = [
+            (z1, a1, b1),
+            (
+                (-inv_z[0], -inv_z[1]),
+                (a2c[0] - 2.0 * b1z3[0], a2c[1] - 2.0 * b1z3[1]),
+                _cmul(b1z3, inv_z),
+            ),
+        ]
+
+    def piece(self, ta: Any, delta: Any) -> tuple[Any, Any]:
+        """(E0, E1): integrals of R and (t - t_a) R over [t_a, t_a + delta], over delta^(1, 2)."""
+        e0 = self.c0
+        e1 = 0.5 * self.c0
+        for z, a, b in self.roots:
+            c = (ta - z[0], -z[1])
+            inv_c = _cdiv((1.0, 0.0), c)
+            eps = (delta * inv_c[0], delta * inv_c[1])
+            pa = _cmul(a, inv_c)
+            pb = _cmul(_cmul(b, inv_c), inv_c)
+            ell, inv1, n1, n2 = _moments(eps)
+            e0 = e0 + 2.0 * (_cmul(pa, ell)[0] + _cmul(pb, inv1)[0])
+            e1 = e1 + 2.0 * (_cmul(pa, n1)[0] + _cmul(pb, n2)[0])
+        return e0, e1
+
+
+def _ndf_cutoff(hx: Any, hz: Any, half_width: Any, wbar: Any) -> tuple[Any, Any]:
+    """[x_lo, x_hi]: the part of |x| <= w where h . n(x) > 0 (D = 0 outside, SPEC section 4).
+
+    h . n = 0 at the roots of h_z t^2 + 2 h_x t - h_z (product -1); the one with |t| <= 1 is
+    t_s = h_z / (h_x + sign(h_x) |h|), and h . n > 0 on the side of t_s toward -sign(h_x).
+    """
+    rho = dr.sqrt(hx * hx + hz * hz)
+    den = hx + dr.select(hx >= 0, rho, -rho)
+    ts = hz / dr.select(den == 0, 1.0, den)
+    xcut = 0.5 * wbar * ts
+    x_lo = dr.select(hx < 0, dr.maximum(-half_width, xcut), -half_width)
+    x_hi = dr.select(hx >= 0, dr.minimum(half_width, xcut), half_width)
+    return x_lo, dr.maximum(x_hi, x_lo)
+
+
+def _edge_piece(
+    xa: Any, ya: Any, dx: Any, dy: Any, x_lo: Any, x_hi: Any, k: Any
+) -> tuple[Any, Any, Any, Any]:
+    """The part of edge (xa, ya) + lam (dx, dy) with x in [x_lo, x_hi] and y > k.
+
+    Returns (x0, x1, v0, v1): its ends in edge order and y - k there (>= 0); x0 == x1 when
+    the part is empty.
+    """
+    dxs = dr.select(dx == 0, 1.0, dx)
+    lam1 = dr.clip((dr.clip(xa, x_lo, x_hi) - xa) / dxs, 0.0, 1.0)
+    lam2 = dr.clip((dr.clip(xa + dx, x_lo, x_hi) - xa) / dxs, 0.0, 1.0)
+    lam2 = dr.maximum(lam1, lam2)
+    lam_k = (k - ya) / dr.select(dy == 0, 1.0, dy)
+    lo = dr.clip(dr.select(dy > 0, dr.maximum(lam1, lam_k), lam1), lam1, lam2)
+    hi = dr.select(dy < 0, dr.minimum(lam2, lam_k), lam2)
+    hi = dr.select((dy == 0) & (ya <= k), lo, dr.maximum(hi, lo))
+    return (
+        xa + lo * dx,
+        xa + hi * dx,
+        dr.maximum(ya + lo * dy - k, 0.0),
+        dr.maximum(ya + hi * dy - k, 0.0),
+    )
+
+
+PieceFn = Callable[[Any, Any, Any, Any], Any]
+
+
+def _footprint(
+    quad_x: Sequence[Any],
+    quad_y: Sequence[Any],
+    p0x: Any,
+    p0y: Any,
+    p1x: Any,
+    p1y: Any,
+    half_width: Any,
+    wbar: Any,
+    hx: Any,
+    hy: Any,
+    hz: Any,
+    make_piece: Callable[[Any], PieceFn],
+) -> tuple[Any, Any]:
+    float_t = type(p0x)
+    ex, ey = p1x - p0x, p1y - p0y
+    length = dr.sqrt(ex * ex + ey * ey)
+    inv_len = dr.rcp(dr.select(length > 0, length, 1.0))
+    ux = dr.select(length > 0, ex * inv_len, 0.0)
+    uy = dr.select(length > 0, ey * inv_len, 1.0)
+    # right-handed scratch frame: x across along (uy, -ux), y along (ux, uy)
+    lx, ly = [], []
+    for qx, qy in zip(quad_x, quad_y, strict=True):
+        rx, ry = qx - p0x, qy - p0y
+        lx.append(rx * uy - ry * ux)
+        ly.append(rx * ux + ry * uy)
+    n = len(lx)
+    signed = float_t(0.0)
+    for i in range(n):
+        j = (i + 1) % n
+        signed = signed + (quad_x[i] * quad_y[j] - quad_x[j] * quad_y[i])
+    orient = dr.select(signed < 0, -1.0, 1.0)
+    hxl = hx * uy - hy * ux
+    x_lo, x_hi = _ndf_cutoff(hxl, hz, half_width, wbar)
+    piece = make_piece(hxl)
+    ndf = float_t(0.0)
+    area = float_t(0.0)
+    for i in range(n):
+        j = (i + 1) % n
+        dx, dy = lx[j] - lx[i], ly[j] - ly[i]
+        for k, sign in ((0.0, 1.0), (length, -1.0)):
+            a0, a1, av0, av1 = _edge_piece(lx[i], ly[i], dx, dy, -half_width, half_width, k)
+            area = area + sign * (a1 - a0) * (av0 + av1)
+            x0, x1, v0, v1 = _edge_piece(lx[i], ly[i], dx, dy, x_lo, x_hi, k)
+            ndf = ndf + sign * piece(x0, x1, v0, v1)
+    # Green: integral over the region = -(closed line integral), counter-clockwise
+    return -orient * ndf, -0.5 * orient * area
+
+
+def scratch_footprint_ndf(
+    quad_x: Sequence[Any],
+    quad_y: Sequence[Any],
+    p0x: Any,
+    p0y: Any,
+    p1x: Any,
+    p1y: Any,
+    half_width: Any,
+    wbar: Any,
+    hx: Any,
+    hy: Any,
+    hz: Any,
+    alpha: Any,
+) -> tuple[Any, Any]:
+    """Exact integral of the GGX NDF over footprint ∩ scratch, and the covered area.
+
+    Args:
+        quad_x: the footprint's 4 corners' x (world board coordinates, mm), either orientation.
+        quad_y: their y.
+        p0x: scratch start x (mm); p0y, p1x, p1y likewise for start y and end point.
+        p0y: see p0x.
+        p1x: see p0x.
+        p1y: see p0x.
+        half_width: w (mm), half the tool width.
+        wbar: the profile's shape parameter (``profile.solve_wbar``), mm.
+        hx: unit half-vector in the world frame, x component.
+        hy: its y component.
+        hz: its z component (> 0 for any light and camera above the board).
+        alpha: GGX roughness (>= 0.005 for the documented accuracy).
+
+    Returns:
+        (ndf_integral, covered_area): the integral over P ∩ S of D(h . n(x)) dA in mm^2, and
+        |P ∩ S| in mm^2. All arguments are Dr.Jit arrays of one float type (Float64
+        recommended, see the module docstring) or broadcastable Python floats.
+    """
+
+    def make_piece(hxl: Any) -> PieceFn:
+        poles = _Poles(hxl, hz, alpha)
+        scale = alpha * alpha / math.pi
+
+        def piece(x0: Any, x1: Any, v0: Any, v1: Any) -> Any:
+            e0, e1 = poles.piece(2.0 * x0 / wbar, 2.0 * (x1 - x0) / wbar)
+            return scale * (x1 - x0) * (v0 * e0 + (v1 - v0) * e1)
+
+        return piece
+
+    return _footprint(quad_x, quad_y, p0x, p0y, p1x, p1y, half_width, wbar, hx, hy, hz, make_piece)
+
+
+def scratch_footprint_ndf_gl(
+    quad_x: Sequence[Any],
+    quad_y: Sequence[Any],
+    p0x: Any,
+    p0y: Any,
+    p1x: Any,
+    p1y: Any,
+    half_width: Any,
+    wbar: Any,
+    hx: Any,
+    hy: Any,
+    hz: Any,
+    alpha: Any,
+    nodes: int,
+) -> tuple[Any, Any]:
+    """The same pair of integrals by ``nodes``-point Gauss-Legendre quadrature on every piece.
+
+    A slower, approximate twin of :func:`scratch_footprint_ndf` (same edge decomposition) for
+    benchmarks and cross-checks; ``nodes`` must grow as alpha shrinks.
+    """
+    t_nodes, t_weights = np.polynomial.legendre.leggauss(nodes)
+
+    def make_piece(hxl: Any) -> PieceFn:
+        r2 = 1.0 - alpha * alpha
+        scale = alpha * alpha / math.pi
+
+        def piece(x0: Any, x1: Any, v0: Any, v1: Any) -> Any:
+            total = 0.0
+            for node, weight in zip(t_nodes, t_weights, strict=True):
+                s = 0.5 * (float(node) + 1.0)
+                t = 2.0 * (x0 + s * (x1 - x0)) / wbar
+                cos = (hz * (1.0 - t * t) - 2.0 * hxl * t) / (1.0 + t * t)
+                den = 1.0 - r2 * cos * cos
+                total = total + (0.5 * float(weight)) * (v0 + s * (v1 - v0)) / (den * den)
+            return scale * (x1 - x0) * total
+
+        return piece
+
+    return _footprint(quad_x, quad_y, p0x, p0y, p1x, p1y, half_width, wbar, hx, hy, hz, make_piece)
