@@ -1,0 +1,71 @@
+"""Atomic checkpoints of an optimization run (``JOB/optimize/checkpoint.npz``).
+
+A checkpoint holds the raw parameters and Adam moments of every variable, the iteration,
+the endpoints the current pixel pairs were found around, the state of the run's random
+generator, the log rows so far, the elapsed time and a fingerprint of the settings that
+shape the trajectory. It is written through :func:`scratchfab.fileio.atomic_open`, so a
+kill at any moment leaves either the previous checkpoint or the new one, never a torn file.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scratchfab.errors import ScratchfabError
+from scratchfab.fileio import atomic_open
+
+FORMAT = 1
+
+
+def save_checkpoint(
+    path: Path,
+    state: dict[str, np.ndarray],
+    meta: dict[str, Any],
+    log_rows: np.ndarray,
+) -> None:
+    """Write a checkpoint atomically.
+
+    Args:
+        path: The ``.npz`` file.
+        state: :meth:`LayoutOptimizer.state`.
+        meta: JSON-ready metadata (fingerprint, RNG state, elapsed time, column names).
+        log_rows: (iterations, columns) float64 log so far.
+    """
+    payload = dict(state)
+    payload["log_rows"] = np.asarray(log_rows, dtype=np.float64)
+    payload["meta"] = np.frombuffer(
+        json.dumps({"format": FORMAT, **meta}, sort_keys=True).encode("utf-8"), dtype=np.uint8
+    )
+    buf = io.BytesIO()
+    np.savez(buf, **payload)  # type: ignore[arg-type]
+    with atomic_open(path, "wb") as handle:
+        handle.write(buf.getvalue())
+
+
+def load_checkpoint(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any], np.ndarray]:
+    """Read a checkpoint: (state, meta, log_rows).
+
+    Raises:
+        ScratchfabError: When the file is missing or unreadable, naming it.
+    """
+    if not path.exists():
+        raise ScratchfabError(f"{path}: no checkpoint to resume from (run without --resume)")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise ScratchfabError(f"{path}: unreadable checkpoint ({exc})") from None
+    try:
+        meta = json.loads(arrays.pop("meta").tobytes().decode("utf-8"))
+        log_rows = arrays.pop("log_rows")
+    except (KeyError, ValueError) as exc:
+        raise ScratchfabError(f"{path}: not a scratchfab checkpoint ({exc})") from None
+    if meta.get("format") != FORMAT:
+        raise ScratchfabError(f"{path}: checkpoint format {meta.get('format')} is not {FORMAT}")
+    return arrays, meta, log_rows

@@ -1,0 +1,323 @@
+"""The optimization loop: render every view, one Adam step, one ``dr.eval()`` per step.
+
+:class:`LayoutOptimizer` owns the Dr.Jit state (raw parameters and Adam moments), the
+per-view renderers and targets, and the pixel pairs. Pairs are re-found every
+``refresh_every`` steps with the margin of :func:`scratchfab.optimize.params.pair_margin`,
+which bounds how far any scratch can move before the next refresh, so no (pixel,
+scratch) pair that the exact renderer would need is ever missing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any
+
+import drjit as dr
+import numpy as np
+
+from scratchfab.errors import ScratchfabError
+from scratchfab.model.design import Design
+from scratchfab.model.scratches import ScratchSet
+from scratchfab.optimize.loss import Space, merge_penalty, neighbour_pairs, view_error
+from scratchfab.optimize.params import (
+    KEYS,
+    BoundedAdam,
+    Bounds,
+    endpoints,
+    from_scratches,
+    pair_margin,
+    project,
+    project_np,
+    to_arrays,
+)
+from scratchfab.render.profile import solve_wbar
+from scratchfab.render.renderer import ViewRenderer
+
+
+class NonFiniteError(ScratchfabError):
+    """The loss or a gradient became NaN or infinite."""
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Numerical settings of the loop (a subset of the stage's options).
+
+    Attributes:
+        lr: Per-variable learning rate (cx, cy in mm, theta in rad, length in mm).
+        refresh_every: Steps between pair refreshes (K).
+        space: Image error space, ``"linear"`` or ``"perceptual"``.
+        merge_weight: Weight of the merge penalty (per scratch).
+        bound_weight: Weight of the pull back onto the feasible set (per scratch, 1/mm^2).
+    """
+
+    lr: Mapping[str, float]
+    refresh_every: int = 8
+    space: Space = "linear"
+    merge_weight: float = 0.05
+    bound_weight: float = 1.0
+
+
+@dataclass
+class StepResult:
+    """What one step measured (before its update).
+
+    Attributes:
+        loss: Total loss.
+        view_errors: E_k per view name.
+        renders: R_k per view name, (H, W) float32.
+    """
+
+    loss: float
+    view_errors: dict[str, float]
+    renders: dict[str, np.ndarray]
+
+
+class LayoutOptimizer:
+    """Multi-view Adam optimization of a scratch layout.
+
+    Args:
+        design: The resolved design.
+        targets: Linear (H, W) target per view name (NaN off the board); views without
+            one are not optimized for.
+        initial: The starting layout.
+        settings: Numerical settings.
+        m: Dr.Jit array namespace.
+    """
+
+    def __init__(
+        self,
+        design: Design,
+        targets: Mapping[str, np.ndarray],
+        initial: ScratchSet,
+        settings: Settings,
+        m: ModuleType,
+    ) -> None:
+        if len(initial) == 0:
+            raise ScratchfabError("the initial layout has no scratches")
+        self.design = design
+        self.settings = settings
+        self.m = m
+        self.bounds = Bounds.from_design(design)
+        self.views = [v for v in design.views if v.name in targets]
+        self.renderers = [ViewRenderer(design, v, m) for v in self.views]
+        #: The renderer's float type (float64: its closed form needs the precision).
+        self.Float = self.renderers[0].Float if self.renderers else m.Float64
+        self.dtype = np.float64 if self.Float is m.Float64 else np.float32
+        F = self.Float
+        self.target_np = {v.name: np.asarray(targets[v.name], dtype=np.float64) for v in self.views}
+        self._targets = []
+        for v in self.views:
+            t = self.target_np[v.name]
+            if t.shape != (v.height, v.width):
+                raise ScratchfabError(
+                    f"target of view '{v.name}' is {t.shape[1]}x{t.shape[0]} pixels, "
+                    f"the view is {v.width}x{v.height}"
+                )
+            ok = np.isfinite(t).ravel()
+            self._targets.append((F(np.where(ok, t.ravel(), 0.0)), F(ok.astype(np.float64))))
+        self.count = len(initial)
+        self.width = initial.width.copy()
+        self.depth = initial.depth.copy()
+        self._half_width = F(initial.width / 2)
+        self._wbar = F(np.asarray(solve_wbar(initial.width, initial.depth), np.float64))
+        self.tool_width = float(np.max(initial.width))
+        self.opt = BoundedAdam(lr=1.0)
+        raw = project_np(from_scratches(initial), self.bounds)
+        for key, value in to_arrays(F, raw).items():
+            self.opt[key] = value
+        self.opt.set_learning_rate({k: float(settings.lr[k]) for k in KEYS})
+        self.iteration = 0
+        self.margin = pair_margin(
+            dict(settings.lr),
+            self.bounds.max_length,
+            settings.refresh_every,
+            float(np.max(initial.width)) / 2,
+        )
+        self.ends = self._ends_np()
+        self.refresh_ends: np.ndarray | None = None
+        self.pairs: list[Any] = []
+        self.neighbours: tuple[Any, Any] | None = None
+
+    # ------------------------------------------------------------------ state
+    def _ends_np(self) -> np.ndarray:
+        """Current projected endpoints (N, 4) x0, y0, x1, y1."""
+        with dr.suspend_grad():
+            ends = endpoints(*self._projected())
+            return np.stack([np.asarray(e, dtype=self.dtype) for e in ends], axis=1)
+
+    def _projected(self) -> tuple[Any, ...]:
+        """Projection of the optimizer's current raw parameters (Dr.Jit)."""
+        o = self.opt
+        return project(o["cx"], o["cy"], o["theta"], o["length"], self.bounds)
+
+    def scratches(self) -> ScratchSet:
+        """The current (projected) layout."""
+        e = self.ends.astype(np.float64)
+        return ScratchSet(e[:, 0:2].copy(), e[:, 2:4].copy(), self.width.copy(), self.depth.copy())
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Everything needed to continue on the same trajectory (numpy)."""
+        out: dict[str, np.ndarray] = {"iteration": np.asarray(self.iteration)}
+        for key in KEYS:
+            value, _promoted, _lr, (t, m1, v1, _vmax) = self.opt.state[key]
+            out[f"raw_{key}"] = np.asarray(value, dtype=self.dtype)
+            out[f"adam_t_{key}"] = np.asarray(t, dtype=np.uint32)
+            out[f"adam_m_{key}"] = np.asarray(m1, dtype=self.dtype)
+            out[f"adam_v_{key}"] = np.asarray(v1, dtype=self.dtype)
+        if self.refresh_ends is not None:
+            out["refresh_ends"] = self.refresh_ends
+        return out
+
+    def load_state(self, state: Mapping[str, np.ndarray]) -> None:
+        """Restore :meth:`state` exactly (bit for bit)."""
+        m = self.m
+        for key in KEYS:
+            raw = np.asarray(state[f"raw_{key}"], dtype=self.dtype)
+            if raw.shape != (self.count,):
+                raise ScratchfabError(
+                    f"the checkpoint holds {raw.shape[0]} scratches, the job {self.count}"
+                )
+            value = self.Float(raw)
+            dr.enable_grad(value)
+            _old, promoted, lr, _extra = self.opt.state[key]
+            t = dr.opaque(m.UInt32, int(np.asarray(state[f"adam_t_{key}"]).ravel()[0]), 1)
+            m1 = self.Float(np.asarray(state[f"adam_m_{key}"], dtype=self.dtype))
+            v1 = self.Float(np.asarray(state[f"adam_v_{key}"], dtype=self.dtype))
+            self.opt.state[key] = (value, promoted, lr, (t, m1, v1, None))
+        self.iteration = int(state["iteration"])
+        self.ends = self._ends_np()
+        if "refresh_ends" in state:
+            self._refresh(np.asarray(state["refresh_ends"], dtype=self.dtype))
+        else:
+            self.refresh_ends = None
+            self.pairs = []
+
+    # ------------------------------------------------------------------ pairs
+    def _refresh(self, ends: np.ndarray) -> None:
+        """Re-find pixel pairs and merge candidates around the layout ``ends``."""
+        self.refresh_ends = ends.copy()
+        e = ends.astype(np.float64)
+        p0, p1 = e[:, 0:2], e[:, 2:4]
+        half = self.width / 2
+        self.pairs = [r.find_pairs(p0, p1, half, self.margin) for r in self.renderers]
+        reach = self.tool_width + 2 * (self.margin - float(np.max(half)))
+        slack = 2 * self.settings.refresh_every * float(self.settings.lr["theta"])
+        i, j = neighbour_pairs(p0, p1, reach, slack)
+        self.neighbours = (self.m.UInt32(i.astype(np.uint32)), self.m.UInt32(j.astype(np.uint32)))
+        self._neighbour_count = len(i)
+
+    def pair_counts(self) -> list[int]:
+        """Number of pairs per view in use."""
+        return [len(p) for p in self.pairs]
+
+    # ------------------------------------------------------------------ step
+    def _forward(
+        self, raw: list[Any], half_width: Any = None, wbar: Any = None
+    ) -> tuple[Any, list[Any], list[Any], Any]:
+        """Loss, per-view errors and renders of raw parameters (not evaluated)."""
+        half_width = self._half_width if half_width is None else half_width
+        wbar = self._wbar if wbar is None else wbar
+        count = dr.width(raw[0])
+        s = self.settings
+        cx, cy, theta, length = project(raw[0], raw[1], raw[2], raw[3], self.bounds)
+        p0x, p0y, p1x, p1y = endpoints(cx, cy, theta, length)
+        renders = []
+        errors = []
+        for r, pairs, (target, mask) in zip(self.renderers, self.pairs, self._targets, strict=True):
+            img = r.render(p0x, p0y, p1x, p1y, half_width, wbar, pairs)
+            err, _s = view_error(img, target, mask, s.space)
+            renders.append(img)
+            errors.append(err)
+        loss = errors[0]
+        for e in errors[1:]:
+            loss = loss + e
+        loss = loss / len(errors)
+        n = float(count)
+        if s.merge_weight > 0 and self.neighbours is not None and self._neighbour_count > 0:
+            loss = loss + (s.merge_weight / n) * merge_penalty(
+                self.Float, p0x, p0y, p1x, p1y, *self.neighbours, self.tool_width
+            )
+        stray = dr.square(raw[0] - cx) + dr.square(raw[1] - cy) + dr.square(raw[3] - length)
+        loss = loss + (s.bound_weight / n) * dr.sum(stray, mode="symbolic")
+        return loss, errors, renders, (p0x, p0y, p1x, p1y)
+
+    def step(self) -> StepResult:
+        """One Adam step; returns the loss of the parameters before it.
+
+        Raises:
+            NonFiniteError: When the loss or a gradient is not finite; the parameters
+                are then left as they were before the step.
+        """
+        if not self.pairs or self.iteration % self.settings.refresh_every == 0:
+            self._refresh(self.ends)
+        raw = [self.opt[k] for k in KEYS]
+        before = [dr.detach(v) for v in raw]
+        loss, errors, renders, _ends = self._forward(raw)
+        dr.backward(loss)
+        saved = {k: self.opt.state[k] for k in KEYS}
+        self.opt.step(eval=False)
+        with dr.suspend_grad():
+            new_ends = endpoints(*self._projected())
+        dr.schedule(loss, errors, renders, new_ends, before)
+        dr.eval()
+        loss_value = float(loss[0])
+        images = {
+            v.name: np.asarray(img, dtype=np.float32).reshape(v.height, v.width)
+            for v, img in zip(self.views, renders, strict=True)
+        }
+        # Checked in numpy: Dr.Jit compiles with fast-math, where NaN tests may fold away.
+        finite_grad = all(
+            bool(np.all(np.isfinite(np.asarray(self.opt.state[k][3][1])))) for k in KEYS
+        )
+        finite_loss = math.isfinite(loss_value) and all(
+            bool(np.all(np.isfinite(img))) for img in images.values()
+        )
+        if not (finite_loss and finite_grad):
+            for k in KEYS:
+                self.opt.state[k] = saved[k]
+            what = "gradient" if finite_loss else "loss"
+            raise NonFiniteError(
+                f"non-finite {what} at iteration {self.iteration}; the run stopped and the "
+                "last good checkpoint is kept (try smaller learning rates)"
+            )
+        self.ends = np.stack([np.asarray(e, dtype=self.dtype) for e in new_ends], axis=1)
+        self.iteration += 1
+        return StepResult(
+            loss_value,
+            {v.name: float(e[0]) for v, e in zip(self.views, errors, strict=True)},
+            images,
+        )
+
+    def evaluate(self, scratches: ScratchSet | None = None) -> StepResult:
+        """Loss and renders of the current layout (or ``scratches``), with fresh exact pairs."""
+        layout = scratches if scratches is not None else self.scratches()
+        m = self.m
+        params = from_scratches(layout)
+        with dr.suspend_grad():
+            raw = [self.Float(np.asarray(params[k], dtype=self.dtype)) for k in KEYS]
+            saved_pairs, saved_nb = self.pairs, self.neighbours
+            saved_count = getattr(self, "_neighbour_count", 0)
+            try:
+                half = layout.width / 2
+                self.pairs = [r.find_pairs(layout.p0, layout.p1, half, 0.0) for r in self.renderers]
+                i, j = neighbour_pairs(layout.p0, layout.p1, self.tool_width)
+                self.neighbours = (m.UInt32(i.astype(np.uint32)), m.UInt32(j.astype(np.uint32)))
+                self._neighbour_count = len(i)
+                half_width = self.Float(layout.width / 2)
+                wbar = self.Float(np.asarray(solve_wbar(layout.width, layout.depth), np.float64))
+                loss, errors, renders, _ = self._forward(raw, half_width, wbar)
+                dr.eval(loss, errors, renders)
+            finally:
+                self.pairs, self.neighbours = saved_pairs, saved_nb
+                self._neighbour_count = saved_count
+        return StepResult(
+            float(loss[0]),
+            {v.name: float(e[0]) for v, e in zip(self.views, errors, strict=True)},
+            {
+                v.name: np.asarray(img, dtype=np.float32).reshape(v.height, v.width)
+                for v, img in zip(self.views, renders, strict=True)
+            },
+        )

@@ -1,0 +1,477 @@
+"""The ``optimize`` stage: ``JOB/design/`` in, ``JOB/optimize/`` out (SPEC section 6).
+
+:func:`run_optimize` is what the CLI and the pipeline runner call. It reports progress
+through a callback (the CLI draws the bar), stops cleanly after the current step on
+Ctrl-C or when ``should_stop`` says so, and checkpoints atomically every
+``checkpoint_every`` steps, so ``resume`` continues after Ctrl-C or ``kill -9`` on the
+same trajectory.
+
+Reproducibility: Dr.Jit's multithreaded CPU kernels add floats with atomics in an order
+that varies between runs, so bit-identical trajectories (and resumes) need one thread
+(``threads = 1``, the default). ``threads = 0`` uses every core and is faster, but two
+runs then agree only to rounding.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import drjit as dr
+import numpy as np
+
+from scratchfab.backend import array_module
+from scratchfab.errors import ConfigError, ScratchfabError
+from scratchfab.fileio import write_text
+from scratchfab.metrics import quality_report
+from scratchfab.model.design import Design, load_design
+from scratchfab.model.schema import spec
+from scratchfab.model.scratches import ScratchSet, load_scratches
+from scratchfab.optimize.checkpoint import load_checkpoint, save_checkpoint
+from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
+from scratchfab.optimize.plots import save_loss_plot, save_side_by_side
+from scratchfab.optimize.prune import PruneReport, prune
+from scratchfab.render.layout import write_render_layout
+
+
+@dataclass(frozen=True)
+class OptimizeOptions:
+    """Settings of the optimize stage (the ``[optimize]`` table of a pipeline file).
+
+    Attributes:
+        iterations: Total Adam steps (a resumed run continues up to this count).
+        time_budget_s: Stop after this many seconds of optimizing (0: no limit).
+        seed: Seed of the run's random generator (initial angle jitter).
+        backend: ``"llvm"`` (CPU) or ``"cuda"``.
+        space: Image error in ``"linear"`` or ``"perceptual"`` (sRGB) space.
+        lr_position_mm: Adam step size of the centres.
+        lr_angle_deg: Adam step size of the angles.
+        lr_length_mm: Adam step size of the lengths.
+        refresh_every: Steps between pixel-pair refreshes.
+        checkpoint_every: Steps between checkpoints.
+        merge_weight: Weight of the penalty on parallel scratches closer than the tool.
+        jitter_deg: Standard deviation of a random turn of each initial scratch.
+        threads: CPU threads (1: bit-reproducible; 0: all cores).
+        resume: Continue from ``JOB/optimize/checkpoint.npz``.
+        prune_tolerance: When set, drop scratches while the loss rises by at most this
+            fraction.
+        feed_mm_min: Engrave feed for the machining-time estimate of pruning.
+        stroke_overhead_s: Per-stroke overhead (rapid, plunge, retract) for that estimate.
+    """
+
+    iterations: int = field(default=300, metadata=spec(ge=0))
+    time_budget_s: float = field(default=0.0, metadata=spec(ge=0))
+    seed: int = field(default=0, metadata=spec(ge=0))
+    backend: Literal["llvm", "cuda"] = "llvm"
+    space: Literal["linear", "perceptual"] = "linear"
+    lr_position_mm: float = field(default=0.03, metadata=spec(gt=0))
+    lr_angle_deg: float = field(default=0.25, metadata=spec(gt=0))
+    lr_length_mm: float = field(default=0.03, metadata=spec(gt=0))
+    refresh_every: int = field(default=8, metadata=spec(gt=0))
+    checkpoint_every: int = field(default=25, metadata=spec(gt=0))
+    merge_weight: float = field(default=0.05, metadata=spec(ge=0))
+    jitter_deg: float = field(default=0.0, metadata=spec(ge=0))
+    threads: int = field(default=1, metadata=spec(ge=0))
+    resume: bool = False
+    prune_tolerance: float | None = field(default=None, metadata=spec(ge=0))
+    feed_mm_min: float = field(default=300.0, metadata=spec(gt=0))
+    stroke_overhead_s: float = field(default=2.0, metadata=spec(ge=0))
+
+    def learning_rates(self) -> dict[str, float]:
+        """Per-variable learning rates in the optimizer's units (mm, rad)."""
+        return {
+            "cx": self.lr_position_mm,
+            "cy": self.lr_position_mm,
+            "theta": math.radians(self.lr_angle_deg),
+            "length": self.lr_length_mm,
+        }
+
+
+#: Options that shape the trajectory; a resume must match them.
+TRAJECTORY_KEYS = (
+    "seed",
+    "backend",
+    "space",
+    "lr_position_mm",
+    "lr_angle_deg",
+    "lr_length_mm",
+    "refresh_every",
+    "merge_weight",
+    "jitter_deg",
+    "threads",
+)
+
+
+@dataclass(frozen=True)
+class Progress:
+    """One progress report.
+
+    Attributes:
+        iteration: Steps done.
+        total: Steps asked for.
+        loss: Loss of the last step.
+        elapsed_s: Optimizing time so far (including resumed sessions).
+        eta_s: Estimated time to finish (NaN before the first step).
+        message: A status line instead of a step ("" for steps).
+    """
+
+    iteration: int
+    total: int
+    loss: float
+    elapsed_s: float
+    eta_s: float
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class OptimizeResult:
+    """What the stage produced.
+
+    Attributes:
+        out_dir: ``JOB/optimize``.
+        scratches: The final (pruned, if asked) layout.
+        iterations: Steps done in total.
+        stopped: Why the loop ended: ``"done"``, ``"interrupted"`` or ``"time budget"``.
+        loss: Final loss (fresh pairs).
+        quality: :func:`scratchfab.metrics.quality_report` of the final renders.
+        seconds_per_iteration: Mean over this session's steps (NaN without steps).
+        prune: The pruning report, if pruning ran.
+    """
+
+    out_dir: Path
+    scratches: ScratchSet
+    iterations: int
+    stopped: str
+    loss: float
+    quality: dict[str, Any]
+    seconds_per_iteration: float
+    prune: PruneReport | None = None
+
+
+@contextlib.contextmanager
+def interrupt_flag() -> Iterator[Callable[[], bool]]:
+    """Turn the first Ctrl-C into a flag that the loop polls (a second one aborts)."""
+    hit = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield hit.is_set
+        return
+    previous = signal.getsignal(signal.SIGINT)
+
+    def handler(signum: int, frame: Any) -> None:
+        if hit.is_set():
+            signal.signal(signal.SIGINT, previous)
+            raise KeyboardInterrupt
+        hit.set()
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield hit.is_set
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def load_job_inputs(job: Path) -> tuple[Design, dict[str, np.ndarray], ScratchSet]:
+    """The resolved design, the per-view linear targets and the initial layout of a job.
+
+    Raises:
+        ConfigError: Naming the missing or malformed file.
+    """
+    folder = job / "design"
+    design_file = folder / "design.toml"
+    if not design_file.exists():
+        raise ConfigError(f"{design_file}: file not found (run `scratchfab design` first)")
+    design = load_design(design_file)
+    targets: dict[str, np.ndarray] = {}
+    for view in design.views:
+        path = folder / "targets" / f"{view.name}.npy"
+        if not path.exists():
+            continue
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{path}: not a readable .npy file ({exc})") from None
+        if arr.shape != (view.height, view.width) or not np.issubdtype(arr.dtype, np.floating):
+            raise ConfigError(
+                f"{path}: expected float (H, W) = ({view.height}, {view.width}), "
+                f"got {arr.dtype} {arr.shape}"
+            )
+        targets[view.name] = arr.astype(np.float64)
+    if not targets:
+        raise ConfigError(f"{folder / 'targets'}: no <view>.npy target for any view")
+    scratches = load_scratches(folder / "scratches.csv", design.scratch, design.board)
+    return design, targets, scratches
+
+
+def _cross_targets(design: Design, targets: dict[str, np.ndarray]) -> dict[tuple[str, str], Any]:
+    """T_j->k from the design stage's board images; only the diagonal if they are absent."""
+    try:
+        from scratchfab.design.targets import cross_targets
+
+        return dict(cross_targets(design))
+    except (ImportError, ScratchfabError, OSError, KeyError):
+        return {(k, k): t for k, t in targets.items()}
+
+
+def _fingerprint(
+    options: OptimizeOptions, scratches: ScratchSet, targets: dict[str, Any]
+) -> dict[str, Any]:
+    digest = hashlib.sha256()
+    for arr in (scratches.p0, scratches.p1, scratches.width, scratches.depth):
+        digest.update(np.ascontiguousarray(arr, dtype=np.float64).tobytes())
+    for name in sorted(targets):
+        digest.update(name.encode())
+        digest.update(np.ascontiguousarray(targets[name], dtype=np.float64).tobytes())
+    out: dict[str, Any] = {k: getattr(options, k) for k in TRAJECTORY_KEYS}
+    out["inputs_sha256"] = digest.hexdigest()
+    return out
+
+
+def log_columns(names: list[str]) -> list[str]:
+    """Column names of ``log.csv``."""
+    cols = ["iteration", "loss", "seconds"]
+    for k in names:
+        cols += [f"psnr_{k}", f"rho_{k}"]
+        cols += [f"x_{k}_{j}" for j in names if j != k]
+    return cols
+
+
+def _log_row(iteration: int, loss: float, seconds: float, quality: dict[str, Any]) -> list[float]:
+    names = quality["names"]
+    row = [float(iteration), loss, seconds]
+    for k in names:
+        v = quality["views"][k]
+        row += [v["psnr"], v["rho"]]
+        row += [v["crosstalk"].get(j, math.nan) for j in names if j != k]
+    return row
+
+
+def _write_log(path: Path, columns: list[str], rows: list[list[float]]) -> None:
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(columns)
+    for row in rows:
+        writer.writerow(
+            [str(int(row[0]))] + [f"{v:.6g}" if math.isfinite(v) else "nan" for v in row[1:]]
+        )
+    write_text(path, buf.getvalue())
+
+
+def run_optimize(
+    job: str | Path,
+    options: OptimizeOptions,
+    progress: Callable[[Progress], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> OptimizeResult:
+    """Optimize the layout of ``job`` and write ``JOB/optimize/``.
+
+    Args:
+        job: The job folder (with ``design/`` written by the design stage).
+        options: Stage settings.
+        progress: Called after every step and with status lines.
+        should_stop: Polled after every step; True stops cleanly (Ctrl-C does too).
+
+    Raises:
+        ConfigError: Missing or malformed inputs, or a checkpoint made with other settings.
+        NonFiniteError: The loss or a gradient became non-finite (the last good
+            checkpoint is kept).
+    """
+    job = Path(job)
+    out = job / "optimize"
+    design, targets, initial = load_job_inputs(job)
+    report = progress or (lambda p: None)
+    m = array_module(options.backend)
+    threads_before = dr.thread_count()
+    if options.backend == "llvm":
+        dr.set_thread_count(options.threads if options.threads > 0 else (os.cpu_count() or 1))
+    try:
+        return _run(job, out, design, targets, initial, options, m, report, should_stop)
+    finally:
+        if options.backend == "llvm":
+            dr.set_thread_count(threads_before)
+
+
+def _run(
+    job: Path,
+    out: Path,
+    design: Design,
+    targets: dict[str, np.ndarray],
+    initial: ScratchSet,
+    options: OptimizeOptions,
+    m: Any,
+    report: Callable[[Progress], None],
+    should_stop: Callable[[], bool] | None,
+) -> OptimizeResult:
+    rng = np.random.default_rng(options.seed)
+    fingerprint = _fingerprint(options, initial, targets)
+    start_layout = initial
+    if options.jitter_deg > 0:
+        turn = rng.normal(0.0, math.radians(options.jitter_deg), len(initial))
+        c = 0.5 * (initial.p0 + initial.p1)
+        half = 0.5 * (initial.p1 - initial.p0)
+        cos, sin = np.cos(turn)[:, None], np.sin(turn)[:, None]
+        rot = np.concatenate(
+            [half[:, :1] * cos - half[:, 1:] * sin, half[:, :1] * sin + half[:, 1:] * cos], 1
+        )
+        start_layout = ScratchSet(c - rot, c + rot, initial.width, initial.depth)
+    settings = Settings(
+        lr=options.learning_rates(),
+        refresh_every=options.refresh_every,
+        space=options.space,
+        merge_weight=options.merge_weight,
+    )
+    report(Progress(0, options.iterations, math.nan, 0.0, math.nan, "compiling kernels"))
+    opt = LayoutOptimizer(design, targets, start_layout, settings, m)
+    cross = _cross_targets(design, targets)
+    names = [v.name for v in opt.views]
+    columns = log_columns(names)
+    rows: list[list[float]] = []
+    elapsed0 = 0.0
+    ckpt = out / "checkpoint.npz"
+    if options.resume:
+        state, meta, log_rows = load_checkpoint(ckpt)
+        differ = [
+            k
+            for k in fingerprint
+            if json.dumps(meta.get("fingerprint", {}).get(k)) != json.dumps(fingerprint[k])
+        ]
+        if differ:
+            raise ConfigError(
+                f"{ckpt}: made with different settings or inputs ({', '.join(differ)}); "
+                "run without --resume to start over"
+            )
+        opt.load_state(state)
+        rng.bit_generator.state = meta["rng"]
+        rows = [list(map(float, r)) for r in log_rows]
+        elapsed0 = float(meta["elapsed_s"])
+
+    def checkpoint(elapsed: float) -> None:
+        meta = {
+            "fingerprint": fingerprint,
+            "rng": rng.bit_generator.state,
+            "elapsed_s": elapsed,
+            "columns": columns,
+        }
+        save_checkpoint(
+            ckpt, opt.state(), meta, np.asarray(rows, dtype=np.float64).reshape(-1, len(columns))
+        )
+        _write_log(out / "log.csv", columns, rows)
+
+    out.mkdir(parents=True, exist_ok=True)
+    stopped = "done"
+    session_start = time.perf_counter()
+    steps = 0
+    step_time = 0.0
+    with interrupt_flag() as interrupted:
+        while opt.iteration < options.iterations:
+            elapsed = elapsed0 + time.perf_counter() - session_start
+            if options.time_budget_s > 0 and elapsed >= options.time_budget_s:
+                stopped = "time budget"
+                break
+            t0 = time.perf_counter()
+            before = opt.iteration
+            try:
+                result = opt.step()
+            except NonFiniteError:
+                _write_log(out / "log.csv", columns, rows)
+                raise
+            steps += 1
+            if steps > 1:  # the first step compiles the kernels
+                step_time += time.perf_counter() - t0
+            elapsed = elapsed0 + time.perf_counter() - session_start
+            quality = quality_report(result.renders, targets, cross)
+            rows.append(_log_row(before, result.loss, elapsed, quality))
+            per = step_time / (steps - 1) if steps > 1 else math.nan
+            left = options.iterations - opt.iteration
+            eta = per * left
+            if options.time_budget_s > 0:
+                eta = min(eta, max(0.0, options.time_budget_s - elapsed))
+            report(Progress(opt.iteration, options.iterations, result.loss, elapsed, eta))
+            if opt.iteration % options.checkpoint_every == 0:
+                checkpoint(elapsed)
+            if interrupted() or (should_stop is not None and should_stop()):
+                stopped = "interrupted"
+                break
+        elapsed = elapsed0 + time.perf_counter() - session_start
+        checkpoint(elapsed)
+        report(
+            Progress(opt.iteration, options.iterations, math.nan, elapsed, 0.0, "writing outputs")
+        )
+        layout = opt.scratches()
+        final = opt.evaluate(layout)
+        quality = quality_report(final.renders, targets, cross)
+        pruned: PruneReport | None = None
+        if options.prune_tolerance is not None and stopped != "interrupted":
+            report(
+                Progress(opt.iteration, options.iterations, math.nan, elapsed, math.nan, "pruning")
+            )
+            pruned = prune(
+                opt, layout, options.prune_tolerance, options.feed_mm_min, options.stroke_overhead_s
+            )
+            layout.save(out / "scratches_unpruned.csv", design.scratch)
+            layout = pruned.kept
+            final = opt.evaluate(layout)
+            quality = quality_report(final.renders, targets, cross)
+        final_rows = rows + [_log_row(opt.iteration, final.loss, elapsed, quality)]
+        layout.save(out / "scratches.csv", design.scratch)
+        write_render_layout(out / "renders", final.renders)
+        _write_log(out / "log.csv", columns, final_rows)
+        save_loss_plot(out / "loss.png", [r[0] for r in final_rows], [r[1] for r in final_rows])
+        save_side_by_side(out / "side_by_side.png", targets, final.renders)
+        per_iter = step_time / (steps - 1) if steps > 1 else math.nan
+        summary: dict[str, Any] = {
+            "iterations": opt.iteration,
+            "stopped": stopped,
+            "loss": final.loss,
+            "seconds_per_iteration": per_iter,
+            "elapsed_s": elapsed,
+            "scratches": len(layout),
+            "pairs_per_view": dict(zip(names, opt.pair_counts(), strict=False)),
+            "pair_margin_mm": opt.margin,
+            "options": asdict(options),
+            "quality": quality,
+        }
+        if pruned is not None:
+            summary["prune"] = {
+                "removed": pruned.removed,
+                "loss_before": pruned.loss_before,
+                "loss_after": pruned.loss_after,
+                "length_saved_mm": pruned.length_saved_mm,
+                "time_saved_s": pruned.time_saved_s,
+                "assumption": (
+                    f"time = length / {pruned.feed_mm_min:g} mm/min + "
+                    f"{pruned.stroke_overhead_s:g} s per stroke"
+                ),
+            }
+        write_text(
+            out / "summary.json", json.dumps(summary, indent=2, default=_json_default) + "\n"
+        )
+    return OptimizeResult(
+        out_dir=out,
+        scratches=layout,
+        iterations=opt.iteration,
+        stopped=stopped,
+        loss=final.loss,
+        quality=quality,
+        seconds_per_iteration=per_iter,
+        prune=pruned,
+    )
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, float | np.floating):
+        return None if not math.isfinite(float(value)) else float(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    return str(value)

@@ -1,0 +1,431 @@
+"""Tests of the optimize stage: bounds, pairs, loss, checkpoints, resume, prune, CLI."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import drjit as dr
+import numpy as np
+import pytest
+from conftest import FULL, make_design
+from test_optimize_helpers import cross_of, make_job, make_layout
+
+from scratchfab.cli import main
+from scratchfab.errors import ScratchfabError
+from scratchfab.metrics import exposure, quality_report
+from scratchfab.model.scratches import ScratchSet, load_scratches
+from scratchfab.optimize.checkpoint import load_checkpoint
+from scratchfab.optimize.loss import neighbour_pairs, segment_distance_np, view_error
+from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
+from scratchfab.optimize.params import (
+    KEYS,
+    BoundedAdam,
+    Bounds,
+    endpoints,
+    max_step_mm,
+    project,
+    project_np,
+)
+from scratchfab.optimize.stage import OptimizeOptions, run_optimize
+
+LR = {"cx": 0.03, "cy": 0.03, "theta": math.radians(0.25), "length": 0.03}
+
+
+def _ends(m, params, bounds):  # type: ignore[no-untyped-def]
+    F = m.Float64
+    arrs = [F(params[k]) for k in KEYS]
+    return np.stack([np.asarray(e) for e in endpoints(*project(*arrs, bounds))], axis=1)
+
+
+# ---------------------------------------------------------------- parametrisation
+
+
+def test_projection_is_feasible_idempotent_and_matches_numpy(m, rng) -> None:
+    bounds = Bounds(half_x=19.0, half_y=14.0, min_length=1.0, max_length=6.0)
+    n = 5000
+    raw = {
+        "cx": rng.uniform(-30, 30, n),
+        "cy": rng.uniform(-30, 30, n),
+        "theta": rng.uniform(-7, 7, n),
+        "length": rng.uniform(-2, 10, n),
+    }
+    F = m.Float64
+    proj = project(*(F(raw[k]) for k in KEYS), bounds)
+    again = project(*proj, bounds)
+    for a, b in zip(proj, again, strict=True):
+        assert np.array_equal(np.asarray(a), np.asarray(b))
+    ref = project_np(raw, bounds)
+    for k, a in zip(KEYS, proj, strict=True):
+        np.testing.assert_allclose(np.asarray(a), ref[k], rtol=0, atol=1e-12)
+    e = np.stack([np.asarray(v) for v in endpoints(*proj)], axis=1)
+    assert np.all(np.abs(e[:, [0, 2]]) <= bounds.half_x + 1e-9)
+    assert np.all(np.abs(e[:, [1, 3]]) <= bounds.half_y + 1e-9)
+    length = np.hypot(e[:, 2] - e[:, 0], e[:, 3] - e[:, 1])
+    assert np.all((length >= 1.0 - 1e-9) & (length <= 6.0 + 1e-9))
+
+
+def test_endpoint_motion_per_step_is_bounded(m, rng) -> None:
+    """Any raw step within lr per coordinate moves projected endpoints <= max_step_mm."""
+    bounds = Bounds(half_x=10.0, half_y=10.0, min_length=1.0, max_length=6.0)
+    n = 20000
+    raw = {
+        "cx": rng.uniform(-12, 12, n),
+        "cy": rng.uniform(-12, 12, n),
+        "theta": rng.uniform(-4, 4, n),
+        "length": rng.uniform(0, 8, n),
+    }
+    # worst cases: steps at the full learning rate in every coordinate, random signs
+    moved = {k: raw[k] + LR[k] * rng.choice([-1.0, 1.0], n) for k in KEYS}
+    a = _ends(m, raw, bounds)
+    b = _ends(m, moved, bounds)
+    shift = np.maximum(np.hypot(*(b[:, 0:2] - a[:, 0:2]).T), np.hypot(*(b[:, 2:4] - a[:, 2:4]).T))
+    bound = max_step_mm(LR, bounds.max_length)
+    assert shift.max() <= bound
+    assert shift.max() > 0.5 * bound  # the bound is not vacuous
+
+
+def test_bounded_adam_clips_each_step_to_lr(m) -> None:
+    """A gradient burst after a quiet spell: plain Adam steps past lr, ours never."""
+    lr = 0.1
+    plain = dr.opt.Adam(lr=lr)
+    ours = BoundedAdam(lr=lr)
+    for opt in (plain, ours):
+        opt["x"] = m.Float64([0.0, 0.0])
+    steps: dict[int, list[float]] = {0: [], 1: []}
+    for it in range(60):
+        g = 1e-6 if it < 50 else 1e3
+        for k, opt in enumerate((plain, ours)):
+            x = opt["x"]
+            before = np.asarray(x).copy()
+            dr.backward(dr.sum(x * m.Float64([g, -g])))
+            opt.step()
+            steps[k].append(float(np.abs(np.asarray(opt["x"]) - before).max()))
+    assert max(steps[0]) > 1.3 * lr
+    assert max(steps[1]) <= lr * (1 + 1e-12)
+
+
+# ---------------------------------------------------------------- pairs
+
+
+@pytest.fixture(scope="module")
+def board() -> tuple:  # type: ignore[type-arg]
+    design = make_design(resolution=24, size_mm=30.0)
+    targets, cross = cross_of(design)
+    return design, targets, cross
+
+
+def _pair_set(pairs) -> set[tuple[int, int]]:  # type: ignore[no-untyped-def]
+    return set(zip(pairs.pixel_np.tolist(), pairs.scratch_np.tolist(), strict=True))
+
+
+def test_pairs_are_never_missed_between_refreshes(m, board) -> None:
+    """Fresh exact pairs at every step are a subset of the pairs in use (K = 6)."""
+    design, targets, _ = board
+    layout = make_layout(design, 120, seed=5)
+    lr = {"cx": 0.08, "cy": 0.08, "theta": math.radians(1.0), "length": 0.08}
+    opt = LayoutOptimizer(design, targets, layout, Settings(lr=lr, refresh_every=6), m)
+    missed_without_margin = 0
+    for _ in range(18):
+        opt.step()
+        current = opt.scratches()
+        stale = opt.refresh_ends.astype(np.float64)
+        for r, used in zip(opt.renderers, opt.pairs, strict=True):
+            fresh = r.find_pairs(current.p0, current.p1, current.width / 2, 0.0)
+            assert _pair_set(fresh) <= _pair_set(used)
+            old = r.find_pairs(stale[:, 0:2], stale[:, 2:4], current.width / 2, 0.0)
+            missed_without_margin += len(_pair_set(fresh) - _pair_set(old))
+    # the margin is needed: pairs found without it do go stale
+    assert missed_without_margin > 0
+
+
+def test_neighbour_pairs_match_brute_force(rng) -> None:
+    n = 400
+    c = rng.uniform(-10, 10, (n, 2))
+    theta = rng.choice([0.0, 0.1, 1.2], n) + rng.normal(0, 0.05, n)
+    half = (rng.uniform(1, 4, n) / 2)[:, None] * np.stack([np.cos(theta), np.sin(theta)], 1)
+    p0, p1 = c - half, c + half
+    reach = 0.4
+    i, j = neighbour_pairs(p0, p1, reach)
+    got = set(zip(i.tolist(), j.tolist(), strict=True))
+    ii, jj = np.triu_indices(n, 1)
+    d = segment_distance_np(p0, p1, ii, jj)
+    u = p1 - p0
+    cos = (
+        np.abs(np.sum(u[ii] * u[jj], 1))
+        / np.linalg.norm(u[ii], axis=1)
+        / np.linalg.norm(u[jj], axis=1)
+    )
+    want = set(
+        zip(
+            ii[(d < reach) & (cos >= math.cos(math.radians(35)))].tolist(),
+            jj[(d < reach) & (cos >= math.cos(math.radians(35)))].tolist(),
+            strict=True,
+        )
+    )
+    assert want and got == want
+
+
+# ---------------------------------------------------------------- loss
+
+
+def test_view_error_uses_the_closed_form_exposure(m, rng) -> None:
+    n = 500
+    r = rng.uniform(0, 2, n)
+    t = rng.uniform(0, 1, n)
+    mask = (rng.uniform(0, 1, n) > 0.2).astype(np.float64)
+    F = m.Float64
+    err, s = view_error(F(r), F(t * mask), F(mask), "linear")
+    target = np.where(mask > 0, t, np.nan)
+    s_ref = exposure(r, target)
+    ok = mask > 0
+    e_ref = np.sum((s_ref * r[ok] - t[ok]) ** 2) / np.sum(t[ok] ** 2)
+    assert float(s[0]) == pytest.approx(s_ref, rel=1e-12)
+    assert float(err[0]) == pytest.approx(e_ref, rel=1e-10)
+    # perceptual: the sRGB-encoded difference, same exposure
+    perr, _ = view_error(F(r), F(t * mask), F(mask), "perceptual")
+
+    def enc(v: np.ndarray) -> np.ndarray:
+        return np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
+
+    p_ref = np.sum((enc(s_ref * r[ok]) - enc(t[ok])) ** 2) / np.sum(enc(t[ok]) ** 2)
+    assert float(perr[0]) == pytest.approx(p_ref, rel=1e-10)
+
+
+def test_merge_penalty_pushes_close_parallel_scratches_apart(m, board) -> None:
+    design, targets, _ = board
+    base = np.array([[-2.0, 0.0], [2.0, 0.0]])
+    layout = ScratchSet.from_arrays(
+        np.stack([base[0], base[0] + [0, 0.04]]),
+        np.stack([base[1], base[1] + [0, 0.04]]),
+        0.1,
+        0.01,
+    )
+    settings = Settings(lr=LR, merge_weight=1e3)
+    opt = LayoutOptimizer(design, targets, layout, settings, m)
+    for _ in range(10):
+        opt.step()
+    s = opt.scratches()
+    gap = segment_distance_np(s.p0, s.p1, np.array([0]), np.array([1]))[0]
+    assert gap > 0.04 + 0.1  # moved apart by more than Adam's drift from the image term alone
+
+
+# ---------------------------------------------------------------- the stage
+
+
+@pytest.fixture
+def job(tmp_path: Path) -> Path:
+    return make_job(tmp_path / "job", make_design(resolution=24, size_mm=30.0), count=150)
+
+
+def test_cli_writes_every_output(job: Path) -> None:
+    main(["optimize", str(job), "--iterations", "12", "--checkpoint-every", "5"])
+    out = job / "optimize"
+    for name in (
+        "scratches.csv",
+        "log.csv",
+        "loss.png",
+        "side_by_side.png",
+        "checkpoint.npz",
+        "renders/left.npy",
+        "renders/left.png",
+        "renders/right.npy",
+        "summary.json",
+    ):
+        assert (out / name).is_file(), name
+    with open(out / "log.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["iteration"]) for r in rows] == list(range(13))
+    assert {"loss", "psnr_left", "rho_right", "x_left_right", "x_right_left"} <= set(rows[0])
+    assert float(rows[-2]["loss"]) < float(rows[0]["loss"])
+    design_csv = load_scratches(job / "design" / "scratches.csv", make_design().scratch)
+    from scratchfab.model.design import load_design
+
+    design = load_design(job / "design" / "design.toml")
+    final = load_scratches(out / "scratches.csv", design.scratch, design.board)
+    assert len(final) == len(design_csv)
+    b = Bounds.from_design(design)
+    assert np.all(np.abs(np.concatenate([final.p0[:, 0], final.p1[:, 0]])) <= b.half_x + 1e-9)
+    assert np.all((final.lengths >= b.min_length - 1e-9) & (final.lengths <= b.max_length + 1e-9))
+    # the render layout shows the final layout (checked against a fresh render)
+    from scratchfab.render.renderer import render_scratches
+
+    fresh = render_scratches(design, final)
+    np.testing.assert_allclose(
+        np.load(out / "renders" / "left.npy"), fresh["left"], rtol=1e-5, atol=1e-7
+    )
+
+
+def _run_cli(job: Path, *args: str) -> subprocess.Popen[bytes]:
+    code = "import sys; from scratchfab.cli import main; main(sys.argv[1:])"
+    return subprocess.Popen(
+        [sys.executable, "-c", code, "optimize", str(job), *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+
+
+def test_resume_after_kill_9_matches_uninterrupted(tmp_path: Path) -> None:
+    design = make_design(resolution=24, size_mm=30.0)
+    a = make_job(tmp_path / "a", design, count=150)
+    b = make_job(tmp_path / "b", design, count=150)
+    args = ["--iterations", "30", "--checkpoint-every", "7", "--seed", "4"]
+    ref = _run_cli(a, *args)
+    assert ref.wait(timeout=300) == 0, ref.stderr.read() if ref.stderr else ""  # type: ignore[union-attr]
+    victim = _run_cli(b, *args)
+    ckpt = b / "optimize" / "checkpoint.npz"
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        if ckpt.exists():
+            state, _, _ = load_checkpoint(ckpt)
+            if int(state["iteration"]) >= 14:
+                break
+        time.sleep(0.05)
+    victim.send_signal(signal.SIGKILL)
+    victim.wait()
+    state, _, _ = load_checkpoint(ckpt)
+    assert 14 <= int(state["iteration"]) < 30
+    assert not (b / "optimize" / "scratches.csv").exists()
+    resumed = _run_cli(b, *args, "--resume")
+    assert resumed.wait(timeout=300) == 0
+    ref_text = (a / "optimize" / "scratches.csv").read_bytes()
+    assert (b / "optimize" / "scratches.csv").read_bytes() == ref_text
+    log_a = (a / "optimize" / "log.csv").read_text().splitlines()
+    log_b = (b / "optimize" / "log.csv").read_text().splitlines()
+    strip = [lambda line: line.split(",")[:2] + line.split(",")[3:]][0]
+    assert [strip(x) for x in log_a] == [strip(x) for x in log_b]
+
+
+def test_ctrl_c_stops_after_the_step_with_outputs(job: Path) -> None:
+    proc = _run_cli(job, "--iterations", "500", "--checkpoint-every", "1000")
+    log = job / "optimize" / "log.csv"
+    deadline = time.time() + 300
+    # wait until stepping (the first checkpoint is the Ctrl-C one, so watch stderr progress)
+    assert proc.stderr is not None
+    os.set_blocking(proc.stderr.fileno(), False)
+    seen = b""
+    while time.time() < deadline and b" 3/500" not in seen:
+        chunk = proc.stderr.read() or b""
+        seen += chunk
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=120) == 0
+    out = proc.stdout.read().decode() if proc.stdout else ""
+    assert "interrupted" in out
+    state, _, rows = load_checkpoint(job / "optimize" / "checkpoint.npz")
+    n = int(state["iteration"])
+    assert 3 <= n < 500 and len(rows) == n
+    assert (job / "optimize" / "scratches.csv").exists() and log.exists()
+
+
+def test_non_finite_loss_stops_with_message_and_keeps_checkpoint(
+    job: Path, monkeypatch, capsys
+) -> None:
+    from scratchfab.render import renderer
+
+    original = renderer.ViewRenderer.render
+    calls = {"n": 0}
+
+    def poisoned(self, *args):  # type: ignore[no-untyped-def]
+        calls["n"] += 1
+        img = original(self, *args)
+        return img * (math.nan if calls["n"] > 2 * 8 else 1.0)
+
+    monkeypatch.setattr(renderer.ViewRenderer, "render", poisoned)
+    with pytest.raises(SystemExit) as exc:
+        main(["optimize", str(job), "--iterations", "20", "--checkpoint-every", "5"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: non-finite loss at iteration 8" in err and "checkpoint" in err
+    state, _, _ = load_checkpoint(job / "optimize" / "checkpoint.npz")
+    assert int(state["iteration"]) == 5
+    for k in KEYS:
+        assert np.all(np.isfinite(state[f"raw_{k}"]))
+
+
+def test_resume_refuses_other_settings_and_missing_checkpoint(job: Path, capsys) -> None:
+    with pytest.raises(SystemExit):
+        main(["optimize", str(job), "--iterations", "2", "--resume"])
+    assert "no checkpoint to resume from" in capsys.readouterr().err
+    main(["optimize", str(job), "--iterations", "2"])
+    with pytest.raises(SystemExit):
+        main(["optimize", str(job), "--iterations", "4", "--resume", "--seed", "9"])
+    err = capsys.readouterr().err
+    assert "different settings" in err and "seed" in err
+
+
+def test_missing_job_is_one_line_error(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["optimize", str(tmp_path / "nope")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "design.toml: file not found" in err[0]
+
+
+def test_prune_drops_invisible_scratches_and_reports_savings(m, board) -> None:
+    from scratchfab.optimize.prune import prune
+
+    design, targets, _ = board
+    layout = make_layout(design, 120, seed=8)
+    # 15 extra scratches turned 90 degrees from a view's reflecting direction: no view sees them
+    extra = make_layout(design, 30, seed=9).subset(np.arange(0, 30, 2))
+    c = 0.5 * (extra.p0 + extra.p1)
+    d = 0.5 * (extra.p1 - extra.p0)
+    rot = np.stack([-d[:, 1], d[:, 0]], 1)
+    hidden = ScratchSet.from_arrays(c - rot, c + rot, 0.1, 0.01)
+    full = ScratchSet.from_arrays(
+        np.concatenate([layout.p0, hidden.p0]), np.concatenate([layout.p1, hidden.p1]), 0.1, 0.01
+    )
+    opt = LayoutOptimizer(design, targets, full, Settings(lr=LR), m)
+    before = opt.evaluate(full).loss
+    report = prune(opt, full, 0.001, feed_mm_min=300.0, stroke_overhead_s=2.0)
+    assert report.removed >= 10
+    assert report.loss_after <= before * 1.001 + 1e-15
+    assert opt.evaluate(report.kept).loss == pytest.approx(report.loss_after, rel=1e-9)
+    assert len(report.kept) == len(full) - report.removed
+    removed_len = full.lengths.sum() - report.kept.lengths.sum()
+    assert report.length_saved_mm == pytest.approx(removed_len)
+    assert report.time_saved_s == pytest.approx(removed_len / 300 * 60 + 2.0 * report.removed)
+
+
+# ---------------------------------------------------------------- acceptance
+
+
+@pytest.mark.slow
+def test_acceptance_test_board_checked_with_reference_renderer(tmp_path: Path) -> None:
+    """rho_kk >= 0.8 and x_kj <= 0.2 by the independent brute-force renderer."""
+    from reference_render import reference_render
+
+    res, count, iters = (48, 700, 150) if FULL else (32, 300, 100)
+    design = make_design(resolution=res, size_mm=40.0)
+    job = make_job(tmp_path / "job", design, count=count)
+    result = run_optimize(job, OptimizeOptions(iterations=iters, threads=0))
+    from scratchfab.model.design import load_design
+
+    design = load_design(job / "design" / "design.toml")
+    targets, cross = cross_of(design)
+    ref = reference_render(
+        design, result.scratches, samples_per_pixel=64, across=24, along_step_mm=0.05
+    )
+    q = quality_report(ref, targets, cross)
+    for k, v in q["views"].items():
+        assert v["rho"] >= 0.8, (k, v)
+        for j, x in v["crosstalk"].items():
+            assert x <= 0.2, (k, j, x)
+    own = quality_report(
+        result.quality and {k: np.load(job / "optimize" / "renders" / f"{k}.npy") for k in targets},
+        targets,
+        cross,
+    )
+    for k in targets:
+        assert abs(own["views"][k]["rho"] - q["views"][k]["rho"]) < 0.05
+
+
+def test_non_finite_error_is_a_user_error() -> None:
+    assert issubclass(NonFiniteError, ScratchfabError)
