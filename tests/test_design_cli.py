@@ -175,6 +175,10 @@ def test_user_errors_are_one_line_and_keep_the_old_job(tmp_path, capsys):
     no_target.write_text(toml.read_text().replace('target = "b.png"\n', ""))
     err = _fail(["design", str(no_target), "--out", str(job)], capsys)
     assert "'b'" in err and "missing target" in err
+    a_file = tmp_path / "occupied"
+    a_file.write_text("not a folder")
+    err = _fail(["design", str(toml), "--out", str(a_file / "job")], capsys)
+    assert "cannot create the job folder" in err and str(a_file) in err
     # The failed runs left the earlier job as it was.
     assert (job / "design" / "scratches.csv").read_text() == before
     assert not list(job.glob(".design*"))

@@ -146,3 +146,16 @@ def test_cli_refuses_unless_forced_and_writes_nothing(tmp_path, capsys):
     report = json.loads((job / "design" / "feasibility.json").read_text())
     assert any("'steep'" in e for e in report["errors"])
     assert (job / "design" / "feasibility_steep.png").is_file()
+
+
+@pytest.mark.parametrize("order", [1, -1])
+def test_one_sided_crosstalk_is_still_an_error(order):
+    # A steep view's scratches carry a wide arc of normals that reaches a shallow view's
+    # half-vector (1.7-2.2 deg) while the reverse is 8 deg apart: the worse side decides,
+    # whichever order the views come in.
+    views = [("low", 10.0, 0.0), ("high", 36.0, 16.0)][::order]
+    report = check_feasibility(_design(views, light=(0.0, 0.0, 500.0)))
+    seps = {(p.lit, p.other): p.separation_median_deg for p in report.pairs}
+    assert seps[("high", "low")] < lobe_deg(0.05) < seps[("low", "high")]
+    assert len(report.errors) == 1 and "indistinguishable" in report.errors[0]
+    assert "light 'high' also light 'low'" in report.errors[0]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from itertools import combinations
 from typing import Any
 
 import numpy as np
@@ -265,7 +266,6 @@ def check_feasibility(design: Design, grid: int = 96) -> FeasibilityReport:
                 f"(half-vector tilt up to {tilt.max():.1f} deg)"
             )
     pairs: list[PairFeasibility] = []
-    flagged: set[frozenset[str]] = set()
     for k in design.views:
         across = across_directions(hs[k.name])
         for j in design.views:
@@ -273,31 +273,33 @@ def check_feasibility(design: Design, grid: int = 96) -> FeasibilityReport:
                 continue
             sep = arc_distance_deg(hs[j.name], across, steepest)
             cross = ggx_ratio(sep, design.board.roughness)
-            pair = PairFeasibility(
-                k.name,
-                j.name,
-                float(sep.min()),
-                float(np.median(sep)),
-                float(np.median(cross)),
-                cross,
+            pairs.append(
+                PairFeasibility(
+                    k.name,
+                    j.name,
+                    float(sep.min()),
+                    float(np.median(sep)),
+                    float(np.median(cross)),
+                    cross,
+                )
             )
-            pairs.append(pair)
-            key = frozenset((k.name, j.name))
-            if key in flagged:
-                continue
-            if pair.separation_median_deg < lobe:
-                flagged.add(key)
-                errors.append(
-                    f"views '{k.name}' and '{j.name}' are indistinguishable: scratches that "
-                    f"light '{k.name}' also light '{j.name}' (its half-vector lies "
-                    f"{pair.separation_median_deg:.2f} deg from their normals, within the "
-                    f"{lobe:.1f} deg roughness lobe); move one of the views"
-                )
-            elif pair.separation_median_deg < WARN_SEPARATION_LOBES * lobe:
-                flagged.add(key)
-                warnings.append(
-                    f"views '{k.name}' and '{j.name}' are close: expected crosstalk "
-                    f"{pair.expected_crosstalk:.2f} ({pair.separation_median_deg:.1f} deg apart, "
-                    f"lobe {lobe:.1f} deg)"
-                )
+    for a, b in combinations(design.views, 2):
+        # The worse of the two directions decides: scratches for a seen by b, or back.
+        worst = min(
+            (p for p in pairs if {p.lit, p.other} == {a.name, b.name}),
+            key=lambda p: p.separation_median_deg,
+        )
+        if worst.separation_median_deg < lobe:
+            errors.append(
+                f"views '{a.name}' and '{b.name}' are indistinguishable: scratches that "
+                f"light '{worst.lit}' also light '{worst.other}' (its half-vector lies "
+                f"{worst.separation_median_deg:.2f} deg from their normals, within the "
+                f"{lobe:.1f} deg roughness lobe); move one of the views"
+            )
+        elif worst.separation_median_deg < WARN_SEPARATION_LOBES * lobe:
+            warnings.append(
+                f"views '{a.name}' and '{b.name}' are close: expected crosstalk "
+                f"{worst.expected_crosstalk:.2f} ({worst.separation_median_deg:.1f} deg apart, "
+                f"lobe {lobe:.1f} deg)"
+            )
     return FeasibilityReport(steepest, lobe, views, pairs, errors, warnings)

@@ -202,8 +202,11 @@ def run_design(
     )
     resolved = replace(resolved, base_dir=folder, source=str(folder / "design.toml"))
 
-    job.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".design.", suffix=".tmp", dir=job))
+    try:
+        job.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=".design.", suffix=".tmp", dir=job))
+    except OSError as exc:
+        raise ConfigError(f"{job}: cannot create the job folder ({exc.strerror})") from None
     try:
         write_text(
             tmp / "design.toml",
