@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
+from PIL import Image, features
 
 from scratchfab.cli import main
 from scratchfab.design.images import linear_to_srgb, load_image, srgb_to_linear
@@ -153,3 +153,27 @@ def test_cli_reports_bad_images_on_one_line_and_writes_nothing(
     assert err.count("\n") == 0 and err.startswith("error: ")
     assert str(bad) in err and message in err
     assert not (job / "design").exists()
+
+
+@pytest.mark.parametrize(
+    ("ext", "kwargs"),
+    [
+        ("tif", {}),
+        ("bmp", {}),
+        ("gif", {}),
+        ("webp", {"lossless": True}),
+        ("jpg", {"quality": 100}),
+    ],
+)
+def test_other_formats_read_like_png(tmp_path, ext, kwargs):
+    if ext == "webp" and not features.check("webp"):
+        pytest.skip("Pillow built without WebP")
+    arr = np.zeros((12, 16, 3), np.uint8)
+    arr[:, :8] = (200, 200, 200)
+    arr[3:6, 10:14] = (90, 90, 90)
+    Image.fromarray(arr).save(tmp_path / "ref.png")
+    Image.fromarray(arr).save(tmp_path / f"x.{ext}", **kwargs)
+    ref = load_image(tmp_path / "ref.png")
+    got = load_image(tmp_path / f"x.{ext}")
+    assert got.shape == ref.shape
+    np.testing.assert_allclose(got, ref, atol=0.02 if ext == "jpg" else 1e-12)
