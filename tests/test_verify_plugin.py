@@ -59,7 +59,8 @@ def quadrature_render(design, view, scratch_fn, n=48):
     ``scratch_fn(points (..., 2), h (3,)) -> (D summed over covering scratches, count)``.
     The footprint integral is weighted by the board area per image-plane area
     (proportional to 1 / |d_z|^3 for f . d = 1); h, F and the radiometric factor are
-    taken at the pixel centre as SPEC section 4 prescribes.
+    taken at the pixel centre, and the flat remainder max(0, |P n B| - sum_i |P n S_i|)
+    is clamped per footprint, as SPEC section 4 prescribes.
     """
     cam = Camera.from_view(view)
     hw, hh = design.board.half_extent
@@ -86,8 +87,10 @@ def quadrature_render(design, view, scratch_fn, n=48):
             h = (wi + wo) / np.linalg.norm(wi + wo)
             on = hit & (np.abs(pts[..., 0]) <= hw) & (np.abs(pts[..., 1]) <= hh)
             d_sum, count = scratch_fn(pts, h)
-            d_point = d_sum + (1 - count) * ggx(np.array(h[2]), alpha)
-            dhat = np.sum(np.where(on, d_point, 0.0) * jac) / np.sum(jac)
+            scratch_area = np.sum(np.where(on, count, 0.0) * jac)
+            flat_area = max(0.0, np.sum(np.where(on, jac, 0.0)) - scratch_area)
+            d_int = np.sum(np.where(on, d_sum, 0.0) * jac) + flat_area * ggx(h[2], alpha)
+            dhat = d_int / np.sum(jac)
             out[j, i] = design.light.intensity * schlick(wi @ h, f0) * dhat / (4 * r2 * wo[2])
     return out
 
@@ -190,7 +193,41 @@ def test_wide_scratch_matches_quadrature_of_spec_section_4():
     assert err < 0.01 + 3 * result.noise, (err, result.noise)
 
 
-def test_eval_is_the_pointwise_spec_density_with_the_signed_or_clamped_flat_weight():
+def test_stacked_scratches_clamp_the_flat_remainder_per_footprint():
+    """Four overlapping dents under the flat highlight: SPEC's clamp, not the signed sum."""
+    design = one_view_design(position=(0.0, -150.0, 300.0), size=12.0, roughness=0.1)
+    view = design.views[0]
+    offsets = np.array([0.0, 0.15, 0.3, 0.45])
+    p0 = np.column_stack([offsets - 0.5, np.full(4, -3.0)])
+    p1 = np.column_stack([offsets - 0.5, np.full(4, 3.0)])
+    width, depth = 1.2, 0.05
+    wbar = float(solve_wbar(np.array(width), np.array(depth)))
+    scratches = ScratchSet.from_arrays(p0, p1, width, depth)
+
+    def stack(pts, hh):
+        d_sum = np.zeros(pts.shape[:-1])
+        count = np.zeros(pts.shape[:-1])
+        for a in p0:
+            x = pts[..., 0] - a[0]
+            inside = (np.abs(x) <= width / 2) & (np.abs(pts[..., 1]) <= 3.0)
+            n = profile_normal(x, np.array([1.0, 0.0]), wbar)
+            d_sum += np.where(inside, ggx(n @ hh, 0.1), 0.0)
+            count += inside
+        return d_sum, count
+
+    expected = quadrature_render(design, view, stack, n=32)
+    spec = BoardRenderer(design, scratches).render(view, 1024)
+    err = relative_l2(spec.image, expected)
+    assert err < 0.005 + 3 * spec.noise, (err, spec.noise)
+    # The pointwise signed sum (no per-footprint clamp) is visibly darker there.
+    mi = use_variant("llvm")
+    signed = mi.load_dict(board_bsdf(design, scratches, "signed", "all"))
+    scene = mi.load_dict(scene_dict(design, scratches, view, 256, bsdf=signed))
+    plain = np.array(mi.render(scene, spp=256, seed=1)).reshape(expected.shape)
+    assert relative_l2(plain, expected) > 10 * err
+
+
+def test_eval_is_the_pointwise_density_of_each_lobe_choice():
     mi = use_variant("llvm")
     import drjit as dr
 
@@ -222,8 +259,14 @@ def test_eval_is_the_pointwise_spec_density_with_the_signed_or_clamped_flat_weig
     assert list(count) == [2, 1, 0]
     scale = schlick(h @ light_dir, f0) / (4 * cam_dir[2])
     d_flat = ggx(np.array(h[2]), alpha)
-    for rule, flat in (("signed", 1 - count), ("clamped", np.maximum(1 - count, 0))):
-        bsdf = mi.load_dict(board_bsdf(design, scratches, rule))
+    cases = (
+        ("signed", "all", d_sum + (1 - count) * d_flat),
+        ("clamped", "all", d_sum + np.maximum(1 - count, 0) * d_flat),
+        ("signed", "scratches", d_sum),
+        ("signed", "flat", (1 - count) * d_flat),
+    )
+    for rule, lobes, ndf in cases:
+        bsdf = mi.load_dict(board_bsdf(design, scratches, rule, lobes))
         si = dr.zeros(mi.SurfaceInteraction3f, 3)
         si.p = mi.Point3f(points[:, 0], points[:, 1], np.zeros(3))
         si.n = mi.Normal3f(0, 0, 1)
@@ -231,7 +274,7 @@ def test_eval_is_the_pointwise_spec_density_with_the_signed_or_clamped_flat_weig
         si.wi = si.to_local(mi.Vector3f(*map(float, cam_dir)))
         wo = si.to_local(mi.Vector3f(*map(float, light_dir)))
         value = np.array(bsdf.eval(mi.BSDFContext(), si, wo)).reshape(-1)
-        np.testing.assert_allclose(value, scale * (d_sum + flat * d_flat), rtol=2e-4)
+        np.testing.assert_allclose(value, scale * ndf, rtol=2e-4, err_msg=f"{rule} {lobes}")
 
 
 def test_sampling_agrees_with_eval_and_pdf():
@@ -308,7 +351,7 @@ def test_sky_render_lights_the_board_beyond_the_design_light():
     view = design.views[0]
     empty = ScratchSet.from_arrays(np.zeros((0, 2)), np.zeros((0, 2)), 0.1, 0.01)
     plain = BoardRenderer(design, empty).render(view, 64).image
-    sky = BoardRenderer(design, empty, sky=Sky(strength=1.0), flat_weight="clamped")
+    sky = BoardRenderer(design, empty, sky=Sky(strength=1.0), mode="physical")
     lit = sky.render(view, 64).image
     assert np.all(np.isfinite(lit))
     assert lit.mean() > plain.mean() * 1.5

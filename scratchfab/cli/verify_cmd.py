@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from scratchfab.errors import ScratchfabError
+from scratchfab.verify.verify import DEFAULT_SPP
 
 
 @click.command("verify-render")
@@ -22,11 +23,23 @@ from scratchfab.errors import ScratchfabError
 @click.option(
     "--spp",
     type=click.IntRange(min=2),
-    default=4096,
+    default=DEFAULT_SPP,
     show_default=True,
     help="Samples per pixel (two independent halves; their difference gives the noise).",
 )
-@click.option("--seed", type=int, default=0, show_default=True, help="Sampler and jitter seed.")
+@click.option(
+    "--max-noise",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="Add sample batches until the estimated relative noise is at most this (up to 8x --spp).",
+)
+@click.option(
+    "--seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Sampler and jitter seed.",
+)
 @click.option("--sky", is_flag=True, help="Also render under sun and sky (writes OUT/sky/).")
 @click.option(
     "--sky-strength",
@@ -80,6 +93,7 @@ def verify_render(
     scratch_file: Path | None,
     out_dir: Path | None,
     spp: int,
+    max_noise: float | None,
     seed: int,
     sky: bool,
     sky_strength: float,
@@ -123,6 +137,7 @@ def verify_render(
         sweep=sweep,
         jitter=tolerance,
         min_rho=min_rho,
+        max_noise=max_noise,
     )
     start = time.perf_counter()
 

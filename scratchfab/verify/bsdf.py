@@ -6,17 +6,20 @@ listed scratches exactly: p is covered by scratch i when |x_i| <= w_i and
 profile normal n_i(x_i) (the supplement's eqs. 2 and 6); elsewhere it is the flat +z.
 
 Pointwise NDF. SPEC section 4 sums overlapping scratches "as if each were alone" and
-gives the flat board what area is left, ``max(0, |P| - sum_i |P n S_i|)``. The point
-density that integrates to that over a footprint P is
+gives the flat board what area is left, ``max(0, |P n B| - sum_i |P n S_i|)``. The
+point density
 
     D_p(h) = sum_{i covers p} D(h . n_i(p)) + (1 - k(p)) D(h_z),
 
-k(p) the number of covering scratches: it reproduces the footprint sum exactly except
-where the SPEC's clamp at zero is active (overlap area beyond the flat area left in a
-pixel). This "signed" weight makes the expected pixel equal to SPEC section 4 and is
-what verification uses; it goes negative where scratches cross. ``flat_weight =
-"clamped"`` uses ``max(0, 1 - k(p))`` instead, a non-negative, physically plausible
-board for renders under other light (``--sky``, sweeps).
+k(p) the number of covering scratches, integrates over a footprint P to exactly that sum
+without the clamp at zero; the clamp is a rule about the whole footprint that no
+pointwise density can express. The plugin therefore offers its two parts separately,
+``lobes = "scratches"`` (the sum) and ``lobes = "flat"`` (the signed flat remainder,
+negative where scratches overlap), and verification renders both and clamps the flat
+image per pixel (:class:`scratchfab.verify.verify.BoardRenderer`), which is SPEC
+section 4 exactly in expectation. ``lobes = "all"`` with ``flat_weight = "clamped"``
+(``max(0, 1 - k(p))``) is a non-negative, physically plausible board for renders under
+other light (``--sky``, sweeps); ``flat_weight = "signed"`` is the plain sum above.
 
 Radiometry. With Mitsuba's ``wi`` toward the camera and ``wo`` toward the light,
 ``eval`` returns the cosine-weighted BRDF F(wo . h) D_p(h) / (4 wi_z) (Cook-Torrance with
@@ -44,6 +47,7 @@ from scratchfab.verify.index import build_grid
 
 PLUGIN_NAME = "scratch_board"
 FLAT_WEIGHTS = ("signed", "clamped")
+LOBES = ("all", "scratches", "flat")
 
 _registered: set[str] = set()
 
@@ -72,6 +76,11 @@ class ScratchKernel:
         if mode not in FLAT_WEIGHTS:
             raise ValueError(f"scratch_board: flat_weight must be one of {FLAT_WEIGHTS}")
         self.signed = mode == "signed"
+        lobes = str(props.get("lobes", "all"))
+        if lobes not in LOBES:
+            raise ValueError(f"scratch_board: lobes must be one of {LOBES}")
+        self.scratch_weight = 0.0 if lobes == "flat" else 1.0
+        self.flat_on = lobes != "scratches"
         extent = (0.5 * float(props["board_width"]), 0.5 * float(props["board_height"]))
         if "p0" in props:
             p0 = np.array(props["p0"], dtype=np.float64).reshape(-1, 2)
@@ -188,8 +197,11 @@ class ScratchKernel:
         sum_d, sum_dc, count = self._scan(si.p.x, si.p.y, h, active)
         d_flat = ggx(h.z, self.alpha)
         flat = 1.0 - count if self.signed else dr.maximum(1.0 - count, 0.0)
+        if not self.flat_on:
+            flat = mi.Float(0.0)
         cos_h = dr.dot(wi, h)
-        value = schlick(cos_h, self.f0) * (sum_d + flat * d_flat) / (4.0 * cos_cam)
+        ndf = self.scratch_weight * sum_d + flat * d_flat
+        value = schlick(cos_h, self.f0) * ndf / (4.0 * cos_cam)
         pdf = (sum_dc + d_flat * h.z) / ((count + 1.0) * 4.0 * dr.maximum(cos_h, 1e-12))
         return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0)
 

@@ -56,8 +56,17 @@ def use_variant(backend: BackendName = "llvm", color: bool = False) -> ModuleTyp
     return mi
 
 
-def board_bsdf(design: Design, scratches: ScratchSet, flat_weight: str = "signed") -> dict:
-    """The ``scratch_board`` BSDF of a design's board carrying ``scratches``."""
+def board_bsdf(
+    design: Design, scratches: ScratchSet, flat_weight: str = "signed", lobes: str = "all"
+) -> dict:
+    """The ``scratch_board`` BSDF of a design's board carrying ``scratches``.
+
+    Args:
+        design: Supplies the board (size, roughness, f0).
+        scratches: The layout.
+        flat_weight: ``"signed"`` or ``"clamped"`` flat remainder (see :mod:`.bsdf`).
+        lobes: ``"all"``, ``"scratches"`` or ``"flat"``.
+    """
     import mitsuba as mi
 
     props: dict[str, Any] = {
@@ -67,6 +76,7 @@ def board_bsdf(design: Design, scratches: ScratchSet, flat_weight: str = "signed
         "alpha": design.board.roughness,
         "f0": design.board.f0,
         "flat_weight": flat_weight,
+        "lobes": lobes,
     }
     if len(scratches):
         props["p0"] = mi.TensorXf(scratches.p0.astype(np.float32))

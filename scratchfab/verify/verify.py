@@ -1,8 +1,9 @@
 """The ``verify-render`` stage: render the board in Mitsuba 3 and compare.
 
-Every view is rendered twice at half the sample count with independent seeds. The
-output image is their mean, and ``|A - B| / 2`` estimates its Monte Carlo error, so the
-reported noise level costs no extra samples. The comparison target is the analytic
+Every view is rendered in independent batches (two at half the sample count each, more
+while a noise target is not met). The output image is their mean and the batches'
+spread gives its standard error (for two, ``|A - B| / 2``), so the reported noise level
+costs no extra samples. The comparison target is the analytic
 ``render`` of the same board (``JOB/optimize/renders`` or
 :func:`scratchfab.render.renderer.render_scratches`); it is only read, never used to
 render. Quality measures follow SPEC section 7 (:mod:`scratchfab.metrics`).
@@ -30,8 +31,15 @@ from scratchfab.verify.jitter import Tolerance, jitter_scratches
 from scratchfab.verify.scene import Sky, board_bsdf, scene_dict, use_variant
 from scratchfab.verify.sweep import gif_bytes, nearest_frames, sweep_path
 
-#: Samples per pixel by default: about 1-2 % noise at footprints of a few scratch widths.
-DEFAULT_SPP = 4096
+#: Samples per pixel by default: about 1 % noise where a pixel's footprint spans up to
+#: eight scratch widths (the bundled demo), well below 1 % at four.
+DEFAULT_SPP = 8192
+#: With a noise target, batches are added up to this many times the requested spp.
+MAX_SPP_FACTOR = 8
+#: Share of the samples that the smooth flat-remainder image gets in ``"spec"`` mode.
+FLAT_SPP_FRACTION = 0.125
+#: Fewest samples per pixel of any part.
+MIN_PART_SPP = 16
 #: Sweep frames get at most this many samples per pixel.
 SWEEP_SPP = 1024
 
@@ -56,6 +64,7 @@ class VerifySettings:
         sweep: Number of sweep frames (0: none).
         jitter: Tolerances to perturb the layout by (None: no jitter run).
         min_rho: Gate: every view's rho_kk must reach this (None: no gate).
+        max_noise: Noise target of the comparison renders (None: fixed ``spp``).
     """
 
     spp: int = DEFAULT_SPP
@@ -65,6 +74,7 @@ class VerifySettings:
     sweep: int = 0
     jitter: Tolerance | None = None
     min_rho: float | None = None
+    max_noise: float | None = None
 
 
 @dataclass(frozen=True)
@@ -72,10 +82,11 @@ class ViewRender:
     """One view's Mitsuba render.
 
     Attributes:
-        image: (H, W) float32 linear radiance, the mean of two half renders.
-        noise: Estimated relative L2 error of ``image`` (|A - B| / (2 |image|)).
-        spp: Samples per pixel actually taken (both halves).
-        seconds: Wall time of both halves.
+        image: (H, W) float32 linear radiance, the mean of the batches.
+        noise: Estimated relative L2 error of ``image``: the batches' standard error
+            sqrt(sum_i |B_i - mean|^2 / (k (k - 1))) over |mean|.
+        spp: Samples per pixel actually taken (all batches).
+        seconds: Wall time of all batches.
     """
 
     image: np.ndarray
@@ -94,13 +105,23 @@ def half_spp(spp: int) -> int:
 class BoardRenderer:
     """Mitsuba renders of one board for any camera (the plugin's grid is built once).
 
+    Two modes:
+
+    - ``"spec"`` reproduces SPEC section 4: the scratches' lobes and the signed flat
+      remainder are rendered as two images (the plugin's ``lobes = "scratches"`` and
+      ``"flat"``), and the flat image is clamped at zero per pixel before the two are
+      added, which is the footprint rule ``max(0, |P n B| - sum_i |P n S_i|)``. The flat
+      part is smooth and gets ``FLAT_SPP_FRACTION`` of the samples.
+    - ``"physical"``: one board whose flat weight is ``max(0, 1 - k(p))`` pointwise, for
+      light other than the design's (sky, sweeps).
+
     Args:
         design: Board, light and views.
         scratches: The layout.
         backend: ``"llvm"`` or ``"cuda"``.
-        sky: Add the sun-and-sky emitter (renders in the RGB variant, stores luminance).
-        flat_weight: The plugin's overlap rule, ``"signed"`` (SPEC section 4) or
-            ``"clamped"`` (see :mod:`scratchfab.verify.bsdf`).
+        sky: Add the sun-and-sky emitter (renders in the RGB variant, stores luminance;
+            ``"physical"`` mode only).
+        mode: ``"spec"`` or ``"physical"``.
     """
 
     def __init__(
@@ -109,32 +130,88 @@ class BoardRenderer:
         scratches: ScratchSet,
         backend: BackendName = "llvm",
         sky: Sky | None = None,
-        flat_weight: str = "signed",
+        mode: str = "spec",
     ) -> None:
+        if mode not in ("spec", "physical"):
+            raise ValueError(f"mode must be 'spec' or 'physical', got {mode!r}")
+        if sky is not None and mode == "spec":
+            raise ValueError("a sky needs mode='physical' (SPEC section 4 has one point light)")
         self.mi = use_variant(backend, color=sky is not None)
         self.design = design
         self.scratches = scratches
         self.sky = sky
-        self.bsdf = self.mi.load_dict(board_bsdf(design, scratches, flat_weight))
+        self.mode = mode
+        load = self.mi.load_dict
+        if mode == "spec":
+            self.parts = [
+                (load(board_bsdf(design, scratches, "signed", "scratches")), 1.0),
+                (load(board_bsdf(design, scratches, "signed", "flat")), FLAT_SPP_FRACTION),
+            ]
+        else:
+            self.parts = [(load(board_bsdf(design, scratches, "clamped", "all")), 1.0)]
 
-    def render(self, view: View, spp: int, seed: int = 0) -> ViewRender:
-        """Render ``view`` with ``spp`` samples per pixel in two independent halves."""
+    def render(
+        self, view: View, spp: int, seed: int = 0, max_noise: float | None = None
+    ) -> ViewRender:
+        """Render ``view`` with ``spp`` samples per pixel in (at least) two batches.
+
+        Args:
+            view: The camera.
+            spp: Samples per pixel of the first two batches together.
+            seed: Base seed; batch k of part p uses ``4096 * seed + 64 * p + k``.
+            max_noise: Add batches until the estimated noise is at most this (or
+                ``MAX_SPP_FACTOR * spp`` is reached).
+        """
+        start = time.perf_counter()
+        means = []
+        variance = 0.0
+        taken = 0
+        for p, (bsdf, fraction) in enumerate(self.parts):
+            part_spp = max(MIN_PART_SPP, round(fraction * spp))
+            mean, var, n = self._batches(
+                view, bsdf, part_spp, 4096 * seed + 64 * p, max_noise if p == 0 else None
+            )
+            means.append(mean)
+            variance += var
+            taken = max(taken, n)
+        if self.mode == "spec":
+            image = means[0] + np.maximum(means[1], 0.0)
+        else:
+            image = means[0]
+        norm = float(np.linalg.norm(image))
+        noise = math.sqrt(variance) / norm if norm > 0 else 0.0
+        seconds = time.perf_counter() - start
+        return ViewRender(image.astype(np.float32), noise, taken, seconds)
+
+    def _batches(
+        self, view: View, bsdf: Any, spp: int, seed: int, max_noise: float | None
+    ) -> tuple[np.ndarray, float, int]:
+        """Mean of independent batches, its summed squared standard error, and spp taken."""
         mi = self.mi
         half = half_spp(spp)
-        start = time.perf_counter()
         scene = mi.load_dict(
-            scene_dict(self.design, self.scratches, view, half, sky=self.sky, bsdf=self.bsdf)
+            scene_dict(self.design, self.scratches, view, half, sky=self.sky, bsdf=bsdf)
         )
-        halves = []
-        for k in range(2):
-            img = mi.render(scene, spp=half, seed=2 * seed + k)
-            halves.append(np.array(img, dtype=np.float64).reshape(view.height, view.width))
-        seconds = time.perf_counter() - start
-        a, b = halves
-        mean = 0.5 * (a + b)
-        norm = float(np.linalg.norm(mean))
-        noise = float(np.linalg.norm(a - b)) / (2.0 * norm) if norm > 0 else 0.0
-        return ViewRender(mean.astype(np.float32), noise, 2 * half, seconds)
+        batches: list[np.ndarray] = []
+        limit = max(2, (MAX_SPP_FACTOR * spp) // half)
+        while True:
+            img = mi.render(scene, spp=half, seed=(seed + len(batches)) % (1 << 32))
+            batches.append(np.array(img, dtype=np.float64).reshape(view.height, view.width))
+            if len(batches) < 2:
+                continue
+            mean, var = _batch_stats(batches)
+            norm = float(np.linalg.norm(mean))
+            noise = math.sqrt(var) / norm if norm > 0 else 0.0
+            if max_noise is None or noise <= max_noise or len(batches) >= limit:
+                return mean, var, half * len(batches)
+
+
+def _batch_stats(batches: list[np.ndarray]) -> tuple[np.ndarray, float]:
+    """Mean image and its squared standard error sum_i |B_i - mean|^2 / (k (k - 1))."""
+    k = len(batches)
+    mean = sum(batches[1:], batches[0]) / k
+    spread = sum(float(np.sum((b - mean) ** 2)) for b in batches)
+    return mean, spread / (k * (k - 1))
 
 
 def relative_l2(image: np.ndarray, reference: np.ndarray) -> float:
@@ -223,7 +300,7 @@ def run_verify(
     renderer = BoardRenderer(design, scratches, settings.backend)
     results: dict[str, ViewRender] = {}
     for i, view in enumerate(design.views):
-        result = renderer.render(view, settings.spp, settings.seed + 1000 * i)
+        result = renderer.render(view, settings.spp, settings.seed + 1000 * i, settings.max_noise)
         results[view.name] = result
         say(
             f"verify {view.name}: {view.width}x{view.height} px, {result.spp} spp, "
@@ -339,9 +416,7 @@ def _run_sky(
     say: Progress,
 ) -> dict[str, Any]:
     assert settings.sky is not None
-    renderer = BoardRenderer(
-        design, scratches, settings.backend, sky=settings.sky, flat_weight="clamped"
-    )
+    renderer = BoardRenderer(design, scratches, settings.backend, sky=settings.sky, mode="physical")
     images = {}
     seconds = 0.0
     for i, view in enumerate(design.views):
@@ -399,7 +474,7 @@ def _run_sweep(
     design: Design, scratches: ScratchSet, settings: VerifySettings, say: Progress
 ) -> tuple[dict[str, Any], bytes]:
     frames, view_params = sweep_path(design, settings.sweep)
-    renderer = BoardRenderer(design, scratches, settings.backend, flat_weight="clamped")
+    renderer = BoardRenderer(design, scratches, settings.backend, mode="physical")
     spp = min(settings.spp, SWEEP_SPP)
     images = []
     for i, frame in enumerate(frames):
