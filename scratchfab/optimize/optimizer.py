@@ -28,11 +28,13 @@ from scratchfab.optimize.params import (
     Bounds,
     endpoints,
     from_scratches,
+    jit_array,
     pair_margin,
     project,
     project_np,
     to_arrays,
 )
+from scratchfab.render.pairs import Pairs
 from scratchfab.render.profile import solve_wbar
 from scratchfab.render.renderer import ViewRenderer
 
@@ -117,12 +119,12 @@ class LayoutOptimizer:
                     f"the view is {v.width}x{v.height}"
                 )
             ok = np.isfinite(t).ravel()
-            self._targets.append((F(np.where(ok, t.ravel(), 0.0)), F(ok.astype(np.float64))))
+            self._targets.append((jit_array(F, np.where(ok, t.ravel(), 0.0)), jit_array(F, ok)))
         self.count = len(initial)
         self.width = initial.width.copy()
         self.depth = initial.depth.copy()
-        self._half_width = F(initial.width / 2)
-        self._wbar = F(np.asarray(solve_wbar(initial.width, initial.depth), np.float64))
+        self._half_width = jit_array(F, initial.width / 2)
+        self._wbar = jit_array(F, solve_wbar(initial.width, initial.depth))
         self.tool_width = float(np.max(initial.width))
         self.opt = BoundedAdam(lr=1.0)
         raw = project_np(from_scratches(initial), self.bounds)
@@ -180,12 +182,12 @@ class LayoutOptimizer:
                 raise ScratchfabError(
                     f"the checkpoint holds {raw.shape[0]} scratches, the job {self.count}"
                 )
-            value = self.Float(raw)
+            value = jit_array(self.Float, raw)
             dr.enable_grad(value)
             _old, promoted, lr, _extra = self.opt.state[key]
             t = dr.opaque(m.UInt32, int(np.asarray(state[f"adam_t_{key}"]).ravel()[0]), 1)
-            m1 = self.Float(np.asarray(state[f"adam_m_{key}"], dtype=self.dtype))
-            v1 = self.Float(np.asarray(state[f"adam_v_{key}"], dtype=self.dtype))
+            m1 = jit_array(self.Float, state[f"adam_m_{key}"], self.dtype)
+            v1 = jit_array(self.Float, state[f"adam_v_{key}"], self.dtype)
             self.opt.state[key] = (value, promoted, lr, (t, m1, v1, None))
         self.iteration = int(state["iteration"])
         self.ends = self._ends_np()
@@ -202,12 +204,26 @@ class LayoutOptimizer:
         e = ends.astype(np.float64)
         p0, p1 = e[:, 0:2], e[:, 2:4]
         half = self.width / 2
-        self.pairs = [r.find_pairs(p0, p1, half, self.margin) for r in self.renderers]
+        self.pairs = [
+            self._aligned(r.find_pairs(p0, p1, half, self.margin)) for r in self.renderers
+        ]
         reach = self.tool_width + 2 * (self.margin - float(np.max(half)))
         slack = 2 * self.settings.refresh_every * float(self.settings.lr["theta"])
         i, j = neighbour_pairs(p0, p1, reach, slack)
-        self.neighbours = (self.m.UInt32(i.astype(np.uint32)), self.m.UInt32(j.astype(np.uint32)))
+        U = self.m.UInt32
+        self.neighbours = (jit_array(U, i, np.uint32), jit_array(U, j, np.uint32))
         self._neighbour_count = len(i)
+
+    def _aligned(self, pairs: Pairs) -> Pairs:
+        """The same pairs in aligned Dr.Jit arrays (see :func:`params.jit_array`)."""
+        U = self.m.UInt32
+        return Pairs(
+            jit_array(U, pairs.pixel_np, np.uint32),
+            jit_array(U, pairs.scratch_np, np.uint32),
+            pairs.pixel_np,
+            pairs.scratch_np,
+            pairs.margin_mm,
+        )
 
     def pair_counts(self) -> list[int]:
         """Number of pairs per view in use."""
@@ -297,17 +313,21 @@ class LayoutOptimizer:
         m = self.m
         params = from_scratches(layout)
         with dr.suspend_grad():
-            raw = [self.Float(np.asarray(params[k], dtype=self.dtype)) for k in KEYS]
+            raw = [jit_array(self.Float, params[k], self.dtype) for k in KEYS]
             saved_pairs, saved_nb = self.pairs, self.neighbours
             saved_count = getattr(self, "_neighbour_count", 0)
             try:
                 half = layout.width / 2
-                self.pairs = [r.find_pairs(layout.p0, layout.p1, half, 0.0) for r in self.renderers]
+                self.pairs = [
+                    self._aligned(r.find_pairs(layout.p0, layout.p1, half, 0.0))
+                    for r in self.renderers
+                ]
                 i, j = neighbour_pairs(layout.p0, layout.p1, self.tool_width)
-                self.neighbours = (m.UInt32(i.astype(np.uint32)), m.UInt32(j.astype(np.uint32)))
+                U = m.UInt32
+                self.neighbours = (jit_array(U, i, np.uint32), jit_array(U, j, np.uint32))
                 self._neighbour_count = len(i)
-                half_width = self.Float(layout.width / 2)
-                wbar = self.Float(np.asarray(solve_wbar(layout.width, layout.depth), np.float64))
+                half_width = jit_array(self.Float, layout.width / 2)
+                wbar = jit_array(self.Float, solve_wbar(layout.width, layout.depth))
                 loss, errors, renders, _ = self._forward(raw, half_width, wbar)
                 dr.eval(loss, errors, renders)
             finally:

@@ -26,6 +26,7 @@ from scipy import sparse
 
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.optimize.optimizer import LayoutOptimizer
+from scratchfab.optimize.params import jit_array
 from scratchfab.render.pairs import Pairs
 from scratchfab.render.profile import solve_wbar
 
@@ -75,7 +76,7 @@ def removal_effect(opt: LayoutOptimizer, layout: ScratchSet) -> np.ndarray:
     m = opt.m
     n = len(layout)
     half = layout.width / 2
-    pairs = [r.find_pairs(layout.p0, layout.p1, half, 0.0) for r in opt.renderers]
+    pairs = [opt._aligned(r.find_pairs(layout.p0, layout.p1, half, 0.0)) for r in opt.renderers]
     offsets = np.cumsum([0] + [r.pixel_count for r in opt.renderers])
     rows = np.concatenate([p.scratch_np for p in pairs])
     cols = np.concatenate([p.pixel_np + off for p, off in zip(pairs, offsets, strict=False)])
@@ -84,9 +85,10 @@ def removal_effect(opt: LayoutOptimizer, layout: ScratchSet) -> np.ndarray:
     )
     colour = _colouring(incidence)
     F = opt.Float
-    p0x, p0y = F(layout.p0[:, 0]), F(layout.p0[:, 1])
-    p1x, p1y = F(layout.p1[:, 0]), F(layout.p1[:, 1])
-    hw, wbar = F(layout.width / 2), F(np.asarray(solve_wbar(layout.width, layout.depth)))
+    p0x, p0y = jit_array(F, layout.p0[:, 0]), jit_array(F, layout.p0[:, 1])
+    p1x, p1y = jit_array(F, layout.p1[:, 0]), jit_array(F, layout.p1[:, 1])
+    hw = jit_array(F, layout.width / 2)
+    wbar = jit_array(F, solve_wbar(layout.width, layout.depth))
     effect = np.zeros(n)
     with dr.suspend_grad():
         for r, p, v in zip(opt.renderers, pairs, opt.views, strict=True):
@@ -104,8 +106,8 @@ def removal_effect(opt: LayoutOptimizer, layout: ScratchSet) -> np.ndarray:
                 if len(sel) == 0:
                     continue
                 sub = Pairs(
-                    m.UInt32(p.pixel_np[sel].astype(np.uint32)),
-                    m.UInt32(p.scratch_np[sel].astype(np.uint32)),
+                    jit_array(m.UInt32, p.pixel_np[sel], np.uint32),
+                    jit_array(m.UInt32, p.scratch_np[sel], np.uint32),
                     p.pixel_np[sel],
                     p.scratch_np[sel],
                     0.0,
