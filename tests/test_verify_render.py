@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import FULL
 from PIL import Image, ImageSequence
 
 from scratchfab.cli import main
@@ -190,12 +191,8 @@ def test_sweep_frames_nearest_each_view_show_that_views_image(half_job, tmp_path
     nearest = metrics["sweep"]["nearest_frame"]
     assert set(nearest) == {"left", "right"} and nearest["left"] != nearest["right"]
     for name, index in nearest.items():
-        frame_view = path[index].view
-        assert frame_view.position_mm != design.view(name).position_mm  # not the view itself
-        corr = {
-            j: pearson(frames[index], warp_to_view(img, design.board, frame_view))
-            for j, img in boards.items()
-        }
+        assert path[index].view.position_mm != design.view(name).position_mm  # not the view
+    for name, corr in frame_correlations(frames, path, nearest, boards, design.board).items():
         assert max(corr, key=corr.get) == name, (name, corr)
         assert corr[name] > 0.5
 
@@ -356,3 +353,54 @@ def test_bad_input_is_one_line_and_writes_nothing(half_job, tmp_path, capsys, ar
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
     assert not (tmp_path / "o").exists()
+
+
+def test_cuda_backend_without_a_gpu_is_a_clear_error(half_job, tmp_path, capsys):
+    import drjit as dr
+
+    if dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("a CUDA GPU is present")
+    _, _, _, design_file, scratch_file = half_job
+    args = ["--design", str(design_file), "--scratches", str(scratch_file)]
+    with pytest.raises(SystemExit) as exc:
+        main(["verify-render", *args, "--out", str(tmp_path / "o"), "--variant", "cuda"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "CUDA" in err[0] and "--backend llvm" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def frame_correlations(frames, path, nearest, boards, board):
+    """For each design view, its nearest frame's correlation with every view's image."""
+    out = {}
+    for name, index in nearest.items():
+        view = path[index].view
+        out[name] = {
+            j: pearson(frames[index], warp_to_view(img, board, view)) for j, img in boards.items()
+        }
+    return out
+
+
+@pytest.mark.slow
+def test_demo_job_verifies_within_two_percent_and_its_sweep_shows_each_image(tmp_path):
+    """The bundled demo end to end (design's initial layout): acceptance on a real design."""
+    repo = Path(__file__).resolve().parents[1]
+    job = tmp_path / "job"
+    main(["design", str(repo / "pipelines" / "demo.toml"), "--out", str(job)])
+    spp = DEFAULT_SPP if FULL else 4096
+    frames_n = 8
+    main(["verify-render", str(job), "--spp", str(spp), "--sweep", str(frames_n)])
+    metrics = json.loads((job / "verify" / "metrics.json").read_text())
+    assert metrics["comparison"] == "render_scratches"
+    for name, v in metrics["views"].items():
+        assert v["rel_l2"] <= 0.02, (name, v["rel_l2"], v["noise"])
+        assert v["rho"] > 0.8
+    design = load_design(job / "design" / "design.toml")
+    gif = Image.open(job / "verify" / "sweep.gif")
+    frames = [np.asarray(f.convert("L"), dtype=np.float64) for f in ImageSequence.Iterator(gif)]
+    path, _ = sweep_path(design, frames_n)
+    boards = {v.name: board_image(design.target_path(v), design.board) for v in design.views}
+    nearest = metrics["sweep"]["nearest_frame"]
+    for name, corr in frame_correlations(frames, path, nearest, boards, design.board).items():
+        assert max(corr, key=corr.get) == name, (name, corr)
+        assert corr[name] > 0.5
