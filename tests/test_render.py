@@ -12,7 +12,7 @@ from reference_render import ggx_d, reference_render
 
 from scratchfab.model.design import design_from_mapping
 from scratchfab.model.scratches import ScratchSet, load_scratches
-from scratchfab.render.renderer import ViewRenderer, onboard_area, render_scratches
+from scratchfab.render.renderer import ViewRenderer, onboard_area, render_pairs, render_scratches
 
 
 def random_scratches(
@@ -272,3 +272,30 @@ def test_ggx_reference_normalisation():
     for alpha in (0.05, 0.3):
         integrand = ggx_d(np.cos(theta), alpha) * np.cos(theta) * np.sin(theta) * 2 * np.pi
         assert abs(np.trapezoid(integrand, theta) - 1) < 1e-3
+
+
+def test_render_pairs_can_be_frozen(m, rng):
+    """The optimizer may wrap a step in @dr.freeze: same images and gradients, replayed."""
+    design = make_design(resolution=20)
+    vr = ViewRenderer(design, design.views[0], m)
+    p0, p1 = random_scratches(rng, 50, 18.0)
+    s = ScratchSet.from_arrays(p0, p1, 0.1, 0.01)
+    pairs = vr.find_pairs(s.p0, s.p1, s.width / 2, margin_mm=0.05)
+    fixed = vr.scratch_arrays(s)
+
+    def step(state, pixel, scratch, x0, y0, x1, y1, hw, wb):
+        dr.enable_grad(x0)
+        img = render_pairs(state, vr.alpha, vr.pixel_count, x0, y0, x1, y1, hw, wb, pixel, scratch)
+        dr.backward(dr.sum(img * img))
+        return img, dr.grad(x0)
+
+    frozen = dr.freeze(step)
+    for shift in (0.0, 0.01, -0.02, 0.03):
+        x0 = np.array(fixed[0], dtype=np.float64) + shift
+        args = (m.Float64(x0), *fixed[1:])
+        img_f, grad_f = frozen(vr.state, pairs.pixel, pairs.scratch, *args)
+        img_p, grad_p = step(vr.state, pairs.pixel, pairs.scratch, m.Float64(x0), *fixed[1:])
+        np.testing.assert_allclose(np.asarray(img_f), np.asarray(img_p), rtol=1e-12)
+        np.testing.assert_allclose(np.asarray(grad_f), np.asarray(grad_p), rtol=1e-9, atol=1e-20)
+    # at most a second recording, which makes changed literals opaque; then replays
+    assert frozen.n_recordings <= 2

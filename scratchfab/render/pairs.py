@@ -33,8 +33,9 @@ class Pairs:
     Attributes:
         pixel: Dr.Jit UInt32 flat pixel indices j * W + i.
         scratch: Dr.Jit UInt32 scratch indices.
-        pixel_np: The same pixel indices as numpy int64.
-        scratch_np: The same scratch indices as numpy int64.
+        pixel_np: The same pixel indices in numpy (read-only; with the LLVM backend a view
+            of ``pixel``'s memory, not a copy).
+        scratch_np: The same scratch indices in numpy (likewise).
         margin_mm: The margin the scratch rectangles were grown by.
     """
 
@@ -117,7 +118,7 @@ def raster_pairs(
             with some area on the board); others are dropped.
 
     Returns:
-        (pixel, scratch) int64 arrays, scratch-major.
+        (pixel, scratch) uint32 arrays, scratch-major.
     """
     W, H = camera.width, camera.height
     pix_out: list[np.ndarray] = []
@@ -146,8 +147,8 @@ def raster_pairs(
         pixel = rows[run] * W + cols
         scratch = owner[run] + start
         keep = pixel_ok[pixel]
-        pix_out.append(pixel[keep])
-        sid_out.append(scratch[keep])
+        pix_out.append(pixel[keep].astype(np.uint32))
+        sid_out.append(scratch[keep].astype(np.uint32))
     if not pix_out:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return np.zeros(0, np.uint32), np.zeros(0, np.uint32)
     return np.concatenate(pix_out), np.concatenate(sid_out)

@@ -30,7 +30,7 @@ from scratchfab.render.ndf import scratch_footprint_ndf
 from scratchfab.render.pairs import Pairs, raster_pairs, scratch_rectangles
 from scratchfab.render.profile import solve_wbar
 
-__all__ = ["ViewRenderer", "render_scratches", "onboard_area", "ggx_d"]
+__all__ = ["ViewRenderer", "render_pairs", "render_scratches", "onboard_area", "ggx_d"]
 
 
 def ggx_d(c: np.ndarray, alpha: float) -> np.ndarray:
@@ -134,7 +134,6 @@ class ViewRenderer:
         flat_h = h.reshape(-1, 3)
         self._h = [F(flat_h[:, k]) for k in range(3)]
         self._factor = F(factor.ravel())
-        self._flat = F((on_board * self.d_flat).ravel())
         self._d_flat = F(self.d_flat.ravel())
         self._on_board = F(on_board.ravel())
 
@@ -161,14 +160,30 @@ class ViewRenderer:
         """
         corners = scratch_rectangles(p0, p1, half_width, margin_mm)
         pixel, scratch = raster_pairs(self.camera, corners, self.pixel_ok)
-        UInt32 = self.m.UInt32
-        return Pairs(
-            UInt32(pixel.astype(np.uint32)),
-            UInt32(scratch.astype(np.uint32)),
-            pixel,
-            scratch,
-            float(margin_mm),
-        )
+        pixel_jit = self.m.UInt32(pixel)
+        scratch_jit = self.m.UInt32(scratch)
+        del pixel, scratch
+        pixel_np = np.asarray(pixel_jit)
+        scratch_np = np.asarray(scratch_jit)
+        pixel_np.flags.writeable = False
+        scratch_np.flags.writeable = False
+        return Pairs(pixel_jit, scratch_jit, pixel_np, scratch_np, float(margin_mm))
+
+    @property
+    def state(self) -> dict[str, Any]:
+        """The view's Dr.Jit arrays as a PyTree, for :func:`render_pairs`.
+
+        Pass this (not the renderer) into a ``@dr.freeze`` function: a frozen function
+        must receive every Dr.Jit array it reads as an argument.
+        """
+        return {
+            "qx": self._qx,
+            "qy": self._qy,
+            "h": self._h,
+            "factor": self._factor,
+            "on_board": self._on_board,
+            "d_flat": self._d_flat,
+        }
 
     def render(
         self,
@@ -192,35 +207,23 @@ class ViewRenderer:
             pairs: From :meth:`find_pairs` with the same scratch indexing.
 
         Returns:
-            Dr.Jit Float of size H * W (not evaluated; the caller decides when).
+            Dr.Jit Float64 of size H * W (not evaluated; the caller decides when).
         """
-        F = self.Float
         if len(pairs) == 0:
-            return self._factor * self._flat
-        pix, sid = pairs.pixel, pairs.scratch
-        qx = [dr.gather(F, q, pix) for q in self._qx]
-        qy = [dr.gather(F, q, pix) for q in self._qy]
-        hx, hy, hz = (dr.gather(F, c, pix) for c in self._h)
-        ndf, covered = scratch_footprint_ndf(
-            qx,
-            qy,
-            dr.gather(F, p0x, sid),
-            dr.gather(F, p0y, sid),
-            dr.gather(F, p1x, sid),
-            dr.gather(F, p1y, sid),
-            dr.gather(F, half_width, sid),
-            dr.gather(F, wbar, sid),
-            hx,
-            hy,
-            hz,
+            return self._factor * self._on_board * self._d_flat
+        return render_pairs(
+            self.state,
             self.alpha,
+            self.pixel_count,
+            p0x,
+            p0y,
+            p1x,
+            p1y,
+            half_width,
+            wbar,
+            pairs.pixel,
+            pairs.scratch,
         )
-        ndf_sum = dr.zeros(F, self.pixel_count)
-        covered_sum = dr.zeros(F, self.pixel_count)
-        dr.scatter_reduce(dr.ReduceOp.Add, ndf_sum, ndf, pix)
-        dr.scatter_reduce(dr.ReduceOp.Add, covered_sum, covered, pix)
-        remainder = dr.maximum(0.0, self._on_board - covered_sum) * self._d_flat
-        return self._factor * (ndf_sum + remainder)
 
     def scratch_arrays(self, scratches: ScratchSet) -> tuple[Any, Any, Any, Any, Any, Any]:
         """(p0x, p0y, p1x, p1y, half_width, wbar) of a scratch set as Dr.Jit arrays."""
@@ -234,6 +237,53 @@ class ViewRenderer:
             F(scratches.width / 2),
             F(np.asarray(wbar, dtype=np.float64)),
         )
+
+
+def render_pairs(
+    state: dict[str, Any],
+    alpha: float,
+    pixel_count: int,
+    p0x: Any,
+    p0y: Any,
+    p1x: Any,
+    p1y: Any,
+    half_width: Any,
+    wbar: Any,
+    pixel: Any,
+    scratch: Any,
+) -> Any:
+    """Image formation of SPEC section 4 for one view: the body of :meth:`ViewRenderer.render`.
+
+    A pure function of Dr.Jit arrays (``state`` from :attr:`ViewRenderer.state`, the
+    scratch arrays and the pair indices), so it can run inside ``@dr.freeze``. Every pair
+    adds its closed-form footprint NDF and covered area to its pixel by scatter-add; the
+    flat board fills the rest, ``max(0, |P ∩ B| - sum_i |P ∩ S_i|) D(h_z)``.
+
+    Returns:
+        Dr.Jit Float64 (pixel_count,) linear radiance.
+    """
+    F = type(state["factor"])
+    hx, hy, hz = (dr.gather(F, c, pixel) for c in state["h"])
+    ndf, covered = scratch_footprint_ndf(
+        [dr.gather(F, q, pixel) for q in state["qx"]],
+        [dr.gather(F, q, pixel) for q in state["qy"]],
+        dr.gather(F, p0x, scratch),
+        dr.gather(F, p0y, scratch),
+        dr.gather(F, p1x, scratch),
+        dr.gather(F, p1y, scratch),
+        dr.gather(F, half_width, scratch),
+        dr.gather(F, wbar, scratch),
+        hx,
+        hy,
+        hz,
+        alpha,
+    )
+    ndf_sum = dr.zeros(F, pixel_count)
+    covered_sum = dr.zeros(F, pixel_count)
+    dr.scatter_reduce(dr.ReduceOp.Add, ndf_sum, ndf, pixel)
+    dr.scatter_reduce(dr.ReduceOp.Add, covered_sum, covered, pixel)
+    remainder = dr.maximum(0.0, state["on_board"] - covered_sum) * state["d_flat"]
+    return state["factor"] * (ndf_sum + remainder)
 
 
 def render_scratches(
