@@ -344,6 +344,17 @@ def test_sky_emitter_is_scaled_to_the_requested_irradiance():
         light = np.array(design.light.position_mm)
         expected = strength * light[2] / np.linalg.norm(light) ** 3
         assert irradiance == pytest.approx(expected, rel=0.03)
+    # The sky stands over the wall: +y is its zenith, below the horizon (y < 0) is dark,
+    # and the sun is where it was asked to be.
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(100_000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    si = dr.zeros(mi.SurfaceInteraction3f, len(d))
+    si.wi = -mi.Vector3f(d[:, 0], d[:, 1], d[:, 2])
+    radiance = np.array(mi.luminance(emitter.eval(si)))
+    assert np.all(radiance[d[:, 1] < -1e-3] == 0) and np.all(radiance[d[:, 1] > 0.05] > 0)
+    sun = np.array(Sky().sun_direction) / np.linalg.norm(Sky().sun_direction)
+    assert d[np.argmax(radiance)] @ sun > 0.999
 
 
 def test_sky_render_lights_the_board_beyond_the_design_light():

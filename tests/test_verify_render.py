@@ -321,6 +321,10 @@ def test_job_mode_compares_with_the_optimize_renders(half_job, tmp_path):
         (["{tmp}/nope"], "job folder not found"),
         (["{tmp}", "--design", "{design}"], "not both"),
         (["--design", "{design}", "--scratches", "{csv}"], "--out DIR"),
+        (
+            ["--design", "{design}", "--scratches", "{csv}", "--out", "{tmp}/o", "--sweep", "1"],
+            "--sweep",
+        ),
         (["--design", "{design}", "--scratches", "{bad}", "--out", "{tmp}/o"], "line 3"),
         (
             ["--design", "{design}", "--scratches", "{csv}", "--out", "{tmp}/o", "--machine", "x"],

@@ -61,7 +61,7 @@ from scratchfab.verify.verify import DEFAULT_SPP
     type=click.IntRange(min=0),
     default=0,
     show_default=True,
-    help="Render N cameras along a path through the views; writes OUT/sweep.gif.",
+    help="Render N >= 2 cameras along a path through the views; writes OUT/sweep.gif.",
 )
 @click.option(
     "--jitter",
@@ -106,8 +106,8 @@ def verify_render(
 ) -> None:
     """Render a board in Mitsuba 3 and compare with the analytic render.
 
-    Either JOB (reads JOB/design, JOB/optimize; writes JOB/verify/) or --design FILE
-    --scratches CSV --out DIR. Writes <view>.npy and <view>.png like `render`, and
+    Either JOB (reads JOB/design/design.toml and JOB/optimize/scratches.csv, else
+    JOB/design/scratches.csv; writes JOB/verify/) or --design FILE --scratches CSV --out DIR. Writes <view>.npy and <view>.png like `render`, and
     metrics.json: per view the relative L2 error against the analytic render, the noise
     estimate, PSNR, rho_kk, crosstalk, spp and time.
     """
@@ -124,6 +124,8 @@ def verify_render(
 
     if machine is not None and not jitter:
         raise ScratchfabError("--machine only sets the --jitter tolerances; add --jitter")
+    if sweep == 1:
+        raise ScratchfabError("--sweep: give 0 (no sweep) or at least 2 frames")
     if sum(abs(c) for c in sun_direction) == 0:
         raise ScratchfabError("--sun: the direction must not be zero")
     tolerance = None
@@ -145,10 +147,10 @@ def verify_render(
         click.echo(f"  {line}")
 
     if job is not None:
-        if design_file is not None or scratch_file is not None or out_dir is not None:
-            raise ScratchfabError("give either JOB or --design/--scratches/--out, not both")
-        out = job / "verify"
-        run_verify_job(job, settings, progress=say)
+        if design_file is not None or scratch_file is not None:
+            raise ScratchfabError("give either JOB or --design/--scratches, not both")
+        out = out_dir if out_dir is not None else job / "verify"
+        run_verify_job(job, settings, progress=say, out_dir=out)
     else:
         if design_file is None or scratch_file is None or out_dir is None:
             raise ScratchfabError("give JOB, or all of --design FILE --scratches CSV --out DIR")

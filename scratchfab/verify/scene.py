@@ -117,7 +117,11 @@ def sensor(view: View, spp: int, sampler: str | None = None) -> dict:
 
 
 def sky_emitter(design: Design, sky: Sky) -> dict:
-    """The ``sunsky`` emitter scaled so its board irradiance is ``strength`` times the light's."""
+    """The ``sunsky`` emitter scaled so its board irradiance is ``strength`` times the light's.
+
+    The light's irradiance is taken at the board centre, I cos / r^2; the sky's is
+    estimated by sampling the emitter (fixed seed) for a point facing +z.
+    """
     import drjit as dr
     import mitsuba as mi
 
@@ -127,6 +131,9 @@ def sky_emitter(design: Design, sky: Sky) -> dict:
         "type": "sunsky",
         "sun_direction": [float(v) for v in direction],
         "turbidity": sky.turbidity,
+        # Mitsuba's sky has its zenith at +z; the SPEC's world has +y up (the board is a
+        # wall facing +z), so turn the dome. The sun direction is given in world space.
+        "to_world": mi.ScalarTransform4f().rotate([1.0, 0.0, 0.0], -90.0),
     }
     emitter = mi.load_dict(base)
     # Irradiance on the board (normal +z) by emitter sampling, with a fixed seed.
@@ -136,7 +143,7 @@ def sky_emitter(design: Design, sky: Sky) -> dict:
     it: Any = dr.zeros(mi.Interaction3f, n)
     it.n = mi.Vector3f(0, 0, 1)
     ds, weight = emitter.sample_direction(it, sampler.next_2d())
-    lum = mi.luminance(weight) if hasattr(mi, "luminance") else weight[1]
+    lum = mi.luminance(weight)
     irradiance = float(dr.mean(lum * dr.maximum(ds.d.z, 0.0))[0])
     light = design.light
     r2 = float(np.sum(np.asarray(light.position_mm) ** 2))

@@ -296,6 +296,13 @@ def run_verify(
 
         analytic = render_scratches(design, scratches, settings.backend)
         analytic_source = "render_scratches"
+    for view in design.views:
+        reference = analytic.get(view.name)
+        if reference is not None and reference.shape != (view.height, view.width):
+            raise ConfigError(
+                f"{analytic_source}: view {view.name}: the analytic render has shape "
+                f"{reference.shape}, the view is {(view.height, view.width)}"
+            )
 
     renderer = BoardRenderer(design, scratches, settings.backend)
     results: dict[str, ViewRender] = {}
@@ -321,11 +328,6 @@ def run_verify(
         }
         reference = analytic.get(view.name)
         if reference is not None:
-            if reference.shape != r.image.shape:
-                raise ConfigError(
-                    f"{analytic_source}: view {view.name}: analytic render has shape "
-                    f"{reference.shape}, the view is {r.image.shape}"
-                )
             entry["rel_l2"] = relative_l2(r.image, reference)
             entry["psnr_vs_render"] = _psnr_vs(r.image, reference)
         q = quality["views"].get(view.name)
@@ -537,9 +539,12 @@ def design_targets(
 
 
 def run_verify_job(
-    job: str | Path, settings: VerifySettings = VerifySettings(), progress: Progress | None = None
+    job: str | Path,
+    settings: VerifySettings = VerifySettings(),
+    progress: Progress | None = None,
+    out_dir: str | Path | None = None,
 ) -> dict[str, Any]:
-    """``verify-render JOB``: verify the job's board into ``JOB/verify``.
+    """``verify-render JOB``: verify the job's board into ``JOB/verify`` (or ``out_dir``).
 
     The board is ``JOB/optimize/scratches.csv`` (else ``JOB/design/scratches.csv``, as
     ``render JOB`` picks it); the comparison is ``JOB/optimize/renders`` when that
@@ -569,7 +574,7 @@ def run_verify_job(
     return run_verify(
         design,
         scratches,
-        folder / "verify",
+        folder / "verify" if out_dir is None else out_dir,
         settings,
         analytic=analytic,
         analytic_source=source,
