@@ -59,8 +59,12 @@ def _inputs(
     help="Output folder (default: JOB/toolpath).",
 )
 @click.option(
-    "--passes", default=OrderOptions.passes, show_default=True, help="Cap on 2-opt/Or-opt rounds."
+    "--passes",
+    default=OrderOptions.passes,
+    show_default=True,
+    help="Cap on 2-opt/Or-opt work, in visits per stroke (0: greedy only).",
 )
+@click.option("--seed", default=0, show_default=True, help="Seed of the ordering's perturbations.")
 def toolpath(
     job: Path | None,
     machine: str,
@@ -68,6 +72,7 @@ def toolpath(
     design: Path | None,
     out: Path | None,
     passes: int,
+    seed: int,
 ) -> None:
     """Order the strokes for a machine: JOB/toolpath/toolpath.json and preview.png.
 
@@ -83,7 +88,11 @@ def toolpath(
     board_scratches = load_scratches(csv_path, loaded.scratch, loaded.board)
     click.echo(f"ordering {len(board_scratches)} scratches for {profile.name} ...", err=True)
     result = plan_toolpath(
-        board_scratches, loaded.board, profile, loaded.scratch, OrderOptions(passes=passes)
+        board_scratches,
+        loaded.board,
+        profile,
+        loaded.scratch,
+        OrderOptions(passes=passes, seed=seed),
     )
     result.save(out_dir / "toolpath.json")
     write_preview(result, out_dir / "preview.png")

@@ -8,12 +8,10 @@ The strokes and the start position form one closed tour: start -> stroke -> ... 
    stroke to its other end, repeat. A k-d tree (scipy ``cKDTree``) of all endpoints gives
    each endpoint's ``neighbours`` nearest endpoints once; a second tree of the endpoints
    still free answers the rare lookups whose near neighbours are all used.
-2. Local search in rounds ("passes"), each vectorised with numpy over the whole tour:
-   a 2-opt round reverses disjoint stretches of the tour (which also flips the strokes in
-   them), an Or-opt round moves single strokes, either way round, into another gap.
-   Candidate moves only join endpoints that are near neighbours; every round takes the
-   best non-overlapping improving moves at once. Rounds stop when neither finds an
-   improvement or after ``passes`` rounds.
+2. Local search (:mod:`scratchfab.toolpath.local_search`, compiled with numba): 2-opt
+   (reversing a stretch of the tour, which also turns its strokes round) and Or-opt
+   (moving a chain of 1-3 strokes into another gap, either way round), over neighbour
+   lists, until no move improves or the work cap ``passes * N`` is spent.
 
 The result is never worse than the input order (it is returned instead if it is shorter).
 """
@@ -25,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from scratchfab.toolpath.local_search import improve
+
 
 @dataclass(frozen=True)
 class OrderOptions:
@@ -32,12 +32,18 @@ class OrderOptions:
 
     Attributes:
         neighbours: Candidate endpoints considered per endpoint (greedy and local search).
-        passes: Cap on local-search rounds (each a 2-opt or an Or-opt round); 0 = greedy only.
+        passes: Cap on local-search work, in visits of every stroke; 0 = greedy only.
+        kicks_per_stroke: Perturbation trials after the local optimum, per stroke.
+        kicks: Perturbation trials in all (overrides ``kicks_per_stroke``).
+        seed: Seed of the perturbations (the result is deterministic for a seed).
         min_gain_mm: Moves that save less than this are ignored (rounding noise).
     """
 
     neighbours: int = 10
-    passes: int = 60
+    passes: int = 50
+    kicks_per_stroke: float = 10.0
+    kicks: int | None = None
+    seed: int = 0
     min_gain_mm: float = 1e-9
 
 
@@ -51,7 +57,7 @@ class OrderResult:
         travel_mm: Pen-up travel of the result, from the start and back to it.
         travel_input_mm: The same for the input order and directions.
         travel_greedy_mm: The same after the greedy step only.
-        passes: Local-search rounds run.
+        passes: Improving moves made by the local search.
         kept_input: True if the input order was shorter and is returned unchanged.
     """
 
@@ -155,124 +161,6 @@ def _greedy(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     return entries
 
 
-def _select(starts: np.ndarray, lengths: np.ndarray, m: int, cap: int) -> np.ndarray:
-    """Greedily pick candidates (in the given order) whose cyclic edge ranges do not overlap."""
-    occupied = bytearray(m)
-    picked = []
-    for c, (s, ln) in enumerate(zip(starts.tolist(), lengths.tolist(), strict=True)):
-        e = s + ln
-        if e <= m:
-            if occupied.find(1, s, e) != -1:
-                continue
-            occupied[s:e] = b"\x01" * ln
-        else:
-            if occupied.find(1, s, m) != -1 or occupied.find(1, 0, e - m) != -1:
-                continue
-            occupied[s:m] = b"\x01" * (m - s)
-            occupied[0 : e - m] = b"\x01" * (e - m)
-        picked.append(c)
-        if len(picked) >= cap:
-            break
-    return np.asarray(picked, dtype=np.int64)
-
-
-def _two_opt_round(tour: _Tour, near: np.ndarray, min_gain: float) -> int:
-    """One batch of disjoint 2-opt reversals between near endpoints; returns the moves made."""
-    m = len(tour.ent)
-    a, b, lengths = tour.edge_lengths()
-    pos_a, pos_b = tour.positions()
-    src = np.repeat(np.arange(len(tour.points)), near.shape[1])
-    dst = near.ravel()
-    # B-B pairs join exits (edges p, q); A-A pairs join entries (edges p-1, q-1).
-    pb, qb = pos_b[src], pos_b[dst]
-    pa, qa = pos_a[src], pos_a[dst]
-    keep_b = (pb >= 0) & (qb >= 0) & (pb != qb)
-    keep_a = (pa >= 0) & (qa >= 0) & (pa != qa)
-    i = np.concatenate([pb[keep_b], (pa[keep_a] - 1) % m])
-    j = np.concatenate([qb[keep_b], (qa[keep_a] - 1) % m])
-    i, j = np.minimum(i, j), np.maximum(i, j)
-    i1, j1 = (i + 1) % m, (j + 1) % m
-    gain = lengths[i] + lengths[j] - np.hypot(*(b[i] - b[j]).T) - np.hypot(*(a[i1] - a[j1]).T)
-    good = gain > min_gain
-    if not np.any(good):
-        return 0
-    i, j, gain = i[good], j[good], gain[good]
-    rank = np.lexsort((j, i, -gain))
-    i, j = i[rank], j[rank]
-    span = j - i
-    short = span <= m // 2
-    # Footprint: the edges a reversal touches, i..j, or the complementary arc j..i+m.
-    f_start = np.where(short, i, j)
-    f_len = np.where(short, span, m - span) + 1
-    picked = _select(f_start, f_len, m, cap=m)
-    if len(picked) == 0:
-        return 0
-    f_start, f_len = f_start[picked], f_len[picked]
-    rot = int(f_start[0])
-    ent = np.roll(tour.ent, -rot)
-    ext = np.where(ent == tour.depot, ent, ent ^ 1)
-    arc_start = (f_start - rot) % m + 1
-    arc_len = f_len - 1
-    total = int(arc_len.sum())
-    offsets = np.repeat(np.cumsum(arc_len) - arc_len, arc_len)
-    idx = np.repeat(arc_start, arc_len) + np.arange(total) - offsets
-    key = np.arange(m)
-    key[idx] = np.repeat(2 * arc_start + arc_len - 1, arc_len) - idx
-    ent[idx] = ext[idx]
-    new = np.empty_like(ent)
-    new[key] = ent
-    tour.ent = new
-    return len(picked)
-
-
-def _or_opt_round(tour: _Tour, near: np.ndarray, min_gain: float) -> int:
-    """One batch of single-stroke moves into a gap beside a near endpoint; returns moves made."""
-    m = len(tour.ent)
-    depot = tour.depot
-    a, b, lengths = tour.edge_lengths()
-    pos_a, pos_b = tour.positions()
-    pts = tour.points
-    k = near.shape[1]
-    src = np.repeat(np.arange(depot), k)
-    dst = near[:depot].ravel()
-    p = np.maximum(pos_a[src], pos_b[src])
-    prev = (p - 1) % m
-    nxt = (p + 1) % m
-    removal = lengths[prev] + lengths[p] - np.hypot(*(a[nxt] - b[prev]).T)
-    # Next to an exit at q: gap q, enter at src. Next to an entry at q: gap q-1, leave at src.
-    after_exit = pos_b[dst] >= 0
-    gap = np.where(after_exit, pos_b[dst], (pos_a[dst] - 1) % m)
-    entry = np.where(after_exit, src, src ^ 1)
-    cost = (
-        np.hypot(*(pts[entry] - b[gap]).T)
-        + np.hypot(*(a[(gap + 1) % m] - pts[entry ^ 1]).T)
-        - lengths[gap]
-    )
-    gain = removal - cost
-    valid = (gap != prev) & (gap != p) & ((dst >> 1) != (src >> 1))
-    good = valid & (gain > min_gain)
-    if not np.any(good):
-        return 0
-    p, gap, entry, gain = p[good], gap[good], entry[good], gain[good]
-    rank = np.lexsort((gap, p, -gain))
-    p, gap, entry = p[rank], gap[rank], entry[rank]
-    occupied = bytearray(m)
-    picked = []
-    for c, (pp, gg) in enumerate(zip(p.tolist(), gap.tolist(), strict=True)):
-        pv = pp - 1 if pp > 0 else m - 1
-        if occupied[pv] or occupied[pp] or occupied[gg]:
-            continue
-        occupied[pv] = occupied[pp] = occupied[gg] = 1
-        picked.append(c)
-    sel = np.asarray(picked, dtype=np.int64)
-    key = 2 * np.arange(m)
-    key[p[sel]] = 2 * gap[sel] + 1
-    ent = tour.ent.copy()
-    ent[p[sel]] = entry[sel]
-    tour.ent = ent[np.argsort(key, kind="stable")]
-    return len(sel)
-
-
 def order_strokes(
     p0: np.ndarray,
     p1: np.ndarray,
@@ -311,15 +199,18 @@ def order_strokes(
     travel_greedy = tour.travel()
     # Local search uses the neighbours other than the endpoint itself.
     own = near == np.arange(len(points))[:, None]
-    cand = np.where(own, near[:, -1:], near)[:, :k]
-    cand = np.where(cand >= 2 * n, 2 * n, cand)
+    cand = np.take_along_axis(near, np.argsort(own, axis=1, kind="stable"), axis=1)[:, :k]
+    cand = np.ascontiguousarray(np.where(cand >= 2 * n, 2 * n, cand), dtype=np.int64)
     rounds = 0
-    idle = 0
-    while rounds < opts.passes and idle < 2:
-        step = _two_opt_round if rounds % 2 == 0 else _or_opt_round
-        moved = step(tour, cand, opts.min_gain_mm)
-        rounds += 1
-        idle = 0 if moved else idle + 1
+    if opts.passes > 0:
+        ent = np.ascontiguousarray(tour.ent, dtype=np.int64)
+        if opts.kicks is None:
+            # A trial copies the tour (O(N)): cap the copying at about 2e8 entries.
+            kicks = min(int(opts.kicks_per_stroke * n), 200_000_000 // (n + 1))
+        else:
+            kicks = opts.kicks
+        rounds = improve(points, ent, cand, opts.passes, kicks, opts.seed, n + 1, opts.min_gain_mm)
+        tour.ent = ent
     order, reverse = tour.stroke_order()
     travel = tour_travel(
         np.where(reverse[:, None], p1[order], p0[order]),
