@@ -138,6 +138,8 @@ def test_verify_agrees_with_the_analytic_render_within_noise():
         err = relative_l2(result.image, ref)
         assert 0 < result.noise < 0.02
         assert err <= 0.02, (view.name, err, result.noise)
+        # The noise estimate accounts for the error: neither far below nor far above it.
+        assert 0.5 * result.noise < err
         # What is left beyond the noise is the model difference (h varies over a pixel).
         assert math.sqrt(max(err**2 - result.noise**2, 0.0)) < 0.01
 
