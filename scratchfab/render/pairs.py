@@ -33,9 +33,8 @@ class Pairs:
     Attributes:
         pixel: Dr.Jit UInt32 flat pixel indices j * W + i.
         scratch: Dr.Jit UInt32 scratch indices.
-        pixel_np: The same pixel indices in numpy (read-only; with the LLVM backend a view
-            of ``pixel``'s memory, not a copy).
-        scratch_np: The same scratch indices in numpy (likewise).
+        pixel_np: The same pixel indices in numpy uint32 (read-only).
+        scratch_np: The same scratch indices in numpy uint32 (read-only).
         margin_mm: The margin the scratch rectangles were grown by.
     """
 

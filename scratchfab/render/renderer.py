@@ -33,6 +33,21 @@ from scratchfab.render.profile import solve_wbar
 __all__ = ["ViewRenderer", "render_pairs", "render_scratches", "onboard_area", "ggx_d"]
 
 
+def to_jit(T: type, values: Any, dtype: Any = np.float64) -> Any:
+    """A Dr.Jit array of type ``T`` holding a 64-byte aligned copy of numpy data.
+
+    Dr.Jit reads numpy memory in place and compiles the pointer's alignment into the
+    kernel: arrays straight from numpy would make the same renderer kernel hash
+    differently per view and per run and defeat the kernel cache.
+    """
+    src = np.ascontiguousarray(values, dtype=dtype).ravel()
+    buf = np.empty(src.nbytes + 64, dtype=np.uint8)
+    start = (-buf.ctypes.data) % 64
+    out = buf[start : start + src.nbytes].view(src.dtype)
+    out[:] = src
+    return T(out)
+
+
 def ggx_d(c: np.ndarray, alpha: float) -> np.ndarray:
     """GGX NDF D(c) of SPEC section 4 for c = h . n (zero where c <= 0)."""
     a2 = alpha * alpha
@@ -129,13 +144,13 @@ class ViewRenderer:
 
         F = self.Float
         flat_quads = quads.reshape(-1, 4, 2)
-        self._qx = [F(flat_quads[:, k, 0]) for k in range(4)]
-        self._qy = [F(flat_quads[:, k, 1]) for k in range(4)]
+        self._qx = [to_jit(F, flat_quads[:, k, 0]) for k in range(4)]
+        self._qy = [to_jit(F, flat_quads[:, k, 1]) for k in range(4)]
         flat_h = h.reshape(-1, 3)
-        self._h = [F(flat_h[:, k]) for k in range(3)]
-        self._factor = F(factor.ravel())
-        self._d_flat = F(self.d_flat.ravel())
-        self._on_board = F(on_board.ravel())
+        self._h = [to_jit(F, flat_h[:, k]) for k in range(3)]
+        self._factor = to_jit(F, factor)
+        self._d_flat = to_jit(F, self.d_flat)
+        self._on_board = to_jit(F, on_board)
 
     @property
     def pixel_count(self) -> int:
@@ -160,14 +175,17 @@ class ViewRenderer:
         """
         corners = scratch_rectangles(p0, p1, half_width, margin_mm)
         pixel, scratch = raster_pairs(self.camera, corners, self.pixel_ok)
-        pixel_jit = self.m.UInt32(pixel)
-        scratch_jit = self.m.UInt32(scratch)
-        del pixel, scratch
-        pixel_np = np.asarray(pixel_jit)
-        scratch_np = np.asarray(scratch_jit)
+        pixel_np = np.asarray(pixel, dtype=np.uint32)
+        scratch_np = np.asarray(scratch, dtype=np.uint32)
         pixel_np.flags.writeable = False
         scratch_np.flags.writeable = False
-        return Pairs(pixel_jit, scratch_jit, pixel_np, scratch_np, float(margin_mm))
+        return Pairs(
+            to_jit(self.m.UInt32, pixel_np, np.uint32),
+            to_jit(self.m.UInt32, scratch_np, np.uint32),
+            pixel_np,
+            scratch_np,
+            float(margin_mm),
+        )
 
     @property
     def state(self) -> dict[str, Any]:
@@ -230,12 +248,12 @@ class ViewRenderer:
         F = self.Float
         wbar = solve_wbar(scratches.width, scratches.depth)
         return (
-            F(scratches.p0[:, 0]),
-            F(scratches.p0[:, 1]),
-            F(scratches.p1[:, 0]),
-            F(scratches.p1[:, 1]),
-            F(scratches.width / 2),
-            F(np.asarray(wbar, dtype=np.float64)),
+            to_jit(F, scratches.p0[:, 0]),
+            to_jit(F, scratches.p0[:, 1]),
+            to_jit(F, scratches.p1[:, 0]),
+            to_jit(F, scratches.p1[:, 1]),
+            to_jit(F, scratches.width / 2),
+            to_jit(F, wbar),
         )
 
 
