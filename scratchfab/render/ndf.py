@@ -35,7 +35,7 @@ evaluated in relative form: with c = t_a - z and eps = delta / c,
     integral of (t - t_a) R  = delta^2 (c0/2 + 2 Re sum A/c n1(eps) + B/c^2 n2(eps))
 
 where l = log(1 + eps)/eps, n1 = (1 - l)/eps, n2 = (l - 1/(1 + eps))/eps are the moments
-of 1/(1 + eps s) and 1/(1 + eps s)^2 over s in [0, 1]: a power series for |eps| < 1/4,
+of 1/(1 + eps s) and 1/(1 + eps s)^2 over s in [0, 1]: a power series (of atanh) for |eps| < 1/4,
 the complex logarithm otherwise. arg(1 + eps) = arg(t_b - z) - arg(t_a - z) is continuous
 because Im z != 0.
 
@@ -55,7 +55,7 @@ import drjit as dr
 import numpy as np
 
 _SERIES_RADIUS = 0.25
-_SERIES_TERMS = 27  # 0.25^27 / 29 < 1e-17
+_SERIES_TERMS = 10  # |Y| <= (0.25/1.75)^2: 0.0204^10 < 1e-16
 
 Complex = tuple[Any, Any]
 
@@ -78,16 +78,21 @@ def _moments(eps: Complex) -> tuple[Complex, Complex, Complex, Complex]:
     small = eps[0] * eps[0] + eps[1] * eps[1] < _SERIES_RADIUS**2
     one_eps = (1.0 + eps[0], eps[1])
     inv1 = _cdiv((1.0, 0.0), one_eps)
-    # series: n1 = sum_j (-eps)^j / (j + 2)   (eps kept small in the unselected lanes)
-    es = (dr.select(small, -eps[0], 0.0), dr.select(small, -eps[1], 0.0))
-    acc: Complex = (1.0 / (_SERIES_TERMS + 1), 0.0)
+    # series: log(1 + eps) = 2 atanh(y), y = eps/(2 + eps), so with Y = y^2
+    # n1 = 1/(2 + eps) - 2 eps/(2 + eps)^3 sum_j Y^j/(2j + 3)   (eps kept small elsewhere)
+    es = (dr.select(small, eps[0], 0.0), dr.select(small, eps[1], 0.0))
+    inv2 = _cdiv((1.0, 0.0), (2.0 + es[0], es[1]))
+    y = _cmul(es, inv2)
+    yy = _cmul(y, y)
+    acc: Complex = (1.0 / (2 * _SERIES_TERMS + 1), 0.0)
     for j in range(_SERIES_TERMS - 2, -1, -1):
-        acc = _cmul(acc, es)
-        acc = (acc[0] + 1.0 / (j + 2), acc[1])
-    n1_s = acc
-    ell_s = (1.0 - (eps[0] * n1_s[0] - eps[1] * n1_s[1]), -(eps[0] * n1_s[1] + eps[1] * n1_s[0]))
+        acc = _cmul(acc, yy)
+        acc = (acc[0] + 1.0 / (2 * j + 3), acc[1])
+    tail = _cmul(_cmul(_cmul(es, inv2), _cmul(inv2, inv2)), acc)
+    n1_s = (inv2[0] - 2.0 * tail[0], inv2[1] - 2.0 * tail[1])
+    ell_s = (1.0 - (es[0] * n1_s[0] - es[1] * n1_s[1]), -(es[0] * n1_s[1] + es[1] * n1_s[0]))
     n2_s = (inv1[0] - n1_s[0], inv1[1] - n1_s[1])
-    # logarithm (eps kept away from 0 in the unselected lanes)
+    # logarithm (eps kept away from 0 elsewhere)
     ed = (dr.select(small, _SERIES_RADIUS, eps[0]), dr.select(small, 0.0, eps[1]))
     od = (1.0 + ed[0], ed[1])
     inv_d = _cdiv((1.0, 0.0), od)
@@ -213,7 +218,7 @@ def _footprint(
 ) -> tuple[Any, Any]:
     float_t = type(p0x)
     ex, ey = p1x - p0x, p1y - p0y
-    length = dr.sqrt(ex * ex + ey * ey)
+    length = dr.sqrt(dr.maximum(ex * ex + ey * ey, 1e-300))
     inv_len = dr.rcp(dr.select(length > 0, length, 1.0))
     ux = dr.select(length > 0, ex * inv_len, 0.0)
     uy = dr.select(length > 0, ey * inv_len, 1.0)
