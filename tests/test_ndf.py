@@ -294,7 +294,7 @@ def test_closed_form_against_quadrature(m):
     assert err.max() <= 1e-5
     quad_area = np.array([abs(shapely.Polygon(c["quad"]).area) for c in cases])
     np.testing.assert_allclose(area, refs[:, 1], rtol=0, atol=1e-12 * quad_area.max())
-    assert np.all(np.isfinite(ndf)) and np.all(ndf >= -1e-12 * scale)
+    assert np.all(np.isfinite(ndf)) and np.all(ndf >= -1e-5 * scale)
 
 
 def test_orientation_does_not_matter(m):
@@ -419,7 +419,7 @@ def _sample_quad(rng, quad, n):
     """Uniform points in a convex quadrilateral (two triangles, by area)."""
     a, b, c, d = quad
     tri = [(a, b, c), (a, c, d)]
-    areas = np.array([abs(np.cross(q[1] - q[0], q[2] - q[0])) / 2 for q in tri])
+    areas = np.array([abs(shapely.Polygon(q).area) for q in tri])
     pick = rng.random(n) < areas[0] / areas.sum()
     u, v = rng.random(n), rng.random(n)
     flip = u + v > 1
