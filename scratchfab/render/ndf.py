@@ -20,7 +20,7 @@ branch-free, into two pieces on which the weight S(x) is linear (eq. 4). In t = 
 and R = c0 + sum over the four complex roots z of Q1, Q2 (eq. 8) of
 A/(t - z) + B/(t - z)^2 (partial fractions; the roots come in conjugate pairs, so the sum
 is twice the real part over z1 = root of Q1 and z2 = -1/z1 = root of Q2). Our closed forms
-for the coefficients (eq. 9's v, derived in ``tools/derive_ndf.py``):
+for the coefficients (eq. 9's v; double-pole residues, using Q2(z1) = 2 (1 + z1^2)):
 
     q1 = 1 + r h_z,  q2 = 1 - r h_z,  beta = sqrt(1 - r^2 (h_x^2 + h_z^2)),  r^2 = 1 - alpha^2
     z1 = (-r h_x + i beta) / q1,   c0 = 1 / (q1 q2)^2
