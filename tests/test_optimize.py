@@ -429,3 +429,27 @@ def test_acceptance_test_board_checked_with_reference_renderer(tmp_path: Path) -
 
 def test_non_finite_error_is_a_user_error() -> None:
     assert issubclass(NonFiniteError, ScratchfabError)
+
+
+@pytest.mark.slow
+def test_acceptance_demo_checked_with_reference_renderer(tmp_path: Path) -> None:
+    """The bundled demo: rho_kk >= 0.8, x_kj <= 0.2 by the brute-force renderer."""
+    from reference_render import reference_render
+
+    from scratchfab.design.targets import cross_targets
+    from scratchfab.model.design import load_design
+
+    root = Path(__file__).resolve().parents[1]
+    job = tmp_path / "demo"
+    main(["design", str(root / "pipelines" / "demo.toml"), "--out", str(job)])
+    result = run_optimize(job, OptimizeOptions(iterations=150 if FULL else 20, threads=0))
+    design = load_design(job / "design" / "design.toml")
+    targets = {v.name: np.load(job / "design" / "targets" / f"{v.name}.npy") for v in design.views}
+    ref = reference_render(
+        design, result.scratches, samples_per_pixel=64, across=24, along_step_mm=0.05
+    )
+    q = quality_report(ref, targets, cross_targets(design))
+    for k, v in q["views"].items():
+        assert v["rho"] >= 0.8, (k, v)
+        for j, x in v["crosstalk"].items():
+            assert x <= 0.2, (k, j, x)

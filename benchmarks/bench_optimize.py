@@ -1,0 +1,207 @@
+"""Benchmark of the optimize stage; prints JSON.
+
+Cases:
+- ``demo``: ``pipelines/demo.toml`` through ``design`` then ``optimize``: seconds per
+  iteration, time and iterations to the quality bar (every rho_kk >= 0.8 and
+  x_kj <= 0.2, from ``log.csv``), final quality by the optimizer's own render and by the
+  brute-force reference renderer of the tests.
+- ``large``: a 100 mm, 3-view, 512 x 512 px, 40k-scratch board (analytic targets, the
+  tests' initial layout). Only a few steps are measured on a small machine; its time to
+  the bar is extrapolated from the demo's iteration count and is labelled so.
+
+Usage: python benchmarks/bench_optimize.py [--demo-iterations N] [--large-steps N] [--skip-large]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+from scratchfab.metrics import quality_report  # noqa: E402
+from scratchfab.optimize.stage import OptimizeOptions, run_optimize  # noqa: E402
+
+
+def _bar_row(log: Path) -> dict[str, float] | None:
+    with open(log) as fh:
+        for row in csv.DictReader(fh):
+            rhos = [float(v) for k, v in row.items() if k.startswith("rho_")]
+            xs = [float(v) for k, v in row.items() if k.startswith("x_")]
+            if all(r >= 0.8 for r in rhos) and all(x <= 0.2 for x in xs):
+                return {"iteration": int(row["iteration"]), "seconds": float(row["seconds"])}
+    return None
+
+
+def _summary(q: dict) -> dict:
+    return {
+        k: {
+            "psnr": round(v["psnr"], 2),
+            "rho": round(v["rho"], 4),
+            "crosstalk": {j: round(x, 4) for j, x in v["crosstalk"].items()},
+        }
+        for k, v in q["views"].items()
+    }
+
+
+def bench_demo(iterations: int, threads: int, space: str) -> dict:
+    from reference_render import reference_render
+
+    from scratchfab.design.targets import cross_targets
+    from scratchfab.model.design import load_design
+
+    with tempfile.TemporaryDirectory() as tmp:
+        job = Path(tmp) / "demo"
+        _design(job)
+        start = time.perf_counter()
+        result = run_optimize(
+            job, OptimizeOptions(iterations=iterations, threads=threads, space=space)
+        )
+        wall = time.perf_counter() - start
+        design = load_design(job / "design" / "design.toml")
+        targets = {
+            v.name: np.load(job / "design" / "targets" / f"{v.name}.npy") for v in design.views
+        }
+        cross = cross_targets(design)
+        t0 = time.perf_counter()
+        ref = reference_render(
+            design, result.scratches, samples_per_pixel=64, across=24, along_step_mm=0.05
+        )
+        ref_s = time.perf_counter() - t0
+        bar = _bar_row(job / "optimize" / "log.csv")
+        with open(job / "optimize" / "log.csv") as fh:
+            first = next(csv.DictReader(fh))
+        return {
+            "board": "demo: 60 mm, 2 views 80x80 px, 2000 scratches",
+            "space": space,
+            "threads": threads,
+            "iterations": result.iterations,
+            "seconds_per_iteration": round(result.seconds_per_iteration, 4),
+            "optimize_wall_s": round(wall, 1),
+            "quality_bar_reached_at": bar,
+            "initial_quality": {
+                k: float(v) for k, v in first.items() if k.startswith(("rho_", "x_", "psnr_"))
+            },
+            "final_quality_own_render": _summary(result.quality),
+            "final_quality_reference_render": _summary(quality_report(ref, targets, cross)),
+            "reference_render_s": round(ref_s, 1),
+        }
+
+
+def _design(job: Path) -> None:
+    from scratchfab.cli import main
+
+    try:
+        main(["design", str(ROOT / "pipelines" / "demo.toml"), "--out", str(job)])
+    except SystemExit as exc:
+        if exc.code:
+            raise
+
+
+def bench_large(
+    steps: int, threads: int, refresh_every: int, demo_iterations_to_bar: int | None
+) -> dict:
+    import drjit as dr
+    from test_optimize_helpers import board_functions, make_layout, warp
+
+    from scratchfab.backend import array_module
+    from scratchfab.model.design import design_from_mapping
+    from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
+
+    m = array_module("llvm")
+    dr.set_thread_count(threads if threads > 0 else 2)
+    tables = {
+        "board": {"width_mm": 100.0, "height_mm": 100.0, "margin_mm": 2.0},
+        "light": {"position_mm": [0.0, 187.3, 463.6]},
+        "scratch": {"count": 40000, "min_length_mm": 2.0, "max_length_mm": 12.0},
+        "views": [
+            {
+                "name": n,
+                "azimuth_deg": az,
+                "elevation_deg": el,
+                "distance_mm": 500.0,
+                "fov_deg": "auto",
+                "resolution": [512, 512],
+            }
+            for n, az, el in (("left", -22.0, 0.0), ("right", 22.0, 0.0), ("top", 0.0, 30.0))
+        ],
+    }
+    design = design_from_mapping(tables, "<bench>", ROOT)
+    funcs = board_functions(100.0)
+    funcs["top"] = lambda x, y: (np.abs(y) < 25.0) * 0.9 + 0.05  # type: ignore[assignment]
+    targets = {v.name: warp(design, funcs[v.name], v, n=2) for v in design.views}
+    layout = make_layout(design, 40000, seed=1)
+    opts = OptimizeOptions()
+    lr = opts.learning_rates()
+    t0 = time.perf_counter()
+    opt = LayoutOptimizer(design, targets, layout, Settings(lr=lr, refresh_every=refresh_every), m)
+    setup = time.perf_counter() - t0
+    times = []
+    refresh = []
+    for _ in range(steps):
+        t1 = time.perf_counter()
+        if opt.iteration % refresh_every == 0:
+            opt._refresh(opt.ends)
+            refresh.append(time.perf_counter() - t1)
+        t2 = time.perf_counter()
+        opt.step()
+        times.append(time.perf_counter() - t2)
+    steady = times[1:] if len(times) > 1 else times
+    per = float(np.mean(steady)) + (float(np.mean(refresh)) / refresh_every if refresh else 0.0)
+    out = {
+        "board": "100 mm, 3 views 512x512 px, 40000 scratches",
+        "threads": threads,
+        "refresh_every": refresh_every,
+        "pair_margin_mm": round(opt.margin, 3),
+        "pairs_per_view": opt.pair_counts(),
+        "setup_s": round(setup, 1),
+        "first_step_s (includes kernel compile)": round(times[0], 2),
+        "measured_steps": steps,
+        "seconds_per_iteration": round(per, 3),
+        "pair_refresh_s": round(float(np.mean(refresh)), 2) if refresh else None,
+    }
+    if demo_iterations_to_bar is not None:
+        out[
+            "time_to_quality_bar_s (EXTRAPOLATED: demo's iterations to the bar x measured s/iter)"
+        ] = round(max(demo_iterations_to_bar, 1) * per, 1)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--demo-iterations", type=int, default=150)
+    parser.add_argument("--threads", type=int, default=0)
+    parser.add_argument("--large-steps", type=int, default=3)
+    parser.add_argument("--large-refresh", type=int, default=2)
+    parser.add_argument("--skip-large", action="store_true")
+    # the test board from a uniform layout crosses the bar after about 40-60 steps
+    parser.add_argument("--large-iterations-to-bar", type=int, default=60)
+    parser.add_argument("--spaces", default="linear")
+    args = parser.parse_args()
+    report: dict = {"machine": "2-core CPU, Dr.Jit LLVM", "demo": []}
+    for space in args.spaces.split(","):
+        report["demo"].append(bench_demo(args.demo_iterations, args.threads, space))
+    if not args.skip_large:
+        report["large"] = bench_large(
+            args.large_steps, args.threads, args.large_refresh, args.large_iterations_to_bar
+        )
+    print(
+        json.dumps(
+            report,
+            indent=2,
+            default=lambda v: None if isinstance(v, float) and not math.isfinite(v) else str(v),
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
