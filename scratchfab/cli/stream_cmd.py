@@ -1,0 +1,275 @@
+"""``scratchfab stream`` (send G-code to GRBL) and ``scratchfab grbl-sim`` (the emulator)."""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from pathlib import Path
+
+import click
+
+from scratchfab.errors import ScratchfabError
+from scratchfab.machine.sender import Progress, Streamer, StreamOptions, open_port
+from scratchfab.machine.sender_checks import compare
+from scratchfab.machine.sender_journal import (
+    Journal,
+    default_journal_path,
+    done_blocks,
+    read_journal,
+)
+from scratchfab.machine.sender_program import load_program, resume_point, resume_preamble
+
+
+class _ProgressLine:
+    """One status line on stderr, redrawn in place on a terminal, every 10 % otherwise."""
+
+    def __init__(self) -> None:
+        self.tty = sys.stderr.isatty()
+        self._last_decile = -1
+
+    def __call__(self, p: Progress) -> None:
+        pos = "" if p.wpos is None else " X{:.2f} Y{:.2f} Z{:.2f}".format(*p.wpos)
+        eta = time.strftime("%H:%M:%S", time.gmtime(p.eta_s))
+        text = f"{p.fraction:6.1%} {p.acked}/{p.total} lines  ETA {eta}  {p.state}{pos}"
+        if self.tty:
+            width = 28
+            fill = int(width * p.fraction)
+            click.echo(f"\r[{'#' * fill}{'.' * (width - fill)}] {text}\x1b[K", err=True, nl=False)
+        elif int(p.fraction * 10) != self._last_decile:
+            self._last_decile = int(p.fraction * 10)
+            click.echo(text, err=True)
+
+    def end(self) -> None:
+        if self.tty:
+            click.echo("", err=True)
+
+
+def _ask_interrupt() -> str:
+    click.echo("", err=True)
+    answer = click.prompt(
+        "machine held: [r]esume or [s]top (stop = wait for the hold, then soft reset)",
+        type=click.Choice(["r", "s"]),
+        default="s",
+        err=True,
+    )
+    return "resume" if answer == "r" else "stop"
+
+
+@click.command("stream")
+@click.argument("gcode", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--port", required=True, help="Serial device, pty path or pyserial URL (grblsim://...)."
+)
+@click.option("--yes", is_flag=True, help="Do not ask for confirmation before motion.")
+@click.option("--baud", type=int, default=None, help="Baud rate [machine profile, else 115200].")
+@click.option(
+    "--protocol",
+    type=click.Choice(["counting", "simple"]),
+    default="counting",
+    show_default=True,
+    help="Character counting, or send-and-wait.",
+)
+@click.option(
+    "--journal",
+    "journal_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Journal file [JOB/stream/journal.jsonl, or beside the G-code].",
+)
+@click.option("--resume", is_flag=True, help="Restart at the first stroke not completely done.")
+@click.option("--check", "check_first", is_flag=True, help="Run GRBL check mode ($C) first.")
+@click.option("--machine", default=None, help="Machine profile NAME or PATH to compare with $$.")
+@click.option("--margin", type=int, default=8, show_default=True, help="RX bytes kept free.")
+@click.option("--stall-timeout", type=float, default=10.0, show_default=True, help="Seconds.")
+@click.option("--banner-timeout", type=float, default=2.5, show_default=True, help="Seconds.")
+@click.option(
+    "--z-threshold", type=float, default=0.0, show_default=True, help="Tool down below this Z."
+)
+def stream(
+    gcode: Path,
+    port: str,
+    yes: bool,
+    baud: int | None,
+    protocol: str,
+    journal_path: Path | None,
+    resume: bool,
+    check_first: bool,
+    machine: str | None,
+    margin: int,
+    stall_timeout: float,
+    banner_timeout: float,
+    z_threshold: float,
+) -> None:
+    """Stream GCODE to a GRBL 1.1 controller on PORT, safely.
+
+    Character counting by default; stops and holds on any error or alarm, aborts on a
+    controller reset or a stall, journals every acknowledged line so that --resume can
+    continue after a disconnect or a stop without skipping a stroke.
+    """
+    profile = None
+    if machine is not None:
+        from scratchfab.machine.profile import load_profile
+
+        profile = load_profile(machine)
+    if baud is None:
+        baud = profile.serial.baud if profile is not None else 115200
+    program = load_program(gcode, z_threshold=z_threshold)
+    if not program.blocks:
+        raise ScratchfabError(f"{gcode}: no G-code lines to send")
+    journal_file = journal_path or default_journal_path(gcode)
+    start = 0
+    preamble: list[str] = []
+    if resume:
+        done = done_blocks(read_journal(journal_file), program.sha256, journal_file)
+        start = resume_point(program, done)
+        if start >= len(program.blocks):
+            click.echo(f"{gcode}: every line is done according to {journal_file}; nothing to do")
+            return
+        preamble = resume_preamble(program, start)
+        n_done = sum(1 for a, b in program.strokes if all(i in done for i in range(a, b + 1)))
+        click.echo(
+            f"resuming at line {program.blocks[start].lineno} "
+            f"({n_done} of {len(program.strokes)} strokes done); preamble: {' '.join(preamble)}"
+        )
+    options = StreamOptions(
+        protocol=protocol,
+        margin=margin,
+        rx_buffer=profile.serial.rx_buffer_bytes if profile is not None else None,
+        stall_timeout=stall_timeout,
+        banner_timeout=banner_timeout,
+    )
+    bar = _ProgressLine()
+
+    def message(text: str) -> None:
+        if bar.tty:
+            click.echo("", err=True)
+        click.echo(text, err=True)
+
+    ser = open_port(port, baud)
+    try:
+        streamer = Streamer(ser, options, bar, message, _ask_interrupt)
+        info = streamer.connect()
+        click.echo(
+            f"connected: Grbl {info.version}, RX buffer {info.rx_buffer} bytes, "
+            f"state {info.status.state}",
+            err=True,
+        )
+        findings = compare(info.settings, info.status.wco, program, profile)
+        for text in findings.warnings:
+            click.echo(f"warning: {text}", err=True)
+        if findings.refusals:
+            for text in findings.refusals[:-1]:
+                click.echo(f"refused: {text}", err=True)
+            raise ScratchfabError(findings.refusals[-1] + " (nothing was sent)")
+        if check_first:
+            report = streamer.check(program)
+            for block, code in report.errors:
+                from scratchfab.machine.grbl_codes import error_meaning
+
+                click.echo(
+                    f"{gcode}:{block.lineno}: error:{code} ({error_meaning(code)}): {block.text}",
+                    err=True,
+                )
+            if report.alarm is not None:
+                from scratchfab.machine.grbl_codes import alarm_meaning
+
+                block, code = report.alarm
+                click.echo(
+                    f"{gcode}:{block.lineno}: ALARM:{code} ({alarm_meaning(code)}): {block.text}",
+                    err=True,
+                )
+            if report.errors or report.alarm is not None:
+                n = len(report.errors) + (report.alarm is not None)
+                raise ScratchfabError(f"{gcode}: check mode found {n} problem(s); nothing moved")
+            click.echo(f"check mode: {len(program.blocks)} lines, no errors", err=True)
+        if not yes:
+            click.confirm(
+                f"Board clamped, tool zeroed, area clear? Stream {len(program.blocks) - start} "
+                f"lines to {port}",
+                abort=True,
+                err=True,
+            )
+        journal = Journal(journal_file).open()
+        try:
+            streamer.stream(program, journal, start=start, preamble=preamble, resume=resume)
+        finally:
+            journal.close()
+            bar.end()
+        click.echo(
+            f"done: {len(program.blocks) - start} lines acknowledged; journal {journal_file}"
+        )
+    finally:
+        ser.close()
+
+
+@click.command("grbl-sim")
+@click.option(
+    "--pty", "use_pty", is_flag=True, help="Serve on a new pseudo-terminal (prints its path)."
+)
+@click.option("--baud", type=int, default=115200, show_default=True, help="Emulated line speed.")
+@click.option(
+    "--time-scale", type=float, default=1.0, show_default=True, help="Motion time factor."
+)
+@click.option(
+    "--error-at", type=int, default=0, help="Answer error:<code> to the N-th G-code block."
+)
+@click.option("--error-code", type=int, default=20, show_default=True, help="Code for --error-at.")
+@click.option("--disconnect-after", type=int, default=0, help="Drop the link at the N-th block.")
+@click.option("--slow", type=float, default=0.0, help="Extra seconds before each answer.")
+@click.option("--soft-limits", is_flag=True, help="Start with $20=1 and $22=1 (in ALARM).")
+@click.option(
+    "--record",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Write what the controller received and ran (JSONL) on exit.",
+)
+def grbl_sim(
+    use_pty: bool,
+    baud: int,
+    time_scale: float,
+    error_at: int,
+    error_code: int,
+    disconnect_after: int,
+    slow: float,
+    soft_limits: bool,
+    record: Path | None,
+) -> None:
+    """Run the built-in GRBL 1.1 emulator on a pseudo-terminal until Ctrl-C.
+
+    Any sender can open the printed device. In-process, the same emulator is the pyserial
+    URL grblsim://?time_scale=0.01&error_at=500 (keys as the options here, with underscores).
+    """
+    from scratchfab.machine.grblsim import SimOptions
+    from scratchfab.machine.grblsim_pty import GrblPty
+
+    if not use_pty:
+        raise ScratchfabError(
+            "grbl-sim serves a pseudo-terminal: pass --pty (in-process, use the URL grblsim://)"
+        )
+    options = SimOptions(
+        baud=baud,
+        time_scale=time_scale,
+        error_at=error_at,
+        error_code=error_code,
+        disconnect_after=disconnect_after,
+        slow=slow,
+        soft_limits=soft_limits,
+        record=str(record) if record else "",
+    )
+    sim = GrblPty(options).start()
+    click.echo(sim.path)
+    click.echo(f"GRBL 1.1h emulator on {sim.path} (Ctrl-C to quit)", err=True)
+    stop = threading.Event()
+    try:
+        while not stop.wait(0.5):
+            pass
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sim.close()
+        click.echo(
+            f"received {sum(e['ev'] == 'rx' for e in sim.sim.record)} lines, "
+            f"RX overruns {sim.sim.overruns}",
+            err=True,
+        )

@@ -1,0 +1,974 @@
+r"""A GRBL 1.1 controller in software, for tests, dry runs and other senders.
+
+The emulator reproduces what a sender can observe on the serial line of a Grbl 1.1h board:
+
+- the banner ``\r\nGrbl 1.1h ['$' for help]\r\n`` at power-up and after every soft reset,
+  ``[MSG:...]`` feedback, ``ALARM:N`` and ``ok``/``error:N`` responses ending in ``\r\n``;
+- bytes arrive at the line's speed (10 bits per byte at ``baud``); realtime bytes
+  (``?``, ``!``, ``~``, ``0x18``, overrides) are picked off on arrival anywhere in the stream;
+  the rest go into a 128-byte RX buffer that silently drops bytes when full (recorded);
+- the main loop moves characters into an 80-byte line buffer (stripping spaces, control
+  characters and comments, upper-casing), treats CR and LF each as a line end (so CRLF
+  gets two ``ok``), and answers ``error:11`` for lines over 79 characters;
+- a 15-block planner: ``ok`` means "queued", so it lags while the planner is full; motion
+  takes distance / feed (G0 at the ``$110``-``$112`` rates) times ``time_scale``; spindle
+  changes, dwells, M0/M2/M30 and G10 wait for the planner to empty;
+- ``$`` commands with their state rules (``error:8``/``error:9``), check mode ``$C`` with the
+  soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset,
+  feed hold ``Hold:1`` -> ``Hold:0`` and resume.
+
+Fault injection (see :class:`SimOptions`): an error at the N-th G-code block, a disconnect
+after N blocks (the host vanishes; the controller still runs what it had received), lost
+``ok``s and slow answers. Every received line, response and executed motion is recorded in
+:attr:`GrblSim.record` (and written as JSONL to ``SimOptions.record`` on close).
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+from scratchfab.machine.grblsim_gcode import (
+    Action,
+    GcodeError,
+    ModalState,
+    Settings,
+    interpret,
+)
+
+VERSION = "1.1h"
+BUILD = "20190830"
+BANNER = f"\r\nGrbl {VERSION} ['$' for help]\r\n"
+RX_BUFFER_SIZE = 128
+PLANNER_BLOCKS = 15
+LINE_BUFFER_SIZE = 80
+
+CMD_STATUS = 0x3F  # ?
+CMD_HOLD = 0x21  # !
+CMD_START = 0x7E  # ~
+CMD_RESET = 0x18
+
+#: Grbl 1.1h defaults (``defaults.h``, generic machine).
+DEFAULT_SETTINGS: dict[int, float] = {
+    0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002, 13: 0,
+    20: 0, 21: 0, 22: 0, 23: 0, 24: 25.0, 25: 500.0, 26: 250, 27: 1.0, 30: 1000, 31: 0,
+    32: 0, 100: 250.0, 101: 250.0, 102: 250.0, 110: 500.0, 111: 500.0, 112: 500.0,
+    120: 10.0, 121: 10.0, 122: 10.0, 130: 200.0, 131: 200.0, 132: 200.0,
+}  # fmt: skip
+_INT_SETTINGS = {0, 1, 2, 3, 4, 5, 6, 10, 13, 20, 21, 22, 23, 26, 30, 31, 32}
+
+
+class LinkDown(Exception):
+    """The emulated serial link is gone (fault injection or closed)."""
+
+
+@dataclass
+class SimOptions:
+    """How the emulator behaves; every field can be set from a ``grblsim://?key=value`` URL.
+
+    Attributes:
+        baud: Line speed for byte timing (10 bits per byte); 0 makes the line instantaneous.
+        time_scale: Multiplies motion, dwell, hold and homing times (0.01 = 100x faster).
+        latency: One-way link latency in seconds (e.g. a USB frame), added to both directions.
+        error_at: The N-th G-code block (1-based, counted since power-up) answers
+            ``error:<error_code>`` instead of running.
+        error_code: The code for ``error_at``.
+        disconnect_after: After the N-th G-code block is received the link drops; the
+            controller keeps running what it already received (the host vanished).
+        lose_ok_at: The ``ok`` of the N-th G-code block is never sent (a garbled answer).
+        reset_after: The controller resets itself (brown-out) after the N-th G-code block.
+        slow: Extra seconds before every ``ok``/``error`` answer.
+        boot: Seconds between power-up and the banner.
+        soft_limits: Start with ``$20=1`` and ``$22=1`` (so also in ALARM until homed/unlocked).
+        homed: With ``soft_limits``: start homed (Idle at ``MPos = -$27`` on every axis).
+        wco: Start with this G54 offset, ``"x,y,z"`` in mm.
+        record: Write the event record here (JSONL) when the emulator closes.
+        settings: ``$`` settings overrides, ``{number: value}``.
+    """
+
+    baud: int = 115200
+    time_scale: float = 1.0
+    latency: float = 0.0
+    error_at: int = 0
+    error_code: int = 20
+    disconnect_after: int = 0
+    lose_ok_at: int = 0
+    reset_after: int = 0
+    slow: float = 0.0
+    boot: float = 0.0
+    soft_limits: bool = False
+    homed: bool = False
+    wco: str = ""
+    record: str = ""
+    settings: dict[int, float] = field(default_factory=dict)
+
+    @classmethod
+    def from_query(cls, query: dict[str, str]) -> SimOptions:
+        """Options from URL query pairs; unknown keys raise ValueError naming the key."""
+        kinds = {f.name: f.type for f in fields(cls)}
+        kwargs: dict[str, Any] = {}
+        overrides: dict[int, float] = {}
+        for key, raw in query.items():
+            if key.startswith("$") and key[1:].isdigit():
+                overrides[int(key[1:])] = float(raw)
+                continue
+            if key not in kinds or key == "settings":
+                known = ", ".join(sorted(k for k in kinds if k != "settings"))
+                raise ValueError(f"unknown grblsim option {key!r} (known: {known}, $N)")
+            kind = str(kinds[key])
+            if kind == "bool":
+                kwargs[key] = raw.lower() in ("1", "true", "yes", "on")
+            elif kind == "int":
+                kwargs[key] = int(raw)
+            elif kind == "float":
+                kwargs[key] = float(raw)
+            else:
+                kwargs[key] = raw
+        return cls(settings=overrides, **kwargs)
+
+
+@dataclass
+class _Block:
+    """A planned motion."""
+
+    start: tuple[float, float, float]
+    end: tuple[float, float, float]
+    duration: float  # seconds, already scaled
+    rate: float  # mm/min
+    rapid: bool
+    line: int  # received-line index
+    work_end: tuple[float, float, float]
+    work_start: tuple[float, float, float]
+    spindle: str
+
+
+@dataclass
+class _Pending:
+    """A parsed line whose actions have not all run yet (Grbl blocked inside the line)."""
+
+    line: int
+    gcode: int
+    actions: list[Action]
+    index: int = 0
+    response: str = "ok"
+    until: float = 0.0  # dwell/homing end time
+
+
+class GrblSim:
+    """The emulated controller. Thread-safe host side: :meth:`host_write` / :meth:`host_read`.
+
+    Args:
+        options: Behaviour and fault injection.
+        clock: Monotonic clock in seconds (tests may pass a fake one).
+    """
+
+    def __init__(
+        self, options: SimOptions | None = None, clock: Callable[[], float] = time.monotonic
+    ):
+        self.options = options or SimOptions()
+        self._clock = clock
+        self._cond = threading.Condition()
+        self.record: list[dict[str, Any]] = []
+        self.settings: dict[int, float] = dict(DEFAULT_SETTINGS)
+        if self.options.soft_limits:
+            self.settings[20] = 1
+            self.settings[22] = 1
+        self.settings.update(self.options.settings)
+        self.startup_lines = ["", ""]
+        self._offsets: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * 6
+        if self.options.wco:
+            x, y, z = (float(v) for v in self.options.wco.split(","))
+            self._offsets[0] = (x, y, z)
+        self.g28 = (0.0, 0.0, 0.0)
+        self.g30 = (0.0, 0.0, 0.0)
+        self.mpos: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.state = "Idle"
+        self.overruns = 0
+        self.link_up = True
+        self._byte_time = 10.0 / self.options.baud if self.options.baud > 0 else 0.0
+        self._wire: collections.deque[tuple[float, int]] = collections.deque()
+        self._wire_last = 0.0
+        self._rx: collections.deque[int] = collections.deque()
+        self._line: list[str] = []
+        self._comment = ""  # "(" or ";" while inside a comment
+        self._overflow = False
+        self._pending: _Pending | None = None
+        self._planner: collections.deque[_Block] = collections.deque()
+        self._head_start = 0.0  # when the head block (re)started
+        self._head_done = 0.0  # seconds of the head block done before a hold
+        self._hold_complete = False
+        self._hold_until = math.inf
+        self._critical = False
+        self._reset_at = math.inf
+        self._boot_at = math.inf
+        self._spindle = "M5"
+        self._spindle_speed = 0.0
+        self._coolant: frozenset[str] = frozenset()
+        self._gc = ModalState()
+        self._lines = 0
+        self._gcode_lines = 0
+        self._out: collections.deque[tuple[float, bytes]] = collections.deque()
+        self._ready = bytearray()
+        self._tx_free = 0.0
+        self._wco_counter = 0
+        self._ovr_counter = 0
+        self._overrides = [100, 100, 100]
+        self._jogging = False
+        self._last_state_logged = ""
+        self._thread: threading.Thread | None = None
+        self._stop = False
+        self.on_link_down: Callable[[], None] | None = None
+
+    # ------------------------------------------------------------------ host side
+
+    def start(self) -> None:
+        """Start the controller's thread and power it up (banner after ``boot`` seconds)."""
+        with self._cond:
+            now = self._clock()
+            self._tx_free = now
+            self._wire_last = now
+            self._boot_at = now + self.options.boot
+            self._thread = threading.Thread(target=self._run, name="grblsim", daemon=True)
+            self._thread.start()
+
+    def host_write(self, data: bytes) -> int:
+        """Bytes from the host; they reach the controller at the line's speed."""
+        with self._cond:
+            if not self.link_up:
+                raise LinkDown("grblsim: link is down")
+            now = self._clock()
+            t = max(now + self.options.latency, self._wire_last)
+            for byte in data:
+                t += self._byte_time
+                self._wire.append((t, byte))
+            self._wire_last = t
+            self._cond.notify_all()
+        return len(data)
+
+    def _collect(self, now: float) -> None:
+        while self._out and self._out[0][0] <= now:
+            self._ready += self._out.popleft()[1]
+
+    def host_read(self, size: int, timeout: float | None) -> bytes:
+        """Up to ``size`` bytes that have arrived at the host, waiting at most ``timeout`` s."""
+        deadline = None if timeout is None else self._clock() + timeout
+        with self._cond:
+            while True:
+                if not self.link_up:
+                    raise LinkDown("grblsim: link is down")
+                now = self._clock()
+                self._collect(now)
+                if self._ready:
+                    out = bytes(self._ready[:size])
+                    del self._ready[:size]
+                    return out
+                wait = 0.05 if not self._out else max(0.0, self._out[0][0] - now)
+                if deadline is not None:
+                    if now >= deadline:
+                        return b""
+                    wait = min(wait, deadline - now)
+                self._cond.wait(wait)
+
+    def host_in_waiting(self) -> int:
+        """Bytes ready for the host."""
+        with self._cond:
+            if not self.link_up:
+                raise LinkDown("grblsim: link is down")
+            self._collect(self._clock())
+            return len(self._ready)
+
+    def host_flush_input(self) -> None:
+        """Discard what has arrived at the host (pyserial's reset_input_buffer)."""
+        with self._cond:
+            self._collect(self._clock())
+            self._ready.clear()
+
+    def close(self, drain_timeout: float = 30.0) -> None:
+        """The host is gone: run what was received (bounded), stop, and write the record."""
+        deadline = time.monotonic() + drain_timeout
+        with self._cond:
+            while time.monotonic() < deadline and self._busy():
+                self._cond.wait(0.02)
+            self._stop = True
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        if self.options.record:
+            from scratchfab.fileio import write_text
+
+            write_text(
+                self.options.record,
+                "".join(json.dumps(e, separators=(",", ":")) + "\n" for e in self.record),
+            )
+
+    def _busy(self) -> bool:
+        if self._critical or (self.state == "Hold" and self._hold_complete):
+            return False
+        return bool(self._wire or self._rx or self._pending or self._planner)
+
+    def drop_link(self) -> None:
+        """Cut the link now (like pulling the USB cable of an externally powered board)."""
+        with self._cond:
+            self._drop_link(self._clock())
+
+    def _drop_link(self, t: float) -> None:
+        if not self.link_up:
+            return
+        self.link_up = False
+        self._out.clear()
+        self._ready.clear()
+        self._log(t, "disconnect")
+        self._cond.notify_all()
+        if self.on_link_down is not None:
+            threading.Thread(target=self.on_link_down, daemon=True).start()
+
+    # ------------------------------------------------------------------ event loop
+
+    def _run(self) -> None:
+        with self._cond:
+            while not self._stop:
+                now = self._clock()
+                self._advance(now)
+                nxt = self._next_event()
+                self._cond.wait(min(max(nxt - now, 0.0), 0.05) if nxt < math.inf else 0.05)
+
+    def _head_end(self) -> float:
+        if self.state not in ("Run", "Jog") or not self._planner:
+            return math.inf
+        return self._head_start + self._planner[0].duration - self._head_done
+
+    def _next_event(self) -> float:
+        t = min(self._head_end(), self._hold_until, self._reset_at, self._boot_at)
+        if self._wire:
+            t = min(t, self._wire[0][0])
+        if self._pending is not None and self._pending.until > 0.0:
+            t = min(t, self._pending.until)
+        return t
+
+    def _advance(self, now: float) -> None:
+        while True:
+            t = self._next_event()
+            if t > now:
+                return
+            if t == self._boot_at:
+                self._boot_at = math.inf
+                self._power_up(t)
+            elif t == self._reset_at:
+                # a brown-out: no ALARM:3, the position is lost (power-up state)
+                self._reset_at = math.inf
+                self._planner.clear()
+                self.mpos = (0.0, 0.0, 0.0)
+                self.state = "Alarm" if self.settings[22] else "Idle"
+                self._soft_reset(t, from_command=False)
+            elif self._wire and t == self._wire[0][0]:
+                self._receive(t, self._wire.popleft()[1])
+            elif t == self._hold_until:
+                self._hold_until = math.inf
+                self._hold_complete = True
+                self._set_state(t, "Hold")
+            elif t == self._head_end():
+                self._finish_head(t)
+            elif self._pending is not None and t == self._pending.until:
+                self._pending.until = 0.0
+            self._main(t)
+
+    # ------------------------------------------------------------------ receive side
+
+    def _receive(self, t: float, byte: int) -> None:
+        if byte == CMD_STATUS:
+            if not self._critical and self.state != "Home":
+                self._emit(t, self._status_report(t))
+            return
+        if byte in (CMD_HOLD, CMD_START, CMD_RESET) or byte >= 0x80:
+            self._realtime(t, byte)
+            return
+        if len(self._rx) >= RX_BUFFER_SIZE:
+            self.overruns += 1
+            self._log(t, "overrun", byte=byte)
+            return
+        self._rx.append(byte)
+
+    def _realtime(self, t: float, byte: int) -> None:
+        self._log(t, "rt", ch=byte)
+        if byte == CMD_RESET:
+            self._soft_reset(t, from_command=True)
+        elif byte == CMD_HOLD:
+            if self.state in ("Run", "Jog"):
+                self._pause_head(t)
+                self._hold_complete = False
+                self._hold_until = t + 0.05 * self.options.time_scale
+                self._set_state(t, "Hold")
+            elif self.state == "Idle":
+                self._hold_complete = True
+                self._set_state(t, "Hold")
+        elif byte == CMD_START:
+            if self.state == "Hold" and self._hold_complete:
+                self._hold_complete = False
+                if self._planner:
+                    self._head_start = t
+                    self._set_state(t, "Run")
+                else:
+                    self._set_state(t, "Idle")
+        elif 0x90 <= byte <= 0x94:
+            self._overrides[0] = _override(self._overrides[0], byte - 0x90)
+            self._ovr_counter = 0
+        elif 0x95 <= byte <= 0x97:
+            self._overrides[1] = (100, 50, 25)[byte - 0x95]
+            self._ovr_counter = 0
+        elif 0x99 <= byte <= 0x9D:
+            self._overrides[2] = _override(self._overrides[2], byte - 0x99)
+            self._ovr_counter = 0
+        # other extended bytes (door, jog cancel, toggles) are accepted and ignored
+
+    def _main(self, t: float) -> None:
+        """Grbl's ``protocol_main_loop``: move characters into the line buffer, run lines."""
+        while not self._critical and self._reset_at == math.inf and self._boot_at == math.inf:
+            if self._pending is not None:
+                if not self._step_pending(t):
+                    return
+                continue
+            if not self._rx:
+                return
+            c = chr(self._rx.popleft())
+            if c in "\r\n":
+                self._end_of_line(t)
+            elif self._comment:
+                if self._comment == "(" and c == ")":
+                    self._comment = ""
+            elif c <= " " or c == "/":
+                continue
+            elif c in "(;":
+                self._comment = c
+            elif len(self._line) >= LINE_BUFFER_SIZE - 1:
+                self._overflow = True
+            else:
+                self._line.append(c.upper())
+
+    def _end_of_line(self, t: float) -> None:
+        line = "".join(self._line)
+        overflow = self._overflow
+        self._line.clear()
+        self._comment = ""
+        self._overflow = False
+        self._lines += 1
+        n = self._lines
+        gcode = 0
+        if line and not line.startswith("$") and not overflow:
+            self._gcode_lines += 1
+            gcode = self._gcode_lines
+        self._log(t, "rx", n=n, g=gcode, text=line)
+        if gcode and gcode == self.options.disconnect_after:
+            self._drop_link(t)
+        if gcode and gcode == self.options.reset_after:
+            self._reset_at = t
+        if overflow:
+            self._respond(t, n, gcode, "error:11")
+        elif not line:
+            self._respond(t, n, gcode, "ok")
+        elif line.startswith("$"):
+            self._system(t, n, line)
+        elif self.state in ("Alarm", "Jog"):
+            self._respond(t, n, gcode, "error:9")
+        elif gcode == self.options.error_at:
+            self._respond(t, n, gcode, f"error:{self.options.error_code}")
+        else:
+            self._gcode(t, n, gcode, line)
+
+    def _gc_settings(self) -> Settings:
+        s = self.settings
+        return Settings(
+            max_rate=(s[110], s[111], s[112]),
+            max_travel=(s[130], s[131], s[132]),
+            soft_limits=bool(s[20]),
+            arc_tolerance=s[12],
+            laser_mode=bool(s[32]),
+            coord_offsets=list(self._offsets),
+            g28=self.g28,
+            g30=self.g30,
+        )
+
+    def _gcode(self, t: float, n: int, gcode: int, line: str) -> None:
+        try:
+            outcome = interpret(line, self._gc, self._gc_settings())
+        except GcodeError as exc:
+            self._respond(t, n, gcode, f"error:{exc.code}")
+            return
+        if outcome.soft_limit:
+            self._soft_limit_alarm(t)
+            return
+        self._offsets = outcome.coord_offsets
+        self._gc = outcome.state
+        if self.state == "Check":
+            self._respond(t, n, gcode, "ok")
+            return
+        self._pending = _Pending(n, gcode, outcome.actions)
+
+    def _wco(self) -> tuple[float, float, float]:
+        off = self._offsets[self._gc.coord_index]
+        g92 = self._gc.g92
+        return (off[0] + g92[0], off[1] + g92[1], off[2] + g92[2] + self._gc.tlo)
+
+    def _step_pending(self, t: float) -> bool:
+        """Run the pending line's next action; False while Grbl would be blocked."""
+        p = self._pending
+        assert p is not None
+        if p.until > 0.0:
+            return False
+        if p.index >= len(p.actions):
+            self._pending = None
+            if p.response:
+                self._respond(t, p.line, p.gcode, p.response)
+            return True
+        act = p.actions[p.index]
+        if act.kind == "motion":
+            if len(self._planner) >= PLANNER_BLOCKS:
+                return False
+            self._plan(t, act, p.line)
+            p.index += 1
+            return True
+        laser_free = act.kind == "spindle" and bool(self.settings[32])
+        if not laser_free and (self._planner or self.state in ("Run", "Jog")):
+            return False
+        if act.kind == "spindle":
+            self._spindle = act.spindle
+            self._spindle_speed = act.speed if act.spindle != "M5" else 0.0
+            self._log(t, "spindle", spindle=self._spindle, s=self._spindle_speed)
+        elif act.kind == "coolant":
+            self._coolant = self._gc.coolant
+        elif act.kind == "dwell":
+            p.index += 1
+            until = t + act.seconds * self.options.time_scale
+            if until > t:
+                p.until = until
+                return False
+            return True
+        elif act.kind == "pause":
+            self._hold_complete = True
+            self._set_state(t, "Hold")
+        elif act.kind == "end":
+            self._spindle = "M5"
+            self._spindle_speed = 0.0
+            self._coolant = frozenset()
+            self._emit(t, "[MSG:Pgm End]\r\n")
+        elif act.kind == "home":
+            p.index += 1
+            self._set_state(t, "Home")
+            until = t + act.seconds * self.options.time_scale
+            if until > t:
+                p.until = until
+                return False
+            return True
+        elif act.kind == "homed":
+            pull = self.settings[27]
+            self.mpos = (-pull, -pull, -pull)
+            self._gc.position = self.mpos
+            self._set_state(t, "Idle")
+        p.index += 1
+        return True
+
+    def _plan(self, t: float, act: Action, line: int) -> None:
+        start = self._planner[-1].end if self._planner else self.mpos
+        end = act.target
+        dist = math.dist(start, end)
+        rates = (self.settings[110], self.settings[111], self.settings[112])
+        limit = math.inf
+        for k in range(3):
+            d = abs(end[k] - start[k])
+            if d > 0:
+                limit = min(limit, rates[k] * dist / d)
+        rate = limit if act.rapid else min(act.rate, limit)
+        ovr = self._overrides[1] if act.rapid else self._overrides[0]
+        rate = rate * ovr / 100.0
+        duration = 0.0 if dist == 0 or rate <= 0 else dist / rate * 60.0 * self.options.time_scale
+        wco = self._wco()
+        self._planner.append(
+            _Block(
+                start=start,
+                end=end,
+                duration=duration,
+                rate=rate,
+                rapid=act.rapid,
+                line=line,
+                work_start=(start[0] - wco[0], start[1] - wco[1], start[2] - wco[2]),
+                work_end=(end[0] - wco[0], end[1] - wco[1], end[2] - wco[2]),
+                spindle=self._spindle,
+            )
+        )
+        if self.state == "Idle":
+            self._head_start = t
+            self._head_done = 0.0
+            self._set_state(t, "Jog" if self._jogging else "Run")
+
+    def _finish_head(self, t: float) -> None:
+        block = self._planner.popleft()
+        self.mpos = block.end
+        self._head_done = 0.0
+        self._head_start = t
+        self._log(
+            t,
+            "exec",
+            n=block.line,
+            frm=_r(block.work_start),
+            to=_r(block.work_end),
+            rapid=block.rapid,
+            spindle=block.spindle,
+        )
+        if not self._planner:
+            self._jogging = False
+            self._set_state(t, "Idle")
+
+    def _pause_head(self, t: float) -> None:
+        if self._planner:
+            self._head_done += t - self._head_start
+            self._head_done = min(self._head_done, self._planner[0].duration)
+
+    def _position(self, t: float) -> tuple[float, float, float]:
+        if not self._planner:
+            return self.mpos
+        head = self._planner[0]
+        done = self._head_done
+        if self.state in ("Run", "Jog"):
+            done += t - self._head_start
+        frac = 1.0 if head.duration <= 0 else min(1.0, max(0.0, done / head.duration))
+        return tuple(a + (b - a) * frac for a, b in zip(head.start, head.end, strict=True))  # type: ignore[return-value]
+
+    # ------------------------------------------------------------------ resets and alarms
+
+    def _power_up(self, t: float) -> None:
+        if self.settings[22] and self.settings[20] and self.options.homed:
+            pull = self.settings[27]
+            self.mpos = (-pull, -pull, -pull)
+            self.state = "Idle"
+        elif self.settings[22]:
+            self.state = "Alarm"
+        self._log(t, "power")
+        self._restart(t)
+
+    def _restart(self, t: float) -> None:
+        """Grbl's ``main()`` loop after a reset: banner, then the alarm lock or startup lines."""
+        self._gc = ModalState(position=self.mpos)
+        self._emit(t, BANNER)
+        if self.state == "Alarm":
+            self._emit(t, "[MSG:'$H'|'$X' to unlock]\r\n")
+        else:
+            self.state = "Idle"
+            for text in self.startup_lines:
+                if text:
+                    try:
+                        out = interpret(text, self._gc, self._gc_settings())
+                        self._gc = out.state
+                        self._emit(t, f">{text}:ok\r\n")
+                    except GcodeError as exc:
+                        self._emit(t, f">{text}:error:{exc.code}\r\n")
+        self._set_state(t, self.state, force=True)
+
+    def _soft_reset(self, t: float, from_command: bool) -> None:
+        moving = self.state in ("Run", "Jog", "Home") or (
+            self.state == "Hold" and not self._hold_complete
+        )
+        if self._planner:
+            pos = self._position(t)
+            head = self._planner[0]
+            if pos != head.start:
+                wco = self._wco()
+                self._log(
+                    t,
+                    "partial",
+                    n=head.line,
+                    frm=_r(head.work_start),
+                    to=_r((pos[0] - wco[0], pos[1] - wco[1], pos[2] - wco[2])),
+                    rapid=head.rapid,
+                    spindle=head.spindle,
+                )
+            self.mpos = pos
+        self._planner.clear()
+        self._rx.clear()
+        self._line.clear()
+        self._comment = ""
+        self._overflow = False
+        self._pending = None
+        self._hold_until = math.inf
+        self._hold_complete = False
+        self._jogging = False
+        self._spindle = "M5"
+        self._spindle_speed = 0.0
+        self._coolant = frozenset()
+        self._overrides = [100, 100, 100]
+        self._log(t, "reset", command=from_command)
+        if self._critical:
+            self._critical = False
+            self.state = "Alarm"
+        elif moving:
+            self.state = "Alarm"
+            self._emit(t, "ALARM:3\r\n")
+            self._log(t, "alarm", code=3)
+        elif self.state != "Alarm":
+            self.state = "Idle"
+        self._restart(t)
+
+    def _soft_limit_alarm(self, t: float) -> None:
+        if self.state in ("Run", "Jog", "Hold"):
+            self.mpos = self._position(t)
+        self._planner.clear()
+        self._pending = None
+        self._spindle = "M5"
+        self._spindle_speed = 0.0
+        self._critical = True
+        self.state = "Alarm"
+        self._emit(t, "ALARM:2\r\n")
+        self._emit(t, "[MSG:Reset to continue]\r\n")
+        self._log(t, "alarm", code=2)
+
+    def _set_state(self, t: float, state: str, force: bool = False) -> None:
+        name = self._state_name()
+        self.state = state
+        if force or self._state_name() != name or self._last_state_logged != name:
+            self._last_state_logged = self._state_name()
+            self._log(t, "state", state=self._last_state_logged)
+
+    def _state_name(self) -> str:
+        if self.state == "Hold":
+            return "Hold:0" if self._hold_complete else "Hold:1"
+        return self.state
+
+    # ------------------------------------------------------------------ output
+
+    def _emit(self, t: float, text: str) -> None:
+        if not self.link_up:
+            return
+        data = text.encode("ascii")
+        start = max(t + self.options.latency, self._tx_free)
+        done = start + len(data) * self._byte_time
+        self._tx_free = done
+        self._out.append((done, data))
+        self._cond.notify_all()
+
+    def _respond(self, t: float, n: int, gcode: int, response: str) -> None:
+        self._log(t, "resp", n=n, g=gcode, r=response)
+        if gcode and gcode == self.options.lose_ok_at:
+            return
+        self._emit(t + self.options.slow, response + "\r\n")
+
+    def _log(self, t: float, event: str, **data: Any) -> None:
+        self.record.append({"t": round(t, 6), "ev": event, **data})
+
+    def _status_report(self, t: float) -> str:
+        pos = self._position(t)
+        wco = self._wco()
+        inches = bool(self.settings[13])
+        if not int(self.settings[10]) & 1:
+            pos = (pos[0] - wco[0], pos[1] - wco[1], pos[2] - wco[2])
+        fields_ = [
+            self._state_name(),
+            ("MPos:" if int(self.settings[10]) & 1 else "WPos:") + _fmt(pos, inches),
+        ]
+        if int(self.settings[10]) & 2:
+            fields_.append(
+                f"Bf:{PLANNER_BLOCKS - len(self._planner)},{RX_BUFFER_SIZE - len(self._rx)}"
+            )
+        rate = self._planner[0].rate if self.state in ("Run", "Jog") and self._planner else 0.0
+        if inches:
+            fields_.append(f"FS:{rate / 25.4:.1f},{self._spindle_speed:.0f}")
+        else:
+            fields_.append(f"FS:{rate:.0f},{self._spindle_speed:.0f}")
+        busy = self.state in ("Run", "Jog", "Hold", "Home")
+        if self._wco_counter > 0:
+            self._wco_counter -= 1
+        else:
+            self._wco_counter = (30 if busy else 10) - 1
+            self._ovr_counter = max(self._ovr_counter, 1)
+            fields_.append("WCO:" + _fmt(wco, inches))
+        if self._ovr_counter > 0:
+            self._ovr_counter -= 1
+        else:
+            self._ovr_counter = (20 if busy else 10) - 1
+            fields_.append("Ov:{},{},{}".format(*self._overrides))
+            acc = (
+                ("S" if self._spindle == "M3" else "C" if self._spindle == "M4" else "")
+                + ("F" if "M8" in self._coolant else "")
+                + ("M" if "M7" in self._coolant else "")
+            )
+            if acc:
+                fields_.append("A:" + acc)
+        return "<" + "|".join(fields_) + ">\r\n"
+
+    # ------------------------------------------------------------------ $ commands
+
+    def _system(self, t: float, n: int, line: str) -> None:
+        """Grbl's ``system_execute_line``: the ``$`` commands with their state rules."""
+        state = self.state
+        idle_or_alarm = state in ("Idle", "Alarm")
+        reply = "ok"
+        cmd = line[1:]
+        if cmd == "":
+            self._emit(
+                t, "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]\r\n"
+            )
+        elif cmd == "$":
+            if state in ("Run", "Hold"):
+                reply = "error:8"
+            else:
+                for k, v in sorted(self.settings.items()):
+                    self._emit(t, f"${k}={_fmt_setting(k, v)}\r\n")
+        elif cmd == "G":
+            self._emit(t, self._gc_report())
+        elif cmd == "C":
+            if state == "Check":
+                self._emit(t, "[MSG:Disabled]\r\n")
+                self._respond(t, n, 0, "ok")
+                self._soft_reset(t, from_command=False)
+                return
+            if state != "Idle":
+                reply = "error:8"
+            else:
+                self._set_state(t, "Check")
+                self._emit(t, "[MSG:Enabled]\r\n")
+        elif cmd == "X":
+            if state == "Alarm":
+                self._emit(t, "[MSG:Caution: Unlocked]\r\n")
+                self._set_state(t, "Idle")
+        elif cmd.startswith("J="):
+            reply = self._jog(t, n, cmd[2:])
+            if reply == "":
+                return
+        elif not idle_or_alarm:
+            reply = "error:8"
+        elif cmd == "#":
+            for k in range(6):
+                self._emit(t, f"[G{54 + k}:{_fmt(self._offsets[k], False)}]\r\n")
+            self._emit(t, f"[G28:{_fmt(self.g28, False)}]\r\n[G30:{_fmt(self.g30, False)}]\r\n")
+            self._emit(t, f"[G92:{_fmt(self._gc.g92, False)}]\r\n[TLO:{self._gc.tlo:.3f}]\r\n")
+            self._emit(t, "[PRB:0.000,0.000,0.000:0]\r\n")
+        elif cmd == "I":
+            self._emit(
+                t, f"[VER:{VERSION}.{BUILD}:]\r\n[OPT:V,{PLANNER_BLOCKS},{RX_BUFFER_SIZE}]\r\n"
+            )
+        elif cmd == "N":
+            for k, text in enumerate(self.startup_lines):
+                self._emit(t, f"$N{k}={text}\r\n")
+        elif cmd.startswith("N") and "=" in cmd and cmd[1:].split("=")[0] in ("0", "1"):
+            index, text = cmd[1:].split("=", 1)
+            self.startup_lines[int(index)] = text
+        elif cmd == "H":
+            if not self.settings[22]:
+                reply = "error:5"
+            else:
+                self._pending = _Pending(n, 0, [Action("home", seconds=0.5), Action("homed")])
+                return
+        elif cmd == "SLP":
+            self._set_state(t, "Sleep")
+            self._emit(t, "[MSG:Sleeping]\r\n")
+        elif cmd.startswith("RST="):
+            what = cmd[4:]
+            if what not in ("$", "#", "*"):
+                reply = "error:3"
+            else:
+                if what in ("$", "*"):
+                    self.settings = dict(DEFAULT_SETTINGS)
+                if what in ("#", "*"):
+                    self._offsets = [(0.0, 0.0, 0.0)] * 6
+                    self.g28 = self.g30 = (0.0, 0.0, 0.0)
+                self._emit(t, "[MSG:Restoring defaults]\r\n")
+        elif "=" in cmd:
+            reply = self._set_setting(cmd)
+        else:
+            reply = "error:3"
+        self._respond(t, n, 0, reply)
+
+    def _set_setting(self, cmd: str) -> str:
+        key, _, raw = cmd.partition("=")
+        if not key.isdigit():
+            return "error:3"
+        try:
+            value = float(raw)
+        except ValueError:
+            return "error:2"
+        k = int(key)
+        if k not in DEFAULT_SETTINGS:
+            return "error:3"
+        if value < 0:
+            return "error:4"
+        if k == 0 and value < 3:
+            return "error:6"
+        if k == 20 and value and not self.settings[22]:
+            return "error:10"
+        self.settings[k] = int(value) if k in _INT_SETTINGS else value
+        return "ok"
+
+    def _jog(self, t: float, n: int, body: str) -> str:
+        if self.state not in ("Idle", "Jog"):
+            return "error:8"
+        if any(f"G{g}" in body for g in ("0", "1", "2", "3", "4")) and not all(
+            tok in ("G20", "G21", "G90", "G91", "G53") for tok in _g_words(body)
+        ):
+            return "error:16"
+        if "F" not in body:
+            return "error:22"
+        try:
+            out = interpret("G1" + body, self._gc, self._gc_settings())
+        except GcodeError as exc:
+            return f"error:{exc.code}"
+        if out.soft_limit:
+            return "error:15"
+        self._jogging = True
+        self._pending = _Pending(n, 0, [a for a in out.actions if a.kind == "motion"])
+        return ""
+
+    def _gc_report(self) -> str:
+        g = self._gc
+        parts = [
+            g.motion,
+            f"G{54 + g.coord_index}",
+            f"G{g.plane}",
+            "G20" if g.inches else "G21",
+            "G91" if g.relative else "G90",
+            "G93" if g.inverse_time else "G94",
+            g.spindle,
+            " ".join(sorted(g.coolant)) or "M9",
+            f"T{g.tool}",
+            f"F{g.feed / (25.4 if g.inches else 1.0):g}",
+            f"S{g.spindle_speed:g}",
+        ]
+        return "[GC:" + " ".join(parts) + "]\r\n"
+
+
+def _override(value: int, k: int) -> int:
+    """Feed/spindle override bytes: reset to 100 %, +10, -10, +1, -1 (kept in 10-200 %)."""
+    if k == 0:
+        return 100
+    return min(200, max(10, value + (10, -10, 1, -1)[k - 1]))
+
+
+def _g_words(body: str) -> list[str]:
+    out = []
+    i = 0
+    while i < len(body):
+        if body[i] == "G":
+            j = i + 1
+            while j < len(body) and (body[j].isdigit() or body[j] == "."):
+                j += 1
+            out.append(body[i:j])
+            i = j
+        else:
+            i += 1
+    return out
+
+
+def _r(p: tuple[float, float, float]) -> list[float]:
+    return [round(v, 4) for v in p]
+
+
+def _fmt(p: tuple[float, ...], inches: bool) -> str:
+    if inches:
+        return ",".join(f"{v / 25.4:.4f}" for v in p)
+    return ",".join(f"{v:.3f}" for v in p)
+
+
+def _fmt_setting(k: int, v: float) -> str:
+    return f"{int(v)}" if k in _INT_SETTINGS else f"{v:.3f}"

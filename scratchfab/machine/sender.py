@@ -1,0 +1,778 @@
+r"""Stream G-code to a GRBL 1.1 controller safely (no click here; the CLI wraps it).
+
+Protocol (``../shared/references/grbl-1.1-facts.md``):
+
+- Start: wait for the banner (an Arduino reboots when the port opens); if none comes, soft
+  reset (``0x18``) and wait again. Then ``$I`` (RX buffer size from ``[OPT:...]``), ``$$``
+  and a status report. A controller in ALARM is refused.
+- Lines are sent stripped and ``\n``-terminated. **Character counting** (default) keeps the
+  bytes of unanswered lines within ``rx_buffer - margin``; every non-realtime byte counts,
+  ``?`` is realtime and does not. **Simple** sends one line and waits for its answer. Only
+  ``ok`` and ``error:N`` answer a line (oldest first); ``<...>``, ``[...]``, ``ALARM:N`` and
+  banners do not. ``$`` lines are always sent one at a time.
+- Stroke barrier: the first block of a stroke is sent only when every block of the previous
+  stroke is acknowledged, so after a disconnect at most one stroke can have run unacknowledged.
+- Status ``?`` at most ``poll_hz`` (5 Hz) for the progress report and the watchdogs.
+- Faults: ``error:N`` stops feeding at once and sends feed hold; ``ALARM:N``; an unexpected
+  banner (controller reset); a stall (lines in flight, controller Idle, no answer for
+  ``stall_timeout``); silence; a lost connection. Ctrl-C holds, then asks resume or stop.
+  Stopping safely is: feed hold, wait for ``Hold:0`` (or Idle), soft reset (spindle off,
+  queue flushed, no alarm), banner.
+- Journal: every ``ok`` of a file block is appended and flushed; after a reset the journal
+  records which acknowledged blocks actually ran (from the hold position), so ``--resume``
+  never skips a stroke (:mod:`scratchfab.machine.sender_journal`).
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import serial
+
+from scratchfab.errors import ScratchfabError
+from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
+from scratchfab.machine.sender_journal import Journal
+from scratchfab.machine.sender_program import Block, Modal, Program
+
+if "scratchfab.machine" not in serial.protocol_handler_packages:
+    serial.protocol_handler_packages.append("scratchfab.machine")
+
+REALTIME_STATUS = b"?"
+REALTIME_HOLD = b"!"
+REALTIME_RESUME = b"~"
+REALTIME_RESET = b"\x18"
+
+
+class StreamFault(ScratchfabError):
+    """The job stopped because of the machine or the link (exit status 3)."""
+
+    exit_code = 3
+
+
+class StreamStopped(ScratchfabError):
+    """The user stopped the job (exit status 130)."""
+
+    exit_code = 130
+
+
+class Port(Protocol):
+    """What the sender needs from a pyserial port."""
+
+    timeout: float | None
+
+    def write(self, data: bytes) -> int | None: ...  # noqa: D102
+
+    def read(self, size: int = 1) -> bytes: ...  # noqa: D102
+
+    @property
+    def in_waiting(self) -> int: ...  # noqa: D102
+
+    def reset_input_buffer(self) -> None: ...  # noqa: D102
+
+    def close(self) -> None: ...  # noqa: D102
+
+
+def open_port(port: str, baud: int) -> Any:
+    """Open a serial device or pyserial URL (``grblsim://...`` included)."""
+    try:
+        return serial.serial_for_url(port, baudrate=baud, timeout=0.01, write_timeout=5.0)
+    except (serial.SerialException, ValueError, OSError) as exc:
+        raise ScratchfabError(f"cannot open port {port!r}: {exc}") from None
+
+
+@dataclass
+class Status:
+    """A parsed status report."""
+
+    state: str = "?"
+    mpos: tuple[float, float, float] | None = None
+    wpos: tuple[float, float, float] | None = None
+    wco: tuple[float, float, float] | None = None
+    feed: float = 0.0
+    time: float = 0.0
+
+
+def parse_status(line: str, wco: tuple[float, float, float] | None) -> Status:
+    """Parse ``<State|MPos:...|FS:...|WCO:...>``; WPos/MPos completed from the last WCO."""
+    st = Status(time=time.monotonic(), wco=wco)
+    parts = line.strip("<>").split("|")
+    st.state = parts[0]
+    for part in parts[1:]:
+        key, _, value = part.partition(":")
+        nums = value.split(",")
+        try:
+            if key in ("MPos", "WPos", "WCO"):
+                xyz = (float(nums[0]), float(nums[1]), float(nums[2]))
+                if key == "MPos":
+                    st.mpos = xyz
+                elif key == "WPos":
+                    st.wpos = xyz
+                else:
+                    st.wco = xyz
+            elif key in ("FS", "F"):
+                st.feed = float(nums[0])
+        except (ValueError, IndexError):
+            continue
+    if st.wco is not None:
+        if st.mpos is not None and st.wpos is None:
+            st.wpos = tuple(m - w for m, w in zip(st.mpos, st.wco, strict=True))  # type: ignore[assignment]
+        elif st.wpos is not None and st.mpos is None:
+            st.mpos = tuple(p + w for p, w in zip(st.wpos, st.wco, strict=True))  # type: ignore[assignment]
+    return st
+
+
+@dataclass
+class Progress:
+    """What the progress display shows."""
+
+    acked: int
+    total: int
+    eta_s: float
+    state: str
+    wpos: tuple[float, float, float] | None
+
+    @property
+    def fraction(self) -> float:
+        """Acknowledged share of the blocks."""
+        return self.acked / self.total if self.total else 1.0
+
+
+@dataclass
+class ControllerInfo:
+    """What the controller said about itself."""
+
+    version: str = ""
+    rx_buffer: int = 128
+    planner_blocks: int = 15
+    settings: dict[int, float] = field(default_factory=dict)
+    status: Status = field(default_factory=Status)
+
+
+@dataclass
+class StreamOptions:
+    """Sender behaviour.
+
+    Attributes:
+        protocol: ``counting`` or ``simple``.
+        margin: Bytes of the RX buffer left unused by character counting.
+        rx_buffer: RX buffer size; ``None`` takes it from ``$I`` (128 on Grbl 1.1).
+        poll_hz: Status polls per second (at most 5).
+        banner_timeout: Seconds to wait for the banner before (and after) a soft reset.
+        stall_timeout: Seconds with lines in flight, controller Idle and no answer.
+        silence_timeout: Seconds without any byte from the controller while polling.
+        hold_timeout: Seconds to wait for ``Hold:0`` when stopping.
+        stroke_barrier: Send a stroke's first block only when the previous stroke is acked.
+    """
+
+    protocol: str = "counting"
+    margin: int = 8
+    rx_buffer: int | None = None
+    poll_hz: float = 5.0
+    banner_timeout: float = 2.5
+    stall_timeout: float = 10.0
+    silence_timeout: float = 5.0
+    hold_timeout: float = 30.0
+    stroke_barrier: bool = True
+
+
+@dataclass
+class CheckReport:
+    """Errors found by check mode: (block, code) pairs, and an alarm if one came."""
+
+    errors: list[tuple[Block, int]]
+    alarm: tuple[Block, int] | None = None
+
+
+@dataclass
+class _Item:
+    text: str
+    block: Block | None  # None for preamble/system lines of the sender
+    pre: int = -1
+    barrier: int = -1  # send only when blocks up to this index are acknowledged
+
+
+class _Fault(Exception):
+    """A fault while talking to the controller; ``kind`` picks the safe reaction.
+
+    Kinds: ``error`` and ``stall`` (hold, wait, reset), ``silent`` (hold, short wait, reset),
+    ``alarm`` (reset), ``reset`` (the controller reset itself), ``link`` (connection lost).
+    """
+
+    def __init__(self, message: str, kind: str = "link") -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+class Streamer:
+    """Drives one controller through one program.
+
+    Args:
+        port: An open pyserial port (see :func:`open_port`).
+        options: Sender behaviour.
+        on_progress: Called with a :class:`Progress` at most ``poll_hz`` times a second.
+        on_message: Called with informational lines (warnings, controller messages).
+        ask_interrupt: After Ctrl-C (machine held): return ``"resume"`` or ``"stop"``.
+    """
+
+    def __init__(
+        self,
+        port: Port,
+        options: StreamOptions | None = None,
+        on_progress: Callable[[Progress], None] | None = None,
+        on_message: Callable[[str], None] | None = None,
+        ask_interrupt: Callable[[], str] | None = None,
+    ) -> None:
+        self.port = port
+        self.options = options or StreamOptions()
+        if self.options.protocol not in ("counting", "simple"):
+            raise ScratchfabError(
+                f"protocol must be 'counting' or 'simple', not {self.options.protocol!r}"
+            )
+        self.on_progress = on_progress or (lambda p: None)
+        self.on_message = on_message or (lambda m: None)
+        self.ask_interrupt = ask_interrupt
+        self.info = ControllerInfo()
+        self.status = Status()
+        self._buf = bytearray()
+        self._last_rx = time.monotonic()
+        self._last_poll = 0.0
+        self._wco: tuple[float, float, float] | None = None
+        self.sent_log: list[str] = []
+        self.max_inflight_bytes = 0
+        self.max_inflight_lines = 0
+
+    # ------------------------------------------------------------------ I/O
+
+    def _write(self, data: bytes) -> None:
+        try:
+            self.port.write(data)
+        except (serial.SerialException, OSError) as exc:
+            raise _Fault(f"connection lost while writing: {exc}") from None
+
+    def _read_lines(self, wait: float) -> list[str]:
+        """Complete lines received within ``wait`` seconds (CR/LF stripped, blanks dropped)."""
+        deadline = time.monotonic() + wait
+        out: list[str] = []
+        while True:
+            try:
+                self.port.timeout = max(0.0, min(0.01, deadline - time.monotonic()))
+                n = self.port.in_waiting
+                data = self.port.read(n if n > 0 else 1)
+            except (serial.SerialException, OSError) as exc:
+                raise _Fault(f"connection lost: {exc}") from None
+            if data:
+                self._last_rx = time.monotonic()
+                self._buf += data
+                while b"\n" in self._buf:
+                    raw, _, rest = self._buf.partition(b"\n")
+                    self._buf = bytearray(rest)
+                    line = raw.decode("ascii", "replace").strip()
+                    if line:
+                        out.append(line)
+            if out or time.monotonic() >= deadline:
+                return out
+
+    def _poll(self, force: bool = False) -> None:
+        now = time.monotonic()
+        period = 1.0 / min(self.options.poll_hz, 5.0)
+        if force or now - self._last_poll >= period:
+            self._last_poll = now
+            self._write(REALTIME_STATUS)
+
+    def _note_status(self, line: str) -> None:
+        self.status = parse_status(line, self._wco)
+        if self.status.wco is not None:
+            self._wco = self.status.wco
+
+    def _command(self, text: str, timeout: float = 3.0) -> list[str]:
+        """Send a line alone and collect the lines before its ``ok``; error:N raises."""
+        self._write(text.encode("ascii") + b"\n")
+        got: list[str] = []
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for line in self._read_lines(0.05):
+                if line == "ok":
+                    return got
+                if line.startswith("error:"):
+                    code = int(line[6:]) if line[6:].isdigit() else -1
+                    raise StreamFault(f"{text}: error:{code} ({error_meaning(code)})")
+                if line.startswith("ALARM:"):
+                    code = int(line[6:]) if line[6:].isdigit() else -1
+                    raise StreamFault(f"{text}: ALARM:{code} ({alarm_meaning(code)})")
+                if line.startswith("<"):
+                    self._note_status(line)
+                else:
+                    got.append(line)
+        raise StreamFault(f"no answer to {text!r} within {timeout:g} s")
+
+    def _wait_banner(self, timeout: float) -> list[str] | None:
+        """Lines after a banner, or None if no banner came within ``timeout``."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            lines = self._read_lines(0.05)
+            for k, line in enumerate(lines):
+                if line.startswith("Grbl "):
+                    self.info.version = line.split()[1]
+                    after = lines[k + 1 :]
+                    after += self._read_lines(0.1)
+                    return after
+        return None
+
+    # ------------------------------------------------------------------ connect
+
+    def connect(self) -> ControllerInfo:
+        """Wake the controller, read ``$I``, ``$$`` and its state; refuse ALARM.
+
+        Raises:
+            StreamFault: No banner, not GRBL 1.1, or the controller is in ALARM/Sleep.
+        """
+        try:
+            after = self._wait_banner(self.options.banner_timeout)
+            if after is None:
+                self.on_message("no banner; sending a soft reset")
+                self._write(REALTIME_RESET)
+                after = self._wait_banner(self.options.banner_timeout)
+            if after is None:
+                raise StreamFault(
+                    "no GRBL banner: is this a GRBL 1.1 controller, and is the baud rate right?"
+                )
+            if not self.info.version.startswith("1.1"):
+                self.on_message(f"controller reports Grbl {self.info.version}; written for 1.1")
+            for line in after:
+                if line.startswith("[MSG:"):
+                    self.on_message(f"controller: {line}")
+            for line in self._command("$I"):
+                if line.startswith("[OPT:"):
+                    parts = line[5:-1].split(",")
+                    if len(parts) >= 3 and parts[1].isdigit() and parts[2].isdigit():
+                        self.info.planner_blocks = int(parts[1])
+                        self.info.rx_buffer = int(parts[2])
+            for line in self._command("$$"):
+                key, _, value = line.partition("=")
+                if key.startswith("$") and key[1:].isdigit():
+                    try:
+                        self.info.settings[int(key[1:])] = float(value)
+                    except ValueError:
+                        continue
+            self.info.status = self._status_now()
+        except _Fault as fault:
+            raise StreamFault(str(fault)) from None
+        if self.info.status.state.startswith(("Alarm", "Sleep")):
+            raise StreamFault(
+                f"controller is in {self.info.status.state}: home it ($H) or, if the position "
+                "is known, unlock it ($X) first; nothing was sent"
+            )
+        return self.info
+
+    def _status_now(self, timeout: float = 2.0) -> Status:
+        self._write(REALTIME_STATUS)
+        self._last_poll = time.monotonic()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for line in self._read_lines(0.05):
+                if line.startswith("<"):
+                    self._note_status(line)
+                    return self.status
+        raise _Fault("no status report from the controller", kind="silent")
+
+    # ------------------------------------------------------------------ check mode
+
+    def check(self, program: Program) -> CheckReport:
+        """Run the program through check mode (``$C``), one line at a time; no motion."""
+        report = CheckReport(errors=[])
+        try:
+            self._command("$C")
+            for block in program.blocks:
+                if block.system:
+                    continue
+                self._write(block.text.encode("ascii") + b"\n")
+                answered = False
+                deadline = time.monotonic() + 5.0
+                while not answered:
+                    if time.monotonic() > deadline:
+                        raise StreamFault(f"check mode: no answer to line {block.lineno}")
+                    for line in self._read_lines(0.05):
+                        if line == "ok":
+                            answered = True
+                        elif line.startswith("error:"):
+                            report.errors.append((block, _code(line)))
+                            answered = True
+                        elif line.startswith("ALARM:"):
+                            report.alarm = (block, _code(line))
+                            answered = True
+                if report.alarm is not None:
+                    self._write(REALTIME_RESET)
+                    self._wait_banner(self.options.banner_timeout)
+                    return report
+            self._write(b"$C\n")
+            if self._wait_banner(self.options.banner_timeout) is None:
+                raise StreamFault("check mode: no reset after leaving check mode")
+        except _Fault as fault:
+            raise StreamFault(str(fault)) from None
+        return report
+
+    # ------------------------------------------------------------------ streaming
+
+    def stream(
+        self,
+        program: Program,
+        journal: Journal,
+        start: int = 0,
+        preamble: Sequence[str] = (),
+        resume: bool = False,
+    ) -> None:
+        """Send ``program.blocks[start:]`` after ``preamble``; returns when the job is done.
+
+        ``resume`` marks the journal session as a continuation of the earlier ones.
+
+        Raises:
+            StreamFault: A controller error, alarm, reset, stall or lost connection (the
+                message names the file line and the code's meaning).
+            StreamStopped: The user chose to stop after Ctrl-C.
+        """
+        items = self._items(program, start, preamble)
+        journal.write(
+            "start",
+            file=str(program.path),
+            sha256=program.sha256,
+            blocks=len(program.blocks),
+            resume=resume,
+            resume_from=(
+                program.blocks[start].lineno if start and start < len(program.blocks) else None
+            ),
+            protocol=self.options.protocol,
+            preamble=list(preamble),
+        )
+        self._journal = journal
+        self._program = program
+        self._acked_blocks: list[int] = []
+        cum = [0.0]
+        for b in program.blocks:
+            cum.append(cum[-1] + b.seconds)
+        self._cum = cum
+        try:
+            self._run(items, program, journal)
+        except _Fault as fault:
+            self._stop_after_fault(fault)
+            raise StreamFault(str(fault)) from None
+        journal.write("end", complete=True)
+
+    def _items(self, program: Program, start: int, preamble: Sequence[str]) -> list[_Item]:
+        items = [_Item(text, None, pre=k) for k, text in enumerate(preamble)]
+        stroke_of = program.stroke_of()
+        prev_last = -1
+        for block in program.blocks[start:]:
+            barrier = -1
+            s = stroke_of[block.index]
+            if self.options.stroke_barrier and s >= 0 and program.strokes[s][0] == block.index:
+                barrier = prev_last
+            if s >= 0:
+                prev_last = program.strokes[s][1]
+            items.append(_Item(block.text, block, barrier=barrier))
+        return items
+
+    def _run(self, items: list[_Item], program: Program, journal: Journal) -> None:
+        budget = (self.options.rx_buffer or self.info.rx_buffer) - self.options.margin
+        simple = self.options.protocol == "simple"
+        self._inflight: collections.deque[tuple[_Item, int]] = collections.deque()
+        self._inflight_bytes = 0
+        self._acked_through = -1  # highest block index acknowledged (acks come in order)
+        self._acked_items = 0
+        self._last_answer = time.monotonic()
+        self._last_ack_time = 0.0
+        nxt = 0
+        idle_since: float | None = None
+        paused_since: float | None = None
+        last_report = 0.0
+        self._last_rx = time.monotonic()
+        total = len(items)
+        while self._acked_items < total or not self._finished():
+            try:
+                # ---- feed
+                while nxt < total:
+                    item = items[nxt]
+                    size = len(item.text) + 1
+                    one_at_a_time = simple or (item.block is not None and item.block.system)
+                    if one_at_a_time and self._inflight:
+                        break
+                    if self._inflight and self._inflight_bytes + size > budget:
+                        break
+                    if item.barrier >= 0 and self._acked_through < item.barrier:
+                        break
+                    self._write(item.text.encode("ascii") + b"\n")
+                    self.sent_log.append(item.text)
+                    self._inflight.append((item, size))
+                    self._inflight_bytes += size
+                    self.max_inflight_bytes = max(self.max_inflight_bytes, self._inflight_bytes)
+                    self.max_inflight_lines = max(self.max_inflight_lines, len(self._inflight))
+                    nxt += 1
+                    if one_at_a_time:
+                        break
+                # ---- answers
+                self._poll()
+                for line in self._read_lines(0.005 if self._inflight else 0.02):
+                    if self._answer(line):
+                        idle_since = None
+                    elif line.startswith("<"):
+                        self._note_status(line)
+                        if self._inflight and self.status.state == "Idle":
+                            idle_since = idle_since or time.monotonic()
+                        else:
+                            idle_since = None
+                        if self.status.state == "Hold:0":
+                            paused_since = paused_since or time.monotonic()
+                        else:
+                            paused_since = None
+                    elif line.startswith("ALARM:"):
+                        code = _code(line)
+                        journal.write("alarm", code=code)
+                        raise _Fault(
+                            f"ALARM:{code} ({alarm_meaning(code)}) after line "
+                            f"{self._last_acked_line()}; the controller stopped the job",
+                            kind="alarm",
+                        )
+                    elif line.startswith("Grbl "):
+                        raise _Fault(
+                            "the controller reset itself mid-job (banner received after line "
+                            f"{self._last_acked_line()}); its position may be lost: re-home or "
+                            "re-zero, then --resume",
+                            kind="reset",
+                        )
+                    elif line.startswith("[MSG:"):
+                        self.on_message(f"controller: {line}")
+                # ---- watchdogs
+                now = time.monotonic()
+                if idle_since is not None and now - idle_since > self.options.stall_timeout:
+                    item = self._inflight[0][0]
+                    where = f"line {item.block.lineno}" if item.block else f"preamble {item.text}"
+                    raise _Fault(
+                        f"stalled: no answer to {where} for {now - self._last_answer:.1f} s "
+                        "while the controller is Idle (answer lost?)",
+                        kind="stall",
+                    )
+                if now - self._last_rx > self.options.silence_timeout:
+                    raise _Fault(
+                        f"the controller has not answered for {now - self._last_rx:.1f} s "
+                        "(no status reports)",
+                        kind="silent",
+                    )
+                if paused_since is not None and now - paused_since > 2.0:
+                    self.on_message(
+                        "controller paused (M0 or hold): press Ctrl-C to resume or stop"
+                    )
+                    paused_since = math.inf
+                if now - last_report >= 1.0 / min(self.options.poll_hz, 5.0):
+                    last_report = now
+                    self._report(self._acked_through, len(program.blocks))
+            except KeyboardInterrupt:
+                self._interrupted()
+                self._last_rx = time.monotonic()
+                idle_since = None
+        self._report(len(program.blocks) - 1, len(program.blocks))
+
+    def _answer(self, line: str) -> bool:
+        """Handle ``ok``/``error:N`` for the oldest line in flight; False for other lines."""
+        if line != "ok" and not line.startswith("error:"):
+            return False
+        if not self._inflight:
+            self.on_message(f"unexpected answer {line!r} with nothing in flight")
+            return True
+        item, size = self._inflight.popleft()
+        self._inflight_bytes -= size
+        self._last_answer = time.monotonic()
+        if line != "ok":
+            text = self._error_text(item, _code(line))
+            if self._stopping:
+                self.on_message(text)
+                return True
+            raise _Fault(text, kind="error")
+        self._acked_items += 1
+        self._last_ack_time = time.monotonic()
+        if item.block is not None:
+            self._acked_through = item.block.index
+            self._acked_blocks.append(item.block.index)
+            self._journal.write("ack", i=item.block.index, line=item.block.lineno)
+        else:
+            self._journal.write("ack", pre=item.pre)
+        return True
+
+    _stopping = False
+
+    def _finished(self) -> bool:
+        """After the last ack: done once a status report after it says Idle."""
+        return self.status.state == "Idle" and self.status.time > self._last_ack_time
+
+    def _report(self, acked_through: int, total: int) -> None:
+        done = self._cum[acked_through + 1] if acked_through >= 0 else 0.0
+        self.on_progress(
+            Progress(
+                acked=acked_through + 1,
+                total=total,
+                eta_s=max(0.0, self._cum[-1] - done),
+                state=self.status.state,
+                wpos=self.status.wpos,
+            )
+        )
+
+    def _last_acked_line(self) -> str:
+        if not self._acked_blocks:
+            return "none (before the first line)"
+        return str(self._program.blocks[self._acked_blocks[-1]].lineno)
+
+    def _error_text(self, item: _Item, code: int) -> str:
+        if item.block is not None:
+            self._journal.write("error", i=item.block.index, line=item.block.lineno, code=code)
+            return (
+                f"{self._program.path}:{item.block.lineno}: error:{code} ({error_meaning(code)}) "
+                f"on {item.block.text!r}"
+            )
+        self._journal.write("error", pre=item.pre, code=code)
+        return f"resume preamble {item.text!r}: error:{code} ({error_meaning(code)})"
+
+    # ------------------------------------------------------------------ stopping
+
+    def _interrupted(self) -> None:
+        self._write(REALTIME_HOLD)
+        self.on_message("feed hold sent")
+        choice = "stop"
+        if self.ask_interrupt is not None:
+            try:
+                choice = self.ask_interrupt()
+            except (KeyboardInterrupt, EOFError):
+                choice = "stop"
+        if choice == "resume":
+            # GRBL ignores ~ until the hold is complete (Hold:0)
+            self._wait_held(self.options.hold_timeout)
+            self._write(REALTIME_RESUME)
+            self.on_message("resumed")
+            return
+        self._safe_stop("stopped by the user", wait=self.options.hold_timeout)
+        raise StreamStopped(
+            f"stopped by the user after line {self._last_acked_line()}; machine held, then "
+            "soft-reset (spindle off); continue later with --resume"
+        )
+
+    def _stop_after_fault(self, fault: _Fault) -> None:
+        """Bring the machine to a safe state after a fault and journal what surely ran."""
+        try:
+            if fault.kind in ("error", "stall"):
+                self._write(REALTIME_HOLD)
+                self._safe_stop(str(fault), wait=self.options.hold_timeout)
+                fault.args = (str(fault) + "; feeding stopped, machine held, then soft-reset",)
+            elif fault.kind == "silent":
+                self._write(REALTIME_HOLD)
+                self._safe_stop(str(fault), wait=2.0)
+            elif fault.kind == "alarm":
+                # the alarm already stopped motion and flushed the queue; a critical alarm
+                # answers nothing until reset
+                self._reset(str(fault), self.status.wpos)
+            elif fault.kind == "reset":
+                self._journal.write(
+                    "stop", reason=str(fault), executed_through=self._executed_guess(None)
+                )
+            # "link": the controller keeps running what it acknowledged; nothing to do
+        except _Fault:
+            self._journal.write(
+                "stop", reason=str(fault), executed_through=self._executed_guess(None)
+            )
+
+    def _wait_held(self, wait: float) -> Status | None:
+        """Poll until the controller reports Hold:0 (or Idle); answers keep being handled."""
+        deadline = time.monotonic() + wait
+        while time.monotonic() < deadline:
+            self._poll()
+            for line in self._read_lines(0.02):
+                if self._answer(line):
+                    continue
+                if line.startswith("<"):
+                    self._note_status(line)
+                    if self.status.state in ("Hold:0", "Idle", "Check"):
+                        return self.status
+                elif line.startswith("ALARM:"):
+                    return None
+        return None
+
+    def _safe_stop(self, reason: str, wait: float) -> None:
+        """Wait for Hold:0 (or Idle) after a feed hold, then soft reset; journal it."""
+        self._stopping = True
+        held = self._wait_held(wait)
+        self._reset(reason, held.wpos if held is not None else None)
+
+    def _reset(self, reason: str, wpos: tuple[float, float, float] | None) -> None:
+        self._write(REALTIME_RESET)
+        self._wait_banner(self.options.banner_timeout)
+        self._journal.write("stop", reason=reason, executed_through=self._executed_guess(wpos))
+
+    def _executed_guess(self, wpos: tuple[float, float, float] | None) -> int:
+        """The last acknowledged block that surely ran, judged from the position at the stop.
+
+        The controller may still hold up to ``planner_blocks`` motion blocks (plus one line
+        being parsed) after the last acknowledgement; an acknowledged sync block (M3/M5, G4,
+        ...) means everything before it ran. The first candidate block whose segment contains
+        the hold position is the interrupted one; without a match the earliest candidate is
+        taken as interrupted (a stroke is cut again rather than skipped).
+        """
+        acked = self._acked_blocks
+        if not acked:
+            return -1
+        blocks = self._program.blocks
+        window: list[int] = []
+        motions = 0
+        for i in reversed(acked):
+            b = blocks[i]
+            if b.sync and b.index != acked[-1]:
+                break
+            window.append(i)
+            if b.motion:
+                motions += 1
+                if motions > self.info.planner_blocks + 1:
+                    break
+        window.reverse()
+        if wpos is None:
+            return window[0] - 1
+        for i in window:
+            b = blocks[i]
+            if not b.motion:
+                continue
+            start = _xyz(blocks[i - 1].modal if i > 0 else None, wpos)
+            if _on_segment(wpos, start, _xyz(b.modal, wpos), tol=0.01):
+                return i - 1
+        if math.dist(wpos, _xyz(blocks[window[-1]].modal, wpos)) < 0.01:
+            return window[-1]
+        return window[0] - 1
+
+
+def _xyz(modal: Modal | None, fallback: tuple[float, float, float]) -> tuple[float, float, float]:
+    """A block's end position; unknown Z (or no block) falls back to ``fallback``."""
+    if modal is None:
+        return (0.0, 0.0, fallback[2])
+    return (modal.x, modal.y, modal.z if modal.z is not None else fallback[2])
+
+
+def _on_segment(
+    p: tuple[float, float, float],
+    a: tuple[float, float, float],
+    b: tuple[float, float, float],
+    tol: float,
+) -> bool:
+    """True if ``p`` lies on segment ``a``-``b`` (within ``tol``), excluding its very end."""
+    ab = [b[k] - a[k] for k in range(3)]
+    ap = [p[k] - a[k] for k in range(3)]
+    length2 = sum(v * v for v in ab)
+    if length2 == 0.0:
+        return False
+    t = sum(ab[k] * ap[k] for k in range(3)) / length2
+    if t < -1e-9 or t > 1.0 - 1e-6:
+        return False
+    closest = [a[k] + t * ab[k] for k in range(3)]
+    return math.dist(p, closest) <= tol
+
+
+def _code(line: str) -> int:
+    tail = line.partition(":")[2]
+    return int(tail) if tail.isdigit() else -1

@@ -1,0 +1,147 @@
+"""Before streaming: compare the controller's ``$$`` with the machine profile and the job."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from scratchfab.machine.sender_program import Program
+
+_AXES = "XYZ"
+
+
+class _Envelope(Protocol):
+    @property
+    def x_mm(self) -> tuple[float, float]: ...
+
+    @property
+    def y_mm(self) -> tuple[float, float]: ...
+
+    @property
+    def z_mm(self) -> tuple[float, float]: ...
+
+    @property
+    def max_travel_mm(self) -> tuple[float, float, float]: ...
+
+
+class _Motion(Protocol):
+    @property
+    def max_rate_mm_min(self) -> tuple[float, float, float]: ...
+
+
+class MachineLike(Protocol):
+    """What the comparison reads from a machine profile (:class:`MachineProfile` fits)."""
+
+    @property
+    def name(self) -> str: ...  # noqa: D102
+
+    @property
+    def envelope(self) -> _Envelope: ...  # noqa: D102
+
+    @property
+    def motion(self) -> _Motion: ...  # noqa: D102
+
+
+@dataclass
+class Findings:
+    """Warnings (stream anyway) and refusals (do not stream)."""
+
+    warnings: list[str] = field(default_factory=list)
+    refusals: list[str] = field(default_factory=list)
+
+
+def job_extent(program: Program) -> tuple[list[float], list[float]]:
+    """Per-axis [min], [max] of the programmed positions (work mm); Z only where known."""
+    lo = [float("inf")] * 3
+    hi = [float("-inf")] * 3
+    for b in program.blocks:
+        if not b.motion:
+            continue
+        for k, v in enumerate((b.modal.x, b.modal.y, b.modal.z)):
+            if v is not None:
+                lo[k] = min(lo[k], v)
+                hi[k] = max(hi[k], v)
+    return lo, hi
+
+
+def compare(
+    settings: dict[int, float],
+    wco: tuple[float, float, float] | None,
+    program: Program,
+    profile: MachineLike | None = None,
+    tolerance: float = 0.01,
+) -> Findings:
+    """Compare GRBL's settings, the job and (optionally) the machine profile.
+
+    Refuses a job that leaves the profile's envelope, or GRBL's soft-limit travel
+    (``-$13x <= work + WCO <= 0`` when ``$20=1``); refuses a profile whose travel exceeds
+    GRBL's with soft limits on. Warns about slower GRBL max rates than the profile or the
+    job's feeds, and about soft limits or homing being off.
+    """
+    out = Findings()
+    travel = [settings.get(130 + k) for k in range(3)]
+    rates = [settings.get(110 + k) for k in range(3)]
+    soft = bool(settings.get(20, 0))
+    if settings and not soft:
+        out.warnings.append(
+            "GRBL soft limits are off ($20=0): nothing stops a move past the travel"
+        )
+    if settings and not settings.get(22, 0):
+        out.warnings.append("GRBL homing is off ($22=0): machine coordinates are not referenced")
+    lo, hi = job_extent(program)
+    if profile is not None:
+        env = profile.envelope
+        ranges = (env.x_mm, env.y_mm, env.z_mm)
+        for k, axis in enumerate(_AXES):
+            if lo[k] > hi[k]:
+                continue
+            a, b = ranges[k]
+            if lo[k] < a - tolerance or hi[k] > b + tolerance:
+                out.refusals.append(
+                    f"the job's {axis} range [{lo[k]:g}, {hi[k]:g}] mm leaves the envelope "
+                    f"[{a:g}, {b:g}] of machine '{profile.name}'"
+                )
+        for k, axis in enumerate(_AXES):
+            need = env.max_travel_mm[k]
+            have = travel[k]
+            if have is None or need > 1e5:
+                continue
+            if have + tolerance < need:
+                text = (
+                    f"machine '{profile.name}' expects {need:g} mm of {axis} travel but GRBL has "
+                    f"${130 + k}={have:g}"
+                )
+                (out.refusals if soft else out.warnings).append(text)
+            elif have > need + 1.0:
+                out.warnings.append(
+                    f"GRBL ${130 + k}={have:g} allows more {axis} travel than machine "
+                    f"'{profile.name}' ({need:g} mm): check the profile"
+                )
+            rate = rates[k]
+            want = profile.motion.max_rate_mm_min[k]
+            if rate is not None and rate + tolerance < want:
+                out.warnings.append(
+                    f"GRBL ${110 + k}={rate:g} mm/min is below machine '{profile.name}''s "
+                    f"{axis} max rate {want:g}: feeds are clamped, the estimate is optimistic"
+                )
+    if soft and wco is not None and all(t is not None for t in travel):
+        for k, axis in enumerate(_AXES):
+            if lo[k] > hi[k]:
+                continue
+            m_lo, m_hi = lo[k] + wco[k], hi[k] + wco[k]
+            t = travel[k] or 0.0
+            if m_lo < -t - tolerance or m_hi > tolerance:
+                out.refusals.append(
+                    f"the job's {axis} range is {m_lo:g}..{m_hi:g} mm in machine coordinates "
+                    f"(work offset {wco[k]:g}); GRBL soft limits allow -{t:g}..0 (ALARM:2)"
+                )
+    fastest = max(
+        (b.modal.feed * (25.4 if b.modal.inches else 1.0) for b in program.blocks), default=0.0
+    )
+    limit = min((r for r in rates if r is not None), default=None)
+    if limit is not None and fastest > limit + tolerance:
+        out.warnings.append(
+            f"the job asks for F{fastest:g} mm/min but GRBL's max rates are "
+            f"{'/'.join(f'{r:g}' for r in rates if r is not None)} mm/min: GRBL clamps it"
+        )
+    return out

@@ -1,0 +1,122 @@
+"""The streaming journal: an append-only JSONL log of what the controller acknowledged.
+
+One JSON object per line, appended and flushed as it happens (a crash can cut only the last
+line, which the reader skips). Events:
+
+- ``{"ev": "start", "file": ..., "sha256": ..., "blocks": N, "resume": bool, ...}``
+- ``{"ev": "ack", "i": block, "line": file_line}`` for each ``ok`` of a file block
+  (``{"ev": "ack", "pre": k}`` for the k-th resume preamble block)
+- ``{"ev": "error", "i": block, "line": file_line, "code": N}`` / ``{"ev": "alarm", "code": N}``
+- ``{"ev": "stop", "reason": ..., "executed_through": i|null}``: the controller was reset and
+  its queue flushed; blocks after ``executed_through`` may not have run although acknowledged
+- ``{"ev": "end", "complete": true}``
+
+A block is *done* when a session acknowledged it and did not later flush it with a reset;
+only the sessions since the last fresh (non-resume) start count.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import IO, Any
+
+from scratchfab.errors import ConfigError
+
+
+def default_journal_path(gcode: str | os.PathLike[str]) -> Path:
+    """``JOB/stream/journal.jsonl`` for ``JOB/export/*.gcode``, else ``<file>.journal.jsonl``."""
+    p = Path(gcode).resolve()
+    if p.parent.name == "export":
+        return p.parent.parent / "stream" / "journal.jsonl"
+    return p.with_name(p.name + ".journal.jsonl")
+
+
+class Journal:
+    """Appends events to a journal file, flushing each one."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self._handle: IO[str] | None = None
+
+    def open(self) -> Journal:
+        """Open for appending (creating the folder)."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._handle = open(self.path, "a", encoding="utf-8", newline="\n")  # noqa: SIM115
+        return self
+
+    def write(self, event: str, **data: Any) -> None:
+        """Append one event and flush it to the OS."""
+        if self._handle is None:
+            return
+        record = {"ev": event, **data}
+        if event in ("start", "stop", "end", "error", "alarm"):
+            record["time"] = time.strftime("%Y-%m-%dT%H:%M:%S")
+        self._handle.write(json.dumps(record, separators=(",", ":")) + "\n")
+        self._handle.flush()
+        if event != "ack":
+            os.fsync(self._handle.fileno())
+
+    def close(self) -> None:
+        """Flush to disk and close."""
+        if self._handle is not None:
+            self._handle.flush()
+            os.fsync(self._handle.fileno())
+            self._handle.close()
+            self._handle = None
+
+
+def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
+    """All complete events of a journal (a cut-off last line is skipped)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(
+            f"{p}: no journal to resume from (stream without --resume first)"
+        ) from None
+    events = []
+    lines = text.splitlines()
+    for k, line in enumerate(lines, start=1):
+        try:
+            events.append(json.loads(line))
+        except json.JSONDecodeError:
+            if k == len(lines):
+                break
+            raise ConfigError(f"{p}:{k}: not a journal line") from None
+    return events
+
+
+def done_blocks(
+    events: list[dict[str, Any]], sha256: str, path: str | os.PathLike[str]
+) -> set[int]:
+    """Blocks acknowledged and not flushed, over all sessions of the journal for this file.
+
+    Raises:
+        ConfigError: The journal belongs to a different file content (sha256 mismatch).
+    """
+    done: set[int] = set()
+    session: set[int] = set()
+    started = False
+    for ev in events:
+        kind = ev.get("ev")
+        if kind == "start":
+            done = done | session if ev.get("resume") else set()
+            session = set()
+            started = True
+            if ev.get("sha256") != sha256:
+                raise ConfigError(
+                    f"{path}: the journal was written for a different version of "
+                    f"{ev.get('file', 'the file')} (content changed); cannot resume safely"
+                )
+        elif kind == "ack" and "i" in ev:
+            session.add(int(ev["i"]))
+        elif kind == "stop":
+            through = ev.get("executed_through")
+            limit = -1 if through is None else int(through)
+            session = {i for i in session if i <= limit}
+    if not started:
+        raise ConfigError(f"{path}: journal has no start event")
+    return done | session

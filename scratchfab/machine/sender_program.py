@@ -1,0 +1,350 @@
+"""A G-code file as the sender sees it: stripped blocks, modal state, strokes, resume preamble.
+
+Works on any G-code GRBL accepts, not only ours. Each file line becomes at most one *block*:
+comments (``( )`` and ``;``) and whitespace removed and letters upper-cased, as GRBL's own
+pre-processing does, so the bytes counted are the bytes GRBL stores. Blank and comment-only
+lines (and ``%``) are not sent.
+
+A *stroke* is what cuts. The tool is **down** after a block when the programmed Z is below
+``z_threshold`` (0 = the work surface), or, in a job whose Z never goes below the threshold
+(a servo/plotter job), when the spindle output is on (M3/M4). A stroke is the run of blocks
+from the block that puts the tool down up to and including the block that lifts it (Z back
+up, or M5); :func:`stroke_spans` is the one definition used by streaming and resuming.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from scratchfab.errors import ConfigError
+
+MAX_BLOCK_CHARS = 79
+_WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
+_REALTIME = set("?!~")
+
+
+def strip_block(raw: str) -> str:
+    """GRBL's pre-processing: drop comments, whitespace and ``/``; upper-case the rest."""
+    out: list[str] = []
+    depth = False
+    for ch in raw:
+        if depth:
+            if ch == ")":
+                depth = False
+            continue
+        if ch == "(":
+            depth = True
+        elif ch == ";":
+            break
+        elif ch <= " " or ch == "/":
+            continue
+        else:
+            out.append(ch.upper())
+    text = "".join(out)
+    return "" if text == "%" else text
+
+
+@dataclass(frozen=True)
+class Modal:
+    """The sender's view of the modal state after a block (positions in work mm)."""
+
+    motion: str = "G0"
+    inches: bool = False
+    relative: bool = False
+    plane: str = "G17"
+    feed_mode: str = "G94"
+    wcs: str = "G54"
+    feed: float = 0.0  # in the file's units per minute (as last written)
+    spindle: str = "M5"
+    speed: float = 0.0
+    coolant: str = "M9"
+    x: float = 0.0
+    y: float = 0.0
+    z: float | None = None  # unknown until the program sets it
+
+
+@dataclass(frozen=True)
+class Block:
+    """One line to send: ``index`` among blocks, ``lineno`` in the file (1-based)."""
+
+    index: int
+    lineno: int
+    text: str
+    modal: Modal  # state after the block
+    seconds: float  # estimated run time
+    motion: bool  # creates planner blocks
+    sync: bool  # GRBL empties the planner before it (spindle, dwell, M0/M2/M30, G10)
+    system: bool  # a ``$`` command (sent with send-response)
+
+
+@dataclass
+class Program:
+    """A parsed G-code file."""
+
+    path: Path
+    sha256: str
+    blocks: list[Block]
+    strokes: list[tuple[int, int]]  # (first, last) block index of each stroke
+    z_threshold: float
+    pen_mode: bool
+
+    @property
+    def total_seconds(self) -> float:
+        """Estimated run time (distance / feed, G0 at the max rates)."""
+        return sum(b.seconds for b in self.blocks)
+
+    def stroke_of(self) -> list[int]:
+        """Per block, the index of the stroke it belongs to, or -1."""
+        out = [-1] * len(self.blocks)
+        for k, (a, b) in enumerate(self.strokes):
+            for i in range(a, b + 1):
+                out[i] = k
+        return out
+
+
+def _words(text: str) -> list[tuple[str, float]]:
+    return [(m.group(1), float(m.group(2))) for m in _WORD.finditer(text)]
+
+
+def _advance(
+    state: Modal, text: str, rapid_mm_min: Sequence[float]
+) -> tuple[Modal, float, bool, bool]:
+    """The modal state after ``text``, its estimated seconds, and its motion/sync flags."""
+    if text.startswith("$"):
+        return state, 0.0, False, False
+    words = _words(text)
+    s = state
+    axes: dict[str, float] = {}
+    nonmodal = ""
+    sync = False
+    dwell = 0.0
+    for letter, value in words:
+        if letter == "G":
+            code = f"G{value:g}"
+            if code in ("G0", "G1", "G2", "G3", "G80"):
+                s = replace(s, motion=code)
+            elif code in ("G20", "G21"):
+                s = replace(s, inches=code == "G20")
+            elif code in ("G90", "G91"):
+                s = replace(s, relative=code == "G91")
+            elif code in ("G17", "G18", "G19"):
+                s = replace(s, plane=code)
+            elif code in ("G93", "G94"):
+                s = replace(s, feed_mode=code)
+            elif code in ("G54", "G55", "G56", "G57", "G58", "G59"):
+                s = replace(s, wcs=code)
+            elif code in ("G4", "G10", "G28", "G30", "G53", "G92", "G28.1", "G30.1", "G92.1"):
+                nonmodal = code
+        elif letter == "M":
+            code = f"M{value:g}"
+            if code in ("M3", "M4", "M5"):
+                s = replace(s, spindle=code)
+                sync = True
+            elif code in ("M7", "M8", "M9"):
+                s = replace(s, coolant=code)
+                sync = True
+            elif code in ("M0", "M1"):
+                sync = True
+            elif code in ("M2", "M30"):
+                sync = True
+                s = replace(
+                    s, motion="G1", relative=False, plane="G17", feed_mode="G94", wcs="G54",
+                    spindle="M5", coolant="M9",
+                )  # fmt: skip
+        elif letter == "F":
+            s = replace(s, feed=value)
+        elif letter == "S":
+            if s.spindle != "M5" and value != s.speed:
+                sync = True
+            s = replace(s, speed=value)
+        elif letter == "P" and nonmodal == "G4":
+            dwell = value
+        elif letter in "XYZ":
+            axes[letter] = value
+    if nonmodal in ("G4", "G10", "G28.1", "G30.1"):
+        sync = True
+    scale = 25.4 if s.inches else 1.0
+    motion = False
+    seconds = dwell
+    if axes and nonmodal not in ("G10", "G92", "G28", "G30", "G53") and s.motion != "G80":
+        start = (s.x, s.y, s.z if s.z is not None else 0.0)
+        end = list(start)
+        for k, a in enumerate("XYZ"):
+            if a in axes:
+                v = axes[a] * scale
+                end[k] = start[k] + v if s.relative else v
+        dist = math.dist(start, end)
+        if s.motion == "G0":
+            rate = math.inf
+            for k in range(3):
+                d = abs(end[k] - start[k])
+                if d > 0:
+                    rate = min(rate, rapid_mm_min[k] * dist / d)
+        else:
+            rate = s.feed * scale if s.feed_mode == "G94" else dist * s.feed
+        seconds += dist / rate * 60.0 if rate > 0 and math.isfinite(rate) else 0.0
+        z = end[2] if ("Z" in axes or s.z is not None) else None
+        s = replace(s, x=end[0], y=end[1], z=z)
+        motion = True
+    elif axes and nonmodal in ("G28", "G30", "G53"):
+        motion = True  # position unknown to the sender; keep the old one
+    return s, seconds, motion, sync
+
+
+def _tool_down(modal: Modal, z_threshold: float, pen_mode: bool) -> bool:
+    if pen_mode:
+        return modal.spindle in ("M3", "M4")
+    return modal.z is not None and modal.z < z_threshold - 1e-9
+
+
+def stroke_spans(
+    blocks: Sequence[Block], z_threshold: float, pen_mode: bool
+) -> list[tuple[int, int]]:
+    """The strokes: (first, last) block indices from tool-down to tool-up, both included.
+
+    Args:
+        blocks: The program's blocks (their ``modal`` is the state after each block).
+        z_threshold: Z (work mm) below which the tool cuts.
+        pen_mode: Use the spindle output (M3/M4 on) instead of Z as the tool state.
+    """
+    spans: list[tuple[int, int]] = []
+    first = -1
+    for b in blocks:
+        down = _tool_down(b.modal, z_threshold, pen_mode)
+        if down and first < 0:
+            first = b.index
+        elif not down and first >= 0:
+            spans.append((first, b.index))
+            first = -1
+    if first >= 0:
+        spans.append((first, len(blocks) - 1))
+    return spans
+
+
+def load_program(
+    path: str | Path,
+    z_threshold: float = 0.0,
+    rapid_mm_min: Sequence[float] = (500.0, 500.0, 500.0),
+) -> Program:
+    """Read and check a G-code file.
+
+    Args:
+        path: The G-code file.
+        z_threshold: Z (work mm) below which the tool is down.
+        rapid_mm_min: G0 rates per axis for the time estimate (GRBL's $110-$112).
+
+    Raises:
+        ConfigError: Unreadable file, or a line GRBL would reject before parsing (over 79
+            characters after stripping, realtime characters, non-ASCII), naming the line.
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read the G-code file ({exc.strerror})") from None
+    try:
+        text = data.decode("ascii")
+    except UnicodeDecodeError as exc:
+        lineno = data[: exc.start].count(b"\n") + 1
+        raise ConfigError(f"{p}:{lineno}: non-ASCII byte in G-code") from None
+    blocks: list[Block] = []
+    state = Modal()
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        block = strip_block(raw)
+        if not block:
+            continue
+        bad = _REALTIME.intersection(block)
+        if bad or any(ord(c) < 32 for c in block):
+            what = "".join(sorted(bad)) or "a control character"
+            raise ConfigError(
+                f"{p}:{lineno}: {what!r} is a GRBL realtime command and would act at once"
+            )
+        if len(block) > MAX_BLOCK_CHARS:
+            raise ConfigError(
+                f"{p}:{lineno}: line has {len(block)} characters after stripping; "
+                f"GRBL 1.1 accepts at most {MAX_BLOCK_CHARS} (error:11)"
+            )
+        state, seconds, motion, sync = _advance(state, block, rapid_mm_min)
+        blocks.append(
+            Block(
+                index=len(blocks),
+                lineno=lineno,
+                text=block,
+                modal=state,
+                seconds=seconds,
+                motion=motion,
+                sync=sync,
+                system=block.startswith("$"),
+            )
+        )
+    goes_below = any(b.modal.z is not None and b.modal.z < z_threshold - 1e-9 for b in blocks)
+    uses_spindle = any(b.modal.spindle in ("M3", "M4") for b in blocks)
+    pen_mode = not goes_below and uses_spindle
+    return Program(
+        path=p,
+        sha256=hashlib.sha256(data).hexdigest(),
+        blocks=blocks,
+        strokes=stroke_spans(blocks, z_threshold, pen_mode),
+        z_threshold=z_threshold,
+        pen_mode=pen_mode,
+    )
+
+
+def _num(value: float) -> str:
+    text = f"{value:.4f}".rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text
+
+
+def resume_point(program: Program, done: set[int]) -> int:
+    """The block to restart at: the first block of the first stroke not completely done.
+
+    Blocks outside strokes (travel, set-up) that are not done before that stroke are
+    replaced by the preamble. Returns ``len(program.blocks)`` when everything is done.
+    """
+    for first, last in program.strokes:
+        if any(i not in done for i in range(first, last + 1)):
+            return first
+    after = program.strokes[-1][1] + 1 if program.strokes else 0
+    for i in range(after, len(program.blocks)):
+        if i not in done:
+            return i
+    return len(program.blocks)
+
+
+def resume_preamble(program: Program, start: int) -> list[str]:
+    """Blocks that restore the state the file had before block ``start``, safely.
+
+    Order: mm and absolute (G21 G90, plane, feed mode, work coordinates), spindle/servo and
+    coolant as the file had them (the tool is up before a stroke by definition), Z up to the
+    highest Z the file used so far, XY to where the file was, Z down to the file's travel
+    height there, then the file's units, distance mode, feed and motion mode. The stroke's
+    own first block then plunges.
+    """
+    if start <= 0 or start > len(program.blocks):
+        return []
+    before = program.blocks[start - 1].modal
+    zs = [b.modal.z for b in program.blocks[:start] if b.modal.z is not None]
+    lines = [f"G21G90{before.plane}{before.feed_mode}{before.wcs}"]
+    if before.spindle == "M5":
+        lines.append("M5")
+    else:
+        lines.append(f"{before.spindle}S{_num(before.speed)}")
+    lines.append(before.coolant)
+    if zs:
+        z_safe = max(zs)
+        lines.append(f"G0Z{_num(z_safe)}")
+    lines.append(f"G0X{_num(before.x)}Y{_num(before.y)}")
+    if zs and before.z is not None and before.z < max(zs):
+        lines.append(f"G0Z{_num(before.z)}")
+    restore = ("G20" if before.inches else "") + ("G91" if before.relative else "")
+    if before.feed > 0:
+        restore += f"F{_num(before.feed)}"
+    restore += before.motion if before.motion != "G0" else ""
+    if restore:
+        lines.append(restore)
+    return lines

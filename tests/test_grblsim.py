@@ -1,0 +1,278 @@
+"""The GRBL 1.1 emulator against the documented Grbl 1.1 behaviour (grbl-1.1-facts.md)."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+import serial
+
+import scratchfab.machine.sender  # noqa: F401  (registers grblsim://)
+from scratchfab.machine.grbl_codes import ALARM_CODES, ERROR_CODES, error_meaning
+from scratchfab.machine.grblsim import BANNER, GrblSim, SimOptions
+from scratchfab.machine.grblsim_pty import GrblPty
+
+
+def _open(query: str = "time_scale=0.01") -> serial.SerialBase:
+    return serial.serial_for_url(f"grblsim://?{query}", baudrate=115200, timeout=0.05)
+
+
+def _read_until(port: serial.SerialBase, predicate, timeout: float = 3.0) -> list[str]:
+    """Lines from the port until ``predicate(lines)`` holds."""
+    lines: list[str] = []
+    buf = b""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        buf += port.read(4096)
+        *done, buf = buf.split(b"\n")
+        lines += [d.decode().strip() for d in done if d.strip()]
+        if predicate(lines):
+            return lines
+    raise AssertionError(f"timeout; got {lines!r}")
+
+
+def _answers(lines: list[str]) -> list[str]:
+    return [ln for ln in lines if ln == "ok" or ln.startswith("error:")]
+
+
+def _cmd(port: serial.SerialBase, text: bytes, n: int = 1) -> list[str]:
+    port.write(text)
+    return _read_until(port, lambda ls: len(_answers(ls)) >= n)
+
+
+def test_codes_tables_complete():
+    assert sorted(ERROR_CODES) == list(range(1, 39))
+    assert sorted(ALARM_CODES) == list(range(1, 11))
+    assert "feed rate" in error_meaning(22)
+    assert "unknown" in error_meaning(99)
+
+
+def test_banner_info_and_line_ends():
+    port = _open()
+    try:
+        lines = _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        assert lines[-1] == BANNER.strip()
+        lines = _cmd(port, b"$I\n")
+        assert "[VER:1.1h.20190830:]" in lines and "[OPT:V,15,128]" in lines
+        # CR and LF each end a line: CRLF gets two oks; an empty line gets ok
+        assert _answers(_cmd(port, b"G21\r\n", 2)) == ["ok", "ok"]
+        assert _answers(_cmd(port, b"\n")) == ["ok"]
+        # comments, spaces and case are stripped before parsing
+        assert _answers(_cmd(port, b"g90 (comment) ; tail\n")) == ["ok"]
+    finally:
+        port.close()
+
+
+@pytest.mark.parametrize(
+    ("line", "code"),
+    [
+        ("G1X1", 22),  # no feed rate yet
+        ("M6", 20),
+        ("G64", 20),
+        ("G0X1X2", 25),
+        ("G0G1X1", 21),
+        ("G4", 28),
+        ("G1.5X1", 23),
+        ("X", 2),
+        ("1", 1),
+        ("T300", 38),
+        ("F-1", 4),
+        ("G53G2X1I1", 30),
+        ("G10L2P8X0", 29),
+        ("G80X1", 31),
+        ("G0X1P2", 36),
+        ("G92", 26),
+        ("G2X1F100", 35),
+        ("G43.1X1", 37),
+        ("N99999999G0", 27),
+        ("$Q", 3),
+        ("$H", 5),
+        ("$20=1", 10),
+        ("$0=2", 6),
+        ("G" + "0" * 80, 11),
+    ],
+)
+def test_error_codes(line, code):
+    port = _open()
+    try:
+        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        assert _answers(_cmd(port, line.encode() + b"\n")) == [f"error:{code}"]
+    finally:
+        port.close()
+
+
+def test_rx_buffer_overflow_drops_bytes_and_realtime_still_works():
+    port = _open("time_scale=1")
+    try:
+        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        port.write(b"G4P0.6\n")  # dwell: the main loop stops reading the RX buffer
+        time.sleep(0.1)
+        extra = b"G0X0\n" * 40  # 200 bytes: 72 must be dropped
+        port.write(extra + b"?")
+        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls), timeout=0.5)
+        assert any(x.startswith("<Idle") or x.startswith("<Run") for x in lines)
+        time.sleep(0.8)
+        sim = port.sim
+        assert sim.overruns == len(extra) - 128
+        assert any(e["ev"] == "overrun" for e in sim.record)
+    finally:
+        port.close()
+
+
+def test_realtime_picked_off_inside_comments():
+    port = _open()
+    try:
+        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _cmd(port, b"G21 (careful!)\n")
+        port.write(b"?")
+        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
+        assert lines[-1].startswith("<Hold:0|")
+    finally:
+        port.close()
+
+
+def test_planner_holds_15_blocks_so_ok_lags():
+    port = _open("time_scale=1")
+    try:
+        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _cmd(port, b"G1F60\n")  # 60 mm/min: 1 mm takes one second
+        port.write(b"".join(f"G1X{k + 1}\n".encode() for k in range(20)))
+        time.sleep(0.5)
+        lines = _read_until(port, lambda ls: True, timeout=0.1)
+        assert _answers(lines) == ["ok"] * 15  # the 16th line waits in the parser
+        port.write(b"\x18")  # reset while moving -> ALARM:3
+        lines = _read_until(port, lambda ls: any(x.startswith("[MSG:'$H'") for x in ls))
+        assert "ALARM:3" in lines and BANNER.strip() in lines
+    finally:
+        port.close()
+
+
+def test_motion_time_follows_feed_and_time_scale():
+    port = _open("time_scale=0.2")
+    try:
+        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        t0 = time.monotonic()
+        _cmd(port, b"G1X10F600\n")  # 10 mm at 600 mm/min = 1 s, scaled to 0.2 s
+        while True:
+            port.write(b"?")
+            lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
+            if lines[-1].startswith("<Idle"):
+                break
+        elapsed = time.monotonic() - t0
+        assert 0.18 <= elapsed <= 0.6
+        assert lines[-1].startswith("<Idle|MPos:10.000,0.000,0.000|")
+    finally:
+        port.close()
+
+
+def test_serial_byte_time_at_baud():
+    port = serial.serial_for_url("grblsim://?baud=9600", baudrate=9600, timeout=0.05)
+    try:
+        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        t0 = time.monotonic()
+        port.write(b"\n" * 100)  # 100 bytes in, 100 x "ok\r\n" out, 10 bits per byte
+        _read_until(port, lambda ls: len(_answers(ls)) >= 100)
+        assert time.monotonic() - t0 >= 400 * 10 / 9600 * 0.95
+    finally:
+        port.close()
+
+
+def test_feed_hold_resume_and_state_rules():
+    port = _open("time_scale=1")
+    try:
+        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _cmd(port, b"G1X5F60\n")
+        port.write(b"!")
+        time.sleep(0.2)
+        port.write(b"?")
+        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
+        assert lines[-1].startswith("<Hold:0|")
+        assert _answers(_cmd(port, b"$$\n")) == ["error:8"]  # not while holding
+        assert _answers(_cmd(port, b"$C\n")) == ["error:8"]
+        port.write(b"~")
+        time.sleep(0.1)
+        port.write(b"?")
+        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
+        assert lines[-1].startswith("<Run|")
+        port.write(b"!")
+        time.sleep(0.2)
+        port.write(b"\x18")  # reset from Hold:0: no alarm, position kept
+        lines = _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        assert not any(x.startswith("ALARM") for x in lines)
+        port.write(b"?")
+        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
+        assert lines[-1].startswith("<Idle|")
+    finally:
+        port.close()
+
+
+def test_check_mode_and_its_reset():
+    port = _open("time_scale=1")
+    try:
+        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        lines = _cmd(port, b"$C\n")
+        assert "[MSG:Enabled]" in lines
+        assert _answers(_cmd(port, b"G1X100F10\nM6\n", 2)) == ["ok", "error:20"]
+        port.write(b"?")
+        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
+        assert lines[-1].startswith("<Check|MPos:0.000,0.000,0.000")  # no motion
+        port.write(b"$C\n")
+        lines = _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        assert lines[:2] == ["[MSG:Disabled]", "ok"]
+        assert not any(e["ev"] == "exec" for e in port.sim.record)
+    finally:
+        port.close()
+
+
+def test_soft_limit_alarm_locks_until_reset():
+    port = _open("soft_limits=1&homed=1&time_scale=0.01")
+    try:
+        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        port.write(b"G0X10\n")  # machine space is -$130..0: +10 is outside
+        lines = _read_until(port, lambda ls: "[MSG:Reset to continue]" in ls)
+        assert "ALARM:2" in lines and not _answers(lines)
+        port.write(b"?")
+        time.sleep(0.2)
+        assert port.read(100) == b""  # no status report while locked
+        port.write(b"\x18")
+        lines = _read_until(port, lambda ls: "[MSG:'$H'|'$X' to unlock]" in ls)
+        assert _answers(_cmd(port, b"G0X-1\n")) == ["error:9"]
+        assert "[MSG:Caution: Unlocked]" in _cmd(port, b"$X\n")
+        assert _answers(_cmd(port, b"G0X-1\n")) == ["ok"]
+    finally:
+        port.close()
+
+
+def test_url_options_are_checked():
+    with pytest.raises(serial.SerialException, match="unknown grblsim option 'bogus'"):
+        _open("bogus=1")
+    assert SimOptions.from_query({"error_at": "5", "$110": "900"}).settings == {110: 900.0}
+
+
+def test_pty_speaks_grbl_to_pyserial():
+    with GrblPty(SimOptions(time_scale=0.01)) as pty:
+        port = serial.Serial(pty.path, 115200, timeout=0.05)
+        try:
+            port.write(b"\x18")  # opening flushed the power-up banner
+            _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+            assert _answers(_cmd(port, b"G21\r\n", 2)) == ["ok", "ok"]
+            port.write(b"?")
+            lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
+            assert lines[-1].startswith("<Idle|MPos:")
+        finally:
+            port.close()
+
+
+def test_sim_record_of_executed_motion():
+    sim = GrblSim(SimOptions(time_scale=0.0))
+    sim.start()
+    sim.host_write(b"G1X3Y4F100\nG0Z1\n")
+    deadline = time.monotonic() + 2
+    while time.monotonic() < deadline and sum(e["ev"] == "exec" for e in sim.record) < 2:
+        time.sleep(0.01)
+    sim.close()
+    execs = [e for e in sim.record if e["ev"] == "exec"]
+    assert [(e["to"], e["rapid"]) for e in execs] == [
+        ([3.0, 4.0, 0.0], False),
+        ([3.0, 4.0, 1.0], True),
+    ]

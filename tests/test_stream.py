@@ -1,0 +1,524 @@
+"""`scratchfab stream` against the GRBL emulator, through grblsim:// and a real pty."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import serial
+
+from scratchfab.cli import main
+from scratchfab.errors import ConfigError
+from scratchfab.machine.grblsim import SimOptions
+from scratchfab.machine.grblsim_pty import GrblPty
+from scratchfab.machine.sender import (
+    Streamer,
+    StreamFault,
+    StreamOptions,
+    StreamStopped,
+    open_port,
+)
+from scratchfab.machine.sender_checks import compare
+from scratchfab.machine.sender_journal import (
+    Journal,
+    default_journal_path,
+    done_blocks,
+    read_journal,
+)
+from scratchfab.machine.sender_program import (
+    load_program,
+    resume_point,
+    resume_preamble,
+    strip_block,
+)
+
+FAST = StreamOptions(banner_timeout=0.5, stall_timeout=1.0)
+
+
+def write_job(
+    path: Path, strokes: int, seed: int = 7
+) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+    """An exporter-style job; returns each stroke's (start, end) in work mm."""
+    rng = np.random.default_rng(seed)
+    lines = ["; scratchfab test job", "G21 G90 G17 G94", "G0 Z2"]
+    cuts = []
+    for _ in range(strokes):
+        x, y = np.round(rng.uniform(-30, 30, 2), 3)
+        u, v = np.round(rng.uniform(-2, 2, 2), 3)
+        lines += [
+            "G0 Z2",
+            f"G0 X{x:.3f} Y{y:.3f}",
+            "G1 Z-0.05 F200",
+            f"G1 X{x + u:.3f} Y{y + v:.3f} F600  (cut)",
+            "G0 Z2",
+        ]
+        cuts.append(((float(x), float(y)), (round(float(x + u), 3), round(float(y + v), 3))))
+    lines.append("M2")
+    path.write_text("\n".join(lines) + "\n")
+    return cuts
+
+
+def read_record(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+def cut_counts(records: list[list[dict]], cuts) -> list[int]:
+    """How often each stroke's cut was executed (both ends matching, tool below Z=0)."""
+    counts = [0] * len(cuts)
+    index = {}
+    for k, (a, b) in enumerate(cuts):
+        index.setdefault(
+            (round(a[0], 3), round(a[1], 3), round(b[0], 3), round(b[1], 3)), []
+        ).append(k)
+    for rec in records:
+        for e in rec:
+            if e["ev"] != "exec" or e["rapid"] or e["to"][2] >= 0 or e["frm"][2] >= 0:
+                continue
+            key = (
+                round(e["frm"][0], 3),
+                round(e["frm"][1], 3),
+                round(e["to"][0], 3),
+                round(e["to"][1], 3),
+            )
+            if key[:2] == key[2:]:
+                continue
+            for k in index.get(key, []):
+                counts[k] += 1
+    return counts
+
+
+# --------------------------------------------------------------------------- program
+
+
+def test_strip_block_matches_grbl_preprocessing():
+    assert strip_block("g1 x1.5 (move!) y2 ; done") == "G1X1.5Y2"
+    assert strip_block("(only a comment)") == ""
+    assert strip_block("%") == ""
+
+
+def test_strokes_in_z_and_servo_jobs(tmp_path):
+    z = tmp_path / "z.gcode"
+    z.write_text(
+        "G21G90\nG0Z1\nG0X1Y1\nG1Z-0.1F100\nG1X2F300\nG1Y2\nG0Z1\nG0X5\nG1Z-0.1\nG1X6\nG0Z1\n"
+    )
+    prog = load_program(z)
+    assert not prog.pen_mode
+    assert [(prog.blocks[a].lineno, prog.blocks[b].lineno) for a, b in prog.strokes] == [
+        (4, 7),
+        (9, 11),
+    ]
+    servo = tmp_path / "servo.gcode"
+    servo.write_text("G21G90\nM5\nG0X1Y1\nM3S40\nG1X2F500\nM5\nG0X3\nM3S40\nG1X4\nM5\n")
+    prog = load_program(servo)
+    assert prog.pen_mode
+    assert [(prog.blocks[a].lineno, prog.blocks[b].lineno) for a, b in prog.strokes] == [
+        (4, 6),
+        (8, 10),
+    ]
+
+
+def test_bad_lines_are_refused_with_their_line(tmp_path):
+    bad = tmp_path / "bad.gcode"
+    bad.write_text("G21\nG0 X1 " + "Y1 " * 40 + "\n")
+    with pytest.raises(ConfigError, match=r"bad.gcode:2: .*at most 79"):
+        load_program(bad)
+    bad.write_text("G21\nG0 X1 ?\n")
+    with pytest.raises(ConfigError, match=r"bad.gcode:2: .*realtime"):
+        load_program(bad)
+
+
+def test_resume_preamble_raises_z_before_xy(tmp_path):
+    job = tmp_path / "j.gcode"
+    write_job(job, 3)
+    prog = load_program(job)
+    second = prog.strokes[1][0]
+    assert resume_point(prog, set(range(second))) == second
+    pre = resume_preamble(prog, second)
+    assert pre[0].startswith("G21G90")
+    z_up = next(k for k, t in enumerate(pre) if t.startswith("G0Z"))
+    xy = next(k for k, t in enumerate(pre) if t.startswith("G0X"))
+    assert z_up < xy
+    before = prog.blocks[second - 1].modal
+    assert pre[xy] == f"G0X{before.x:g}Y{before.y:g}"
+    assert pre[z_up] == "G0Z2"
+
+
+def test_default_journal_path(tmp_path):
+    assert (
+        default_journal_path(tmp_path / "JOB" / "export" / "board.gcode")
+        == (tmp_path / "JOB" / "stream" / "journal.jsonl").resolve()
+    )
+    assert default_journal_path(tmp_path / "x.nc").name == "x.nc.journal.jsonl"
+
+
+def test_journal_rejects_changed_file(tmp_path):
+    job = tmp_path / "j.gcode"
+    write_job(job, 2)
+    prog = load_program(job)
+    j = Journal(tmp_path / "j.jsonl").open()
+    j.write("start", sha256="0" * 64, file=str(job))
+    j.close()
+    with pytest.raises(ConfigError, match="different version"):
+        done_blocks(read_journal(tmp_path / "j.jsonl"), prog.sha256, "j.jsonl")
+
+
+def test_compare_with_profile_and_soft_limits(tmp_path):
+    job = tmp_path / "j.gcode"
+    write_job(job, 5)
+    prog = load_program(job)
+    settings = {20: 1, 22: 1, 110: 500, 111: 500, 112: 500, 130: 200, 131: 200, 132: 200}
+    profile = SimpleNamespace(
+        name="bench",
+        envelope=SimpleNamespace(
+            x_mm=(-10.0, 10.0),
+            y_mm=(-40.0, 40.0),
+            z_mm=(-5.0, 5.0),
+            max_travel_mm=(20.0, 80.0, 10.0),
+        ),
+        motion=SimpleNamespace(max_rate_mm_min=(1000.0, 500.0, 500.0)),
+    )
+    found = compare(settings, (0.0, 0.0, 0.0), prog, profile)
+    assert any("X range" in r and "envelope" in r for r in found.refusals)  # job wider than 10 mm
+    assert any("soft limits allow" in r for r in found.refusals)  # positive X in machine space
+    assert any("$110=500" in w for w in found.warnings)
+    ok = compare(settings, (-100.0, -100.0, -10.0), prog, None)
+    assert ok.refusals == []
+
+
+# --------------------------------------------------------------------------- streaming
+
+
+def _stream(port, prog, journal_path, options=FAST, **kwargs):
+    streamer = Streamer(port, options, **kwargs)
+    streamer.connect()
+    journal = Journal(journal_path).open()
+    try:
+        streamer.stream(prog, journal)
+    finally:
+        journal.close()
+    return streamer
+
+
+def _received_gcode(record) -> list[str]:
+    return [e["text"] for e in record if e["ev"] == "rx" and e["g"]]
+
+
+@pytest.mark.parametrize("protocol", ["counting", "simple"])
+@pytest.mark.parametrize("link", ["grblsim", "pty"])
+def test_1000_lines_arrive_once_in_order(tmp_path, protocol, link):
+    job = tmp_path / "job.gcode"
+    write_job(job, 200)  # 1003 G-code lines
+    prog = load_program(job)
+    assert len(prog.blocks) >= 1000
+    options = StreamOptions(protocol=protocol, banner_timeout=0.3, stall_timeout=2.0)
+    if link == "grblsim":
+        port = open_port("grblsim://?time_scale=0.0005", 115200)
+        try:
+            streamer = _stream(port, prog, tmp_path / "j.jsonl", options)
+        finally:
+            port.close()
+        sim = port.sim
+    else:
+        with GrblPty(SimOptions(time_scale=0.0005)) as pty:
+            port = serial.Serial(pty.path, 115200, timeout=0.01)
+            try:
+                streamer = _stream(port, prog, tmp_path / "j.jsonl", options)
+            finally:
+                port.close()
+            sim = pty.sim
+    assert _received_gcode(sim.record) == [b.text for b in prog.blocks]
+    assert sim.overruns == 0
+    assert not [e for e in sim.record if e["ev"] == "resp" and e["r"] != "ok"]
+    if protocol == "counting":
+        assert 40 < streamer.max_inflight_bytes <= 120
+    else:
+        assert streamer.max_inflight_lines == 1
+    acks = [e["i"] for e in read_journal(tmp_path / "j.jsonl") if e["ev"] == "ack"]
+    assert acks == list(range(len(prog.blocks)))
+
+
+def test_error_stops_feed_holds_and_names_line_cli(tmp_path, capsys):
+    job = tmp_path / "job.gcode"
+    write_job(job, 200)
+    prog = load_program(job)
+    rec = tmp_path / "rec.jsonl"
+    url = f"grblsim://?time_scale=0.002&error_at=500&record={rec}"
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", url, "--yes", "--banner-timeout", "0.5"])
+    assert exc.value.code == 3
+    err = capsys.readouterr().err
+    line = prog.blocks[499].lineno
+    assert f"job.gcode:{line}: error:20 (unsupported or invalid G-code command" in err
+    record = read_record(rec)
+    rx = [e for e in record if e["ev"] == "rx" and e["g"]]
+    bad = next(k for k, e in enumerate(rx) if e["g"] == 500)
+    after = rx[bad + 1 :]
+    assert sum(len(e["text"]) + 1 for e in after) <= 128  # within one RX buffer
+    t_err = next(e["t"] for e in record if e["ev"] == "resp" and e["g"] == 500)
+    holds = [e for e in record if e["ev"] == "rt" and e["ch"] == ord("!")]
+    assert holds and holds[0]["t"] >= t_err
+    states = [e["state"] for e in record if e["ev"] == "state" and e["t"] >= holds[0]["t"]]
+    assert "Hold:0" in states
+    assert not any(e["ev"] == "alarm" for e in record)  # held before the reset
+
+
+def test_error_through_pty(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 60)
+    prog = load_program(job)
+    with GrblPty(SimOptions(time_scale=0.002, error_at=100)) as pty:
+        port = serial.Serial(pty.path, 115200, timeout=0.01)
+        try:
+            with pytest.raises(StreamFault, match=rf"job.gcode:{prog.blocks[99].lineno}: error:20"):
+                _stream(port, prog, tmp_path / "j.jsonl")
+        finally:
+            port.close()
+        record = pty.sim.record
+    assert any(e["ev"] == "rt" and e["ch"] == ord("!") for e in record)
+
+
+@pytest.mark.parametrize("link", ["grblsim", "pty"])
+def test_disconnect_then_resume_cuts_every_stroke_at_most_one_twice(tmp_path, link, capsys):
+    job = tmp_path / "job.gcode"
+    cuts = write_job(job, 120)
+    rec1, rec2 = tmp_path / "r1.jsonl", tmp_path / "r2.jsonl"
+    common = ["--yes", "--banner-timeout", "0.3"]
+    if link == "grblsim":
+        with pytest.raises(SystemExit) as exc:
+            main(
+                [
+                    "stream",
+                    str(job),
+                    "--port",
+                    f"grblsim://?time_scale=0.002&disconnect_after=301&record={rec1}",
+                    *common,
+                ]
+            )
+        assert exc.value.code == 3
+    else:
+        pty = GrblPty(SimOptions(time_scale=0.002, disconnect_after=301, record=str(rec1))).start()
+        with pytest.raises(SystemExit) as exc:
+            main(["stream", str(job), "--port", pty.path, *common])
+        assert exc.value.code == 3
+        pty.close()
+    assert "connection lost" in capsys.readouterr().err
+    main(
+        [
+            "stream",
+            str(job),
+            "--port",
+            f"grblsim://?time_scale=0.002&record={rec2}",
+            "--resume",
+            *common,
+        ]
+    )
+    out = capsys.readouterr().out
+    assert "resuming at line" in out
+    counts = cut_counts([read_record(rec1), read_record(rec2)], cuts)
+    assert min(counts) == 1
+    assert max(counts) <= 2 and counts.count(2) <= 1
+    first_rx = [e["text"] for e in read_record(rec2) if e["ev"] == "rx" and e["g"]]
+    assert first_rx[0].startswith("G21G90")
+    assert [t[:3] for t in first_rx[3:5]] == ["G0Z", "G0X"]  # Z up before XY
+
+
+def test_ctrl_c_stop_is_safe_and_resume_completes(tmp_path):
+    job = tmp_path / "job.gcode"
+    cuts = write_job(job, 80)
+    prog = load_program(job)
+    journal = tmp_path / "j.jsonl"
+    calls = {"n": 0}
+
+    def progress(p):
+        calls["n"] += 1
+        if p.acked > 150 and calls.get("fired") is None:
+            calls["fired"] = True
+            raise KeyboardInterrupt
+
+    port = open_port("grblsim://?time_scale=0.02", 115200)
+    try:
+        with pytest.raises(StreamStopped):
+            _stream(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
+    finally:
+        port.close()
+    rec1 = port.sim.record
+    hold = next(e for e in rec1 if e["ev"] == "rt" and e["ch"] == ord("!"))
+    reset = next(e for e in rec1 if e["ev"] == "rt" and e["ch"] == 0x18)
+    states = [e["state"] for e in rec1 if e["ev"] == "state" and hold["t"] <= e["t"] <= reset["t"]]
+    assert "Hold:0" in states
+    assert not any(e["ev"] == "alarm" for e in rec1)
+    done = done_blocks(read_journal(journal), prog.sha256, journal)
+    start = resume_point(prog, done)
+    port = open_port("grblsim://?time_scale=0.002", 115200)
+    try:
+        streamer = Streamer(port, FAST)
+        streamer.connect()
+        j = Journal(journal).open()
+        streamer.stream(prog, j, start=start, preamble=resume_preamble(prog, start), resume=True)
+        j.close()
+    finally:
+        port.close()
+    counts = cut_counts([rec1, port.sim.record], cuts)
+    assert min(counts) == 1 and counts.count(2) <= 1 and max(counts) <= 2
+
+
+def test_ctrl_c_resume_continues(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 30)
+    prog = load_program(job)
+    fired = []
+
+    def progress(p):
+        if p.acked > 40 and not fired:
+            fired.append(1)
+            raise KeyboardInterrupt
+
+    port = open_port("grblsim://?time_scale=0.01", 115200)
+    try:
+        _stream(
+            port, prog, tmp_path / "j.jsonl", on_progress=progress, ask_interrupt=lambda: "resume"
+        )
+    finally:
+        port.close()
+    assert fired
+    assert _received_gcode(port.sim.record) == [b.text for b in prog.blocks]
+    chars = [e["ch"] for e in port.sim.record if e["ev"] == "rt" and e["ch"] != ord("?")]
+    assert chars == [ord("!"), ord("~")]
+
+
+def test_stall_watchdog(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 30)
+    prog = load_program(job)
+    port = open_port("grblsim://?time_scale=0.001&lose_ok_at=50", 115200)
+    try:
+        with pytest.raises(StreamFault, match="stalled: no answer to line"):
+            _stream(
+                port,
+                prog,
+                tmp_path / "j.jsonl",
+                StreamOptions(banner_timeout=0.3, stall_timeout=0.6),
+            )
+    finally:
+        port.close()
+
+
+def test_unexpected_banner_aborts(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 30)
+    prog = load_program(job)
+    port = open_port("grblsim://?time_scale=0.001&reset_after=60", 115200)
+    try:
+        with pytest.raises(StreamFault, match="reset itself mid-job"):
+            _stream(port, prog, tmp_path / "j.jsonl")
+    finally:
+        port.close()
+
+
+def test_alarm_mid_job_reports_meaning(tmp_path):
+    job = tmp_path / "job.gcode"
+    job.write_text("G21G90\nG1X-5F1000\nG1X-10\nG1X5\nG1X-1\n")
+    prog = load_program(job)
+    port = open_port("grblsim://?time_scale=0.01&soft_limits=1&homed=1", 115200)
+    try:
+        with pytest.raises(StreamFault, match=r"ALARM:2 \(soft limit"):
+            _stream(port, prog, tmp_path / "j.jsonl")
+    finally:
+        port.close()
+    assert any(e["ev"] == "rt" and e["ch"] == 0x18 for e in port.sim.record)
+
+
+def test_alarm_state_is_refused_before_sending(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 2)
+    port = open_port("grblsim://?soft_limits=1", 115200)
+    try:
+        with pytest.raises(StreamFault, match="Alarm"):
+            Streamer(port, FAST).connect()
+    finally:
+        port.close()
+    assert not _received_gcode(port.sim.record)
+
+
+def test_check_mode_reports_every_error_without_motion(tmp_path, capsys):
+    job = tmp_path / "job.gcode"
+    job.write_text("G21G90\nG0X1\nM6\nG1X2\nG1X3F100\nG64\n")
+    rec = tmp_path / "rec.jsonl"
+    with pytest.raises(SystemExit) as exc:
+        main(
+            [
+                "stream",
+                str(job),
+                "--port",
+                f"grblsim://?record={rec}",
+                "--check",
+                "--yes",
+                "--banner-timeout",
+                "0.3",
+            ]
+        )
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "job.gcode:3: error:20" in err
+    assert "job.gcode:4: error:22" in err
+    assert "job.gcode:6: error:20" in err
+    assert "found 3 problem(s)" in err
+    record = read_record(rec)
+    assert not any(e["ev"] == "exec" for e in record)
+    assert sum(e["ev"] == "rx" and e["text"] == "$C" for e in record) == 2
+
+
+def test_confirmation_required_without_yes(tmp_path):
+    from click.testing import CliRunner
+
+    from scratchfab.cli import cli
+
+    job = tmp_path / "job.gcode"
+    write_job(job, 2)
+    rec = tmp_path / "rec.jsonl"
+    result = CliRunner().invoke(
+        cli,
+        ["stream", str(job), "--port", f"grblsim://?record={rec}", "--banner-timeout", "0.3"],
+        input="n\n",
+    )
+    assert result.exit_code != 0
+    assert "Board clamped" in result.output
+    assert not _received_gcode(read_record(rec))
+
+
+def test_refuses_job_outside_soft_limits_cli(tmp_path, capsys):
+    job = tmp_path / "job.gcode"
+    write_job(job, 5)
+    with pytest.raises(SystemExit) as exc:
+        main(
+            [
+                "stream",
+                str(job),
+                "--port",
+                "grblsim://?soft_limits=1&homed=1",
+                "--yes",
+                "--banner-timeout",
+                "0.3",
+            ]
+        )
+    assert exc.value.code == 2
+    assert "soft limits allow" in capsys.readouterr().err
+
+
+def test_executed_guess_distances(tmp_path):
+    # the hold position lies on the 3rd move: the two before ran, the 3rd did not finish
+    job = tmp_path / "job.gcode"
+    job.write_text("G21G90\nG1X1F100\nG1X2\nG1X3\nG1X4\n")
+    prog = load_program(job)
+    s = Streamer.__new__(Streamer)
+    s.info = SimpleNamespace(planner_blocks=15)
+    s._program = prog
+    s._acked_blocks = [0, 1, 2, 3, 4]
+    assert s._executed_guess((2.5, 0.0, 0.0)) == 2
+    assert s._executed_guess((4.0, 0.0, 0.0)) == 4
+    assert s._executed_guess(None) == -1
+    assert math.isclose(prog.total_seconds, 4 / 100 * 60)
