@@ -193,7 +193,7 @@ def order_strokes(
     points[1 : 2 * n : 2] = p1
     points[2 * n] = origin
     k = min(opts.neighbours, 2 * n - 1)
-    _, near = cKDTree(points[: 2 * n]).query(points, k=k + 1)
+    _, near = cKDTree(points[: 2 * n]).query(points, k=k + 1, workers=-1)
     entries = _greedy(points, near)
     tour = _Tour(points, np.concatenate([[2 * n], entries]))
     travel_greedy = tour.travel()

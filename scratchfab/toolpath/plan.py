@@ -272,12 +272,22 @@ def plan_toolpath(
 
 
 def write_preview(toolpath: Toolpath, path: str | Path, max_px: int = 1200) -> None:
-    """PNG of the board outline, the cuts (black) and the travel moves (red), +y up."""
-    pts = [toolpath.outline, toolpath.start[None, :]]
+    """PNG of the board outline, the cuts (black) and the travel moves (red), +y up.
+
+    The start position (green ring) is framed too unless it lies far off the board; the
+    travel legs to and from it then run off the picture.
+    """
+    pts = [toolpath.outline]
     if len(toolpath):
         pts.append(toolpath.strokes.reshape(-1, 2))
     allp = np.vstack(pts)
     lo, hi = allp.min(axis=0), allp.max(axis=0)
+    # Frame the board; take the start position in only if that does not shrink it much.
+    pad = 0.05 * float((hi - lo).max())
+    lo, hi = lo - pad, hi + pad
+    with_start = np.minimum(lo, toolpath.start), np.maximum(hi, toolpath.start)
+    if np.prod(with_start[1] - with_start[0]) <= 2.0 * np.prod(hi - lo):
+        lo, hi = with_start
     span = np.maximum(hi - lo, 1e-9)
     margin = 20
     scale = (max_px - 2 * margin) / float(span.max())
