@@ -111,6 +111,14 @@ def test_strokes_in_z_and_servo_jobs(tmp_path):
         (4, 7),
         (9, 11),
     ]
+    surface = tmp_path / "surface.gcode"  # engraving at Z=0, travelling at Z=2: auto threshold
+    surface.write_text("G21G90\nG0Z2\nG0X1Y1\nG1Z0F100\nG1X2F300\nG0Z2\nG0X5\nG1Z0\nG1X6\nG0Z2\n")
+    prog = load_program(surface)
+    assert prog.z_threshold == 1.0
+    assert [(prog.blocks[a].lineno, prog.blocks[b].lineno) for a, b in prog.strokes] == [
+        (4, 6),
+        (8, 10),
+    ]
     servo = tmp_path / "servo.gcode"
     servo.write_text("G21G90\nM5\nG0X1Y1\nM3S40\nG1X2F500\nM5\nG0X3\nM3S40\nG1X4\nM5\n")
     prog = load_program(servo)

@@ -84,7 +84,10 @@ def _ask_interrupt() -> str:
 @click.option("--stall-timeout", type=float, default=10.0, show_default=True, help="Seconds.")
 @click.option("--banner-timeout", type=float, default=2.5, show_default=True, help="Seconds.")
 @click.option(
-    "--z-threshold", type=float, default=0.0, show_default=True, help="Tool down below this Z."
+    "--z-threshold",
+    type=float,
+    default=None,
+    help="Tool is down below this Z [machine: halfway engrave..safe; else auto].",
 )
 def stream(
     gcode: Path,
@@ -99,7 +102,7 @@ def stream(
     margin: int,
     stall_timeout: float,
     banner_timeout: float,
-    z_threshold: float,
+    z_threshold: float | None,
 ) -> None:
     """Stream GCODE to a GRBL 1.1 controller on PORT, safely.
 
@@ -114,6 +117,8 @@ def stream(
         profile = load_profile(machine)
     if baud is None:
         baud = profile.serial.baud if profile is not None else 115200
+    if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
+        z_threshold = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
     program = load_program(gcode, z_threshold=z_threshold)
     if not program.blocks:
         raise ScratchfabError(f"{gcode}: no G-code lines to send")
@@ -155,6 +160,9 @@ def stream(
             f"state {info.status.state}",
             err=True,
         )
+        rates = [info.settings.get(110 + k) for k in range(3)]
+        if all(r is not None and r > 0 for r in rates):  # the time estimate at GRBL's G0 rates
+            program = load_program(gcode, program.z_threshold, [float(r or 0) for r in rates])
         findings = compare(info.settings, info.status.wco, program, profile)
         for text in findings.warnings:
             click.echo(f"warning: {text}", err=True)

@@ -226,16 +226,28 @@ def stroke_spans(
     return spans
 
 
+def auto_threshold(blocks: Sequence[Block]) -> float:
+    """Z below which the tool cuts, when none is given.
+
+    0 (the work surface) if the job goes below it; else halfway between the two lowest Z
+    levels the job uses (a job engraving at Z=0); else 0.
+    """
+    zs = sorted({round(b.modal.z, 6) for b in blocks if b.motion and b.modal.z is not None})
+    if not zs or zs[0] < 0 or len(zs) < 2:
+        return 0.0
+    return 0.5 * (zs[0] + zs[1])
+
+
 def load_program(
     path: str | Path,
-    z_threshold: float = 0.0,
+    z_threshold: float | None = None,
     rapid_mm_min: Sequence[float] = (500.0, 500.0, 500.0),
 ) -> Program:
     """Read and check a G-code file.
 
     Args:
         path: The G-code file.
-        z_threshold: Z (work mm) below which the tool is down.
+        z_threshold: Z (work mm) below which the tool is down; None: :func:`auto_threshold`.
         rapid_mm_min: G0 rates per axis for the time estimate (GRBL's $110-$112).
 
     Raises:
@@ -282,6 +294,8 @@ def load_program(
                 system=block.startswith("$"),
             )
         )
+    if z_threshold is None:
+        z_threshold = auto_threshold(blocks)
     goes_below = any(b.modal.z is not None and b.modal.z < z_threshold - 1e-9 for b in blocks)
     uses_spindle = any(b.modal.spindle in ("M3", "M4") for b in blocks)
     pen_mode = not goes_below and uses_spindle
