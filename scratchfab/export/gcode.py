@@ -107,12 +107,21 @@ def check_envelope(strokes: np.ndarray, rows: np.ndarray, profile: MachineProfil
             f"start_mm {list(profile.start_mm)} is outside the envelope; nothing written"
         )
     if profile.tool_control.mode != "servo":
+        dec = profile.gcode.decimals
+        written = {}
         for key in ("safe_mm", "engrave_mm"):
             z = getattr(profile.z, key)
-            if not env.z_mm[0] <= z <= env.z_mm[1]:
+            written[key] = float(fmt(z, dec))
+            if not env.z_mm[0] <= written[key] <= env.z_mm[1]:
                 raise ScratchfabError(
-                    f"z.{key} = {z:g} is outside the envelope z {list(env.z_mm)}; nothing written"
+                    f"z.{key} = {z:g}, written with {dec} decimals as {written[key]:g}, is "
+                    f"outside the envelope z {list(env.z_mm)}; nothing written"
                 )
+        if written["safe_mm"] <= written["engrave_mm"]:
+            raise ScratchfabError(
+                f"z.safe_mm and z.engrave_mm are both written as {written['safe_mm']:g} with "
+                f"{dec} decimals; use more decimals; nothing written"
+            )
 
 
 def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> list[str]:
