@@ -57,7 +57,7 @@ class OrderResult:
         travel_mm: Pen-up travel of the result, from the start and back to it.
         travel_input_mm: The same for the input order and directions.
         travel_greedy_mm: The same after the greedy step only.
-        passes: Improving moves made by the local search.
+        moves: Improving moves and perturbation trials kept by the local search.
         kept_input: True if the input order was shorter and is returned unchanged.
     """
 
@@ -66,7 +66,7 @@ class OrderResult:
     travel_mm: float
     travel_input_mm: float
     travel_greedy_mm: float
-    passes: int
+    moves: int
     kept_input: bool
 
 

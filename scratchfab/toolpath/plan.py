@@ -208,7 +208,7 @@ def plan_toolpath(
         board within the envelope), ``clipped_count``, ``short_count``, ``merged_count``
         (strokes absorbed by duplicates), ``count``, ``cut_length_mm``,
         ``travel_length_mm``, ``travel_input_order_mm``, ``travel_greedy_mm``,
-        ``kept_input_order``, ``passes`` and ``estimated_time_s``.
+        ``kept_input_order``, ``local_search_moves`` and ``estimated_time_s``.
 
     Raises:
         ScratchfabError: The tools differ, or the board does not meet the envelope.
@@ -265,7 +265,7 @@ def plan_toolpath(
         "travel_input_order_mm": result.travel_input_mm,
         "travel_greedy_mm": result.travel_greedy_mm,
         "kept_input_order": result.kept_input,
-        "passes": result.passes,
+        "local_search_moves": result.moves,
         "estimated_time_s": estimate_time(strokes, profile),
     }
     return Toolpath(strokes, rows[result.order], size, outline, profile, stats)
