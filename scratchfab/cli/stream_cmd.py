@@ -10,15 +10,8 @@ from pathlib import Path
 import click
 
 from scratchfab.errors import ScratchfabError
-from scratchfab.machine.sender import Progress, Streamer, StreamOptions, open_port
-from scratchfab.machine.sender_checks import compare
-from scratchfab.machine.sender_journal import (
-    Journal,
-    default_journal_path,
-    done_blocks,
-    read_journal,
-)
-from scratchfab.machine.sender_program import load_program, resume_point, resume_preamble
+from scratchfab.machine.sender import Progress
+from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
 
 
 class _ProgressLine:
@@ -110,39 +103,19 @@ def stream(
     controller reset or a stall, journals every acknowledged line so that --resume can
     continue after a disconnect or a stop without skipping a stroke.
     """
-    profile = None
-    if machine is not None:
-        from scratchfab.machine.profile import load_profile
-
-        profile = load_profile(machine)
-    if baud is None:
-        baud = profile.serial.baud if profile is not None else 115200
-    if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
-        z_threshold = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
-    program = load_program(gcode, z_threshold=z_threshold)
-    if not program.blocks:
-        raise ScratchfabError(f"{gcode}: no G-code lines to send")
-    journal_file = journal_path or default_journal_path(gcode)
-    start = 0
-    preamble: list[str] = []
-    if resume:
-        done = done_blocks(read_journal(journal_file), program.sha256, journal_file)
-        start = resume_point(program, done)
-        if start >= len(program.blocks):
-            click.echo(f"{gcode}: every line is done according to {journal_file}; nothing to do")
-            return
-        preamble = resume_preamble(program, start)
-        n_done = sum(1 for a, b in program.strokes if all(i in done for i in range(a, b + 1)))
-        click.echo(
-            f"resuming at line {program.blocks[start].lineno} "
-            f"({n_done} of {len(program.strokes)} strokes done); preamble: {' '.join(preamble)}"
-        )
-    options = StreamOptions(
+    request = StreamRequest(
+        gcode=gcode,
+        port=port,
+        baud=baud,
         protocol=protocol,
+        journal=journal_path,
+        resume=resume,
+        check=check_first,
+        machine=machine,
         margin=margin,
-        rx_buffer=profile.serial.rx_buffer_bytes if profile is not None else None,
         stall_timeout=stall_timeout,
         banner_timeout=banner_timeout,
+        z_threshold=z_threshold,
     )
     bar = _ProgressLine()
 
@@ -151,64 +124,15 @@ def stream(
             click.echo("", err=True)
         click.echo(text, err=True)
 
-    ser = open_port(port, baud)
-    try:
-        streamer = Streamer(ser, options, bar, message, _ask_interrupt)
-        info = streamer.connect()
-        click.echo(
-            f"connected: Grbl {info.version}, RX buffer {info.rx_buffer} bytes, "
-            f"state {info.status.state}",
-            err=True,
-        )
-        rates = [info.settings.get(110 + k) for k in range(3)]
-        if all(r is not None and r > 0 for r in rates):  # the time estimate at GRBL's G0 rates
-            program = load_program(gcode, program.z_threshold, [float(r or 0) for r in rates])
-        findings = compare(info.settings, info.status.wco, program, profile)
-        for text in findings.warnings:
-            click.echo(f"warning: {text}", err=True)
-        if findings.refusals:
-            for text in findings.refusals[:-1]:
-                click.echo(f"refused: {text}", err=True)
-            raise ScratchfabError(findings.refusals[-1] + " (nothing was sent)")
-        if check_first:
-            report = streamer.check(program)
-            for block, code in report.errors:
-                from scratchfab.machine.grbl_codes import error_meaning
-
-                click.echo(
-                    f"{gcode}:{block.lineno}: error:{code} ({error_meaning(code)}): {block.text}",
-                    err=True,
-                )
-            if report.alarm is not None:
-                from scratchfab.machine.grbl_codes import alarm_meaning
-
-                block, code = report.alarm
-                click.echo(
-                    f"{gcode}:{block.lineno}: ALARM:{code} ({alarm_meaning(code)}): {block.text}",
-                    err=True,
-                )
-            if report.errors or report.alarm is not None:
-                n = len(report.errors) + (report.alarm is not None)
-                raise ScratchfabError(f"{gcode}: check mode found {n} problem(s); nothing moved")
-            click.echo(f"check mode: {len(program.blocks)} lines, no errors", err=True)
+    def confirm(question: str) -> bool:
         if not yes:
-            click.confirm(
-                f"Board clamped, tool zeroed, area clear? Stream {len(program.blocks) - start} "
-                f"lines to {port}",
-                abort=True,
-                err=True,
-            )
-        journal = Journal(journal_file).open()
-        try:
-            streamer.stream(program, journal, start=start, preamble=preamble, resume=resume)
-        finally:
-            journal.close()
-            bar.end()
-        click.echo(
-            f"done: {len(program.blocks) - start} lines acknowledged; journal {journal_file}"
-        )
+            click.confirm(question, abort=True, err=True)
+        return True
+
+    try:
+        stream_file(request, StreamCallbacks(bar, message, _ask_interrupt, confirm, click.echo))
     finally:
-        ser.close()
+        bar.end()
 
 
 @click.command("grbl-sim")

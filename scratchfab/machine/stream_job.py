@@ -1,0 +1,210 @@
+"""Stream one G-code file to a GRBL controller: the stream stage, without any CLI.
+
+Connects, compares the controller with the machine profile, optionally runs check mode,
+asks for confirmation, then streams with the journal that makes ``resume`` possible.
+The CLI and the pipeline runner both call :func:`stream_file`; they differ only in the
+callbacks they pass.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from scratchfab.errors import ScratchfabError
+from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
+from scratchfab.machine.sender import Progress, Streamer, StreamOptions, open_port
+from scratchfab.machine.sender_checks import compare
+from scratchfab.machine.sender_journal import (
+    Journal,
+    default_journal_path,
+    done_blocks,
+    read_journal,
+)
+from scratchfab.machine.sender_program import load_program, resume_point, resume_preamble
+
+
+@dataclass(frozen=True)
+class StreamRequest:
+    """What to stream where, and how.
+
+    Attributes:
+        gcode: The G-code file.
+        port: Serial device, pty path or pyserial URL (``grblsim://...``).
+        baud: Baud rate (None: the machine profile's, else 115200).
+        protocol: ``"counting"`` or ``"simple"``.
+        journal: Journal file (None: JOB/stream/journal.jsonl or beside the G-code).
+        resume: Restart at the first stroke not completely done.
+        check: Run GRBL check mode ($C) first.
+        machine: Machine profile name or path to compare with ``$$`` (None: no check).
+        margin: RX buffer bytes kept free.
+        stall_timeout: Seconds of silence with lines in flight and an Idle controller.
+        banner_timeout: Seconds to wait for the banner before a soft reset.
+        z_threshold: Tool is down below this Z (None: the profile's, else automatic).
+    """
+
+    gcode: Path
+    port: str
+    baud: int | None = None
+    protocol: str = "counting"
+    journal: Path | None = None
+    resume: bool = False
+    check: bool = False
+    machine: str | None = None
+    margin: int = 8
+    stall_timeout: float = 10.0
+    banner_timeout: float = 2.5
+    z_threshold: float | None = None
+
+
+@dataclass(frozen=True)
+class StreamCallbacks:
+    """How the stream talks to a person.
+
+    Attributes:
+        progress: Called with progress reports (lines acknowledged, state, position).
+        say: Called with one line per event.
+        ask_interrupt: After Ctrl-C and a feed hold: returns "resume" or "stop".
+        confirm: Asked before anything moves; False aborts with nothing sent.
+        result: Called with the outcome lines (resume point, done); default ``say``.
+    """
+
+    progress: Callable[[Progress], Any]
+    say: Callable[[str], Any]
+    ask_interrupt: Callable[[], str]
+    confirm: Callable[[str], bool]
+    result: Callable[[str], Any] | None = None
+
+    def outcome(self, text: str) -> None:
+        """Report an outcome line."""
+        (self.result or self.say)(text)
+
+
+def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
+    """Stream ``req.gcode``; returns the journal file.
+
+    Raises:
+        ScratchfabError: Bad input, a refusal before sending, a check-mode error, or a
+            fault while streaming (the machine is left held or reset, never moving).
+    """
+    profile = None
+    if req.machine is not None:
+        from scratchfab.machine.profile import load_profile
+
+        profile = load_profile(req.machine)
+    baud = req.baud or (profile.serial.baud if profile is not None else 115200)
+    z_threshold = req.z_threshold
+    if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
+        z_threshold = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
+    program = load_program(req.gcode, z_threshold=z_threshold)
+    if not program.blocks:
+        raise ScratchfabError(f"{req.gcode}: no G-code lines to send")
+    journal_file = req.journal or default_journal_path(req.gcode)
+    start = 0
+    preamble: list[str] = []
+    if req.resume:
+        done = done_blocks(read_journal(journal_file), program.sha256, journal_file)
+        start = resume_point(program, done)
+        if start >= len(program.blocks):
+            cb.outcome(
+                f"{req.gcode}: every line is done according to {journal_file}; nothing to do"
+            )
+            return journal_file
+        preamble = resume_preamble(program, start)
+        n_done = sum(1 for a, b in program.strokes if all(i in done for i in range(a, b + 1)))
+        cb.outcome(
+            f"resuming at line {program.blocks[start].lineno} "
+            f"({n_done} of {len(program.strokes)} strokes done); preamble: {' '.join(preamble)}"
+        )
+    options = StreamOptions(
+        protocol=req.protocol,
+        margin=req.margin,
+        rx_buffer=profile.serial.rx_buffer_bytes if profile is not None else None,
+        stall_timeout=req.stall_timeout,
+        banner_timeout=req.banner_timeout,
+    )
+    ser = open_port(req.port, baud)
+    try:
+        streamer = Streamer(ser, options, cb.progress, cb.say, cb.ask_interrupt)
+        info = streamer.connect()
+        cb.say(
+            f"connected: Grbl {info.version}, RX buffer {info.rx_buffer} bytes, "
+            f"state {info.status.state}"
+        )
+        rates = [info.settings.get(110 + k) for k in range(3)]
+        if all(r is not None and r > 0 for r in rates):  # the time estimate at GRBL's G0 rates
+            program = load_program(req.gcode, program.z_threshold, [float(r or 0) for r in rates])
+        findings = compare(info.settings, info.status.wco, program, profile)
+        for text in findings.warnings:
+            cb.say(f"warning: {text}")
+        if findings.refusals:
+            for text in findings.refusals[:-1]:
+                cb.say(f"refused: {text}")
+            raise ScratchfabError(findings.refusals[-1] + " (nothing was sent)")
+        if req.check:
+            _check(streamer, program, req.gcode, cb.say)
+        if not cb.confirm(
+            f"Board clamped, tool zeroed, area clear? Stream {len(program.blocks) - start} "
+            f"lines to {req.port}"
+        ):
+            raise ScratchfabError("not confirmed; nothing was sent")
+        journal = Journal(journal_file).open()
+        try:
+            streamer.stream(program, journal, start=start, preamble=preamble, resume=req.resume)
+        finally:
+            journal.close()
+        cb.outcome(
+            f"done: {len(program.blocks) - start} lines acknowledged; journal {journal_file}"
+        )
+    finally:
+        ser.close()
+    return journal_file
+
+
+def _check(streamer: Streamer, program: Any, gcode: Path, say: Callable[[str], Any]) -> None:
+    """Run check mode and raise when GRBL finds any problem, listing each with its line."""
+    report = streamer.check(program)
+    for block, code in report.errors:
+        say(f"{gcode}:{block.lineno}: error:{code} ({error_meaning(code)}): {block.text}")
+    if report.alarm is not None:
+        block, code = report.alarm
+        say(f"{gcode}:{block.lineno}: ALARM:{code} ({alarm_meaning(code)}): {block.text}")
+    if report.errors or report.alarm is not None:
+        n = len(report.errors) + (report.alarm is not None)
+        raise ScratchfabError(f"{gcode}: check mode found {n} problem(s); nothing moved")
+    say(f"check mode: {len(program.blocks)} lines, no errors")
+
+
+def run_stream_job(
+    job: Path,
+    port: str,
+    protocol: str = "counting",
+    baud: int | None = None,
+    check: bool = False,
+    machine: str | None = None,
+    say: Callable[[str], Any] = print,
+) -> Path:
+    """The pipeline's stream stage: JOB/export/board.gcode to ``port``, unattended.
+
+    The pipeline file naming a port is the confirmation; a Ctrl-C stops safely.
+    """
+    last = [-1]
+
+    def progress(p: Progress) -> None:
+        decile = int(p.fraction * 10)
+        if decile != last[0]:
+            last[0] = decile
+            say(f"  {p.fraction:6.1%} {p.acked}/{p.total} lines  {p.state}")
+
+    req = StreamRequest(
+        gcode=job / "export" / "board.gcode",
+        port=port,
+        baud=baud,
+        protocol=protocol,
+        journal=job / "stream" / "journal.jsonl",
+        check=check,
+        machine=machine,
+    )
+    return stream_file(req, StreamCallbacks(progress, say, lambda: "stop", lambda _: True))
