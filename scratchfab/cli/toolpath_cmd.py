@@ -7,10 +7,10 @@ from pathlib import Path
 import click
 
 from scratchfab.errors import ScratchfabError
-from scratchfab.machine.profile import bundled_profiles, load_profile
-from scratchfab.model.design import load_design
-from scratchfab.model.scratches import load_scratches
-from scratchfab.toolpath import OrderOptions, plan_toolpath, write_preview
+from scratchfab.machine.profile import bundled_profiles
+from scratchfab.model.job import job_inputs
+from scratchfab.toolpath import OrderOptions
+from scratchfab.toolpath.stage import run_toolpath
 
 
 def _inputs(
@@ -22,17 +22,14 @@ def _inputs(
                 "give a JOB folder, or all of --scratches CSV --design FILE --out DIR"
             )
         return scratches, design, out
-    if not job.is_dir():
-        raise ScratchfabError(f"{job}: job folder not found")
-    if scratches is None:
-        scratches = job / "optimize" / "scratches.csv"
-        if not scratches.is_file():
-            fallback = job / "design" / "scratches.csv"
-            click.echo(
-                f"note: {scratches} not found (optimize has not run); using {fallback}", err=True
-            )
-            scratches = fallback
-    return scratches, design or job / "design" / "design.toml", out or job / "toolpath"
+    design_file, scratch_file = job_inputs(job)
+    if scratches is None and scratch_file.parent.name != "optimize":
+        click.echo(
+            f"note: {job / 'optimize' / 'scratches.csv'} not found (optimize has not run); "
+            f"using {scratch_file}",
+            err=True,
+        )
+    return scratches or scratch_file, design or design_file, out or job / "toolpath"
 
 
 @click.command("toolpath")
@@ -83,26 +80,7 @@ def toolpath(
     if passes < 0:
         raise ScratchfabError(f"--passes must be >= 0, got {passes}")
     csv_path, design_path, out_dir = _inputs(job, scratches, design, out)
-    profile = load_profile(machine)
-    loaded = load_design(design_path, require_views=False)
-    board_scratches = load_scratches(csv_path, loaded.scratch, loaded.board)
-    click.echo(f"ordering {len(board_scratches)} scratches for {profile.name} ...", err=True)
-    result = plan_toolpath(
-        board_scratches,
-        loaded.board,
-        profile,
-        loaded.scratch,
-        OrderOptions(passes=passes, seed=seed),
-    )
-    result.save(out_dir / "toolpath.json")
-    write_preview(result, out_dir / "preview.png")
-    s = result.stats
-    dropped = s["outside_count"] + s["short_count"] + s["merged_count"]
-    click.echo(
-        f"{s['count']} strokes ({dropped} dropped: {s['outside_count']} outside, "
-        f"{s['short_count']} too short, {s['merged_count']} duplicates); "
-        f"cut {s['cut_length_mm']:.1f} mm, travel {s['travel_length_mm']:.1f} mm "
-        f"(input order {s['travel_input_order_mm']:.1f} mm); "
-        f"about {s['estimated_time_s'] / 60:.1f} min"
+    run_toolpath(
+        csv_path, design_path, out_dir, machine, OrderOptions(passes=passes), say=click.echo
     )
     click.echo(f"wrote {out_dir / 'toolpath.json'} and {out_dir / 'preview.png'}")

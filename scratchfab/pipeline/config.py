@@ -10,8 +10,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from scratchfab.errors import ConfigError
 from scratchfab.model.design import Design, design_from_mapping
 from scratchfab.model.schema import load_toml, parse_table, spec
+from scratchfab.optimize.stage import OptimizeOptions
+from scratchfab.verify.verify import DEFAULT_SPP
 
 STAGES = ("design", "optimize", "verify", "toolpath", "export", "stream")
 
@@ -36,22 +39,10 @@ class PipelineOptions:
 
 
 @dataclass(frozen=True)
-class OptimizeOptions:
-    """``[optimize]``."""
-
-    iterations: int = field(default=200, metadata=spec(ge=0))
-    time_budget_s: float | None = field(default=None, metadata=spec(gt=0))
-    seed: int = 0
-    backend: Literal["llvm", "cuda"] = "llvm"
-    prune: bool = False
-    prune_tolerance: float = field(default=0.01, metadata=spec(ge=0))
-
-
-@dataclass(frozen=True)
 class VerifyOptions:
     """``[verify]``."""
 
-    spp: int = field(default=64, metadata=spec(gt=0))
+    spp: int = field(default=DEFAULT_SPP, metadata=spec(gt=0))
     min_rho: float | None = field(default=0.8, metadata=spec(ge=-1, le=1))
     sweep: int = field(default=0, metadata=spec(ge=0))
     sky: bool = False
@@ -65,7 +56,7 @@ class ToolpathOptions:
     """``[toolpath]``."""
 
     machine: str = "grbl-3018-diamond"
-    seed: int = 0
+    passes: int = field(default=50, metadata=spec(ge=0))
 
 
 @dataclass(frozen=True)
@@ -128,7 +119,7 @@ def load_pipeline(path: str | Path) -> Pipeline:
     design = design_from_mapping(data, str(file), file.resolve().parent)
     stage_data = {k: v for k, v in data.items() if k in _StageTables.__dataclass_fields__}
     tables = parse_table(_StageTables, stage_data, str(file))
-    return Pipeline(
+    pipe = Pipeline(
         path=file.resolve(),
         design=design,
         pipeline=tables.pipeline,
@@ -138,3 +129,10 @@ def load_pipeline(path: str | Path) -> Pipeline:
         export=tables.export,
         stream=tables.stream,
     )
+    from scratchfab.machine.profile import load_profile
+
+    try:
+        load_profile(pipe.machine_ref())
+    except ConfigError as exc:
+        raise ConfigError(f"{file}: toolpath.machine: {exc}") from None
+    return pipe

@@ -1,0 +1,251 @@
+"""``scratchfab run``: the stages of a pipeline file, in order, into one job folder.
+
+Each stage reads what the stage before it wrote (SPEC section 6). The manifest records
+every stage's inputs; a stage whose inputs and options did not change is skipped, and
+once a stage runs, every stage after it runs too. A failing stage leaves the earlier
+outputs as they are, so the next run starts again at that stage.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from scratchfab.errors import ScratchfabError
+from scratchfab.model.schema import load_toml
+from scratchfab.pipeline.config import STAGES, Pipeline
+from scratchfab.pipeline.manifest import Manifest, fingerprint
+from scratchfab.pipeline.report import write_report
+
+Say = Callable[[str], Any]
+
+
+@dataclass
+class RunResult:
+    """What a pipeline run did.
+
+    Attributes:
+        job: The job folder.
+        ran: Stages that ran.
+        skipped: Stages skipped because their inputs did not change.
+        report: The report written at the end (also after a failure).
+        seconds: Wall time of the whole run.
+    """
+
+    job: Path
+    ran: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    report: Path | None = None
+    seconds: float = 0.0
+
+
+def _options(obj: Any) -> dict[str, Any]:
+    return json.loads(json.dumps(dataclasses.asdict(obj), default=str))
+
+
+def _profile_file(ref: str) -> Path:
+    """The file a machine profile (bundled name or path) is read from."""
+    from scratchfab.machine.profile import load_profile
+
+    return Path(load_profile(ref).source)
+
+
+class _Stages:
+    """The stage table: inputs, action and outputs of each stage of one pipeline."""
+
+    def __init__(self, pipe: Pipeline, job: Path, say: Say) -> None:
+        self.pipe = pipe
+        self.job = job
+        self.say = say
+
+    # -- inputs -----------------------------------------------------------------------
+    def inputs(self, stage: str) -> dict[str, Any]:
+        """The fingerprint of ``stage``'s inputs as they are now."""
+        job, pipe = self.job, self.pipe
+        design_dir = job / "design"
+        if stage == "design":
+            raw = load_toml(pipe.path)
+            tables = {k: v for k, v in raw.items() if k not in STAGES[1:]}
+            targets = [
+                p for v in pipe.design.views if (p := pipe.design.target_path(v)) is not None
+            ]
+            return fingerprint([], targets, {"tables": tables})
+        if stage == "optimize":
+            return fingerprint([design_dir], [], _options(self.optimize_options()))
+        if stage == "verify":
+            files = [design_dir, job / "optimize" / "scratches.csv", job / "optimize" / "renders"]
+            return fingerprint(files, [], _options(pipe.verify))
+        if stage == "toolpath":
+            files = [design_dir / "design.toml", job / "optimize" / "scratches.csv"]
+            return fingerprint(files, [_profile_file(pipe.machine_ref())], _options(pipe.toolpath))
+        if stage == "export":
+            return fingerprint([job / "toolpath" / "toolpath.json"], [], _options(pipe.export))
+        if stage == "stream":
+            return fingerprint([job / "export" / "board.gcode"], [], _options(pipe.stream))
+        raise KeyError(stage)
+
+    def wanted(self, stage: str) -> bool:
+        """False for stages the pipeline does not ask for (stream without a port)."""
+        return stage != "stream" or self.pipe.stream.port is not None
+
+    # -- actions ----------------------------------------------------------------------
+    def optimize_options(self) -> Any:
+        """The optimize stage's settings from the ``[optimize]`` table."""
+        return self.pipe.optimize
+
+    def run(self, stage: str) -> list[str]:
+        """Run ``stage``; returns its outputs relative to the job folder."""
+        return list(getattr(self, f"_run_{stage}")())
+
+    def _run_design(self) -> Sequence[str]:
+        from scratchfab.design.stage import run_design
+
+        opts = self.pipe.pipeline
+        run_design(
+            self.pipe.path,
+            self.job,
+            force=opts.force,
+            fit=opts.fit,
+            seed=opts.seed,
+            progress=self.say,
+        )
+        return ["design/design.toml", "design/scratches.csv", "design/targets"]
+
+    def _run_optimize(self) -> Sequence[str]:
+        from scratchfab.optimize.stage import run_optimize
+
+        last = [0.0]
+
+        def progress(p: Any) -> None:
+            if p.message:
+                self.say(p.message)
+            elif p.iteration == p.total or time.monotonic() - last[0] > 5:
+                last[0] = time.monotonic()
+                self.say(
+                    f"  iteration {p.iteration}/{p.total}  loss {p.loss:.5g}  ETA {p.eta_s:.0f} s"
+                )
+
+        run_optimize(self.job, self.optimize_options(), progress=progress)
+        return ["optimize/scratches.csv", "optimize/renders", "optimize/log.csv"]
+
+    def _run_verify(self) -> Sequence[str]:
+        from scratchfab.verify.verify import VerifySettings, run_verify_job
+
+        v = self.pipe.verify
+        settings: dict[str, Any] = {
+            "spp": v.spp,
+            "seed": v.seed,
+            "backend": v.backend,
+            "sweep": v.sweep,
+            "min_rho": v.min_rho,
+        }
+        if v.sky:
+            from scratchfab.verify.scene import Sky
+
+            settings["sky"] = Sky()
+        if v.jitter:
+            from scratchfab.verify.jitter import Tolerance
+
+            settings["jitter"] = Tolerance.from_profile(self.pipe.machine_ref())
+        run_verify_job(self.job, VerifySettings(**settings), progress=self.say)
+        return ["verify/metrics.json"]
+
+    def _run_toolpath(self) -> Sequence[str]:
+        from scratchfab.toolpath.stage import run_toolpath_job
+
+        run_toolpath_job(self.job, self.pipe.machine_ref(), say=self.say)
+        return ["toolpath/toolpath.json", "toolpath/preview.png"]
+
+    def _run_export(self) -> Sequence[str]:
+        from scratchfab.export import export
+        from scratchfab.toolpath import Toolpath
+
+        toolpath = Toolpath.load(self.job / "toolpath" / "toolpath.json")
+        outputs = []
+        for fmt in self.pipe.export.formats:
+            out = self.job / "export" / f"board.{fmt}"
+            export(toolpath, None, out, fmt)
+            self.say(f"  wrote {out}")
+            outputs.append(f"export/board.{fmt}")
+        return outputs
+
+    def _run_stream(self) -> Sequence[str]:
+        from scratchfab.machine.stream_job import run_stream_job
+
+        s = self.pipe.stream
+        assert s.port is not None
+        run_stream_job(
+            self.job,
+            port=s.port,
+            protocol=s.protocol,
+            baud=s.baud,
+            check=s.check,
+            machine=self.pipe.machine_ref(),
+            say=self.say,
+        )
+        return ["stream/journal.jsonl"]
+
+
+def run_pipeline(
+    pipe: Pipeline,
+    job: Path,
+    start: str | None = None,
+    until: str | None = None,
+    force: bool = False,
+    say: Say = print,
+) -> RunResult:
+    """Run the pipeline's stages into ``job``.
+
+    Args:
+        pipe: The parsed pipeline file.
+        job: The job folder (created when missing).
+        start: Run this stage and every later one even when up to date (``--from``).
+        until: Stop after this stage (``--until``).
+        force: Run every stage.
+        say: Called with one line per event (progress).
+
+    Raises:
+        ScratchfabError: A stage failed; earlier outputs and the manifest stay consistent,
+            and the report is still written.
+    """
+    for name in (start, until):
+        if name is not None and name not in STAGES:
+            raise ScratchfabError(f"unknown stage '{name}'; stages: {', '.join(STAGES)}")
+    t0 = time.perf_counter()
+    job.mkdir(parents=True, exist_ok=True)
+    manifest = Manifest.load(job)
+    stages = _Stages(pipe, job, say)
+    result = RunResult(job)
+    last = STAGES.index(until) if until else len(STAGES) - 1
+    rerun = force
+    try:
+        for index, stage in enumerate(STAGES[: last + 1]):
+            if not stages.wanted(stage):
+                continue
+            rerun = rerun or (start is not None and STAGES.index(start) <= index)
+            inputs = stages.inputs(stage)
+            if not rerun and manifest.is_current(stage, inputs):
+                result.skipped.append(stage)
+                say(f"[{stage}] up to date, skipped")
+                continue
+            say(f"[{stage}] running")
+            began = time.perf_counter()
+            try:
+                outputs = stages.run(stage)
+            except BaseException as exc:
+                manifest.invalidate(stage, f"{type(exc).__name__}: {exc}")
+                raise
+            # Record what the stage read, as it was when the stage ran.
+            manifest.record(stage, inputs, outputs, time.perf_counter() - began)
+            result.ran.append(stage)
+            rerun = True
+            say(f"[{stage}] done in {time.perf_counter() - began:.1f} s")
+    finally:
+        result.report = write_report(job, pipe.pipeline.name)
+        result.seconds = time.perf_counter() - t0
+    return result

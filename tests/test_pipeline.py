@@ -1,0 +1,190 @@
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+from PIL import Image, ImageDraw
+
+from scratchfab.cli import main
+from scratchfab.errors import ScratchfabError
+from scratchfab.pipeline.config import load_pipeline
+from scratchfab.pipeline.manifest import Manifest
+from scratchfab.pipeline.runner import run_pipeline
+
+PIPELINE = """
+[board]
+width_mm = 30.0
+height_mm = 30.0
+margin_mm = 1.5
+
+[light]
+position_mm = [0.0, 187.3, 463.6]
+
+[scratch]
+count = 250
+min_length_mm = 1.5
+max_length_mm = 5.0
+
+[[views]]
+name = "disc"
+target = "disc.png"
+azimuth_deg = -22.0
+elevation_deg = 0.0
+distance_mm = 400.0
+fov_deg = "auto"
+resolution = [24, 24]
+
+[[views]]
+name = "bar"
+target = "bar.png"
+azimuth_deg = 22.0
+elevation_deg = 0.0
+distance_mm = 400.0
+fov_deg = "auto"
+resolution = [24, 24]
+
+[pipeline]
+name = "tiny"
+
+[optimize]
+iterations = 4
+
+[verify]
+spp = 256
+min_rho = {min_rho}
+
+[toolpath]
+machine = "grbl-3018-diamond"
+
+[export]
+formats = {formats}
+
+[stream]
+port = "grblsim://?time_scale=0"
+"""
+
+
+def write_pipeline(folder: Path, min_rho: float = -1.0, formats: str = '["gcode", "svg"]') -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    disc = Image.new("L", (64, 64), 0)
+    ImageDraw.Draw(disc).ellipse((12, 12, 52, 52), fill=255)
+    disc.save(folder / "disc.png")
+    bar = Image.new("L", (64, 64), 0)
+    ImageDraw.Draw(bar).rectangle((8, 26, 56, 38), fill=255)
+    bar.save(folder / "bar.png")
+    path = folder / "tiny.toml"
+    path.write_text(PIPELINE.format(min_rho=min_rho, formats=formats))
+    return path
+
+
+@pytest.fixture(scope="module")
+def finished_job(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("pipe")
+    path = write_pipeline(folder)
+    job = folder / "job"
+    result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    return path, job, result
+
+
+def test_run_produces_every_stage_output(finished_job):
+    _, job, result = finished_job
+    assert result.ran == ["design", "optimize", "verify", "toolpath", "export", "stream"]
+    for rel in (
+        "design/design.toml",
+        "optimize/scratches.csv",
+        "verify/metrics.json",
+        "toolpath/toolpath.json",
+        "export/board.gcode",
+        "export/board.svg",
+        "stream/journal.jsonl",
+        "report.html",
+        "manifest.json",
+    ):
+        assert (job / rel).is_file(), rel
+    gcode_lines = [
+        ln for ln in (job / "export" / "board.gcode").read_text().splitlines() if ln.strip()
+    ]
+    journal = [json.loads(ln) for ln in (job / "stream" / "journal.jsonl").read_text().splitlines()]
+    assert len(journal) >= len(gcode_lines) * 0.9  # comment-only lines are not sent
+    report = (job / "report.html").read_text()
+    metrics = json.loads((job / "verify" / "metrics.json").read_text())
+    for name, view in metrics["views"].items():
+        assert f'data-metric="{name}.rho" data-value="{view["rho"]}"' in report
+
+
+def test_rerun_skips_everything_then_touch_reruns_downstream(finished_job):
+    path, job, _ = finished_job
+    again = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    assert again.ran == [] and len(again.skipped) == 6
+    assert again.seconds < 5
+    st = (path.parent / "bar.png").stat()
+    os.utime(path.parent / "bar.png", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    touched = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    assert touched.ran == ["design", "optimize", "verify", "toolpath", "export", "stream"]
+
+
+def test_changed_option_reruns_only_downstream(finished_job):
+    path, job, _ = finished_job
+    text = path.read_text()
+    path.write_text(text.replace('formats = ["gcode", "svg"]', 'formats = ["gcode", "svg", "dxf"]'))
+    try:
+        result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+        assert result.ran == ["export", "stream"]
+        assert (job / "export" / "board.dxf").is_file()
+    finally:
+        path.write_text(text)
+
+
+def test_failed_stage_keeps_earlier_outputs_and_next_run_resumes_there(tmp_path):
+    path = write_pipeline(tmp_path, min_rho=0.9999)
+    job = tmp_path / "job"
+    with pytest.raises(ScratchfabError):
+        run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    manifest = Manifest.load(job)
+    assert manifest.stages["optimize"]["status"] == "done"
+    assert manifest.stages["verify"]["status"] == "failed"
+    assert not (job / "toolpath").exists()  # the gate stopped the pipeline before toolpath
+    assert (job / "report.html").is_file()
+    before = (job / "optimize" / "scratches.csv").read_bytes()
+    path.write_text(path.read_text().replace("min_rho = 0.9999", "min_rho = -1.0"))
+    result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    assert result.skipped == ["design", "optimize"]
+    assert result.ran[0] == "verify"
+    assert (job / "optimize" / "scratches.csv").read_bytes() == before
+
+
+def test_until_and_from(tmp_path):
+    path = write_pipeline(tmp_path)
+    job = tmp_path / "job"
+    first = run_pipeline(load_pipeline(path), job, until="design", say=lambda s: None)
+    assert first.ran == ["design"] and not (job / "optimize").exists()
+    again = run_pipeline(
+        load_pipeline(path), job, start="design", until="design", say=lambda s: None
+    )
+    assert again.ran == ["design"]
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (
+            ("[optimize]\n", "[optimize]\niteratons = 3\n"),
+            "optimize: unknown key 'iteratons' (did you mean 'iterations'?)",
+        ),
+        (("spp = 256", "spp = 0"), "verify.spp: expected a value greater than 0"),
+        (
+            ('machine = "grbl-3018-diamond"', 'machine = "nope"'),
+            "toolpath.machine: machine 'nope': not a bundled profile",
+        ),
+    ],
+)
+def test_pipeline_errors_are_one_line(tmp_path, capsys, edit, message):
+    path = write_pipeline(tmp_path)
+    path.write_text(path.read_text().replace(*edit, 1))
+    with pytest.raises(SystemExit) as info:
+        main(["run", str(path), "--out", str(tmp_path / "job"), "--until", "toolpath"])
+    err = capsys.readouterr().err
+    assert info.value.code == 2
+    assert message in err and str(path) in err and "Traceback" not in err
