@@ -262,7 +262,7 @@ def check_feasibility(design: Design, grid: int = 96) -> FeasibilityReport:
             )
         elif frac < 1.0:
             warnings.append(
-                f"view '{v.name}': only {100 * frac:.0f}% of the board can light up "
+                f"view '{v.name}': only {100 * frac:.1f}% of the board can light up "
                 f"(half-vector tilt up to {tilt.max():.1f} deg)"
             )
     pairs: list[PairFeasibility] = []

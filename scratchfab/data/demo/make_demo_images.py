@@ -66,12 +66,24 @@ def house(rng: np.random.Generator) -> Image.Image:
     return _finish(image)
 
 
+def moon() -> Image.Image:
+    """A crescent moon with three dots (the third view of the full-size example)."""
+    image, draw = _canvas()
+    u = SIZE * SUPER / 16
+    draw.ellipse((3 * u, 3 * u, 13 * u, 13 * u), fill=255)
+    draw.ellipse((5.5 * u, 1.8 * u, 15.5 * u, 11.8 * u), fill=0)
+    for x, y in ((12.5, 12.0), (13.8, 9.5), (11.0, 14.0)):
+        draw.ellipse(((x - 0.45) * u, (y - 0.45) * u, (x + 0.45) * u, (y + 0.45) * u), fill=220)
+    return _finish(image)
+
+
 def main() -> None:
-    """Write both images beside this script."""
+    """Write the images beside this script."""
     here = Path(__file__).resolve().parent
     rng = np.random.default_rng(SEED)
     sun(rng).save(here / "sun.png")
     house(rng).save(here / "house.png")
+    moon().save(here / "moon.png")
 
 
 if __name__ == "__main__":
