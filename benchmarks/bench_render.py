@@ -24,7 +24,6 @@ import json
 import os
 import platform
 import re
-import resource
 import subprocess
 import sys
 import threading
@@ -115,6 +114,8 @@ def run_case(n: int, res: int, backend: str, repeat: int, mode: str) -> dict:
     from scratchfab.render.renderer import ViewRenderer
 
     m = array_module(backend)  # type: ignore[arg-type]
+    whole = RssSampler()
+    whole.__enter__()
     design, scratches = make_case(n, res)
     t = time.perf_counter()
     views = [ViewRenderer(design, v, m) for v in design.views]
@@ -133,6 +134,8 @@ def run_case(n: int, res: int, backend: str, repeat: int, mode: str) -> dict:
         "find_pairs_ns_per_pair": 1e9 * pairs_s / max(n_pairs, 1),
     }
     if mode == "pairs":
+        whole.__exit__()
+        out["peak_rss_mib"] = whole.peak
         return out
     arrays = [vr.scratch_arrays(scratches) for vr in views]
     weights = [
@@ -192,7 +195,8 @@ def run_case(n: int, res: int, backend: str, repeat: int, mode: str) -> dict:
     out["forward_backward_s"] = min(both)
     out["pairs_per_s_forward"] = n_pairs / out["forward_s"]
     out["pairs_per_s_forward_backward"] = n_pairs / out["forward_backward_s"]
-    out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    whole.__exit__()
+    out["peak_rss_mib"] = whole.peak
     return out
 
 
