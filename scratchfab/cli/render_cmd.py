@@ -9,8 +9,9 @@ import click
 
 from scratchfab.errors import ScratchfabError
 from scratchfab.model.design import load_design
+from scratchfab.model.job import job_inputs
 from scratchfab.model.scratches import load_scratches
-from scratchfab.render.layout import job_inputs, write_render_layout
+from scratchfab.render.layout import write_render_layout
 from scratchfab.render.renderer import render_scratches
 
 

@@ -26,6 +26,7 @@ from scratchfab.design.feasibility import (
     lobe_deg,
     tilt_deg,
 )
+from scratchfab.design.targets import bilinear
 from scratchfab.errors import ConfigError
 from scratchfab.model.camera import Camera
 from scratchfab.model.design import Board, Design, View
@@ -52,21 +53,7 @@ def sample_view_target(target: np.ndarray, view: View, points: np.ndarray) -> np
     inside = (
         in_front & (st[..., 0] >= 0) & (st[..., 0] <= W) & (st[..., 1] >= 0) & (st[..., 1] <= H)
     )
-    u = np.clip(u, 0, W - 1)
-    v = np.clip(v, 0, H - 1)
-    u0 = np.minimum(np.floor(u).astype(np.intp), max(W - 2, 0))
-    v0 = np.minimum(np.floor(v).astype(np.intp), max(H - 2, 0))
-    u1 = np.minimum(u0 + 1, W - 1)
-    v1 = np.minimum(v0 + 1, H - 1)
-    fu = u - u0
-    fv = v - v0
-    val = (
-        img[v0, u0] * (1 - fu) * (1 - fv)
-        + img[v0, u1] * fu * (1 - fv)
-        + img[v1, u0] * (1 - fu) * fv
-        + img[v1, u1] * fu * fv
-    )
-    return np.where(inside, val, 0.0)
+    return np.where(inside, bilinear(img, u, v), 0.0)
 
 
 def split_count(total: int, weights: np.ndarray) -> np.ndarray:

@@ -160,6 +160,25 @@ def preview_png(values: np.ndarray) -> Image.Image:
     return Image.fromarray(rgb)
 
 
+def bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``img`` at pixel-centre coordinates (u right, v down), clamped."""
+    rows, cols = img.shape
+    u = np.clip(u, 0.0, cols - 1)
+    v = np.clip(v, 0.0, rows - 1)
+    u0 = np.minimum(np.floor(u).astype(np.intp), max(cols - 2, 0))
+    v0 = np.minimum(np.floor(v).astype(np.intp), max(rows - 2, 0))
+    u1 = np.minimum(u0 + 1, cols - 1)
+    v1 = np.minimum(v0 + 1, rows - 1)
+    fu = u - u0
+    fv = v - v0
+    return (
+        img[v0, u0] * (1 - fu) * (1 - fv)
+        + img[v0, u1] * fu * (1 - fv)
+        + img[v1, u0] * (1 - fu) * fv
+        + img[v1, u1] * fu * fv
+    )
+
+
 def sample_board(board_img: np.ndarray, board: Board, points: np.ndarray) -> np.ndarray:
     """Bilinear samples of a board-space image at board points (..., 2); 0 off the board."""
     rows, cols = board_img.shape
@@ -167,21 +186,9 @@ def sample_board(board_img: np.ndarray, board: Board, points: np.ndarray) -> np.
     x = points[..., 0]
     y = points[..., 1]
     on = (np.abs(x) <= hw) & (np.abs(y) <= hh)
-    u = np.clip((x + hw) / board.width_mm * cols - 0.5, 0.0, cols - 1)
-    v = np.clip((hh - y) / board.height_mm * rows - 0.5, 0.0, rows - 1)
-    u0 = np.minimum(np.floor(u).astype(np.intp), max(cols - 2, 0))
-    v0 = np.minimum(np.floor(v).astype(np.intp), max(rows - 2, 0))
-    u1 = np.minimum(u0 + 1, cols - 1)
-    v1 = np.minimum(v0 + 1, rows - 1)
-    fu = u - u0
-    fv = v - v0
-    val = (
-        board_img[v0, u0] * (1 - fu) * (1 - fv)
-        + board_img[v0, u1] * fu * (1 - fv)
-        + board_img[v1, u0] * (1 - fu) * fv
-        + board_img[v1, u1] * fu * fv
-    )
-    return np.where(on, val, 0.0)
+    u = (x + hw) / board.width_mm * cols - 0.5
+    v = (hh - y) / board.height_mm * rows - 0.5
+    return np.where(on, bilinear(board_img, u, v), 0.0)
 
 
 def supersample_rate(board_img: np.ndarray, board: Board, camera: Camera) -> int:

@@ -82,26 +82,3 @@ def read_render_layout(directory: str | Path) -> dict[str, np.ndarray]:
     if not images:
         raise ConfigError(f"{folder}: no <view>.npy images in this folder")
     return images
-
-
-def job_inputs(job: str | Path) -> tuple[Path, Path]:
-    """The design and scratch files ``render JOB`` uses (SPEC section 6).
-
-    The design is ``JOB/design/design.toml``; the scratches are the optimized layout
-    ``JOB/optimize/scratches.csv`` when present, else the initial ``JOB/design/scratches.csv``.
-
-    Raises:
-        ConfigError: Naming the missing file.
-    """
-    folder = Path(job)
-    if not folder.is_dir():
-        raise ConfigError(f"{folder}: job folder not found")
-    design = folder / "design" / "design.toml"
-    if not design.is_file():
-        raise ConfigError(f"{design}: file not found (is {folder} a job folder?)")
-    for scratches in (folder / "optimize" / "scratches.csv", folder / "design" / "scratches.csv"):
-        if scratches.is_file():
-            return design, scratches
-    raise ConfigError(
-        f"{folder}: no scratch layout (expected optimize/scratches.csv or design/scratches.csv)"
-    )

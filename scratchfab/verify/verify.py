@@ -553,7 +553,7 @@ def run_verify_job(
     Raises:
         ConfigError: When the job lacks the design or a layout.
     """
-    from scratchfab.render.layout import job_inputs
+    from scratchfab.model.job import job_inputs
 
     folder = Path(job)
     design_file, scratch_file = job_inputs(folder)
