@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import os
+import re
+import shutil
+import subprocess
 from pathlib import Path
 from types import ModuleType
 
@@ -57,3 +60,42 @@ def make_design(views: int = 2, resolution: int = 32, size_mm: float = 40.0) -> 
 def small_design() -> Design:
     """Two views, 32x32 pixels, 40 mm board."""
     return make_design()
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def chromium_dom(page: Path, profile_dir: Path) -> str:
+    """The DOM of ``page`` after its scripts ran, from Debian's headless Chromium."""
+    assert CHROMIUM is not None
+    return subprocess.run(
+        [
+            CHROMIUM,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            f"--user-data-dir={profile_dir}",
+            "--virtual-time-budget=5000",
+            "--dump-dom",
+            page.as_uri(),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    ).stdout
+
+
+def check_report_in_chromium(report: Path, profile_dir: Path) -> dict[str, str]:
+    """Load a report in Chromium: every image must decode; returns the metrics it shows."""
+    dom = chromium_dom(report, profile_dir)
+    total = re.search(r'data-total="(\d+)"', dom)
+    decoded = re.search(r'data-decoded="(\d+)"', dom)
+    assert total and decoded, dom[:2000]
+    assert int(total.group(1)) > 0 and decoded.group(1) == total.group(1)
+    return dict(re.findall(r'data-metric="([^"]+)"[^>]*>([^<]*)<', dom))

@@ -5,6 +5,7 @@ import os
 from pathlib import Path
 
 import pytest
+from conftest import CHROMIUM, check_report_in_chromium
 from PIL import Image, ImageDraw
 
 from scratchfab.cli import main
@@ -112,6 +113,19 @@ def test_run_produces_every_stage_output(finished_job):
     metrics = json.loads((job / "verify" / "metrics.json").read_text())
     for name, view in metrics["views"].items():
         assert f'data-metric="{name}.rho" data-value="{view["rho"]}"' in report
+
+
+@pytest.mark.skipif(
+    CHROMIUM is None, reason="Debian's chromium is not installed (.ci/run installs it)"
+)
+def test_report_of_a_real_run_loads_in_chromium(finished_job, tmp_path):
+    _, job, _ = finished_job
+    shown = check_report_in_chromium(job / "report.html", tmp_path / "profile")
+    metrics = json.loads((job / "verify" / "metrics.json").read_text())
+    for name, view in metrics["views"].items():
+        assert float(shown[f"{name}.rho"]) == pytest.approx(view["rho"], abs=5e-4)
+        for other, x in view["crosstalk"].items():
+            assert float(shown[f"{name}.crosstalk.{other}"]) == pytest.approx(x, abs=5e-4)
 
 
 def test_rerun_skips_everything_then_touch_reruns_downstream(finished_job):

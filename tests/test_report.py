@@ -2,18 +2,15 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import CHROMIUM, check_report_in_chromium
 from PIL import Image
 
 from scratchfab.pipeline.manifest import Manifest, fingerprint
 from scratchfab.pipeline.report import write_report
-
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
 def _png(path: Path, seed: int) -> None:
@@ -71,39 +68,8 @@ def test_report_is_self_contained_and_shows_metrics(tmp_path):
 )
 def test_report_images_decode_in_headless_chromium(tmp_path):
     job = fake_job(tmp_path)
-    report = write_report(job)
-    dom = subprocess.run(
-        [
-            CHROMIUM,
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            f"--user-data-dir={tmp_path / 'profile'}",
-            "--virtual-time-budget=5000",
-            "--dump-dom",
-            report.as_uri(),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=True,
-    ).stdout
-    check = re.search(
-        r'id="image-check"[^>]*data-total="(\d+)"[^>]*data-decoded="(\d+)"', dom
-    ) or re.search(r'data-decoded="(\d+)"[^>]*data-total="(\d+)"', dom)
-    assert check, dom[:2000]
-    total, decoded = (
-        re.search(r'data-total="(\d+)"', dom).group(1),
-        re.search(r'data-decoded="(\d+)"', dom).group(1),
-    )
-    assert int(total) == 7 and int(decoded) == 7
+    shown = check_report_in_chromium(write_report(job), tmp_path / "profile")
     metrics = json.loads((job / "verify" / "metrics.json").read_text())
-    shown = dict(re.findall(r'data-metric="([^"]+)"[^>]*>([^<]*)<', dom))
     for view, entry in metrics["views"].items():
         assert float(shown[f"{view}.rho"]) == pytest.approx(entry["rho"], abs=5e-4)
         assert float(shown[f"{view}.psnr"]) == pytest.approx(entry["psnr"], abs=5e-3)

@@ -1,0 +1,66 @@
+from __future__ import annotations
+
+import pytest
+
+from scratchfab import backend
+from scratchfab.errors import BackendError
+
+
+def test_missing_libllvm_is_a_clear_error_naming_the_fix(monkeypatch, tmp_path):
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "")  # recorded, so restored afterwards
+    monkeypatch.setattr(backend, "_LIB_DIRS", (str(tmp_path),))
+    (tmp_path / "libLLVM-14.so.1").write_bytes(b"")  # too old: must not be picked
+    (tmp_path / "libLLVM-15.so").write_bytes(b"")
+    with pytest.raises(BackendError) as info:
+        backend.ensure_llvm_path()
+    assert "libllvm19" in str(info.value) and "scripts/setup.sh" in str(info.value)
+
+
+def test_newest_libllvm_16_or_later_is_chosen(monkeypatch, tmp_path):
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "")  # recorded, so restored afterwards
+    monkeypatch.setattr(backend, "_LIB_DIRS", (str(tmp_path),))
+    for name in ("libLLVM-15.so", "libLLVM-16.so.1", "libLLVM.so.19.1", "libLLVM-17.so"):
+        (tmp_path / name).write_bytes(b"")
+    backend.ensure_llvm_path()
+    import os
+
+    assert os.environ["DRJIT_LIBLLVM_PATH"] == str(tmp_path / "libLLVM.so.19.1")
+
+
+def test_configured_old_libllvm_is_refused(monkeypatch, tmp_path):
+    old = tmp_path / "libLLVM-15.so"
+    old.write_bytes(b"")
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(old))
+    with pytest.raises(BackendError, match="LLVM 15"):
+        backend.ensure_llvm_path()
+
+
+def test_cli_reports_backend_error_in_one_line(monkeypatch, tmp_path, capsys):
+    from scratchfab.cli import main
+
+    monkeypatch.setattr(
+        "scratchfab.backend.ensure_llvm_path",
+        lambda: (_ for _ in ()).throw(BackendError("no usable libLLVM found. fix it")),
+    )
+    design = tmp_path / "d.toml"
+    design.write_text(
+        '[light]\nposition_mm = [0.0, 0.0, 100.0]\n[[views]]\nname = "v"\n'
+        "position_mm = [0.0, 0.0, 100.0]\nresolution = [4, 4]\n"
+    )
+    csv = tmp_path / "s.csv"
+    csv.write_text("x0,y0,x1,y1\n0,0,1,1\n")
+    with pytest.raises(SystemExit) as info:
+        main(
+            [
+                "render",
+                "--design",
+                str(design),
+                "--scratches",
+                str(csv),
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.strip() == "error: no usable libLLVM found. fix it"
