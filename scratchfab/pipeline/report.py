@@ -25,7 +25,7 @@ h1{margin-bottom:0}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-to
 .row{display:flex;flex-wrap:wrap;gap:1em}.card{border:1px solid #ddd;padding:.5em;border-radius:4px}
 .card img{image-rendering:pixelated;width:256px;display:block}
 table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
-.bad{color:#b00;font-weight:bold}.ok{color:#070}.wide img{width:auto;max-width:100%}
+.bad{color:#b00;font-weight:bold}.ok{color:#070}.wide img{width:auto;max-width:640px}
 .muted{color:#777}
 """
 
@@ -158,7 +158,8 @@ def _verify_extras(job: Path) -> str:
     gifs = sorted((job / "verify").glob("*.gif"))
     if not gifs:
         return "<p class='muted'>no sweep animation (verify --sweep).</p>"
-    return "".join(f"<div class='card wide'>{_img(g, g.stem)}</div>" for g in gifs)
+    cards = "".join(f"<div class='card'>{g.stem}<br>{_img(g, g.stem)}</div>" for g in gifs)
+    return f"<p>What a viewer walking past the board sees (verify-render --sweep).</p><div class='row'>{cards}</div>"
 
 
 def _toolpath_section(job: Path) -> str:
