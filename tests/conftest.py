@@ -11,12 +11,19 @@ from types import ModuleType
 
 import numpy as np
 import pytest
+from hypothesis import settings
 
 from scratchfab.backend import array_module
 from scratchfab.model.design import Design, design_from_mapping
 
 #: Heavy cases run in full only with SCRATCHFAB_FULL=1 (CI runs them reduced).
 FULL = os.environ.get("SCRATCHFAB_FULL") == "1"
+
+# Property tests draw the same examples on every run (the suite is deterministic);
+# SCRATCHFAB_FULL=1 explores new random examples instead.
+settings.register_profile("deterministic", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile("explore" if FULL else "deterministic")
 
 
 @pytest.fixture(scope="session")
