@@ -319,3 +319,14 @@ def test_cli_errors_are_one_line(rng, tmp_path, capsys, args, message):
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
     assert not (job / "export").exists() or not any((job / "export").iterdir())
+
+
+def test_kicks_undo_through_the_changed_positions_at_scale(rng):
+    # 16k strokes: a trial's reversals can outgrow the undo log (the full-copy path) too.
+    p0, p1 = random_segments(rng, 16_000, half=200.0)
+    start = (0.0, 0.0)
+    plain = order_strokes(p0, p1, start, OrderOptions(kicks=0))
+    res = order_strokes(p0, p1, start, OrderOptions(kicks=3000, seed=1))
+    assert np.array_equal(np.sort(res.order), np.arange(16_000))
+    assert res.travel_mm == pytest.approx(naive_travel(p0, p1, res.order, res.reverse, start))
+    assert res.travel_mm < plain.travel_mm

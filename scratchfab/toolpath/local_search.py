@@ -39,14 +39,33 @@ def _d(pts: np.ndarray, a: int, b: int) -> float:
     return math.sqrt(dx * dx + dy * dy)
 
 
+@numba.njit(cache=True, inline="always")
+def _note(log: np.ndarray, first: int, count: int) -> None:
+    """Record that ``count`` positions from ``first`` on (cyclic) are about to change.
+
+    ``log[0]`` counts the positions held in ``log[2:]`` (taken modulo the tour length
+    when read); ``log[1]`` becomes 1 once they overflow, and a full copy is needed.
+    """
+    n = log[0]
+    if n + count > log.shape[0] - 2:
+        log[1] = 1
+        return
+    for k in range(count):
+        log[2 + n + k] = first + k
+    log[0] = n + count
+
+
 @numba.njit(cache=True)
-def _reverse(ent: np.ndarray, pos: np.ndarray, first: int, last: int, depot: int) -> None:
+def _reverse(
+    ent: np.ndarray, pos: np.ndarray, first: int, last: int, depot: int, log: np.ndarray
+) -> None:
     """Reverse the cyclic arc first..last (or its complement, whichever is shorter)."""
     m = ent.shape[0]
     length = (last - first) % m + 1
     if 2 * length > m:
         first, last = (last + 1) % m, (first - 1) % m
         length = m - length
+    _note(log, first, length)
     for k in range((length + 1) // 2):
         a = (first + k) % m
         b = (last - k) % m
@@ -68,6 +87,7 @@ def _move_chain(
     flip: bool,
     depot: int,
     buf: np.ndarray,
+    log: np.ndarray,
 ) -> None:
     """Move the s items at c0.. into the gap after position g (turned round if ``flip``)."""
     m = ent.shape[0]
@@ -84,6 +104,7 @@ def _move_chain(
     n_after = (g - c1) % m  # items from c1+1 to g: the chain moves forward past them
     n_before = (c0 - 1 - g) % m  # items from g+1 to c0-1: or they move forward past it
     if n_after <= n_before:
+        _note(log, c0, n_after + s)
         for k in range(n_after):
             src = (c1 + 1 + k) % m
             dst = (c0 + k) % m
@@ -91,6 +112,7 @@ def _move_chain(
             pos[ent[dst] >> 1] = dst
         base = (c0 + n_after) % m
     else:
+        _note(log, g + 1, n_before + s)
         for k in range(n_before - 1, -1, -1):
             src = (g + 1 + k) % m
             dst = (g + 1 + s + k) % m
@@ -115,8 +137,12 @@ def _search(
     budget: int,
     max_reverse: int,
     eps: float,
+    log: np.ndarray,
 ) -> tuple[int, float]:
-    """Local search from the ``size`` items queued in ``queue[:size]``; (moves, gain)."""
+    """Local search from the ``size`` items queued in ``queue[:size]``; (moves, gain).
+
+    The positions it changes are recorded in ``log`` (see :func:`_note`).
+    """
     m = ent.shape[0]
     depot = pts.shape[0] - 1
     k_near = near.shape[1]
@@ -170,7 +196,7 @@ def _search(
                         touched[2] = ent[j] >> 1
                         touched[3] = aj1 >> 1
                         n_touched = 4
-                        _reverse(ent, pos, (i + 1) % m, j, depot)
+                        _reverse(ent, pos, (i + 1) % m, j, depot, log)
                         improved = True
                         break
             # Or-opt: chains of 1..3 items starting at p.
@@ -222,7 +248,7 @@ def _search(
                                 touched[4] = a_s >> 1
                                 touched[5] = ent[c1] >> 1
                                 n_touched = 6
-                                _move_chain(ent, pos, c0, s, g, flip, depot, buf)
+                                _move_chain(ent, pos, c0, s, g, flip, depot, buf, log)
                                 improved = True
                                 break
             if improved:
@@ -265,7 +291,8 @@ def improve(
 
     A trial swaps two short neighbouring stretches of the tour (a local double bridge),
     searches again from the four changed joins and keeps the result only if the tour got
-    shorter. Works on ``ent`` in place; returns the improving moves and trials kept.
+    shorter. A trial is undone (or kept) through the positions it changed, not by copying
+    the tour. Works on ``ent`` in place; returns the improving moves and trials kept.
     """
     m = ent.shape[0]
     pos = np.empty(m, dtype=np.int64)
@@ -277,8 +304,11 @@ def improve(
         queue[p] = ent[p] >> 1
     budget = passes * m
     moves = 0
+    no_log = np.zeros(2, dtype=np.int64)
     for _ in range(passes):
-        found, _gain = _search(pts, ent, pos, near, queue, queued, m, budget, max_reverse, eps)
+        found, _gain = _search(
+            pts, ent, pos, near, queue, queued, m, budget, max_reverse, eps, no_log
+        )
         moves += found
         if found == 0:
             break
@@ -291,8 +321,9 @@ def improve(
         return moves
     np.random.seed(seed)
     saved_ent = ent.copy()
-    saved_pos = pos.copy()
     window = min(50, (m - 1) // 3)
+    # Positions a trial changed, to undo (or keep) it without copying the whole tour.
+    log = np.zeros(2 + 64 * window + 4096, dtype=np.int64)
     tmp = np.empty(2 * window + 2, dtype=np.int64)
     depot = pts.shape[0] - 1
     for _ in range(kicks):
@@ -315,6 +346,9 @@ def improve(
             + _d(pts, _exit(ent[c], depot), ent[a1])
             + _d(pts, _exit(ent[b], depot), ent[c1])
         )
+        log[0] = 0
+        log[1] = 0
+        _note(log, a1, l1 + l2)
         n = 0
         for k in range(l2):
             tmp[n] = ent[(b1 + k) % m]
@@ -339,12 +373,26 @@ def improve(
                 queued[it] = True
                 queue[size] = it
                 size += 1
-        found, gain = _search(pts, ent, pos, near, queue, queued, size, 50 * size, max_reverse, eps)
-        if after - before - gain < -eps:
+        found, gain = _search(
+            pts, ent, pos, near, queue, queued, size, 50 * size, max_reverse, eps, log
+        )
+        keep = after - before - gain < -eps
+        if keep:
             moves += found + 1
-            saved_ent[:] = ent
-            saved_pos[:] = pos
+        if log[1] != 0:
+            if keep:
+                saved_ent[:] = ent
+            else:
+                ent[:] = saved_ent
+                for p in range(m):
+                    pos[ent[p] >> 1] = p
+        elif keep:
+            for k in range(log[0]):
+                p = log[2 + k] % m
+                saved_ent[p] = ent[p]
         else:
-            ent[:] = saved_ent
-            pos[:] = saved_pos
+            for k in range(log[0]):
+                p = log[2 + k] % m
+                ent[p] = saved_ent[p]
+                pos[ent[p] >> 1] = p
     return moves

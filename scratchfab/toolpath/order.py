@@ -41,7 +41,7 @@ class OrderOptions:
 
     neighbours: int = 10
     passes: int = 50
-    kicks_per_stroke: float = 10.0
+    kicks_per_stroke: float = 25.0
     kicks: int | None = None
     seed: int = 0
     min_gain_mm: float = 1e-9
@@ -205,7 +205,7 @@ def order_strokes(
     if opts.passes > 0:
         ent = np.ascontiguousarray(tour.ent, dtype=np.int64)
         if opts.kicks is None:
-            # A trial copies the tour (O(N)): cap the copying at about 2e8 entries.
+            # A trial's 2-opt reversals grow with N: cap the work at about 2e8 items.
             kicks = min(int(opts.kicks_per_stroke * n), 200_000_000 // (n + 1))
         else:
             kicks = opts.kicks
