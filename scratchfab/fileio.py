@@ -11,6 +11,8 @@ from typing import IO, Any
 
 import numpy as np
 
+from scratchfab.errors import ScratchfabError
+
 
 def _umask() -> int:
     mask = os.umask(0)
@@ -26,10 +28,16 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) ->
         path: The final file.
         mode: ``"w"`` (text) or ``"wb"`` (binary).
         **kwargs: Passed to :func:`open` (e.g. ``newline``, ``encoding``).
+
+    Raises:
+        ScratchfabError: The folder cannot be made or written (one line naming the file).
     """
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    except OSError as exc:
+        raise ScratchfabError(f"{target}: cannot write ({exc.strerror or exc})") from None
     os.close(fd)
     os.chmod(tmp_name, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
     try:

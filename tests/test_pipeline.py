@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -63,7 +64,7 @@ machine = "grbl-3018-diamond"
 formats = {formats}
 
 [stream]
-port = "grblsim://?time_scale=0"
+port = "grblsim://?time_scale=0&$130=300&$131=180&$132=45"
 """
 
 
@@ -104,11 +105,17 @@ def test_run_produces_every_stage_output(finished_job):
         "manifest.json",
     ):
         assert (job / rel).is_file(), rel
-    gcode_lines = [
-        ln for ln in (job / "export" / "board.gcode").read_text().splitlines() if ln.strip()
+    # Every G-code line that carries a command was acknowledged exactly once, in order
+    # (comment-only and blank lines are not sent).
+    code_lines = [
+        n
+        for n, ln in enumerate((job / "export" / "board.gcode").read_text().splitlines(), 1)
+        if re.sub(r"\(.*?\)|;.*", "", ln).strip()
     ]
     journal = [json.loads(ln) for ln in (job / "stream" / "journal.jsonl").read_text().splitlines()]
-    assert len(journal) >= len(gcode_lines) * 0.9  # comment-only lines are not sent
+    acked = [e["line"] for e in journal if e["ev"] == "ack"]
+    assert acked == code_lines
+    assert journal[-1]["ev"] == "end"
     report = (job / "report.html").read_text()
     metrics = json.loads((job / "verify" / "metrics.json").read_text())
     for name, view in metrics["views"].items():
@@ -137,6 +144,17 @@ def test_rerun_skips_everything_then_touch_reruns_downstream(finished_job):
     os.utime(path.parent / "bar.png", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
     touched = run_pipeline(load_pipeline(path), job, say=lambda s: None)
     assert touched.ran == ["design", "optimize", "verify", "toolpath", "export", "stream"]
+
+
+def test_moved_job_is_still_up_to_date(finished_job, tmp_path, monkeypatch):
+    import shutil
+
+    path, job, _ = finished_job
+    moved = tmp_path / "elsewhere"
+    shutil.copytree(job, moved)
+    monkeypatch.chdir(tmp_path)  # named by a relative path from another folder
+    result = run_pipeline(load_pipeline(path), Path("elsewhere"), say=lambda s: None)
+    assert result.ran == []
 
 
 def test_changed_option_reruns_only_downstream(finished_job):
@@ -172,6 +190,8 @@ def test_failed_stage_keeps_earlier_outputs_and_next_run_resumes_there(tmp_path)
 def test_until_and_from(tmp_path):
     path = write_pipeline(tmp_path)
     job = tmp_path / "job"
+    with pytest.raises(ScratchfabError, match="comes after"):
+        run_pipeline(load_pipeline(path), job, start="export", until="design", say=print)
     first = run_pipeline(load_pipeline(path), job, until="design", say=lambda s: None)
     assert first.ran == ["design"] and not (job / "optimize").exists()
     again = run_pipeline(

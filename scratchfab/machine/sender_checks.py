@@ -73,7 +73,8 @@ def compare(
 ) -> Findings:
     """Compare GRBL's settings, the job and (optionally) the machine profile.
 
-    Refuses a job that leaves the profile's envelope, or GRBL's soft-limit travel
+    Refuses a job that leaves the profile's envelope, spans more than GRBL's travel
+    ``$13x`` on any axis, or leaves GRBL's soft-limit travel
     (``-$13x <= work + WCO <= 0`` when ``$20=1``); refuses a profile whose travel exceeds
     GRBL's with soft limits on. Warns about slower GRBL max rates than the profile or the
     job's feeds, and about soft limits or homing being off.
@@ -124,6 +125,13 @@ def compare(
                     f"GRBL ${110 + k}={rate:g} mm/min is below machine '{profile.name}''s "
                     f"{axis} max rate {want:g}: feeds are clamped, the estimate is optimistic"
                 )
+    for k, axis in enumerate(_AXES):
+        t = travel[k]
+        if t is not None and lo[k] <= hi[k] and hi[k] - lo[k] > t + tolerance:
+            out.refusals.append(
+                f"the job spans {hi[k] - lo[k]:g} mm in {axis} but GRBL's travel is "
+                f"${130 + k}={t:g} mm: it cannot fit on this machine"
+            )
     if soft and wco is not None and all(t is not None for t in travel):
         for k, axis in enumerate(_AXES):
             if lo[k] > hi[k]:

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 from typing import IO, Any
 
-from scratchfab.errors import ConfigError
+from scratchfab.errors import ConfigError, ScratchfabError
 
 
 def default_journal_path(gcode: str | os.PathLike[str]) -> Path:
@@ -42,9 +42,18 @@ class Journal:
         self._handle: IO[str] | None = None
 
     def open(self) -> Journal:
-        """Open for appending (creating the folder)."""
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._handle = open(self.path, "a", encoding="utf-8", newline="\n")  # noqa: SIM115
+        """Open for appending (creating the folder).
+
+        Raises:
+            ScratchfabError: The journal cannot be written (one line naming it).
+        """
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._handle = open(self.path, "a", encoding="utf-8", newline="\n")  # noqa: SIM115
+        except OSError as exc:
+            raise ScratchfabError(
+                f"{self.path}: cannot write the journal ({exc.strerror or exc})"
+            ) from None
         return self
 
     def write(self, event: str, **data: Any) -> None:

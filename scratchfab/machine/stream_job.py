@@ -89,11 +89,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
         ScratchfabError: Bad input, a refusal before sending, a check-mode error, or a
             fault while streaming (the machine is left held or reset, never moving).
     """
-    profile = None
-    if req.machine is not None:
-        from scratchfab.machine.profile import load_profile
-
-        profile = load_profile(req.machine)
+    profile = _profile_for(req, cb.say)
     baud = req.baud or (profile.serial.baud if profile is not None else 115200)
     z_threshold = req.z_threshold
     if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
@@ -161,6 +157,27 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     finally:
         ser.close()
     return journal_file
+
+
+def _profile_for(req: StreamRequest, say: Callable[[str], Any]) -> Any:
+    """The machine profile to check against: the one asked for, else the job's own.
+
+    A G-code file in ``JOB/export/`` was planned for the profile recorded in
+    ``JOB/toolpath/toolpath.json``; streaming it is checked against that envelope even
+    when no ``--machine`` is given.
+    """
+    if req.machine is not None:
+        from scratchfab.machine.profile import load_profile
+
+        return load_profile(req.machine)
+    planned = req.gcode.resolve().parent.parent / "toolpath" / "toolpath.json"
+    if req.gcode.resolve().parent.name == "export" and planned.is_file():
+        from scratchfab.toolpath import Toolpath
+
+        profile = Toolpath.load(planned).profile
+        say(f"checking against machine '{profile.name}' of {planned}")
+        return profile
+    return None
 
 
 def _check(streamer: Streamer, program: Any, gcode: Path, say: Callable[[str], Any]) -> None:

@@ -62,9 +62,10 @@ def _type_name(tp: Any) -> str:
         return " or ".join(_type_name(a) for a in get_args(tp) if a is not type(None))
     if origin is tuple:
         args = get_args(tp)
+        item = _type_name(args[0]).removeprefix("a ").removeprefix("an ")
         if len(args) == 2 and args[1] is Ellipsis:
-            return f"a list of {_type_name(args[0])}"
-        return f"a list of {len(args)} {_type_name(args[0])}s"
+            return f"a list of {item}s"
+        return f"a list of {len(args)} {item}s"
     if dataclasses.is_dataclass(tp):
         return "a table"
     return {float: "a number", int: "an integer", str: "a string", bool: "true or false"}.get(
@@ -162,8 +163,9 @@ def _check_bounds(value: Any, meta: Mapping[str, Any], where: str) -> None:
 
 
 def _parse(cls: type[T], data: Any, where: str) -> T:
+    here = where.rstrip(":")
     if not isinstance(data, Mapping):
-        raise ConfigError(f"{where}: expected a table, got {data!r}")
+        raise ConfigError(f"{here}: expected a table, got {data!r}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
     for key in data:
@@ -171,7 +173,7 @@ def _parse(cls: type[T], data: Any, where: str) -> T:
             close = difflib.get_close_matches(str(key), list(fields), n=1, cutoff=0.5)
             hint = f" (did you mean '{close[0]}'?)" if close else ""
             valid = ", ".join(fields)
-            raise ConfigError(f"{where}: unknown key '{key}'{hint}; valid keys: {valid}")
+            raise ConfigError(f"{here}: unknown key '{key}'{hint}; valid keys: {valid}")
     kwargs: dict[str, Any] = {}
     for name, field in fields.items():
         key_where = f"{where}.{name}" if not where.endswith(":") else f"{where} {name}"
@@ -190,7 +192,7 @@ def _parse(cls: type[T], data: Any, where: str) -> T:
     try:
         return cls(**kwargs)
     except ValueError as exc:
-        raise ConfigError(f"{where.rstrip(':').rstrip('.')}: {exc}") from None
+        raise ConfigError(f"{here}: {exc}") from None
 
 
 def parse_table(cls: type[T], data: Any, source: str, key: str = "") -> T:

@@ -40,8 +40,21 @@ def _files_under(path: Path) -> list[Path]:
     return [path]
 
 
+def _key(path: Path, root: Path | None) -> str:
+    """A path as recorded: relative to the job folder when inside it, else absolute."""
+    if root is not None:
+        try:
+            return path.resolve().relative_to(root.resolve()).as_posix()
+        except ValueError:
+            pass
+    return str(path.resolve())
+
+
 def fingerprint(
-    files: Iterable[Path], sources: Iterable[Path] = (), options: Mapping[str, Any] | None = None
+    files: Iterable[Path],
+    sources: Iterable[Path] = (),
+    options: Mapping[str, Any] | None = None,
+    root: Path | None = None,
 ) -> dict[str, Any]:
     """The inputs of a stage as a JSON-able record.
 
@@ -50,14 +63,16 @@ def fingerprint(
         sources: The user's own files (targets, profiles): content and modification time,
             so that touching one counts as a change.
         options: The stage's options.
+        root: The job folder: files inside it are recorded relative to it, so a job that
+            is moved or named by another path is still recognised.
     """
     record: dict[str, str] = {}
     for item in files:
         for f in _files_under(Path(item)):
-            record[str(f)] = file_digest(f)
+            record[_key(f, root)] = file_digest(f)
     for item in sources:
         for f in _files_under(Path(item)):
-            record[str(f)] = file_digest(f, with_mtime=True)
+            record[_key(f, root)] = file_digest(f, with_mtime=True)
     return {"files": record, "options": json.loads(json.dumps(options or {}, default=str))}
 
 

@@ -74,19 +74,20 @@ class _Stages:
             targets = [
                 p for v in pipe.design.views if (p := pipe.design.target_path(v)) is not None
             ]
-            return fingerprint([], targets, {"tables": tables})
+            return fingerprint([], targets, {"tables": tables}, job)
         if stage == "optimize":
-            return fingerprint([design_dir], [], _options(self.optimize_options()))
+            return fingerprint([design_dir], [], _options(self.optimize_options()), job)
         if stage == "verify":
             files = [design_dir, job / "optimize" / "scratches.csv", job / "optimize" / "renders"]
-            return fingerprint(files, [], _options(pipe.verify))
+            return fingerprint(files, [], _options(pipe.verify), job)
         if stage == "toolpath":
             files = [design_dir / "design.toml", job / "optimize" / "scratches.csv"]
-            return fingerprint(files, [_profile_file(pipe.machine_ref())], _options(pipe.toolpath))
+            profile = [_profile_file(pipe.machine_ref())]
+            return fingerprint(files, profile, _options(pipe.toolpath), job)
         if stage == "export":
-            return fingerprint([job / "toolpath" / "toolpath.json"], [], _options(pipe.export))
+            return fingerprint([job / "toolpath" / "toolpath.json"], [], _options(pipe.export), job)
         if stage == "stream":
-            return fingerprint([job / "export" / "board.gcode"], [], _options(pipe.stream))
+            return fingerprint([job / "export" / "board.gcode"], [], _options(pipe.stream), job)
         raise KeyError(stage)
 
     def wanted(self, stage: str) -> bool:
@@ -156,9 +157,11 @@ class _Stages:
         return ["verify/metrics.json"]
 
     def _run_toolpath(self) -> Sequence[str]:
+        from scratchfab.toolpath import OrderOptions
         from scratchfab.toolpath.stage import run_toolpath_job
 
-        run_toolpath_job(self.job, self.pipe.machine_ref(), say=self.say)
+        options = OrderOptions(passes=self.pipe.toolpath.passes)
+        run_toolpath_job(self.job, self.pipe.machine_ref(), options, say=self.say)
         return ["toolpath/toolpath.json", "toolpath/preview.png"]
 
     def _run_export(self) -> Sequence[str]:
@@ -216,6 +219,8 @@ def run_pipeline(
     for name in (start, until):
         if name is not None and name not in STAGES:
             raise ScratchfabError(f"unknown stage '{name}'; stages: {', '.join(STAGES)}")
+    if start is not None and until is not None and STAGES.index(start) > STAGES.index(until):
+        raise ScratchfabError(f"--from {start} comes after --until {until}; nothing to run")
     t0 = time.perf_counter()
     job.mkdir(parents=True, exist_ok=True)
     manifest = Manifest.load(job)
