@@ -17,8 +17,9 @@ Quadrature competitors:
 - ``scratch_footprint_ndf_gl``: one fixed Gauss-Legendre rule per piece (ladder rows only;
   it does not reach 1e-5 at alpha = 0.005 within 256 nodes).
 
-Times are the best of 3 calls after a warm-up call (kernel compiled and cached), each call
-including Dr.Jit's tracing, as a renderer pays it, up to the kernels' completion.
+Times are the best of 5 calls after a warm-up call (kernel compiled and cached), the
+methods' calls interleaved, each call including Dr.Jit's tracing, as a renderer pays it,
+up to the kernels' completion.
 """
 
 from __future__ import annotations
@@ -124,27 +125,38 @@ def value(fn, args, **kw):
     return np.asarray(ndf, dtype=np.float64)
 
 
-def timed(fn, args, backward, repeats=3, **kw):
-    """Best wall time of ``repeats`` calls after one warm-up (kernel compile) call."""
+def run_once(fn, args, backward, **kw):
+    """Wall time of one call, tracing to the kernels' completion (and the gradients')."""
     leaves = [*args[0], *args[1], *args[2:6], *args[8:11]]
-    best = math.inf
-    for i in range(repeats + 1):
-        if backward:
-            for v in leaves:
-                dr.enable_grad(v)
-        start = time.perf_counter()
-        ndf, area = fn(*args, **kw)
-        if backward:
-            dr.backward(ndf)
-            grads = [dr.grad(v) for v in leaves]
-            dr.eval(ndf, area, grads)
-            for v in leaves:
-                dr.disable_grad(v)
-        else:
-            dr.eval(ndf, area)
-        dr.sync_thread()  # eval only launches: wait for the kernels to finish
-        if i:
-            best = min(best, time.perf_counter() - start)
+    if backward:
+        for v in leaves:
+            dr.enable_grad(v)
+    start = time.perf_counter()
+    ndf, area = fn(*args, **kw)
+    if backward:
+        dr.backward(ndf)
+        dr.eval(ndf, area, [dr.grad(v) for v in leaves])
+    else:
+        dr.eval(ndf, area)
+    dr.sync_thread()  # eval only launches: wait for the kernels to finish
+    elapsed = time.perf_counter() - start
+    for v in leaves:
+        dr.disable_grad(v)
+    return elapsed
+
+
+def race(entries, args, repeats=5):
+    """Best time of each (fn, backward, kw) entry over ``repeats`` interleaved rounds.
+
+    One warm-up call each compiles and caches the kernels; interleaving keeps a shared
+    machine's changing load from favouring whichever method ran in a quiet moment.
+    """
+    for fn, backward, kw in entries:
+        run_once(fn, args, backward, **kw)
+    best = [math.inf] * len(entries)
+    for _ in range(repeats):
+        for i, (fn, backward, kw) in enumerate(entries):
+            best[i] = min(best[i], run_once(fn, args, backward, **kw))
     return best
 
 
@@ -169,7 +181,7 @@ def reference_check(pairs, ref, magnitude, graded, count=300):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--pairs", type=int, default=200_000)
+    parser.add_argument("--pairs", type=int, default=1_000_000)
     parser.add_argument("--backend", default="llvm", choices=["llvm", "cuda"])
     opts = parser.parse_args()
     m = array_module(opts.backend)
@@ -196,11 +208,6 @@ def main() -> None:
     def worst(val):
         return float(np.max(np.abs(val - ref) / scale))
 
-    t_cf = timed(scratch_footprint_ndf, args, False)
-    t_cf_b = timed(scratch_footprint_ndf, args, True)
-    log(f"closed form: {n / t_cf:.3g} pairs/s forward, {n / t_cf_b:.3g} fwd+bwd")
-    out["closed_form"] = {"forward_pairs_per_s": n / t_cf, "fwd_bwd_pairs_per_s": n / t_cf_b}
-
     # graded rule: smallest budget 2 * panels * nodes reaching the target
     grid = sorted(
         ((p, q) for p in range(2, 13) for q in (3, 4, 5, 6, 8)), key=lambda c: (2 * c[0] * c[1], c)
@@ -219,9 +226,21 @@ def main() -> None:
     if chosen is not None:
         kw = {"panels": chosen[0], "nodes": chosen[1]}
         graded = value(scratch_footprint_ndf_graded, args, **kw)
-        t_g = timed(scratch_footprint_ndf_graded, args, False, **kw)
-        t_g_b = timed(scratch_footprint_ndf_graded, args, True, **kw)
+        t_cf, t_g, t_cf_b, t_g_b = race(
+            [
+                (scratch_footprint_ndf, False, {}),
+                (scratch_footprint_ndf_graded, False, kw),
+                (scratch_footprint_ndf, True, {}),
+                (scratch_footprint_ndf_graded, True, kw),
+            ],
+            args,
+        )
+        log(f"closed form: {n / t_cf:.3g} pairs/s forward, {n / t_cf_b:.3g} fwd+bwd")
         log(f"graded: {n / t_g:.3g} pairs/s forward, {n / t_g_b:.3g} fwd+bwd")
+        out["closed_form"] = {
+            "forward_pairs_per_s": n / t_cf,
+            "fwd_bwd_pairs_per_s": n / t_cf_b,
+        }
         out["graded_at_equal_accuracy"] = {
             "panels_per_side": chosen[0],
             "nodes_per_panel": chosen[1],
@@ -235,13 +254,20 @@ def main() -> None:
         out["goal_5x_met"] = bool(t_g / t_cf >= 5 and t_g_b / t_cf_b >= 5)
         out["reference_check"] = reference_check(pairs, ref, magnitude, graded)
     else:
+        t_cf, t_cf_b = race(
+            [(scratch_footprint_ndf, False, {}), (scratch_footprint_ndf, True, {})], args
+        )
+        out["closed_form"] = {
+            "forward_pairs_per_s": n / t_cf,
+            "fwd_bwd_pairs_per_s": n / t_cf_b,
+        }
         out["goal_5x_met"] = None  # no equal-accuracy quadrature found in the grid
 
     # fixed rule, for the record: error and forward speed per node count
     fixed = {}
     for nodes in (16, 32, 64, 128, 256):
         err = worst(value(scratch_footprint_ndf_gl, args, nodes=nodes))
-        t_gl = timed(scratch_footprint_ndf_gl, args, False, repeats=1, nodes=nodes)
+        (t_gl,) = race([(scratch_footprint_ndf_gl, False, {"nodes": nodes})], args, repeats=2)
         fixed[str(nodes)] = {"worst_err": err, "forward_pairs_per_s": n / t_gl}
         log(f"fixed GL {nodes} nodes: worst err {err:.2e}")
     out["fixed_gauss_legendre_ladder"] = fixed
