@@ -11,7 +11,9 @@ import glob
 import os
 import re
 from types import ModuleType
-from typing import Literal
+from typing import Any, Literal
+
+import numpy as np
 
 from scratchfab.errors import BackendError
 
@@ -86,3 +88,19 @@ def array_module(backend: BackendName = "llvm") -> ModuleType:
     import importlib
 
     return importlib.import_module(f"drjit.{backend}.ad")
+
+
+def jit_array(T: type, values: Any, dtype: Any = np.float64) -> Any:
+    """A Dr.Jit array of type ``T`` from numpy data copied to a 64-byte aligned buffer.
+
+    Dr.Jit reads numpy memory in place and compiles the pointer's alignment into the
+    kernel, so arrays from plain numpy allocations make the same kernel hash differently
+    from run to run and defeat the kernel cache (a recompile of the renderer costs tens
+    of seconds). Aligned copies keep the kernels identical.
+    """
+    src = np.ascontiguousarray(values, dtype=dtype).ravel()
+    buf = np.empty(src.nbytes + 64, dtype=np.uint8)
+    start = (-buf.ctypes.data) % 64
+    out = buf[start : start + src.nbytes].view(src.dtype)
+    out[:] = src
+    return T(out)

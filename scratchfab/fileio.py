@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 import tempfile
 from collections.abc import Iterator
@@ -58,6 +60,27 @@ def write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` to ``path`` atomically (LF line ends)."""
     with atomic_open(path, "w", newline="\n") as handle:
         handle.write(text)
+
+
+def json_safe(value: Any) -> Any:
+    """``value`` with NaN and infinities as None and numpy scalars as Python numbers.
+
+    JSON has no NaN; strict readers reject Python's ``NaN`` extension.
+    """
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    return value
+
+
+def write_json(path: str | os.PathLike[str], data: Any) -> None:
+    """Write ``data`` as strict JSON (indented, NaN as null) atomically."""
+    write_text(path, json.dumps(json_safe(data), indent=2, allow_nan=False, default=str) + "\n")
 
 
 def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:

@@ -45,6 +45,8 @@ BAD_DESIGNS = [
     (_with("views.0.resolution", [64]), "views[0].resolution: expected a list of 2"),
     ({"board": {}, "views": BASE["views"]}, "missing required table [light]"),
     (_with("views.0.name", "a/b"), "not file-name safe"),
+    (_with("views.0.resolution", [400000, 400000]), "resolution must be two integers in 1..16384"),
+    ({**BASE, "scratch": {"count": 10**11}}, "scratch.count: expected a value in (0, 10000000]"),
 ]
 
 

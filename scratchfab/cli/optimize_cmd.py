@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import sys
+import time
 from pathlib import Path
 
 import click
@@ -27,10 +29,16 @@ class _Bar:
     def __init__(self, width: int = 30) -> None:
         self.width = width
         self.last_len = 0
+        self.tty = sys.stderr.isatty()
+        self.last_decile = -1
+        self.last_time = 0.0
 
     def __call__(self, p: Progress) -> None:
         if p.message:
-            self._line(f"{p.message}...", newline=True)
+            if self.tty:
+                self._line(f"{p.message}...", newline=True)
+            else:
+                click.echo(f"{p.message}...", err=True)
             return
         frac = p.iteration / p.total if p.total else 1.0
         filled = int(round(frac * self.width))
@@ -38,7 +46,13 @@ class _Bar:
             f"[{'#' * filled}{'.' * (self.width - filled)}] {p.iteration}/{p.total} "
             f"loss {p.loss:.5f}  elapsed {_clock(p.elapsed_s)}  eta {_clock(p.eta_s)}"
         )
-        self._line(text, newline=p.iteration >= p.total)
+        if self.tty:
+            self._line(text, newline=p.iteration >= p.total)
+        elif int(10 * frac) != self.last_decile or time.monotonic() - self.last_time > 5:
+            # Not a terminal (a log): a line per 10 % and at least every 5 s.
+            self.last_decile = int(10 * frac)
+            self.last_time = time.monotonic()
+            click.echo(text, err=True)
 
     def _line(self, text: str, newline: bool) -> None:
         pad = " " * max(0, self.last_len - len(text))

@@ -73,7 +73,13 @@ def _ask_interrupt() -> str:
 @click.option("--resume", is_flag=True, help="Restart at the first stroke not completely done.")
 @click.option("--check", "check_first", is_flag=True, help="Run GRBL check mode ($C) first.")
 @click.option("--machine", default=None, help="Machine profile NAME or PATH to compare with $$.")
-@click.option("--margin", type=int, default=8, show_default=True, help="RX bytes kept free.")
+@click.option(
+    "--margin",
+    type=click.IntRange(0, 64),
+    default=8,
+    show_default=True,
+    help="RX bytes kept free.",
+)
 @click.option("--stall-timeout", type=float, default=10.0, show_default=True, help="Seconds.")
 @click.option("--banner-timeout", type=float, default=2.5, show_default=True, help="Seconds.")
 @click.option(
@@ -139,14 +145,30 @@ def stream(
 @click.option(
     "--pty", "use_pty", is_flag=True, help="Serve on a new pseudo-terminal (prints its path)."
 )
-@click.option("--baud", type=int, default=115200, show_default=True, help="Emulated line speed.")
 @click.option(
-    "--time-scale", type=float, default=1.0, show_default=True, help="Motion time factor."
+    "--baud",
+    type=click.IntRange(min=300),
+    default=115200,
+    show_default=True,
+    help="Emulated line speed.",
+)
+@click.option(
+    "--time-scale",
+    type=click.FloatRange(min=0),
+    default=1.0,
+    show_default=True,
+    help="Motion time factor.",
 )
 @click.option(
     "--error-at", type=int, default=0, help="Answer error:<code> to the N-th G-code block."
 )
-@click.option("--error-code", type=int, default=20, show_default=True, help="Code for --error-at.")
+@click.option(
+    "--error-code",
+    type=click.IntRange(1, 38),
+    default=20,
+    show_default=True,
+    help="Code for --error-at.",
+)
 @click.option("--disconnect-after", type=int, default=0, help="Drop the link at the N-th block.")
 @click.option("--slow", type=float, default=0.0, help="Extra seconds before each answer.")
 @click.option("--soft-limits", is_flag=True, help="Start with $20=1 and $22=1 (in ALARM).")
@@ -179,6 +201,10 @@ def grbl_sim(
         raise ScratchfabError(
             "grbl-sim serves a pseudo-terminal: pass --pty (in-process, use the URL grblsim://)"
         )
+    if record is not None:
+        from scratchfab.fileio import write_text
+
+        write_text(record, "")  # fails now, in one line, rather than on exit
     options = SimOptions(
         baud=baud,
         time_scale=time_scale,

@@ -26,6 +26,10 @@ Vec3 = tuple[float, float, float]
 #: Tables of a pipeline file that belong to stages, not to the design (SPEC section 5).
 STAGE_TABLES = ("pipeline", "optimize", "verify", "toolpath", "export", "stream")
 
+#: Sanity limits: far beyond any engraver, small enough to fail early instead of in numpy.
+MAX_SCRATCHES = 10_000_000
+MAX_RESOLUTION = 16384
+
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
@@ -73,7 +77,7 @@ class ScratchTool:
 
     width_mm: float = field(default=0.1, metadata=spec(gt=0))
     depth_mm: float = field(default=0.01, metadata=spec(gt=0))
-    count: int = field(default=5000, metadata=spec(gt=0))
+    count: int = field(default=5000, metadata=spec(gt=0, le=MAX_SCRATCHES))
     min_length_mm: float = field(default=2.0, metadata=spec(gt=0))
     max_length_mm: float = field(default=12.0, metadata=spec(gt=0))
 
@@ -131,9 +135,9 @@ class View:
                 )
         elif not 0 < self.fov_deg < 170:
             raise ValueError(f"view '{self.name}': fov_deg must be in (0, 170), got {self.fov_deg}")
-        if min(self.resolution) < 1:
+        if min(self.resolution) < 1 or max(self.resolution) > MAX_RESOLUTION:
             raise ValueError(
-                f"view '{self.name}': resolution must be two positive integers, "
+                f"view '{self.name}': resolution must be two integers in 1..{MAX_RESOLUTION}, "
                 f"got {list(self.resolution)}"
             )
         if self.light_position_mm is not None and self.light_position_mm[2] <= 0:

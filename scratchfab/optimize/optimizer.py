@@ -18,6 +18,7 @@ from typing import Any
 import drjit as dr
 import numpy as np
 
+from scratchfab.backend import jit_array
 from scratchfab.errors import ScratchfabError
 from scratchfab.model.design import Design
 from scratchfab.model.scratches import ScratchSet
@@ -28,7 +29,6 @@ from scratchfab.optimize.params import (
     Bounds,
     endpoints,
     from_scratches,
-    jit_array,
     pair_margin,
     project,
     project_np,

@@ -37,6 +37,7 @@ import drjit as dr
 import drjit.opt
 import numpy as np
 
+from scratchfab.backend import jit_array
 from scratchfab.model.design import Design
 from scratchfab.model.scratches import ScratchSet
 
@@ -117,22 +118,6 @@ def project_np(params: dict[str, np.ndarray], bounds: Bounds) -> dict[str, np.nd
         "theta": params["theta"].copy(),
         "length": length,
     }
-
-
-def jit_array(T: type, values: Any, dtype: Any = np.float64) -> Any:
-    """A Dr.Jit array of type ``T`` from numpy data copied to a 64-byte aligned buffer.
-
-    Dr.Jit reads numpy memory in place and compiles the pointer's alignment into the
-    kernel, so arrays from plain numpy allocations make the same kernel hash differently
-    from run to run and defeat the kernel cache (a recompile of the renderer costs tens
-    of seconds). Aligned copies keep the kernels identical.
-    """
-    src = np.ascontiguousarray(values, dtype=dtype).ravel()
-    buf = np.empty(src.nbytes + 64, dtype=np.uint8)
-    start = (-buf.ctypes.data) % 64
-    out = buf[start : start + src.nbytes].view(src.dtype)
-    out[:] = src
-    return T(out)
 
 
 def to_arrays(Float: type, params: dict[str, np.ndarray]) -> dict[str, Any]:

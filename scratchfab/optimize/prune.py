@@ -24,9 +24,9 @@ import drjit as dr
 import numpy as np
 from scipy import sparse
 
+from scratchfab.backend import jit_array
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.optimize.optimizer import LayoutOptimizer
-from scratchfab.optimize.params import jit_array
 from scratchfab.render.pairs import Pairs
 from scratchfab.render.profile import solve_wbar
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from scratchfab.backend import array_module
 from scratchfab.errors import ConfigError, ScratchfabError
-from scratchfab.fileio import write_text
+from scratchfab.fileio import write_json, write_text
 from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design, load_design
 from scratchfab.model.schema import spec
@@ -454,9 +454,7 @@ def _run(
                     f"{pruned.stroke_overhead_s:g} s per stroke"
                 ),
             }
-        write_text(
-            out / "summary.json", json.dumps(summary, indent=2, default=_json_default) + "\n"
-        )
+        write_json(out / "summary.json", summary)
     return OptimizeResult(
         out_dir=out,
         scratches=layout,
@@ -467,11 +465,3 @@ def _run(
         seconds_per_iteration=per_iter,
         prune=pruned,
     )
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, float | np.floating):
-        return None if not math.isfinite(float(value)) else float(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    return str(value)

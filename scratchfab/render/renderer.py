@@ -22,7 +22,7 @@ import drjit as dr
 import numpy as np
 import shapely
 
-from scratchfab.backend import BackendName, array_module
+from scratchfab.backend import BackendName, array_module, jit_array
 from scratchfab.model.camera import Camera, polygon_area
 from scratchfab.model.design import Design, View
 from scratchfab.model.scratches import ScratchSet
@@ -31,21 +31,6 @@ from scratchfab.render.pairs import Pairs, raster_pairs, scratch_rectangles
 from scratchfab.render.profile import solve_wbar
 
 __all__ = ["ViewRenderer", "render_pairs", "render_scratches", "onboard_area", "ggx_d"]
-
-
-def to_jit(T: type, values: Any, dtype: Any = np.float64) -> Any:
-    """A Dr.Jit array of type ``T`` holding a 64-byte aligned copy of numpy data.
-
-    Dr.Jit reads numpy memory in place and compiles the pointer's alignment into the
-    kernel: arrays straight from numpy would make the same renderer kernel hash
-    differently per view and per run and defeat the kernel cache.
-    """
-    src = np.ascontiguousarray(values, dtype=dtype).ravel()
-    buf = np.empty(src.nbytes + 64, dtype=np.uint8)
-    start = (-buf.ctypes.data) % 64
-    out = buf[start : start + src.nbytes].view(src.dtype)
-    out[:] = src
-    return T(out)
 
 
 def ggx_d(c: np.ndarray, alpha: float) -> np.ndarray:
@@ -144,13 +129,13 @@ class ViewRenderer:
 
         F = self.Float
         flat_quads = quads.reshape(-1, 4, 2)
-        self._qx = [to_jit(F, flat_quads[:, k, 0]) for k in range(4)]
-        self._qy = [to_jit(F, flat_quads[:, k, 1]) for k in range(4)]
+        self._qx = [jit_array(F, flat_quads[:, k, 0]) for k in range(4)]
+        self._qy = [jit_array(F, flat_quads[:, k, 1]) for k in range(4)]
         flat_h = h.reshape(-1, 3)
-        self._h = [to_jit(F, flat_h[:, k]) for k in range(3)]
-        self._factor = to_jit(F, factor)
-        self._d_flat = to_jit(F, self.d_flat)
-        self._on_board = to_jit(F, on_board)
+        self._h = [jit_array(F, flat_h[:, k]) for k in range(3)]
+        self._factor = jit_array(F, factor)
+        self._d_flat = jit_array(F, self.d_flat)
+        self._on_board = jit_array(F, on_board)
 
     @property
     def pixel_count(self) -> int:
@@ -180,8 +165,8 @@ class ViewRenderer:
         pixel_np.flags.writeable = False
         scratch_np.flags.writeable = False
         return Pairs(
-            to_jit(self.m.UInt32, pixel_np, np.uint32),
-            to_jit(self.m.UInt32, scratch_np, np.uint32),
+            jit_array(self.m.UInt32, pixel_np, np.uint32),
+            jit_array(self.m.UInt32, scratch_np, np.uint32),
             pixel_np,
             scratch_np,
             float(margin_mm),
@@ -248,12 +233,12 @@ class ViewRenderer:
         F = self.Float
         wbar = solve_wbar(scratches.width, scratches.depth)
         return (
-            to_jit(F, scratches.p0[:, 0]),
-            to_jit(F, scratches.p0[:, 1]),
-            to_jit(F, scratches.p1[:, 0]),
-            to_jit(F, scratches.p1[:, 1]),
-            to_jit(F, scratches.width / 2),
-            to_jit(F, wbar),
+            jit_array(F, scratches.p0[:, 0]),
+            jit_array(F, scratches.p0[:, 1]),
+            jit_array(F, scratches.p1[:, 0]),
+            jit_array(F, scratches.p1[:, 1]),
+            jit_array(F, scratches.width / 2),
+            jit_array(F, wbar),
         )
 
 

@@ -47,6 +47,13 @@ def run_toolpath(
     result.save(out_dir / "toolpath.json")
     write_preview(result, out_dir / "preview.png")
     say(summary(result))
+    s = result.stats
+    if s["outside_count"] or s["clipped_count"]:
+        say(
+            f"warning: {s['outside_count']} scratches lie outside the machine's envelope and "
+            f"{s['clipped_count']} were clipped to it: check the profile's [board] offset_mm "
+            "and [envelope] (see preview.png)"
+        )
     return result
 
 

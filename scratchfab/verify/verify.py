@@ -11,7 +11,6 @@ render. Quality measures follow SPEC section 7 (:mod:`scratchfab.metrics`).
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -23,7 +22,7 @@ import numpy as np
 
 from scratchfab.backend import BackendName
 from scratchfab.errors import ConfigError, ScratchfabError
-from scratchfab.fileio import write_bytes, write_text
+from scratchfab.fileio import write_bytes, write_json
 from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design, View, load_design
 from scratchfab.model.scratches import ScratchSet, load_scratches
@@ -222,18 +221,6 @@ def relative_l2(image: np.ndarray, reference: np.ndarray) -> float:
     return float(np.linalg.norm(diff)) / ref if ref > 0 else math.inf
 
 
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, np.generic):
-        return _json_safe(value.item())
-    return value
-
-
 def _quality(
     renders: Mapping[str, np.ndarray],
     targets: Mapping[str, np.ndarray],
@@ -387,7 +374,7 @@ def run_verify(
     _write_layout(out, images)
     if sweep_gif is not None:
         write_bytes(out / "sweep.gif", sweep_gif)
-    write_text(out / "metrics.json", json.dumps(_json_safe(metrics), indent=2) + "\n")
+    write_json(out / "metrics.json", metrics)
     if failing:
         worst = min(failing, key=lambda n: views[n]["rho"])
         raise VerifyGateError(
