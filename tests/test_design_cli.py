@@ -224,3 +224,23 @@ def test_all_black_targets_spread_the_scratches_evenly(tmp_path):
     assert len(res.scratches) == 40
     mid = (res.scratches.p0 + res.scratches.p1) / 2
     assert (mid[:, 0] < 0).sum() > 10 and (mid[:, 0] > 0).sum() > 10
+
+
+def test_missing_target_names_the_view_key_and_the_file(tmp_path, capsys):
+    from scratchfab.cli import main
+
+    design = tmp_path / "d.toml"
+    design.write_text(
+        "[light]\nposition_mm = [0.0, 100.0, 400.0]\n"
+        '[[views]]\nname = "a"\ntarget = "nope.png"\n'
+        "position_mm = [-100.0, 0.0, 400.0]\nresolution = [16, 16]\n"
+    )
+    with pytest.raises(SystemExit) as info:
+        main(["design", str(design), "--out", str(tmp_path / "job")])
+    err = capsys.readouterr().err
+    assert info.value.code == 2
+    assert (
+        err.strip()
+        == f"error: {design}: views[0].target: {tmp_path / 'nope.png'}: image file not found"
+    )
+    assert not (tmp_path / "job" / "design").exists()

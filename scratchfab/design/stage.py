@@ -164,11 +164,16 @@ def run_design(
 
     boards: dict[str, np.ndarray] = {}
     cache: dict[Path, np.ndarray] = {}
-    for view in design.views:
+    for i, view in enumerate(design.views):
         path = design.target_path(view)
         assert path is not None
         if path not in cache:
-            cache[path] = quantize_like_png(board_image(path, design.board, fit, gamma, contrast))
+            try:
+                image = board_image(path, design.board, fit, gamma, contrast)
+            except ConfigError as exc:
+                # The image's own message names the file; say which key pointed at it.
+                raise ConfigError(f"{design.source}: views[{i}].target: {exc}") from None
+            cache[path] = quantize_like_png(image)
         boards[view.name] = cache[path]
     progress(f"  loaded {len(cache)} target image(s)")
 
