@@ -153,6 +153,7 @@ def run_design(
     """
     start = time.perf_counter()
     design, defaults = load_source(source, count, resolution)
+    _check_job_folder(Path(out_job))
     fit = fit if fit is not None else str(defaults.get("fit", "contain"))
     seed = seed if seed is not None else int(defaults.get("seed", 0))
     force = force if force is not None else bool(defaults.get("force", False))
@@ -230,6 +231,15 @@ def run_design(
             shutil.rmtree(tmp, ignore_errors=True)
     progress(f"design: wrote {folder} ({time.perf_counter() - start:.1f} s)")
     return DesignResult(folder, resolved, targets, scratches, report)
+
+
+def _check_job_folder(job: Path) -> None:
+    """Fail before any work when the job folder cannot be created or written."""
+    parent = next((p for p in (job, *job.parents) if p.exists()), Path("."))
+    if not parent.is_dir() or not os.access(parent, os.W_OK):
+        raise ConfigError(
+            f"{job}: cannot create the job folder ({parent} is not a writable folder)"
+        )
 
 
 def _replace_folder(new: Path, folder: Path) -> None:
