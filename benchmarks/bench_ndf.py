@@ -251,7 +251,7 @@ def main() -> None:
         }
         out["speedup_forward_at_equal_accuracy"] = t_g / t_cf
         out["speedup_fwd_bwd_at_equal_accuracy"] = t_g_b / t_cf_b
-        out["goal_5x_met"] = bool(t_g / t_cf >= 5 and t_g_b / t_cf_b >= 5)
+        out["goal_5x_met_vs_graded"] = bool(t_g / t_cf >= 5 and t_g_b / t_cf_b >= 5)
         out["reference_check"] = reference_check(pairs, ref, magnitude, graded)
     else:
         t_cf, t_cf_b = race(
@@ -261,7 +261,7 @@ def main() -> None:
             "forward_pairs_per_s": n / t_cf,
             "fwd_bwd_pairs_per_s": n / t_cf_b,
         }
-        out["goal_5x_met"] = None  # no equal-accuracy quadrature found in the grid
+        out["goal_5x_met_vs_graded"] = None  # no equal-accuracy graded rule in the grid
 
     # fixed rule, for the record: error and forward speed per node count
     fixed = {}
@@ -271,6 +271,29 @@ def main() -> None:
         fixed[str(nodes)] = {"worst_err": err, "forward_pairs_per_s": n / t_gl}
         log(f"fixed GL {nodes} nodes: worst err {err:.2e}")
     out["fixed_gauss_legendre_ladder"] = fixed
+    # Plain Gauss-Legendre (the wording): its cost grows with the nodes, so if the
+    # largest rule tried is already >= 5x slower than the closed form and still short of
+    # the target accuracy, the rule that reaches it is slower still.
+    largest = max(fixed, key=int)
+    t_gl, t_gl_b, t_cf2, t_cf2_b = race(
+        [
+            (scratch_footprint_ndf_gl, False, {"nodes": int(largest)}),
+            (scratch_footprint_ndf_gl, True, {"nodes": int(largest)}),
+            (scratch_footprint_ndf, False, {}),
+            (scratch_footprint_ndf, True, {}),
+        ],
+        args,
+        repeats=2,
+    )
+    short = fixed[largest]["worst_err"] > TARGET
+    out["vs_fixed_gauss_legendre"] = {
+        "nodes": int(largest),
+        "worst_err": fixed[largest]["worst_err"],
+        "short_of_target": short,
+        "forward_slowdown": t_gl / t_cf2,
+        "fwd_bwd_slowdown": t_gl_b / t_cf2_b,
+        "goal_5x_met": bool(short and t_gl / t_cf2 >= 5 and t_gl_b / t_cf2_b >= 5),
+    }
 
     # float32 for the record: the closed form in single precision vs float64, same inputs
     rounded = {k: np.asarray(v, dtype=np.float32).astype(np.float64) for k, v in pairs.items()}
