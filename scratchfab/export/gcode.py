@@ -193,8 +193,13 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
     return lines
 
 
-def gcode_stats(lines: list[str], dec: int) -> dict[str, Any]:
-    """Line count, bytes, longest line and the bounding box of the X/Y/Z words."""
+def gcode_stats(lines: list[str], dec: int | None = None) -> dict[str, Any]:
+    """Line count, bytes, longest line and the bounding box of the X/Y/Z words.
+
+    Args:
+        lines: The program's lines, without line ends.
+        dec: The coordinate decimals it was written with (recorded; None when unknown).
+    """
     text_bytes = sum(len(line) + 1 for line in lines)
     axes: dict[str, list[float]] = {"X": [], "Y": [], "Z": []}
     for line in lines:

@@ -184,13 +184,22 @@ def _toolpath_section(job: Path) -> str:
 
 
 def gcode_statistics(path: Path) -> dict[str, Any]:
-    """Line count, bytes, longest line and motion-word counts of a G-code file."""
+    """The exporter's statistics of a G-code file, plus its G0 and G1 counts."""
+    from scratchfab.export.gcode import gcode_stats
+
     lines = path.read_text(encoding="utf-8").splitlines()
+    stats = gcode_stats(lines)
     words = [ln.split(";")[0].split("(")[0].upper() for ln in lines]
+    extent = {
+        k.removesuffix("_mm").upper(): f"{v[0]:g} .. {v[1]:g} mm"
+        for k, v in stats["bbox"].items()
+        if v is not None
+    }
     return {
-        "lines": len(lines),
-        "bytes": path.stat().st_size,
-        "longest_line": max((len(ln) for ln in lines), default=0),
+        "lines": stats["lines"],
+        "bytes": stats["bytes"],
+        "longest_line": stats["max_line_length"],
+        **{f"{axis} range": text for axis, text in extent.items()},
         "G0": sum(1 for w in words if w.startswith("G0 ") or w == "G0"),
         "G1": sum(1 for w in words if w.startswith("G1 ") or w == "G1"),
     }
