@@ -9,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from scratchfab.cli.options import backend_option
 from scratchfab.optimize.stage import OptimizeOptions, Progress, run_optimize
 
 
@@ -83,13 +84,7 @@ class _Bar:
     show_default=True,
     help="Seed of the run's random generator.",
 )
-@click.option(
-    "--backend",
-    type=click.Choice(["llvm", "cuda"]),
-    default="llvm",
-    show_default=True,
-    help="Dr.Jit backend: llvm (CPU) or cuda (NVIDIA GPU).",
-)
+@backend_option
 @click.option(
     "--space",
     type=click.Choice(["linear", "perceptual"]),

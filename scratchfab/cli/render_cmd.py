@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from scratchfab.cli.options import backend_option
 from scratchfab.errors import ScratchfabError
 from scratchfab.model.design import load_design
 from scratchfab.model.job import job_inputs
@@ -24,13 +25,7 @@ from scratchfab.render.renderer import render_scratches
 @click.option(
     "--out", "out_dir", type=click.Path(path_type=Path), help="Output folder (default JOB/render)."
 )
-@click.option(
-    "--backend",
-    type=click.Choice(["llvm", "cuda"]),
-    default="llvm",
-    show_default=True,
-    help="Dr.Jit backend: llvm (CPU) or cuda (NVIDIA GPU).",
-)
+@backend_option
 def render(
     job: Path | None,
     design_file: Path | None,
