@@ -13,7 +13,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from scratchfab.errors import ScratchfabError
+from scratchfab.errors import ConfigError, ScratchfabError
 
 
 def _umask() -> int:
@@ -60,6 +60,24 @@ def write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` to ``path`` atomically (LF line ends)."""
     with atomic_open(path, "w", newline="\n") as handle:
         handle.write(text)
+
+
+def read_input(path: Path, expected: str, missing: str = "file not found") -> bytes:
+    """The bytes of a user's input file, or a one-line ConfigError naming it.
+
+    Args:
+        path: The file.
+        expected: What it should be, for the folder case ("a TOML file").
+        missing: The message when it does not exist.
+    """
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: {missing}") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, expected {expected}") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
 
 
 def json_safe(value: Any) -> Any:

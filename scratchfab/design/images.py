@@ -15,6 +15,7 @@ import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
 from scratchfab.errors import ConfigError
+from scratchfab.fileio import read_input
 
 #: Rec. 709 / sRGB luminance weights of linear R, G, B.
 LUMA_709 = np.array([0.2126, 0.7152, 0.0722])
@@ -33,14 +34,7 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
 
 
 def _open(path: Path) -> Image.Image:
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: image file not found") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a directory, expected an image file") from None
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    data = read_input(path, "an image file", missing="image file not found")
     if not data:
         raise ConfigError(f"{path}: empty file, expected an image")
     try:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Literal, TypeVar, Union, get_args, get_origin
 
 from scratchfab.errors import ConfigError
+from scratchfab.fileio import read_input
 
 T = TypeVar("T")
 
@@ -38,14 +39,7 @@ def spec(
 def load_toml(path: str | Path) -> dict[str, Any]:
     """Read a TOML file, turning I/O and syntax problems into one-line ConfigErrors."""
     file = Path(path)
-    try:
-        raw = file.read_bytes()
-    except FileNotFoundError:
-        raise ConfigError(f"{file}: file not found") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{file}: is a directory, expected a TOML file") from None
-    except OSError as exc:
-        raise ConfigError(f"{file}: cannot read ({exc.strerror})") from None
+    raw = read_input(file, "a TOML file")
     try:
         return tomllib.loads(raw.decode("utf-8"))
     except UnicodeDecodeError:
