@@ -59,7 +59,7 @@ def _inputs(
     "--passes",
     default=OrderOptions.passes,
     show_default=True,
-    help="Cap on 2-opt/Or-opt work, in visits per stroke (0: greedy only).",
+    help="Cap on local-search work (flip chains, Or-opt), in visits per stroke (0: greedy only).",
 )
 @click.option("--seed", default=0, show_default=True, help="Seed of the ordering's perturbations.")
 def toolpath(
@@ -80,7 +80,6 @@ def toolpath(
     if passes < 0:
         raise ScratchfabError(f"--passes must be >= 0, got {passes}")
     csv_path, design_path, out_dir = _inputs(job, scratches, design, out)
-    run_toolpath(
-        csv_path, design_path, out_dir, machine, OrderOptions(passes=passes), say=click.echo
-    )
+    options = OrderOptions(passes=passes, seed=seed)
+    run_toolpath(csv_path, design_path, out_dir, machine, options, say=click.echo)
     click.echo(f"wrote {out_dir / 'toolpath.json'} and {out_dir / 'preview.png'}")

@@ -1,22 +1,29 @@
-"""Compiled local search for stroke tours: 2-opt and Or-opt with neighbour lists.
+"""Compiled local search for stroke tours: Lin-Kernighan chains of flips and Or-opt.
 
-The tour is a cycle of M = N + 1 items (N strokes and the depot, the start position)
-held in one array: ``ent[p]`` is the endpoint id where the item at position p is
-entered (2k: stroke k's p0, 2k+1: its p1, 2N: the depot); it is left at the other end
-(``ent ^ 1``; the depot at itself). Edge p joins the exit B(p) of position p to the
-entry A(p+1) of the next. Moves (first improvement, processed from a queue of items
-whose edges changed, "don't-look bits"):
+The tour is a cycle of M items held in one array: ``ent[p]`` is the endpoint id where
+the item at position p is entered (2k: item k's first end, 2k+1: its second); it is
+left at the other end, ``ent[p] ^ 1``. The start position is an item of zero length.
+Every endpoint has exactly one travel edge: an item's entry is joined to the exit of
+the item before it, its exit to the entry of the item after it. Moves (first
+improvement, processed from a queue of items whose edges changed, "don't-look bits"):
 
-- 2-opt: replace edges i and j by (B(i), B(j)) and (A(i+1), A(j+1)), i.e. reverse the
-  positions i+1..j, which also turns each stroke in them round. Candidates join an
-  endpoint to one of its ``K`` nearest endpoints (``near``); the search along a
-  neighbour list stops once the new edge is no shorter than the edge it replaces.
+- Flip chains (Lin-Kernighan): a flip at endpoints x and f removes their two travel
+  edges and joins x to f and their old partners to each other, by reversing the
+  stretch between them (which turns its strokes round); it keeps one tour only if x
+  and f are both entries or both exits. A chain breaks an edge (x, t1) of the item,
+  flips x to a near endpoint f whose distance is below the gain so far, then goes on
+  from f's old partner, which the flip joined to t1: up to ``depth`` flips, the first
+  over all ``K`` nearest endpoints (``near``) and the later ones to the neighbour with
+  the best look-ahead. The chain is followed on virtual positions and only its best
+  prefix is applied, if it shortens the tour. Depth 1 is 2-opt; depth 2 adds the
+  sequential 3-opt moves.
 - Or-opt: move a chain of 1 to 3 consecutive items into another gap, either way round.
 - Perturbation ("kicks", iterated local search): swap two short neighbouring stretches
   (a local double bridge), search again from the changed joins, keep only improvements.
 
 Reversals and moves go the shorter way round the cycle (reversing the complement of an
-arc gives the same cycle). Work is capped at ``passes * M`` items taken from the queue.
+arc gives the same cycle), and none is longer than ``max_reverse`` items. Work is capped
+at ``passes * M`` items taken from the queue.
 """
 
 from __future__ import annotations
@@ -25,11 +32,6 @@ import math
 
 import numba
 import numpy as np
-
-
-@numba.njit(cache=True, inline="always")
-def _exit(e: int, depot: int) -> int:
-    return e if e == depot else e ^ 1
 
 
 @numba.njit(cache=True, inline="always")
@@ -56,9 +58,7 @@ def _note(log: np.ndarray, first: int, count: int) -> None:
 
 
 @numba.njit(cache=True)
-def _reverse(
-    ent: np.ndarray, pos: np.ndarray, first: int, last: int, depot: int, log: np.ndarray
-) -> None:
+def _reverse(ent: np.ndarray, pos: np.ndarray, first: int, last: int, log: np.ndarray) -> None:
     """Reverse the cyclic arc first..last (or its complement, whichever is shorter)."""
     m = ent.shape[0]
     length = (last - first) % m + 1
@@ -69,8 +69,8 @@ def _reverse(
     for k in range((length + 1) // 2):
         a = (first + k) % m
         b = (last - k) % m
-        ea = _exit(ent[a], depot)
-        eb = _exit(ent[b], depot)
+        ea = ent[a] ^ 1
+        eb = ent[b] ^ 1
         ent[a] = eb
         ent[b] = ea
         pos[eb >> 1] = a
@@ -85,7 +85,6 @@ def _move_chain(
     s: int,
     g: int,
     flip: bool,
-    depot: int,
     buf: np.ndarray,
     log: np.ndarray,
 ) -> None:
@@ -100,7 +99,7 @@ def _move_chain(
             buf[k] = buf[s - 1 - k]
             buf[s - 1 - k] = t
         for k in range(s):
-            buf[k] = _exit(buf[k], depot)
+            buf[k] = buf[k] ^ 1
     n_after = (g - c1) % m  # items from c1+1 to g: the chain moves forward past them
     n_before = (c0 - 1 - g) % m  # items from g+1 to c0-1: or they move forward past it
     if n_after <= n_before:
@@ -125,6 +124,143 @@ def _move_chain(
         pos[buf[k] >> 1] = p
 
 
+@numba.njit(cache=True, inline="always")
+def _partner(ent: np.ndarray, pos: np.ndarray, e: int) -> int:
+    """The endpoint joined to ``e`` by its travel edge."""
+    m = ent.shape[0]
+    q = pos[e >> 1]
+    if ent[q] == e:
+        return ent[(q - 1) % m] ^ 1
+    return ent[(q + 1) % m]
+
+
+@numba.njit(cache=True, inline="always")
+def _place(
+    ent: np.ndarray, pos: np.ndarray, e: int, first: np.ndarray, length: np.ndarray, n: int
+) -> tuple[int, bool]:
+    """Position of endpoint ``e`` and whether it is an entry, after ``n`` virtual flips."""
+    m = ent.shape[0]
+    q = pos[e >> 1]
+    entry = ent[q] == e
+    for k in range(n):
+        o = (q - first[k]) % m
+        if o < length[k]:
+            q = (first[k] + length[k] - 1 - o) % m
+            entry = not entry
+    return q, entry
+
+
+@numba.njit(cache=True)
+def _flip(ent: np.ndarray, pos: np.ndarray, x: int, f: int, log: np.ndarray) -> None:
+    """Join x to f (both entries or both exits) and their old partners to each other."""
+    m = ent.shape[0]
+    qx = pos[x >> 1]
+    qf = pos[f >> 1]
+    first = qx if ent[qx] == x else (qx + 1) % m
+    _reverse(ent, pos, first, (first + (qf - qx) % m - 1) % m, log)
+
+
+@numba.njit(cache=True)
+def _chain(
+    pts: np.ndarray,
+    ent: np.ndarray,
+    pos: np.ndarray,
+    near: np.ndarray,
+    x0: int,
+    t1: int,
+    f1: int,
+    g0: float,
+    depth: int,
+    max_reverse: int,
+    eps: float,
+    chain: np.ndarray,
+    scratch: np.ndarray,
+) -> tuple[float, int]:
+    """Follow a flip chain that breaks (x0, t1) and first joins x0 to f1, virtually.
+
+    Returns the best gain found and the number of flips giving it (0: none improves);
+    the flips are ``chain[k] = (x, f)``, to be applied in order with :func:`_flip`.
+    ``scratch`` is (4, 4 * depth + 2) working space.
+    """
+    m = ent.shape[0]
+    k_near = near.shape[1]
+    first = scratch[0]
+    length = scratch[1]
+    # Endpoints whose travel edge the chain has changed, and their new partners.
+    moved = scratch[2]
+    partner = scratch[3]
+    moved[0] = x0
+    partner[0] = t1
+    moved[1] = t1
+    partner[1] = x0
+    n_moved = 2
+    x = x0
+    f = f1
+    g = g0
+    best = eps
+    best_n = 0
+    for n in range(depth):
+        qx, ex = _place(ent, pos, x, first, length, n)
+        if n > 0:
+            # The neighbour of x with the best look-ahead |f, partner(f)| - |x, f|.
+            f = -1
+            look_best = -np.inf
+            for kk in range(k_near):
+                c = near[x, kk]
+                dc = _d(pts, x, c)
+                if dc >= g - eps:
+                    break
+                used = False
+                for k in range(n_moved):
+                    if moved[k] == c:
+                        used = True
+                        break
+                if used:
+                    continue
+                qc, ec = _place(ent, pos, c, first, length, n)
+                span = (qc - qx) % m
+                if ec != ex or span == 0 or min(span, m - span) > max_reverse:
+                    continue
+                look = _d(pts, c, _partner(ent, pos, c)) - dc
+                if look > look_best:
+                    look_best = look
+                    f = c
+            if f < 0:
+                break
+        qf, ef = _place(ent, pos, f, first, length, n)
+        span = (qf - qx) % m
+        if ef != ex or span == 0 or min(span, m - span) > max_reverse:
+            break
+        # x's partner is t1 (the closing edge); f's old partner b is joined to t1.
+        b = f
+        for k in range(n_moved - 1, -1, -1):
+            if moved[k] == f:
+                b = partner[k]
+                break
+        if b == f:
+            b = _partner(ent, pos, f)
+        g += _d(pts, f, b) - _d(pts, x, f)
+        first[n] = qx if ex else (qx + 1) % m
+        length[n] = span
+        chain[n, 0] = x
+        chain[n, 1] = f
+        moved[n_moved] = x
+        partner[n_moved] = f
+        moved[n_moved + 1] = f
+        partner[n_moved + 1] = x
+        moved[n_moved + 2] = b
+        partner[n_moved + 2] = t1
+        moved[n_moved + 3] = t1
+        partner[n_moved + 3] = b
+        n_moved += 4
+        total = g - _d(pts, t1, b)
+        if total > best:
+            best = total
+            best_n = n + 1
+        x = b
+    return best, best_n
+
+
 @numba.njit(cache=True)
 def _search(
     pts: np.ndarray,
@@ -138,19 +274,21 @@ def _search(
     max_reverse: int,
     eps: float,
     log: np.ndarray,
+    depth: int,
 ) -> tuple[int, float]:
     """Local search from the ``size`` items queued in ``queue[:size]``; (moves, gain).
 
     The positions it changes are recorded in ``log`` (see :func:`_note`).
     """
     m = ent.shape[0]
-    depot = pts.shape[0] - 1
     k_near = near.shape[1]
     head = 0
     buf = np.empty(3, dtype=np.int64)
     moves = 0
     total_gain = 0.0
-    touched = np.empty(8, dtype=np.int64)
+    touched = np.empty(4 * depth + 8, dtype=np.int64)
+    chain = np.empty((depth, 2), dtype=np.int64)
+    scratch = np.empty((4, 4 * depth + 2), dtype=np.int64)
     while size > 0 and budget > 0:
         item = queue[head]
         head = (head + 1) % m
@@ -162,41 +300,45 @@ def _search(
             improved = False
             n_touched = 0
             p = pos[item]
-            # 2-opt on the edge out of p (joins exits) and the edge into p (joins entries).
+            # Flip chains from the edge out of p and the edge into p.
             for side in range(2):
                 if improved:
                     break
-                i = p if side == 0 else (p - 1) % m
-                bi = _exit(ent[i], depot)
-                ai1 = ent[(i + 1) % m]
-                li = _d(pts, bi, ai1)
-                x = bi if side == 0 else ai1
+                x0 = ent[p] ^ 1 if side == 0 else ent[p]
+                t1 = ent[(p + 1) % m] if side == 0 else ent[(p - 1) % m] ^ 1
+                g0 = _d(pts, x0, t1)
                 for kk in range(k_near):
-                    f = near[x, kk]
-                    d1 = _d(pts, x, f)
-                    if d1 >= li - eps:
+                    f1 = near[x0, kk]
+                    if _d(pts, x0, f1) >= g0 - eps:
                         break
-                    q = pos[f >> 1]
-                    is_entry = ent[q] == f
-                    if f != depot and (is_entry == (side == 0)):
+                    if f1 == t1:
                         continue
-                    j = q if side == 0 else (q - 1) % m
-                    if j == i:
-                        continue
-                    span = (j - i) % m
-                    if min(span, m - span) > max_reverse:
-                        continue
-                    bj = _exit(ent[j], depot)
-                    aj1 = ent[(j + 1) % m]
-                    gain = li + _d(pts, bj, aj1) - _d(pts, bi, bj) - _d(pts, ai1, aj1)
-                    if gain > eps:
+                    gain, n_flips = _chain(
+                        pts,
+                        ent,
+                        pos,
+                        near,
+                        x0,
+                        t1,
+                        f1,
+                        g0,
+                        depth,
+                        max_reverse,
+                        eps,
+                        chain,
+                        scratch,
+                    )
+                    if n_flips > 0:
                         total_gain += gain
-                        touched[0] = ent[i] >> 1
-                        touched[1] = ai1 >> 1
-                        touched[2] = ent[j] >> 1
-                        touched[3] = aj1 >> 1
-                        n_touched = 4
-                        _reverse(ent, pos, (i + 1) % m, j, depot, log)
+                        for k in range(n_flips):
+                            x = chain[k, 0]
+                            f = chain[k, 1]
+                            touched[n_touched] = x >> 1
+                            touched[n_touched + 1] = f >> 1
+                            touched[n_touched + 2] = _partner(ent, pos, x) >> 1
+                            touched[n_touched + 3] = _partner(ent, pos, f) >> 1
+                            n_touched += 4
+                            _flip(ent, pos, x, f, log)
                         improved = True
                         break
             # Or-opt: chains of 1..3 items starting at p.
@@ -209,8 +351,8 @@ def _search(
                     prev = (c0 - 1) % m
                     nxt = (c1 + 1) % m
                     a_s = ent[c0]
-                    b_s = _exit(ent[c1], depot)
-                    b_prev = _exit(ent[prev], depot)
+                    b_s = ent[c1] ^ 1
+                    b_prev = ent[prev] ^ 1
                     a_next = ent[nxt]
                     removal = _d(pts, b_prev, a_s) + _d(pts, b_s, a_next) - _d(pts, b_prev, a_next)
                     if removal <= eps:
@@ -225,14 +367,16 @@ def _search(
                             if d1 >= removal - eps:
                                 break
                             q = pos[f >> 1]
-                            is_entry = ent[q] == f and f != depot
+                            is_entry = ent[q] == f
                             # f is the exit B(g) (f before the chain) or the entry A(g+1).
                             g = (q - 1) % m if is_entry else q
                             if (g - prev) % m <= s:
                                 continue
+                            if min((g - c1) % m, (prev - g) % m) > max_reverse:
+                                continue
                             # Joining x to an exit: x must be the chain's entry side.
                             flip = (end == 0) == is_entry
-                            bg = _exit(ent[g], depot)
+                            bg = ent[g] ^ 1
                             ag1 = ent[(g + 1) % m]
                             if flip:
                                 add = _d(pts, bg, b_s) + _d(pts, a_s, ag1)
@@ -248,7 +392,7 @@ def _search(
                                 touched[4] = a_s >> 1
                                 touched[5] = ent[c1] >> 1
                                 n_touched = 6
-                                _move_chain(ent, pos, c0, s, g, flip, depot, buf, log)
+                                _move_chain(ent, pos, c0, s, g, flip, buf, log)
                                 improved = True
                                 break
             if improved:
@@ -266,17 +410,7 @@ def _search(
     return moves, total_gain
 
 
-@numba.njit(cache=True)
-def _tour_length(pts: np.ndarray, ent: np.ndarray) -> float:
-    m = ent.shape[0]
-    depot = pts.shape[0] - 1
-    total = 0.0
-    for p in range(m):
-        total += _d(pts, _exit(ent[p], depot), ent[(p + 1) % m])
-    return total
-
-
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def improve(
     pts: np.ndarray,
     ent: np.ndarray,
@@ -286,6 +420,8 @@ def improve(
     seed: int,
     max_reverse: int,
     eps: float,
+    depth: int,
+    kick_reverse: int,
 ) -> int:
     """2-opt and Or-opt to a local optimum, then ``kicks`` perturbation trials.
 
@@ -293,6 +429,7 @@ def improve(
     searches again from the four changed joins and keeps the result only if the tour got
     shorter. A trial is undone (or kept) through the positions it changed, not by copying
     the tour. Works on ``ent`` in place; returns the improving moves and trials kept.
+    ``depth`` is the longest flip chain; ``kick_reverse`` caps reversals during the trials.
     """
     m = ent.shape[0]
     pos = np.empty(m, dtype=np.int64)
@@ -307,7 +444,7 @@ def improve(
     no_log = np.zeros(2, dtype=np.int64)
     for _ in range(passes):
         found, _gain = _search(
-            pts, ent, pos, near, queue, queued, m, budget, max_reverse, eps, no_log
+            pts, ent, pos, near, queue, queued, m, budget, max_reverse, eps, no_log, depth
         )
         moves += found
         if found == 0:
@@ -325,7 +462,6 @@ def improve(
     # Positions a trial changed, to undo (or keep) it without copying the whole tour.
     log = np.zeros(2 + 64 * window + 4096, dtype=np.int64)
     tmp = np.empty(2 * window + 2, dtype=np.int64)
-    depot = pts.shape[0] - 1
     for _ in range(kicks):
         a = np.random.randint(0, m)
         l1 = np.random.randint(1, window + 1)
@@ -337,14 +473,14 @@ def improve(
         b1 = (b + 1) % m
         c1 = (c + 1) % m
         before = (
-            _d(pts, _exit(ent[a], depot), ent[a1])
-            + _d(pts, _exit(ent[b], depot), ent[b1])
-            + _d(pts, _exit(ent[c], depot), ent[c1])
+            _d(pts, (ent[a] ^ 1), ent[a1])
+            + _d(pts, (ent[b] ^ 1), ent[b1])
+            + _d(pts, (ent[c] ^ 1), ent[c1])
         )
         after = (
-            _d(pts, _exit(ent[a], depot), ent[b1])
-            + _d(pts, _exit(ent[c], depot), ent[a1])
-            + _d(pts, _exit(ent[b], depot), ent[c1])
+            _d(pts, (ent[a] ^ 1), ent[b1])
+            + _d(pts, (ent[c] ^ 1), ent[a1])
+            + _d(pts, (ent[b] ^ 1), ent[c1])
         )
         log[0] = 0
         log[1] = 0
@@ -374,7 +510,7 @@ def improve(
                 queue[size] = it
                 size += 1
         found, gain = _search(
-            pts, ent, pos, near, queue, queued, size, 50 * size, max_reverse, eps, log
+            pts, ent, pos, near, queue, queued, size, 50 * size, kick_reverse, eps, log, depth
         )
         keep = after - before - gain < -eps
         if keep:
@@ -396,3 +532,78 @@ def improve(
                 ent[p] = saved_ent[p]
                 pos[ent[p] >> 1] = p
     return moves
+
+
+@numba.njit(cache=True)
+def cut_region(ent: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The items of a region's small tour, as tour position ranges [starts, ends].
+
+    Walking the tour from the first item inside the region that follows one outside,
+    every item inside is a range of its own and every maximal run outside is one range.
+    """
+    m = ent.shape[0]
+    head = 0
+    for p in range(m):
+        if inside[p] and not inside[(p - 1) % m]:
+            head = p
+            break
+    starts = np.empty(m, dtype=np.int64)
+    ends = np.empty(m, dtype=np.int64)
+    w = 0
+    for k in range(m):
+        p = (head + k) % m
+        if inside[p] or inside[(p - 1) % m]:
+            starts[w] = p
+            ends[w] = p
+            w += 1
+        else:
+            ends[w - 1] = p
+    return starts[:w], ends[:w]
+
+
+@numba.njit(cache=True)
+def expand_region(
+    ent: np.ndarray, starts: np.ndarray, ends: np.ndarray, sub_ent: np.ndarray
+) -> np.ndarray:
+    """The whole tour from a region's small tour: each range in turn, reversed if entered at its end."""
+    m = ent.shape[0]
+    out = np.empty(m, dtype=np.int64)
+    n = 0
+    for e in sub_ent:
+        first = starts[e >> 1]
+        count = (ends[e >> 1] - first) % m + 1
+        if e & 1:
+            for k in range(count - 1, -1, -1):
+                out[n] = ent[(first + k) % m] ^ 1
+                n += 1
+        else:
+            for k in range(count):
+                out[n] = ent[(first + k) % m]
+                n += 1
+    return out
+
+
+@numba.njit(cache=True)
+def greedy_steps(
+    near: np.ndarray, used: np.ndarray, entries: np.ndarray, step: int, cur: int
+) -> tuple[int, int]:
+    """Greedy nearest-neighbour steps from endpoint ``cur``; (steps done, current endpoint).
+
+    Goes on while one of the current endpoint's near endpoints belongs to a stroke not
+    yet used; endpoints past the strokes' (the start's) are never entered.
+    """
+    n = used.shape[0]
+    while step < n:
+        nxt = -1
+        for kk in range(near.shape[1]):
+            f = near[cur, kk]
+            if f < 2 * n and not used[f >> 1]:
+                nxt = f
+                break
+        if nxt < 0:
+            break
+        used[nxt >> 1] = True
+        entries[step] = nxt
+        step += 1
+        cur = nxt ^ 1
+    return step, cur

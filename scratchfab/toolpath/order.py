@@ -8,10 +8,20 @@ The strokes and the start position form one closed tour: start -> stroke -> ... 
    stroke to its other end, repeat. A k-d tree (scipy ``cKDTree``) of all endpoints gives
    each endpoint's ``neighbours`` nearest endpoints once; a second tree of the endpoints
    still free answers the rare lookups whose near neighbours are all used.
-2. Local search (:mod:`scratchfab.toolpath.local_search`, compiled with numba): 2-opt
-   (reversing a stretch of the tour, which also turns its strokes round) and Or-opt
-   (moving a chain of 1-3 strokes into another gap, either way round), over neighbour
-   lists, until no move improves or the work cap ``passes * N`` is spent.
+2. Local search (:mod:`scratchfab.toolpath.local_search`, compiled with numba):
+   Lin-Kernighan chains of up to ``depth`` flips (a flip reverses a stretch of the tour,
+   which also turns its strokes round; one flip is 2-opt) and Or-opt (moving a chain of
+   1-3 strokes into another gap, either way round), over neighbour lists, until no move
+   improves or the work cap ``passes * N`` is spent.
+3. Iterated local search: perturbation trials ("kicks") that keep only improvements.
+   Up to ``window`` strokes they run on the whole tour. Longer tours are cut into
+   regions of about ``window`` strokes (an equal-count grid, then the grid shifted by
+   half a cell); each region's strokes, with every stretch of the tour outside it
+   standing in as one stroke, form a small tour of their own, so that a reversal costs
+   at most the region's size instead of N.
+
+The start position is an item of zero length in the tour (both its endpoints at the
+start), so every endpoint has exactly one travel edge.
 
 The result is never worse than the input order (it is returned instead if it is shorter).
 """
@@ -23,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from scratchfab.toolpath.local_search import improve
+from scratchfab.toolpath.local_search import cut_region, expand_region, greedy_steps, improve
 
 
 @dataclass(frozen=True)
@@ -35,16 +45,24 @@ class OrderOptions:
         passes: Cap on local-search work, in visits of every stroke; 0 = greedy only.
         kicks_per_stroke: Perturbation trials after the local optimum, per stroke.
         kicks: Perturbation trials in all (overrides ``kicks_per_stroke``).
+        max_kicks: Cap on the trials from ``kicks_per_stroke`` (keeps 100k strokes
+            under 10 s; past ~4000 strokes each further trial gains little).
         seed: Seed of the perturbations (the result is deterministic for a seed).
         min_gain_mm: Moves that save less than this are ignored (rounding noise).
+        window: Tours longer than this many strokes get their perturbation trials in
+            regions of about this many strokes, so each trial stays cheap.
+        depth: Longest Lin-Kernighan flip chain (1: 2-opt, 2: adds sequential 3-opt).
     """
 
     neighbours: int = 10
     passes: int = 50
     kicks_per_stroke: float = 25.0
     kicks: int | None = None
+    max_kicks: int = 100_000
     seed: int = 0
     min_gain_mm: float = 1e-9
+    window: int = 1000
+    depth: int = 3
 
 
 @dataclass(frozen=True)
@@ -79,86 +97,133 @@ def tour_travel(p0: np.ndarray, p1: np.ndarray, start: np.ndarray) -> float:
     return float(np.hypot(*(goes - stops).T).sum())
 
 
-class _Tour:
-    """A closed tour over N strokes and the depot (the start position), as arrays.
+def _tour_travel(points: np.ndarray, ent: np.ndarray) -> float:
+    """Length of the tour's travel edges, exit of each item to the entry of the next."""
+    return float(np.hypot(*(points[np.roll(ent, -1)] - points[ent ^ 1]).T).sum())
 
-    Endpoint ids: 2k is stroke k's p0, 2k+1 its p1, 2N the depot. ``ent[p]`` is the
-    endpoint where the item at tour position p is entered; it is left at ``exit_of(ent)``.
-    """
 
-    def __init__(self, points: np.ndarray, ent: np.ndarray) -> None:
-        self.points = points
-        self.depot = len(points) - 1
-        self.ent = ent
-
-    def exits(self) -> np.ndarray:
-        ent = self.ent
-        return np.where(ent == self.depot, ent, ent ^ 1)
-
-    def edge_lengths(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Entry points A, exit points B and edge lengths L[p] = |B[p] -> A[p+1]|."""
-        a = self.points[self.ent]
-        b = self.points[self.exits()]
-        lengths = np.hypot(*(np.roll(a, -1, axis=0) - b).T)
-        return a, b, lengths
-
-    def travel(self) -> float:
-        return float(self.edge_lengths()[2].sum())
-
-    def positions(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per endpoint: its tour position if it is an entry (else -1), and if it is an exit."""
-        m = len(self.ent)
-        pos_a = np.full(len(self.points), -1, dtype=np.int64)
-        pos_b = np.full(len(self.points), -1, dtype=np.int64)
-        pos_a[self.ent] = np.arange(m)
-        pos_b[self.exits()] = np.arange(m)
-        return pos_a, pos_b
-
-    def stroke_order(self) -> tuple[np.ndarray, np.ndarray]:
-        """Strokes in cut order from the depot, and whether each is cut p1 -> p0."""
-        ent = np.roll(self.ent, -int(np.flatnonzero(self.ent == self.depot)[0]))[1:]
-        return ent >> 1, (ent & 1).astype(bool)
+def _stroke_order(ent: np.ndarray, start_item: int) -> tuple[np.ndarray, np.ndarray]:
+    """Strokes in cut order after the start item, and whether each is cut p1 -> p0."""
+    after = np.roll(ent, -int(np.flatnonzero((ent >> 1) == start_item)[0]))[1:]
+    return after >> 1, (after & 1).astype(bool)
 
 
 def _greedy(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
-    """Entry endpoints in greedy nearest-neighbour order from the depot (the last point)."""
-    n_end = len(points) - 1
-    n = n_end // 2
-    near = neighbours.tolist()
-    used = bytearray(n)
+    """Entry endpoints in greedy nearest-neighbour order from the start (the last item)."""
+    n = (len(points) - 2) // 2
+    near = np.ascontiguousarray(neighbours, dtype=np.int64)
+    used = np.zeros(n, dtype=np.bool_)
+    entries = np.empty(n, dtype=np.int64)
     free_tree: cKDTree | None = None
     free_ids = np.empty(0, dtype=np.int64)
-    entries = np.empty(n, dtype=np.int64)
-    cur = n_end
-    for step in range(n):
+    step = 0
+    cur = 2 * n + 1
+    while True:
+        # Compiled steps while a near neighbour is free; here only when all are used.
+        step, cur = greedy_steps(near, used, entries, step, cur)
+        if step == n:
+            return entries
         nxt = -1
-        for f in near[cur]:
-            if f < n_end and not used[f >> 1]:
-                nxt = f
-                break
-        if nxt < 0:
-            while True:
-                if free_tree is None:
-                    free_mask = np.repeat(np.frombuffer(bytes(used), dtype=np.uint8) == 0, 2)
-                    free_ids = np.flatnonzero(free_mask)
-                    free_tree = cKDTree(points[free_ids])
-                size = len(free_ids)
-                for k in (16, 256):
-                    _, hits = free_tree.query(points[cur], k=min(k, size))
-                    for h in np.atleast_1d(hits).tolist():
-                        f = int(free_ids[h])
-                        if not used[f >> 1]:
-                            nxt = f
-                            break
-                    if nxt >= 0 or k >= size:
+        while nxt < 0:
+            if free_tree is None:
+                free_ids = np.flatnonzero(np.repeat(~used, 2))
+                free_tree = cKDTree(points[free_ids])
+            size = len(free_ids)
+            for k in (16, 256):
+                _, hits = free_tree.query(points[cur], k=min(k, size))
+                for h in np.atleast_1d(hits).tolist():
+                    f = int(free_ids[h])
+                    if not used[f >> 1]:
+                        nxt = f
                         break
-                if nxt >= 0:
+                if nxt >= 0 or k >= size:
                     break
+            if nxt < 0:
                 free_tree = None
-        used[nxt >> 1] = 1
+        used[nxt >> 1] = True
         entries[step] = nxt
+        step += 1
         cur = nxt ^ 1
-    return entries
+        if step == n:
+            return entries
+
+
+def _candidates(near: np.ndarray, k: int) -> np.ndarray:
+    """Each point's ``k`` nearest endpoints other than itself, from a k+1 query."""
+    own = near == np.arange(len(near))[:, None]
+    cand = np.take_along_axis(near, np.argsort(own, axis=1, kind="stable"), axis=1)[:, :k]
+    return np.ascontiguousarray(cand, dtype=np.int64)
+
+
+def _improve_region(
+    points: np.ndarray,
+    ent: np.ndarray,
+    inside: np.ndarray,
+    kicks: int,
+    seed: int,
+    opts: OrderOptions,
+) -> tuple[np.ndarray, int]:
+    """Perturbation trials on the strokes at the tour positions marked ``inside``.
+
+    The tour is cut into runs inside and outside the region. Each outside run becomes
+    one stand-in stroke from its first entry to its last exit, whose own length does
+    not count; the region's strokes and the stand-ins form a small tour. Any tour of
+    them is a tour of everything (a stand-in cut backwards is its run reversed), at the
+    small tour's length plus a constant, so the small tour can be searched freely and
+    expanded back. The region's spatial neighbours are all in it and reversals cost at
+    most its size. Returns the new tour and the trials kept.
+    """
+    starts, ends = cut_region(ent, inside)
+    w = len(starts)
+    sub = np.empty((2 * w, 2))
+    sub[0::2] = points[ent[starts]]
+    sub[1::2] = points[ent[ends] ^ 1]
+    k = min(opts.neighbours, 2 * w - 1)
+    _, near = cKDTree(sub).query(sub, k=k + 1)
+    sub_ent = np.arange(0, 2 * w, 2, dtype=np.int64)
+    kept = improve(
+        sub,
+        sub_ent,
+        _candidates(near, k),
+        opts.passes,
+        kicks,
+        seed,
+        w,
+        opts.min_gain_mm,
+        opts.depth,
+        w,
+    )
+    return expand_region(ent, starts, ends, sub_ent), kept
+
+
+def _improve_regions(
+    points: np.ndarray, ent: np.ndarray, kicks: int, opts: OrderOptions
+) -> tuple[np.ndarray, int]:
+    """Spread ``kicks`` perturbation trials over regions of about ``opts.window`` strokes.
+
+    Regions are the cells of an equal-count grid over the stroke midpoints; a second
+    round shifts the grid by half a cell so that the cells' borders get searched too.
+    """
+    n = (len(points) - 2) // 2
+    mid = 0.5 * (points[0 : 2 * n : 2] + points[1 : 2 * n : 2])
+    cols = max(1, int(np.ceil(np.sqrt(n / max(opts.window, 8)))))
+    kept = 0
+    for r in range(2):
+        edges = (np.arange(1, cols + r) - 0.5 * r) / cols
+        col = np.searchsorted(np.quantile(mid[:, 0], edges), mid[:, 0])
+        cell = np.full(n + 1, -1)  # per item; the start (item n) is in none
+        for c in range(cols + r):
+            in_col = col == c
+            if in_col.any():
+                row = np.searchsorted(np.quantile(mid[in_col, 1], edges), mid[in_col, 1])
+                cell[:n][in_col] = c * (cols + r) + row
+        for c in np.unique(cell[:n]).tolist():
+            inside = cell[ent >> 1] == c
+            share = kicks * int(inside.sum()) // (2 * n)
+            seed = opts.seed * 1_000_003 + r * 65_537 + c
+            ent, got = _improve_region(points, ent, inside, share, seed, opts)
+            kept += got
+    return ent, kept
 
 
 def order_strokes(
@@ -188,30 +253,36 @@ def order_strokes(
     no_flip = np.zeros(n, dtype=bool)
     if n < 2:
         return OrderResult(identity, no_flip, travel_input, travel_input, travel_input, 0, True)
-    points = np.empty((2 * n + 1, 2))
+    points = np.empty((2 * n + 2, 2))
     points[0 : 2 * n : 2] = p0
     points[1 : 2 * n : 2] = p1
-    points[2 * n] = origin
-    k = min(opts.neighbours, 2 * n - 1)
-    _, near = cKDTree(points[: 2 * n]).query(points, k=k + 1, workers=-1)
-    entries = _greedy(points, near)
-    tour = _Tour(points, np.concatenate([[2 * n], entries]))
-    travel_greedy = tour.travel()
-    # Local search uses the neighbours other than the endpoint itself.
-    own = near == np.arange(len(points))[:, None]
-    cand = np.take_along_axis(near, np.argsort(own, axis=1, kind="stable"), axis=1)[:, :k]
-    cand = np.ascontiguousarray(np.where(cand >= 2 * n, 2 * n, cand), dtype=np.int64)
+    points[2 * n :] = origin
+    k = min(opts.neighbours, 2 * n + 1)
+    _, near = cKDTree(points).query(points, k=k + 1, workers=-1)
+    ent = np.concatenate([[2 * n], _greedy(points, near)]).astype(np.int64)
+    travel_greedy = _tour_travel(points, ent)
     rounds = 0
     if opts.passes > 0:
-        ent = np.ascontiguousarray(tour.ent, dtype=np.int64)
-        if opts.kicks is None:
-            # A trial's 2-opt reversals grow with N: cap the work at about 2e8 items.
-            kicks = min(int(opts.kicks_per_stroke * n), 200_000_000 // (n + 1))
-        else:
-            kicks = opts.kicks
-        rounds = improve(points, ent, cand, opts.passes, kicks, opts.seed, n + 1, opts.min_gain_mm)
-        tour.ent = ent
-    order, reverse = tour.stroke_order()
+        kicks = opts.kicks
+        if kicks is None:
+            kicks = min(int(opts.kicks_per_stroke * n), opts.max_kicks)
+        whole = n + 1 <= opts.window
+        cand = _candidates(near, k)
+        if not whole:
+            ent, rounds = _improve_regions(points, ent, kicks, opts)
+        rounds += improve(
+            points,
+            ent,
+            cand,
+            opts.passes,
+            kicks if whole else 0,
+            opts.seed,
+            n + 1,
+            opts.min_gain_mm,
+            opts.depth,
+            n + 1,
+        )
+    order, reverse = _stroke_order(ent, n)
     travel = tour_travel(
         np.where(reverse[:, None], p1[order], p0[order]),
         np.where(reverse[:, None], p0[order], p1[order]),
