@@ -17,7 +17,7 @@ from scratchfab.model.design import Board, ScratchTool
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.toolpath import OrderOptions, Toolpath, order_strokes, plan_toolpath
 from scratchfab.toolpath.geometry import clip_strokes, merge_collinear
-from scratchfab.toolpath.local_search import cut_region, expand_region, improve
+from scratchfab.toolpath.local_search import _chain, _flip, cut_region, expand_region, improve
 from scratchfab.toolpath.order import tour_travel
 from scratchfab.toolpath.timing import move_times, trapezoid_time
 
@@ -283,6 +283,24 @@ def test_cli_toolpath_passes_its_seed_and_passes_on(rng, tmp_path, monkeypatch):
     assert seen == [OrderOptions(passes=3, seed=7)]
 
 
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("neighbours", 0), ("passes", -1), ("kicks", -5), ("seed", -1), ("seed", 2**32), ("depth", 0)],
+)
+def test_order_options_refuse_values_the_search_cannot_take(field, value):
+    with pytest.raises(ValueError, match=field):
+        OrderOptions(**{field: value})
+
+
+def test_cli_toolpath_refuses_a_seed_out_of_range(rng, tmp_path, capsys):
+    job = make_job(tmp_path, rng, optimize=True)
+    with pytest.raises(SystemExit) as exc:
+        main(["toolpath", str(job), "--machine", "grbl-3018-diamond", "--seed", str(2**40)])
+    assert exc.value.code == 2
+    assert "--seed" in capsys.readouterr().err
+    assert not (job / "toolpath").exists()
+
+
 def test_cli_falls_back_to_design_scratches_and_standalone(rng, tmp_path, capsys):
     job = make_job(tmp_path, rng, optimize=False)
     main(["toolpath", str(job), "--machine", "grbl-plotter-scribe"])
@@ -401,7 +419,7 @@ def test_local_optimum_has_no_improving_two_opt_move(rng, depth):
     near = np.ascontiguousarray(near[:, 1:])  # every other endpoint: the search is exact
     ent = random_tour(rng, m)
     before = tour_length(points, ent)
-    improve(points, ent, near, 50, 0, 0, m, 1e-9, depth, m)
+    improve(points, ent, near, 50, 0, 0, 1e-9, depth)
     assert np.array_equal(np.sort(ent >> 1), np.arange(m))
     assert tour_length(points, ent) < before
     assert best_two_opt_gain(points, ent) < 1e-6
@@ -428,3 +446,44 @@ def test_regions_give_a_valid_improved_tour(rng):
     assert res.travel_mm < whole.travel_mm
     again = order_strokes(p0, p1, start, opts)
     assert np.array_equal(res.order, again.order) and np.array_equal(res.reverse, again.reverse)
+
+
+def test_flip_chain_gain_is_the_real_change(rng):
+    # Chains are judged on virtual positions; applied for real (where a reversal may take
+    # the complement of the arc) they must change the tour by exactly the claimed gain.
+    checked = 0
+    for trial in range(400):
+        m = int(rng.integers(3, 25))
+        points = rng.uniform(0, 10, (2 * m, 2))
+        if trial % 3 == 0:  # repeated points and zero-length strokes
+            points[rng.integers(0, 2 * m, m)] = points[rng.integers(0, 2 * m, m)]
+        ent = random_tour(rng, m)
+        pos = np.empty(m, dtype=np.int64)
+        pos[ent >> 1] = np.arange(m)
+        dist = np.hypot(*(points[:, None] - points[None]).transpose(2, 0, 1))
+        near = np.ascontiguousarray(np.argsort(dist, axis=1, kind="stable")[:, 1:])
+        depth = int(rng.integers(1, 6))
+        p = int(rng.integers(0, m))
+        x0, t1 = int(ent[p] ^ 1), int(ent[(p + 1) % m])
+        # A large start gain lets chains run to full depth whatever the geometry.
+        bonus = 100.0
+        g0 = float(dist[x0, t1]) + bonus
+        for f1 in near[x0]:
+            if f1 == t1 or f1 == x0:
+                continue
+            chain = np.empty((depth, 2), dtype=np.int64)
+            scratch = np.empty((3, 2 * depth + 2), dtype=np.int64)
+            gain, flips = _chain(
+                points, ent, pos, near, x0, t1, f1, g0, depth, -1e9, chain, scratch
+            )
+            if flips == 0:
+                continue
+            after, after_pos = ent.copy(), pos.copy()
+            for k in range(flips):
+                _flip(after, after_pos, chain[k, 0], chain[k, 1], np.zeros(2, dtype=np.int64))
+            assert np.array_equal(np.sort(after >> 1), np.arange(m))
+            assert np.array_equal(after_pos[after >> 1], np.arange(m))
+            real = tour_length(points, ent) - tour_length(points, after)
+            assert real == pytest.approx(gain - bonus, abs=1e-9)
+            checked += 1
+    assert checked > 1000

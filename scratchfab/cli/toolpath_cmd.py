@@ -61,7 +61,13 @@ def _inputs(
     show_default=True,
     help="Cap on local-search work (flip chains, Or-opt), in visits per stroke (0: greedy only).",
 )
-@click.option("--seed", default=0, show_default=True, help="Seed of the ordering's perturbations.")
+@click.option(
+    "--seed",
+    type=click.IntRange(0, 2**32 - 1),
+    default=0,
+    show_default=True,
+    help="Seed of the ordering's perturbations.",
+)
 def toolpath(
     job: Path | None,
     machine: str,

@@ -22,8 +22,7 @@ improvement, processed from a queue of items whose edges changed, "don't-look bi
   (a local double bridge), search again from the changed joins, keep only improvements.
 
 Reversals and moves go the shorter way round the cycle (reversing the complement of an
-arc gives the same cycle), and none is longer than ``max_reverse`` items. Work is capped
-at ``passes * M`` items taken from the queue.
+arc gives the same cycle). Work is capped at ``passes * M`` items taken from the queue.
 """
 
 from __future__ import annotations
@@ -171,7 +170,6 @@ def _chain(
     f1: int,
     g0: float,
     depth: int,
-    max_reverse: int,
     eps: float,
     chain: np.ndarray,
     scratch: np.ndarray,
@@ -180,19 +178,17 @@ def _chain(
 
     Returns the best gain found and the number of flips giving it (0: none improves);
     the flips are ``chain[k] = (x, f)``, to be applied in order with :func:`_flip`.
-    ``scratch`` is (4, 4 * depth + 2) working space.
+    ``scratch`` is (3, 4 * depth + 2) working space.
     """
     m = ent.shape[0]
     k_near = near.shape[1]
     first = scratch[0]
     length = scratch[1]
-    # Endpoints whose travel edge the chain has changed, and their new partners.
+    # Endpoints whose travel edge the chain has changed: never the f of a later flip, so
+    # every f's partner is still the one in the array.
     moved = scratch[2]
-    partner = scratch[3]
     moved[0] = x0
-    partner[0] = t1
     moved[1] = t1
-    partner[1] = x0
     n_moved = 2
     x = x0
     f = f1
@@ -219,7 +215,7 @@ def _chain(
                     continue
                 qc, ec = _place(ent, pos, c, first, length, n)
                 span = (qc - qx) % m
-                if ec != ex or span == 0 or min(span, m - span) > max_reverse:
+                if ec != ex or span == 0:
                     continue
                 look = _d(pts, c, _partner(ent, pos, c)) - dc
                 if look > look_best:
@@ -229,30 +225,18 @@ def _chain(
                 break
         qf, ef = _place(ent, pos, f, first, length, n)
         span = (qf - qx) % m
-        if ef != ex or span == 0 or min(span, m - span) > max_reverse:
+        if ef != ex or span == 0:
             break
-        # x's partner is t1 (the closing edge); f's old partner b is joined to t1.
-        b = f
-        for k in range(n_moved - 1, -1, -1):
-            if moved[k] == f:
-                b = partner[k]
-                break
-        if b == f:
-            b = _partner(ent, pos, f)
+        # x's partner is t1 (the closing edge); f's partner b gets joined to t1.
+        b = _partner(ent, pos, f)
         g += _d(pts, f, b) - _d(pts, x, f)
         first[n] = qx if ex else (qx + 1) % m
         length[n] = span
         chain[n, 0] = x
         chain[n, 1] = f
-        moved[n_moved] = x
-        partner[n_moved] = f
-        moved[n_moved + 1] = f
-        partner[n_moved + 1] = x
-        moved[n_moved + 2] = b
-        partner[n_moved + 2] = t1
-        moved[n_moved + 3] = t1
-        partner[n_moved + 3] = b
-        n_moved += 4
+        moved[n_moved] = f
+        moved[n_moved + 1] = b
+        n_moved += 2
         total = g - _d(pts, t1, b)
         if total > best:
             best = total
@@ -271,14 +255,15 @@ def _search(
     queued: np.ndarray,
     size: int,
     budget: int,
-    max_reverse: int,
     eps: float,
     log: np.ndarray,
     depth: int,
-) -> tuple[int, float]:
-    """Local search from the ``size`` items queued in ``queue[:size]``; (moves, gain).
+) -> tuple[int, float, int]:
+    """Local search from the ``size`` items queued in ``queue[:size]``.
 
-    The positions it changes are recorded in ``log`` (see :func:`_note`).
+    Takes at most ``budget`` items from the queue. Returns the improving moves, their
+    total gain and the budget left. The positions it changes are recorded in ``log``
+    (see :func:`_note`).
     """
     m = ent.shape[0]
     k_near = near.shape[1]
@@ -288,7 +273,7 @@ def _search(
     total_gain = 0.0
     touched = np.empty(4 * depth + 8, dtype=np.int64)
     chain = np.empty((depth, 2), dtype=np.int64)
-    scratch = np.empty((4, 4 * depth + 2), dtype=np.int64)
+    scratch = np.empty((3, 2 * depth + 2), dtype=np.int64)
     while size > 0 and budget > 0:
         item = queue[head]
         head = (head + 1) % m
@@ -323,7 +308,6 @@ def _search(
                         f1,
                         g0,
                         depth,
-                        max_reverse,
                         eps,
                         chain,
                         scratch,
@@ -372,8 +356,6 @@ def _search(
                             g = (q - 1) % m if is_entry else q
                             if (g - prev) % m <= s:
                                 continue
-                            if min((g - c1) % m, (prev - g) % m) > max_reverse:
-                                continue
                             # Joining x to an exit: x must be the chain's entry side.
                             flip = (end == 0) == is_entry
                             bg = ent[g] ^ 1
@@ -407,7 +389,7 @@ def _search(
         queued[queue[head]] = False
         head = (head + 1) % m
         size -= 1
-    return moves, total_gain
+    return moves, total_gain, budget
 
 
 @numba.njit(cache=True, nogil=True)
@@ -418,18 +400,16 @@ def improve(
     passes: int,
     kicks: int,
     seed: int,
-    max_reverse: int,
     eps: float,
     depth: int,
-    kick_reverse: int,
 ) -> int:
-    """2-opt and Or-opt to a local optimum, then ``kicks`` perturbation trials.
+    """Flip chains and Or-opt to a local optimum, then ``kicks`` perturbation trials.
 
     A trial swaps two short neighbouring stretches of the tour (a local double bridge),
     searches again from the four changed joins and keeps the result only if the tour got
     shorter. A trial is undone (or kept) through the positions it changed, not by copying
     the tour. Works on ``ent`` in place; returns the improving moves and trials kept.
-    ``depth`` is the longest flip chain; ``kick_reverse`` caps reversals during the trials.
+    ``depth`` is the longest flip chain; ``seed`` (0 to 2**32 - 1) seeds the trials.
     """
     m = ent.shape[0]
     pos = np.empty(m, dtype=np.int64)
@@ -442,9 +422,9 @@ def improve(
     budget = passes * m
     moves = 0
     no_log = np.zeros(2, dtype=np.int64)
-    for _ in range(passes):
-        found, _gain = _search(
-            pts, ent, pos, near, queue, queued, m, budget, max_reverse, eps, no_log, depth
+    while budget > 0:
+        found, _gain, budget = _search(
+            pts, ent, pos, near, queue, queued, m, budget, eps, no_log, depth
         )
         moves += found
         if found == 0:
@@ -509,8 +489,8 @@ def improve(
                 queued[it] = True
                 queue[size] = it
                 size += 1
-        found, gain = _search(
-            pts, ent, pos, near, queue, queued, size, 50 * size, kick_reverse, eps, log, depth
+        found, gain, _left = _search(
+            pts, ent, pos, near, queue, queued, size, 50 * size, eps, log, depth
         )
         keep = after - before - gain < -eps
         if keep:
@@ -542,11 +522,13 @@ def cut_region(ent: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, np.ndar
     every item inside is a range of its own and every maximal run outside is one range.
     """
     m = ent.shape[0]
-    head = 0
+    head = -1
     for p in range(m):
         if inside[p] and not inside[(p - 1) % m]:
             head = p
             break
+    if head < 0:
+        raise ValueError("cut_region: the region must hold some but not all items")
     starts = np.empty(m, dtype=np.int64)
     ends = np.empty(m, dtype=np.int64)
     w = 0
@@ -565,7 +547,10 @@ def cut_region(ent: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, np.ndar
 def expand_region(
     ent: np.ndarray, starts: np.ndarray, ends: np.ndarray, sub_ent: np.ndarray
 ) -> np.ndarray:
-    """The whole tour from a region's small tour: each range in turn, reversed if entered at its end."""
+    """The whole tour from a region's small tour.
+
+    Each range in turn, in the small tour's order; reversed if entered at its end.
+    """
     m = ent.shape[0]
     out = np.empty(m, dtype=np.int64)
     n = 0
@@ -587,10 +572,12 @@ def expand_region(
 def greedy_steps(
     near: np.ndarray, used: np.ndarray, entries: np.ndarray, step: int, cur: int
 ) -> tuple[int, int]:
-    """Greedy nearest-neighbour steps from endpoint ``cur``; (steps done, current endpoint).
+    """Greedy nearest-neighbour steps from endpoint ``cur``, in place.
 
-    Goes on while one of the current endpoint's near endpoints belongs to a stroke not
-    yet used; endpoints past the strokes' (the start's) are never entered.
+    Step ``step`` onwards: enter the nearest endpoint in ``near[cur]`` whose stroke is
+    not ``used`` yet (ids >= 2N, the start item's, are skipped), record it in
+    ``entries[step]``, mark the stroke used and go on from its other end. Stops when
+    all strokes are used or no near endpoint is free; returns (steps done, endpoint).
     """
     n = used.shape[0]
     while step < n:

@@ -1,7 +1,7 @@
 """Stroke ordering: minimise pen-up travel from and back to the machine's start position.
 
 The strokes and the start position form one closed tour: start -> stroke -> ... -> stroke
--> start. Each stroke may be cut in either direction. The tour is built in two steps:
+-> start. Each stroke may be cut in either direction. The tour is built in three steps:
 
 1. Greedy nearest neighbour from the start position, with reversal allowed: from the
    current tool position go to the nearest endpoint of any stroke not yet cut, cut the
@@ -14,11 +14,12 @@ The strokes and the start position form one closed tour: start -> stroke -> ... 
    1-3 strokes into another gap, either way round), over neighbour lists, until no move
    improves or the work cap ``passes * N`` is spent.
 3. Iterated local search: perturbation trials ("kicks") that keep only improvements.
-   Up to ``window`` strokes they run on the whole tour. Longer tours are cut into
-   regions of about ``window`` strokes (an equal-count grid, then the grid shifted by
-   half a cell); each region's strokes, with every stretch of the tour outside it
-   standing in as one stroke, form a small tour of their own, so that a reversal costs
-   at most the region's size instead of N.
+   Up to ``window`` strokes they run on the whole tour after step 2. Longer tours are
+   cut into regions of at most about ``window`` strokes (an equal-count grid, then the
+   grid shifted by half a cell); each region's strokes, with every stretch of the tour
+   outside it standing in as one stroke, form a small tour of their own, searched
+   (step 2) and perturbed there, so that a reversal costs at most the region's size
+   instead of N. Step 2 on the whole tour then follows, for what crosses regions.
 
 The start position is an item of zero length in the tour (both its endpoints at the
 start), so every endpoint has exactly one travel edge.
@@ -49,8 +50,8 @@ class OrderOptions:
             under 10 s; past ~4000 strokes each further trial gains little).
         seed: Seed of the perturbations (the result is deterministic for a seed).
         min_gain_mm: Moves that save less than this are ignored (rounding noise).
-        window: Tours longer than this many strokes get their perturbation trials in
-            regions of about this many strokes, so each trial stays cheap.
+        window: Tours of more than this many strokes get their perturbation trials in
+            regions of at most about this many strokes, so each trial stays cheap.
         depth: Longest Lin-Kernighan flip chain (1: 2-opt, 2: adds sequential 3-opt).
     """
 
@@ -63,6 +64,21 @@ class OrderOptions:
     min_gain_mm: float = 1e-9
     window: int = 1000
     depth: int = 3
+
+    def __post_init__(self) -> None:
+        checks = {
+            "neighbours >= 1": self.neighbours >= 1,
+            "passes >= 0": self.passes >= 0,
+            "kicks_per_stroke >= 0": self.kicks_per_stroke >= 0,
+            "kicks >= 0 or None": self.kicks is None or self.kicks >= 0,
+            "max_kicks >= 0": self.max_kicks >= 0,
+            "0 <= seed < 2**32": 0 <= self.seed < 2**32,
+            "window >= 1": self.window >= 1,
+            "depth >= 1": self.depth >= 1,
+        }
+        broken = [rule for rule, ok in checks.items() if not ok]
+        if broken:
+            raise ValueError(f"OrderOptions: need {', '.join(broken)}")
 
 
 @dataclass(frozen=True)
@@ -170,8 +186,8 @@ def _improve_region(
     not count; the region's strokes and the stand-ins form a small tour. Any tour of
     them is a tour of everything (a stand-in cut backwards is its run reversed), at the
     small tour's length plus a constant, so the small tour can be searched freely and
-    expanded back. The region's spatial neighbours are all in it and reversals cost at
-    most its size. Returns the new tour and the trials kept.
+    expanded back, and its reversals cost at most its size. Returns the new tour and
+    the improving moves and trials kept.
     """
     starts, ends = cut_region(ent, inside)
     w = len(starts)
@@ -181,19 +197,10 @@ def _improve_region(
     k = min(opts.neighbours, 2 * w - 1)
     _, near = cKDTree(sub).query(sub, k=k + 1)
     sub_ent = np.arange(0, 2 * w, 2, dtype=np.int64)
-    kept = improve(
-        sub,
-        sub_ent,
-        _candidates(near, k),
-        opts.passes,
-        kicks,
-        seed,
-        w,
-        opts.min_gain_mm,
-        opts.depth,
-        w,
+    moves = improve(
+        sub, sub_ent, _candidates(near, k), opts.passes, kicks, seed, opts.min_gain_mm, opts.depth
     )
-    return expand_region(ent, starts, ends, sub_ent), kept
+    return expand_region(ent, starts, ends, sub_ent), moves
 
 
 def _improve_regions(
@@ -203,11 +210,12 @@ def _improve_regions(
 
     Regions are the cells of an equal-count grid over the stroke midpoints; a second
     round shifts the grid by half a cell so that the cells' borders get searched too.
+    Returns the new tour and the improving moves and trials kept.
     """
     n = (len(points) - 2) // 2
     mid = 0.5 * (points[0 : 2 * n : 2] + points[1 : 2 * n : 2])
     cols = max(1, int(np.ceil(np.sqrt(n / max(opts.window, 8)))))
-    kept = 0
+    moves = 0
     for r in range(2):
         edges = (np.arange(1, cols + r) - 0.5 * r) / cols
         col = np.searchsorted(np.quantile(mid[:, 0], edges), mid[:, 0])
@@ -220,10 +228,10 @@ def _improve_regions(
         for c in np.unique(cell[:n]).tolist():
             inside = cell[ent >> 1] == c
             share = kicks * int(inside.sum()) // (2 * n)
-            seed = opts.seed * 1_000_003 + r * 65_537 + c
+            seed = (opts.seed * 1_000_003 + r * 65_537 + c) % 2**32
             ent, got = _improve_region(points, ent, inside, share, seed, opts)
-            kept += got
-    return ent, kept
+            moves += got
+    return ent, moves
 
 
 def order_strokes(
@@ -261,26 +269,23 @@ def order_strokes(
     _, near = cKDTree(points).query(points, k=k + 1, workers=-1)
     ent = np.concatenate([[2 * n], _greedy(points, near)]).astype(np.int64)
     travel_greedy = _tour_travel(points, ent)
-    rounds = 0
+    moves = 0
     if opts.passes > 0:
         kicks = opts.kicks
         if kicks is None:
             kicks = min(int(opts.kicks_per_stroke * n), opts.max_kicks)
-        whole = n + 1 <= opts.window
-        cand = _candidates(near, k)
+        whole = n <= opts.window
         if not whole:
-            ent, rounds = _improve_regions(points, ent, kicks, opts)
-        rounds += improve(
+            ent, moves = _improve_regions(points, ent, kicks, opts)
+        moves += improve(
             points,
             ent,
-            cand,
+            _candidates(near, k),
             opts.passes,
             kicks if whole else 0,
             opts.seed,
-            n + 1,
             opts.min_gain_mm,
             opts.depth,
-            n + 1,
         )
     order, reverse = _stroke_order(ent, n)
     travel = tour_travel(
@@ -290,6 +295,6 @@ def order_strokes(
     )
     if travel_input <= travel:
         return OrderResult(
-            identity, no_flip, travel_input, travel_input, travel_greedy, rounds, True
+            identity, no_flip, travel_input, travel_input, travel_greedy, moves, True
         )
-    return OrderResult(order, reverse, travel, travel_input, travel_greedy, rounds, False)
+    return OrderResult(order, reverse, travel, travel_input, travel_greedy, moves, False)
