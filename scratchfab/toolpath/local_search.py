@@ -178,7 +178,7 @@ def _chain(
 
     Returns the best gain found and the number of flips giving it (0: none improves);
     the flips are ``chain[k] = (x, f)``, to be applied in order with :func:`_flip`.
-    ``scratch`` is (3, 4 * depth + 2) working space.
+    ``scratch`` is (3, 2 * depth + 2) working space.
     """
     m = ent.shape[0]
     k_near = near.shape[1]
@@ -392,7 +392,7 @@ def _search(
     return moves, total_gain, budget
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True)
 def improve(
     pts: np.ndarray,
     ent: np.ndarray,
@@ -453,14 +453,14 @@ def improve(
         b1 = (b + 1) % m
         c1 = (c + 1) % m
         before = (
-            _d(pts, (ent[a] ^ 1), ent[a1])
-            + _d(pts, (ent[b] ^ 1), ent[b1])
-            + _d(pts, (ent[c] ^ 1), ent[c1])
+            _d(pts, ent[a] ^ 1, ent[a1])
+            + _d(pts, ent[b] ^ 1, ent[b1])
+            + _d(pts, ent[c] ^ 1, ent[c1])
         )
         after = (
-            _d(pts, (ent[a] ^ 1), ent[b1])
-            + _d(pts, (ent[c] ^ 1), ent[a1])
-            + _d(pts, (ent[b] ^ 1), ent[c1])
+            _d(pts, ent[a] ^ 1, ent[b1])
+            + _d(pts, ent[c] ^ 1, ent[a1])
+            + _d(pts, ent[b] ^ 1, ent[c1])
         )
         log[0] = 0
         log[1] = 0

@@ -160,8 +160,6 @@ def _greedy(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
         entries[step] = nxt
         step += 1
         cur = nxt ^ 1
-        if step == n:
-            return entries
 
 
 def _candidates(near: np.ndarray, k: int) -> np.ndarray:
