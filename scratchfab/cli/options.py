@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TypeVar
+
 import click
+
+from scratchfab.errors import ScratchfabError
+
+_F = TypeVar("_F", bound=Callable[..., Any])
 
 #: ``--backend llvm|cuda`` of the commands that run Dr.Jit kernels.
 backend_option = click.option(
@@ -12,3 +20,46 @@ backend_option = click.option(
     show_default=True,
     help="Dr.Jit backend: llvm (CPU) or cuda (NVIDIA GPU).",
 )
+
+
+def job_or_files_options(out_default: str) -> Callable[[_F], _F]:
+    """JOB, or ``--design``/``--scratches``/``--out``: the inputs of the commands that render a board.
+
+    Args:
+        out_default: The folder under JOB written when ``--out`` is not given (for the help).
+    """
+
+    def decorate(f: _F) -> _F:
+        f = click.option(
+            "--out",
+            "out_dir",
+            type=click.Path(path_type=Path),
+            help=f"Output folder (default JOB/{out_default}).",
+        )(f)
+        f = click.option(
+            "--scratches", "scratch_file", type=click.Path(path_type=Path), help="Scratch CSV (mm)."
+        )(f)
+        f = click.option(
+            "--design", "design_file", type=click.Path(path_type=Path), help="Design TOML."
+        )(f)
+        return click.argument("job", required=False, type=click.Path(path_type=Path))(f)
+
+    return decorate
+
+
+def job_or_files(
+    job: Path | None, design_file: Path | None, scratch_file: Path | None, out_dir: Path | None
+) -> Path | tuple[Path, Path, Path]:
+    """JOB, or ``(design, scratches, out)`` when those were given instead.
+
+    Raises:
+        ScratchfabError: When JOB comes with ``--design``/``--scratches``, or without JOB
+            one of ``--design``, ``--scratches`` and ``--out`` is missing.
+    """
+    if job is not None:
+        if design_file is not None or scratch_file is not None:
+            raise ScratchfabError("give either JOB or --design/--scratches, not both")
+        return job
+    if design_file is None or scratch_file is None or out_dir is None:
+        raise ScratchfabError("give JOB, or all of --design FILE --scratches CSV --out DIR")
+    return design_file, scratch_file, out_dir

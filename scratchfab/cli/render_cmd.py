@@ -7,8 +7,7 @@ from pathlib import Path
 
 import click
 
-from scratchfab.cli.options import backend_option
-from scratchfab.errors import ScratchfabError
+from scratchfab.cli.options import backend_option, job_or_files, job_or_files_options
 from scratchfab.model.design import load_design
 from scratchfab.model.job import job_inputs
 from scratchfab.model.scratches import load_scratches
@@ -17,14 +16,7 @@ from scratchfab.render.renderer import render_scratches
 
 
 @click.command("render")
-@click.argument("job", required=False, type=click.Path(path_type=Path))
-@click.option("--design", "design_file", type=click.Path(path_type=Path), help="Design TOML.")
-@click.option(
-    "--scratches", "scratch_file", type=click.Path(path_type=Path), help="Scratch CSV (mm)."
-)
-@click.option(
-    "--out", "out_dir", type=click.Path(path_type=Path), help="Output folder (default JOB/render)."
-)
+@job_or_files_options("render")
 @backend_option
 def render(
     job: Path | None,
@@ -43,13 +35,12 @@ def render(
     clipped to [0, 1], sRGB-encoded; that exposure is stored in the PNG's text chunk
     "scratchfab.exposure".
     """
-    if job is not None:
-        if design_file is not None or scratch_file is not None:
-            raise ScratchfabError("give either JOB or --design/--scratches, not both")
-        design_file, scratch_file = job_inputs(job)
-        out_dir = out_dir if out_dir is not None else job / "render"
-    elif design_file is None or scratch_file is None or out_dir is None:
-        raise ScratchfabError("give JOB, or all of --design FILE --scratches CSV --out DIR")
+    inputs = job_or_files(job, design_file, scratch_file, out_dir)
+    if isinstance(inputs, tuple):
+        design_file, scratch_file, out_dir = inputs
+    else:
+        design_file, scratch_file = job_inputs(inputs)
+        out_dir = out_dir if out_dir is not None else inputs / "render"
     start = time.perf_counter()
     design = load_design(design_file)
     scratches = load_scratches(scratch_file, design.scratch, design.board)

@@ -7,19 +7,13 @@ from pathlib import Path
 
 import click
 
+from scratchfab.cli.options import job_or_files, job_or_files_options
 from scratchfab.errors import ScratchfabError
 from scratchfab.verify.verify import DEFAULT_SPP
 
 
 @click.command("verify-render")
-@click.argument("job", required=False, type=click.Path(path_type=Path))
-@click.option("--design", "design_file", type=click.Path(path_type=Path), help="Design TOML.")
-@click.option(
-    "--scratches", "scratch_file", type=click.Path(path_type=Path), help="Scratch CSV (mm)."
-)
-@click.option(
-    "--out", "out_dir", type=click.Path(path_type=Path), help="Output folder (default JOB/verify)."
-)
+@job_or_files_options("verify")
 @click.option(
     "--spp",
     type=click.IntRange(min=2),
@@ -146,18 +140,15 @@ def verify_render(
     def say(line: str) -> None:
         click.echo(f"  {line}")
 
-    if job is not None:
-        if design_file is not None or scratch_file is not None:
-            raise ScratchfabError("give either JOB or --design/--scratches, not both")
-        out = out_dir if out_dir is not None else job / "verify"
-        run_verify_job(job, settings, progress=say, out_dir=out)
-    else:
-        if design_file is None or scratch_file is None or out_dir is None:
-            raise ScratchfabError("give JOB, or all of --design FILE --scratches CSV --out DIR")
+    inputs = job_or_files(job, design_file, scratch_file, out_dir)
+    if isinstance(inputs, tuple):
+        design_file, scratch_file, out = inputs
         design = load_design(design_file)
         scratches = load_scratches(scratch_file, design.scratch, design.board)
         targets, cross = design_targets(design)
-        out = out_dir
         click.echo(f"verifying {len(scratches)} scratches, {len(design.views)} views ({backend})")
         run_verify(design, scratches, out, settings, targets=targets, cross=cross, progress=say)
+    else:
+        out = out_dir if out_dir is not None else inputs / "verify"
+        run_verify_job(inputs, settings, progress=say, out_dir=out)
     click.echo(f"wrote {out} in {time.perf_counter() - start:.1f} s")
