@@ -541,8 +541,10 @@ class GrblSim:
             self._log(t, "spindle", spindle=self._spindle, s=self._spindle_speed)
         elif act.kind == "coolant":
             self._coolant = self._gc.coolant
-        elif act.kind == "dwell":
+        elif act.kind in ("dwell", "home"):
             p.index += 1
+            if act.kind == "home":
+                self._set_state(t, "Home")
             until = t + act.seconds * self.options.time_scale
             if until > t:
                 p.until = until
@@ -556,14 +558,6 @@ class GrblSim:
             self._spindle_speed = 0.0
             self._coolant = frozenset()
             self._emit(t, "[MSG:Pgm End]\r\n")
-        elif act.kind == "home":
-            p.index += 1
-            self._set_state(t, "Home")
-            until = t + act.seconds * self.options.time_scale
-            if until > t:
-                p.until = until
-                return False
-            return True
         elif act.kind == "homed":
             pull = self.settings[27]
             self.mpos = (-pull, -pull, -pull)
