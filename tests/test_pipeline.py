@@ -169,6 +169,26 @@ def test_changed_option_reruns_only_downstream(finished_job):
         path.write_text(text)
 
 
+def test_toolpath_table_reaches_the_ordering_and_reruns_from_toolpath(finished_job, monkeypatch):
+    import scratchfab.toolpath.stage as stage
+    from scratchfab.toolpath import OrderOptions
+
+    path, job, _ = finished_job
+    seen = []
+    real = stage.run_toolpath_job
+    monkeypatch.setattr(
+        stage, "run_toolpath_job", lambda *a, **k: (seen.append(a[2]), real(*a, **k))[1]
+    )
+    text = path.read_text()
+    path.write_text(text.replace("[toolpath]\n", "[toolpath]\nkicks = 30\nseed = 5\npasses = 4\n"))
+    try:
+        result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+        assert result.ran == ["toolpath", "export", "stream"]
+        assert seen == [OrderOptions(passes=4, kicks=30, seed=5)]
+    finally:
+        path.write_text(text)
+
+
 def test_failed_stage_keeps_earlier_outputs_and_next_run_resumes_there(tmp_path):
     path = write_pipeline(tmp_path, min_rho=0.9999)
     job = tmp_path / "job"
@@ -211,6 +231,14 @@ def test_until_and_from(tmp_path):
         (
             ('machine = "grbl-3018-diamond"', 'machine = "nope"'),
             "toolpath.machine: machine 'nope': not a bundled profile",
+        ),
+        (
+            ("[toolpath]\n", "[toolpath]\nkicks = -3\n"),
+            "toolpath.kicks: expected a value at least 0",
+        ),
+        (
+            ("[toolpath]\n", "[toolpath]\nseed = 4294967296\n"),
+            "toolpath.seed: expected a value in [0, 4294967296), got 4294967296",
         ),
     ],
 )

@@ -273,14 +273,16 @@ def test_cli_toolpath_and_export(rng, tmp_path, capsys):
     assert "strokes" in out and "lines" in out
 
 
-def test_cli_toolpath_passes_its_seed_and_passes_on(rng, tmp_path, monkeypatch):
+def test_cli_toolpath_passes_its_seed_passes_and_kicks_on(rng, tmp_path, monkeypatch):
     import scratchfab.cli.toolpath_cmd as toolpath_cmd
 
     seen = []
     monkeypatch.setattr(toolpath_cmd, "run_toolpath", lambda *a, **k: seen.append(a[4]))
     job = make_job(tmp_path, rng, optimize=True)
-    main(["toolpath", str(job), "--machine", "grbl-3018-diamond", "--seed", "7", "--passes", "3"])
-    assert seen == [OrderOptions(passes=3, seed=7)]
+    base = ["toolpath", str(job), "--machine", "grbl-3018-diamond"]
+    main([*base, "--seed", "7", "--passes", "3"])
+    main([*base, "--kicks", "40"])
+    assert seen == [OrderOptions(passes=3, seed=7), OrderOptions(kicks=40)]
 
 
 @pytest.mark.parametrize(
@@ -292,12 +294,13 @@ def test_order_options_refuse_values_the_search_cannot_take(field, value):
         OrderOptions(**{field: value})
 
 
-def test_cli_toolpath_refuses_a_seed_out_of_range(rng, tmp_path, capsys):
+@pytest.mark.parametrize(("option", "value"), [("--seed", str(2**40)), ("--kicks", "-1")])
+def test_cli_toolpath_refuses_an_option_out_of_range(rng, tmp_path, capsys, option, value):
     job = make_job(tmp_path, rng, optimize=True)
     with pytest.raises(SystemExit) as exc:
-        main(["toolpath", str(job), "--machine", "grbl-3018-diamond", "--seed", str(2**40)])
+        main(["toolpath", str(job), "--machine", "grbl-3018-diamond", option, value])
     assert exc.value.code == 2
-    assert "--seed" in capsys.readouterr().err
+    assert option in capsys.readouterr().err
     assert not (job / "toolpath").exists()
 
 

@@ -68,6 +68,14 @@ def _inputs(
     show_default=True,
     help="Seed of the ordering's perturbations.",
 )
+@click.option(
+    "--kicks",
+    type=click.IntRange(0),
+    default=None,
+    help="Perturbation trials in all (default: "
+    f"{OrderOptions.kicks_per_stroke:g} per stroke, at most {OrderOptions.max_kicks}). "
+    "More trials: shorter travel, longer run.",
+)
 def toolpath(
     job: Path | None,
     machine: str,
@@ -76,6 +84,7 @@ def toolpath(
     out: Path | None,
     passes: int,
     seed: int,
+    kicks: int | None,
 ) -> None:
     """Order the strokes for a machine: JOB/toolpath/toolpath.json and preview.png.
 
@@ -86,6 +95,6 @@ def toolpath(
     if passes < 0:
         raise ScratchfabError(f"--passes must be >= 0, got {passes}")
     csv_path, design_path, out_dir = _inputs(job, scratches, design, out)
-    options = OrderOptions(passes=passes, seed=seed)
+    options = OrderOptions(passes=passes, seed=seed, kicks=kicks)
     run_toolpath(csv_path, design_path, out_dir, machine, options, say=click.echo)
     click.echo(f"wrote {out_dir / 'toolpath.json'} and {out_dir / 'preview.png'}")

@@ -53,10 +53,19 @@ class VerifyOptions:
 
 @dataclass(frozen=True)
 class ToolpathOptions:
-    """``[toolpath]``."""
+    """``[toolpath]``: the machine, and the ordering's options (as ``scratchfab toolpath``).
+
+    Attributes:
+        machine: Bundled profile name or a profile TOML path.
+        passes: Cap on local-search work, in visits per stroke.
+        kicks: Perturbation trials in all (None: the default per stroke, capped).
+        seed: Seed of the perturbations.
+    """
 
     machine: str = "grbl-3018-diamond"
     passes: int = field(default=50, metadata=spec(ge=0))
+    kicks: int | None = field(default=None, metadata=spec(ge=0))
+    seed: int = field(default=0, metadata=spec(ge=0, lt=2**32))
 
 
 @dataclass(frozen=True)

@@ -160,7 +160,8 @@ class _Stages:
         from scratchfab.toolpath import OrderOptions
         from scratchfab.toolpath.stage import run_toolpath_job
 
-        options = OrderOptions(passes=self.pipe.toolpath.passes)
+        t = self.pipe.toolpath
+        options = OrderOptions(passes=t.passes, kicks=t.kicks, seed=t.seed)
         run_toolpath_job(self.job, self.pipe.machine_ref(), options, say=self.say)
         return ["toolpath/toolpath.json", "toolpath/preview.png"]
 
