@@ -13,13 +13,15 @@ reduced resolution, and its own 40k without ``--quick``), planned for the pipeli
 machine by :func:`plan_toolpath` (the CLI's clipping, short-stroke and duplicate rules);
 vpype gets the planned strokes in their input order.
 
-With ``--reference`` (needs ``pip install -e .[bench]``, which brings elkai, Python
-bindings of LKH-3), each set of at most 2000 strokes is also solved near-optimally by
-LKH on the same tour (strokes as fixed edges, the start as one more node; about 20 s
-for 1000 strokes, 90 s and 1 GB for 2000). Its ratio to vpype tells whether 0.9x is
-reachable on that set at all.
+With ``--reference [RUNS]`` (needs ``pip install -e .[bench]``, which brings elkai,
+Python bindings of LKH-3), each set of at most 2000 strokes is also solved
+near-optimally by LKH on the same tour (strokes as fixed edges, the start as one more
+node; RUNS independent runs, default 1: about 20 s per run for 1000 strokes, 90 s and
+1 GB for 2000). Its ratio to vpype tells whether 0.9x is reachable on that set at all.
+Those sets are also ordered by us with 16x the default perturbation trials
+(``scratchfab toolpath --kicks``), to show what more time buys.
 
-Usage: ``python benchmarks/bench_toolpath.py [--quick] [--reference]``.
+Usage: ``python benchmarks/bench_toolpath.py [--quick] [--reference [RUNS]]``.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from scratchfab.toolpath.plan import plan_toolpath
 
 START = (-60.0, -60.0)
 GOAL = 0.9
+LONG_KICKS = 400  # trials per stroke of the longer run beside the reference (default 25)
 PIPELINES = Path(__file__).resolve().parent.parent / "pipelines"
 
 
@@ -74,9 +77,14 @@ def pen_up(first: np.ndarray, last: np.ndarray) -> float:
     return float(np.hypot(*(first[1:] - last[:-1]).T).sum())
 
 
-def ours(p0: np.ndarray, p1: np.ndarray, start: tuple[float, float] = START) -> dict:
+def ours(
+    p0: np.ndarray,
+    p1: np.ndarray,
+    start: tuple[float, float] = START,
+    options: OrderOptions | None = None,
+) -> dict:
     t = time.perf_counter()
-    res = order_strokes(p0, p1, start)
+    res = order_strokes(p0, p1, start, options)
     seconds = time.perf_counter() - t
     first = np.where(res.reverse[:, None], p1[res.order], p0[res.order])
     last = np.where(res.reverse[:, None], p0[res.order], p1[res.order])
@@ -164,7 +172,9 @@ def verdict(ratio: float | None) -> str:
     return f"not met: {ratio:.4f} > {GOAL}"
 
 
-def lkh_pen_up(p0: np.ndarray, p1: np.ndarray, start: tuple[float, float]) -> dict | None:
+def lkh_pen_up(
+    p0: np.ndarray, p1: np.ndarray, start: tuple[float, float], runs: int
+) -> dict | None:
     """Pen-up travel of LKH-3's tour (via elkai) through the start and the strokes."""
     try:
         import elkai
@@ -180,7 +190,7 @@ def lkh_pen_up(p0: np.ndarray, p1: np.ndarray, start: tuple[float, float]) -> di
     cost[np.arange(1, 2 * n, 2), np.arange(0, 2 * n, 2)] = 0
     np.fill_diagonal(cost, 0)
     t = time.perf_counter()
-    tour = elkai.DistanceMatrix(cost.tolist()).solve_tsp(runs=1)
+    tour = elkai.DistanceMatrix(cost.tolist()).solve_tsp(runs=runs)
     seconds = time.perf_counter() - t
     tour = tour[:-1] if tour[0] == tour[-1] else tour
     at = tour.index(2 * n)
@@ -189,7 +199,7 @@ def lkh_pen_up(p0: np.ndarray, p1: np.ndarray, start: tuple[float, float]) -> di
     travel = pen_up(pts[path[0::2]], pts[path[1::2]])
     legs = dist[2 * n, path[0]] + dist[path[-1], 2 * n]
     return {
-        "solver": "LKH-3 via elkai, runs=1",
+        "solver": f"LKH-3 via elkai, runs={runs}",
         "seconds": round(seconds, 1),
         "pen_up_mm": round(travel, 2),
         "travel_with_start_mm": round(travel + legs, 2),
@@ -201,10 +211,14 @@ def compare(
     p0: np.ndarray,
     p1: np.ndarray,
     ours_row: dict | None,
-    reference: bool = False,
+    reference: int = 0,
     start: tuple[float, float] = START,
 ) -> dict:
-    """One versus-vpype row; ``ours_row`` None orders the strokes here."""
+    """One versus-vpype row; ``ours_row`` None orders the strokes here.
+
+    ``reference`` > 0 adds, on sets of at most 2000 strokes, LKH-3 with that many runs
+    and our ordering with ``LONG_KICKS`` trials per stroke (what more time buys).
+    """
     row: dict = {"strokes": len(p0), "layout": name, "input_pen_up_mm": round(pen_up(p0, p1), 2)}
     row["lower_bound_mm"] = round(lower_bound(p0, p1), 2)
     row["scratchfab"] = ours(p0, p1, start) if ours_row is None else ours_row
@@ -222,7 +236,13 @@ def compare(
     row["ratio_to_input"] = round(row["scratchfab"]["pen_up_mm"] / row["input_pen_up_mm"], 5)
     row["verdict"] = verdict(ratio)
     if reference and len(p0) <= 2000:
-        near_optimal = lkh_pen_up(p0, p1, start)
+        more = OrderOptions(kicks=LONG_KICKS * len(p0))
+        row["scratchfab_long"] = ours(p0, p1, start, more) | {"kicks": more.kicks}
+        if vp is not None:
+            row["scratchfab_long"]["ratio_to_vpype"] = round(
+                row["scratchfab_long"]["pen_up_mm"] / vp["pen_up_mm"], 4
+            )
+        near_optimal = lkh_pen_up(p0, p1, start, reference)
         row["near_optimal"] = near_optimal if near_optimal is not None else "elkai not installed"
         if near_optimal is not None and vp is not None:
             best = round(near_optimal["pen_up_mm"] / vp["pen_up_mm"], 4)
@@ -247,7 +267,11 @@ def lower_bound(p0: np.ndarray, p1: np.ndarray) -> float:
 
 def main() -> None:
     quick = "--quick" in sys.argv
-    reference = "--reference" in sys.argv
+    reference = 0
+    if "--reference" in sys.argv:
+        at = sys.argv.index("--reference")
+        given = sys.argv[at + 1] if at + 1 < len(sys.argv) else ""
+        reference = int(given) if given.isdigit() and int(given) > 0 else 1
     t = time.perf_counter()
     order_strokes(*uniform(50, 0), START)  # compiles (or loads) the numba kernels
     report: dict = {
