@@ -14,12 +14,12 @@ machine by :func:`plan_toolpath` (the CLI's clipping, short-stroke and duplicate
 vpype gets the planned strokes in their input order.
 
 With ``--reference [RUNS]`` (needs ``pip install -e .[bench]``, which brings elkai,
-Python bindings of LKH-3), each set of at most 2000 strokes is also solved
-near-optimally by LKH on the same tour (strokes as fixed edges, the start as one more
-node; RUNS independent runs, default 1: about 20 s per run for 1000 strokes, 90 s and
-1 GB for 2000). Its ratio to vpype tells whether 0.9x is reachable on that set at all.
-Those sets are also ordered by us with 16x the default perturbation trials
-(``scratchfab toolpath --kicks``), to show what more time buys.
+Python bindings of LKH-3), each set of at most ``REFERENCE_MAX`` strokes is also
+solved near-optimally by LKH on the same tour (strokes as fixed edges, the start as one
+more node; RUNS independent runs, default 1: per run about 20 s for 1000 strokes, 90 s
+and 1 GB for 2000, 8 min and 2.5 GB for 3000). Its ratio to vpype tells whether 0.9x
+is reachable on that set at all. Those sets are also ordered by us with 16x the default
+perturbation trials (``scratchfab toolpath --kicks``), to show what more time buys.
 
 Usage: ``python benchmarks/bench_toolpath.py [--quick] [--reference [RUNS]]``.
 """
@@ -45,6 +45,7 @@ from scratchfab.toolpath.plan import plan_toolpath
 
 START = (-60.0, -60.0)
 GOAL = 0.9
+REFERENCE_MAX = 3000  # LKH's full distance matrix grows as the square
 LONG_KICKS = 400  # trials per stroke of the longer run beside the reference (default 25)
 PIPELINES = Path(__file__).resolve().parent.parent / "pipelines"
 
@@ -216,7 +217,7 @@ def compare(
 ) -> dict:
     """One versus-vpype row; ``ours_row`` None orders the strokes here.
 
-    ``reference`` > 0 adds, on sets of at most 2000 strokes, LKH-3 with that many runs
+    ``reference`` > 0 adds, on sets of at most ``REFERENCE_MAX`` strokes, LKH-3 with that many runs
     and our ordering with ``LONG_KICKS`` trials per stroke (what more time buys).
     """
     row: dict = {"strokes": len(p0), "layout": name, "input_pen_up_mm": round(pen_up(p0, p1), 2)}
@@ -235,7 +236,7 @@ def compare(
         )
     row["ratio_to_input"] = round(row["scratchfab"]["pen_up_mm"] / row["input_pen_up_mm"], 5)
     row["verdict"] = verdict(ratio)
-    if reference and len(p0) <= 2000:
+    if reference and len(p0) <= REFERENCE_MAX:
         more = OrderOptions(kicks=LONG_KICKS * len(p0))
         row["scratchfab_long"] = ours(p0, p1, start, more) | {"kicks": more.kicks}
         if vp is not None:
