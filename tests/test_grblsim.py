@@ -31,6 +31,17 @@ def _read_until(port: serial.SerialBase, predicate, timeout: float = 3.0) -> lis
     raise AssertionError(f"timeout; got {lines!r}")
 
 
+def _banner(port: serial.SerialBase) -> list[str]:
+    """Lines read until a start-up banner (``Grbl 1.1h ...``) has come."""
+    return _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+
+
+def _status(port: serial.SerialBase) -> str:
+    """The next status report after asking for one with ``?``."""
+    port.write(b"?")
+    return _read_until(port, lambda ls: any(x.startswith("<") for x in ls))[-1]
+
+
 def _answers(lines: list[str]) -> list[str]:
     return [ln for ln in lines if ln == "ok" or ln.startswith("error:")]
 
@@ -50,7 +61,7 @@ def test_codes_tables_complete():
 def test_banner_info_and_line_ends():
     port = _open()
     try:
-        lines = _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        lines = _banner(port)
         assert lines[-1] == BANNER.strip()
         lines = _cmd(port, b"$I\n")
         assert "[VER:1.1h.20190830:]" in lines and "[OPT:V,15,128]" in lines
@@ -95,7 +106,7 @@ def test_banner_info_and_line_ends():
 def test_error_codes(line, code):
     port = _open()
     try:
-        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _banner(port)
         assert _answers(_cmd(port, line.encode() + b"\n")) == [f"error:{code}"]
     finally:
         port.close()
@@ -104,7 +115,7 @@ def test_error_codes(line, code):
 def test_rx_buffer_overflow_drops_bytes_and_realtime_still_works():
     port = _open("time_scale=1")
     try:
-        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _banner(port)
         port.write(b"G4P0.6\n")  # dwell: the main loop stops reading the RX buffer
         time.sleep(0.1)
         extra = b"G0X0\n" * 40  # 200 bytes: 72 must be dropped
@@ -122,11 +133,9 @@ def test_rx_buffer_overflow_drops_bytes_and_realtime_still_works():
 def test_realtime_picked_off_inside_comments():
     port = _open()
     try:
-        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _banner(port)
         _cmd(port, b"G21 (careful!)\n")
-        port.write(b"?")
-        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
-        assert lines[-1].startswith("<Hold:0|")
+        assert _status(port).startswith("<Hold:0|")
     finally:
         port.close()
 
@@ -134,7 +143,7 @@ def test_realtime_picked_off_inside_comments():
 def test_planner_holds_15_blocks_so_ok_lags():
     port = _open("time_scale=1")
     try:
-        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _banner(port)
         _cmd(port, b"G1F60\n")  # 60 mm/min: 1 mm takes one second
         port.write(b"".join(f"G1X{k + 1}\n".encode() for k in range(20)))
         time.sleep(0.5)
@@ -150,17 +159,15 @@ def test_planner_holds_15_blocks_so_ok_lags():
 def test_motion_time_follows_feed_and_time_scale():
     port = _open("time_scale=0.2")
     try:
-        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _banner(port)
         t0 = time.monotonic()
         _cmd(port, b"G1X10F600\n")  # 10 mm at 600 mm/min = 1 s, scaled to 0.2 s
-        while True:
-            port.write(b"?")
-            lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
-            if lines[-1].startswith("<Idle"):
-                break
+        status = _status(port)
+        while not status.startswith("<Idle"):
+            status = _status(port)
         elapsed = time.monotonic() - t0
         assert 0.18 <= elapsed <= 0.6
-        assert lines[-1].startswith("<Idle|MPos:10.000,0.000,0.000|")
+        assert status.startswith("<Idle|MPos:10.000,0.000,0.000|")
     finally:
         port.close()
 
@@ -168,7 +175,7 @@ def test_motion_time_follows_feed_and_time_scale():
 def test_serial_byte_time_at_baud():
     port = serial.serial_for_url("grblsim://?baud=9600", baudrate=9600, timeout=0.05)
     try:
-        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _banner(port)
         t0 = time.monotonic()
         port.write(b"\n" * 100)  # 100 bytes in, 100 x "ok\r\n" out, 10 bits per byte
         _read_until(port, lambda ls: len(_answers(ls)) >= 100)
@@ -180,28 +187,22 @@ def test_serial_byte_time_at_baud():
 def test_feed_hold_resume_and_state_rules():
     port = _open("time_scale=1")
     try:
-        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _banner(port)
         _cmd(port, b"G1X5F60\n")
         port.write(b"!")
         time.sleep(0.2)
-        port.write(b"?")
-        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
-        assert lines[-1].startswith("<Hold:0|")
+        assert _status(port).startswith("<Hold:0|")
         assert _answers(_cmd(port, b"$$\n")) == ["error:8"]  # not while holding
         assert _answers(_cmd(port, b"$C\n")) == ["error:8"]
         port.write(b"~")
         time.sleep(0.1)
-        port.write(b"?")
-        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
-        assert lines[-1].startswith("<Run|")
+        assert _status(port).startswith("<Run|")
         port.write(b"!")
         time.sleep(0.2)
         port.write(b"\x18")  # reset from Hold:0: no alarm, position kept
-        lines = _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        lines = _banner(port)
         assert not any(x.startswith("ALARM") for x in lines)
-        port.write(b"?")
-        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
-        assert lines[-1].startswith("<Idle|")
+        assert _status(port).startswith("<Idle|")
     finally:
         port.close()
 
@@ -209,15 +210,13 @@ def test_feed_hold_resume_and_state_rules():
 def test_check_mode_and_its_reset():
     port = _open("time_scale=1")
     try:
-        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _banner(port)
         lines = _cmd(port, b"$C\n")
         assert "[MSG:Enabled]" in lines
         assert _answers(_cmd(port, b"G1X100F10\nM6\n", 2)) == ["ok", "error:20"]
-        port.write(b"?")
-        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
-        assert lines[-1].startswith("<Check|MPos:0.000,0.000,0.000")  # no motion
+        assert _status(port).startswith("<Check|MPos:0.000,0.000,0.000")  # no motion
         port.write(b"$C\n")
-        lines = _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        lines = _banner(port)
         assert lines[:2] == ["[MSG:Disabled]", "ok"]
         assert not any(e["ev"] == "exec" for e in port.sim.record)
     finally:
@@ -227,7 +226,7 @@ def test_check_mode_and_its_reset():
 def test_soft_limit_alarm_locks_until_reset():
     port = _open("soft_limits=1&homed=1&time_scale=0.01")
     try:
-        _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+        _banner(port)
         port.write(b"G0X10\n")  # machine space is -$130..0: +10 is outside
         lines = _read_until(port, lambda ls: "[MSG:Reset to continue]" in ls)
         assert "ALARM:2" in lines and not _answers(lines)
@@ -254,11 +253,9 @@ def test_pty_speaks_grbl_to_pyserial():
         port = serial.Serial(pty.path, 115200, timeout=0.05)
         try:
             port.write(b"\x18")  # opening flushed the power-up banner
-            _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
+            _banner(port)
             assert _answers(_cmd(port, b"G21\r\n", 2)) == ["ok", "ok"]
-            port.write(b"?")
-            lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
-            assert lines[-1].startswith("<Idle|MPos:")
+            assert _status(port).startswith("<Idle|MPos:")
         finally:
             port.close()
 
