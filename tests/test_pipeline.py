@@ -176,9 +176,12 @@ def test_toolpath_table_reaches_the_ordering_and_reruns_from_toolpath(finished_j
     path, job, _ = finished_job
     seen = []
     real = stage.run_toolpath_job
-    monkeypatch.setattr(
-        stage, "run_toolpath_job", lambda *a, **k: (seen.append(a[2]), real(*a, **k))[1]
-    )
+
+    def spy(*args, **kwargs):
+        seen.append(args[2])  # the OrderOptions
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(stage, "run_toolpath_job", spy)
     text = path.read_text()
     path.write_text(text.replace("[toolpath]\n", "[toolpath]\nkicks = 30\nseed = 5\npasses = 4\n"))
     try:
