@@ -217,8 +217,8 @@ def compare(
 ) -> dict:
     """One versus-vpype row; ``ours_row`` None orders the strokes here.
 
-    ``reference`` > 0 adds, on sets of at most ``REFERENCE_MAX`` strokes, LKH-3 with that many runs
-    and our ordering with ``LONG_KICKS`` trials per stroke (what more time buys).
+    ``reference`` > 0 adds, on sets of at most ``REFERENCE_MAX`` strokes, LKH-3 with that
+    many runs and our ordering with ``LONG_KICKS`` trials per stroke (what more time buys).
     """
     row: dict = {"strokes": len(p0), "layout": name, "input_pen_up_mm": round(pen_up(p0, p1), 2)}
     row["lower_bound_mm"] = round(lower_bound(p0, p1), 2)
