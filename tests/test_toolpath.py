@@ -273,6 +273,22 @@ def test_cli_toolpath_and_export(rng, tmp_path, capsys):
     assert "strokes" in out and "lines" in out
 
 
+def test_cli_toolpath_job_inputs_note_and_given_files(rng, tmp_path, capsys):
+    job = make_job(tmp_path, rng, optimize=False)
+    main(["toolpath", str(job), "--machine", "grbl-3018-diamond"])
+    err = capsys.readouterr().err
+    assert "optimize has not run" in err and str(job / "design" / "scratches.csv") in err
+    assert Toolpath.load(job / "toolpath" / "toolpath.json").stats["input_count"] == 120
+    # Given files win: the JOB folder need not hold a design or a layout of its own.
+    other = tmp_path / "other"
+    other.mkdir()
+    given = ["--scratches", str(job / "design" / "scratches.csv")]
+    given += ["--design", str(job / "design" / "design.toml")]
+    main(["toolpath", str(other), "--machine", "grbl-3018-diamond", *given])
+    assert "optimize has not run" not in capsys.readouterr().err
+    assert Toolpath.load(other / "toolpath" / "toolpath.json").stats["input_count"] == 120
+
+
 def test_cli_toolpath_passes_its_seed_passes_and_kicks_on(rng, tmp_path, monkeypatch):
     import scratchfab.cli.toolpath_cmd as toolpath_cmd
 

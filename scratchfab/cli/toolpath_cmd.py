@@ -8,9 +8,8 @@ import click
 
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.profile import bundled_profiles
-from scratchfab.model.job import job_inputs
 from scratchfab.toolpath import OrderOptions
-from scratchfab.toolpath.stage import run_toolpath
+from scratchfab.toolpath.stage import job_toolpath_inputs, run_toolpath
 
 
 def _inputs(
@@ -22,14 +21,10 @@ def _inputs(
                 "give a JOB folder, or all of --scratches CSV --design FILE --out DIR"
             )
         return scratches, design, out
-    design_file, scratch_file = job_inputs(job)
-    if scratches is None and scratch_file.parent.name != "optimize":
-        click.echo(
-            f"note: {job / 'optimize' / 'scratches.csv'} not found (optimize has not run); "
-            f"using {scratch_file}",
-            err=True,
-        )
-    return scratches or scratch_file, design or design_file, out or job / "toolpath"
+    scratch_file, design_file, note = job_toolpath_inputs(job, scratches, design)
+    if note:
+        click.echo(note, err=True)
+    return scratch_file, design_file, out or job / "toolpath"
 
 
 @click.command("toolpath")

@@ -57,6 +57,29 @@ def run_toolpath(
     return result
 
 
+def job_toolpath_inputs(
+    job: Path, scratches: Path | None = None, design: Path | None = None
+) -> tuple[Path, Path, str | None]:
+    """The scratch CSV and design a toolpath on ``job`` uses; given files win over the job's.
+
+    Returns:
+        (scratches, design, note): ``note`` says so when the job's layout is the initial
+        one because optimize has not run, else None.
+    """
+    from scratchfab.model.job import job_inputs
+
+    if scratches is not None and design is not None:
+        return scratches, design, None
+    design_file, scratch_file = job_inputs(job)
+    note = None
+    if scratches is None and scratch_file.parent.name != "optimize":
+        note = (
+            f"note: {job / 'optimize' / 'scratches.csv'} not found (optimize has not run); "
+            f"using {scratch_file}"
+        )
+    return scratches or scratch_file, design or design_file, note
+
+
 def run_toolpath_job(
     job: Path,
     machine: str | Path,
@@ -64,11 +87,7 @@ def run_toolpath_job(
     say: Callable[[str], Any] = print,
 ) -> Toolpath:
     """``toolpath JOB``: the job's optimized layout (else the initial one) into JOB/toolpath."""
-    from scratchfab.model.job import job_inputs
-
-    design_file, scratch_file = job_inputs(job)
-    if scratch_file.parent.name != "optimize":
-        say(
-            f"note: {job / 'optimize' / 'scratches.csv'} not found (optimize has not run); using {scratch_file}"
-        )
+    scratch_file, design_file, note = job_toolpath_inputs(job)
+    if note:
+        say(note)
     return run_toolpath(scratch_file, design_file, job / "toolpath", machine, options, say)
