@@ -22,7 +22,7 @@ from scratchfab.machine.sender import (
     StreamStopped,
     open_port,
 )
-from scratchfab.machine.sender_checks import compare
+from scratchfab.machine.sender_checks import compare, job_extent
 from scratchfab.machine.sender_journal import (
     Journal,
     default_journal_path,
@@ -195,6 +195,103 @@ def test_compare_with_profile_and_soft_limits(tmp_path):
     assert any("$110=500" in w for w in found.warnings)
     ok = compare(settings, (-100.0, -100.0, -10.0), prog, None)
     assert ok.refusals == []
+
+
+def _arc_samples(start, end, cw, ij=None, r=None, n=20001):
+    """Points along a G17 arc, centre by circle intersection (R) or offset (I, J)."""
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    if r is None:
+        centre = start + np.asarray(ij, float)
+    else:
+        mid, chord = 0.5 * (start + end), end - start
+        d = np.hypot(*chord)
+        normal = np.array([-chord[1], chord[0]]) / d
+        h = math.sqrt(r * r - 0.25 * d * d)
+        centre = None
+        for c in (mid + h * normal, mid - h * normal):  # R > 0: the arc of at most 180 deg
+            a0 = math.atan2(*(start - c)[::-1])
+            a1 = math.atan2(*(end - c)[::-1])
+            sweep = ((a0 - a1) if cw else (a1 - a0)) % math.tau
+            if (sweep <= math.pi + 1e-9) == (r > 0):
+                centre = c
+        assert centre is not None
+    radius = np.hypot(*(start - centre))
+    a0 = math.atan2(*(start - centre)[::-1])
+    a1 = math.atan2(*(end - centre)[::-1])
+    sweep = ((a0 - a1) if cw else (a1 - a0)) % math.tau or math.tau
+    t = a0 + (-1 if cw else 1) * np.linspace(0.0, sweep, n)
+    return centre + radius * np.stack([np.cos(t), np.sin(t)], 1)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_arc_extent_matches_a_sampled_arc(tmp_path, seed):
+    rng = np.random.default_rng(seed)
+    start = np.round(rng.uniform(-50, 50, 2), 4)
+    cw = bool(rng.integers(2))
+    if seed % 3 == 0:  # I/J offsets; every fifth a full circle
+        ij = np.round(rng.uniform(-20, 20, 2), 4)
+        angle = rng.uniform(0, math.tau)
+        on_circle = start + ij + np.hypot(*ij) * np.array([math.cos(angle), math.sin(angle)])
+        end = start if seed % 5 == 0 else np.round(on_circle, 4)
+        words, pts = f"I{ij[0]:.4f}J{ij[1]:.4f}", _arc_samples(start, end, cw, ij=ij)
+    else:
+        end = np.round(start + rng.uniform(-30, 30, 2), 4)
+        half = 0.5 * np.hypot(*(end - start))
+        r = round(rng.uniform(half * 1.01, half * 3) * (1 if seed % 2 else -1), 4)
+        words, pts = f"R{r:.4f}", _arc_samples(start, end, cw, r=r)
+    job = tmp_path / "arc.gcode"
+    job.write_text(
+        f"G21G90G17\nG0X{start[0]:.4f}Y{start[1]:.4f}\n"
+        f"G{2 if cw else 3}X{end[0]:.4f}Y{end[1]:.4f}{words}F100\n"
+    )
+    (x_lo, y_lo, _), (x_hi, y_hi, _) = job_extent(load_program(job))
+    want = (*pts.min(0), *pts.max(0))
+    assert np.allclose((x_lo, y_lo, x_hi, y_hi), want, atol=2e-3)
+
+
+def _bench_profile(x=(-10.0, 10.0)):
+    return SimpleNamespace(
+        name="bench",
+        envelope=SimpleNamespace(
+            x_mm=x, y_mm=(-40.0, 40.0), z_mm=(-5.0, 5.0), max_travel_mm=(20.0, 80.0, 10.0)
+        ),
+        motion=SimpleNamespace(max_rate_mm_min=(1000.0, 500.0, 500.0)),
+    )
+
+
+@pytest.mark.parametrize(
+    ("line", "reason"),
+    [
+        ("G92X0Y0", "G92 changes the work coordinates"),
+        ("G92.1", "G92.1 changes the work coordinates"),
+        ("G10L20P1X0", "G10 changes the work coordinates"),
+        ("G55", "G55 selects another work coordinate system"),
+        ("G53G0X-500", "G53 moves in machine coordinates"),
+        ("G28", "G28 moves through a stored machine position"),
+        ("G30G91Z0", "G30 moves through a stored machine position"),
+        ("G18G2X1Z1R2", "an arc in the G18 plane"),
+    ],
+)
+def test_compare_refuses_lines_the_sender_cannot_follow(tmp_path, line, reason):
+    job = tmp_path / "j.gcode"
+    job.write_text(f"G21G90G17\nG0Z1\nG0X1Y1\n{line}\nG0X2Y2\n")
+    found = compare({}, None, load_program(job), _bench_profile())
+    assert found.refusals == [
+        f"{job}:4: {reason} ({line!r}); the sender cannot follow the position past it, so the "
+        "envelope cannot be checked"
+    ]
+    assert compare({}, None, load_program(job), None).refusals == []  # nothing to check
+
+
+def test_compare_refuses_an_arc_that_bulges_out_of_the_envelope(tmp_path):
+    job = tmp_path / "j.gcode"
+    # From (5, -5) to (5, 5) counter-clockwise about (5, 0): reaches X = 10 exactly.
+    job.write_text("G21G90G17\nG0Z1\nG0X5Y-5\nG3X5Y5I0J5F100\n")
+    assert compare({}, None, load_program(job), _bench_profile()).refusals == []
+    job.write_text("G21G90G17\nG0Z1\nG0X5Y-5\nG3X5Y5I1J5F100\n")  # centre (6, 0)
+    (refusal,) = compare({}, None, load_program(job), _bench_profile()).refusals
+    assert refusal.startswith("the job's X range [")
+    assert "leaves the envelope [-10, 10]" in refusal
 
 
 # --------------------------------------------------------------------------- streaming

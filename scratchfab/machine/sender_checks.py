@@ -51,7 +51,11 @@ class Findings:
 
 
 def job_extent(program: Program) -> tuple[list[float], list[float]]:
-    """Per-axis [min], [max] of the programmed positions (work mm); Z only where known."""
+    """Per-axis [min], [max] of the programmed positions and arc sweeps (work mm).
+
+    Z only where known. Positions after a block the sender cannot follow
+    (``Block.unfollowed``) are not trustworthy; :func:`compare` refuses such jobs.
+    """
     lo = [float("inf")] * 3
     hi = [float("-inf")] * 3
     for b in program.blocks:
@@ -61,6 +65,10 @@ def job_extent(program: Program) -> tuple[list[float], list[float]]:
             if v is not None:
                 lo[k] = min(lo[k], v)
                 hi[k] = max(hi[k], v)
+        if b.arc_box is not None:
+            x_lo, x_hi, y_lo, y_hi = b.arc_box
+            lo[0], hi[0] = min(lo[0], x_lo), max(hi[0], x_hi)
+            lo[1], hi[1] = min(lo[1], y_lo), max(hi[1], y_hi)
     return lo, hi
 
 
@@ -76,8 +84,11 @@ def compare(
     Refuses a job that leaves the profile's envelope, spans more than GRBL's travel
     ``$13x`` on any axis, or leaves GRBL's soft-limit travel
     (``-$13x <= work + WCO <= 0`` when ``$20=1``); refuses a profile whose travel exceeds
-    GRBL's with soft limits on. Warns about slower GRBL max rates than the profile or the
-    job's feeds, and about soft limits or homing being off.
+    GRBL's with soft limits on. With any of those checks to make, refuses a job holding a
+    block whose position the sender cannot follow (G92, G10, another work coordinate
+    system, G53, G28/G30, arcs outside G17): past it every check would be wrong. Warns
+    about slower GRBL max rates than the profile or the job's feeds, and about soft limits
+    or homing being off.
     """
     out = Findings()
     travel = [settings.get(130 + k) for k in range(3)]
@@ -90,6 +101,15 @@ def compare(
     if settings and not settings.get(22, 0):
         out.warnings.append("GRBL homing is off ($22=0): machine coordinates are not referenced")
     lo, hi = job_extent(program)
+    if profile is not None or settings:
+        unfollowed = [block for block in program.blocks if block.unfollowed]
+        for block in unfollowed[:3]:
+            out.refusals.append(
+                f"{program.path}:{block.lineno}: {block.unfollowed} ({block.text!r}); the "
+                "sender cannot follow the position past it, so the envelope cannot be checked"
+            )
+        if len(unfollowed) > 3:
+            out.refusals.append(f"... and {len(unfollowed) - 3} more such lines")
     if profile is not None:
         env = profile.envelope
         ranges = (env.x_mm, env.y_mm, env.z_mm)

@@ -20,6 +20,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import NamedTuple
 
 from scratchfab.errors import ConfigError
 
@@ -80,6 +81,8 @@ class Block:
     motion: bool  # creates planner blocks
     sync: bool  # GRBL empties the planner before it (spindle, dwell, M0/M2/M30, G10)
     system: bool  # a ``$`` command (sent with send-response)
+    unfollowed: str = ""  # why the sender cannot follow the position past it ("" if it can)
+    arc_box: tuple[float, float, float, float] | None = None  # X lo, X hi, Y lo, Y hi swept
 
 
 @dataclass
@@ -111,15 +114,86 @@ def _words(text: str) -> list[tuple[str, float]]:
     return [(m.group(1), float(m.group(2))) for m in _WORD.finditer(text)]
 
 
-def _advance(
-    state: Modal, text: str, rapid_mm_min: Sequence[float]
-) -> tuple[Modal, float, bool, bool]:
-    """The modal state after ``text``, its estimated seconds, and its motion/sync flags."""
+class _Step(NamedTuple):
+    modal: Modal
+    seconds: float
+    motion: bool
+    sync: bool
+    unfollowed: str = ""
+    arc_box: tuple[float, float, float, float] | None = None
+
+
+def _arc_box(
+    start: tuple[float, float],
+    end: tuple[float, float],
+    arc: dict[str, float],
+    cw: bool,
+    scale: float,
+) -> tuple[float, float, float, float] | None:
+    """X and Y extent of a G17 arc (work mm), centre found as GRBL does; None if GRBL rejects it.
+
+    The centre is ``start + (I, J)``, or from ``R`` by GRBL's own formula (the sign of R
+    picks the longer or shorter arc). The box holds both ends and every axis extreme
+    (0, 90, 180, 270 degrees) the sweep passes; equal ends make a full circle.
+    """
+    dx, dy = end[0] - start[0], end[1] - start[1]
+    if "R" in arc:
+        r = arc["R"] * scale
+        chord = math.hypot(dx, dy)
+        h2 = 4.0 * r * r - chord * chord
+        if chord == 0.0 or h2 < 0.0:
+            return None  # error:33, no motion
+        h = -math.sqrt(h2) / chord
+        h = -h if not cw else h
+        h = -h if r < 0 else h
+        ci, cj = 0.5 * (dx - dy * h), 0.5 * (dy + dx * h)
+    elif "I" in arc or "J" in arc:
+        ci, cj = arc.get("I", 0.0) * scale, arc.get("J", 0.0) * scale
+    else:
+        return None  # error:26, no motion
+    cx, cy = start[0] + ci, start[1] + cj
+    radius = math.hypot(ci, cj)
+    a0 = math.atan2(start[1] - cy, start[0] - cx)
+    a1 = math.atan2(end[1] - cy, end[0] - cx)
+    sweep = ((a0 - a1) if cw else (a1 - a0)) % math.tau
+    if sweep <= 5e-7:  # GRBL's ARC_ANGULAR_TRAVEL_EPSILON: a full circle
+        sweep = math.tau
+    xs, ys = [start[0], end[0]], [start[1], end[1]]
+    for k in range(4):
+        extreme = k * math.pi / 2
+        if ((a0 - extreme) if cw else (extreme - a0)) % math.tau <= sweep:
+            xs.append(cx + radius * math.cos(extreme))
+            ys.append(cy + radius * math.sin(extreme))
+    return min(xs), max(xs), min(ys), max(ys)
+
+
+def _unfollowed(nonmodal: str, axes: dict[str, float], before: Modal, after: Modal) -> str:
+    """Why the sender loses the position or the coordinate frame at a block ("" if not)."""
+    if nonmodal == "G92.1" or (nonmodal in ("G92", "G10") and axes):
+        return f"{nonmodal} changes the work coordinates"
+    if nonmodal in ("G28", "G30"):
+        return f"{nonmodal} moves through a stored machine position"
+    if nonmodal == "G53" and axes:
+        return "G53 moves in machine coordinates"
+    if after.wcs != before.wcs:
+        return f"{after.wcs} selects another work coordinate system"
+    if axes and after.motion in ("G2", "G3") and after.plane != "G17":
+        return f"an arc in the {after.plane} plane"
+    return ""
+
+
+def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
+    """One block's effect: modal state after it, estimated seconds, motion and sync flags.
+
+    Also what the sender cannot follow past it (frame changes, machine-coordinate moves)
+    and what it adds to the job's extent (the box an arc sweeps).
+    """
     if text.startswith("$"):
-        return state, 0.0, False, False
+        return _Step(state, 0.0, False, False)
     words = _words(text)
     s = state
     axes: dict[str, float] = {}
+    arc: dict[str, float] = {}
     nonmodal = ""
     sync = False
     dwell = 0.0
@@ -166,11 +240,14 @@ def _advance(
             dwell = value
         elif letter in "XYZ":
             axes[letter] = value
+        elif letter in "IJKR":
+            arc[letter] = value
     if nonmodal in ("G4", "G10", "G28.1", "G30.1"):
         sync = True
     scale = 25.4 if s.inches else 1.0
     motion = False
     seconds = dwell
+    box = None
     if axes and nonmodal not in ("G10", "G92", "G28", "G30", "G53") and s.motion != "G80":
         start = (s.x, s.y, s.z if s.z is not None else 0.0)
         end = list(start)
@@ -188,12 +265,14 @@ def _advance(
         else:
             rate = s.feed * scale if s.feed_mode == "G94" else dist * s.feed
         seconds += dist / rate * 60.0 if rate > 0 and math.isfinite(rate) else 0.0
+        if s.motion in ("G2", "G3") and s.plane == "G17":
+            box = _arc_box(start[:2], (end[0], end[1]), arc, s.motion == "G2", scale)
         z = end[2] if ("Z" in axes or s.z is not None) else None
         s = replace(s, x=end[0], y=end[1], z=z)
         motion = True
     elif axes and nonmodal in ("G28", "G30", "G53"):
         motion = True  # position unknown to the sender; keep the old one
-    return s, seconds, motion, sync
+    return _Step(s, seconds, motion, sync, _unfollowed(nonmodal, axes, state, s), box)
 
 
 def _tool_down(modal: Modal, z_threshold: float, pen_mode: bool) -> bool:
@@ -281,17 +360,20 @@ def load_program(
                 f"{p}:{lineno}: line has {len(block)} characters after stripping; "
                 f"GRBL 1.1 accepts at most {MAX_BLOCK_CHARS} (error:11)"
             )
-        state, seconds, motion, sync = _advance(state, block, rapid_mm_min)
+        step = _advance(state, block, rapid_mm_min)
+        state = step.modal
         blocks.append(
             Block(
                 index=len(blocks),
                 lineno=lineno,
                 text=block,
                 modal=state,
-                seconds=seconds,
-                motion=motion,
-                sync=sync,
+                seconds=step.seconds,
+                motion=step.motion,
+                sync=step.sync,
                 system=block.startswith("$"),
+                unfollowed=step.unfollowed,
+                arc_box=step.arc_box,
             )
         )
     if z_threshold is None:
