@@ -8,11 +8,9 @@ outputs as they are, so the next run starts again at that stage.
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -44,10 +42,6 @@ class RunResult:
     seconds: float = 0.0
 
 
-def _options(obj: Any) -> dict[str, Any]:
-    return json.loads(json.dumps(dataclasses.asdict(obj), default=str))
-
-
 def _profile_file(ref: str) -> Path:
     """The file a machine profile (bundled name or path) is read from."""
     from scratchfab.machine.profile import load_profile
@@ -76,18 +70,18 @@ class _Stages:
             ]
             return fingerprint([], targets, {"tables": tables}, job)
         if stage == "optimize":
-            return fingerprint([design_dir], [], _options(self.optimize_options()), job)
+            return fingerprint([design_dir], [], asdict(self.pipe.optimize), job)
         if stage == "verify":
             files = [design_dir, job / "optimize" / "scratches.csv", job / "optimize" / "renders"]
-            return fingerprint(files, [], _options(pipe.verify), job)
+            return fingerprint(files, [], asdict(pipe.verify), job)
         if stage == "toolpath":
             files = [design_dir / "design.toml", job / "optimize" / "scratches.csv"]
             profile = [_profile_file(pipe.machine_ref())]
-            return fingerprint(files, profile, _options(pipe.toolpath), job)
+            return fingerprint(files, profile, asdict(pipe.toolpath), job)
         if stage == "export":
-            return fingerprint([job / "toolpath" / "toolpath.json"], [], _options(pipe.export), job)
+            return fingerprint([job / "toolpath" / "toolpath.json"], [], asdict(pipe.export), job)
         if stage == "stream":
-            return fingerprint([job / "export" / "board.gcode"], [], _options(pipe.stream), job)
+            return fingerprint([job / "export" / "board.gcode"], [], asdict(pipe.stream), job)
         raise KeyError(stage)
 
     def wanted(self, stage: str) -> bool:
@@ -95,10 +89,6 @@ class _Stages:
         return stage != "stream" or self.pipe.stream.port is not None
 
     # -- actions ----------------------------------------------------------------------
-    def optimize_options(self) -> Any:
-        """The optimize stage's settings from the ``[optimize]`` table."""
-        return self.pipe.optimize
-
     def run(self, stage: str) -> list[str]:
         """Run ``stage``; returns its outputs relative to the job folder."""
         return list(getattr(self, f"_run_{stage}")())
@@ -131,7 +121,7 @@ class _Stages:
                     f"  iteration {p.iteration}/{p.total}  loss {p.loss:.5g}  ETA {p.eta_s:.0f} s"
                 )
 
-        run_optimize(self.job, self.optimize_options(), progress=progress)
+        run_optimize(self.job, self.pipe.optimize, progress=progress)
         return ["optimize/scratches.csv", "optimize/renders", "optimize/log.csv"]
 
     def _run_verify(self) -> Sequence[str]:
