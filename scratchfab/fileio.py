@@ -22,6 +22,11 @@ def _umask() -> int:
     return mask
 
 
+# Read once at import: reading it sets the process-wide umask to 0 for a moment, which
+# would race with another thread creating files (the optimizer writes from a thread).
+_UMASK = _umask()
+
+
 @contextlib.contextmanager
 def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) -> Iterator[IO[Any]]:
     """Open a temporary file beside ``path``; rename it over ``path`` only on success.
@@ -41,7 +46,7 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) ->
     except OSError as exc:
         raise ScratchfabError(f"{target}: cannot write ({exc.strerror or exc})") from None
     os.close(fd)
-    os.chmod(tmp_name, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual permissions
+    os.chmod(tmp_name, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the usual permissions
     try:
         if "b" not in mode:
             kwargs.setdefault("encoding", "utf-8")

@@ -148,3 +148,19 @@ def test_scratch_csv_roundtrip(tmp_path, small_design, rng):
     back = load_scratches(tmp_path / "s.csv", small_design.scratch, small_design.board)
     for a, b in [(s.p0, back.p0), (s.p1, back.p1), (s.width, back.width), (s.depth, back.depth)]:
         assert np.array_equal(a, b)
+
+
+def test_atomic_write_gives_the_usual_permissions_and_keeps_the_old_file(tmp_path):
+    import os
+
+    from scratchfab.fileio import atomic_open, write_text
+
+    mask = os.umask(0)
+    os.umask(mask)
+    write_text(tmp_path / "b.txt", "old")
+    assert (tmp_path / "b.txt").stat().st_mode & 0o777 == 0o666 & ~mask  # not mkstemp's 0600
+    with pytest.raises(RuntimeError), atomic_open(tmp_path / "b.txt") as handle:
+        handle.write("half")
+        raise RuntimeError("writer failed")
+    assert (tmp_path / "b.txt").read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["b.txt"]  # no temporary file left
