@@ -24,18 +24,10 @@ import numpy as np
 
 from scratchfab.errors import ScratchfabError
 from scratchfab.fileio import write_bytes
-from scratchfab.machine.profile import MachineProfile
+from scratchfab.machine.profile import MachineProfile, gcode_number
 from scratchfab.toolpath.plan import Toolpath
 
 _COMMENT_SAFE = re.compile(r"[^A-Za-z0-9 .,:_+=/-]")
-
-
-def fmt(value: float, decimals: int) -> str:
-    """A G-code number: ``decimals`` digits, trailing zeros dropped, never ``-0``."""
-    text = f"{value:.{decimals}f}"
-    if "." in text:
-        text = text.rstrip("0").rstrip(".")
-    return "0" if text in ("-0", "") else text
 
 
 def comment(text: str) -> str:
@@ -58,10 +50,10 @@ class _Grid:
         self.bounds: dict[str, tuple[float, float]] = {}
         for axis, (lo, hi) in (("X", env.x_mm), ("Y", env.y_mm), ("Z", env.z_mm)):
             first = math.ceil(lo / unit) - 1
-            while float(fmt(first * unit, self.dec)) < lo:
+            while float(gcode_number(first * unit, self.dec)) < lo:
                 first += 1
             last = math.floor(hi / unit) + 1
-            while float(fmt(last * unit, self.dec)) > hi:
+            while float(gcode_number(last * unit, self.dec)) > hi:
                 last -= 1
             if first > last:
                 raise ScratchfabError(
@@ -69,8 +61,8 @@ class _Grid:
                     f"{self.dec} decimals; nothing written"
                 )
             self.bounds[axis] = (
-                float(fmt(first * unit, self.dec)),
-                float(fmt(last * unit, self.dec)),
+                float(gcode_number(first * unit, self.dec)),
+                float(gcode_number(last * unit, self.dec)),
             )
 
     def word(self, axis: str, value: float) -> str:
@@ -80,7 +72,7 @@ class _Grid:
             q = lo
         elif q > hi:
             q = hi
-        return f"{axis}{fmt(q, self.dec)}"
+        return f"{axis}{gcode_number(q, self.dec)}"
 
 
 def check_envelope(strokes: np.ndarray, rows: np.ndarray, profile: MachineProfile) -> None:
@@ -111,7 +103,7 @@ def check_envelope(strokes: np.ndarray, rows: np.ndarray, profile: MachineProfil
         written = {}
         for key in ("safe_mm", "engrave_mm"):
             z = getattr(profile.z, key)
-            written[key] = float(fmt(z, dec))
+            written[key] = float(gcode_number(z, dec))
             if not env.z_mm[0] <= written[key] <= env.z_mm[1]:
                 raise ScratchfabError(
                     f"z.{key} = {z:g}, written with {dec} decimals as {written[key]:g}, is "
@@ -149,11 +141,11 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
     def feed_move(words: str, feed: float) -> str:
         if modal_feed[0] != feed:
             modal_feed[0] = feed
-            return f"G1 {words} F{fmt(feed, 1)}"
+            return f"G1 {words} F{gcode_number(feed, 1)}"
         return f"G1 {words}"
 
     def dwell() -> list[str]:
-        return [f"G4 P{fmt(ctl.dwell_s, 3)}"] if ctl.dwell_s > 0 else []
+        return [f"G4 P{gcode_number(ctl.dwell_s, 3)}"] if ctl.dwell_s > 0 else []
 
     def travel(p: np.ndarray) -> str:
         if feeds.travel_mm_min is None:

@@ -91,8 +91,12 @@ def _has_word(upper_line: str, word: str) -> bool:
     return False
 
 
-def _number(value: float, decimals: int) -> str:
-    """A G-code number: fixed decimals, trailing zeros and a bare "-0" removed."""
+def gcode_number(value: float, decimals: int) -> str:
+    """A G-code number: ``decimals`` digits, trailing zeros dropped, never ``-0``.
+
+    The one formatter of the export, the profile's servo commands and the sender's resume
+    preamble.
+    """
     text = f"{value:.{decimals}f}"
     if "." in text:
         text = text.rstrip("0").rstrip(".")
@@ -210,7 +214,7 @@ class ToolControl:
         for name in ("on", "off"):
             template = getattr(self, name)
             try:
-                text = template.format(power=_number(self.power, 3))
+                text = template.format(power=gcode_number(self.power, 3))
             except (KeyError, IndexError, ValueError) as exc:
                 raise ValueError(
                     f"{name}: bad template {template!r} (only {{power}} may be used): {exc}"
@@ -226,7 +230,7 @@ class ToolControl:
 
     def command(self, which: Literal["on", "off"]) -> str:
         """The on or off command with the power filled in."""
-        return getattr(self, which).format(power=_number(self.power, 3))
+        return getattr(self, which).format(power=gcode_number(self.power, 3))
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from scratchfab.errors import ConfigError
+from scratchfab.machine.profile import gcode_number
 
 MAX_BLOCK_CHARS = 79
 _WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
@@ -391,11 +392,6 @@ def load_program(
     )
 
 
-def _num(value: float) -> str:
-    text = f"{value:.4f}".rstrip("0").rstrip(".")
-    return "0" if text in ("-0", "") else text
-
-
 def resume_point(program: Program, done: set[int]) -> int:
     """The block to restart at: the first block of the first stroke not completely done.
 
@@ -429,17 +425,17 @@ def resume_preamble(program: Program, start: int) -> list[str]:
     if before.spindle == "M5":
         lines.append("M5")
     else:
-        lines.append(f"{before.spindle}S{_num(before.speed)}")
+        lines.append(f"{before.spindle}S{gcode_number(before.speed, 4)}")
     lines.append(before.coolant)
     if zs:
         z_safe = max(zs)
-        lines.append(f"G0Z{_num(z_safe)}")
-    lines.append(f"G0X{_num(before.x)}Y{_num(before.y)}")
+        lines.append(f"G0Z{gcode_number(z_safe, 4)}")
+    lines.append(f"G0X{gcode_number(before.x, 4)}Y{gcode_number(before.y, 4)}")
     if zs and before.z is not None and before.z < max(zs):
-        lines.append(f"G0Z{_num(before.z)}")
+        lines.append(f"G0Z{gcode_number(before.z, 4)}")
     restore = ("G20" if before.inches else "") + ("G91" if before.relative else "")
     if before.feed > 0:
-        restore += f"F{_num(before.feed)}"
+        restore += f"F{gcode_number(before.feed, 4)}"
     restore += before.motion if before.motion != "G0" else ""
     if restore:
         lines.append(restore)
