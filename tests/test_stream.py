@@ -163,6 +163,30 @@ def test_default_journal_path(tmp_path):
     assert default_journal_path(tmp_path / "x.nc").name == "x.nc.journal.jsonl"
 
 
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda p: None, "no journal to resume from (stream without --resume first)"),
+        (lambda p: p.mkdir(), "is a directory, expected a journal file"),
+        (lambda p: p.write_bytes(b"\xff\xfe{"), "not a journal (not UTF-8 text)"),
+    ],
+)
+def test_read_journal_errors_name_the_file(tmp_path, make, message):
+    path = tmp_path / "j.jsonl"
+    make(path)
+    with pytest.raises(ConfigError) as info:
+        read_journal(path)
+    assert str(info.value) == f"{path}: {message}"
+
+
+def test_load_program_errors_name_the_file(tmp_path):
+    with pytest.raises(ConfigError, match="file not found"):
+        load_program(tmp_path / "none.gcode")
+    (tmp_path / "dir.gcode").mkdir()
+    with pytest.raises(ConfigError, match="is a directory, expected a G-code file"):
+        load_program(tmp_path / "dir.gcode")
+
+
 def test_journal_rejects_changed_file(tmp_path):
     job = tmp_path / "j.gcode"
     write_job(job, 2)

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from scratchfab.errors import ConfigError, ScratchfabError
+from scratchfab.fileio import read_input
 
 
 def default_journal_path(gcode: str | os.PathLike[str]) -> Path:
@@ -80,12 +81,13 @@ class Journal:
 def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     """All complete events of a journal (a cut-off last line is skipped)."""
     p = Path(path)
+    data = read_input(
+        p, "a journal file", "no journal to resume from (stream without --resume first)"
+    )
     try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(
-            f"{p}: no journal to resume from (stream without --resume first)"
-        ) from None
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: not a journal (not UTF-8 text)") from None
     events = []
     lines = text.splitlines()
     for k, line in enumerate(lines, start=1):

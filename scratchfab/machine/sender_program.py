@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from scratchfab.errors import ConfigError
+from scratchfab.fileio import read_input
 from scratchfab.machine.profile import gcode_number
 
 MAX_BLOCK_CHARS = 79
@@ -335,10 +336,7 @@ def load_program(
             characters after stripping, realtime characters, non-ASCII), naming the line.
     """
     p = Path(path)
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read the G-code file ({exc.strerror})") from None
+    data = read_input(p, "a G-code file")
     try:
         text = data.decode("ascii")
     except UnicodeDecodeError as exc:
