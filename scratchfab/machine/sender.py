@@ -258,9 +258,12 @@ class Streamer:
         """Complete lines received within ``wait`` seconds (CR/LF stripped, blanks dropped)."""
         deadline = time.monotonic() + wait
         out: list[str] = []
+        step = max(0.0, min(0.01, wait))
         while True:
             try:
-                self.port.timeout = max(0.0, min(0.01, deadline - time.monotonic()))
+                # pyserial reconfigures a real port (tcsetattr) on every timeout assignment
+                if self.port.timeout != step:
+                    self.port.timeout = step
                 n = self.port.in_waiting
                 data = self.port.read(n if n > 0 else 1)
             except (serial.SerialException, OSError) as exc:
