@@ -13,7 +13,7 @@ from typing import Literal
 from scratchfab.errors import ConfigError
 from scratchfab.model.design import Design, design_from_mapping
 from scratchfab.model.schema import load_toml, parse_table, spec
-from scratchfab.optimize.stage import OptimizeOptions
+from scratchfab.optimize.options import OptimizeOptions
 from scratchfab.verify.verify import DEFAULT_SPP
 
 STAGES = ("design", "optimize", "verify", "toolpath", "export", "stream")

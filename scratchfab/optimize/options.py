@@ -1,0 +1,66 @@
+"""The optimize stage's settings, apart from the stage so that reading them stays light.
+
+Pipeline files parse ``[optimize]`` into :class:`OptimizeOptions` without loading Dr.Jit,
+SciPy or the optimizer.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+from scratchfab.model.schema import spec
+
+
+@dataclass(frozen=True)
+class OptimizeOptions:
+    """Settings of the optimize stage (the ``[optimize]`` table of a pipeline file).
+
+    Attributes:
+        iterations: Total Adam steps (a resumed run continues up to this count).
+        time_budget_s: Stop after this many seconds of optimizing (0: no limit).
+        seed: Seed of the run's random generator (initial angle jitter).
+        backend: ``"llvm"`` (CPU) or ``"cuda"``.
+        space: Image error in ``"linear"`` or ``"perceptual"`` (sRGB) space.
+        lr_position_mm: Adam step size of the centres.
+        lr_angle_deg: Adam step size of the angles.
+        lr_length_mm: Adam step size of the lengths.
+        refresh_every: Steps between pixel-pair refreshes.
+        checkpoint_every: Steps between checkpoints.
+        merge_weight: Weight of the penalty on parallel scratches closer than the tool.
+        jitter_deg: Standard deviation of a random turn of each initial scratch.
+        threads: CPU threads (1: bit-reproducible; 0: all cores).
+        resume: Continue from ``JOB/optimize/checkpoint.npz``.
+        prune_tolerance: When set, drop scratches while the loss rises by at most this
+            fraction.
+        feed_mm_min: Engrave feed for the machining-time estimate of pruning.
+        stroke_overhead_s: Per-stroke overhead (rapid, plunge, retract) for that estimate.
+    """
+
+    iterations: int = field(default=300, metadata=spec(ge=0))
+    time_budget_s: float = field(default=0.0, metadata=spec(ge=0))
+    seed: int = field(default=0, metadata=spec(ge=0))
+    backend: Literal["llvm", "cuda"] = "llvm"
+    space: Literal["linear", "perceptual"] = "linear"
+    lr_position_mm: float = field(default=0.03, metadata=spec(gt=0))
+    lr_angle_deg: float = field(default=0.25, metadata=spec(gt=0))
+    lr_length_mm: float = field(default=0.03, metadata=spec(gt=0))
+    refresh_every: int = field(default=8, metadata=spec(gt=0))
+    checkpoint_every: int = field(default=25, metadata=spec(gt=0))
+    merge_weight: float = field(default=0.05, metadata=spec(ge=0))
+    jitter_deg: float = field(default=0.0, metadata=spec(ge=0))
+    threads: int = field(default=1, metadata=spec(ge=0))
+    resume: bool = False
+    prune_tolerance: float | None = field(default=None, metadata=spec(ge=0))
+    feed_mm_min: float = field(default=300.0, metadata=spec(gt=0))
+    stroke_overhead_s: float = field(default=2.0, metadata=spec(ge=0))
+
+    def learning_rates(self) -> dict[str, float]:
+        """Per-variable learning rates in the optimizer's units (mm, rad)."""
+        return {
+            "cx": self.lr_position_mm,
+            "cy": self.lr_position_mm,
+            "theta": math.radians(self.lr_angle_deg),
+            "length": self.lr_length_mm,
+        }
