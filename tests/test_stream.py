@@ -27,6 +27,7 @@ from scratchfab.machine.sender_journal import (
     Journal,
     default_journal_path,
     done_blocks,
+    interrupted,
     read_journal,
 )
 from scratchfab.machine.sender_program import (
@@ -35,6 +36,7 @@ from scratchfab.machine.sender_program import (
     resume_preamble,
     strip_block,
 )
+from scratchfab.machine.stream_job import run_stream_job
 
 FAST = StreamOptions(banner_timeout=0.5, stall_timeout=1.0)
 
@@ -196,6 +198,21 @@ def test_journal_rejects_changed_file(tmp_path):
     j.close()
     with pytest.raises(ConfigError, match="different version"):
         done_blocks(read_journal(tmp_path / "j.jsonl"), prog.sha256, "j.jsonl")
+
+
+def test_lost_link_blocks_count_done_unless_recut_unsure():
+    events = [
+        {"ev": "start", "sha256": "a", "resume": False},
+        *({"ev": "ack", "i": i} for i in range(10)),
+        {"ev": "lost", "reason": "connection lost", "executed_through": 5},
+        {"ev": "start", "sha256": "a", "resume": True},
+        *({"ev": "ack", "i": i} for i in range(6, 8)),
+    ]
+    assert done_blocks(events, "a", "j") == set(range(10))
+    assert done_blocks(events, "a", "j", recut_unsure=True) == set(range(8))
+    assert interrupted(events, "a") and not interrupted(events, "b")
+    assert not interrupted([*events, {"ev": "end", "complete": True}], "a")
+    assert not interrupted([], "a")
 
 
 def test_compare_with_profile_and_soft_limits(tmp_path):
@@ -453,6 +470,73 @@ def test_disconnect_then_resume_cuts_every_stroke_at_most_one_twice(tmp_path, li
     first_rx = [e["text"] for e in read_record(rec2) if e["ev"] == "rx" and e["g"]]
     assert first_rx[0].startswith("G21G90")
     assert [t[:3] for t in first_rx[3:5]] == ["G0Z", "G0X"]  # Z up before XY
+
+
+def test_usb_powered_disconnect_needs_recut_unsure(tmp_path, capsys):
+    """A board that loses power with the cable never runs its queue: only re-cutting the
+    unsure lines cuts every stroke, and the default resume says so."""
+    job = tmp_path / "job.gcode"
+    cuts = write_job(job, 40)
+    journal = default_journal_path(job)
+    recs = [tmp_path / f"r{k}.jsonl" for k in range(3)]
+    common = ["--yes", "--banner-timeout", "0.3"]
+    url = "grblsim://?time_scale=0.02&disconnect_after=151&usb_powered=1&record="
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", f"{url}{recs[0]}", *common])
+    assert exc.value.code == 3
+    lost = read_journal(journal)[-1]
+    assert lost["ev"] == "lost" and "connection lost" in lost["reason"]
+    saved = journal.read_bytes()
+    capsys.readouterr()
+
+    def resume(rec, *flags):
+        main(["stream", str(job), "--port", f"grblsim://?time_scale=0.002&record={rec}",
+              "--resume", *flags, *common])  # fmt: skip
+        return capsys.readouterr().out
+
+    out = resume(recs[1])
+    assert "were acknowledged and count as done" in out and "--recut-unsure" in out
+    trusted = cut_counts([read_record(recs[0]), read_record(recs[1])], cuts)
+    assert min(trusted) == 0  # the queue that died with the power was skipped
+    journal.write_bytes(saved)
+    out = resume(recs[2], "--recut-unsure")
+    assert "count as not done and are cut again" in out
+    counts = cut_counts([read_record(recs[0]), read_record(recs[2])], cuts)
+    assert min(counts) == 1 and max(counts) <= 2
+    # only the unsure window is cut twice: at most a planner (15 motions) of 4-motion strokes
+    assert counts.count(2) <= 5
+
+
+def test_recut_unsure_needs_resume(tmp_path, capsys):
+    job = tmp_path / "job.gcode"
+    write_job(job, 2)
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", "grblsim://", "--recut-unsure", "--yes"])
+    assert exc.value.code == 2
+    assert "--recut-unsure only applies with --resume" in capsys.readouterr().err
+
+
+def test_pipeline_stream_stage_resumes_an_interrupted_stream(tmp_path):
+    job = tmp_path / "job"
+    gcode = job / "export" / "board.gcode"
+    gcode.parent.mkdir(parents=True)
+    cuts = write_job(gcode, 60)
+    recs = [tmp_path / f"r{k}.jsonl" for k in range(3)]
+    said: list[str] = []
+    with pytest.raises(StreamFault, match="connection lost"):
+        run_stream_job(
+            job,
+            f"grblsim://?time_scale=0.002&disconnect_after=151&record={recs[0]}",
+            say=said.append,
+        )
+    run_stream_job(job, f"grblsim://?time_scale=0.002&record={recs[1]}", say=said.append)
+    assert any(line.startswith("resuming at line") for line in said)
+    counts = cut_counts([read_record(recs[0]), read_record(recs[1])], cuts)
+    assert min(counts) == 1 and max(counts) <= 2 and counts.count(2) <= 1
+    said.clear()  # a finished stream streamed again (run --force) starts from the top
+    run_stream_job(job, f"grblsim://?time_scale=0.002&record={recs[2]}", say=said.append)
+    assert not any(line.startswith("resuming") for line in said)
+    assert min(cut_counts([read_record(recs[2])], cuts)) == 1
 
 
 def test_ctrl_c_stop_is_safe_and_resume_completes(tmp_path):

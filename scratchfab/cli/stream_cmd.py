@@ -71,6 +71,12 @@ def _ask_interrupt() -> str:
     help="Journal file [JOB/stream/journal.jsonl, or beside the G-code].",
 )
 @click.option("--resume", is_flag=True, help="Restart at the first stroke not completely done.")
+@click.option(
+    "--recut-unsure",
+    is_flag=True,
+    help="With --resume after a lost link: also cut again what the controller acknowledged "
+    "but may not have run (a board that lost power with the USB cable).",
+)
 @click.option("--check", "check_first", is_flag=True, help="Run GRBL check mode ($C) first.")
 @click.option("--machine", default=None, help="Machine profile NAME or PATH to compare with $$.")
 @click.option(
@@ -96,6 +102,7 @@ def stream(
     protocol: str,
     journal_path: Path | None,
     resume: bool,
+    recut_unsure: bool,
     check_first: bool,
     machine: str | None,
     margin: int,
@@ -109,6 +116,8 @@ def stream(
     controller reset or a stall, journals every acknowledged line so that --resume can
     continue after a disconnect or a stop without skipping a stroke.
     """
+    if recut_unsure and not resume:
+        raise click.UsageError("--recut-unsure only applies with --resume")
     request = StreamRequest(
         gcode=gcode,
         port=port,
@@ -116,6 +125,7 @@ def stream(
         protocol=protocol,
         journal=journal_path,
         resume=resume,
+        recut_unsure=recut_unsure,
         check=check_first,
         machine=machine,
         margin=margin,
@@ -170,6 +180,9 @@ def stream(
     help="Code for --error-at.",
 )
 @click.option("--disconnect-after", type=int, default=0, help="Drop the link at the N-th block.")
+@click.option(
+    "--usb-powered", is_flag=True, help="Lose power with the link (stop running at once)."
+)
 @click.option("--slow", type=float, default=0.0, help="Extra seconds before each answer.")
 @click.option("--soft-limits", is_flag=True, help="Start with $20=1 and $22=1 (in ALARM).")
 @click.option(
@@ -185,6 +198,7 @@ def grbl_sim(
     error_at: int,
     error_code: int,
     disconnect_after: int,
+    usb_powered: bool,
     slow: float,
     soft_limits: bool,
     record: Path | None,
@@ -211,6 +225,7 @@ def grbl_sim(
         error_at=error_at,
         error_code=error_code,
         disconnect_after=disconnect_after,
+        usb_powered=usb_powered,
         slow=slow,
         soft_limits=soft_limits,
         record=str(record) if record else "",

@@ -81,6 +81,9 @@ class SimOptions:
         error_code: The code for ``error_at``.
         disconnect_after: After the N-th G-code block is received the link drops; the
             controller keeps running what it already received (the host vanished).
+        usb_powered: With ``disconnect_after``: the controller loses power with the link
+            (a board powered over the USB cable) and stops where it is, running nothing
+            more of what it had received.
         lose_ok_at: The ``ok`` of the N-th G-code block is never sent (a garbled answer).
         reset_after: The controller resets itself (brown-out) after the N-th G-code block.
         slow: Extra seconds before every ``ok``/``error`` answer.
@@ -98,6 +101,7 @@ class SimOptions:
     error_at: int = 0
     error_code: int = 20
     disconnect_after: int = 0
+    usb_powered: bool = False
     lose_ok_at: int = 0
     reset_after: int = 0
     slow: float = 0.0
@@ -324,6 +328,8 @@ class GrblSim:
         self._out.clear()
         self._ready.clear()
         self._log(t, "disconnect")
+        if self.options.usb_powered:
+            self._power_off(t)
         self._cond.notify_all()
         if self.on_link_down is not None:
             threading.Thread(target=self.on_link_down, daemon=True).start()
@@ -465,6 +471,8 @@ class GrblSim:
         self._log(t, "rx", n=n, g=gcode, text=line)
         if gcode and gcode == self.options.disconnect_after:
             self._drop_link(t)
+            if self.options.usb_powered:
+                return  # powered off: this line never runs
         if gcode and gcode == self.options.reset_after:
             self._reset_at = t
         if overflow:
@@ -662,10 +670,20 @@ class GrblSim:
                         self._emit(t, f">{text}:error:{exc.code}\r\n")
         self._set_state(t, self.state, force=True)
 
-    def _soft_reset(self, t: float, from_command: bool) -> None:
-        moving = self.state in ("Run", "Jog", "Home") or (
-            self.state == "Hold" and not self._hold_complete
-        )
+    def _power_off(self, t: float) -> None:
+        """Lose power: the head block stops part-way and nothing else runs."""
+        self._stop_head(t)
+        self._planner.clear()
+        self._rx.clear()
+        self._wire.clear()
+        self._pending = None
+        self._boot_at = self._reset_at = self._hold_until = math.inf
+        self._spindle = "M5"
+        self._set_state(t, "Idle")
+        self._log(t, "power_off")
+
+    def _stop_head(self, t: float) -> None:
+        """Log the part of the head block done by now and move there (it stops now)."""
         if self._planner:
             pos = self._position(t)
             head = self._planner[0]
@@ -681,6 +699,12 @@ class GrblSim:
                     spindle=head.spindle,
                 )
             self.mpos = pos
+
+    def _soft_reset(self, t: float, from_command: bool) -> None:
+        moving = self.state in ("Run", "Jog", "Home") or (
+            self.state == "Hold" and not self._hold_complete
+        )
+        self._stop_head(t)
         self._planner.clear()
         self._rx.clear()
         self._line.clear()

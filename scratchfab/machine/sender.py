@@ -20,7 +20,9 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
   queue flushed, no alarm), banner.
 - Journal: every ``ok`` of a file block is appended and flushed; after a reset the journal
   records which acknowledged blocks actually ran (from the hold position), so ``--resume``
-  never skips a stroke (:mod:`scratchfab.machine.sender_journal`).
+  never skips a stroke (:mod:`scratchfab.machine.sender_journal`). After a lost link it
+  records which ran by the last position report, for a board that lost power with the
+  cable (``--recut-unsure``).
 """
 
 from __future__ import annotations
@@ -678,7 +680,14 @@ class Streamer:
                 self._journal.write(
                     "stop", reason=str(fault), executed_through=self._executed_guess(None)
                 )
-            # "link": the controller keeps running what it acknowledged; nothing to do
+            elif fault.kind == "link":
+                # nothing can be sent. A powered controller runs what it acknowledged;
+                # journal what surely ran by the last position report, for --recut-unsure.
+                self._journal.write(
+                    "lost",
+                    reason=str(fault),
+                    executed_through=self._executed_guess(self.status.wpos),
+                )
         except _Fault:
             self._journal.write(
                 "stop", reason=str(fault), executed_through=self._executed_guess(None)

@@ -9,6 +9,10 @@ line, which the reader skips). Events:
 - ``{"ev": "error", "i": block, "line": file_line, "code": N}`` / ``{"ev": "alarm", "code": N}``
 - ``{"ev": "stop", "reason": ..., "executed_through": i|null}``: the controller was reset and
   its queue flushed; blocks after ``executed_through`` may not have run although acknowledged
+- ``{"ev": "lost", "reason": ..., "executed_through": i}``: the link dropped. A controller
+  that keeps power runs every block it acknowledged; one powered over the USB cable stops
+  with it, and the blocks after ``executed_through`` (judged from the last position report)
+  may not have run. Resume trusts the acknowledgements unless asked to re-cut those blocks.
 - ``{"ev": "end", "complete": true}``
 
 A block is *done* when a session acknowledged it and did not later flush it with a reset;
@@ -62,7 +66,7 @@ class Journal:
         if self._handle is None:
             return
         record = {"ev": event, **data}
-        if event in ("start", "stop", "end", "error", "alarm"):
+        if event in ("start", "stop", "lost", "end", "error", "alarm"):
             record["time"] = time.strftime("%Y-%m-%dT%H:%M:%S")
         self._handle.write(json.dumps(record, separators=(",", ":")) + "\n")
         self._handle.flush()
@@ -101,9 +105,20 @@ def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
 
 
 def done_blocks(
-    events: list[dict[str, Any]], sha256: str, path: str | os.PathLike[str]
+    events: list[dict[str, Any]],
+    sha256: str,
+    path: str | os.PathLike[str],
+    recut_unsure: bool = False,
 ) -> set[int]:
     """Blocks acknowledged and not flushed, over all sessions of the journal for this file.
+
+    Args:
+        events: The journal's events (:func:`read_journal`).
+        sha256: The G-code file's content hash; the journal must be for the same content.
+        path: The journal file, for messages.
+        recut_unsure: Treat a lost link like a reset: blocks acknowledged after the last
+            position report before it count as not done (a board that lost power with the
+            cable). By default they count as done (the controller kept power and ran them).
 
     Raises:
         ConfigError: The journal belongs to a different file content (sha256 mismatch).
@@ -124,10 +139,18 @@ def done_blocks(
                 )
         elif kind == "ack" and "i" in ev:
             session.add(int(ev["i"]))
-        elif kind == "stop":
+        elif kind == "stop" or (kind == "lost" and recut_unsure):
             through = ev.get("executed_through")
             limit = -1 if through is None else int(through)
             session = {i for i in session if i <= limit}
     if not started:
         raise ConfigError(f"{path}: journal has no start event")
     return done | session
+
+
+def interrupted(events: list[dict[str, Any]], sha256: str) -> bool:
+    """True if the journal's last session streamed this file content and did not finish."""
+    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
+    if not starts or events[starts[-1]].get("sha256") != sha256:
+        return False
+    return not any(ev.get("ev") == "end" for ev in events[starts[-1] :])

@@ -21,9 +21,15 @@ from scratchfab.machine.sender_journal import (
     Journal,
     default_journal_path,
     done_blocks,
+    interrupted,
     read_journal,
 )
-from scratchfab.machine.sender_program import load_program, resume_point, resume_preamble
+from scratchfab.machine.sender_program import (
+    Program,
+    load_program,
+    resume_point,
+    resume_preamble,
+)
 
 
 @dataclass(frozen=True)
@@ -37,6 +43,10 @@ class StreamRequest:
         protocol: ``"counting"`` or ``"simple"``.
         journal: Journal file (None: JOB/stream/journal.jsonl or beside the G-code).
         resume: Restart at the first stroke not completely done.
+        resume_interrupted: Resume when the journal's last run streamed this same file and
+            did not finish; otherwise start from the top (the pipeline's stream stage).
+        recut_unsure: When resuming: also cut again what the controller acknowledged but
+            may not have run before a lost link (a board powered over the USB cable).
         check: Run GRBL check mode ($C) first.
         machine: Machine profile name or path to compare with ``$$`` (None: no check).
         margin: RX buffer bytes kept free.
@@ -51,6 +61,8 @@ class StreamRequest:
     protocol: str = "counting"
     journal: Path | None = None
     resume: bool = False
+    resume_interrupted: bool = False
+    recut_unsure: bool = False
     check: bool = False
     machine: str | None = None
     margin: int = 8
@@ -100,8 +112,15 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     journal_file = req.journal or default_journal_path(req.gcode)
     start = 0
     preamble: list[str] = []
-    if req.resume:
-        done = done_blocks(read_journal(journal_file), program.sha256, journal_file)
+    resume = req.resume or (
+        req.resume_interrupted
+        and journal_file.is_file()
+        and interrupted(read_journal(journal_file), program.sha256)
+    )
+    if resume:
+        events = read_journal(journal_file)
+        done = done_blocks(events, program.sha256, journal_file, req.recut_unsure)
+        _say_unsure(program, events, journal_file, req.recut_unsure, cb.outcome)
         start = resume_point(program, done)
         if start >= len(program.blocks):
             cb.outcome(
@@ -148,7 +167,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
             raise ScratchfabError("not confirmed; nothing was sent")
         journal = Journal(journal_file).open()
         try:
-            streamer.stream(program, journal, start=start, preamble=preamble, resume=req.resume)
+            streamer.stream(program, journal, start=start, preamble=preamble, resume=resume)
         finally:
             journal.close()
         cb.outcome(
@@ -157,6 +176,30 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     finally:
         ser.close()
     return journal_file
+
+
+def _say_unsure(
+    program: Program,
+    events: list[dict[str, Any]],
+    journal_file: Path,
+    recut_unsure: bool,
+    say: Callable[[str], Any],
+) -> None:
+    """Name the lines a lost link left unsure, and how they are treated on this resume."""
+    trusted = done_blocks(events, program.sha256, journal_file, recut_unsure=False)
+    unsure = sorted(trusted - done_blocks(events, program.sha256, journal_file, True))
+    if not unsure:
+        return
+    lines = f"lines {program.blocks[unsure[0]].lineno}-{program.blocks[unsure[-1]].lineno}"
+    if recut_unsure:
+        say(f"the link was lost earlier: {lines} count as not done and are cut again")
+    else:
+        say(
+            f"the link was lost earlier: {lines} were acknowledged and count as done, as a "
+            "controller that kept power ran them; if it lost power with the cable (lights "
+            "out, a board powered over USB), stop and resume with --recut-unsure "
+            "([stream] recut_unsure = true in a pipeline)"
+        )
 
 
 def _profile_for(req: StreamRequest, say: Callable[[str], Any]) -> Any:
@@ -201,11 +244,13 @@ def run_stream_job(
     baud: int | None = None,
     check: bool = False,
     machine: str | None = None,
+    recut_unsure: bool = False,
     say: Callable[[str], Any] = print,
 ) -> Path:
     """The pipeline's stream stage: JOB/export/board.gcode to ``port``, unattended.
 
-    The pipeline file naming a port is the confirmation; a Ctrl-C stops safely.
+    The pipeline file naming a port is the confirmation; a Ctrl-C stops safely. A run
+    after an interrupted stream of the same G-code resumes it from the journal.
     """
     last = [-1]
 
@@ -221,6 +266,8 @@ def run_stream_job(
         baud=baud,
         protocol=protocol,
         journal=job / "stream" / "journal.jsonl",
+        resume_interrupted=True,
+        recut_unsure=recut_unsure,
         check=check,
         machine=machine,
     )

@@ -77,12 +77,17 @@ class ExportOptions:
 
 @dataclass(frozen=True)
 class StreamOptions:
-    """``[stream]``: only run when ``port`` is set."""
+    """``[stream]``: only run when ``port`` is set.
+
+    A run after an interrupted stream of the same G-code resumes it from the journal;
+    ``recut_unsure`` then also cuts again what a lost link left unsure (see ``stream``).
+    """
 
     port: str | None = None
     protocol: Literal["counting", "simple"] = "counting"
     baud: int = field(default=115200, metadata=spec(gt=0))
     check: bool = False
+    recut_unsure: bool = False
 
 
 @dataclass(frozen=True)

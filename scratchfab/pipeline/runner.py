@@ -180,6 +180,7 @@ class _Stages:
             baud=s.baud,
             check=s.check,
             machine=self.pipe.machine_ref(),
+            recut_unsure=s.recut_unsure,
             say=self.say,
         )
         return ["stream/journal.jsonl"]
