@@ -735,3 +735,17 @@ def test_executed_guess_distances(tmp_path):
     assert s._executed_guess((4.0, 0.0, 0.0)) == 4
     assert s._executed_guess(None) == -1
     assert math.isclose(prog.total_seconds, 4 / 100 * 60)
+
+
+def test_rapid_time_estimate_per_axis_and_retimed(tmp_path):
+    job = tmp_path / "job.gcode"
+    job.write_text("G21G90\nG0X30Y40\nG1X0F600\nG4P0.5\nG0Z-6\nG20\nG0X1\n")
+    prog = load_program(job, rapid_mm_min=(600.0, 300.0, 100.0))
+    # the slowest axis sets a G0's time: Y 40 mm at 300, Z 6 at 100, X 25.4 - 0 at 600
+    assert [round(b.seconds, 6) for b in prog.blocks] == [0.0, 8.0, 3.0, 0.5, 3.6, 0.0, 2.54]
+    other = (1000.0, 2000.0, 50.0)
+    retimed = prog.at_rapid_rates(other)
+    fresh = load_program(job, rapid_mm_min=other)
+    assert [b.seconds for b in retimed.blocks] == pytest.approx([b.seconds for b in fresh.blocks])
+    assert retimed.blocks[1].seconds == pytest.approx(30 / 1000 * 60)  # now X is slowest
+    assert [b.text for b in retimed.blocks] == [b.text for b in prog.blocks]

@@ -85,6 +85,7 @@ class Block:
     system: bool  # a ``$`` command (sent with send-response)
     unfollowed: str = ""  # why the sender cannot follow the position past it ("" if it can)
     arc_box: tuple[float, float, float, float] | None = None  # X lo, X hi, Y lo, Y hi swept
+    rapid_mm: tuple[float, float, float] | None = None  # a G0's distance per axis
 
 
 @dataclass
@@ -97,11 +98,28 @@ class Program:
     strokes: list[tuple[int, int]]  # (first, last) block index of each stroke
     z_threshold: float
     pen_mode: bool
+    rapid_mm_min: tuple[float, float, float] = (500.0, 500.0, 500.0)
 
     @property
     def total_seconds(self) -> float:
         """Estimated run time (distance / feed, G0 at the max rates)."""
         return sum(b.seconds for b in self.blocks)
+
+    def at_rapid_rates(self, rapid_mm_min: Sequence[float]) -> Program:
+        """The same program with its G0 blocks timed at other rates (GRBL's $110-$112)."""
+        rates = (float(rapid_mm_min[0]), float(rapid_mm_min[1]), float(rapid_mm_min[2]))
+        blocks = [
+            b
+            if b.rapid_mm is None
+            else replace(
+                b,
+                seconds=b.seconds
+                - _rapid_seconds(b.rapid_mm, self.rapid_mm_min)
+                + _rapid_seconds(b.rapid_mm, rates),
+            )
+            for b in self.blocks
+        ]
+        return replace(self, blocks=blocks, rapid_mm_min=rates)
 
     def stroke_of(self) -> list[int]:
         """Per block, the index of the stroke it belongs to, or -1."""
@@ -123,6 +141,15 @@ class _Step(NamedTuple):
     sync: bool
     unfollowed: str = ""
     arc_box: tuple[float, float, float, float] | None = None
+    rapid_mm: tuple[float, float, float] | None = None
+
+
+def _rapid_seconds(axis_mm: Sequence[float], rapid_mm_min: Sequence[float]) -> float:
+    """A G0's time: each axis at most at its own max rate, so the slowest axis sets it."""
+    return 60.0 * max(
+        (d / r for d, r in zip(axis_mm, rapid_mm_min, strict=True) if d > 0 and r > 0),
+        default=0.0,
+    )
 
 
 def _arc_box(
@@ -250,6 +277,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     motion = False
     seconds = dwell
     box = None
+    rapid = None
     if axes and nonmodal not in ("G10", "G92", "G28", "G30", "G53") and s.motion != "G80":
         start = (s.x, s.y, s.z if s.z is not None else 0.0)
         end = list(start)
@@ -257,16 +285,13 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
             if a in axes:
                 v = axes[a] * scale
                 end[k] = start[k] + v if s.relative else v
-        dist = math.dist(start, end)
         if s.motion == "G0":
-            rate = math.inf
-            for k in range(3):
-                d = abs(end[k] - start[k])
-                if d > 0:
-                    rate = min(rate, rapid_mm_min[k] * dist / d)
+            rapid = (abs(end[0] - start[0]), abs(end[1] - start[1]), abs(end[2] - start[2]))
+            seconds += _rapid_seconds(rapid, rapid_mm_min)
         else:
+            dist = math.dist(start, end)
             rate = s.feed * scale if s.feed_mode == "G94" else dist * s.feed
-        seconds += dist / rate * 60.0 if rate > 0 and math.isfinite(rate) else 0.0
+            seconds += dist / rate * 60.0 if rate > 0 and math.isfinite(rate) else 0.0
         if s.motion in ("G2", "G3") and s.plane == "G17":
             box = _arc_box(start[:2], (end[0], end[1]), arc, s.motion == "G2", scale)
         z = end[2] if ("Z" in axes or s.z is not None) else None
@@ -274,7 +299,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
         motion = True
     elif axes and nonmodal in ("G28", "G30", "G53"):
         motion = True  # position unknown to the sender; keep the old one
-    return _Step(s, seconds, motion, sync, _unfollowed(nonmodal, axes, state, s), box)
+    return _Step(s, seconds, motion, sync, _unfollowed(nonmodal, axes, state, s), box, rapid)
 
 
 def _tool_down(modal: Modal, z_threshold: float, pen_mode: bool) -> bool:
@@ -373,6 +398,7 @@ def load_program(
                 system=block.startswith("$"),
                 unfollowed=step.unfollowed,
                 arc_box=step.arc_box,
+                rapid_mm=step.rapid_mm,
             )
         )
     if z_threshold is None:
@@ -387,6 +413,7 @@ def load_program(
         strokes=stroke_spans(blocks, z_threshold, pen_mode),
         z_threshold=z_threshold,
         pen_mode=pen_mode,
+        rapid_mm_min=(float(rapid_mm_min[0]), float(rapid_mm_min[1]), float(rapid_mm_min[2])),
     )
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
@@ -31,6 +31,9 @@ from scratchfab.machine.sender_program import (
     resume_preamble,
 )
 
+if TYPE_CHECKING:
+    from scratchfab.machine.profile import MachineProfile
+
 
 @dataclass(frozen=True)
 class StreamRequest:
@@ -48,7 +51,8 @@ class StreamRequest:
         recut_unsure: When resuming: also cut again what the controller acknowledged but
             may not have run before a lost link (a board powered over the USB cable).
         check: Run GRBL check mode ($C) first.
-        machine: Machine profile name or path to compare with ``$$`` (None: no check).
+        machine: Machine profile (name, path or loaded) to compare with ``$$`` (None:
+            the job's own, else no check).
         margin: RX buffer bytes kept free.
         stall_timeout: Seconds of silence with lines in flight and an Idle controller.
         banner_timeout: Seconds to wait for the banner before a soft reset.
@@ -64,7 +68,7 @@ class StreamRequest:
     resume_interrupted: bool = False
     recut_unsure: bool = False
     check: bool = False
-    machine: str | None = None
+    machine: str | MachineProfile | None = None
     margin: int = 8
     stall_timeout: float = 10.0
     banner_timeout: float = 2.5
@@ -150,7 +154,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
         )
         rates = [info.settings.get(110 + k) for k in range(3)]
         if all(r is not None and r > 0 for r in rates):  # the time estimate at GRBL's G0 rates
-            program = load_program(req.gcode, program.z_threshold, [float(r or 0) for r in rates])
+            program = program.at_rapid_rates([float(r or 0) for r in rates])
         findings = compare(info.settings, info.status.wco, program, profile)
         for text in findings.warnings:
             cb.say(f"warning: {text}")
@@ -209,10 +213,12 @@ def _profile_for(req: StreamRequest, say: Callable[[str], Any]) -> Any:
     ``JOB/toolpath/toolpath.json``; streaming it is checked against that envelope even
     when no ``--machine`` is given.
     """
-    if req.machine is not None:
+    if isinstance(req.machine, str):
         from scratchfab.machine.profile import load_profile
 
         return load_profile(req.machine)
+    if req.machine is not None:
+        return req.machine
     planned = req.gcode.resolve().parent.parent / "toolpath" / "toolpath.json"
     if req.gcode.resolve().parent.name == "export" and planned.is_file():
         from scratchfab.toolpath import Toolpath
@@ -243,7 +249,7 @@ def run_stream_job(
     protocol: str = "counting",
     baud: int | None = None,
     check: bool = False,
-    machine: str | None = None,
+    machine: str | MachineProfile | None = None,
     recut_unsure: bool = False,
     say: Callable[[str], Any] = print,
 ) -> Path:
