@@ -225,8 +225,13 @@ def _footprint(
     hy: Any,
     hz: Any,
     make_piece: Callable[[Any], PieceFn],
+    with_magnitude: bool = False,
 ) -> tuple[Any, Any, Any]:
-    """(NDF integral, covered area, sum over P's edges of |integral of S(x) D dx|)."""
+    """(NDF integral, covered area, sum over P's edges of |integral of S(x) D dx|).
+
+    The magnitude is traced only when ``with_magnitude`` (else 0): the render path does not
+    need it.
+    """
     float_t = type(p0x)
     ex, ey = p1x - p0x, p1y - p0y
     length = dr.sqrt(dr.maximum(ex * ex + ey * ey, 1e-300))
@@ -261,7 +266,8 @@ def _footprint(
             x0, x1, v0, v1 = _edge_piece(lx[i], ly[i], dx, dy, x_lo, x_hi, k)
             edge = edge + sign * piece(x0, x1, v0, v1)
         ndf = ndf + edge
-        magnitude = magnitude + dr.abs(edge)
+        if with_magnitude:
+            magnitude = magnitude + dr.abs(edge)
     # Green: integral over the region = -(closed line integral), counter-clockwise
     return -orient * ndf, -0.5 * orient * area, magnitude
 
@@ -466,6 +472,6 @@ def scratch_footprint_ndf_magnitude(
     :func:`scratch_footprint_ndf` is stated against (module docstring, issue acceptance).
     """
     make_piece = _closed_form_pieces(hz, wbar, alpha)
-    return _footprint(quad_x, quad_y, p0x, p0y, p1x, p1y, half_width, wbar, hx, hy, hz, make_piece)[
-        2
-    ]
+    return _footprint(
+        quad_x, quad_y, p0x, p0y, p1x, p1y, half_width, wbar, hx, hy, hz, make_piece, True
+    )[2]
