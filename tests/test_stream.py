@@ -516,6 +516,21 @@ def test_recut_unsure_needs_resume(tmp_path, capsys):
     assert "--recut-unsure only applies with --resume" in capsys.readouterr().err
 
 
+def test_fresh_stream_over_an_unfinished_journal_warns(tmp_path, capsys):
+    job = tmp_path / "job.gcode"
+    write_job(job, 3)
+    journal = default_journal_path(job)
+    j = Journal(journal).open()
+    j.write("start", sha256=load_program(job).sha256, file=str(job), resume=False)
+    j.write("ack", i=0, line=2)
+    j.close()
+    args = ["stream", str(job), "--port", "grblsim://?time_scale=0.001", "--yes"]
+    main(args)
+    assert "shows an unfinished stream of this file" in capsys.readouterr().err
+    main(args)  # the journal's last run finished: no warning
+    assert "unfinished" not in capsys.readouterr().err
+
+
 def test_pipeline_stream_stage_resumes_an_interrupted_stream(tmp_path):
     job = tmp_path / "job"
     gcode = job / "export" / "board.gcode"

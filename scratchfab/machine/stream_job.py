@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from scratchfab.errors import ScratchfabError
+from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
 from scratchfab.machine.sender import Progress, Streamer, StreamOptions, open_port
 from scratchfab.machine.sender_checks import compare
@@ -116,11 +116,12 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     journal_file = req.journal or default_journal_path(req.gcode)
     start = 0
     preamble: list[str] = []
-    resume = req.resume or (
-        req.resume_interrupted
-        and journal_file.is_file()
-        and interrupted(read_journal(journal_file), program.sha256)
-    )
+    resume = req.resume or (req.resume_interrupted and _was_interrupted(journal_file, program))
+    if not resume and _was_interrupted(journal_file, program, quiet=True):
+        cb.say(
+            f"warning: {journal_file} shows an unfinished stream of this file; this run starts "
+            "again from the top (--resume continues where it stopped)"
+        )
     if resume:
         events = read_journal(journal_file)
         done = done_blocks(events, program.sha256, journal_file, req.recut_unsure)
@@ -180,6 +181,22 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     finally:
         ser.close()
     return journal_file
+
+
+def _was_interrupted(journal_file: Path, program: Program, quiet: bool = False) -> bool:
+    """True if the journal's last run streamed this file and did not finish.
+
+    Raises:
+        ConfigError: The journal cannot be read (unless ``quiet``: then False).
+    """
+    if not journal_file.is_file():
+        return False
+    try:
+        return interrupted(read_journal(journal_file), program.sha256)
+    except ConfigError:
+        if quiet:
+            return False
+        raise
 
 
 def _say_unsure(
