@@ -3,6 +3,7 @@ from __future__ import annotations
 import json
 import os
 import re
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -11,7 +12,7 @@ from PIL import Image, ImageDraw
 
 from scratchfab.cli import main
 from scratchfab.errors import ScratchfabError
-from scratchfab.pipeline.config import load_pipeline
+from scratchfab.pipeline.config import STAGES, load_pipeline
 from scratchfab.pipeline.manifest import Manifest
 from scratchfab.pipeline.runner import run_pipeline
 
@@ -82,11 +83,27 @@ def write_pipeline(folder: Path, min_rho: float = -1.0, formats: str = '["gcode"
 
 
 @pytest.fixture(scope="module")
-def finished_job(tmp_path_factory):
+def toml_reads():
+    """File name -> how often the run of ``finished_job`` read it as TOML."""
+    return Counter()
+
+
+@pytest.fixture(scope="module")
+def finished_job(tmp_path_factory, toml_reads):
+    import scratchfab.model.schema as schema
+
     folder = tmp_path_factory.mktemp("pipe")
     path = write_pipeline(folder)
     job = folder / "job"
-    result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    real = schema.read_input
+
+    def spy(file, *args, **kwargs):
+        toml_reads[Path(file).name] += 1
+        return real(file, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(schema, "read_input", spy)  # every TOML file is read by load_toml
+        result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
     return path, job, result
 
 
@@ -120,6 +137,13 @@ def test_run_produces_every_stage_output(finished_job):
     metrics = json.loads((job / "verify" / "metrics.json").read_text())
     for name, view in metrics["views"].items():
         assert f'data-metric="{name}.rho" data-value="{view["rho"]}"' in report
+
+
+def test_one_run_reads_the_pipeline_file_and_the_profile_once(finished_job, toml_reads):
+    _, _, result = finished_job
+    assert len(result.ran) == len(STAGES)  # each stage ran, toolpath and stream included
+    assert toml_reads["tiny.toml"] == 1
+    assert toml_reads["grbl-3018-diamond.toml"] == 1
 
 
 @pytest.mark.skipif(

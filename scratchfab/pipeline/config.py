@@ -8,13 +8,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from scratchfab.errors import ConfigError
 from scratchfab.model.design import Design, design_from_mapping
 from scratchfab.model.schema import load_toml, parse_table, spec
 from scratchfab.optimize.options import OptimizeOptions
 from scratchfab.verify.verify import DEFAULT_SPP
+
+if TYPE_CHECKING:
+    from scratchfab.machine.profile import MachineProfile
 
 STAGES = ("design", "optimize", "verify", "toolpath", "export", "stream")
 
@@ -102,7 +105,13 @@ class _StageTables:
 
 @dataclass(frozen=True)
 class Pipeline:
-    """A parsed pipeline file."""
+    """A parsed pipeline file.
+
+    Attributes:
+        design_tables: The file's tables as read, less the stage tables after design
+            (what the design stage depends on).
+        profile: The toolpath machine's profile, loaded once with the file.
+    """
 
     path: Path
     design: Design
@@ -112,14 +121,20 @@ class Pipeline:
     toolpath: ToolpathOptions
     export: ExportOptions
     stream: StreamOptions
+    design_tables: dict[str, Any] = field(compare=False, repr=False)
+    profile: MachineProfile = field(compare=False, repr=False)
 
     def machine_ref(self) -> str:
         """The toolpath machine: a bundled name, or a path resolved against the pipeline file."""
-        ref = self.toolpath.machine
-        if ref.endswith(".toml") or "/" in ref:
-            candidate = Path(ref)
-            return str(candidate if candidate.is_absolute() else (self.path.parent / candidate))
-        return ref
+        return _machine_ref(self.toolpath.machine, self.path)
+
+
+def _machine_ref(ref: str, pipeline_file: Path) -> str:
+    """``[toolpath] machine``: a bundled name, or a path resolved against ``pipeline_file``."""
+    if ref.endswith(".toml") or "/" in ref:
+        candidate = Path(ref)
+        return str(candidate if candidate.is_absolute() else (pipeline_file.parent / candidate))
+    return ref
 
 
 def load_pipeline(path: str | Path) -> Pipeline:
@@ -133,7 +148,14 @@ def load_pipeline(path: str | Path) -> Pipeline:
     design = design_from_mapping(data, str(file), file.resolve().parent)
     stage_data = {k: v for k, v in data.items() if k in _StageTables.__dataclass_fields__}
     tables = parse_table(_StageTables, stage_data, str(file))
-    pipe = Pipeline(
+    from scratchfab.machine.profile import load_profile
+
+    machine = _machine_ref(tables.toolpath.machine, file.resolve())
+    try:
+        profile = load_profile(machine)
+    except ConfigError as exc:
+        raise ConfigError(f"{file}: toolpath.machine: {exc}") from None
+    return Pipeline(
         path=file.resolve(),
         design=design,
         pipeline=tables.pipeline,
@@ -142,11 +164,6 @@ def load_pipeline(path: str | Path) -> Pipeline:
         toolpath=tables.toolpath,
         export=tables.export,
         stream=tables.stream,
+        design_tables={k: v for k, v in data.items() if k not in STAGES[1:]},
+        profile=profile,
     )
-    from scratchfab.machine.profile import load_profile
-
-    try:
-        load_profile(pipe.machine_ref())
-    except ConfigError as exc:
-        raise ConfigError(f"{file}: toolpath.machine: {exc}") from None
-    return pipe

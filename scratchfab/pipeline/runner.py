@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from scratchfab.errors import ScratchfabError
-from scratchfab.model.schema import load_toml
 from scratchfab.pipeline.config import STAGES, Pipeline
 from scratchfab.pipeline.manifest import Manifest, fingerprint
 from scratchfab.pipeline.report import write_report
@@ -42,13 +41,6 @@ class RunResult:
     seconds: float = 0.0
 
 
-def _profile_file(ref: str) -> Path:
-    """The file a machine profile (bundled name or path) is read from."""
-    from scratchfab.machine.profile import load_profile
-
-    return Path(load_profile(ref).source)
-
-
 class _Stages:
     """The stage table: inputs, action and outputs of each stage of one pipeline."""
 
@@ -63,12 +55,10 @@ class _Stages:
         job, pipe = self.job, self.pipe
         design_dir = job / "design"
         if stage == "design":
-            raw = load_toml(pipe.path)
-            tables = {k: v for k, v in raw.items() if k not in STAGES[1:]}
             targets = [
                 p for v in pipe.design.views if (p := pipe.design.target_path(v)) is not None
             ]
-            return fingerprint([], targets, {"tables": tables}, job)
+            return fingerprint([], targets, {"tables": pipe.design_tables}, job)
         if stage == "optimize":
             return fingerprint([design_dir], [], asdict(self.pipe.optimize), job)
         if stage == "verify":
@@ -76,7 +66,7 @@ class _Stages:
             return fingerprint(files, [], asdict(pipe.verify), job)
         if stage == "toolpath":
             files = [design_dir / "design.toml", job / "optimize" / "scratches.csv"]
-            profile = [_profile_file(pipe.machine_ref())]
+            profile = [Path(pipe.profile.source)]
             return fingerprint(files, profile, asdict(pipe.toolpath), job)
         if stage == "export":
             return fingerprint([job / "toolpath" / "toolpath.json"], [], asdict(pipe.export), job)
@@ -98,7 +88,7 @@ class _Stages:
 
         opts = self.pipe.pipeline
         run_design(
-            self.pipe.path,
+            replace(self.pipe.design, source=str(self.pipe.path)),
             self.job,
             force=opts.force,
             fit=opts.fit,
@@ -152,7 +142,7 @@ class _Stages:
 
         t = self.pipe.toolpath
         options = OrderOptions(passes=t.passes, kicks=t.kicks, seed=t.seed)
-        run_toolpath_job(self.job, self.pipe.machine_ref(), options, say=self.say)
+        run_toolpath_job(self.job, self.pipe.profile, options, say=self.say)
         return ["toolpath/toolpath.json", "toolpath/preview.png"]
 
     def _run_export(self) -> Sequence[str]:
@@ -179,7 +169,7 @@ class _Stages:
             protocol=s.protocol,
             baud=s.baud,
             check=s.check,
-            machine=self.pipe.machine_ref(),
+            machine=self.pipe.profile,
             recut_unsure=s.recut_unsure,
             say=self.say,
         )

@@ -6,7 +6,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from scratchfab.machine.profile import load_profile
+from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
 from scratchfab.model.scratches import load_scratches
 from scratchfab.toolpath.order import OrderOptions
@@ -30,16 +30,18 @@ def run_toolpath(
     scratch_file: Path,
     design_file: Path,
     out_dir: Path,
-    machine: str | Path,
+    machine: str | Path | MachineProfile,
     options: OrderOptions | None = None,
     say: Callable[[str], Any] = print,
 ) -> Toolpath:
     """Plan the strokes of ``scratch_file`` for ``machine``; write toolpath.json and preview.png.
 
+    ``machine`` is a profile name or file, or a profile already loaded.
+
     Raises:
         ScratchfabError: Bad inputs, tools that differ, or a board outside the envelope.
     """
-    profile = load_profile(machine)
+    profile = machine if isinstance(machine, MachineProfile) else load_profile(machine)
     design = load_design(design_file, require_views=False)
     scratches = load_scratches(scratch_file, design.scratch, design.board)
     say(f"ordering {len(scratches)} scratches for {profile.name} ...")
@@ -82,7 +84,7 @@ def job_toolpath_inputs(
 
 def run_toolpath_job(
     job: Path,
-    machine: str | Path,
+    machine: str | Path | MachineProfile,
     options: OrderOptions | None = None,
     say: Callable[[str], Any] = print,
 ) -> Toolpath:
