@@ -12,6 +12,7 @@ from scratchfab.errors import ConfigError
 from scratchfab.machine.profile import (
     bundled_dir,
     bundled_profiles,
+    gcode_number,
     load_profile,
     profile_from_mapping,
 )
@@ -81,6 +82,49 @@ def test_bad_profiles_name_the_key(path, value, message):
         profile_from_mapping(table, "my.toml")
     assert message in str(err.value)
     assert "\n" not in str(err.value)
+
+
+def write_z_profile(path: Path, safe: float, cut: float, decimals: int) -> Path:
+    path.write_text(
+        f"""name = "z test"
+[envelope]
+x_mm = [-100.0, 0.0]
+y_mm = [-100.0, 0.0]
+z_mm = [-40.6, 0.5]
+[z]
+safe_mm = {safe!r}
+engrave_mm = {cut!r}
+[tool]
+width_mm = 0.1
+depth_mm = 0.01
+[gcode]
+decimals = {decimals}
+"""
+    )
+    return path
+
+
+@pytest.mark.parametrize(
+    ("safe", "cut", "decimals", "keys"),
+    [
+        (0.3, -0.04, 0, ("z.safe_mm", "z.engrave_mm")),  # both written as 0
+        (0.0004, 0.0001, 3, ("z.safe_mm", "z.engrave_mm")),
+        (0.5, -40.6, 0, ("z.engrave_mm",)),  # written as -41, below z_mm's -40.6
+    ],
+)
+def test_z_heights_the_decimals_cannot_write_are_refused_on_load(
+    tmp_path, safe, cut, decimals, keys
+):
+    path = write_z_profile(tmp_path / "m.toml", safe, cut, decimals)
+    with pytest.raises(ConfigError) as err:
+        load_profile(path)
+    text = str(err.value)
+    assert text.startswith(f"{path}: ") and "gcode.decimals" in text and "\n" not in text
+    assert all(key in text for key in keys)
+    # With more decimals the same heights are written apart and inside the envelope.
+    profile = load_profile(write_z_profile(path, safe, cut, 6))
+    written = [float(gcode_number(v, 6)) for v in (profile.z.engrave_mm, profile.z.safe_mm)]
+    assert -40.6 <= written[0] < written[1] <= 0.5
 
 
 def test_unknown_name_lists_bundled(tmp_path):

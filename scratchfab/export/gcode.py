@@ -78,9 +78,12 @@ class _Grid:
 def check_envelope(strokes: np.ndarray, rows: np.ndarray, profile: MachineProfile) -> None:
     """Refuse a job that leaves the envelope, before anything is written.
 
+    The profile's own values (start, Z heights as written) are checked when it is
+    loaded (:class:`~scratchfab.machine.profile.MachineProfile`).
+
     Raises:
         ScratchfabError: Naming the first stroke outside (1-based, cut order) and its
-            scratch row, or the profile value (start, Z height) that is outside.
+            scratch row.
     """
     env = profile.envelope
     pts = strokes.reshape(-1, 2)
@@ -94,26 +97,6 @@ def check_envelope(strokes: np.ndarray, rows: np.ndarray, profile: MachineProfil
             f"machine '{profile.name}' envelope x {list(env.x_mm)}, y {list(env.y_mm)}; "
             "nothing written"
         )
-    if not env.contains_xy(np.asarray(profile.start_mm))[0]:
-        raise ScratchfabError(
-            f"start_mm {list(profile.start_mm)} is outside the envelope; nothing written"
-        )
-    if profile.tool_control.mode != "servo":
-        dec = profile.gcode.decimals
-        written = {}
-        for key in ("safe_mm", "engrave_mm"):
-            z = getattr(profile.z, key)
-            written[key] = float(gcode_number(z, dec))
-            if not env.z_mm[0] <= written[key] <= env.z_mm[1]:
-                raise ScratchfabError(
-                    f"z.{key} = {z:g}, written with {dec} decimals as {written[key]:g}, is "
-                    f"outside the envelope z {list(env.z_mm)}; nothing written"
-                )
-        if written["safe_mm"] <= written["engrave_mm"]:
-            raise ScratchfabError(
-                f"z.safe_mm and z.engrave_mm are both written as {written['safe_mm']:g} with "
-                f"{dec} decimals; use more decimals; nothing written"
-            )
 
 
 def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> list[str]:

@@ -274,13 +274,7 @@ class MachineProfile:
                 f"x {list(self.envelope.x_mm)}, y {list(self.envelope.y_mm)}"
             )
         if self.tool_control.mode != "servo":
-            lo, hi = self.envelope.z_mm
-            for key in ("safe_mm", "engrave_mm"):
-                value = getattr(self.z, key)
-                if not lo <= value <= hi:
-                    raise ValueError(
-                        f"z.{key} ({value}) is outside the envelope's z_mm {list(self.envelope.z_mm)}"
-                    )
+            self._check_z_heights()
         rates = self.motion.max_rate_mm_min
         feeds = [("engrave_mm_min", self.feeds.engrave_mm_min, min(rates[0], rates[1]))]
         feeds.append(("plunge_mm_min", self.feeds.plunge_mm_min, rates[2]))
@@ -293,6 +287,30 @@ class MachineProfile:
                 raise ValueError(
                     f"feeds.{key} ({value:g}) exceeds the machine's max rate ({limit:g} mm/min)"
                 )
+
+    def _check_z_heights(self) -> None:
+        """Both heights inside the envelope, and still apart, as G-code writes them."""
+        lo, hi = self.envelope.z_mm
+        dec = self.gcode.decimals
+        written = {}
+        for key in ("safe_mm", "engrave_mm"):
+            value = getattr(self.z, key)
+            if not lo <= value <= hi:
+                raise ValueError(
+                    f"z.{key} ({value}) is outside the envelope's z_mm {list(self.envelope.z_mm)}"
+                )
+            written[key] = float(gcode_number(value, dec))
+            if not lo <= written[key] <= hi:
+                raise ValueError(
+                    f"z.{key} ({value:g}) is written with gcode.decimals = {dec} as "
+                    f"{written[key]:g}, outside the envelope's z_mm {list(self.envelope.z_mm)}"
+                )
+        if written["safe_mm"] <= written["engrave_mm"]:
+            raise ValueError(
+                f"z.safe_mm ({self.z.safe_mm:g}) and z.engrave_mm ({self.z.engrave_mm:g}) are "
+                f"both written as {written['safe_mm']:g} with gcode.decimals = {dec}; "
+                "raise gcode.decimals or move them apart"
+            )
 
     def to_table(self) -> dict[str, Any]:
         """The profile as plain TOML-ready values (round-trips through :func:`profile_from_mapping`)."""
