@@ -225,8 +225,11 @@ def job(tmp_path: Path) -> Path:
     return make_job(tmp_path / "job", make_design(resolution=24, size_mm=30.0), count=150)
 
 
-def test_cli_writes_every_output(job: Path) -> None:
+def test_cli_writes_every_output(job: Path, capsys: pytest.CaptureFixture[str]) -> None:
     main(["optimize", str(job), "--iterations", "12", "--checkpoint-every", "5"])
+    err = capsys.readouterr().err.splitlines()  # not a terminal: a log of progress lines
+    assert err[0] == "compiling kernels..." and "writing outputs..." in err
+    assert any(line.startswith(f"[{'#' * 30}] 12/12 loss ") for line in err)
     out = job / "optimize"
     for name in (
         "scratches.csv",

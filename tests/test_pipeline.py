@@ -89,7 +89,13 @@ def toml_reads():
 
 
 @pytest.fixture(scope="module")
-def finished_job(tmp_path_factory, toml_reads):
+def said():
+    """The lines the run of ``finished_job`` said."""
+    return []
+
+
+@pytest.fixture(scope="module")
+def finished_job(tmp_path_factory, toml_reads, said):
     import scratchfab.model.schema as schema
 
     folder = tmp_path_factory.mktemp("pipe")
@@ -103,7 +109,7 @@ def finished_job(tmp_path_factory, toml_reads):
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(schema, "read_input", spy)  # every TOML file is read by load_toml
-        result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+        result = run_pipeline(load_pipeline(path), job, say=said.append)
     return path, job, result
 
 
@@ -144,6 +150,14 @@ def test_one_run_reads_the_pipeline_file_and_the_profile_once(finished_job, toml
     assert len(result.ran) == len(STAGES)  # each stage ran, toolpath and stream included
     assert toml_reads["tiny.toml"] == 1
     assert toml_reads["grbl-3018-diamond.toml"] == 1
+
+
+def test_optimize_progress_is_indented_under_its_stage(finished_job, said):
+    first = said.index("[optimize] running")
+    last = next(i for i, line in enumerate(said) if line.startswith("[optimize] done"))
+    lines = said[first + 1 : last]
+    assert lines[0] == "  compiling kernels..." and "  writing outputs..." in lines
+    assert re.fullmatch(r"  \[#{30}\] 4/4 loss \d\.\d{5}  elapsed \S+  eta 00:00", lines[-2])
 
 
 @pytest.mark.skipif(

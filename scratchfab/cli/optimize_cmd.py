@@ -2,63 +2,34 @@
 
 from __future__ import annotations
 
-import math
 import sys
-import time
+from collections.abc import Callable
 from pathlib import Path
 
 import click
 
 from scratchfab.cli.options import backend_option
+from scratchfab.optimize.progress import clock, progress_printer
 from scratchfab.optimize.stage import OptimizeOptions, Progress, run_optimize
 
 
-def _clock(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "--:--"
-    s = int(round(seconds))
-    return (
-        f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
-        if s >= 3600
-        else f"{s // 60:02d}:{s % 60:02d}"
-    )
+class _Line:
+    """One line of a terminal, redrawn in place."""
 
-
-class _Bar:
-    """A one-line progress bar with loss and ETA, redrawn in place on a terminal."""
-
-    def __init__(self, width: int = 30) -> None:
-        self.width = width
+    def __init__(self) -> None:
         self.last_len = 0
-        self.tty = sys.stderr.isatty()
-        self.last_decile = -1
-        self.last_time = 0.0
 
-    def __call__(self, p: Progress) -> None:
-        if p.message:
-            if self.tty:
-                self._line(f"{p.message}...", newline=True)
-            else:
-                click.echo(f"{p.message}...", err=True)
-            return
-        frac = p.iteration / p.total if p.total else 1.0
-        filled = int(round(frac * self.width))
-        text = (
-            f"[{'#' * filled}{'.' * (self.width - filled)}] {p.iteration}/{p.total} "
-            f"loss {p.loss:.5f}  elapsed {_clock(p.elapsed_s)}  eta {_clock(p.eta_s)}"
-        )
-        if self.tty:
-            self._line(text, newline=p.iteration >= p.total)
-        elif int(10 * frac) != self.last_decile or time.monotonic() - self.last_time > 5:
-            # Not a terminal (a log): a line per 10 % and at least every 5 s.
-            self.last_decile = int(10 * frac)
-            self.last_time = time.monotonic()
-            click.echo(text, err=True)
-
-    def _line(self, text: str, newline: bool) -> None:
+    def __call__(self, text: str, newline: bool) -> None:
         pad = " " * max(0, self.last_len - len(text))
         click.echo(f"\r{text}{pad}", nl=newline, err=True)
         self.last_len = 0 if newline else len(text)
+
+
+def _bar() -> Callable[[Progress], None]:
+    """Progress on stderr: a bar redrawn in place on a terminal, else throttled lines."""
+    return progress_printer(
+        lambda text: click.echo(text, err=True), _Line() if sys.stderr.isatty() else None
+    )
 
 
 @click.command("optimize")
@@ -143,7 +114,7 @@ def optimize(
         prune_tolerance=prune_tolerance,
         checkpoint_every=checkpoint_every,
     )
-    result = run_optimize(job, options, progress=_Bar())
+    result = run_optimize(job, options, progress=_bar())
     views = result.quality["views"]
     for name, v in views.items():
         cross = ", ".join(f"x_{name},{j} = {x:.3f}" for j, x in v["crosstalk"].items())
@@ -154,7 +125,7 @@ def optimize(
         p = result.prune
         click.echo(
             f"pruned {p.removed} scratches: {p.length_saved_mm:.0f} mm of cutting, about "
-            f"{_clock(p.time_saved_s)} of machining saved (at {p.feed_mm_min:g} mm/min + "
+            f"{clock(p.time_saved_s)} of machining saved (at {p.feed_mm_min:g} mm/min + "
             f"{p.stroke_overhead_s:g} s per stroke)"
         )
     click.echo(

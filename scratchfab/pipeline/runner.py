@@ -98,19 +98,10 @@ class _Stages:
         return ["design/design.toml", "design/scratches.csv", "design/targets"]
 
     def _run_optimize(self) -> Sequence[str]:
+        from scratchfab.optimize.progress import progress_printer
         from scratchfab.optimize.stage import run_optimize
 
-        last = [0.0]
-
-        def progress(p: Any) -> None:
-            if p.message:
-                self.say(p.message)
-            elif p.iteration == p.total or time.monotonic() - last[0] > 5:
-                last[0] = time.monotonic()
-                self.say(
-                    f"  iteration {p.iteration}/{p.total}  loss {p.loss:.5g}  ETA {p.eta_s:.0f} s"
-                )
-
+        progress = progress_printer(lambda line: self.say(f"  {line}"))
         run_optimize(self.job, self.pipe.optimize, progress=progress)
         return ["optimize/scratches.csv", "optimize/renders", "optimize/log.csv"]
 
