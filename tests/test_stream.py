@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -15,6 +16,7 @@ from scratchfab.cli import main
 from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim import SimOptions
 from scratchfab.machine.grblsim_pty import GrblPty
+from scratchfab.machine.profile import Z_UNLIMITED_MM, load_profile
 from scratchfab.machine.sender import (
     Streamer,
     StreamFault,
@@ -298,6 +300,23 @@ def _bench_profile(x=(-10.0, 10.0)):
         ),
         motion=SimpleNamespace(max_rate_mm_min=(1000.0, 500.0, 500.0)),
     )
+
+
+def test_profile_without_z_range_asks_no_z_travel(tmp_path):
+    job = tmp_path / "j.gcode"
+    job.write_text("G21G90\nG0Z0\nG0X-20Y-20\nG1Z-1F100\nG1X-18\nG0Z0\n")
+    profile = load_profile("grbl-3018-diamond")
+    settings = {20: 1, 22: 1, 110: 5000, 111: 5000, 112: 600, 130: 300, 131: 180, 132: 45}
+    wco = (-150.0, -90.0, -40.0)
+    assert compare(settings, wco, load_program(job), profile).refusals == []
+    unlimited = replace(profile, envelope=replace(profile.envelope, z_mm=Z_UNLIMITED_MM))
+    assert unlimited.envelope.max_travel_mm[2] is None
+    assert compare(settings, wco, load_program(job), unlimited).refusals == []
+    # a profile that does give Z still has it compared with $132
+    settings[132] = 20
+    travel = f"machine '{profile.name}' expects 45 mm of Z travel but GRBL has $132=20"
+    assert travel in compare(settings, wco, load_program(job), profile).refusals
+    assert travel not in compare(settings, wco, load_program(job), unlimited).refusals
 
 
 @pytest.mark.parametrize(

@@ -16,6 +16,7 @@ Schema (every table and key; defaults in brackets)::
     x_mm = [-290.0, 0.0]    # GRBL after homing: negative space, -$130 <= X <= 0
     y_mm = [-170.0, 0.0]    #                                     -$131 <= Y <= 0
     z_mm = [-40.0, 0.0]     #                                     -$132 <= Z <= 0
+                            # (optional: without it Z is not checked against $132)
 
     [board]                 # where and how the board lies on the bed
     origin = "lower-left"   # board corner (after rotation) placed at offset_mm:
@@ -110,26 +111,29 @@ def _check_range(name: str, value: Range) -> None:
         raise ValueError(f"{name}: expected [min, max] with min < max, got {list(value)}")
 
 
+Z_UNLIMITED_MM: Range = (-1000.0, 1000.0)  # no ``z_mm`` given
+
+
 @dataclass(frozen=True)
 class Envelope:
     """Reachable work coordinates per axis, [min, max] in mm."""
 
     x_mm: Range
     y_mm: Range
-    z_mm: Range = (-1000.0, 1000.0)
+    z_mm: Range = Z_UNLIMITED_MM
 
     def __post_init__(self) -> None:
         for name in ("x_mm", "y_mm", "z_mm"):
             _check_range(name, getattr(self, name))
 
     @property
-    def max_travel_mm(self) -> tuple[float, float, float]:
-        """Travel per axis (max - min): what GRBL's $130, $131, $132 must at least allow."""
-        return (
-            self.x_mm[1] - self.x_mm[0],
-            self.y_mm[1] - self.y_mm[0],
-            self.z_mm[1] - self.z_mm[0],
-        )
+    def max_travel_mm(self) -> tuple[float, float, float | None]:
+        """Travel per axis (max - min): what GRBL's $130, $131, $132 must at least allow.
+
+        None for Z when the profile gives no ``z_mm``: it then asks no Z travel of GRBL.
+        """
+        z = None if self.z_mm == Z_UNLIMITED_MM else self.z_mm[1] - self.z_mm[0]
+        return (self.x_mm[1] - self.x_mm[0], self.y_mm[1] - self.y_mm[0], z)
 
     def contains_xy(self, points: np.ndarray, slack: float = 0.0) -> np.ndarray:
         """(N,) mask of (N, 2) points inside the XY envelope (closed, widened by ``slack``)."""
