@@ -207,6 +207,19 @@ def test_changed_option_reruns_only_downstream(finished_job):
         path.write_text(text)
 
 
+def test_recut_unsure_does_not_stream_a_finished_board_again(finished_job):
+    path, job, _ = finished_job
+    run_pipeline(load_pipeline(path), job, say=lambda s: None)  # up to date after other tests
+    text = path.read_text()
+    path.write_text(text.replace("[stream]\n", "[stream]\nrecut_unsure = true\n"))
+    try:
+        pipe = load_pipeline(path)
+        assert pipe.stream.recut_unsure
+        assert run_pipeline(pipe, job, say=lambda s: None).ran == []
+    finally:
+        path.write_text(text)
+
+
 def test_toolpath_table_reaches_the_ordering_and_reruns_from_toolpath(finished_job, monkeypatch):
     import scratchfab.toolpath.stage as stage
     from scratchfab.toolpath import OrderOptions

@@ -170,9 +170,13 @@ def test_default_journal_path(tmp_path):
 @pytest.mark.parametrize(
     ("make", "message"),
     [
-        (lambda p: None, "no journal to resume from (stream without --resume first)"),
-        (lambda p: p.mkdir(), "is a directory, expected a journal file"),
-        (lambda p: p.write_bytes(b"\xff\xfe{"), "not a journal (not UTF-8 text)"),
+        (lambda p: None, ": no journal to resume from (stream without --resume first)"),
+        (lambda p: p.mkdir(), ": is a directory, expected a journal file"),
+        (lambda p: p.write_bytes(b"\xff\xfe{"), ": not a journal (not UTF-8 text)"),
+        (
+            lambda p: p.write_text('"hand edited"\n{}\n'),
+            ":1: not a journal line (move the journal aside to stream from the top)",
+        ),
     ],
 )
 def test_read_journal_errors_name_the_file(tmp_path, make, message):
@@ -180,7 +184,7 @@ def test_read_journal_errors_name_the_file(tmp_path, make, message):
     make(path)
     with pytest.raises(ConfigError) as info:
         read_journal(path)
-    assert str(info.value) == f"{path}: {message}"
+    assert str(info.value) == f"{path}{message}"
 
 
 def test_load_program_errors_name_the_file(tmp_path):
@@ -211,10 +215,52 @@ def test_lost_link_blocks_count_done_unless_recut_unsure():
         *({"ev": "ack", "i": i} for i in range(6, 8)),
     ]
     assert done_blocks(events, "a", "j") == set(range(10))
-    assert done_blocks(events, "a", "j", recut_unsure=True) == set(range(8))
+    # the resume that followed the lost link settled it; only a loss ending the last run counts
+    assert done_blocks(events, "a", "j", recut_unsure=True) == set(range(10))
+    lost_again = [
+        *events,
+        *({"ev": "ack", "i": i} for i in range(10, 13)),
+        {"ev": "lost", "reason": "connection lost", "executed_through": 10},
+    ]
+    assert done_blocks(lost_again, "a", "j") == set(range(13))
+    assert done_blocks(lost_again, "a", "j", recut_unsure=True) == set(range(11))
     assert interrupted(events, "a") and not interrupted(events, "b")
     assert not interrupted([*events, {"ev": "end", "complete": True}], "a")
     assert not interrupted([], "a")
+
+
+def test_runs_before_the_last_fresh_start_do_not_count():
+    events = [
+        {"ev": "start", "sha256": "v1", "resume": False},
+        *({"ev": "ack", "i": i} for i in range(50)),
+        {"ev": "end", "complete": True},
+        {"ev": "start", "sha256": "v2", "resume": False},
+        *({"ev": "ack", "i": i} for i in range(4)),
+        {"ev": "lost", "reason": "connection lost", "executed_through": 1},
+    ]
+    assert done_blocks(events, "v2", "j") == set(range(4))  # v1's run is not held against v2
+    assert done_blocks(events, "v2", "j", recut_unsure=True) == {0, 1}
+    with pytest.raises(ConfigError, match="different version"):
+        done_blocks(events, "v1", "j")
+
+
+def test_resume_with_nothing_left_closes_the_journal(tmp_path):
+    job = tmp_path / "job"
+    gcode = job / "export" / "board.gcode"
+    gcode.parent.mkdir(parents=True)
+    write_job(gcode, 2)
+    prog = load_program(gcode)
+    journal = job / "stream" / "journal.jsonl"
+    j = Journal(journal).open()
+    j.start(prog, resume=False)
+    for b in prog.blocks:
+        j.write("ack", i=b.index, line=b.lineno)
+    j.write("lost", reason="connection lost", executed_through=len(prog.blocks) - 1)
+    j.close()
+    said: list[str] = []
+    run_stream_job(job, "grblsim://?time_scale=0.001", say=said.append)
+    assert any("nothing to do" in line for line in said)
+    assert not interrupted(read_journal(journal), prog.sha256)  # a later run starts fresh
 
 
 def test_compare_with_profile_and_soft_limits(tmp_path):
@@ -765,10 +811,29 @@ def test_executed_guess_distances(tmp_path):
     s.info = SimpleNamespace(planner_blocks=15)
     s._program = prog
     s._acked_blocks = [0, 1, 2, 3, 4]
+    s._acks_at_status = 5
     assert s._executed_guess((2.5, 0.0, 0.0)) == 2
     assert s._executed_guess((4.0, 0.0, 0.0)) == 4
     assert s._executed_guess(None) == -1
     assert math.isclose(prog.total_seconds, 4 / 100 * 60)
+
+
+def test_executed_guess_ignores_blocks_acknowledged_after_the_report(tmp_path):
+    # 30 one-mm moves, then back over the same line: an old report at X0.5 lies on the 1st
+    # move and on the last; only the 1st had been acknowledged when the report came
+    job = tmp_path / "job.gcode"
+    job.write_text("G21G90\n" + "".join(f"G1X{k}F100\n" for k in range(1, 31)) + "G1X0\n")
+    prog = load_program(job)
+    s = Streamer.__new__(Streamer)
+    s.info = SimpleNamespace(planner_blocks=15)
+    s._program = prog
+    s._acked_blocks = list(range(len(prog.blocks)))
+    s._acks_at_status = 2
+    window_start = s._executed_guess(None)
+    assert window_start < 31
+    assert s._executed_guess((0.5, 0.0, 0.0)) == window_start  # no match: earliest candidate
+    s._acks_at_status = len(prog.blocks)  # a fresh report: the return move is the match
+    assert s._executed_guess((0.5, 0.0, 0.0)) == 30
 
 
 def test_rapid_time_estimate_per_axis_and_retimed(tmp_path):

@@ -410,3 +410,13 @@ def test_demo_job_verifies_within_two_percent_and_its_sweep_shows_each_image(tmp
     for name, corr in frame_correlations(frames, path, nearest, boards, design.board).items():
         assert max(corr, key=corr.get) == name, (name, corr)
         assert corr[name] > 0.5
+
+
+def test_tolerance_from_a_profile_name_or_a_loaded_profile():
+    from scratchfab.machine.profile import load_profile
+
+    profile = load_profile("grbl-3018-diamond")
+    by_name = Tolerance.from_profile("grbl-3018-diamond")
+    loaded = Tolerance.from_profile(profile)
+    assert by_name.position_mm == loaded.position_mm == profile.tool.tolerance_mm
+    assert loaded.source == profile.source

@@ -81,9 +81,9 @@ class SimOptions:
         error_code: The code for ``error_at``.
         disconnect_after: After the N-th G-code block is received the link drops; the
             controller keeps running what it already received (the host vanished).
-        usb_powered: With ``disconnect_after``: the controller loses power with the link
-            (a board powered over the USB cable) and stops where it is, running nothing
-            more of what it had received.
+        usb_powered: The controller loses power with the link (``disconnect_after`` or
+            :meth:`drop_link`; a board powered over the USB cable) and stops where it is,
+            running nothing more of what it had received.
         lose_ok_at: The ``ok`` of the N-th G-code block is never sent (a garbled answer).
         reset_after: The controller resets itself (brown-out) after the N-th G-code block.
         slow: Extra seconds before every ``ok``/``error`` answer.

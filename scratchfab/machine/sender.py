@@ -244,6 +244,8 @@ class Streamer:
         self._last_rx = time.monotonic()
         self._last_poll = 0.0
         self._wco: tuple[float, float, float] | None = None
+        self._acked_blocks: list[int] = []  # file blocks acknowledged, in order
+        self._acks_at_status = 0  # how many of them were acknowledged before the last report
         self.sent_log: list[str] = []
         self.max_inflight_bytes = 0
         self.max_inflight_lines = 0
@@ -291,6 +293,8 @@ class Streamer:
 
     def _note_status(self, line: str) -> None:
         self.status = parse_status(line, self._wco)
+        # answers arrive in order: the block running at this report was acknowledged before it
+        self._acks_at_status = len(self._acked_blocks)
         if self.status.wco is not None:
             self._wco = self.status.wco
 
@@ -441,21 +445,11 @@ class Streamer:
             StreamStopped: The user chose to stop after Ctrl-C.
         """
         items = self._items(program, start, preamble)
-        journal.write(
-            "start",
-            file=str(program.path),
-            sha256=program.sha256,
-            blocks=len(program.blocks),
-            resume=resume,
-            resume_from=(
-                program.blocks[start].lineno if start and start < len(program.blocks) else None
-            ),
-            protocol=self.options.protocol,
-            preamble=list(preamble),
-        )
+        journal.start(program, resume, start, self.options.protocol, preamble)
         self._journal = journal
         self._program = program
-        self._acked_blocks: list[int] = []
+        self._acked_blocks = []
+        self._acks_at_status = 0
         cum = [0.0]
         for b in program.blocks:
             cum.append(cum[-1] + b.seconds)
@@ -727,7 +721,9 @@ class Streamer:
         being parsed) after the last acknowledgement; an acknowledged sync block (M3/M5, G4,
         ...) means everything before it ran. The first candidate block whose segment contains
         the hold position is the interrupted one; without a match the earliest candidate is
-        taken as interrupted (a stroke is cut again rather than skipped).
+        taken as interrupted (a stroke is cut again rather than skipped). Only blocks
+        acknowledged before the position report can match it: a later block passing
+        through the same point (an old report) had not run.
         """
         acked = self._acked_blocks
         if not acked:
@@ -745,17 +741,18 @@ class Streamer:
                 if motions > self.info.planner_blocks + 1:
                     break
         window.reverse()
-        if wpos is None:
+        if wpos is None or self._acks_at_status == 0:
             return window[0] - 1
-        for i in window:
+        reported = [i for i in window if i <= acked[self._acks_at_status - 1]]
+        for i in reported:
             b = blocks[i]
             if not b.motion:
                 continue
             start = _xyz(blocks[i - 1].modal if i > 0 else None, wpos)
             if _on_segment(wpos, start, _xyz(b.modal, wpos), tol=0.01):
                 return i - 1
-        if math.dist(wpos, _xyz(blocks[window[-1]].modal, wpos)) < 0.01:
-            return window[-1]
+        if reported and math.dist(wpos, _xyz(blocks[reported[-1]].modal, wpos)) < 0.01:
+            return reported[-1]
         return window[0] - 1
 
 

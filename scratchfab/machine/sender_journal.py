@@ -24,11 +24,15 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import read_input
+
+if TYPE_CHECKING:
+    from scratchfab.machine.sender_program import Program
 
 
 def default_journal_path(gcode: str | os.PathLike[str]) -> Path:
@@ -73,6 +77,26 @@ class Journal:
         if event != "ack":
             os.fsync(self._handle.fileno())
 
+    def start(
+        self,
+        program: Program,
+        resume: bool,
+        start: int = 0,
+        protocol: str = "",
+        preamble: Sequence[str] = (),
+    ) -> None:
+        """Begin a run of ``program`` at block ``start`` (a fresh one, or a resume)."""
+        self.write(
+            "start",
+            file=str(program.path),
+            sha256=program.sha256,
+            blocks=len(program.blocks),
+            resume=resume,
+            resume_from=(program.blocks[start].lineno if 0 < start < len(program.blocks) else None),
+            protocol=protocol,
+            preamble=list(preamble),
+        )
+
     def close(self) -> None:
         """Flush to disk and close."""
         if self._handle is not None:
@@ -96,11 +120,16 @@ def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     lines = text.splitlines()
     for k, line in enumerate(lines, start=1):
         try:
-            events.append(json.loads(line))
+            event = json.loads(line)
         except json.JSONDecodeError:
             if k == len(lines):
                 break
-            raise ConfigError(f"{p}:{k}: not a journal line") from None
+            event = None
+        if not isinstance(event, dict):
+            raise ConfigError(
+                f"{p}:{k}: not a journal line (move the journal aside to stream from the top)"
+            )
+        events.append(event)
     return events
 
 
@@ -116,35 +145,40 @@ def done_blocks(
         events: The journal's events (:func:`read_journal`).
         sha256: The G-code file's content hash; the journal must be for the same content.
         path: The journal file, for messages.
-        recut_unsure: Treat a lost link like a reset: blocks acknowledged after the last
-            position report before it count as not done (a board that lost power with the
-            cable). By default they count as done (the controller kept power and ran them).
+        recut_unsure: Treat a lost link that ended the last run like a reset: blocks
+            acknowledged after the last position report before it count as not done (a
+            board that lost power with the cable). By default they count as done (the
+            controller kept power and ran them). An earlier run's lost link was settled by
+            the resume that followed it.
 
     Raises:
-        ConfigError: The journal belongs to a different file content (sha256 mismatch).
+        ConfigError: The journal has no start event, or its runs since the last fresh
+            start were for a different file content (sha256 mismatch).
     """
+    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
+    if not starts:
+        raise ConfigError(f"{path}: journal has no start event")
+    fresh = [k for k in starts if not events[k].get("resume")]
+    first = fresh[-1] if fresh else starts[0]  # runs before a fresh start no longer count
     done: set[int] = set()
     session: set[int] = set()
-    started = False
-    for ev in events:
+    for k, ev in enumerate(events[first:], start=first):
         kind = ev.get("ev")
         if kind == "start":
-            done = done | session if ev.get("resume") else set()
+            done |= session
             session = set()
-            started = True
             if ev.get("sha256") != sha256:
                 raise ConfigError(
                     f"{path}: the journal was written for a different version of "
-                    f"{ev.get('file', 'the file')} (content changed); cannot resume safely"
+                    f"{ev.get('file', 'the file')} (content changed); cannot resume safely "
+                    "(stream without --resume to start from the top)"
                 )
         elif kind == "ack" and "i" in ev:
             session.add(int(ev["i"]))
-        elif kind == "stop" or (kind == "lost" and recut_unsure):
+        elif kind == "stop" or (kind == "lost" and recut_unsure and k > starts[-1]):
             through = ev.get("executed_through")
             limit = -1 if through is None else int(through)
             session = {i for i in session if i <= limit}
-    if not started:
-        raise ConfigError(f"{path}: journal has no start event")
     return done | session
 
 

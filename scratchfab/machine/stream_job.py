@@ -128,6 +128,12 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
         _say_unsure(program, events, journal_file, req.recut_unsure, cb.outcome)
         start = resume_point(program, done)
         if start >= len(program.blocks):
+            journal = Journal(journal_file).open()  # closes the run: the next one is fresh
+            try:
+                journal.start(program, resume=True, start=start, protocol=req.protocol)
+                journal.write("end", complete=True)
+            finally:
+                journal.close()
             cb.outcome(
                 f"{req.gcode}: every line is done according to {journal_file}; nothing to do"
             )

@@ -71,7 +71,9 @@ class _Stages:
         if stage == "export":
             return fingerprint([job / "toolpath" / "toolpath.json"], [], asdict(pipe.export), job)
         if stage == "stream":
-            return fingerprint([job / "export" / "board.gcode"], [], asdict(pipe.stream), job)
+            # recut_unsure only steers a resume: turning it on must not cut a finished board again
+            options = {k: v for k, v in asdict(pipe.stream).items() if k != "recut_unsure"}
+            return fingerprint([job / "export" / "board.gcode"], [], options, job)
         raise KeyError(stage)
 
     def wanted(self, stage: str) -> bool:
@@ -123,7 +125,7 @@ class _Stages:
         if v.jitter:
             from scratchfab.verify.jitter import Tolerance
 
-            settings["jitter"] = Tolerance.from_profile(self.pipe.machine_ref())
+            settings["jitter"] = Tolerance.from_profile(self.pipe.profile)
         run_verify_job(self.job, VerifySettings(**settings), progress=self.say)
         return ["verify/metrics.json"]
 

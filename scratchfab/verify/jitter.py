@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from scratchfab.model.scratches import ScratchSet
+
+if TYPE_CHECKING:
+    from scratchfab.machine.profile import MachineProfile
 
 
 @dataclass(frozen=True)
@@ -27,7 +31,7 @@ class Tolerance:
     source: str = "defaults"
 
     @classmethod
-    def from_profile(cls, name_or_path: str) -> Tolerance:
+    def from_profile(cls, name_or_path: str | MachineProfile) -> Tolerance:
         """Position tolerance from a machine profile's ``[tool] tolerance_mm``.
 
         Profiles carry no angle or depth tolerance, so those keep their defaults.
@@ -37,8 +41,12 @@ class Tolerance:
         """
         from scratchfab.machine.profile import load_profile
 
-        profile = load_profile(name_or_path)
-        return cls(position_mm=float(profile.tool.tolerance_mm), source=str(name_or_path))
+        if isinstance(name_or_path, str):
+            profile = load_profile(name_or_path)
+            source = name_or_path
+        else:
+            profile, source = name_or_path, name_or_path.source
+        return cls(position_mm=float(profile.tool.tolerance_mm), source=str(source))
 
     def as_dict(self) -> dict[str, float | str]:
         """JSON-ready fields."""
