@@ -116,16 +116,26 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     journal_file = req.journal or default_journal_path(req.gcode)
     start = 0
     preamble: list[str] = []
-    resume = req.resume or (req.resume_interrupted and _was_interrupted(journal_file, program))
-    if not resume and _was_interrupted(journal_file, program, quiet=True):
+    events = None
+    if req.resume or journal_file.is_file():
+        try:
+            events = read_journal(journal_file)
+        except ConfigError:
+            if req.resume or req.resume_interrupted:
+                raise  # only a fresh stream can do without its journal
+    unfinished = events is not None and interrupted(events, program.sha256)
+    resume = req.resume or (req.resume_interrupted and unfinished)
+    if not resume and unfinished:
         cb.say(
             f"warning: {journal_file} shows an unfinished stream of this file; this run starts "
             "again from the top (--resume continues where it stopped)"
         )
     if resume:
-        events = read_journal(journal_file)
-        done = done_blocks(events, program.sha256, journal_file, req.recut_unsure)
-        _say_unsure(program, events, journal_file, req.recut_unsure, cb.outcome)
+        assert events is not None  # a resume reads the journal or raises
+        trusted = done_blocks(events, program.sha256, journal_file)
+        cautious = done_blocks(events, program.sha256, journal_file, recut_unsure=True)
+        _say_unsure(program, trusted - cautious, req.recut_unsure, cb.outcome)
+        done = cautious if req.recut_unsure else trusted
         start = resume_point(program, done)
         if start >= len(program.blocks):
             journal = Journal(journal_file).open()  # closes the run: the next one is fresh
@@ -189,34 +199,13 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     return journal_file
 
 
-def _was_interrupted(journal_file: Path, program: Program, quiet: bool = False) -> bool:
-    """True if the journal's last run streamed this file and did not finish.
-
-    Raises:
-        ConfigError: The journal cannot be read (unless ``quiet``: then False).
-    """
-    if not journal_file.is_file():
-        return False
-    try:
-        return interrupted(read_journal(journal_file), program.sha256)
-    except ConfigError:
-        if quiet:
-            return False
-        raise
-
-
 def _say_unsure(
-    program: Program,
-    events: list[dict[str, Any]],
-    journal_file: Path,
-    recut_unsure: bool,
-    say: Callable[[str], Any],
+    program: Program, unsure_blocks: set[int], recut_unsure: bool, say: Callable[[str], Any]
 ) -> None:
     """Name the lines a lost link left unsure, and how they are treated on this resume."""
-    trusted = done_blocks(events, program.sha256, journal_file, recut_unsure=False)
-    unsure = sorted(trusted - done_blocks(events, program.sha256, journal_file, True))
-    if not unsure:
+    if not unsure_blocks:
         return
+    unsure = sorted(unsure_blocks)
     lines = f"lines {program.blocks[unsure[0]].lineno}-{program.blocks[unsure[-1]].lineno}"
     if recut_unsure:
         say(f"the link was lost earlier: {lines} count as not done and are cut again")
