@@ -50,6 +50,7 @@ def test_envelope_fields_for_grbl_settings():
     assert p.envelope.max_travel_mm == (300.0, 180.0, 45.0)
     assert p.serial.baud == 115200 and p.serial.rx_buffer_bytes == 128
     assert p.gcode.max_line_length <= 79
+    assert load_profile(p) is p  # a loaded profile passes through, for callers taking either
     assert len(p.motion.max_rate_mm_min) == 3 and len(p.motion.acceleration_mm_s2) == 3
 
 

@@ -373,12 +373,16 @@ def bundled_profiles() -> list[str]:
     return sorted(p.stem for p in folder.glob("*.toml"))
 
 
-def load_profile(name_or_path: str | Path) -> MachineProfile:
+def load_profile(name_or_path: str | Path | MachineProfile) -> MachineProfile:
     """Load a bundled profile by name, or any profile file by path.
+
+    A profile already loaded is returned as it is, so that callers take either.
 
     Raises:
         ConfigError: Unknown name, unreadable file, or a key that is wrong (named).
     """
+    if isinstance(name_or_path, MachineProfile):
+        return name_or_path
     text = str(name_or_path)
     path = Path(text)
     looks_like_path = path.suffix == ".toml" or "/" in text or "\\" in text

@@ -225,12 +225,10 @@ def _profile_for(req: StreamRequest, say: Callable[[str], Any]) -> Any:
     ``JOB/toolpath/toolpath.json``; streaming it is checked against that envelope even
     when no ``--machine`` is given.
     """
-    if isinstance(req.machine, str):
+    if req.machine is not None:
         from scratchfab.machine.profile import load_profile
 
         return load_profile(req.machine)
-    if req.machine is not None:
-        return req.machine
     planned = req.gcode.resolve().parent.parent / "toolpath" / "toolpath.json"
     if req.gcode.resolve().parent.name == "export" and planned.is_file():
         from scratchfab.toolpath import Toolpath

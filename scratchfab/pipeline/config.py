@@ -124,10 +124,6 @@ class Pipeline:
     design_tables: dict[str, Any] = field(compare=False, repr=False)
     profile: MachineProfile = field(compare=False, repr=False)
 
-    def machine_ref(self) -> str:
-        """The toolpath machine: a bundled name, or a path resolved against the pipeline file."""
-        return _machine_ref(self.toolpath.machine, self.path)
-
 
 def _machine_ref(ref: str, pipeline_file: Path) -> str:
     """``[toolpath] machine``: a bundled name, or a path resolved against ``pipeline_file``."""

@@ -8,6 +8,7 @@ from typing import Any
 
 from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
+from scratchfab.model.job import job_inputs
 from scratchfab.model.scratches import load_scratches
 from scratchfab.toolpath.order import OrderOptions
 from scratchfab.toolpath.plan import Toolpath, plan_toolpath, write_preview
@@ -41,7 +42,7 @@ def run_toolpath(
     Raises:
         ScratchfabError: Bad inputs, tools that differ, or a board outside the envelope.
     """
-    profile = machine if isinstance(machine, MachineProfile) else load_profile(machine)
+    profile = load_profile(machine)
     design = load_design(design_file, require_views=False)
     scratches = load_scratches(scratch_file, design.scratch, design.board)
     say(f"ordering {len(scratches)} scratches for {profile.name} ...")
@@ -68,8 +69,6 @@ def job_toolpath_inputs(
         (scratches, design, note): ``note`` says so when the job's layout is the initial
         one because optimize has not run, else None.
     """
-    from scratchfab.model.job import job_inputs
-
     if scratches is not None and design is not None:
         return scratches, design, None
     design_file, scratch_file = job_inputs(job)

@@ -41,12 +41,9 @@ class Tolerance:
         """
         from scratchfab.machine.profile import load_profile
 
-        if isinstance(name_or_path, str):
-            profile = load_profile(name_or_path)
-            source = name_or_path
-        else:
-            profile, source = name_or_path, name_or_path.source
-        return cls(position_mm=float(profile.tool.tolerance_mm), source=str(source))
+        profile = load_profile(name_or_path)
+        source = name_or_path if isinstance(name_or_path, str) else profile.source
+        return cls(position_mm=float(profile.tool.tolerance_mm), source=source)
 
     def as_dict(self) -> dict[str, float | str]:
         """JSON-ready fields."""
