@@ -197,9 +197,15 @@ def _chain(
     best_n = 0
     for n in range(depth):
         qx, ex = _place(ent, pos, x, first, length, n)
-        if n > 0:
-            # The neighbour of x with the best look-ahead |f, partner(f)| - |x, f|.
+        if n == 0:
+            qf, ef = _place(ent, pos, f, first, length, n)
+            if ef != ex or (qf - qx) % m == 0:
+                break
+        else:
+            # The neighbour of x with the best look-ahead |f, partner(f)| - |x, f|, among
+            # those on x's side of the virtual tour (the same orientation, not x itself).
             f = -1
+            qf = 0
             look_best = -np.inf
             for kk in range(k_near):
                 c = near[x, kk]
@@ -221,12 +227,10 @@ def _chain(
                 if look > look_best:
                     look_best = look
                     f = c
+                    qf = qc
             if f < 0:
                 break
-        qf, ef = _place(ent, pos, f, first, length, n)
         span = (qf - qx) % m
-        if ef != ex or span == 0:
-            break
         # x's partner is t1 (the closing edge); f's partner b gets joined to t1.
         b = _partner(ent, pos, f)
         g += _d(pts, f, b) - _d(pts, x, f)
@@ -515,13 +519,14 @@ def improve(
 
 
 @numba.njit(cache=True)
-def cut_region(ent: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def cut_region(inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The items of a region's small tour, as tour position ranges [starts, ends].
 
-    Walking the tour from the first item inside the region that follows one outside,
-    every item inside is a range of its own and every maximal run outside is one range.
+    ``inside`` marks, per tour position, the items in the region. Walking the tour from
+    the first item inside that follows one outside, every item inside is a range of its
+    own and every maximal run outside is one range.
     """
-    m = ent.shape[0]
+    m = inside.shape[0]
     head = -1
     for p in range(m):
         if inside[p] and not inside[(p - 1) % m]:

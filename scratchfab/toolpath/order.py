@@ -187,7 +187,7 @@ def _improve_region(
     expanded back, and its reversals cost at most its size. Returns the new tour and
     the improving moves and trials kept.
     """
-    starts, ends = cut_region(ent, inside)
+    starts, ends = cut_region(inside)
     w = len(starts)
     sub = np.empty((2 * w, 2))
     sub[0::2] = points[ent[starts]]
