@@ -27,6 +27,7 @@ from scratchfab.fileio import read_input
 from scratchfab.machine.profile import gcode_number
 
 MAX_BLOCK_CHARS = 79
+DEFAULT_RAPID_MM_MIN = (500.0, 500.0, 500.0)  # G0 rates for the estimate until $110-$112 are known
 _WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
 _REALTIME = set("?!~")
 
@@ -98,7 +99,7 @@ class Program:
     strokes: list[tuple[int, int]]  # (first, last) block index of each stroke
     z_threshold: float
     pen_mode: bool
-    rapid_mm_min: tuple[float, float, float] = (500.0, 500.0, 500.0)
+    rapid_mm_min: tuple[float, float, float] = DEFAULT_RAPID_MM_MIN
 
     @property
     def total_seconds(self) -> float:
@@ -347,7 +348,7 @@ def auto_threshold(blocks: Sequence[Block]) -> float:
 def load_program(
     path: str | Path,
     z_threshold: float | None = None,
-    rapid_mm_min: Sequence[float] = (500.0, 500.0, 500.0),
+    rapid_mm_min: Sequence[float] = DEFAULT_RAPID_MM_MIN,
 ) -> Program:
     """Read and check a G-code file.
 
