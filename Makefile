@@ -13,7 +13,7 @@ test: setup
 
 lint: setup
 	.venv/bin/ruff check scratchfab tests benchmarks
-	.venv/bin/mypy scratchfab
+	.venv/bin/mypy scratchfab benchmarks
 
 bench: setup
 	for b in benchmarks/bench_*.py; do .venv/bin/python $$b; done

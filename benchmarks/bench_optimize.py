@@ -33,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
 from scratchfab.metrics import quality_report  # noqa: E402
+from scratchfab.optimize.loss import Space  # noqa: E402
 from scratchfab.optimize.stage import OptimizeOptions, run_optimize  # noqa: E402
 
 
@@ -57,7 +58,7 @@ def _summary(q: dict) -> dict:
     }
 
 
-def bench_demo(iterations: int, threads: int, space: str) -> dict:
+def bench_demo(iterations: int, threads: int, space: Space) -> dict:
     from reference_render import reference_render
 
     from scratchfab.design.targets import cross_targets

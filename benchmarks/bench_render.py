@@ -29,6 +29,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -151,9 +152,9 @@ def run_case(n: int, res: int, backend: str, repeat: int, mode: str) -> dict:
         params = [[m.Float64(x) for x in a[:4]] for a in arrays]
         for ps in params:
             dr.enable_grad(ps)
-        loss = 0
+        loss: Any = 0
         for vr, a, p, ps, w in zip(views, arrays, pairs, params, weights, strict=True):
-            loss = loss + dr.sum(vr.render(*ps, a[4], a[5], p) * w)
+            loss = loss + dr.sum(vr.render(ps[0], ps[1], ps[2], ps[3], a[4], a[5], p) * w)
         dr.backward(loss)
         grads = [dr.grad(x) for ps in params for x in ps]
         dr.eval(grads)
@@ -268,7 +269,9 @@ def main() -> None:
             if quick is None:
                 cases.append({"scratches": n, "resolution": res, "error": "pair finding failed"})
                 continue
-            estimate = None if rate is None else quick["pairs"] / rate * (2 + 2 * args.repeat)
+            estimate: float | None = (
+                None if rate is None else quick["pairs"] / rate * (2 + 2 * args.repeat)
+            )
             if estimate is not None and estimate > args.budget_s:
                 assert rate_fwd is not None and rate is not None
                 quick.update(

@@ -80,7 +80,7 @@ SCENARIOS = {
 
 def main() -> None:
     strokes = int(sys.argv[1]) if len(sys.argv) > 1 else 200
-    results = {}
+    results: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name, (length, hop, feed, rate) in SCENARIOS.items():
             job = Path(tmp) / f"{name}.gcode"

@@ -15,11 +15,20 @@ vpype gets the planned strokes in their input order.
 
 With ``--reference [RUNS]`` (needs ``pip install -e .[bench]``, which brings elkai,
 Python bindings of LKH-3), each set of at most ``REFERENCE_MAX`` strokes is also
-solved near-optimally by LKH on the same tour (strokes as fixed edges, the start as one
-more node; RUNS independent runs, default 1: per run about 20 s for 1000 strokes, 90 s
-and 1 GB for 2000, 8 min and 2.5 GB for 3000). Its ratio to vpype tells whether 0.9x
-is reachable on that set at all. Those sets are also ordered by us with 16x the default
-perturbation trials (``scratchfab toolpath --kicks``), to show what more time buys.
+solved near-optimally by LKH, twice (strokes as fixed edges; RUNS independent runs,
+default 1: per run about 20 s for 1000 strokes, 2 min and 1 GB for 2000, 8 min and
+2.5 GB for 3000):
+
+- ``near_optimal``: our objective, the closed tour through the start position. It shows
+  how far our order is from the best one for the machine.
+- ``near_optimal_free_ends``: vpype's measure alone, the pen-up travel between strokes
+  with the path free to begin and end anywhere (the start ignored). Nothing shorter
+  exists on that measure, so its ratio to vpype tells whether 0.9x is reachable on that
+  set at all (``goal_reachable_on_this_set``). Its travel from and back to the start
+  shows what the machine would pay for an order made to win vpype's measure.
+
+Those sets are also ordered by us with 16x the default perturbation trials
+(``scratchfab toolpath --kicks``), to show what more time buys.
 
 Usage: ``python benchmarks/bench_toolpath.py [--quick] [--reference [RUNS]]``.
 """
@@ -174,9 +183,13 @@ def verdict(ratio: float | None) -> str:
 
 
 def lkh_pen_up(
-    p0: np.ndarray, p1: np.ndarray, start: tuple[float, float], runs: int
+    p0: np.ndarray, p1: np.ndarray, start: tuple[float, float], runs: int, free_ends: bool = False
 ) -> dict | None:
-    """Pen-up travel of LKH-3's tour (via elkai) through the start and the strokes."""
+    """Pen-up travel of LKH-3's tour (via elkai) through the start and the strokes.
+
+    ``free_ends`` makes the start a node at no distance from any endpoint, so LKH
+    minimises the travel between strokes alone, wherever the path begins and ends.
+    """
     try:
         import elkai
     except ImportError:
@@ -187,6 +200,8 @@ def lkh_pen_up(
     # Integer costs in micrometres; a large offset on every edge but the strokes' own
     # makes LKH keep each stroke's two ends adjacent.
     cost = np.rint(dist * 1000).astype(np.int64) + 10**7
+    if free_ends:
+        cost[2 * n, :] = cost[:, 2 * n] = 10**7
     cost[np.arange(0, 2 * n, 2), np.arange(1, 2 * n, 2)] = 0
     cost[np.arange(1, 2 * n, 2), np.arange(0, 2 * n, 2)] = 0
     np.fill_diagonal(cost, 0)
@@ -200,7 +215,7 @@ def lkh_pen_up(
     travel = pen_up(pts[path[0::2]], pts[path[1::2]])
     legs = dist[2 * n, path[0]] + dist[path[-1], 2 * n]
     return {
-        "solver": f"LKH-3 via elkai, runs={runs}",
+        "solver": f"LKH-3 via elkai, runs={runs}" + (", free ends" if free_ends else ""),
         "seconds": round(seconds, 1),
         "pen_up_mm": round(travel, 2),
         "travel_with_start_mm": round(travel + legs, 2),
@@ -243,15 +258,19 @@ def compare(
             row["scratchfab_long"]["ratio_to_vpype"] = round(
                 row["scratchfab_long"]["pen_up_mm"] / vp["pen_up_mm"], 4
             )
-        near_optimal = lkh_pen_up(p0, p1, start, reference)
-        row["near_optimal"] = near_optimal if near_optimal is not None else "elkai not installed"
-        if near_optimal is not None and vp is not None:
-            best = round(near_optimal["pen_up_mm"] / vp["pen_up_mm"], 4)
-            row["near_optimal_ratio_to_vpype"] = best
-            row["near_optimal_ratio_to_vpype_with_start_legs"] = round(
-                near_optimal["travel_with_start_mm"] / vp["travel_with_start_mm"], 4
-            )
-            row["goal_reachable_on_this_set"] = bool(best <= GOAL)
+        best: list[float] = []
+        for key, free_ends in (("near_optimal", False), ("near_optimal_free_ends", True)):
+            near = lkh_pen_up(p0, p1, start, reference, free_ends)
+            row[key] = near if near is not None else "elkai not installed"
+            if near is not None and vp is not None:
+                best.append(round(near["pen_up_mm"] / vp["pen_up_mm"], 4))
+                row[f"{key}_ratio_to_vpype"] = best[-1]
+                row[f"{key}_ratio_to_vpype_with_start_legs"] = round(
+                    near["travel_with_start_mm"] / vp["travel_with_start_mm"], 4
+                )
+        if best:
+            # LKH is a heuristic: the free-ends tour is the bound, unless the other is shorter.
+            row["goal_reachable_on_this_set"] = bool(min(best) <= GOAL)
     print(json.dumps(json_safe(row)), file=sys.stderr)
     return row
 
@@ -297,7 +316,7 @@ def main() -> None:
         report["versus_vpype"].append(compare(label, p0, p1, ours_row, reference, start))
     for n in [10_000] if quick else [10_000, 100_000]:
         p0, p1 = uniform(n, 2)
-        row = {"strokes": n, "layout": "uniform", "input_pen_up_mm": round(pen_up(p0, p1), 2)}
+        row: dict = {"strokes": n, "layout": "uniform", "input_pen_up_mm": round(pen_up(p0, p1), 2)}
         row["scratchfab"] = ours(p0, p1)
         row["under_10_s"] = row["scratchfab"]["seconds"] < 10.0
         report["speed"].append(row)
