@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import shapely
 from PIL import Image
+from scipy.spatial import cKDTree
 
 from scratchfab.cli import main
 from scratchfab.errors import ScratchfabError
@@ -442,6 +443,25 @@ def test_local_optimum_has_no_improving_two_opt_move(rng, depth):
     assert np.array_equal(np.sort(ent >> 1), np.arange(m))
     assert tour_length(points, ent) < before
     assert best_two_opt_gain(points, ent) < 1e-6
+
+
+def test_sweeps_that_find_little_end_the_search_near_the_local_optimum(rng):
+    # The early end (a sweep finding under one move per `settled` items) is a prefix of
+    # the search to the end, so it can only be longer, and by little.
+    m = 3000
+    p0, p1 = random_segments(rng, m, half=150.0)
+    points = np.empty((2 * m, 2))
+    points[0::2], points[1::2] = p0, p1
+    near = np.ascontiguousarray(cKDTree(points).query(points, k=11)[1][:, 1:], dtype=np.int64)
+    tour = random_tour(rng, m)
+    length = {}
+    for settled in (0, 100):
+        ent = tour.copy()
+        improve(points, ent, near, 50, 0, 0, 1e-9, 3, settled)
+        assert np.array_equal(np.sort(ent >> 1), np.arange(m))
+        length[settled] = tour_length(points, ent)
+    assert length[0] <= length[100] <= 1.005 * length[0]
+    assert length[0] < 0.1 * tour_length(points, tour)
 
 
 def test_longer_flip_chains_give_shorter_local_optima(rng):

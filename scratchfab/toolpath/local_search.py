@@ -23,6 +23,8 @@ improvement, processed from a queue of items whose edges changed, "don't-look bi
 
 Reversals and moves go the shorter way round the cycle (reversing the complement of an
 arc gives the same cycle). Work is capped at ``passes * M`` items taken from the queue.
+When the queue runs dry, a fresh sweep over every item follows, until a sweep finds no
+move or (on long tours) fewer than one per ``SETTLED_ITEMS_PER_MOVE`` items.
 """
 
 from __future__ import annotations
@@ -31,6 +33,10 @@ import math
 
 import numba
 import numpy as np
+
+# A sweep over the whole tour that finds fewer moves than one per this many items ends
+# the local search (on tours of up to this many items: only a sweep that finds none).
+SETTLED_ITEMS_PER_MOVE = 1000
 
 
 @numba.njit(cache=True, inline="always")
@@ -406,6 +412,7 @@ def improve(
     seed: int,
     eps: float,
     depth: int,
+    settled: int = SETTLED_ITEMS_PER_MOVE,
 ) -> int:
     """Flip chains and Or-opt to a local optimum, then ``kicks`` perturbation trials.
 
@@ -414,6 +421,8 @@ def improve(
     shorter. A trial is undone (or kept) through the positions it changed, not by copying
     the tour. Works on ``ent`` in place; returns the improving moves and trials kept.
     ``depth`` is the longest flip chain; ``seed`` (0 to 2**32 - 1) seeds the trials.
+    The sweeps end at one that finds fewer moves than one per ``settled`` items (0: at
+    one that finds none).
     """
     m = ent.shape[0]
     pos = np.empty(m, dtype=np.int64)
@@ -431,7 +440,10 @@ def improve(
             pts, ent, pos, near, queue, queued, m, budget, eps, no_log, depth
         )
         moves += found
-        if found == 0:
+        # A fresh sweep over every item finds moves the queue missed (a chain's later
+        # flips look past the item's own edges); on long tours each costs M items for a
+        # dwindling tail.
+        if found == 0 or (settled > 0 and found * settled < m):
             break
         for p in range(m):
             queue[p] = ent[p] >> 1
