@@ -439,29 +439,42 @@ def test_local_optimum_has_no_improving_two_opt_move(rng, depth):
     near = np.ascontiguousarray(near[:, 1:])  # every other endpoint: the search is exact
     ent = random_tour(rng, m)
     before = tour_length(points, ent)
-    improve(points, ent, near, 50, 0, 0, 1e-9, depth)
+    improve(points, ent, near, 50, 0, 0, 1e-9, depth, 0)
     assert np.array_equal(np.sort(ent >> 1), np.arange(m))
     assert tour_length(points, ent) < before
     assert best_two_opt_gain(points, ent) < 1e-6
 
 
-def test_sweeps_that_find_little_end_the_search_near_the_local_optimum(rng):
-    # The early end (a sweep finding under one move per `settled` items) is a prefix of
-    # the search to the end, so it can only be longer, and by little.
-    m = 3000
-    p0, p1 = random_segments(rng, m, half=150.0)
+def improved_lengths(rng, m, settled_values, half=150.0):
+    """Tour lengths after the local search from one random tour of m items, per ``settled``."""
+    p0, p1 = random_segments(rng, m, half=half)
     points = np.empty((2 * m, 2))
     points[0::2], points[1::2] = p0, p1
     near = np.ascontiguousarray(cKDTree(points).query(points, k=11)[1][:, 1:], dtype=np.int64)
     tour = random_tour(rng, m)
-    length = {}
-    for settled in (0, 100):
+    tours = {}
+    for settled in settled_values:
         ent = tour.copy()
         improve(points, ent, near, 50, 0, 0, 1e-9, 3, settled)
         assert np.array_equal(np.sort(ent >> 1), np.arange(m))
-        length[settled] = tour_length(points, ent)
-    assert length[0] <= length[100] <= 1.005 * length[0]
-    assert length[0] < 0.1 * tour_length(points, tour)
+        tours[settled] = ent
+    return {s: tour_length(points, e) for s, e in tours.items()}, tours, tour_length(points, tour)
+
+
+def test_sweeps_that_find_little_end_the_search_near_the_local_optimum(rng):
+    # The early end (a sweep finding under one move per `settled` items) is a prefix of
+    # the search to the end (settled 0), so it is longer, by little.
+    length, _, start = improved_lengths(rng, 3000, (0, 100))
+    assert length[0] < length[100] <= 1.002 * length[0]
+    assert length[0] < 0.1 * start
+
+
+def test_tours_of_up_to_settled_strokes_search_to_the_end(rng):
+    # 1000 strokes and the start: 1001 items. Stopping at a sweep that finds one move
+    # (settled 999) changes this tour; settled 1000 must not stop there.
+    _, tours, _ = improved_lengths(rng, 1001, (0, 999, 1000), half=80.0)
+    assert not np.array_equal(tours[999], tours[0])
+    assert np.array_equal(tours[1000], tours[0])
 
 
 def test_longer_flip_chains_give_shorter_local_optima(rng):

@@ -34,8 +34,9 @@ import math
 import numba
 import numpy as np
 
-# A sweep over the whole tour that finds fewer moves than one per this many items ends
-# the local search (on tours of up to this many items: only a sweep that finds none).
+# A sweep over the whole tour that finds fewer moves than one per this many items
+# (besides the start item) ends the local search; on tours of up to this many strokes only
+# a sweep that finds none does.
 SETTLED_ITEMS_PER_MOVE = 1000
 
 
@@ -412,7 +413,7 @@ def improve(
     seed: int,
     eps: float,
     depth: int,
-    settled: int = SETTLED_ITEMS_PER_MOVE,
+    settled: int,
 ) -> int:
     """Flip chains and Or-opt to a local optimum, then ``kicks`` perturbation trials.
 
@@ -421,8 +422,8 @@ def improve(
     shorter. A trial is undone (or kept) through the positions it changed, not by copying
     the tour. Works on ``ent`` in place; returns the improving moves and trials kept.
     ``depth`` is the longest flip chain; ``seed`` (0 to 2**32 - 1) seeds the trials.
-    The sweeps end at one that finds fewer moves than one per ``settled`` items (0: at
-    one that finds none).
+    The sweeps end at one that finds no move, or fewer than one per ``settled`` items
+    besides the start item (``settled`` 0: only at one that finds none).
     """
     m = ent.shape[0]
     pos = np.empty(m, dtype=np.int64)
@@ -443,7 +444,7 @@ def improve(
         # A fresh sweep over every item finds moves the queue missed (a chain's later
         # flips look past the item's own edges); on long tours each costs M items for a
         # dwindling tail.
-        if found == 0 or (settled > 0 and found * settled < m):
+        if found == 0 or (settled > 0 and found * settled < m - 1):
             break
         for p in range(m):
             queue[p] = ent[p] >> 1

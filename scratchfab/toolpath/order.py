@@ -35,7 +35,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from scratchfab.toolpath.local_search import cut_region, expand_region, greedy_steps, improve
+from scratchfab.toolpath.local_search import (
+    SETTLED_ITEMS_PER_MOVE,
+    cut_region,
+    expand_region,
+    greedy_steps,
+    improve,
+)
 
 
 @dataclass(frozen=True)
@@ -197,7 +203,15 @@ def _improve_region(
     _, near = cKDTree(sub).query(sub, k=k + 1)
     sub_ent = np.arange(0, 2 * w, 2, dtype=np.int64)
     moves = improve(
-        sub, sub_ent, _candidates(near, k), opts.passes, kicks, seed, opts.min_gain_mm, opts.depth
+        sub,
+        sub_ent,
+        _candidates(near, k),
+        opts.passes,
+        kicks,
+        seed,
+        opts.min_gain_mm,
+        opts.depth,
+        SETTLED_ITEMS_PER_MOVE,
     )
     return expand_region(ent, starts, ends, sub_ent), moves
 
@@ -285,6 +299,7 @@ def order_strokes(
             opts.seed,
             opts.min_gain_mm,
             opts.depth,
+            SETTLED_ITEMS_PER_MOVE,
         )
     order, reverse = _stroke_order(ent, n)
     travel = tour_travel(
