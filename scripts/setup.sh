@@ -5,13 +5,8 @@ set -euo pipefail
 here="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$here"
 
-have_llvm() {
-    local d
-    for d in /usr/lib/x86_64-linux-gnu /usr/lib/aarch64-linux-gnu /usr/lib64 /usr/lib /usr/local/lib; do
-        ls "$d"/libLLVM-1[6-9]*.so* "$d"/libLLVM-2[0-9]*.so* "$d"/libLLVM.so.1[6-9]* "$d"/libLLVM.so.2[0-9]* >/dev/null 2>&1 && return 0
-    done
-    return 1
-}
+# shellcheck source=scripts/llvm.sh
+. "$here/scripts/llvm.sh"
 
 if ! have_llvm; then
     echo "setup: no shared libLLVM >= 16 found; installing Debian's libllvm19 (Dr.Jit's CPU backend needs it)"
