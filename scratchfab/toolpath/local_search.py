@@ -430,27 +430,23 @@ def improve(
     for p in range(m):
         pos[ent[p] >> 1] = p
     queue = np.empty(m, dtype=np.int64)
-    queued = np.ones(m, dtype=np.bool_)
-    for p in range(m):
-        queue[p] = ent[p] >> 1
+    queued = np.zeros(m, dtype=np.bool_)  # _search leaves it all False
     budget = passes * m
     moves = 0
     no_log = np.zeros(2, dtype=np.int64)
     while budget > 0:
+        # A sweep: every item, in tour order. A fresh sweep finds moves the queue missed
+        # (a chain's later flips look past the item's own edges); on long tours each
+        # costs M items for a dwindling tail.
+        for p in range(m):
+            queue[p] = ent[p] >> 1
+            queued[queue[p]] = True
         found, _gain, budget = _search(
             pts, ent, pos, near, queue, queued, m, budget, eps, no_log, depth
         )
         moves += found
-        # A fresh sweep over every item finds moves the queue missed (a chain's later
-        # flips look past the item's own edges); on long tours each costs M items for a
-        # dwindling tail.
         if found == 0 or (settled > 0 and found * settled < m - 1):
             break
-        for p in range(m):
-            queue[p] = ent[p] >> 1
-            queued[queue[p]] = True
-    for p in range(m):
-        queued[p] = False
     if m < 8:
         return moves
     np.random.seed(seed)
