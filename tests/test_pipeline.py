@@ -304,3 +304,19 @@ def test_pipeline_errors_are_one_line(tmp_path, capsys, edit, message):
     err = capsys.readouterr().err
     assert info.value.code == 2
     assert message in err and str(path) in err and "Traceback" not in err
+
+
+def test_machine_ref_is_the_bundled_name_or_the_resolved_path(tmp_path):
+    from scratchfab.machine.profile import bundled_dir, load_profile
+
+    path = write_pipeline(tmp_path / "p")
+    assert load_pipeline(path).machine_ref() == "grbl-3018-diamond"
+    machines = tmp_path / "machines"
+    machines.mkdir()
+    (machines / "mine.toml").write_text((bundled_dir() / "grbl-3018-diamond.toml").read_text())
+    text = path.read_text().replace('"grbl-3018-diamond"', '"../machines/mine.toml"')
+    path.write_text(text)
+    pipe = load_pipeline(path)
+    assert Path(pipe.machine_ref()).resolve() == (machines / "mine.toml").resolve()
+    assert Path(pipe.profile.source).resolve() == (machines / "mine.toml").resolve()
+    assert pipe.profile.tool == load_profile("grbl-3018-diamond").tool

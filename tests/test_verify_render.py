@@ -417,6 +417,7 @@ def test_tolerance_from_a_profile_name_or_a_loaded_profile():
 
     profile = load_profile("grbl-3018-diamond")
     by_name = Tolerance.from_profile("grbl-3018-diamond")
-    loaded = Tolerance.from_profile(profile)
+    loaded = Tolerance.from_profile("grbl-3018-diamond", profile)
     assert by_name.position_mm == loaded.position_mm == profile.tool.tolerance_mm
-    assert loaded.source == profile.source
+    # The report names the profile as the user did, not the installed file's path.
+    assert by_name.source == loaded.source == "grbl-3018-diamond"

@@ -124,6 +124,10 @@ class Pipeline:
     design_tables: dict[str, Any] = field(compare=False, repr=False)
     profile: MachineProfile = field(compare=False, repr=False)
 
+    def machine_ref(self) -> str:
+        """The toolpath machine as named: a bundled name, or its path (resolved)."""
+        return _machine_ref(self.toolpath.machine, self.path)
+
 
 def _machine_ref(ref: str, pipeline_file: Path) -> str:
     """``[toolpath] machine``: a bundled name, or a path resolved against ``pipeline_file``."""

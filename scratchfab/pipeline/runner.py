@@ -125,7 +125,7 @@ class _Stages:
         if v.jitter:
             from scratchfab.verify.jitter import Tolerance
 
-            settings["jitter"] = Tolerance.from_profile(self.pipe.profile)
+            settings["jitter"] = Tolerance.from_profile(self.pipe.machine_ref(), self.pipe.profile)
         run_verify_job(self.job, VerifySettings(**settings), progress=self.say)
         return ["verify/metrics.json"]
 

@@ -31,19 +31,24 @@ class Tolerance:
     source: str = "defaults"
 
     @classmethod
-    def from_profile(cls, name_or_path: str | MachineProfile) -> Tolerance:
+    def from_profile(cls, ref: str, profile: MachineProfile | None = None) -> Tolerance:
         """Position tolerance from a machine profile's ``[tool] tolerance_mm``.
 
         Profiles carry no angle or depth tolerance, so those keep their defaults.
 
+        Args:
+            ref: The profile as the user named it (a bundled name or a path); recorded
+                as ``source``.
+            profile: The same profile, already loaded (else ``ref`` is loaded).
+
         Raises:
             ConfigError: When the profile cannot be loaded.
         """
-        from scratchfab.machine.profile import load_profile
+        if profile is None:
+            from scratchfab.machine.profile import load_profile
 
-        profile = load_profile(name_or_path)
-        source = name_or_path if isinstance(name_or_path, str) else profile.source
-        return cls(position_mm=float(profile.tool.tolerance_mm), source=source)
+            profile = load_profile(ref)
+        return cls(position_mm=float(profile.tool.tolerance_mm), source=ref)
 
     def as_dict(self) -> dict[str, float | str]:
         """JSON-ready fields."""
