@@ -164,3 +164,23 @@ def test_atomic_write_gives_the_usual_permissions_and_keeps_the_old_file(tmp_pat
         raise RuntimeError("writer failed")
     assert (tmp_path / "b.txt").read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["b.txt"]  # no temporary file left
+
+
+def test_atomic_folder_gives_the_usual_permissions_and_keeps_the_old_folder(tmp_path):
+    import os
+
+    from scratchfab.fileio import atomic_folder, write_text
+
+    mask = os.umask(0)
+    os.umask(mask)
+    with atomic_folder(tmp_path / "stage") as new:
+        write_text(new / "a.txt", "old")
+    assert (tmp_path / "stage").stat().st_mode & 0o777 == 0o777 & ~mask  # not mkdtemp's 0700
+    with pytest.raises(RuntimeError), atomic_folder(tmp_path / "stage") as new:
+        write_text(new / "a.txt", "half")
+        raise RuntimeError("writer failed")
+    assert (tmp_path / "stage" / "a.txt").read_text() == "old"
+    with atomic_folder(tmp_path / "stage") as new:
+        write_text(new / "b.txt", "new")
+    assert sorted(p.name for p in (tmp_path / "stage").iterdir()) == ["b.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["stage"]  # nothing temporary left

@@ -7,11 +7,8 @@ folder (or none) and never half of a new one.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-import shutil
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -31,7 +28,7 @@ from scratchfab.design.targets import (
     warp_to_view,
 )
 from scratchfab.errors import ConfigError
-from scratchfab.fileio import save_npy, save_png, write_text
+from scratchfab.fileio import atomic_folder, save_npy, save_png, write_text
 from scratchfab.model.design import Design, design_from_mapping
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
@@ -208,12 +205,7 @@ def run_design(
     )
     resolved = replace(resolved, base_dir=folder, source=str(folder / "design.toml"))
 
-    try:
-        job.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=".design.", suffix=".tmp", dir=job))
-    except OSError as exc:
-        raise ConfigError(f"{job}: cannot create the job folder ({exc.strerror})") from None
-    try:
+    with atomic_folder(folder) as tmp:
         write_text(
             tmp / "design.toml",
             _origin_comment(design, fit, gamma, contrast, seed) + resolved.to_toml(),
@@ -225,10 +217,6 @@ def run_design(
             save_png(tmp / f"feasibility_{view.name}.png", report.map_image(view.name))
         scratches.save(tmp / "scratches.csv", design.scratch)
         write_text(tmp / "feasibility.json", json.dumps(report.to_json(), indent=2) + "\n")
-        _replace_folder(tmp, folder)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
     progress(f"design: wrote {folder} ({time.perf_counter() - start:.1f} s)")
     return DesignResult(folder, resolved, targets, scratches, report)
 
@@ -240,22 +228,3 @@ def _check_job_folder(job: Path) -> None:
         raise ConfigError(
             f"{job}: cannot create the job folder ({parent} is not a writable folder)"
         )
-
-
-def _replace_folder(new: Path, folder: Path) -> None:
-    """Put ``new`` in place of ``folder`` (renames only; the old one is removed after)."""
-    old = None
-    if folder.exists():
-        old = folder.with_name(f".{folder.name}.old.{os.getpid()}")
-        if old.exists():
-            shutil.rmtree(old)
-        os.replace(folder, old)
-    try:
-        os.replace(new, folder)
-    except BaseException:
-        if old is not None:
-            with contextlib.suppress(OSError):
-                os.replace(old, folder)
-        raise
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
