@@ -195,6 +195,37 @@ def test_moved_job_is_still_up_to_date(finished_job, tmp_path, monkeypatch):
     assert result.ran == []
 
 
+def test_moved_job_reads_its_own_board_pictures(finished_job, tmp_path):
+    import shutil
+
+    import numpy as np
+
+    from scratchfab.design.targets import cross_targets
+    from scratchfab.model.design import load_design
+    from scratchfab.optimize.stage import _cross_targets, load_job_inputs
+    from scratchfab.verify.verify import load_job_targets
+
+    _, job, _ = finished_job
+    moved = tmp_path / "moved"
+    shutil.copytree(job, moved)
+    toml = moved / "design" / "design.toml"
+    # as if the job had been moved: the recorded absolute paths lead nowhere
+    toml.write_text(toml.read_text().replace(str(job.resolve()), str(tmp_path / "gone")))
+    stale = load_design(toml)
+    assert not any(stale.target_path(v).exists() for v in stale.views)
+    expected = cross_targets(load_design(job / "design" / "design.toml"))
+    assert len(expected) == 4  # two views: every pair
+
+    design, targets, _ = load_job_inputs(moved)
+    assert all(
+        Path(v.target).parent == (moved / "design" / "board").resolve() for v in design.views
+    )
+    for cross in (_cross_targets(design, targets), load_job_targets(moved, design)[1]):
+        assert cross is not None and set(cross) == set(expected)
+        for key, image in expected.items():
+            assert np.array_equal(cross[key], image, equal_nan=True)
+
+
 def test_changed_option_reruns_only_downstream(finished_job):
     path, job, _ = finished_job
     text = path.read_text()

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from scratchfab.errors import ConfigError
+from scratchfab.model.design import Design, load_design
 
 
 def job_inputs(job: str | Path) -> tuple[Path, Path]:
@@ -27,4 +29,27 @@ def job_inputs(job: str | Path) -> tuple[Path, Path]:
             return design, scratches
     raise ConfigError(
         f"{folder}: no scratch layout (expected optimize/scratches.csv or design/scratches.csv)"
+    )
+
+
+def load_job_design(design_file: str | Path) -> Design:
+    """A job's ``design/design.toml``, each view's target read from the job's own copy.
+
+    The design stage writes every view's board picture to ``design/board/<view>.png``
+    and records its absolute path (SPEC section 6). A job that was moved or copied since
+    would read the pictures at the old place, or none; this reads the ones beside the file.
+
+    Raises:
+        ConfigError: Naming the file and the key on any mistake.
+    """
+    file = Path(design_file)
+    design = load_design(file)
+    board = file.parent / "board"
+    return design.with_views(
+        tuple(
+            replace(v, target=str((board / f"{v.name}.png").resolve()))
+            if (board / f"{v.name}.png").is_file()
+            else v
+            for v in design.views
+        )
     )

@@ -36,7 +36,8 @@ from scratchfab.backend import array_module
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import write_json, write_text
 from scratchfab.metrics import quality_report
-from scratchfab.model.design import Design, load_design
+from scratchfab.model.design import Design
+from scratchfab.model.job import load_job_design
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.checkpoint import load_checkpoint, save_checkpoint
 from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
@@ -138,7 +139,7 @@ def load_job_inputs(job: Path) -> tuple[Design, dict[str, np.ndarray], ScratchSe
     design_file = folder / "design.toml"
     if not design_file.exists():
         raise ConfigError(f"{design_file}: file not found (run `scratchfab design` first)")
-    design = load_design(design_file)
+    design = load_job_design(design_file)
     targets: dict[str, np.ndarray] = {}
     for view in design.views:
         path = folder / "targets" / f"{view.name}.npy"

@@ -24,7 +24,7 @@ from scratchfab.backend import BackendName
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import write_bytes, write_json
 from scratchfab.metrics import quality_report
-from scratchfab.model.design import Design, View, load_design
+from scratchfab.model.design import Design, View
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
 from scratchfab.verify.scene import Sky, board_bsdf, scene_dict, use_variant
@@ -540,11 +540,11 @@ def run_verify_job(
     Raises:
         ConfigError: When the job lacks the design or a layout.
     """
-    from scratchfab.model.job import job_inputs
+    from scratchfab.model.job import job_inputs, load_job_design
 
     folder = Path(job)
     design_file, scratch_file = job_inputs(folder)
-    design = load_design(design_file)
+    design = load_job_design(design_file)
     scratches = load_scratches(scratch_file, design.scratch, design.board)
     renders_dir = folder / "optimize" / "renders"
     analytic: dict[str, np.ndarray] | None = None
@@ -556,6 +556,11 @@ def run_verify_job(
         }
     source = str(renders_dir) if analytic is not None else "render_scratches"
     targets, cross = load_job_targets(folder, design)
+    if cross is None and progress is not None:
+        progress(
+            f"warning: no board pictures in {folder / 'design' / 'board'}: crosstalk is not "
+            "measured (rerun design to write them)"
+        )
     if progress is not None:
         progress(f"verifying {scratch_file} ({len(scratches)} scratches) against {source}")
     return run_verify(
