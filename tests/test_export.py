@@ -197,3 +197,9 @@ def test_format_registry():
     assert format_for(Path("a.txt"), "svg") == "svg"
     with pytest.raises(ScratchfabError, match="unknown file extension"):
         format_for(Path("a.pdf"))
+    assert format_for(Path("a.nc"), "gcode") == "gcode"  # two names, one writer
+    for path, fmt in [("a.gcode", "dxf"), ("a.SVG", "gcode"), ("a.nc", "svg"), ("a.dxf", "svg")]:
+        with pytest.raises(
+            ScratchfabError, match=rf"{path}: the extension says .* format .* {fmt}"
+        ):
+            format_for(Path(path), fmt)

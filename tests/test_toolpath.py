@@ -350,6 +350,7 @@ def test_cli_falls_back_to_design_scratches_and_standalone(rng, tmp_path, capsys
         (["toolpath", "--machine", "grbl-3018-diamond"], "give a JOB folder"),
         (["export", "{job}"], "give --format"),
         (["export", "{job}", "-o", "{tmp}/x.pdf"], "unknown file extension"),
+        (["export", "{job}", "-f", "dxf", "-o", "{tmp}/x.gcode"], "the extension says gcode"),
         (["export", "{job}", "--format", "gcode"], "run `scratchfab toolpath` first"),
         (["export", "{job}", "-f", "gcode", "-m", "grbl-plotter-scribe"], "outside"),
     ],

@@ -31,13 +31,20 @@ def format_for(path: str | Path, format: str | None = None) -> str:
     """The format named, or the one the file's extension implies.
 
     Raises:
-        ScratchfabError: Unknown format or extension.
+        ScratchfabError: Unknown format or extension, or a format named for a file whose
+            extension belongs to another one (DXF written to ``board.gcode``, say).
     """
-    name = (format or Path(path).suffix.lstrip(".")).lower()
+    extension = Path(path).suffix.lstrip(".").lower()
+    name = (format or extension).lower()
     if name not in WRITERS:
         known = ", ".join(sorted(WRITERS))
         what = f"format '{format}'" if format else f"file extension of {path}"
         raise ScratchfabError(f"unknown {what}; known: {known}")
+    if extension in WRITERS and WRITERS[extension] is not WRITERS[name]:
+        raise ScratchfabError(
+            f"{path}: the extension says {extension} but the format asked for is {name}; "
+            f"name the file .{name} or leave the format out"
+        )
     return name
 
 
