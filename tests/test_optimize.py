@@ -208,13 +208,91 @@ def test_merge_penalty_pushes_close_parallel_scratches_apart(m, board) -> None:
         0.1,
         0.01,
     )
-    settings = Settings(lr=LR, merge_weight=1e3)
-    opt = LayoutOptimizer(design, targets, layout, settings, m)
-    for _ in range(10):
-        opt.step()
-    s = opt.scratches()
-    gap = segment_distance_np(s.p0, s.p1, np.array([0]), np.array([1]))[0]
-    assert gap > 0.04 + 0.1  # moved apart by more than Adam's drift from the image term alone
+
+    def gap_after(merge_weight: float) -> float:
+        opt = LayoutOptimizer(
+            design, targets, layout, Settings(lr=LR, merge_weight=merge_weight), m
+        )
+        for _ in range(10):
+            opt.step()
+        s = opt.scratches()
+        return float(segment_distance_np(s.p0, s.p1, np.array([0]), np.array([1]))[0])
+
+    image_only = gap_after(0.0)
+    merged = gap_after(1e3)
+    assert merged > 0.1 + 0.04  # apart by more than a tool width
+    assert merged > image_only + 0.02  # and farther than the image term alone takes them
+
+
+@pytest.mark.parametrize("space", ["linear", "perceptual"])
+def test_objective_gradient_matches_finite_differences(m, space) -> None:
+    """Adam follows d(loss)/d(raw parameters): image terms, merge and bound penalties."""
+    design = make_design(resolution=24, size_mm=30.0)
+    targets, _ = cross_of(design)
+    layout = make_layout(design, 40, seed=5)
+    # scratch 1 close beside scratch 0 and nearly parallel (exactly parallel, the four
+    # endpoint distances tie and the distance has a kink): the merge penalty is active
+    p0, p1 = layout.p0.copy(), layout.p1.copy()
+    half = (p1[0] - p0[0]) / 2
+    turn = np.array([[np.cos(0.05), -np.sin(0.05)], [np.sin(0.05), np.cos(0.05)]])
+    centre = (p0[0] + p1[0]) / 2 + 0.06 * np.array([-half[1], half[0]]) / np.linalg.norm(half)
+    p0[1], p1[1] = centre - turn @ half, centre + turn @ half
+    layout = ScratchSet.from_arrays(p0, p1, layout.width, layout.depth)
+    opt = LayoutOptimizer(
+        design, targets, layout, Settings(lr=LR, space=space, merge_weight=1.0), m
+    )
+    opt._refresh(opt.ends)
+    assert opt._neighbour_count > 0
+    base = [np.array(opt.opt[k], dtype=np.float64, copy=True) for k in KEYS]
+    base[0][2] = 30.0  # far off the board: the bound penalty is active
+    raw = [m.Float64(b) for b in base]
+    for a in raw:
+        dr.enable_grad(a)
+    loss, *_ = opt._forward(raw)
+    dr.backward(loss)
+    grad = [np.array(dr.grad(a), dtype=np.float64) for a in raw]
+
+    def loss_at(values: list[np.ndarray]) -> float:
+        with dr.suspend_grad():
+            return float(np.asarray(opt._forward([m.Float64(v) for v in values])[0])[0])
+
+    h = 1e-6
+    scale = max(float(np.abs(g).max()) for g in grad)
+    checked = 0
+    for c in range(len(KEYS)):
+        for k in (0, 1, 2, 7, 19, 33):
+            plus = [b.copy() for b in base]
+            plus[c][k] += h
+            minus = [b.copy() for b in base]
+            minus[c][k] -= h
+            fd = (loss_at(plus) - loss_at(minus)) / (2 * h)
+            if abs(fd) > 1e-3 * scale:
+                checked += 1
+                assert grad[c][k] == pytest.approx(fd, rel=1e-4), (KEYS[c], k)
+    assert checked >= 12
+
+
+def test_merge_penalty_matches_numpy(m, rng) -> None:
+    from scratchfab.optimize.loss import merge_penalty
+
+    n = 30
+    c = rng.uniform(-2, 2, (n, 2))
+    ang = rng.uniform(-0.3, 0.3, n)
+    half = np.stack([np.cos(ang), np.sin(ang)], 1) * rng.uniform(0.5, 2, n)[:, None]
+    p0, p1 = c - half, c + half
+    i, j = np.triu_indices(n, 1)
+    width = 0.4
+    u, v = p1[i] - p0[i], p1[j] - p0[j]
+    cos = np.sum(u * v, 1) / np.linalg.norm(u, axis=1) / np.linalg.norm(v, axis=1)
+    d = segment_distance_np(p0, p1, i, j)
+    crossing = d == 0  # the Dr.Jit form is exact only for segments that do not cross
+    ref = np.sum((cos**16 * np.maximum(1 - d / width, 0) ** 2)[~crossing])
+    F, U = m.Float64, m.UInt32
+    keep = ~crossing
+    got = merge_penalty(
+        F, F(p0[:, 0]), F(p0[:, 1]), F(p1[:, 0]), F(p1[:, 1]), U(i[keep]), U(j[keep]), width
+    )
+    assert ref > 0.1 and float(got[0]) == pytest.approx(ref, rel=1e-9)
 
 
 # ---------------------------------------------------------------- the stage

@@ -8,7 +8,8 @@ Image term, per view k over its board pixels M_k (finite target):
 with g the identity (``space = "linear"``) or the sRGB encoding (``"perceptual"``). In
 linear space s_k minimises E_k, so by the envelope theorem dE_k/dR is the same whether
 or not s_k is differentiated: it is detached, which saves a reduction in the adjoint.
-In perceptual space s_k is the linear optimum, used as a fixed exposure.
+In perceptual space s_k (still the linear optimum) does not minimise E_k, so it is
+differentiated: the gradient is that of E_k itself.
 Dividing by the target's energy makes the views weigh alike whatever their brightness.
 
 Linear against perceptual, measured (``benchmarks/bench_optimize.py --spaces
@@ -62,8 +63,9 @@ def view_error(render: Any, target: Any, mask: Any, space: Space) -> tuple[Any, 
     r = render * mask
     rt = dr.sum(r * target, mode="symbolic")
     rr = dr.sum(r * r, mode="symbolic")
-    s = dr.detach(rt / dr.maximum(rr, 1e-30))
+    s = rt / dr.maximum(rr, 1e-30)
     if space == "linear":
+        s = dr.detach(s)
         diff = s * r - target
         norm = dr.sum(target * target, mode="symbolic")
     else:
