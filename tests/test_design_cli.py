@@ -244,3 +244,72 @@ def test_missing_target_names_the_view_key_and_the_file(tmp_path, capsys):
         == f"error: {design}: views[0].target: {tmp_path / 'nope.png'}: image file not found"
     )
     assert not (tmp_path / "job" / "design").exists()
+
+
+#: ``[pipeline]`` (and later stage) mistakes: ``design FILE`` and ``run FILE`` read the
+#: tables with one parser, so both refuse each one naming the file and the key.
+_TABLE_MISTAKES = [
+    ("[pipeline]\nseed = -1\n", "pipeline.seed: expected a value at least 0, got -1"),
+    ('[pipeline]\nseed = "abc"\n', "pipeline.seed: expected an integer, got 'abc'"),
+    ("[pipeline]\nseed = 1.5\n", "pipeline.seed: expected an integer, got 1.5"),
+    ('[pipeline]\nforce = "no"\n', "pipeline.force: expected true or false, got 'no'"),
+    ('[pipeline]\nfti = "cover"\n', "pipeline: unknown key 'fti' (did you mean 'fit'?)"),
+    ('[pipeline]\nfit = "stretch"\n', "pipeline.fit: expected 'contain' or 'cover'"),
+    ("pipeline = 3\n", "pipeline: expected a table, got 3"),
+]
+
+
+@pytest.mark.parametrize("command", [["design"], ["run", "--until", "design"]])
+@pytest.mark.parametrize(("extra", "message"), _TABLE_MISTAKES)
+def test_pipeline_table_mistakes_are_one_line_for_design_and_run(
+    tmp_path, capsys, command, extra, message
+):
+    toml = _toml(tmp_path, extra=extra)
+    job = tmp_path / "job"
+    err = _fail([command[0], str(toml), "--out", str(job), *command[1:]], capsys)
+    assert f"{toml}: {message}" in err and "Traceback" not in err
+    assert not job.exists()
+
+
+def test_pipeline_force_is_read_as_a_boolean(tmp_path, capsys):
+    # The second view stands too far to the side: infeasible unless forced.
+    steep = _toml(tmp_path).read_text().replace("azimuth_deg = 22.0", "azimuth_deg = 80.0")
+    toml = tmp_path / "steep.toml"
+    toml.write_text("[pipeline]\nforce = false\n" + steep)
+    err = _fail(["design", str(toml), "--out", str(tmp_path / "j1")], capsys)
+    assert "'b'" in err and "--force" in err
+    assert not (tmp_path / "j1" / "design").exists()
+    toml.write_text("[pipeline]\nforce = true\n" + steep)
+    _run(["design", str(toml), "--out", str(tmp_path / "j2")], capsys)
+    report = json.loads((tmp_path / "j2" / "design" / "feasibility.json").read_text())
+    assert any("'b'" in e for e in report["errors"])
+
+
+def test_pipeline_seed_and_fit_match_the_command_line(tmp_path, capsys):
+    # A second path to the same options: the table read by `run`, and the flags of `design`.
+    toml = _toml(tmp_path, extra='[pipeline]\nseed = 3\nfit = "cover"\n')
+    main(["run", str(toml), "--out", str(tmp_path / "run"), "--until", "design"])
+    (tmp_path / "plain").mkdir()
+    plain = _toml(tmp_path / "plain")
+    flags = ["--seed", "3", "--fit", "cover"]
+    _run(["design", str(plain), "--out", str(tmp_path / "cli"), *flags], capsys)
+    _run(["design", str(plain), "--out", str(tmp_path / "default")], capsys)
+    by_run = (tmp_path / "run" / "design" / "scratches.csv").read_text()
+    assert by_run == (tmp_path / "cli" / "design" / "scratches.csv").read_text()
+    assert by_run != (tmp_path / "default" / "design" / "scratches.csv").read_text()
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [("--seed", "-1"), ("--gamma", "0"), ("--gamma", "nan"), ("--contrast", "-1")],
+)
+@pytest.mark.parametrize("form", ["file", "quick"])
+def test_out_of_range_options_are_usage_errors(tmp_path, capsys, option, value, form):
+    inputs = [str(_toml(tmp_path))] if form == "file" else [str(DEMO / "sun.png")]
+    job = tmp_path / "job"
+    with pytest.raises(SystemExit) as info:
+        main(["design", *inputs, "--out", str(job), option, value])
+    err = capsys.readouterr().err
+    assert info.value.code == 2
+    assert f"Invalid value for '{option}'" in err and "Traceback" not in err
+    assert not job.exists()

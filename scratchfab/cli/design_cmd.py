@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from scratchfab.cli.options import FiniteFloat
 from scratchfab.design.quick import parse_resolution, parse_size, quick_design
 from scratchfab.design.stage import run_design
 from scratchfab.errors import ConfigError
@@ -25,14 +26,27 @@ from scratchfab.model.design import Design
     help="Fit images to the board: whole picture (contain) or fill the board (cover).",
 )
 @click.option(
-    "--gamma", type=float, default=1.0, show_default=True, help="Exponent on linear values."
+    "--gamma",
+    type=FiniteFloat(min=0, min_open=True),
+    default=1.0,
+    show_default=True,
+    help="Exponent on linear values.",
 )
 @click.option(
-    "--contrast", type=float, default=1.0, show_default=True, help="Contrast about the mean."
+    "--contrast",
+    type=FiniteFloat(min=0),
+    default=1.0,
+    show_default=True,
+    help="Contrast about the mean.",
 )
 @click.option("--count", type=click.IntRange(min=1), default=None, help="Number of scratches.")
 @click.option("--resolution", default=None, help="Camera pixels per view: N or WxH.")
-@click.option("--seed", type=int, default=None, help="Seed of the initial layout (default 0).")
+@click.option(
+    "--seed",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Seed of the initial layout [file's pipeline.seed, else 0].",
+)
 @click.option("--force", is_flag=True, default=None, help="Go on despite feasibility errors.")
 def design(
     inputs: tuple[str, ...],

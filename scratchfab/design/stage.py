@@ -32,6 +32,7 @@ from scratchfab.fileio import atomic_folder, save_npy, save_png, write_text
 from scratchfab.model.design import Design, design_from_mapping
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
+from scratchfab.pipeline.config import PipelineOptions, parse_stage_tables
 
 Progress = Callable[[str], Any]
 
@@ -61,29 +62,21 @@ class DesignResult:
         return self.folder / "design.toml"
 
 
-def _pipeline_defaults(data: dict[str, Any], source: str) -> dict[str, Any]:
-    """The design stage's options from a pipeline file's ``[pipeline]`` table, if any."""
-    table = data.get("pipeline")
-    if table is None:
-        return {}
-    if not isinstance(table, dict):
-        raise ConfigError(f"{source}: pipeline: expected a table")
-    out = {}
-    for key in ("fit", "seed", "force"):
-        if key in table:
-            out[key] = table[key]
-    return out
-
-
 def load_source(
     source: str | Path | Design,
     count: int | None = None,
     resolution: tuple[int, int] | None = None,
-) -> tuple[Design, dict[str, Any]]:
+) -> tuple[Design, PipelineOptions]:
     """The design to work on, with command-line overrides applied as if written in the file.
 
+    A file's stage tables are parsed as ``scratchfab run`` parses them, so a mistake in
+    them is refused here too.
+
     Returns:
-        (design, options from a pipeline file's ``[pipeline]`` table).
+        (design, the file's ``[pipeline]`` options; the defaults for a Design).
+
+    Raises:
+        ConfigError: Naming the file and the key.
     """
     if isinstance(source, Design):
         design = source
@@ -91,7 +84,7 @@ def load_source(
             design = replace(design, scratch=replace(design.scratch, count=count))
         if resolution is not None:
             raise ValueError("apply resolution when building a Design, not to a resolved one")
-        return design, {}
+        return design, PipelineOptions()
     file = Path(source)
     data = load_toml(file)
     if count is not None:
@@ -103,7 +96,7 @@ def load_source(
             if isinstance(view, dict):
                 view["resolution"] = list(resolution)
     design = design_from_mapping(data, str(file), file.resolve().parent)
-    return design, _pipeline_defaults(data, str(file))
+    return design, parse_stage_tables(data, str(file)).pipeline
 
 
 def _origin_comment(design: Design, fit: str, gamma: float, contrast: float, seed: int) -> str:
@@ -132,9 +125,9 @@ def run_design(
     """Run the design stage.
 
     Args:
-        source: A design or pipeline TOML file (stage tables are skipped; a
-            ``[pipeline]`` table supplies ``fit``, ``seed`` and ``force`` defaults), or a
-            resolved :class:`Design` (the quick form).
+        source: A design or pipeline TOML file (stage tables are checked as ``run``
+            checks them; a ``[pipeline]`` table supplies ``fit``, ``seed`` and ``force``
+            defaults), or a resolved :class:`Design` (the quick form).
         out_job: The job folder; ``design/`` is (re)written inside it.
         force: Go on although the feasibility check found errors.
         fit: ``"contain"`` or ``"cover"`` (default ``"contain"``).
@@ -142,7 +135,7 @@ def run_design(
         contrast: Contrast about the picture's mean (1 = unchanged).
         count: Overrides ``[scratch] count``.
         resolution: Overrides every view's ``resolution`` (W, H); file sources only.
-        seed: Seed of the initial layout (default 0).
+        seed: Seed of the initial layout, at least 0 (default 0).
         progress: Called with one line per step.
 
     Raises:
@@ -151,11 +144,13 @@ def run_design(
     start = time.perf_counter()
     design, defaults = load_source(source, count, resolution)
     _check_job_folder(Path(out_job))
-    fit = fit if fit is not None else str(defaults.get("fit", "contain"))
-    seed = seed if seed is not None else int(defaults.get("seed", 0))
-    force = force if force is not None else bool(defaults.get("force", False))
+    fit = fit if fit is not None else defaults.fit
+    seed = seed if seed is not None else defaults.seed
+    force = force if force is not None else defaults.force
     if fit not in FITS:
         raise ConfigError(f"{design.source}: fit must be one of {', '.join(FITS)}, got {fit!r}")
+    if seed < 0:
+        raise ConfigError(f"{design.source}: seed must be at least 0, got {seed}")
     for i, view in enumerate(design.views):
         if view.target is None:
             raise ConfigError(f"{design.source}: views[{i}] ('{view.name}'): missing target image")

@@ -6,6 +6,7 @@ like the design itself.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -30,14 +31,14 @@ class PipelineOptions:
         name: Shown in the report.
         out: Default job folder (relative to the current directory); ``--out`` overrides.
         fit: How target images meet the board's aspect ("contain" or "cover").
-        seed: Seed of the initial layout.
+        seed: Seed of the initial layout (as ``scratchfab design --seed``).
         force: Go on when the feasibility check fails.
     """
 
     name: str = "scratchfab job"
     out: str | None = None
     fit: Literal["contain", "cover"] = "contain"
-    seed: int = 0
+    seed: int = field(default=0, metadata=spec(ge=0))
     force: bool = False
 
 
@@ -94,13 +95,28 @@ class StreamOptions:
 
 
 @dataclass(frozen=True)
-class _StageTables:
+class StageTables:
+    """The stage tables of a pipeline file."""
+
     pipeline: PipelineOptions = PipelineOptions()
     optimize: OptimizeOptions = OptimizeOptions()
     verify: VerifyOptions = VerifyOptions()
     toolpath: ToolpathOptions = ToolpathOptions()
     export: ExportOptions = ExportOptions()
     stream: StreamOptions = StreamOptions()
+
+
+def parse_stage_tables(data: Mapping[str, Any], source: str) -> StageTables:
+    """The stage tables of a pipeline file's ``data`` (other tables are left alone).
+
+    The one parser of ``[pipeline]`` and the later stages' tables, for ``scratchfab
+    run`` (:func:`load_pipeline`) and ``scratchfab design`` given a pipeline file.
+
+    Raises:
+        ConfigError: Naming ``source`` and the dotted key on any mistake.
+    """
+    stage_data = {k: v for k, v in data.items() if k in StageTables.__dataclass_fields__}
+    return parse_table(StageTables, stage_data, source)
 
 
 @dataclass(frozen=True)
@@ -146,8 +162,7 @@ def load_pipeline(path: str | Path) -> Pipeline:
     file = Path(path)
     data = load_toml(file)
     design = design_from_mapping(data, str(file), file.resolve().parent)
-    stage_data = {k: v for k, v in data.items() if k in _StageTables.__dataclass_fields__}
-    tables = parse_table(_StageTables, stage_data, str(file))
+    tables = parse_stage_tables(data, str(file))
     from scratchfab.machine.profile import load_profile
 
     machine = _machine_ref(tables.toolpath.machine, file.resolve())
