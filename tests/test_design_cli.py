@@ -256,6 +256,7 @@ _TABLE_MISTAKES = [
     ('[pipeline]\nfti = "cover"\n', "pipeline: unknown key 'fti' (did you mean 'fit'?)"),
     ('[pipeline]\nfit = "stretch"\n', "pipeline.fit: expected 'contain' or 'cover'"),
     ("pipeline = 3\n", "pipeline: expected a table, got 3"),
+    ("[verify]\nsweep = 1\n", "verify.sweep: expected 0 (no sweep) or at least 2 frames"),
 ]
 
 

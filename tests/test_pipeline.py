@@ -312,7 +312,25 @@ def test_until_and_from(tmp_path):
             ("[optimize]\n", "[optimize]\niteratons = 3\n"),
             "optimize: unknown key 'iteratons' (did you mean 'iterations'?)",
         ),
-        (("spp = 256", "spp = 0"), "verify.spp: expected a value greater than 0"),
+        (("spp = 256", "spp = 0"), "verify.spp: expected a value at least 2, got 0"),
+        (("spp = 256", "spp = 1"), "verify.spp: expected a value at least 2, got 1"),
+        (
+            ("[verify]\n", "[verify]\nsweep = 1\n"),
+            "verify.sweep: expected 0 (no sweep) or at least 2 frames, got 1",
+        ),
+        (("[verify]\n", "[verify]\nseed = -1\n"), "verify.seed: expected a value at least 0"),
+        (("[pipeline]\n", "[pipeline]\nseed = -1\n"), "pipeline.seed: expected a value at least 0"),
+        (
+            ('formats = ["gcode", "svg"]', "formats = []"),
+            'stream.port: streaming needs "gcode" in export.formats, got export.formats = []',
+        ),
+        (
+            ('formats = ["gcode", "svg"]', 'formats = ["svg", "dxf"]'),
+            'stream.port: streaming needs "gcode" in export.formats, '
+            "got export.formats = ['svg', 'dxf']",
+        ),
+        (('port = "grblsim', 'port = ""  # "grblsim'), "stream.port: expected a serial device"),
+        (('port = "grblsim', 'port = " "  # "grblsim'), "stream.port: expected a serial device"),
         (
             ('machine = "grbl-3018-diamond"', 'machine = "nope"'),
             "toolpath.machine: machine 'nope': not a bundled profile",
@@ -335,6 +353,38 @@ def test_pipeline_errors_are_one_line(tmp_path, capsys, edit, message):
     err = capsys.readouterr().err
     assert info.value.code == 2
     assert message in err and str(path) in err and "Traceback" not in err
+    assert not (tmp_path / "job").exists()  # refused on loading, before any stage ran
+
+
+@pytest.mark.parametrize(
+    ("edit", "check"),
+    [
+        (("[verify]\n", "[verify]\nsweep = 0\n"), lambda p: p.verify.sweep == 0),
+        (("[verify]\n", "[verify]\nsweep = 2\n"), lambda p: p.verify.sweep == 2),
+        (("spp = 256", "spp = 2"), lambda p: p.verify.spp == 2),
+        (("[pipeline]\n", "[pipeline]\nseed = 7\n"), lambda p: p.pipeline.seed == 7),
+        (('formats = ["gcode", "svg"]', 'formats = ["gcode"]'), lambda p: p.stream.port),
+        # Without a port nothing is streamed, so export may leave out G-code (or write nothing).
+        (("[stream]\nport", "[stream]\n# port"), lambda p: p.stream.port is None),
+        (
+            (
+                'formats = ["gcode", "svg"]\n\n[stream]\nport',
+                'formats = ["svg"]\n\n[stream]\n# port',
+            ),
+            lambda p: p.export.formats == ("svg",),
+        ),
+        (
+            ('formats = ["gcode", "svg"]\n\n[stream]\nport', "formats = []\n\n[stream]\n# port"),
+            lambda p: p.export.formats == (),
+        ),
+    ],
+)
+def test_stage_table_bounds_accept_the_valid_forms(tmp_path, edit, check):
+    path = write_pipeline(tmp_path)
+    text = path.read_text()
+    assert edit[0] in text
+    path.write_text(text.replace(*edit, 1))
+    assert check(load_pipeline(path))
 
 
 def test_machine_ref_is_the_bundled_name_or_the_resolved_path(tmp_path):

@@ -44,15 +44,18 @@ class PipelineOptions:
 
 @dataclass(frozen=True)
 class VerifyOptions:
-    """``[verify]``."""
+    """``[verify]``: bounds as ``scratchfab verify-render``'s options.
 
-    spp: int = field(default=DEFAULT_SPP, metadata=spec(gt=0))
+    ``sweep`` is 0 (no sweep) or at least 2 frames; :class:`StageTables` checks that.
+    """
+
+    spp: int = field(default=DEFAULT_SPP, metadata=spec(ge=2))
     min_rho: float | None = field(default=0.8, metadata=spec(ge=-1, le=1))
     sweep: int = field(default=0, metadata=spec(ge=0))
     sky: bool = False
     jitter: bool = False
     backend: Literal["llvm", "cuda"] = "llvm"
-    seed: int = 0
+    seed: int = field(default=0, metadata=spec(ge=0))
 
 
 @dataclass(frozen=True)
@@ -81,7 +84,7 @@ class ExportOptions:
 
 @dataclass(frozen=True)
 class StreamOptions:
-    """``[stream]``: only run when ``port`` is set.
+    """``[stream]``: only run when ``port`` is set (a non-empty string).
 
     A run after an interrupted stream of the same G-code resumes it from the journal;
     ``recut_unsure`` then also cuts again what a lost link left unsure (see ``stream``).
@@ -96,7 +99,12 @@ class StreamOptions:
 
 @dataclass(frozen=True)
 class StageTables:
-    """The stage tables of a pipeline file."""
+    """The stage tables of a pipeline file, with the checks that span keys.
+
+    Raises:
+        ValueError: From ``__post_init__``, starting with the dotted key;
+            :func:`parse_table` prefixes the file name.
+    """
 
     pipeline: PipelineOptions = PipelineOptions()
     optimize: OptimizeOptions = OptimizeOptions()
@@ -104,6 +112,21 @@ class StageTables:
     toolpath: ToolpathOptions = ToolpathOptions()
     export: ExportOptions = ExportOptions()
     stream: StreamOptions = StreamOptions()
+
+    def __post_init__(self) -> None:
+        if self.verify.sweep == 1:
+            raise ValueError("verify.sweep: expected 0 (no sweep) or at least 2 frames, got 1")
+        port = self.stream.port
+        if port is not None and not port.strip():
+            raise ValueError(
+                f"stream.port: expected a serial device, pty path or URL, got {port!r} "
+                "(leave the key out to stop after export)"
+            )
+        if port is not None and "gcode" not in self.export.formats:
+            raise ValueError(
+                'stream.port: streaming needs "gcode" in export.formats, '
+                f"got export.formats = {list(self.export.formats)}"
+            )
 
 
 def parse_stage_tables(data: Mapping[str, Any], source: str) -> StageTables:
