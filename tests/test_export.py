@@ -170,10 +170,14 @@ def test_svg_reads_back_with_svgelements(planned, tmp_path):
         if isinstance(el, svgelements.SimpleLine):
             segs.append([[el.x1, -el.y1], [el.x2, -el.y2]])
     got = np.array(segs)
-    # The viewBox is mapped onto the page: undo the translation the reader applied.
-    offset = got.reshape(-1, 2).min(axis=0) - tp.strokes.reshape(-1, 2).min(axis=0)
-    assert np.allclose(got - offset * [1, 1], tp.strokes, atol=1e-5)
-    assert len(list(groups["board"].select(lambda e: isinstance(e, svgelements.SimpleLine)))) == 4
+    board = [e for e in groups["board"].select() if isinstance(e, svgelements.SimpleLine)]
+    assert len(board) == 4
+    corners = np.array([[e.x1, -e.y1] for e in board])
+    # The viewBox is mapped onto the page: the board's outline gives the translation the
+    # reader applied, and the scratches must sit where they belong on that board.
+    offset = corners.min(axis=0) - tp.outline.min(axis=0)
+    assert np.allclose(corners - offset, tp.outline, atol=1e-5)
+    assert np.allclose(got - offset, tp.strokes, atol=1e-5)
 
 
 def test_svg_reads_back_with_vpype(planned, tmp_path):
@@ -184,10 +188,16 @@ def test_svg_reads_back_with_vpype(planned, tmp_path):
     doc = vp.read_multilayer_svg(str(out), quantization=0.01)
     assert len(doc.layers) == 2
     px = 96.0 / 25.4
-    scratches = doc.layers[2]
-    got = np.array([[[ln[0].real, -ln[0].imag], [ln[-1].real, -ln[-1].imag]] for ln in scratches])
-    got = got / px
-    offset = got.reshape(-1, 2).min(axis=0) - tp.strokes.reshape(-1, 2).min(axis=0)
+
+    def ends(layer: int) -> np.ndarray:
+        lines = doc.layers[layer]
+        return np.array([[[ln[0].real, -ln[0].imag], [ln[-1].real, -ln[-1].imag]] for ln in lines])
+
+    got = ends(2) / px
+    corners = ends(1)[:, 0] / px
+    assert len(corners) == 4
+    offset = corners.min(axis=0) - tp.outline.min(axis=0)  # from the board layer alone
+    assert np.allclose(corners - offset, tp.outline, atol=1e-4)
     assert np.allclose(got - offset, tp.strokes, atol=1e-4)
 
 

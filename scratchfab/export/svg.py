@@ -1,8 +1,10 @@
 """SVG in millimetres: one user unit is 1 mm, groups ``board`` and ``scratches`` as layers.
 
 The drawing is the machine's XY plane seen from above with +y up: a point (x, y) is
-written at SVG (x, -y), and the ``viewBox`` spans the board's outline. Groups carry
-Inkscape layer attributes so that vpype and Inkscape read them as layers.
+written at SVG (x, -y), and the ``viewBox`` spans the board's outline plus a margin of
+:data:`MARGIN_MM`: readers that crop to the view box (vpype does) keep the lines on its
+edge, and the outline's stroke is drawn whole. Groups carry Inkscape layer attributes so
+that vpype and Inkscape read them as layers.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from scratchfab.machine.profile import MachineProfile
 from scratchfab.toolpath.plan import Toolpath
 
 LAYERS = ("board", "scratches")
+MARGIN_MM = 1.0
 
 
 def _num(v: float) -> str:
@@ -43,7 +46,7 @@ def write_svg(
     """Write the SVG file atomically; returns element counts and the file size."""
     prof = profile or toolpath.profile
     pts = np.vstack([toolpath.outline, toolpath.strokes.reshape(-1, 2)])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    lo, hi = pts.min(axis=0) - MARGIN_MM, pts.max(axis=0) + MARGIN_MM
     width, height = hi - lo
     ring = toolpath.outline.tolist()
     board = [_line(ring[k], ring[(k + 1) % 4]) for k in range(4)]
