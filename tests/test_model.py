@@ -95,6 +95,8 @@ def test_design_roundtrip_and_polar_view(tmp_path):
     assert front.all()
     assert (st[:, 0] >= 0).all() and (st[:, 0] <= 64).all()
     assert (st[:, 1] >= 0).all() and (st[:, 1] <= 48).all()
+    reach = max(np.abs(st[:, 0] - 32).max() / 32, np.abs(st[:, 1] - 24).max() / 24)
+    assert reach == pytest.approx(1 / 1.08, rel=1e-9)  # the outermost corner: 8% margin
 
 
 def test_camera_matches_spec_and_footprints_tile(small_design):

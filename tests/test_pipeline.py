@@ -176,8 +176,7 @@ def test_report_of_a_real_run_loads_in_chromium(finished_job, tmp_path):
 def test_rerun_skips_everything_then_touch_reruns_downstream(finished_job):
     path, job, _ = finished_job
     again = run_pipeline(load_pipeline(path), job, say=lambda s: None)
-    assert again.ran == [] and len(again.skipped) == 6
-    assert again.seconds < 5
+    assert again.ran == [] and again.skipped == list(STAGES)  # no timing: skipped stages
     st = (path.parent / "bar.png").stat()
     os.utime(path.parent / "bar.png", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
     touched = run_pipeline(load_pipeline(path), job, say=lambda s: None)

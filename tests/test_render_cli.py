@@ -15,7 +15,6 @@ from scratchfab.model.design import load_design
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.render.layout import EXPOSURE_KEY, read_render_layout, write_render_layout
 from scratchfab.render.renderer import render_scratches
-from scratchfab.render.tonemap import srgb_decode, srgb_encode
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "pipelines" / "example"
@@ -83,12 +82,15 @@ def test_preview_follows_the_documented_tone_map(tmp_path, rng):
     assert e == pytest.approx(np.percentile(positive, 99.5), rel=1e-12)
     grey = np.asarray(png, dtype=np.float64)
     finite = np.nan_to_num(img.astype(np.float64), nan=0.0)
-    want = np.round(255 * srgb_encode(np.clip(finite / e, 0, 1)))
-    np.testing.assert_array_equal(grey, want)
+    # IEC 61966-2-1, written out here independently of scratchfab.render.tonemap
+    x = np.clip(finite / e, 0, 1)
+    want = np.round(255 * np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055))
+    assert np.abs(grey - want).max() <= 1 and np.mean(grey == want) > 0.98  # rounding ties
     assert grey[0, 0] == 0
     # and back: the preview gives radiance to within 8-bit quantisation below white
     below = finite < e
-    back = srgb_decode(grey / 255) * e
+    v = grey / 255
+    back = np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4) * e
     assert np.all(np.abs(back - finite)[below] <= 0.02 * e)
 
 
