@@ -19,6 +19,7 @@ Usage: python benchmarks/bench_optimize.py [--demo-iterations N] [--large-steps 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import math
@@ -106,7 +107,8 @@ def _design(job: Path) -> None:
     from scratchfab.cli import main
 
     try:
-        main(["design", str(ROOT / "pipelines" / "demo.toml"), "--out", str(job)])
+        with contextlib.redirect_stdout(sys.stderr):  # stdout carries the JSON alone
+            main(["design", str(ROOT / "pipelines" / "demo.toml"), "--out", str(job)])
     except SystemExit as exc:
         if exc.code:
             raise

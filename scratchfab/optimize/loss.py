@@ -13,10 +13,10 @@ differentiated: the gradient is that of E_k itself.
 Dividing by the target's energy makes the views weigh alike whatever their brightness.
 
 Linear against perceptual, measured (``benchmarks/bench_optimize.py --spaces
-linear,perceptual``, demo, 120 iterations from the design stage's layout, checked with
-the tests' brute-force renderer): linear reached PSNR 20.6 / 26.8 dB, rho 0.970 / 0.993
-and crosstalk 0.022 / 0.019 (sun / house); perceptual 18.5 / 23.0 dB, rho 0.951 / 0.983,
-crosstalk 0.025 / 0.034. The quality measures of SPEC section 7 are linear and the
+linear,perceptual``, demo, 150 iterations from the design stage's layout, checked with
+the tests' brute-force renderer): linear reached PSNR 21.1 / 27.5 dB, rho 0.973 / 0.994
+and crosstalk 0.021 / 0.016 (sun / house); perceptual 18.4 / 22.8 dB, rho 0.949 / 0.982,
+crosstalk 0.026 / 0.034. The quality measures of SPEC section 7 are linear and the
 perceptual error spends scratches on dark-tone detail the measures do not reward, so
 ``linear`` is the default.
 
