@@ -150,10 +150,30 @@ def test_file_form_overrides_and_pipeline_options(tmp_path, capsys):
         progress=lambda s: None,
     )
     np.testing.assert_array_equal(res.scratches.p0, seeded.scratches.p0)
+    other_seed = run_design(toml, tmp_path / "j5", seed=0, count=90, progress=lambda s: None)
+    assert not np.array_equal(other_seed.scratches.p0, seeded.scratches.p0)
+    Image.fromarray(np.full((32, 32), 128, np.uint8)).save(tmp_path / "a.png")  # mid-grey
     brighter = run_design(toml, tmp_path / "j3", gamma=0.5, progress=lambda s: None)
     plain = run_design(toml, tmp_path / "j4", progress=lambda s: None)
     board = np.isfinite(plain.targets["a"])
-    assert brighter.targets["a"][board].mean() >= plain.targets["a"][board].mean()
+    # gamma is an exponent on linear values: 0.5 takes sRGB 128 (linear 0.216) to 0.465
+    assert np.median(plain.targets["a"][board]) == pytest.approx(0.2158, abs=0.002)
+    assert np.median(brighter.targets["a"][board]) == pytest.approx(0.2158**0.5, abs=0.003)
+
+
+def test_fit_contain_shows_the_whole_picture_and_cover_fills_the_board(tmp_path):
+    toml = _toml(tmp_path)
+    wide = np.full((32, 64), 255, np.uint8)  # 2:1 on a square board
+    Image.fromarray(wide).save(tmp_path / "a.png")
+    lit = {}
+    for fit in ("contain", "cover"):
+        res = run_design(toml, tmp_path / fit, fit=fit, count=50, progress=lambda s: None)
+        board = np.asarray(Image.open(res.folder / "board" / "a.png").convert("L"), float) / 255
+        lit[fit] = float(np.mean(board > 0.5))
+    # contain: the picture spans the board's width and half its height, black bars above
+    # and below; cover: it fills the board (the picture's sides are cropped)
+    assert lit["contain"] == pytest.approx(0.5, abs=0.05)
+    assert lit["cover"] == pytest.approx(1.0, abs=0.01)
 
 
 def test_user_errors_are_one_line_and_keep_the_old_job(tmp_path, capsys):
