@@ -442,6 +442,18 @@ def test_resume_refuses_other_settings_and_missing_checkpoint(job: Path, capsys)
     assert "different settings" in err and "seed" in err
 
 
+@pytest.mark.parametrize("option", ["--time-budget", "--prune"])
+@pytest.mark.parametrize("value", ["nan", "inf"])
+def test_option_values_that_are_not_finite_numbers_are_refused(
+    job: Path, capsys, option: str, value: str
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["optimize", str(job), "--iterations", "1", option, value])
+    assert exc.value.code == 2
+    assert f"'{option}': '{value}' is not a finite number" in capsys.readouterr().err
+    assert not (job / "optimize").exists()
+
+
 def test_missing_job_is_one_line_error(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         main(["optimize", str(tmp_path / "nope")])

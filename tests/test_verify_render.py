@@ -361,6 +361,30 @@ def test_bad_input_is_one_line_and_writes_nothing(half_job, tmp_path, capsys, ar
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--max-noise", "nan"], "'--max-noise': 'nan' is not a finite number"),
+        (["--sky", "--sky-strength", "nan"], "'--sky-strength': 'nan' is not a finite"),
+        (["--sky", "--sun", "nan", "0", "1"], "'--sun': 'nan' is not a finite number"),
+        (["--sky", "--sun", "0", "inf", "1"], "'--sun': 'inf' is not a finite number"),
+        (["--sky", "--sun", "0", "0", "0"], "--sun: the direction must not be zero"),
+        (["--min-rho", "nan"], "'--min-rho': 'nan' is not a finite number"),
+    ],
+)
+def test_option_values_that_are_not_finite_numbers_are_refused(
+    half_job, tmp_path, capsys, args, message
+):
+    _, _, _, design_file, scratch_file = half_job
+    files = ["--design", str(design_file), "--scratches", str(scratch_file)]
+    with pytest.raises(SystemExit) as exc:
+        main(["verify-render", *files, "--out", str(tmp_path / "o"), *args])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err, err
+    assert not (tmp_path / "o").exists()
+
+
 def test_cuda_backend_without_a_gpu_is_a_clear_error(half_job, tmp_path, capsys):
     import drjit as dr
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from scratchfab.cli.options import backend_option
+from scratchfab.cli.options import FiniteFloat, backend_option
 from scratchfab.optimize.progress import clock, progress_printer
 from scratchfab.optimize.stage import OptimizeOptions, Progress, run_optimize
 
@@ -43,7 +43,7 @@ def _bar() -> Callable[[Progress], None]:
 )
 @click.option(
     "--time-budget",
-    type=click.FloatRange(min=0),
+    type=FiniteFloat(min=0),
     default=0.0,
     show_default=True,
     help="Stop after this many seconds of optimizing (0: no limit).",
@@ -74,7 +74,7 @@ def _bar() -> Callable[[Progress], None]:
 @click.option(
     "--prune",
     "prune_tolerance",
-    type=click.FloatRange(min=0),
+    type=FiniteFloat(min=0),
     default=None,
     is_flag=False,
     flag_value=0.01,

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from scratchfab.cli.options import job_or_files, job_or_files_options
+from scratchfab.cli.options import FiniteFloat, job_or_files, job_or_files_options
 from scratchfab.errors import ScratchfabError
 from scratchfab.verify.verify import DEFAULT_SPP
 
@@ -23,7 +23,7 @@ from scratchfab.verify.verify import DEFAULT_SPP
 )
 @click.option(
     "--max-noise",
-    type=click.FloatRange(min=0, min_open=True),
+    type=FiniteFloat(min=0, min_open=True),
     default=None,
     help="Add sample batches until the estimated relative noise is at most this (up to 8x --spp).",
 )
@@ -37,7 +37,7 @@ from scratchfab.verify.verify import DEFAULT_SPP
 @click.option("--sky", is_flag=True, help="Also render under sun and sky (writes OUT/sky/).")
 @click.option(
     "--sky-strength",
-    type=click.FloatRange(min=0, min_open=True),
+    type=FiniteFloat(min=0, min_open=True),
     default=1.0,
     show_default=True,
     help="Sun-and-sky irradiance on the board relative to the design light's.",
@@ -45,7 +45,7 @@ from scratchfab.verify.verify import DEFAULT_SPP
 @click.option(
     "--sun",
     "sun_direction",
-    type=(float, float, float),
+    type=(FiniteFloat(), FiniteFloat(), FiniteFloat()),
     default=(0.35, 0.8, 0.5),
     show_default=True,
     help="Direction toward the sun (x right, y up, z out of the board).",
@@ -68,7 +68,7 @@ from scratchfab.verify.verify import DEFAULT_SPP
 )
 @click.option(
     "--min-rho",
-    type=click.FloatRange(-1, 1),
+    type=FiniteFloat(-1, 1),
     default=None,
     help="Exit non-zero (3) when any view's rho_kk is below this.",
 )
