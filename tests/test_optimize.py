@@ -454,6 +454,26 @@ def test_option_values_that_are_not_finite_numbers_are_refused(
     assert not (job / "optimize").exists()
 
 
+@pytest.mark.parametrize("broken", ["empty layout", "missing target"])
+def test_broken_design_stage_is_one_line_error_naming_the_file(
+    job: Path, capsys, broken: str
+) -> None:
+    if broken == "empty layout":
+        path = job / "design" / "scratches.csv"
+        path.write_text(path.read_text().splitlines()[0] + "\n")
+        message = f"{path}: no scratches to optimize"
+    else:
+        path = sorted((job / "design" / "targets").glob("*.npy"))[0]
+        path.unlink()
+        message = f"{path}: file not found (view '{path.stem}' has a target picture"
+    with pytest.raises(SystemExit) as exc:
+        main(["optimize", str(job), "--iterations", "1"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+    assert not (job / "optimize").exists()
+
+
 def test_missing_job_is_one_line_error(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         main(["optimize", str(tmp_path / "nope")])

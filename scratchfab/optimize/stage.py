@@ -144,6 +144,11 @@ def load_job_inputs(job: Path) -> tuple[Design, dict[str, np.ndarray], ScratchSe
     for view in design.views:
         path = folder / "targets" / f"{view.name}.npy"
         if not path.exists():
+            if view.target is not None:
+                raise ConfigError(
+                    f"{path}: file not found (view '{view.name}' has a target picture; "
+                    "rerun `scratchfab design`)"
+                )
             continue
         try:
             arr = np.load(path, allow_pickle=False)
@@ -158,6 +163,8 @@ def load_job_inputs(job: Path) -> tuple[Design, dict[str, np.ndarray], ScratchSe
     if not targets:
         raise ConfigError(f"{folder / 'targets'}: no <view>.npy target for any view")
     scratches = load_scratches(folder / "scratches.csv", design.scratch, design.board)
+    if len(scratches) == 0:
+        raise ConfigError(f"{folder / 'scratches.csv'}: no scratches to optimize (header only)")
     return design, targets, scratches
 
 
