@@ -848,3 +848,85 @@ def test_rapid_time_estimate_per_axis_and_retimed(tmp_path):
     assert [b.seconds for b in retimed.blocks] == pytest.approx([b.seconds for b in fresh.blocks])
     assert retimed.blocks[1].seconds == pytest.approx(30 / 1000 * 60)  # now X is slowest
     assert [b.text for b in retimed.blocks] == [b.text for b in prog.blocks]
+
+
+# --------------------------------------------------------------------------- journal safety
+
+SIM = "grblsim://?time_scale=0&$130=300&$131=180&$132=45"
+
+
+def _no_connection(rec: Path) -> bool:
+    """True if the emulator at ``grblsim://...&record=rec`` was never opened (no record)."""
+    return not rec.exists()
+
+
+@pytest.mark.parametrize("resume", [False, True])
+@pytest.mark.parametrize("how", ["same", "relative", "hardlink"])
+def test_journal_refuses_the_gcode_file(tmp_path, monkeypatch, capsys, how, resume):
+    job = tmp_path / "export" / "board.gcode"
+    job.parent.mkdir()
+    write_job(job, 3)
+    before = job.read_bytes()
+    journal = {"same": job, "relative": Path("export/../export/board.gcode")}.get(how)
+    if how == "hardlink":
+        journal = tmp_path / "link.jsonl"
+        journal.hardlink_to(job)
+    monkeypatch.chdir(tmp_path)
+    rec = tmp_path / "rec.jsonl"
+    args = ["stream", str(job), "--port", f"{SIM}&record={rec}", "--yes", "--journal"]
+    with pytest.raises(SystemExit) as exc:
+        main([*args, str(journal), *(["--resume"] if resume else [])])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err == f"error: {journal}: is the G-code file being streamed; refusing to write the " \
+        "journal into it (give --journal another file)\n"  # fmt: skip
+    assert job.read_bytes() == before
+    assert _no_connection(rec)
+    assert not (tmp_path / "stream").exists()
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        b"[board]\nwidth_mm = 120.0\nheight_mm = 80.0\n",  # a design TOML
+        b"G21 G90\nG0 Z2\n",  # another G-code file
+        b'{"ev":"ack","i":0,"line":2}\n{"ev":"start"}\n',  # JSON, but not our first line
+        b'{"ev":"start","sha256":"ab"',  # a start line without its end
+        b"\x89PNG\r\n\x1a\n\x00\x00",  # binary
+        b"\n",
+    ],
+)
+def test_journal_refuses_an_existing_file_that_is_not_a_journal(tmp_path, capsys, content):
+    job = tmp_path / "job.gcode"
+    write_job(job, 3)
+    other = tmp_path / "design.toml"
+    other.write_bytes(content)
+    rec = tmp_path / "rec.jsonl"
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", f"{SIM}&record={rec}", "--yes",
+              "--journal", str(other)])  # fmt: skip
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        f"error: {other}: exists and is not a stream journal (its first line is not a start "
+        "event); refusing to append to it (give --journal a new file or an existing journal)"
+    ]
+    assert other.read_bytes() == content
+    assert _no_connection(rec)
+    with pytest.raises(ConfigError, match="is not a stream journal"):
+        Journal(other).open()  # the writer itself refuses too
+    assert other.read_bytes() == content
+
+
+def test_journal_appends_to_an_empty_file_or_a_journal(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 3)
+    journal = tmp_path / "j.jsonl"
+    journal.touch()
+    rec = tmp_path / "r.jsonl"
+    for k in range(2):
+        main(["stream", str(job), "--port", f"{SIM}&record={rec}", "--yes",
+              "--journal", str(journal)])  # fmt: skip
+        events = read_journal(journal)
+        assert [e["ev"] for e in events].count("start") == k + 1
+        assert events[-1] == {"ev": "end", "complete": True, "time": events[-1]["time"]}

@@ -54,8 +54,10 @@ class Journal:
         """Open for appending (creating the folder).
 
         Raises:
-            ScratchfabError: The journal cannot be written (one line naming it).
+            ScratchfabError: The journal cannot be written, or the file exists and is not a
+                journal (:func:`check_journal_file`; one line naming it).
         """
+        check_journal_file(self.path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._handle = open(self.path, "a", encoding="utf-8", newline="\n")  # noqa: SIM115
@@ -131,6 +133,52 @@ def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
             )
         events.append(event)
     return events
+
+
+def check_journal_file(
+    path: str | os.PathLike[str], gcode: str | os.PathLike[str] | None = None
+) -> None:
+    """Refuse to append to ``path`` unless it is missing, empty or a journal of ours.
+
+    Args:
+        path: The journal file to be appended to.
+        gcode: The G-code file being streamed, which the journal must not be.
+
+    Raises:
+        ScratchfabError: ``path`` is the G-code file, or an existing file whose first line
+            is not a start event as :class:`Journal` writes it (nothing is written).
+    """
+    p = Path(path)
+    if gcode is not None and _same_file(p, Path(gcode)):
+        raise ScratchfabError(
+            f"{p}: is the G-code file being streamed; refusing to write the journal into it "
+            "(give --journal another file)"
+        )
+    try:
+        with open(p, "rb") as handle:
+            first = handle.readline(1 << 16)
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise ScratchfabError(f"{p}: cannot read the journal ({exc.strerror or exc})") from None
+    if not first:
+        return
+    try:
+        event = json.loads(first.decode("utf-8"))
+    except ValueError:  # not UTF-8, not JSON
+        event = None
+    if not isinstance(event, dict) or event.get("ev") != "start":
+        raise ConfigError(
+            f"{p}: exists and is not a stream journal (its first line is not a start event); "
+            "refusing to append to it (give --journal a new file or an existing journal)"
+        )
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()
 
 
 def done_blocks(

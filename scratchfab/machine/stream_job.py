@@ -19,6 +19,7 @@ from scratchfab.machine.sender import Progress, Streamer, StreamOptions, open_po
 from scratchfab.machine.sender_checks import compare
 from scratchfab.machine.sender_journal import (
     Journal,
+    check_journal_file,
     default_journal_path,
     done_blocks,
     interrupted,
@@ -105,6 +106,8 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
         ScratchfabError: Bad input, a refusal before sending, a check-mode error, or a
             fault while streaming (the machine is left held or reset, never moving).
     """
+    journal_file = req.journal or default_journal_path(req.gcode)
+    check_journal_file(journal_file, req.gcode)
     profile = _profile_for(req, cb.say)
     baud = req.baud or (profile.serial.baud if profile is not None else 115200)
     z_threshold = req.z_threshold
@@ -113,7 +116,6 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     program = load_program(req.gcode, z_threshold=z_threshold)
     if not program.blocks:
         raise ScratchfabError(f"{req.gcode}: no G-code lines to send")
-    journal_file = req.journal or default_journal_path(req.gcode)
     start = 0
     preamble: list[str] = []
     events = None
