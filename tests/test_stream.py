@@ -200,7 +200,7 @@ def test_journal_rejects_changed_file(tmp_path):
     write_job(job, 2)
     prog = load_program(job)
     j = Journal(tmp_path / "j.jsonl").open()
-    j.write("start", sha256="0" * 64, file=str(job))
+    j.write("start", sha256="0" * 64, file=str(job), blocks=len(prog.blocks), resume=False)
     j.close()
     with pytest.raises(ConfigError, match="different version"):
         done_blocks(read_journal(tmp_path / "j.jsonl"), prog.sha256, "j.jsonl")
@@ -586,7 +586,7 @@ def test_fresh_stream_over_an_unfinished_journal_warns(tmp_path, capsys):
     write_job(job, 3)
     journal = default_journal_path(job)
     j = Journal(journal).open()
-    j.write("start", sha256=load_program(job).sha256, file=str(job), resume=False)
+    j.start(load_program(job), resume=False)
     j.write("ack", i=0, line=2)
     j.close()
     args = ["stream", str(job), "--port", "grblsim://?time_scale=0.001", "--yes"]
@@ -930,3 +930,125 @@ def test_journal_appends_to_an_empty_file_or_a_journal(tmp_path):
         events = read_journal(journal)
         assert [e["ev"] for e in events].count("start") == k + 1
         assert events[-1] == {"ev": "end", "complete": True, "time": events[-1]["time"]}
+
+
+@pytest.fixture(scope="module")
+def interrupted_run(tmp_path_factory):
+    """A 40-stroke job whose stream lost its link at block 150, and its journal's bytes."""
+    folder = tmp_path_factory.mktemp("interrupted")
+    job = folder / "job.gcode"
+    write_job(job, 40)
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", f"{SIM}&disconnect_after=150", "--yes"])
+    assert exc.value.code == 3
+    journal = default_journal_path(job)
+    return job, journal.read_bytes()
+
+
+def _set(key, value):
+    def edit(ev):
+        ev[key] = value
+
+    edit.__name__ = f"{key}={json.dumps(value)}"  # the test id
+    return edit
+
+
+def _drop(key):
+    def edit(ev):
+        del ev[key]
+
+    edit.__name__ = f"no-{key}"
+    return edit
+
+
+def _ACK(ev):
+    return ev["ev"] == "ack" and ev.get("i") == 20
+
+
+def _LOST(ev):
+    return ev["ev"] == "lost"
+
+
+def _START(ev):
+    return ev["ev"] == "start"
+
+
+@pytest.mark.parametrize(
+    ("which", "edit", "key"),
+    [
+        (_ACK, _set("i", None), "i"),
+        (_ACK, _set("i", "x"), "i"),
+        (_ACK, _set("i", "20"), "i"),
+        (_ACK, _set("i", -5), "i"),
+        (_ACK, _set("i", 1.5), "i"),
+        (_ACK, _set("i", 20.0), "i"),
+        (_ACK, _set("i", True), "i"),
+        (_ACK, _set("i", 203), "i"),  # the job has 203 blocks: 0..202
+        (_ACK, _set("i", [20]), "i"),
+        (_ACK, _drop("i"), "i"),
+        (_ACK, _set("pre", 0), "i"),  # both kinds of ack at once
+        (_ACK, _set("ev", "ackk"), "ev"),
+        (_ACK, _drop("ev"), "ev"),
+        (_LOST, _set("executed_through", "x"), "executed_through"),
+        (_LOST, _set("executed_through", 7.5), "executed_through"),
+        (_LOST, _set("executed_through", -2), "executed_through"),
+        (_LOST, _set("executed_through", 203), "executed_through"),
+        (_LOST, _drop("executed_through"), "executed_through"),
+        (_LOST, _set("ev", "lsot"), "ev"),
+        (_START, _set("blocks", "203"), "blocks"),
+        (_START, _set("blocks", 203.5), "blocks"),
+        (_START, _set("blocks", -1), "blocks"),
+        (_START, _drop("blocks"), "blocks"),
+        (_START, _set("resume", "no"), "resume"),
+        (_START, _set("sha256", None), "sha256"),
+    ],
+)
+def test_resume_refuses_a_damaged_journal_naming_line_and_key(
+    tmp_path, capsys, interrupted_run, which, edit, key
+):
+    gcode, saved = interrupted_run
+    job = tmp_path / "job.gcode"
+    job.write_bytes(gcode.read_bytes())
+    events = [json.loads(line) for line in saved.decode().splitlines()]
+    line = next(k for k, ev in enumerate(events, start=1) if which(ev))
+    edit(events[line - 1])
+    journal = default_journal_path(job)
+    damaged = "".join(json.dumps(ev) + "\n" for ev in events).encode()
+    journal.write_bytes(damaged)
+    rec = tmp_path / "rec.jsonl"
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", f"{SIM}&record={rec}", "--yes", "--resume"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert err.startswith(f"error: {journal}:{line}: ")
+    assert f"'{key}'" in err and "expected" in err
+    assert journal.read_bytes() == damaged
+    assert _no_connection(rec)
+
+
+def test_read_journal_checks_only_what_can_still_count(tmp_path):
+    """Damage before the last fresh start cannot change a resume; a complete last line
+    that is not JSON is damage, a cut-off one is a crash and is skipped."""
+    events = [
+        {"ev": "start", "sha256": "a", "blocks": 5, "resume": False},
+        {"ev": "ack", "i": "damaged"},
+        {"ev": "start", "sha256": "a", "blocks": 5, "resume": False},
+        {"ev": "ack", "i": 0},
+        {"ev": "lost", "reason": "connection lost", "executed_through": None},
+    ]
+    path = tmp_path / "j.jsonl"
+    text = "".join(json.dumps(ev) + "\n" for ev in events)
+    path.write_text(text + '{"ev":"ack","i"')
+    assert read_journal(path) == events
+    assert done_blocks(read_journal(path), "a", path) == {0}
+    path.write_text(text + "garbage\n")
+    with pytest.raises(ConfigError, match=rf"j.jsonl:{len(events) + 1}: not a journal line"):
+        read_journal(path)
+    path.write_text(text[text.index("\n") + 1 :])
+    with pytest.raises(ConfigError, match=r"j.jsonl:1: 'ev': expected \"start\""):
+        read_journal(path)
+    events[2]["resume"] = True  # the damaged line now belongs to the runs that count
+    path.write_text("".join(json.dumps(ev) + "\n" for ev in events))
+    with pytest.raises(ConfigError, match=r"j.jsonl:2: 'i': expected an integer 0\.\.4"):
+        read_journal(path)

@@ -108,8 +108,79 @@ class Journal:
             self._handle = None
 
 
+#: The events :class:`Journal` writes; any other ``"ev"`` is a damaged line.
+EVENT_KINDS = ("start", "ack", "error", "alarm", "stop", "lost", "end")
+
+_REPAIR = "repair the line or move the journal aside to stream from the top"
+
+
+def _expected(where: str, key: str, what: str, value: Any) -> ConfigError:
+    return ConfigError(f"{where}: {key!r}: expected {what}, got {json.dumps(value)}; {_REPAIR}")
+
+
+def _integer(ev: dict[str, Any], key: str, lo: int, hi: int | None, where: str) -> None:
+    """Refuse ``ev[key]`` unless it is an integer (not a bool) in ``lo..hi``."""
+    value = ev.get(key)
+    if isinstance(value, int) and not isinstance(value, bool) and lo <= value:
+        if hi is None or value <= hi:
+            return
+    span = f"an integer >= {lo}" if hi is None else f"an integer {lo}..{hi}"
+    if key not in ev:
+        raise ConfigError(f"{where}: {key!r} is missing, expected {span}; {_REPAIR}")
+    raise _expected(where, key, span, value)
+
+
+def check_event(ev: dict[str, Any], blocks: int | None, where: str) -> int | None:
+    """Refuse an event whose fields the reader uses are not what :class:`Journal` writes.
+
+    Args:
+        ev: One decoded journal line.
+        blocks: The block count of the run it belongs to (its start event), None if unknown.
+        where: ``file:line`` for messages.
+
+    Returns:
+        The block count of the run from here on (``ev["blocks"]`` for a start event).
+
+    Raises:
+        ConfigError: One line naming ``where``, the key and what it should hold.
+    """
+    kind = ev.get("ev")
+    if kind not in EVENT_KINDS:
+        raise _expected(where, "ev", "one of " + ", ".join(EVENT_KINDS), kind)
+    if kind == "start":
+        if not isinstance(ev.get("sha256"), str):
+            raise _expected(where, "sha256", "the G-code file's hash (a string)", ev.get("sha256"))
+        if not isinstance(ev.get("resume"), bool):
+            raise _expected(where, "resume", "true or false", ev.get("resume"))
+        _integer(ev, "blocks", 0, None, where)
+        return int(ev["blocks"])
+    last = None if blocks is None else blocks - 1
+    if kind == "ack":
+        if ("i" in ev) == ("pre" in ev):
+            keys = json.dumps(sorted(k for k in ev if k != "ev"))
+            raise ConfigError(
+                f"{where}: 'i' or 'pre': expected one of them ('i' a block 0..{last}, 'pre' "
+                f"a resume preamble line), got the keys {keys}; {_REPAIR}"
+            )
+        if "i" in ev:
+            _integer(ev, "i", 0, last, where)
+        else:
+            _integer(ev, "pre", 0, None, where)
+    elif kind in ("stop", "lost") and ev.get("executed_through", 0) is not None:
+        _integer(ev, "executed_through", -1, last, where)
+    return blocks
+
+
 def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
-    """All complete events of a journal (a cut-off last line is skipped)."""
+    """All complete events of a journal (a cut-off last line is skipped).
+
+    Every line must be a JSON object and the first a start event. From the last fresh
+    (non-resume) start on, the lines that count for a resume are checked field by field
+    (:func:`check_event`); damage before it cannot change a resume and is let be.
+
+    Raises:
+        ConfigError: Unreadable file, or a damaged line (naming ``file:line`` and the key).
+    """
     p = Path(path)
     data = read_input(
         p, "a journal file", "no journal to resume from (stream without --resume first)"
@@ -124,14 +195,27 @@ def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
         try:
             event = json.loads(line)
         except json.JSONDecodeError:
-            if k == len(lines):
-                break
+            if k == len(lines) and not text.endswith("\n"):
+                break  # cut off by a crash while it was written
             event = None
         if not isinstance(event, dict):
             raise ConfigError(
                 f"{p}:{k}: not a journal line (move the journal aside to stream from the top)"
             )
         events.append(event)
+    if not events:
+        return events
+    if events[0].get("ev") != "start":
+        raise _expected(f"{p}:1", "ev", '"start" (a journal begins with one)', events[0].get("ev"))
+    fresh = [
+        k for k, ev in enumerate(events) if ev.get("ev") == "start" and ev.get("resume") is False
+    ]
+    first = fresh[-1] if fresh else 0
+    if first > 0:
+        check_event(events[0], None, f"{p}:1")
+    blocks: int | None = None
+    for k in range(first, len(events)):
+        blocks = check_event(events[k], blocks, f"{p}:{k + 1}")
     return events
 
 
@@ -147,6 +231,7 @@ def check_journal_file(
     Raises:
         ScratchfabError: ``path`` is the G-code file, or an existing file whose first line
             is not a start event as :class:`Journal` writes it (nothing is written).
+        ConfigError: The first line is a start event with a damaged field.
     """
     p = Path(path)
     if gcode is not None and _same_file(p, Path(gcode)):
@@ -172,6 +257,7 @@ def check_journal_file(
             f"{p}: exists and is not a stream journal (its first line is not a start event); "
             "refusing to append to it (give --journal a new file or an existing journal)"
         )
+    check_event(event, None, f"{p}:1")  # a damaged journal of ours: name the key
 
 
 def _same_file(a: Path, b: Path) -> bool:
