@@ -1052,3 +1052,85 @@ def test_read_journal_checks_only_what_can_still_count(tmp_path):
     path.write_text("".join(json.dumps(ev) + "\n" for ev in events))
     with pytest.raises(ConfigError, match=r"j.jsonl:2: 'i': expected an integer 0\.\.4"):
         read_journal(path)
+
+
+# --------------------------------------------------------------------------- options
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [
+        ("--stall-timeout", "nan"),
+        ("--stall-timeout", "inf"),
+        ("--stall-timeout", "-1"),
+        ("--stall-timeout", "0"),
+        ("--banner-timeout", "0"),
+        ("--banner-timeout", "-3"),
+        ("--banner-timeout", "nan"),
+        ("--baud", "0"),
+        ("--baud", "-9600"),
+        ("--baud", "115200.5"),
+        ("--z-threshold", "nan"),
+        ("--z-threshold", "-inf"),
+        ("--margin", "-1"),
+    ],
+)
+@pytest.mark.parametrize("resume", [False, True])
+def test_stream_refuses_bad_option_values(tmp_path, capsys, interrupted_run, option, value, resume):
+    gcode, saved = interrupted_run
+    job = tmp_path / "job.gcode"
+    job.write_bytes(gcode.read_bytes())
+    default_journal_path(job).write_bytes(saved)
+    rec = tmp_path / "rec.jsonl"
+    args = ["stream", str(job), "--port", f"{SIM}&record={rec}", "--yes", f"{option}={value}"]
+    with pytest.raises(SystemExit) as exc:
+        main(args + (["--resume"] if resume else []))
+    assert exc.value.code == 2
+    assert f"Invalid value for '{option}'" in capsys.readouterr().err
+    assert _no_connection(rec)
+    assert default_journal_path(job).read_bytes() == saved
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [
+        ("--slow", "nan"),
+        ("--slow", "-0.5"),
+        ("--time-scale", "nan"),
+        ("--time-scale", "inf"),
+        ("--time-scale", "-1"),
+        ("--error-at", "-1"),
+        ("--disconnect-after", "-3"),
+        ("--baud", "0"),
+    ],
+)
+def test_grbl_sim_refuses_bad_option_values(capsys, option, value):
+    with pytest.raises(SystemExit) as exc:
+        main(["grbl-sim", "--pty", f"{option}={value}"])
+    assert exc.value.code == 2
+    err = capsys.readouterr()
+    assert f"Invalid value for '{option}'" in err.err and err.out == ""  # no pty path printed
+
+
+def test_resume_refuses_a_z_threshold_that_finds_no_stroke(tmp_path, capsys, interrupted_run):
+    gcode, saved = interrupted_run
+    job = tmp_path / "job.gcode"
+    job.write_bytes(gcode.read_bytes())
+    default_journal_path(job).write_bytes(saved)
+    rec = tmp_path / "rec.jsonl"
+    args = ["stream", str(job), "--port", f"{SIM}&record={rec}", "--yes", "--resume"]
+    with pytest.raises(SystemExit) as exc:
+        main([*args, "--z-threshold", "-1000"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "no stroke has the tool below the Z threshold -1000 (the job uses Z -0.05..2)" in err
+    assert _no_connection(rec)
+    # why: without strokes the resume point is the first block not done, inside a cut
+    low, normal = load_program(job, z_threshold=-1000), load_program(job)
+    assert not low.strokes
+    first, last = normal.strokes[10]
+    done = set(range(first + 2))  # the plunge and the first cutting move
+    assert resume_point(normal, done) == first
+    assert resume_point(low, done) == first + 2 <= last
+    main([*args, "--z-threshold", "1"])  # between cutting and travel: resumes at a stroke
+    assert "resuming at line" in capsys.readouterr().out

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from scratchfab.cli.options import FiniteFloat
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.sender import Progress
 from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
@@ -55,7 +56,12 @@ def _ask_interrupt() -> str:
     "--port", required=True, help="Serial device, pty path or pyserial URL (grblsim://...)."
 )
 @click.option("--yes", is_flag=True, help="Do not ask for confirmation before motion.")
-@click.option("--baud", type=int, default=None, help="Baud rate [machine profile, else 115200].")
+@click.option(
+    "--baud",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Baud rate [machine profile, else 115200].",
+)
 @click.option(
     "--protocol",
     type=click.Choice(["counting", "simple"]),
@@ -86,11 +92,23 @@ def _ask_interrupt() -> str:
     show_default=True,
     help="RX bytes kept free.",
 )
-@click.option("--stall-timeout", type=float, default=10.0, show_default=True, help="Seconds.")
-@click.option("--banner-timeout", type=float, default=2.5, show_default=True, help="Seconds.")
+@click.option(
+    "--stall-timeout",
+    type=FiniteFloat(min=0, min_open=True),
+    default=10.0,
+    show_default=True,
+    help="Seconds.",
+)
+@click.option(
+    "--banner-timeout",
+    type=FiniteFloat(min=0, min_open=True),
+    default=2.5,
+    show_default=True,
+    help="Seconds.",
+)
 @click.option(
     "--z-threshold",
-    type=float,
+    type=FiniteFloat(),
     default=None,
     help="Tool is down below this Z [machine: halfway engrave..safe; else auto].",
 )
@@ -164,13 +182,16 @@ def stream(
 )
 @click.option(
     "--time-scale",
-    type=click.FloatRange(min=0),
+    type=FiniteFloat(min=0),
     default=1.0,
     show_default=True,
     help="Motion time factor.",
 )
 @click.option(
-    "--error-at", type=int, default=0, help="Answer error:<code> to the N-th G-code block."
+    "--error-at",
+    type=click.IntRange(min=0),
+    default=0,
+    help="Answer error:<code> to the N-th G-code block (0: never).",
 )
 @click.option(
     "--error-code",
@@ -179,11 +200,18 @@ def stream(
     show_default=True,
     help="Code for --error-at.",
 )
-@click.option("--disconnect-after", type=int, default=0, help="Drop the link at the N-th block.")
+@click.option(
+    "--disconnect-after",
+    type=click.IntRange(min=0),
+    default=0,
+    help="Drop the link at the N-th block (0: never).",
+)
 @click.option(
     "--usb-powered", is_flag=True, help="Lose power with the link (stop running at once)."
 )
-@click.option("--slow", type=float, default=0.0, help="Extra seconds before each answer.")
+@click.option(
+    "--slow", type=FiniteFloat(min=0), default=0.0, help="Extra seconds before each answer."
+)
 @click.option("--soft-limits", is_flag=True, help="Start with $20=1 and $22=1 (in ALARM).")
 @click.option(
     "--record",

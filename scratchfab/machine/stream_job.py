@@ -134,6 +134,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
         )
     if resume:
         assert events is not None  # a resume reads the journal or raises
+        _check_strokes(program, req.gcode)
         trusted = done_blocks(events, program.sha256, journal_file)
         cautious = done_blocks(events, program.sha256, journal_file, recut_unsure=True)
         _say_unsure(program, trusted - cautious, req.recut_unsure, cb.outcome)
@@ -199,6 +200,23 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     finally:
         ser.close()
     return journal_file
+
+
+def _check_strokes(program: Program, gcode: Path) -> None:
+    """Refuse to resume a job that cuts (feed moves) but has no stroke at its Z threshold.
+
+    Without strokes the resume point is the first block not acknowledged, which may lie
+    in the middle of a cut (a threshold below every Z the job uses).
+    """
+    if program.strokes or not any(b.motion and b.modal.motion != "G0" for b in program.blocks):
+        return
+    zs = [b.modal.z for b in program.blocks if b.modal.z is not None]
+    span = f"Z {min(zs):g}..{max(zs):g}" if zs else "no Z"
+    raise ScratchfabError(
+        f"{gcode}: no stroke has the tool below the Z threshold {program.z_threshold:g} (the "
+        f"job uses {span}); resuming could restart in the middle of a cut (give a "
+        "--z-threshold between the cutting and the travel heights)"
+    )
 
 
 def _say_unsure(
