@@ -44,12 +44,8 @@ def load_job_design(design_file: str | Path) -> Design:
     """
     file = Path(design_file)
     design = load_design(file)
-    board = file.parent / "board"
-    return design.with_views(
-        tuple(
-            replace(v, target=str((board / f"{v.name}.png").resolve()))
-            if (board / f"{v.name}.png").is_file()
-            else v
-            for v in design.views
-        )
-    )
+    views = []
+    for view in design.views:
+        own = (file.parent / "board" / f"{view.name}.png").resolve()
+        views.append(replace(view, target=str(own)) if own.is_file() else view)
+    return design.with_views(tuple(views))
