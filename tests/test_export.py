@@ -71,9 +71,15 @@ def test_gcode_round_trip_cuts_exactly_the_strokes(planned, tmp_path):
     assert got.shape == tp.strokes.shape
     assert np.max(np.abs(got - tp.strokes)) <= tol
     assert all(m.kind == "G1" and m.feed == profile.feeds.engrave_mm_min for m in cutting)
+    # Travel in the profile's mode (G1 at its travel feed, else G0), from the first move on.
+    travel = profile.feeds.travel_mm_min
+    first_xy = next(line for line in lines if line.startswith(("G0 X", "G1 X")))
+    assert first_xy.startswith("G0 X" if travel is None else "G1 X")
     # Tool down only on strokes: every other XY move runs with the tool up.
     for m in other:
         if m.start[:2] != m.end[:2]:
+            assert m.kind == ("G0" if travel is None else "G1")
+            assert travel is None or m.feed == travel
             if threshold(profile) is None:
                 assert not m.spindle
             else:
@@ -127,6 +133,41 @@ def test_gcode_refuses_overlong_lines(planned, tmp_path):
     with pytest.raises(ScratchfabError, match="max_line_length 20"):
         export(tp, narrow, tmp_path / "x.gcode")
     assert not (tmp_path / "x.gcode").exists()
+
+
+def test_export_for_another_profile_changes_feeds_and_heights_only(planned, tmp_path):
+    tp, profile = planned
+    table = profile.to_table()
+    table["feeds"]["engrave_mm_min"] = 123.0
+    table["z"] = {"safe_mm": profile.z.safe_mm + 1.0, "engrave_mm": profile.z.engrave_mm}
+    other = profile_from_mapping(table, "<slower>")
+    out = tmp_path / "board.gcode"
+    export(tp, other, out)
+    cutting, _ = cuts(interpret(out.read_text()), threshold(other))
+    assert len(cutting) == len(tp) and all(m.feed == 123.0 for m in cutting)
+
+
+@pytest.mark.parametrize(
+    ("table", "key", "value", "named"),
+    [
+        ("board", "offset_mm", (150.0, 20.0), "board.offset_mm"),
+        ("board", "rotation_deg", 90, "board.rotation_deg"),
+        ("board", "origin", "upper-right", "board.origin"),
+        ("tool", "width_mm", 0.2, "tool.width_mm"),
+        ("tool", "min_length_mm", 2.0, "tool.min_length_mm"),
+    ],
+)
+def test_export_refuses_a_profile_that_places_the_board_otherwise(
+    planned, tmp_path, table, key, value, named
+):
+    tp, profile = planned
+    mapping = profile.to_table()
+    mapping[table][key] = value
+    other = profile_from_mapping(mapping, "<moved>")
+    for name in ("board.gcode", "board.dxf", "board.svg"):
+        with pytest.raises(ScratchfabError, match=rf"{named} = .*rerun `scratchfab toolpath"):
+            export(tp, other, tmp_path / name)
+    assert not list(tmp_path.iterdir())
 
 
 def test_interpreter_catches_what_grbl_refuses():

@@ -352,7 +352,7 @@ def test_cli_falls_back_to_design_scratches_and_standalone(rng, tmp_path, capsys
         (["export", "{job}", "-o", "{tmp}/x.pdf"], "unknown file extension"),
         (["export", "{job}", "-f", "dxf", "-o", "{tmp}/x.gcode"], "the extension says gcode"),
         (["export", "{job}", "--format", "gcode"], "run `scratchfab toolpath` first"),
-        (["export", "{job}", "-f", "gcode", "-m", "grbl-plotter-scribe"], "outside"),
+        (["export", "{job}", "-f", "gcode", "-m", "grbl-plotter-scribe"], "board.offset_mm"),
     ],
 )
 def test_cli_errors_are_one_line(rng, tmp_path, capsys, args, message):
@@ -540,3 +540,29 @@ def test_flip_chain_gain_is_the_real_change(rng):
             assert real == pytest.approx(gain - bonus, abs=1e-9)
             checked += 1
     assert checked > 1000
+
+
+def test_board_partly_off_the_envelope_is_shown_and_warned(rng, tmp_path, capsys):
+    import tomli_w
+
+    job = make_job(tmp_path, rng, optimize=True)
+    table = load_profile("grbl-3018-diamond").to_table()
+    offset = table["board"]["offset_mm"]
+    # The envelope's right edge runs through the middle of the 40 mm board.
+    table["envelope"]["x_mm"] = [table["envelope"]["x_mm"][0], offset[0] + 20.0]
+    table["start_mm"] = [offset[0] - 5.0, offset[1] - 5.0]
+    tight = tmp_path / "tight.toml"
+    tight.write_text(tomli_w.dumps(table))
+    main(["toolpath", str(job), "--machine", str(tight)])
+    tp = Toolpath.load(job / "toolpath" / "toolpath.json")
+    lost = tp.stats["outside_count"] + tp.stats["clipped_count"]
+    assert lost > 0 and tp.strokes[..., 0].max() <= offset[0] + 20.0
+    assert "outside the machine's envelope" in capsys.readouterr().out
+    # The envelope's edge is drawn (blue) across the board, between its left and right.
+    with Image.open(job / "toolpath" / "preview.png") as im:
+        rgb = np.asarray(im.convert("RGB")).astype(int)
+    blue = (rgb[..., 2] > 180) & (rgb[..., 0] < 100) & (rgb[..., 1] < 130)
+    cols = np.flatnonzero(blue.sum(axis=0) > 0.3 * rgb.shape[0])
+    assert len(cols) and 0.3 * rgb.shape[1] < cols.mean() < 0.7 * rgb.shape[1]
+    main(["export", str(job), "--format", "gcode"])
+    assert f"{tp.stats['outside_count']} scratches were left out" in capsys.readouterr().err

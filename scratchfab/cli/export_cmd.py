@@ -38,7 +38,10 @@ from scratchfab.toolpath import Toolpath
     "--machine",
     "-m",
     default=None,
-    help="Check and write for this profile instead of the toolpath's own.",
+    help=(
+        "Check and write for this profile instead of the toolpath's own: other feeds, Z "
+        "heights or tool control; the board placement and tool must be the toolpath's."
+    ),
 )
 def export(
     job: Path | None,
@@ -76,3 +79,11 @@ def export(
     else:
         detail = f"{len(tp)} scratches, {stats['bytes']} bytes"
     click.echo(f"wrote {output}: {detail}")
+    lost = tp.stats.get("outside_count", 0), tp.stats.get("clipped_count", 0)
+    if any(lost):
+        click.echo(
+            f"warning: the board does not fit the machine's envelope: {lost[0]} scratches "
+            f"were left out and {lost[1]} clipped when {toolpath_file} was planned "
+            "(see its preview.png)",
+            err=True,
+        )

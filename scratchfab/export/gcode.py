@@ -143,7 +143,7 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
         lines.append(safe)
         if ctl.mode == "spindle":
             lines += [ctl.command("on"), *dwell()]
-    lines.append(f"G0 {xy(start)}")
+    lines.append(travel(start))
     for a, b in toolpath.strokes:
         lines.append(travel(a))
         if ctl.mode == "servo":

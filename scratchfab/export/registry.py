@@ -48,6 +48,38 @@ def format_for(path: str | Path, format: str | None = None) -> str:
     return name
 
 
+def check_same_plan(toolpath: Toolpath, profile: MachineProfile) -> None:
+    """Refuse a profile that would have planned other strokes than the toolpath holds.
+
+    The strokes are already in the planning profile's machine coordinates: another board
+    placement puts the board elsewhere on the bed, another tool cuts other scratches.
+    Feeds, Z heights, tool control, start and G-code settings may differ: they are
+    what exporting for another profile is for.
+
+    Raises:
+        ScratchfabError: Naming what differs and the command that plans for the profile.
+    """
+    planned = toolpath.profile
+    differ = [
+        f"{table}.{key} = {theirs!r} (planned: {ours!r})"
+        for table, mine, other in (
+            ("board", planned.board, profile.board),
+            ("tool", planned.tool, profile.tool),
+        )
+        for key, ours, theirs in (
+            (k, getattr(mine, k), getattr(other, k)) for k in mine.__dataclass_fields__
+        )
+        if ours != theirs
+    ]
+    if differ:
+        raise ScratchfabError(
+            f"machine '{profile.name}' ({profile.source}) places or cuts the board otherwise "
+            f"than the toolpath was planned for ('{planned.name}'): {'; '.join(differ)}; "
+            "rerun `scratchfab toolpath JOB --machine` with this profile, then export; "
+            "nothing written"
+        )
+
+
 def export(
     toolpath: Toolpath,
     profile: MachineProfile | None,
@@ -58,7 +90,8 @@ def export(
 
     Args:
         toolpath: The ordered strokes.
-        profile: The machine (default: the toolpath's own profile).
+        profile: The machine (default: the toolpath's own profile); it must place the
+            board and cut with the tool as the toolpath's own does.
         path: The output file (written atomically; nothing is written on error).
         format: ``gcode``, ``nc``, ``dxf`` or ``svg``.
 
@@ -66,5 +99,7 @@ def export(
         Figures for the report (G-code: lines, bytes, max_line_length, bbox).
     """
     name = format_for(path, format)
+    if profile is not None:
+        check_same_plan(toolpath, profile)
     stats = WRITERS[name](toolpath, profile, path)
     return {"format": name, "path": str(path), **stats}

@@ -272,10 +272,12 @@ def plan_toolpath(
 
 
 def write_preview(toolpath: Toolpath, path: str | Path, max_px: int = 1200) -> None:
-    """PNG of the board outline, the cuts (black) and the travel moves (red), +y up.
+    """PNG of the board outline (grey), the cuts (black) and the travel moves (red), +y up.
 
-    The start position (green ring) is framed too unless it lies far off the board; the
-    travel legs to and from it then run off the picture.
+    The machine's envelope is drawn in blue where it crosses the picture, so a board
+    that sticks out of it shows where scratches were clipped or dropped. The start
+    position (green ring) is framed too unless it lies far off the board; the travel
+    legs to and from it then run off the picture.
     """
     pts = [toolpath.outline]
     if len(toolpath):
@@ -300,6 +302,10 @@ def write_preview(toolpath: Toolpath, path: str | Path, max_px: int = 1200) -> N
 
     image = Image.new("RGB", (w, h), "white")
     draw = ImageDraw.Draw(image)
+    env = toolpath.profile.envelope
+    box = px(np.array([[env.x_mm[0], env.y_mm[1]], [env.x_mm[1], env.y_mm[0]]]))
+    box = np.clip(box, -10.0, [w + 10.0, h + 10.0])  # edges out of the picture stay out
+    draw.rectangle([tuple(box[0]), tuple(box[1])], outline=(60, 90, 220), width=2)
     ring = px(np.vstack([toolpath.outline, toolpath.outline[:1]]))
     draw.line([tuple(p) for p in ring.tolist()], fill=(150, 150, 150), width=2)
     if len(toolpath):
