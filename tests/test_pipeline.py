@@ -177,10 +177,19 @@ def test_rerun_skips_everything_then_touch_reruns_downstream(finished_job):
     path, job, _ = finished_job
     again = run_pipeline(load_pipeline(path), job, say=lambda s: None)
     assert again.ran == [] and again.skipped == list(STAGES)  # no timing: skipped stages
+    gcode = (job / "export" / "board.gcode").read_bytes()
+    journal = (job / "stream" / "journal.jsonl").read_bytes()
     st = (path.parent / "bar.png").stat()
     os.utime(path.parent / "bar.png", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
-    touched = run_pipeline(load_pipeline(path), job, say=lambda s: None)
-    assert touched.ran == ["design", "optimize", "verify", "toolpath", "export", "stream"]
+    said = []
+    touched = run_pipeline(load_pipeline(path), job, say=said.append)
+    assert touched.ran == ["design", "optimize", "verify", "toolpath", "export"]
+    # The same board again, byte for byte, streamed to the end before: not cut twice.
+    assert (job / "export" / "board.gcode").read_bytes() == gcode
+    assert touched.skipped == ["stream"]
+    assert (job / "stream" / "journal.jsonl").read_bytes() == journal
+    (line,) = [s for s in said if s.startswith("[stream]")]
+    assert str(job / "export" / "board.gcode") in line and "--from stream" in line
 
 
 def test_moved_job_is_still_up_to_date(finished_job, tmp_path, monkeypatch):
@@ -227,14 +236,188 @@ def test_moved_job_reads_its_own_board_pictures(finished_job, tmp_path):
 
 def test_changed_option_reruns_only_downstream(finished_job):
     path, job, _ = finished_job
+    run_pipeline(load_pipeline(path), job, say=lambda s: None)  # up to date after other tests
+    journal = (job / "stream" / "journal.jsonl").read_bytes()
     text = path.read_text()
     path.write_text(text.replace('formats = ["gcode", "svg"]', 'formats = ["gcode", "svg", "dxf"]'))
     try:
         result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
-        assert result.ran == ["export", "stream"]
+        assert result.ran == ["export"] and result.skipped[-1] == "stream"
         assert (job / "export" / "board.dxf").is_file()
+        assert (job / "stream" / "journal.jsonl").read_bytes() == journal
     finally:
         path.write_text(text)
+    # The format left out again: its file goes, from the folder, the manifest and the report.
+    result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    assert result.ran == ["export"]
+    assert sorted(p.name for p in (job / "export").iterdir()) == ["board.gcode", "board.svg"]
+    outputs = Manifest.load(job).stages["export"]["outputs"]
+    assert outputs == ["export/board.gcode", "export/board.svg"]
+    report = (job / "report.html").read_text()
+    assert "board.svg" in report and "board.dxf" not in report
+
+
+def test_upstream_option_change_does_not_stream_the_same_gcode_again(finished_job):
+    path, job, _ = finished_job
+    run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    gcode = (job / "export" / "board.gcode").read_bytes()
+    journal = (job / "stream" / "journal.jsonl").read_bytes()
+    text = path.read_text()
+    path.write_text(text.replace("[verify]\n", "[verify]\nseed = 3\n"))
+    try:
+        result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    finally:
+        path.write_text(text)
+    assert result.ran == ["verify", "toolpath", "export"] and result.skipped[-1] == "stream"
+    assert (job / "export" / "board.gcode").read_bytes() == gcode
+    assert (job / "stream" / "journal.jsonl").read_bytes() == journal
+
+
+def _fresh_starts(job):
+    events = [json.loads(ln) for ln in (job / "stream" / "journal.jsonl").read_text().splitlines()]
+    return [e for e in events if e["ev"] == "start" and not e["resume"]]
+
+
+def _code_lines(gcode: Path) -> int:
+    return sum(1 for ln in gcode.read_text().splitlines() if re.sub(r"\(.*?\)|;.*", "", ln).strip())
+
+
+@pytest.mark.parametrize("how", ["force", "from"])
+def test_force_or_from_stream_cuts_the_same_board_again(finished_job, monkeypatch, capsys, how):
+    import scratchfab.cli.run_cmd as run_cmd
+
+    path, job, _ = finished_job
+    run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    before = len(_fresh_starts(job))
+    monkeypatch.setattr(run_cmd, "_interactive", lambda: False)  # the emulator never asks
+    flags = ["--force"] if how == "force" else ["--from", "stream"]
+    main(["run", str(path), "--out", str(job), *flags])
+    out = capsys.readouterr().out
+    assert "[stream] running" in out and "[stream] done" in out
+    assert len(_fresh_starts(job)) == before + 1
+    # The report counts the last fresh stream only, not every run in the journal.
+    report = (job / "report.html").read_text()
+    lines = _code_lines(job / "export" / "board.gcode")
+    assert f"<span data-stat='stream.acknowledged'>{lines}</span> of " in report
+    assert f"<span data-stat='stream.lines'>{lines}</span>" in report
+    acks = (job / "stream" / "journal.jsonl").read_text().count('"ev":"ack"')
+    assert acks >= 2 * lines and f">{acks}<" not in report
+
+
+def test_changed_gcode_is_streamed_again(finished_job):
+    path, job, _ = finished_job
+    run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    gcode = (job / "export" / "board.gcode").read_bytes()
+    before = len(_fresh_starts(job))
+    text = path.read_text()
+    path.write_text(text.replace("[toolpath]\n", "[toolpath]\nseed = 11\npasses = 0\n"))
+    try:
+        result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    finally:
+        path.write_text(text)
+    assert (job / "export" / "board.gcode").read_bytes() != gcode
+    assert result.ran == ["toolpath", "export", "stream"]
+    assert len(_fresh_starts(job)) == before + 1
+
+
+def test_interrupted_stream_of_the_same_gcode_is_resumed(finished_job):
+    path, job, _ = finished_job
+    run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    journal = job / "stream" / "journal.jsonl"
+    events = [json.loads(ln) for ln in journal.read_text().splitlines()]
+    last = max(k for k, e in enumerate(events) if e["ev"] == "start")
+    acks = [e for e in events[last:] if e["ev"] == "ack" and "i" in e][:40]
+    # As if the host died mid-stream after a forced run: the manifest still says done.
+    with journal.open("a") as handle:
+        for event in [events[last], *acks]:
+            handle.write(json.dumps(event) + "\n")
+    result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    assert result.ran == ["stream"]
+    after = [json.loads(ln) for ln in journal.read_text().splitlines()]
+    resumed = max(k for k, e in enumerate(after) if e["ev"] == "start")
+    assert after[resumed]["resume"] is True and after[-1]["ev"] == "end"
+    first_i = next(e["i"] for e in after[resumed:] if e["ev"] == "ack" and "i" in e)
+    assert 0 < first_i <= acks[-1]["i"] + 1
+
+
+def test_report_setup_step_follows_the_readme_not_a_generic_zeroing(finished_job):
+    from scratchfab.machine.profile import load_profile
+
+    _, job, _ = finished_job
+    report = (job / "report.html").read_text()
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    assert "5. **Cut.**" in readme and "do not zero the" in readme
+    assert "zero the tool on its surface" not in report
+    assert "README step 5" in report
+    profile = load_profile("grbl-3018-diamond")
+    x, y = profile.board.offset_mm
+    assert f"<span data-stat='setup.x'>{x:g}</span>" in report
+    assert f"<span data-stat='setup.y'>{y:g}</span>" in report
+    assert f"<span data-stat='setup.z'>{profile.z.engrave_mm:g}</span>" in report
+
+
+def _real_port_pipeline(path: Path) -> Path:
+    real = path.with_name("real-port.toml")
+    text = path.read_text()
+    start = text.index('port = "grblsim')
+    end = text.index("\n", start)
+    real.write_text(text[:start] + 'port = "/dev/scratchfab-no-such-port"' + text[end:])
+    return real
+
+
+@pytest.mark.parametrize(
+    ("flags", "interactive", "answer", "message"),
+    [
+        ([], False, "", "stdin is not a terminal (pass --yes"),
+        ([], True, "n\n", "[stream] not confirmed; nothing was sent"),
+        ([], True, "y\n", "cannot open port '/dev/scratchfab-no-such-port'"),
+        (["--yes"], False, "", "cannot open port '/dev/scratchfab-no-such-port'"),
+    ],
+)
+def test_real_port_asks_before_streaming(
+    finished_job, tmp_path, monkeypatch, capsys, flags, interactive, answer, message
+):
+    import io
+    import shutil
+
+    import scratchfab.cli.run_cmd as run_cmd
+
+    path, job, _ = finished_job
+    run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    copy = tmp_path / "job"
+    shutil.copytree(job, copy)
+    journal = (copy / "stream" / "journal.jsonl").read_bytes()
+    real = _real_port_pipeline(path)
+    monkeypatch.setattr(run_cmd, "_interactive", lambda: interactive)
+    monkeypatch.setattr("sys.stdin", io.StringIO(answer))
+    try:
+        with pytest.raises(SystemExit) as info:
+            main(["run", str(real), "--out", str(copy), *flags])
+    finally:
+        real.unlink()
+    got = capsys.readouterr()
+    assert info.value.code == 2
+    assert message in got.err and "Traceback" not in got.err
+    asked = "Stream " in got.err and "The machine moves" in got.err
+    assert asked == interactive
+    # Every other stage was up to date; nothing was sent, the journal is as it was.
+    assert got.out.count("up to date, skipped") == len(STAGES) - 1
+    assert ("[stream] running" in got.out) == message.startswith("cannot open")
+    assert (copy / "stream" / "journal.jsonl").read_bytes() == journal
+
+
+def test_pipeline_out_is_relative_to_the_pipeline_file(tmp_path, monkeypatch):
+    folder = tmp_path / "boards"
+    path = write_pipeline(folder)
+    path.write_text(path.read_text().replace("[pipeline]\n", '[pipeline]\nout = "jobs/tiny"\n'))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    main(["run", str(path), "--until", "design"])
+    assert (folder / "jobs" / "tiny" / "design" / "design.toml").is_file()
+    assert list(elsewhere.iterdir()) == []
+    main(["run", str(path), "--until", "design", "--out", "cli-job"])
+    assert (elsewhere / "cli-job" / "design" / "design.toml").is_file()
 
 
 def test_recut_unsure_does_not_stream_a_finished_board_again(finished_job):
@@ -267,7 +450,7 @@ def test_toolpath_table_reaches_the_ordering_and_reruns_from_toolpath(finished_j
     path.write_text(text.replace("[toolpath]\n", "[toolpath]\nkicks = 30\nseed = 5\npasses = 4\n"))
     try:
         result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
-        assert result.ran == ["toolpath", "export", "stream"]
+        assert result.ran[:2] == ["toolpath", "export"]
         assert seen == [OrderOptions(passes=4, kicks=30, seed=5)]
     finally:
         path.write_text(text)
@@ -276,8 +459,12 @@ def test_toolpath_table_reaches_the_ordering_and_reruns_from_toolpath(finished_j
 def test_failed_stage_keeps_earlier_outputs_and_next_run_resumes_there(tmp_path):
     path = write_pipeline(tmp_path, min_rho=0.9999)
     job = tmp_path / "job"
-    with pytest.raises(ScratchfabError):
+    with pytest.raises(ScratchfabError) as info:
         run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    # Named as the pipeline file names it, not as verify-render's --min-rho option.
+    assert "--min-rho" not in str(info.value)
+    assert re.search(r"rho_kk -?\d\.\d{3} is below \[verify\] min_rho = 0.9999", str(info.value))
+    assert str(path) in str(info.value)
     manifest = Manifest.load(job)
     assert manifest.stages["optimize"]["status"] == "done"
     assert manifest.stages["verify"]["status"] == "failed"

@@ -2,12 +2,29 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import click
 
+from scratchfab.errors import ScratchfabError
 from scratchfab.pipeline.config import STAGES, load_pipeline
 from scratchfab.pipeline.runner import run_pipeline
+
+
+def _interactive() -> bool:
+    """True when a person can answer a question on stdin."""
+    return sys.stdin.isatty()
+
+
+def _confirm(question: str) -> bool:
+    """Ask before the stream stage moves a real machine; refuse when nobody can answer."""
+    if not _interactive():
+        raise ScratchfabError(
+            "[stream] refusing to move the machine without confirmation: stdin is not a "
+            "terminal (pass --yes to stream without asking); nothing was sent"
+        )
+    return click.confirm(question, default=False, err=True)
 
 
 @click.command("run")
@@ -16,24 +33,48 @@ from scratchfab.pipeline.runner import run_pipeline
     "--out",
     type=click.Path(file_okay=False, path_type=Path),
     default=None,
-    help="Job folder [the pipeline's [pipeline] out, else job-<file name>].",
+    help="Job folder [the pipeline's [pipeline] out (relative to the pipeline file), "
+    "else job-<file name>].",
 )
 @click.option("--from", "start", type=click.Choice(STAGES), help="Rerun from this stage on.")
 @click.option("--until", type=click.Choice(STAGES), help="Stop after this stage.")
-@click.option("--force", is_flag=True, help="Rerun every stage.")
+@click.option("--force", is_flag=True, help="Rerun every stage (streaming included).")
+@click.option(
+    "--yes", is_flag=True, help="Do not ask for confirmation before streaming to a machine."
+)
 def run(
-    pipeline: Path, out: Path | None, start: str | None, until: str | None, force: bool
+    pipeline: Path,
+    out: Path | None,
+    start: str | None,
+    until: str | None,
+    force: bool,
+    yes: bool,
 ) -> None:
     """Run design -> optimize -> verify-render -> toolpath -> export (-> stream) into a job.
 
     Stages whose inputs did not change since the last run are skipped (JOB/manifest.json);
-    a failed stage leaves earlier outputs intact and the next run resumes there.
+    a failed stage leaves earlier outputs intact and the next run resumes there. The G-code
+    is streamed again only when it or the [stream] options changed, or with --from stream
+    or --force; a real port (not grblsim://) asks first unless --yes.
     JOB/report.html shows the result.
     """
     pipe = load_pipeline(pipeline)
-    job = out or Path(pipe.pipeline.out or f"job-{pipeline.stem}")
+    if out is not None:
+        job = out
+    elif pipe.pipeline.out is not None:
+        job = pipeline.parent / pipe.pipeline.out  # like the file's targets and machine
+    else:
+        job = Path(f"job-{pipeline.stem}")
     try:
-        result = run_pipeline(pipe, job, start=start, until=until, force=force, say=click.echo)
+        result = run_pipeline(
+            pipe,
+            job,
+            start=start,
+            until=until,
+            force=force,
+            say=click.echo,
+            confirm=None if yes else _confirm,
+        )
     finally:
         report = job / "report.html"
         if report.is_file():

@@ -29,7 +29,8 @@ class PipelineOptions:
 
     Attributes:
         name: Shown in the report.
-        out: Default job folder (relative to the current directory); ``--out`` overrides.
+        out: Default job folder, relative to the pipeline file (like its targets);
+            ``--out`` (relative to the current directory) overrides.
         fit: How target images meet the board's aspect ("contain" or "cover").
         seed: Seed of the initial layout (as ``scratchfab design --seed``).
         force: Go on when the feasibility check fails.

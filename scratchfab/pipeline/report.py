@@ -225,11 +225,53 @@ def _export_section(job: Path) -> str:
 
 
 def _stream_section(job: Path) -> str:
+    """What the journal's last run of streams (since its last fresh start) acknowledged."""
+    from scratchfab.errors import ConfigError
+    from scratchfab.machine.sender_journal import done_blocks, interrupted, read_journal
+
     journal = job / "stream" / "journal.jsonl"
     if not journal.is_file():
         return "<p class='muted'>not streamed.</p>"
-    count = sum(1 for line in journal.read_text(encoding="utf-8").splitlines() if line.strip())
-    return f"<p>{count} lines acknowledged by the controller (journal.jsonl).</p>"
+    try:
+        events = read_journal(journal)
+        starts = [ev for ev in events if ev.get("ev") == "start"]
+        if not starts:
+            return "<p class='muted'>not streamed (the journal is empty).</p>"
+        sha256 = str(starts[-1].get("sha256"))
+        done = len(done_blocks(events, sha256, journal))
+    except ConfigError as exc:
+        return f"<p class='bad'>{html.escape(str(exc))}</p>"
+    total = starts[-1].get("blocks")
+    state = "unfinished (the next run resumes it)" if interrupted(events, sha256) else "finished"
+    return (
+        f"<p><span data-stat='stream.acknowledged'>{done}</span> of "
+        f"<span data-stat='stream.lines'>{total}</span> G-code lines acknowledged by the "
+        f"controller since the last fresh start; {state} (journal.jsonl).</p>"
+    )
+
+
+def _setup_step(job: Path) -> str:
+    """How to set the machine up: the profile's placement, and README step 5."""
+    text = (
+        "Set the machine up as README step 5 (<b>Cut.</b>) says for your profile: the G-code "
+        "moves in the profile's own coordinates"
+    )
+    from scratchfab.errors import ConfigError
+    from scratchfab.toolpath import Toolpath
+
+    try:
+        profile = Toolpath.load(job / "toolpath" / "toolpath.json").profile
+    except ConfigError:  # no toolpath yet, or a damaged one: the pointer alone
+        return text + "."
+    x, y = profile.board.offset_mm
+    return text + (
+        f" ('{html.escape(profile.name)}'): the board's {html.escape(profile.board.origin)} "
+        f"corner at X <span data-stat='setup.x'>{x:g}</span> Y "
+        f"<span data-stat='setup.y'>{y:g}</span>, the tool cutting at Z "
+        f"<span data-stat='setup.z'>{profile.z.engrave_mm:g}</span> mm. Make both true on "
+        "your machine before streaming (bundled grbl-3018-diamond: machine coordinates after "
+        "homing, G54 offset cleared; do not zero the work coordinates on the board)."
+    )
 
 
 def _next_steps(job: Path, metrics: dict[str, Any] | None) -> str:
@@ -240,7 +282,7 @@ def _next_steps(job: Path, metrics: dict[str, Any] | None) -> str:
         )
     steps += [
         "Check the toolpath preview: every stroke inside the board, travel moves sensible.",
-        "Clamp the board, zero the tool on its surface at the profile's origin corner.",
+        _setup_step(job),
         f"Dry-run first: <code>scratchfab stream {html.escape(str(job / 'export' / 'board.gcode'))} --port PORT --check</code>.",
         "Then stream for real; after a dropped cable, rerun the same command with <code>--resume</code>.",
     ]

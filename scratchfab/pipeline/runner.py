@@ -2,24 +2,35 @@
 
 Each stage reads what the stage before it wrote (SPEC section 6). The manifest records
 every stage's inputs; a stage whose inputs and options did not change is skipped, and
-once a stage runs, every stage after it runs too. A failing stage leaves the earlier
-outputs as they are, so the next run starts again at that stage.
+once a computing stage runs, every computing stage after it runs too. The stream stage
+moves a machine: it runs only when its own inputs changed (the G-code's bytes, the
+``[stream]`` options), when the last stream of this G-code did not finish (it resumes),
+or when asked (``--from stream``, ``--force``), never merely because an earlier stage
+wrote the same G-code again. A failing stage leaves the earlier outputs as they are, so
+the next run starts again at that stage.
 """
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from scratchfab.errors import ScratchfabError
+from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.pipeline.config import STAGES, Pipeline
-from scratchfab.pipeline.manifest import Manifest, fingerprint
+from scratchfab.pipeline.manifest import Manifest, file_digest, fingerprint
 from scratchfab.pipeline.report import write_report
 
 Say = Callable[[str], Any]
+Confirm = Callable[[str], bool]
+
+
+def is_emulator(port: str) -> bool:
+    """True for the built-in GRBL emulator (``grblsim://...``), which moves nothing."""
+    return port.strip().lower().startswith("grblsim://")
 
 
 @dataclass
@@ -76,6 +87,28 @@ class _Stages:
             return fingerprint([job / "export" / "board.gcode"], [], options, job)
         raise KeyError(stage)
 
+    def gcode(self) -> Path:
+        """The G-code file the stream stage sends."""
+        return self.job / "export" / "board.gcode"
+
+    def journal(self) -> Path:
+        """The stream stage's journal."""
+        return self.job / "stream" / "journal.jsonl"
+
+    def streamed_to_end(self) -> bool:
+        """True when the journal's last run streamed the current G-code and finished."""
+        from scratchfab.machine.sender_journal import interrupted, read_journal
+
+        try:
+            events = read_journal(self.journal())
+        except ConfigError:
+            return False  # the stream stage reads it again and names the damage
+        sha256 = file_digest(self.gcode())
+        starts = [ev for ev in events if ev.get("ev") == "start"]
+        return (
+            bool(starts) and starts[-1].get("sha256") == sha256 and not interrupted(events, sha256)
+        )
+
     def wanted(self, stage: str) -> bool:
         """False for stages the pipeline does not ask for (stream without a port)."""
         return stage != "stream" or self.pipe.stream.port is not None
@@ -108,7 +141,7 @@ class _Stages:
         return ["optimize/scratches.csv", "optimize/renders", "optimize/log.csv"]
 
     def _run_verify(self) -> Sequence[str]:
-        from scratchfab.verify.verify import VerifySettings, run_verify_job
+        from scratchfab.verify.verify import VerifyGateError, VerifySettings, run_verify_job
 
         v = self.pipe.verify
         settings: dict[str, Any] = {
@@ -126,8 +159,28 @@ class _Stages:
             from scratchfab.verify.jitter import Tolerance
 
             settings["jitter"] = Tolerance.from_profile(self.pipe.machine_ref(), self.pipe.profile)
-        run_verify_job(self.job, VerifySettings(**settings), progress=self.say)
+        try:
+            run_verify_job(self.job, VerifySettings(**settings), progress=self.say)
+        except VerifyGateError as exc:
+            raise VerifyGateError(self._gate_message(exc)) from None
         return ["verify/metrics.json"]
+
+    def _gate_message(self, exc: Exception) -> str:
+        """The verify gate's failure in the pipeline file's terms (``[verify] min_rho``)."""
+        metrics_file = self.job / "verify" / "metrics.json"
+        try:
+            metrics = json.loads(metrics_file.read_text(encoding="utf-8"))
+            failing = list(metrics["gate"]["failing"])
+            views = metrics["views"]
+            worst = min(failing, key=lambda name: views[name]["rho"])
+            rho = float(views[worst]["rho"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return str(exc)
+        return (
+            f"{self.pipe.path}: view {worst}: rho_kk {rho:.3f} is below [verify] min_rho = "
+            f"{self.pipe.verify.min_rho:g} ({len(failing)} of {len(views)} views fail; see "
+            f"{metrics_file})"
+        )
 
     def _run_toolpath(self) -> Sequence[str]:
         from scratchfab.toolpath import OrderOptions
@@ -139,10 +192,15 @@ class _Stages:
         return ["toolpath/toolpath.json", "toolpath/preview.png"]
 
     def _run_export(self) -> Sequence[str]:
-        from scratchfab.export import export
+        from scratchfab.export import FORMATS, export
         from scratchfab.toolpath import Toolpath
 
         toolpath = Toolpath.load(self.job / "toolpath" / "toolpath.json")
+        for fmt in FORMATS:  # a format left out of [export] formats: its old file goes
+            stale = self.job / "export" / f"board.{fmt}"
+            if fmt not in self.pipe.export.formats and stale.is_file():
+                stale.unlink()
+                self.say(f"  removed {stale} (not in [export] formats)")
         outputs = []
         for fmt in self.pipe.export.formats:
             out = self.job / "export" / f"board.{fmt}"
@@ -176,6 +234,7 @@ def run_pipeline(
     until: str | None = None,
     force: bool = False,
     say: Say = print,
+    confirm: Confirm | None = None,
 ) -> RunResult:
     """Run the pipeline's stages into ``job``.
 
@@ -186,6 +245,8 @@ def run_pipeline(
         until: Stop after this stage (``--until``).
         force: Run every stage.
         say: Called with one line per event (progress).
+        confirm: Asked before the stream stage moves a real machine (any port but the
+            emulator); False stops with nothing sent. None: the caller has consent.
 
     Raises:
         ScratchfabError: A stage failed; earlier outputs and the manifest stay consistent,
@@ -207,12 +268,30 @@ def run_pipeline(
         for index, stage in enumerate(STAGES[: last + 1]):
             if not stages.wanted(stage):
                 continue
-            rerun = rerun or (start is not None and STAGES.index(start) <= index)
             inputs = stages.inputs(stage)
-            if not rerun and manifest.is_current(stage, inputs):
-                result.skipped.append(stage)
-                say(f"[{stage}] up to date, skipped")
-                continue
+            if stage == "stream":
+                asked = force or start == "stream"
+                if not asked and manifest.is_current(stage, inputs) and stages.streamed_to_end():
+                    result.skipped.append(stage)
+                    say(
+                        f"[stream] {stages.gcode()} is unchanged and was streamed to the end; "
+                        "not cutting it again (run with --from stream to cut it again)"
+                    )
+                    continue
+                port = pipe.stream.port or ""
+                if confirm is not None and not is_emulator(port):
+                    question = (
+                        f"Stream {stages.gcode()} to {port}? The machine moves: board clamped "
+                        "and set up as README step 5 says, area clear"
+                    )
+                    if not confirm(question):
+                        raise ScratchfabError("[stream] not confirmed; nothing was sent")
+            else:
+                rerun = rerun or (start is not None and STAGES.index(start) <= index)
+                if not rerun and manifest.is_current(stage, inputs):
+                    result.skipped.append(stage)
+                    say(f"[{stage}] up to date, skipped")
+                    continue
             say(f"[{stage}] running")
             began = time.perf_counter()
             try:
