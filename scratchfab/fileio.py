@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import math
 import os
@@ -105,6 +106,18 @@ def write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` to ``path`` atomically (LF line ends)."""
     with atomic_open(path, "w", newline="\n") as handle:
         handle.write(text)
+
+
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    """SHA-256 of a file's bytes, hex; "missing" when there is no such file."""
+    file = Path(path)
+    if not file.is_file():
+        return "missing"
+    digest = hashlib.sha256()
+    with file.open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def read_input(path: Path, expected: str, missing: str = "file not found") -> bytes:

@@ -342,6 +342,18 @@ def test_cli_writes_every_output(job: Path, capsys: pytest.CaptureFixture[str]) 
     np.testing.assert_allclose(
         np.load(out / "renders" / "left.npy"), fresh["left"], rtol=1e-5, atol=1e-7
     )
+    # Rerunning design afterwards leaves this layout behind: toolpath and render say so.
+    from scratchfab.model.job import stale_layout_warning
+    from scratchfab.toolpath.stage import job_toolpath_inputs
+
+    assert stale_layout_warning(job) is None and job_toolpath_inputs(job)[2] is None
+    toml = job / "design" / "design.toml"
+    toml.write_text(toml.read_text() + "\n# edited\n")
+    note = job_toolpath_inputs(job)[2]
+    assert note is not None and "(design/design.toml changed since)" in note
+    capsys.readouterr()
+    main(["render", str(job)])
+    assert "rerun `scratchfab optimize" in capsys.readouterr().err
 
 
 def _run_cli(job: Path, *args: str) -> subprocess.Popen[bytes]:

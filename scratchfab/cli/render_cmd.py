@@ -9,7 +9,7 @@ import click
 
 from scratchfab.cli.options import backend_option, job_or_files, job_or_files_options
 from scratchfab.model.design import load_design
-from scratchfab.model.job import job_inputs
+from scratchfab.model.job import job_inputs, stale_layout_warning
 from scratchfab.model.scratches import load_scratches
 from scratchfab.render.layout import write_render_layout
 from scratchfab.render.renderer import render_scratches
@@ -40,6 +40,9 @@ def render(
         design_file, scratch_file, out_dir = inputs
     else:
         design_file, scratch_file = job_inputs(inputs)
+        stale = stale_layout_warning(inputs)
+        if stale is not None:
+            click.echo(stale, err=True)
         out_dir = out_dir if out_dir is not None else inputs / "render"
     start = time.perf_counter()
     design = load_design(design_file)

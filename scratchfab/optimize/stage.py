@@ -37,7 +37,7 @@ from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import write_json, write_text
 from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design
-from scratchfab.model.job import load_job_design
+from scratchfab.model.job import design_digest, load_job_design
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.checkpoint import load_checkpoint, save_checkpoint
 from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
@@ -243,6 +243,7 @@ def run_optimize(
     """
     job = Path(job)
     out = job / "optimize"
+    design_files = design_digest(job)
     design, targets, initial = load_job_inputs(job)
     report = progress or (lambda p: None)
     m = array_module(options.backend)
@@ -250,7 +251,9 @@ def run_optimize(
     if options.backend == "llvm":
         dr.set_thread_count(options.threads if options.threads > 0 else (os.cpu_count() or 1))
     try:
-        return _run(job, out, design, targets, initial, options, m, report, should_stop)
+        return _run(
+            job, out, design, targets, initial, design_files, options, m, report, should_stop
+        )
     finally:
         if options.backend == "llvm":
             dr.set_thread_count(threads_before)
@@ -262,6 +265,7 @@ def _run(
     design: Design,
     targets: dict[str, np.ndarray],
     initial: ScratchSet,
+    design_files: dict[str, str],
     options: OptimizeOptions,
     m: Any,
     report: Callable[[Progress], None],
@@ -395,6 +399,8 @@ def _run(
             "pair_margin_mm": opt.margin,
             "options": asdict(options),
             "quality": quality,
+            # What toolpath, verify and render check the layout against.
+            "design_sha256": design_files,
         }
         if pruned is not None:
             summary["prune"] = {

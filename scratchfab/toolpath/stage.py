@@ -8,7 +8,7 @@ from typing import Any
 
 from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
-from scratchfab.model.job import job_inputs
+from scratchfab.model.job import job_inputs, stale_layout_warning
 from scratchfab.model.scratches import load_scratches
 from scratchfab.toolpath.order import OrderOptions
 from scratchfab.toolpath.plan import Toolpath, plan_toolpath, write_preview
@@ -67,7 +67,8 @@ def job_toolpath_inputs(
 
     Returns:
         (scratches, design, note): ``note`` says so when the job's layout is the initial
-        one because optimize has not run, else None.
+        one because optimize has not run, or an optimized one of an earlier design
+        (:func:`~scratchfab.model.job.stale_layout_warning`), else None.
     """
     if scratches is not None and design is not None:
         return scratches, design, None
@@ -78,6 +79,8 @@ def job_toolpath_inputs(
             f"note: {job / 'optimize' / 'scratches.csv'} not found (optimize has not run); "
             f"using {scratch_file}"
         )
+    elif scratches is None:
+        note = stale_layout_warning(job)
     return scratches or scratch_file, design or design_file, note
 
 

@@ -540,10 +540,13 @@ def run_verify_job(
     Raises:
         ConfigError: When the job lacks the design or a layout.
     """
-    from scratchfab.model.job import job_inputs, load_job_design
+    from scratchfab.model.job import job_inputs, load_job_design, stale_layout_warning
 
     folder = Path(job)
     design_file, scratch_file = job_inputs(folder)
+    stale = stale_layout_warning(folder)
+    if stale is not None and progress is not None:
+        progress(stale)
     design = load_job_design(design_file)
     scratches = load_scratches(scratch_file, design.scratch, design.board)
     renders_dir = folder / "optimize" / "renders"
