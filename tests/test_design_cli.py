@@ -297,11 +297,16 @@ def test_pipeline_force_is_read_as_a_boolean(tmp_path, capsys):
     steep = _toml(tmp_path).read_text().replace("azimuth_deg = 22.0", "azimuth_deg = 80.0")
     toml = tmp_path / "steep.toml"
     toml.write_text("[pipeline]\nforce = false\n" + steep)
-    err = _fail(["design", str(toml), "--out", str(tmp_path / "j1")], capsys)
+    with pytest.raises(SystemExit) as info:
+        main(["design", str(toml), "--out", str(tmp_path / "j1")])
+    out, err = capsys.readouterr()
+    assert info.value.code == 2 and err.startswith("error: ") and "\n" not in err.strip()
     assert "'b'" in err and "--force" in err
+    assert "error" not in out  # the progress does not say it first
     assert not (tmp_path / "j1" / "design").exists()
     toml.write_text("[pipeline]\nforce = true\n" + steep)
-    _run(["design", str(toml), "--out", str(tmp_path / "j2")], capsys)
+    main(["design", str(toml), "--out", str(tmp_path / "j2")])
+    assert "  error: " in capsys.readouterr().out  # forced: the progress names what it ignores
     report = json.loads((tmp_path / "j2" / "design" / "feasibility.json").read_text())
     assert any("'b'" in e for e in report["errors"])
 

@@ -177,8 +177,13 @@ class FeasibilityReport:
             ),
         }
 
-    def summary_lines(self) -> list[str]:
-        """Short human-readable lines for the terminal."""
+    def summary_lines(self, errors: bool = True) -> list[str]:
+        """Short human-readable lines for the terminal.
+
+        Args:
+            errors: False leaves the errors out, for a caller that raises them with
+                :meth:`raise_if_errors`.
+        """
         lines = [
             f"tool reaches half-vectors tilted up to {self.steepest_wall_deg:.1f} deg "
             f"(+{self.lobe_deg:.1f} deg roughness lobe)"
@@ -194,7 +199,7 @@ class FeasibilityReport:
                 f"off their normals (median), expected crosstalk {p.expected_crosstalk:.3f}"
             )
         lines += [f"warning: {w}" for w in self.warnings]
-        lines += [f"error: {e}" for e in self.errors]
+        lines += [f"error: {e}" for e in self.errors] if errors else []
         return lines
 
     def raise_if_errors(self, source: str) -> None:

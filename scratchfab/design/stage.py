@@ -175,7 +175,8 @@ def run_design(
         f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
     )
     report = check_feasibility(design)
-    for line in report.summary_lines():
+    # Without --force the errors end the stage in one message of their own.
+    for line in report.summary_lines(errors=force):
         progress(f"  {line}")
     if not force:
         report.raise_if_errors(design.source)
