@@ -340,6 +340,21 @@ def test_interrupted_stream_of_the_same_gcode_is_resumed(finished_job):
     assert 0 < first_i <= acks[-1]["i"] + 1
 
 
+def test_unfinished_stream_of_another_file_does_not_restream_the_board(finished_job):
+    path, job, _ = finished_job
+    run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    journal = job / "stream" / "journal.jsonl"
+    events = [json.loads(ln) for ln in journal.read_text().splitlines()]
+    start = dict(events[max(k for k, e in enumerate(events) if e["ev"] == "start")])
+    # `scratchfab stream JOB/export/edited.gcode` journals here too, and was stopped.
+    start.update(file=str(job / "export" / "edited.gcode"), sha256="0" * 64)
+    with journal.open("a") as handle:
+        handle.write(json.dumps(start) + "\n" + json.dumps({"ev": "ack", "i": 0, "line": 1}) + "\n")
+    text = journal.read_bytes()
+    result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    assert result.ran == [] and journal.read_bytes() == text
+
+
 def test_report_setup_step_follows_the_readme_not_a_generic_zeroing(finished_job):
     from scratchfab.machine.profile import load_profile
 

@@ -36,7 +36,12 @@ def _confirm(question: str) -> bool:
     help="Job folder [the pipeline's [pipeline] out (relative to the pipeline file), "
     "else job-<file name>].",
 )
-@click.option("--from", "start", type=click.Choice(STAGES), help="Rerun from this stage on.")
+@click.option(
+    "--from",
+    "start",
+    type=click.Choice(STAGES),
+    help="Rerun from this stage on (stream: only with --from stream or a changed G-code).",
+)
 @click.option("--until", type=click.Choice(STAGES), help="Stop after this stage.")
 @click.option("--force", is_flag=True, help="Rerun every stage (streaming included).")
 @click.option(

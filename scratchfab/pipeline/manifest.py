@@ -3,7 +3,8 @@
 ``JOB/manifest.json`` records, per stage, a fingerprint of its inputs (file contents,
 plus modification times for the user's own source files such as target images) and
 options, and the outputs it wrote. A stage is up to date when its fingerprint matches
-and its outputs exist; once a stage runs, every stage after it runs too.
+and its outputs exist; the runner (:mod:`scratchfab.pipeline.runner`) decides what else
+reruns.
 """
 
 from __future__ import annotations

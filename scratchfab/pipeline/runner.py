@@ -96,18 +96,18 @@ class _Stages:
         return self.job / "stream" / "journal.jsonl"
 
     def streamed_to_end(self) -> bool:
-        """True when the journal's last run streamed the current G-code and finished."""
+        """False when the journal's last run streamed the current G-code and did not finish.
+
+        A later run of another file (``scratchfab stream`` on a hand-edited copy) does not
+        make the board's own finished stream count as unfinished.
+        """
         from scratchfab.machine.sender_journal import interrupted, read_journal
 
         try:
             events = read_journal(self.journal())
         except ConfigError:
             return False  # the stream stage reads it again and names the damage
-        sha256 = file_digest(self.gcode())
-        starts = [ev for ev in events if ev.get("ev") == "start"]
-        return (
-            bool(starts) and starts[-1].get("sha256") == sha256 and not interrupted(events, sha256)
-        )
+        return not interrupted(events, file_digest(self.gcode()))
 
     def wanted(self, stage: str) -> bool:
         """False for stages the pipeline does not ask for (stream without a port)."""
