@@ -96,6 +96,25 @@ def test_flat_board_matches_reference_including_board_edges():
         assert rel_l2(img, ref[name]) < 1e-3
 
 
+@pytest.mark.parametrize("f0", [0.05, 0.91])
+def test_fresnel_at_a_grazing_mirror_angle_matches_reference(f0):
+    """Schlick's F(wi . h) where it differs from f0: light and camera low on opposite sides."""
+    tables = {
+        "board": {"width_mm": 40.0, "height_mm": 40.0, "roughness": 0.1, "f0": f0},
+        "light": {"position_mm": [0.0, 200.0, 40.0]},
+        "views": [
+            {"name": "low", "position_mm": [0.0, -200.0, 40.0], "resolution": [24, 24]},
+        ],
+    }
+    design = design_from_mapping(tables, "<grazing>", Path("."))
+    empty = ScratchSet.from_arrays(np.zeros((0, 2)), np.zeros((0, 2)), 0.1, 0.01)
+    img = render_scratches(design, empty)["low"]
+    ref = reference_render(design, empty, samples_per_pixel=1024, seed=2)["low"]
+    # F at the mirror point, (1 - wi.h)^5 with wi.h = cos 78.7 deg: well above f0.
+    assert f0 + (1 - f0) * (1 - np.cos(np.arctan(200 / 40))) ** 5 > f0 + 0.3 * (1 - f0)
+    assert rel_l2(img, ref) < 1e-3
+
+
 def test_onboard_area_against_sampling(rng):
     """|P ∩ B| of real footprints that straddle the board's edges, by point sampling."""
     from scratchfab.model.camera import Camera

@@ -39,7 +39,8 @@ class Board:
 
     width_mm: float = field(default=100.0, metadata=spec(gt=0))
     height_mm: float = field(default=100.0, metadata=spec(gt=0))
-    roughness: float = field(default=0.05, metadata=spec(gt=0, le=1))
+    # Below 0.005 the renderer's closed form loses accuracy as 1/alpha^4 (render/ndf.py).
+    roughness: float = field(default=0.05, metadata=spec(ge=0.005, le=1))
     f0: float = field(default=0.91, metadata=spec(ge=0, le=1))
     margin_mm: float = field(default=2.0, metadata=spec(ge=0))
 
