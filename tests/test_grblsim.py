@@ -273,3 +273,28 @@ def test_sim_record_of_executed_motion():
         ([3.0, 4.0, 0.0], False),
         ([3.0, 4.0, 1.0], True),
     ]
+
+
+def test_wco_field_after_reset_and_after_a_change():
+    """Grbl clears its report counters on every reset and flags a WCO change at once."""
+    port = _open("time_scale=0.01&wco=-10,-20,-5")
+    try:
+        _banner(port)
+        assert "|WCO:-10.000,-20.000,-5.000" in _status(port)
+        assert "WCO:" not in _status(port)  # then only every 10th report while idle
+        port.write(b"\x18")
+        _banner(port)
+        assert "|WCO:-10.000,-20.000,-5.000" in _status(port)  # the counter was reset
+        assert "WCO:" not in _status(port)
+        _cmd(port, b"G92X1\n")  # MPos 0: G92 makes work X 1, so WCO X = -1
+        assert "|WCO:-1.000,-20.000,-5.000" in _status(port)
+        assert "WCO:" not in _status(port)
+    finally:
+        port.close()
+    port = _open("time_scale=0.01&wco_field=0")  # a build without the WCO field
+    try:
+        _banner(port)
+        assert not [r for r in (_status(port) for _ in range(12)) if "WCO:" in r]
+        assert "[G54:0.000,0.000,0.000]" in _cmd(port, b"$#\n")
+    finally:
+        port.close()

@@ -1134,3 +1134,186 @@ def test_resume_refuses_a_z_threshold_that_finds_no_stroke(tmp_path, capsys, int
     assert resume_point(low, done) == first + 2 <= last
     main([*args, "--z-threshold", "1"])  # between cutting and travel: resumes at a stroke
     assert "resuming at line" in capsys.readouterr().out
+
+
+# --------------------------------------------------------------------------- work offset
+
+
+@pytest.mark.parametrize("wco_field", [True, False])
+def test_soft_limit_check_reads_the_work_offset(tmp_path, wco_field):
+    """The offset comes from $# (not the first report, which may lack WCO:) and is used."""
+    job = tmp_path / "job.gcode"
+    write_job(job, 5)  # X, Y in -30..30, Z -0.05..2: fits only under a negative offset
+    prog = load_program(job)
+    lo, hi = job_extent(prog)
+    for offset, fits in (("-100,-100,-10", True), ("0,0,0", False)):
+        query = f"soft_limits=1&homed=1&wco={offset}&wco_field={int(wco_field)}"
+        port = open_port(f"grblsim://?time_scale=0&{query}", 115200)
+        try:
+            streamer = Streamer(port, FAST)
+            info = streamer.connect()
+            assert info.wco == tuple(float(v) for v in offset.split(","))
+            assert info.wco_source == "$#"
+            found = compare(info.settings, info.wco, prog)
+            journal = Journal(tmp_path / f"{offset}.jsonl").open()
+            try:
+                streamer.stream(prog, journal)  # the emulator's soft limits are the reference
+                alarm = None
+            except StreamFault as exc:
+                alarm = str(exc)
+            finally:
+                journal.close()
+        finally:
+            port.close()
+        inside = all(-200 <= lo[k] + info.wco[k] and hi[k] + info.wco[k] <= 0 for k in range(3))
+        assert inside == fits
+        assert (alarm is None) == fits and (not found.refusals) == fits
+        if not fits:
+            assert "ALARM:2" in (alarm or "") and "soft limits allow" in found.refusals[0]
+
+
+class _NoParams:
+    """A port to a firmware that refuses ``$#`` (error:3), as a build without it would."""
+
+    def __init__(self, port):
+        self.port = port
+
+    def write(self, data: bytes) -> int | None:
+        return self.port.write(data.replace(b"$#\n", b"$Y\n"))
+
+    def __getattr__(self, name):
+        return getattr(self.port, name)
+
+    def __setattr__(self, name, value):
+        if name == "port":
+            object.__setattr__(self, name, value)
+        else:
+            setattr(self.port, name, value)
+
+
+def test_an_unknown_work_offset_is_refused_under_soft_limits(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 5)
+    prog = load_program(job)
+    said: list[str] = []
+    for wco_field, expect in ((1, (-100.0, -100.0, -10.0)), (0, None)):
+        rec = tmp_path / f"rec{wco_field}.jsonl"
+        url = f"grblsim://?soft_limits=1&homed=1&wco=-100,-100,-10&wco_field={wco_field}"
+        port = open_port(f"{url}&record={rec}", 115200)
+        try:
+            info = Streamer(_NoParams(port), FAST, on_message=said.append).connect()
+        finally:
+            port.close()
+        assert any(e["ev"] == "rx" and e["text"] == "$Y" for e in read_record(rec))
+        assert info.wco == expect  # polled from the status reports where they carry WCO:
+        found = compare(info.settings, info.wco, prog)
+        if expect is None:
+            assert any("work offset could not be read" in r for r in found.refusals)
+        else:
+            assert not found.refusals
+    assert any("cannot read the work offsets with $#" in s for s in said)
+    # without soft limits there is nothing to check the offset against
+    assert not compare({20: 0, 22: 0}, None, prog).refusals
+
+
+# --------------------------------------------------------------------------- strokes of real jobs
+
+
+def _profile_job(tmp_path: Path, name: str, n: int = 30, seed: int = 3):
+    """G-code from the exporter for ``n`` random strokes inside profile ``name``'s envelope."""
+    from scratchfab.export.gcode import gcode_lines
+    from scratchfab.toolpath.plan import Toolpath
+
+    profile = load_profile(name)
+    env = profile.envelope
+    rng = np.random.default_rng(seed)
+    lo = np.array([env.x_mm[0], env.y_mm[0]]) + 20.0
+    hi = np.array([env.x_mm[1], env.y_mm[1]]) - 20.0
+    a = rng.uniform(lo, hi, (n, 2))
+    strokes = np.stack([a, a + rng.uniform(-5.0, 5.0, (n, 2))], axis=1).round(3)
+    outline = np.array([lo, [hi[0], lo[1]], hi, [lo[0], hi[1]]])
+    tp = Toolpath(strokes, np.arange(n), (100.0, 100.0), outline, profile, {})
+    path = tmp_path / f"{name}.gcode"
+    path.write_text("\n".join(gcode_lines(tp)) + "\n")
+    return path, tp
+
+
+@pytest.mark.parametrize("name", ["grbl-3018-diamond", "grbl-plotter-scribe"])
+def test_strokes_of_both_profiles_found_without_a_profile(tmp_path, name):
+    path, tp = _profile_job(tmp_path, name)
+    prog = load_program(path)  # no threshold given: read from the program
+    profile = tp.profile
+    assert prog.pen_mode == (profile.tool_control.mode == "servo")
+    assert len(prog.strokes) == len(tp)
+    for (first, last), (a, b) in zip(prog.strokes, tp.strokes, strict=True):
+        cuts = [
+            blk
+            for blk in prog.blocks[first : last + 1]
+            if blk.motion
+            and blk.modal.motion == "G1"
+            and blk.modal.feed == profile.feeds.engrave_mm_min
+        ]
+        assert len(cuts) == 1  # exactly the stroke's cutting move, from a to b
+        assert (cuts[0].modal.x, cuts[0].modal.y) == pytest.approx(tuple(b), abs=1e-9)
+        before = prog.blocks[first - 1].modal
+        assert (before.x, before.y) == pytest.approx(tuple(a), abs=1e-9)
+    if profile.tool_control.mode != "servo":  # the profile's own threshold agrees
+        mid = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
+        assert load_program(path, z_threshold=mid).strokes == prog.strokes
+    # resuming after half of stroke 10: at stroke 10, the tool up and travelling as the job does
+    first = prog.strokes[10][0]
+    assert resume_point(prog, set(range(first + 1))) == first
+    pre = resume_preamble(prog, first)
+    moves = [t for t in pre if "X" in t or "Z" in t]
+    assert moves and moves[-1].endswith(f"X{tp.strokes[10, 0, 0]:g}Y{tp.strokes[10, 0, 1]:g}")
+    travel = profile.feeds.travel_mm_min
+    if travel is None:
+        assert all(t.startswith("G0") for t in moves)
+    else:  # the plotter travels with G1 at its travel feed, never G0
+        assert all(t.startswith(f"G1F{travel:g}") for t in moves)
+        assert not any(b.modal.motion == "G0" and b.rapid_mm for b in prog.blocks[1:])
+
+
+def test_resume_outside_a_job_folder_finds_the_stroke_without_machine(tmp_path, capsys):
+    path, tp = _profile_job(tmp_path, "grbl-3018-diamond", n=40)
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(path), "--port", f"{SIM}&disconnect_after=100", "--yes"])
+    assert exc.value.code == 3
+    capsys.readouterr()
+    journal = default_journal_path(path)
+    saved = journal.read_bytes()
+    lines = {}
+    for machine in ([], ["--machine", "grbl-3018-diamond"]):
+        journal.write_bytes(saved)
+        rec = tmp_path / "rec.jsonl"
+        main(["stream", str(path), "--port", f"{SIM}&record={rec}", "--yes", "--resume", *machine])
+        out = capsys.readouterr().out
+        said = next(ln for ln in out.splitlines() if ln.startswith("resuming at line"))
+        lines[bool(machine)] = said.split(";")[0]
+        prog = load_program(path)
+        done = len([s for s in prog.strokes if prog.blocks[s[1]].lineno < int(said.split()[3])])
+        assert f"({done} of {len(tp)} strokes done)" in said and done >= 20
+    assert lines[False] == lines[True]
+
+
+def test_resume_refuses_when_the_program_does_not_show_which_z_cuts(tmp_path, capsys):
+    job = tmp_path / "job.gcode"  # feed moves only, at three Z levels: which one cuts?
+    job.write_text("G21G90\nG1Z1F300\nG1X1Y1\nG1Z0\nG1X2\nG1Z-1\nG1X3\nG1Z1\nG1X4\n")
+    prog = load_program(job)
+    assert prog.z_threshold is None and prog.strokes == [] and not prog.pen_mode
+    default_journal_path(job).write_text(
+        json.dumps({"ev": "start", "sha256": prog.sha256, "resume": False, "blocks": 9}) + "\n"
+    )
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", SIM, "--yes", "--resume"])
+    assert exc.value.code == 2
+    assert "cannot tell from the program which Z cuts" in capsys.readouterr().err
+
+
+def test_stream_help_shows_no_empty_range():
+    from click.testing import CliRunner
+
+    from scratchfab.cli import cli
+
+    out = CliRunner().invoke(cli, ["stream", "--help"], terminal_width=200).output
+    assert "--z-threshold" in out and "None" not in out

@@ -91,6 +91,8 @@ class SimOptions:
         soft_limits: Start with ``$20=1`` and ``$22=1`` (so also in ALARM until homed/unlocked).
         homed: With ``soft_limits``: start homed (Idle at ``MPos = -$27`` on every axis).
         wco: Start with this G54 offset, ``"x,y,z"`` in mm.
+        wco_field: Status reports carry ``WCO:`` (Grbl's compile option
+            ``REPORT_FIELD_WORK_COORD_OFFSET``, on by default); off, only ``$#`` tells it.
         record: Write the event record here (JSONL) when the emulator closes.
         settings: ``$`` settings overrides, ``{number: value}``.
     """
@@ -109,6 +111,7 @@ class SimOptions:
     soft_limits: bool = False
     homed: bool = False
     wco: str = ""
+    wco_field: bool = True
     record: str = ""
     settings: dict[int, float] = field(default_factory=dict)
 
@@ -510,8 +513,11 @@ class GrblSim:
         if outcome.soft_limit:
             self._soft_limit_alarm(t)
             return
+        wco = self._wco()
         self._offsets = outcome.coord_offsets
         self._gc = outcome.state
+        if self._wco() != wco:
+            self._wco_counter = 0  # system_flag_wco_change(): WCO in the next report
         if self.state == "Check":
             self._respond(t, n, gcode, "ok")
             return
@@ -653,8 +659,14 @@ class GrblSim:
         self._restart(t)
 
     def _restart(self, t: float) -> None:
-        """Grbl's ``main()`` loop after a reset: banner, then the alarm lock or startup lines."""
+        """Grbl's ``main()`` loop after a reset: banner, then the alarm lock or startup lines.
+
+        Grbl clears its ``sys`` struct here, report counters included, so the first status
+        report after any reset carries ``WCO:`` and ``Ov:``.
+        """
         self._gc = ModalState(position=self.mpos)
+        self._wco_counter = 0
+        self._ovr_counter = 0
         self._emit(t, BANNER)
         if self.state == "Alarm":
             self._emit(t, "[MSG:'$H'|'$X' to unlock]\r\n")
@@ -801,7 +813,8 @@ class GrblSim:
         else:
             self._wco_counter = (30 if busy else 10) - 1
             self._ovr_counter = max(self._ovr_counter, 1)
-            fields_.append("WCO:" + _fmt(wco, inches))
+            if self.options.wco_field:
+                fields_.append("WCO:" + _fmt(wco, inches))
         if self._ovr_counter > 0:
             self._ovr_counter -= 1
         else:

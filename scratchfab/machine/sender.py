@@ -153,6 +153,8 @@ class ControllerInfo:
     planner_blocks: int = 15
     settings: dict[int, float] = field(default_factory=dict)
     status: Status = field(default_factory=Status)
+    wco: tuple[float, float, float] | None = None  # work offset in mm (None: unknown)
+    wco_source: str = ""  # how it was read: "$#" or "status"
 
 
 @dataclass
@@ -376,7 +378,57 @@ class Streamer:
                 f"controller is in {self.info.status.state}: home it ($H) or, if the position "
                 "is known, unlock it ($X) first; nothing was sent"
             )
+        try:
+            self._read_work_offset()
+        except _Fault as fault:
+            raise StreamFault(str(fault)) from None
         return self.info
+
+    def _read_work_offset(self, reports: int = 12) -> None:
+        """Fill ``info.wco``: from ``$#`` and ``$G``, else from a status report's ``WCO:``.
+
+        A status report carries ``WCO:`` only every 10 (idle) to 30 (busy) reports, after
+        a change, and not at all on builds without the field, so the first report cannot be
+        relied on. ``$#`` prints every offset: GRBL's work offset is the active system's
+        (``$G``) plus G92, plus the tool length offset on Z. Without ``$#`` (a firmware
+        that refuses it), up to ``reports`` status reports are polled for a ``WCO:``. Values
+        in inches (``$13=1``) are converted to mm. Leaves ``info.wco`` None when neither
+        works.
+        """
+        scale = 25.4 if self.info.settings.get(13, 0) else 1.0
+        try:
+            params = self._command("$#")
+            modal = self._command("$G")
+        except StreamFault as exc:
+            self.on_message(f"cannot read the work offsets with $# ({exc}); polling status")
+        else:
+            found: dict[str, list[float]] = {}
+            for line in params:
+                name, _, value = line.strip("[]").partition(":")
+                try:
+                    found[name] = [float(v) for v in value.split(":")[0].split(",")]
+                except ValueError:
+                    continue
+            words = next((ln[4:-1].split() for ln in modal if ln.startswith("[GC:")), [])
+            wcs = next((w for w in words if w in ("G54", "G55", "G56", "G57", "G58", "G59")), "")
+            base, g92, tlo = found.get(wcs), found.get("G92"), found.get("TLO", [0.0])
+            if base is not None and g92 is not None and len(base) == len(g92) == 3:
+                xyz = [base[k] + g92[k] for k in range(3)]
+                xyz[2] += tlo[0]
+                self.info.wco = (xyz[0] * scale, xyz[1] * scale, xyz[2] * scale)
+                self.info.wco_source = "$#"
+                return
+            self.on_message(f"$# or $G did not name the active work offset ({wcs or '?'})")
+        period = 1.0 / min(self.options.poll_hz, 5.0)
+        for _ in range(reports):
+            if self._wco is not None:
+                break
+            time.sleep(max(0.0, self._last_poll + period - time.monotonic()))
+            self._status_now()
+        if self._wco is not None:
+            wco = self._wco
+            self.info.wco = (wco[0] * scale, wco[1] * scale, wco[2] * scale)
+            self.info.wco_source = "status"
 
     def _status_now(self, timeout: float = 2.0) -> Status:
         self._write(REALTIME_STATUS)

@@ -83,7 +83,8 @@ def compare(
 
     Refuses a job that leaves the profile's envelope, spans more than GRBL's travel
     ``$13x`` on any axis, or leaves GRBL's soft-limit travel
-    (``-$13x <= work + WCO <= 0`` when ``$20=1``); refuses a profile whose travel exceeds
+    (``-$13x <= work + WCO <= 0`` when ``$20=1``; with ``wco`` None, an unknown work
+    offset, such a job is refused as unchecked); refuses a profile whose travel exceeds
     GRBL's with soft limits on. With any of those checks to make, refuses a job holding a
     block whose position the sender cannot follow (G92, G10, another work coordinate
     system, G53, G28/G30, arcs outside G17): past it every check would be wrong. Warns
@@ -152,6 +153,12 @@ def compare(
                 f"the job spans {hi[k] - lo[k]:g} mm in {axis} but GRBL's travel is "
                 f"${130 + k}={t:g} mm: it cannot fit on this machine"
             )
+    if soft and wco is None and any(a <= b for a, b in zip(lo, hi, strict=True)):
+        out.refusals.append(
+            "GRBL soft limits are on ($20=1) but the work offset could not be read ($# and "
+            "the status reports' WCO gave none), so the job cannot be checked against "
+            "the travel under the current offset"
+        )
     if soft and wco is not None and all(t is not None for t in travel):
         for k, axis in enumerate(_AXES):
             if lo[k] > hi[k]:

@@ -6,8 +6,9 @@ pre-processing does, so the bytes counted are the bytes GRBL stores. Blank and c
 lines (and ``%``) are not sent.
 
 A *stroke* is what cuts. The tool is **down** after a block when the programmed Z is below
-``z_threshold`` (0 = the work surface), or, in a job whose Z never goes below the threshold
-(a servo/plotter job), when the spindle output is on (M3/M4). A stroke is the run of blocks
+``z_threshold`` (given, or read from the program: between the Z of its cutting moves and the
+Z of its rapids, :func:`auto_threshold`), or, in a job that moves at one Z level at most (a
+servo/plotter job), when the spindle output is on (M3/M4). A stroke is the run of blocks
 from the block that puts the tool down up to and including the block that lifts it (Z back
 up, or M5); :func:`stroke_spans` is the one definition used by streaming and resuming.
 """
@@ -97,7 +98,7 @@ class Program:
     sha256: str
     blocks: list[Block]
     strokes: list[tuple[int, int]]  # (first, last) block index of each stroke
-    z_threshold: float
+    z_threshold: float | None  # None: the program does not show which Z cuts
     pen_mode: bool
     rapid_mm_min: tuple[float, float, float] = DEFAULT_RAPID_MM_MIN
 
@@ -333,16 +334,39 @@ def stroke_spans(
     return spans
 
 
-def auto_threshold(blocks: Sequence[Block]) -> float:
-    """Z below which the tool cuts, when none is given.
+def auto_threshold(blocks: Sequence[Block]) -> float | None:
+    """Z below which the tool cuts, read from the program itself; None when it cannot tell.
 
-    0 (the work surface) if the job goes below it; else halfway between the two lowest Z
-    levels the job uses (a job engraving at Z=0); else 0.
+    Rapids (G0) never cut, so the lowest Z a G0 reaches is a travel height; the cutting
+    level is the highest Z below it at which feed moves (G1/G2/G3) go in XY. The threshold
+    is halfway between them. A job that rapids nowhere at a known Z tells cutting from
+    travel only when its feed moves use exactly two Z levels (the lower one cuts). Works
+    at any Z zero (surface at 0, or a machine-zeroed job cutting at Z-30).
     """
-    zs = sorted({round(b.modal.z, 6) for b in blocks if b.motion and b.modal.z is not None})
-    if not zs or zs[0] < 0 or len(zs) < 2:
-        return 0.0
-    return 0.5 * (zs[0] + zs[1])
+    rapid_z: set[float] = set()
+    feed_z: set[float] = set()
+    prev_xy = (0.0, 0.0)
+    for b in blocks:
+        m = b.modal
+        xy = (m.x, m.y)
+        if b.motion and m.z is not None and not b.unfollowed:
+            if m.motion == "G0":
+                rapid_z.add(round(m.z, 6))
+            elif m.motion in ("G1", "G2", "G3") and (xy != prev_xy or b.arc_box is not None):
+                feed_z.add(round(m.z, 6))
+        prev_xy = xy
+    if rapid_z:
+        travel = min(rapid_z)
+        cuts = [z for z in feed_z if z < travel]
+        return 0.5 * (max(cuts) + travel) if cuts else None
+    if len(feed_z) == 2:
+        return 0.5 * (min(feed_z) + max(feed_z))
+    return None
+
+
+def z_levels(blocks: Sequence[Block]) -> list[float]:
+    """The distinct Z (work mm) the program's motion blocks end at, ascending."""
+    return sorted({round(b.modal.z, 6) for b in blocks if b.motion and b.modal.z is not None})
 
 
 def load_program(
@@ -354,7 +378,8 @@ def load_program(
 
     Args:
         path: The G-code file.
-        z_threshold: Z (work mm) below which the tool is down; None: :func:`auto_threshold`.
+        z_threshold: Z (work mm) below which the tool is down; None: :func:`auto_threshold`
+            (a program that does not show it has no strokes, unless it is a servo job).
         rapid_mm_min: G0 rates per axis for the time estimate (GRBL's $110-$112).
 
     Raises:
@@ -402,16 +427,22 @@ def load_program(
                 rapid_mm=step.rapid_mm,
             )
         )
+    uses_spindle = any(b.modal.spindle in ("M3", "M4") for b in blocks)
     if z_threshold is None:
         z_threshold = auto_threshold(blocks)
-    goes_below = any(b.modal.z is not None and b.modal.z < z_threshold - 1e-9 for b in blocks)
-    uses_spindle = any(b.modal.spindle in ("M3", "M4") for b in blocks)
-    pen_mode = not goes_below and uses_spindle
+    if z_threshold is None:
+        pen_mode = uses_spindle and len(z_levels(blocks)) <= 1
+    else:
+        goes_below = any(b.modal.z is not None and b.modal.z < z_threshold - 1e-9 for b in blocks)
+        pen_mode = not goes_below and uses_spindle
+    strokes: list[tuple[int, int]] = []  # no strokes where the program does not show them
+    if z_threshold is not None or pen_mode:
+        strokes = stroke_spans(blocks, z_threshold or 0.0, pen_mode)
     return Program(
         path=p,
         sha256=hashlib.sha256(data).hexdigest(),
         blocks=blocks,
-        strokes=stroke_spans(blocks, z_threshold, pen_mode),
+        strokes=strokes,
         z_threshold=z_threshold,
         pen_mode=pen_mode,
         rapid_mm_min=(float(rapid_mm_min[0]), float(rapid_mm_min[1]), float(rapid_mm_min[2])),
@@ -434,35 +465,61 @@ def resume_point(program: Program, done: set[int]) -> int:
     return len(program.blocks)
 
 
+def travel_move(program: Program, start: int) -> tuple[str, float]:
+    """How the program travels with the tool up before block ``start``: G0, or G1 and its feed.
+
+    Taken from the last XY move outside every stroke before ``start`` (a servo plotter
+    travels with G1 to spare the servo); ``("G0", 0.0)`` when there is none. The feed is in
+    mm/min.
+    """
+    stroke_of = program.stroke_of()
+    blocks = program.blocks
+    for i in range(min(start, len(blocks)) - 1, -1, -1):
+        b = blocks[i]
+        prev = blocks[i - 1].modal if i > 0 else Modal()
+        moved_xy = (b.modal.x, b.modal.y) != (prev.x, prev.y)
+        if not b.motion or stroke_of[i] >= 0 or not moved_xy or b.unfollowed:
+            continue
+        m = b.modal
+        if m.motion == "G1" and m.feed_mode == "G94" and m.feed > 0:
+            return "G1", m.feed * (25.4 if m.inches else 1.0)
+        return "G0", 0.0
+    return "G0", 0.0
+
+
 def resume_preamble(program: Program, start: int) -> list[str]:
     """Blocks that restore the state the file had before block ``start``, safely.
 
-    Order: mm and absolute (G21 G90, plane, feed mode, work coordinates), spindle/servo and
+    Order: mm and absolute (G21 G90, plane, G94, work coordinates), spindle/servo and
     coolant as the file had them (the tool is up before a stroke by definition), Z up to the
     highest Z the file used so far, XY to where the file was, Z down to the file's travel
-    height there, then the file's units, distance mode, feed and motion mode. The stroke's
-    own first block then plunges.
+    height there, then the file's units, distance mode, feed mode, feed and motion mode.
+    The moves travel as the file does (:func:`travel_move`: G0, or G1 at its travel feed).
+    The stroke's own first block then plunges.
     """
     if start <= 0 or start > len(program.blocks):
         return []
     before = program.blocks[start - 1].modal
     zs = [b.modal.z for b in program.blocks[:start] if b.modal.z is not None]
-    lines = [f"G21G90{before.plane}{before.feed_mode}{before.wcs}"]
+    mode, feed = travel_move(program, start)
+    lines = [f"G21G90{before.plane}G94{before.wcs}"]
     if before.spindle == "M5":
         lines.append("M5")
     else:
         lines.append(f"{before.spindle}S{gcode_number(before.speed, 4)}")
     lines.append(before.coolant)
+    move = mode if mode == "G0" else f"G1F{gcode_number(feed, 4)}"
     if zs:
         z_safe = max(zs)
-        lines.append(f"G0Z{gcode_number(z_safe, 4)}")
-    lines.append(f"G0X{gcode_number(before.x, 4)}Y{gcode_number(before.y, 4)}")
+        lines.append(f"{move}Z{gcode_number(z_safe, 4)}")
+    lines.append(f"{move}X{gcode_number(before.x, 4)}Y{gcode_number(before.y, 4)}")
     if zs and before.z is not None and before.z < max(zs):
-        lines.append(f"G0Z{gcode_number(before.z, 4)}")
+        lines.append(f"{move}Z{gcode_number(before.z, 4)}")
     restore = ("G20" if before.inches else "") + ("G91" if before.relative else "")
+    restore += "G93" if before.feed_mode == "G93" else ""
     if before.feed > 0:
         restore += f"F{gcode_number(before.feed, 4)}"
-    restore += before.motion if before.motion != "G0" else ""
+    restore += before.motion if before.motion != mode else ""
     if restore:
         lines.append(restore)
     return lines

@@ -30,6 +30,7 @@ from scratchfab.machine.sender_program import (
     load_program,
     resume_point,
     resume_preamble,
+    z_levels,
 )
 
 if TYPE_CHECKING:
@@ -175,7 +176,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
         rates = [info.settings.get(110 + k) for k in range(3)]
         if all(r is not None and r > 0 for r in rates):  # the time estimate at GRBL's G0 rates
             program = program.at_rapid_rates([float(r or 0) for r in rates])
-        findings = compare(info.settings, info.status.wco, program, profile)
+        findings = compare(info.settings, info.wco, program, profile)
         for text in findings.warnings:
             cb.say(f"warning: {text}")
         if findings.refusals:
@@ -212,6 +213,14 @@ def _check_strokes(program: Program, gcode: Path) -> None:
         return
     zs = [b.modal.z for b in program.blocks if b.modal.z is not None]
     span = f"Z {min(zs):g}..{max(zs):g}" if zs else "no Z"
+    if program.z_threshold is None:
+        levels = ", ".join(f"{z:g}" for z in z_levels(program.blocks)[:8])
+        raise ScratchfabError(
+            f"{gcode}: cannot tell from the program which Z cuts and which travels (its moves "
+            f"end at Z {levels or 'none'}; no rapid shows a travel height); resuming could "
+            "restart in the middle of a cut (give --machine, or a --z-threshold between the "
+            "cutting and the travel heights)"
+        )
     raise ScratchfabError(
         f"{gcode}: no stroke has the tool below the Z threshold {program.z_threshold:g} (the "
         f"job uses {span}); resuming could restart in the middle of a cut (give a "
