@@ -1271,7 +1271,6 @@ def test_strokes_of_both_profiles_found_without_a_profile(tmp_path, name):
         assert all(t.startswith("G0") for t in moves)
     else:  # the plotter travels with G1 at its travel feed, never G0
         assert all(t.startswith(f"G1F{travel:g}") for t in moves)
-        assert not any(b.modal.motion == "G0" and b.rapid_mm for b in prog.blocks[1:])
 
 
 def test_resume_outside_a_job_folder_finds_the_stroke_without_machine(tmp_path, capsys):
