@@ -281,7 +281,10 @@ def test_compare_with_profile_and_soft_limits(tmp_path):
     found = compare(settings, (0.0, 0.0, 0.0), prog, profile)
     assert any("X range" in r and "envelope" in r for r in found.refusals)  # job wider than 10 mm
     assert any("soft limits allow" in r for r in found.refusals)  # positive X in machine space
-    assert any("$110=500" in w for w in found.warnings)
+    assert (
+        "GRBL $110=500 mm/min is below the X max rate 1000 of machine 'bench': feeds are "
+        "clamped, the estimate is optimistic" in found.warnings
+    )
     ok = compare(settings, (-100.0, -100.0, -10.0), prog, None)
     assert ok.refusals == []
 

@@ -26,6 +26,12 @@ class FiniteFloat(click.FloatRange):
             self.fail(f"{value!r} is not a finite number.", param, ctx)
         return number
 
+    def _describe_range(self) -> str:
+        """The range for the help; none without bounds (click would print ``x<=None``)."""
+        if self.min is None and self.max is None:
+            return ""
+        return super()._describe_range()
+
 
 #: ``--backend llvm|cuda`` of the commands that run Dr.Jit kernels.
 backend_option = click.option(

@@ -15,13 +15,6 @@ from scratchfab.machine.sender import Progress
 from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
 
 
-class _AnyFiniteFloat(FiniteFloat):
-    """A finite float without bounds; the help shows no range (click would print x<=None)."""
-
-    def _describe_range(self) -> str:
-        return ""
-
-
 class _ProgressLine:
     """One status line on stderr, redrawn in place on a terminal, every 10 % otherwise."""
 
@@ -115,7 +108,7 @@ def _ask_interrupt() -> str:
 )
 @click.option(
     "--z-threshold",
-    type=_AnyFiniteFloat(),
+    type=FiniteFloat(),
     default=None,
     help="Tool is down below this Z [machine: halfway engrave..safe; else read from the "
     "G-code: between its cutting and rapid heights].",

@@ -143,8 +143,9 @@ def compare(
             want = profile.motion.max_rate_mm_min[k]
             if rate is not None and rate + tolerance < want:
                 out.warnings.append(
-                    f"GRBL ${110 + k}={rate:g} mm/min is below machine '{profile.name}''s "
-                    f"{axis} max rate {want:g}: feeds are clamped, the estimate is optimistic"
+                    f"GRBL ${110 + k}={rate:g} mm/min is below the {axis} max rate "
+                    f"{want:g} of machine '{profile.name}': feeds are clamped, the estimate "
+                    "is optimistic"
                 )
     for k, axis in enumerate(_AXES):
         t = travel[k]
