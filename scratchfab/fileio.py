@@ -108,8 +108,8 @@ def write_text(path: str | os.PathLike[str], text: str) -> None:
         handle.write(text)
 
 
-def file_sha256(path: str | os.PathLike[str]) -> str:
-    """SHA-256 of a file's bytes, hex; "missing" when there is no such file."""
+def file_sha256(path: str | os.PathLike[str], extra: bytes = b"") -> str:
+    """SHA-256 of a file's bytes followed by ``extra``, hex; "missing" when there is no file."""
     file = Path(path)
     if not file.is_file():
         return "missing"
@@ -117,6 +117,7 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
     with file.open("rb") as handle:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
+    digest.update(extra)
     return digest.hexdigest()
 
 

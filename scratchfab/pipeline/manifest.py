@@ -9,7 +9,6 @@ reruns.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from collections.abc import Iterable, Mapping
@@ -17,22 +16,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from scratchfab.fileio import write_text
+from scratchfab.fileio import file_sha256, write_text
 
 MANIFEST_NAME = "manifest.json"
 
 
 def file_digest(path: Path, with_mtime: bool = False) -> str:
     """SHA-256 of a file's bytes (and its mtime when ``with_mtime``); "missing" if absent."""
-    if not path.is_file():
-        return "missing"
-    digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    if with_mtime:
-        digest.update(str(path.stat().st_mtime_ns).encode())
-    return digest.hexdigest()
+    stamp = str(path.stat().st_mtime_ns).encode() if with_mtime and path.is_file() else b""
+    return file_sha256(path, stamp)
 
 
 def _files_under(path: Path) -> list[Path]:
