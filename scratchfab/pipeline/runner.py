@@ -12,7 +12,6 @@ the next run starts again at that stage.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -84,16 +83,12 @@ class _Stages:
         if stage == "stream":
             # recut_unsure only steers a resume: turning it on must not cut a finished board again
             options = {k: v for k, v in asdict(pipe.stream).items() if k != "recut_unsure"}
-            return fingerprint([job / "export" / "board.gcode"], [], options, job)
+            return fingerprint([self.gcode()], [], options, job)
         raise KeyError(stage)
 
     def gcode(self) -> Path:
         """The G-code file the stream stage sends."""
         return self.job / "export" / "board.gcode"
-
-    def journal(self) -> Path:
-        """The stream stage's journal."""
-        return self.job / "stream" / "journal.jsonl"
 
     def streamed_to_end(self) -> bool:
         """False when the journal's last run streamed the current G-code and did not finish.
@@ -101,10 +96,14 @@ class _Stages:
         A later run of another file (``scratchfab stream`` on a hand-edited copy) does not
         make the board's own finished stream count as unfinished.
         """
-        from scratchfab.machine.sender_journal import interrupted, read_journal
+        from scratchfab.machine.sender_journal import (
+            default_journal_path,
+            interrupted,
+            read_journal,
+        )
 
         try:
-            events = read_journal(self.journal())
+            events = read_journal(default_journal_path(self.gcode()))
         except ConfigError:
             return False  # the stream stage reads it again and names the damage
         return not interrupted(events, file_digest(self.gcode()))
@@ -161,26 +160,9 @@ class _Stages:
             settings["jitter"] = Tolerance.from_profile(self.pipe.machine_ref(), self.pipe.profile)
         try:
             run_verify_job(self.job, VerifySettings(**settings), progress=self.say)
-        except VerifyGateError as exc:
-            raise VerifyGateError(self._gate_message(exc)) from None
+        except VerifyGateError as exc:  # named as the pipeline file names it
+            raise exc.named("[verify] min_rho =", str(self.pipe.path)) from None
         return ["verify/metrics.json"]
-
-    def _gate_message(self, exc: Exception) -> str:
-        """The verify gate's failure in the pipeline file's terms (``[verify] min_rho``)."""
-        metrics_file = self.job / "verify" / "metrics.json"
-        try:
-            metrics = json.loads(metrics_file.read_text(encoding="utf-8"))
-            failing = list(metrics["gate"]["failing"])
-            views = metrics["views"]
-            worst = min(failing, key=lambda name: views[name]["rho"])
-            rho = float(views[worst]["rho"])
-        except (OSError, ValueError, KeyError, TypeError):
-            return str(exc)
-        return (
-            f"{self.pipe.path}: view {worst}: rho_kk {rho:.3f} is below [verify] min_rho = "
-            f"{self.pipe.verify.min_rho:g} ({len(failing)} of {len(views)} views fail; see "
-            f"{metrics_file})"
-        )
 
     def _run_toolpath(self) -> Sequence[str]:
         from scratchfab.toolpath import OrderOptions

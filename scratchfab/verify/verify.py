@@ -46,9 +46,45 @@ Progress = Callable[[str], None]
 
 
 class VerifyGateError(ScratchfabError):
-    """A view's rho_kk fell below ``--min-rho``: the board should not be cut."""
+    """A view's rho_kk fell below the gate: the board should not be cut.
+
+    It keeps the figures, so that each caller can name the threshold as its user set it
+    (``--min-rho``, or a pipeline's ``[verify] min_rho``) with :meth:`named`.
+    """
 
     exit_code = 3
+
+    def __init__(
+        self,
+        view: str,
+        rho: float,
+        min_rho: float,
+        failing: int,
+        views: int,
+        metrics_file: Path,
+        setting: str = "--min-rho",
+        source: str | None = None,
+    ) -> None:
+        self.view, self.rho, self.min_rho = view, rho, min_rho
+        self.failing, self.views, self.metrics_file = failing, views, metrics_file
+        where = f"{source}: " if source else ""
+        super().__init__(
+            f"{where}view {view}: rho_kk {rho:.3f} is below {setting} {min_rho:g} "
+            f"({failing} of {views} views fail; see {metrics_file})"
+        )
+
+    def named(self, setting: str, source: str) -> VerifyGateError:
+        """The same failure, its threshold named ``setting`` in the file ``source``."""
+        return VerifyGateError(
+            self.view,
+            self.rho,
+            self.min_rho,
+            self.failing,
+            self.views,
+            self.metrics_file,
+            setting,
+            source,
+        )
 
 
 @dataclass(frozen=True)
@@ -375,12 +411,15 @@ def run_verify(
     if sweep_gif is not None:
         write_bytes(out / "sweep.gif", sweep_gif)
     write_json(out / "metrics.json", metrics)
-    if failing:
+    if failing and settings.min_rho is not None:  # failing only with a gate
         worst = min(failing, key=lambda n: views[n]["rho"])
         raise VerifyGateError(
-            f"view {worst}: rho_kk {views[worst]['rho']:.3f} is below --min-rho "
-            f"{settings.min_rho:g} ({len(failing)} of {len(names)} views fail; see "
-            f"{out / 'metrics.json'})"
+            worst,
+            views[worst]["rho"],
+            settings.min_rho,
+            len(failing),
+            len(names),
+            out / "metrics.json",
         )
     return metrics
 
