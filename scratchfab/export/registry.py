@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +68,7 @@ def check_same_plan(toolpath: Toolpath, profile: MachineProfile) -> None:
             ("tool", planned.tool, profile.tool),
         )
         for key, ours, theirs in (
-            (k, getattr(mine, k), getattr(other, k)) for k in mine.__dataclass_fields__
+            (f.name, getattr(mine, f.name), getattr(other, f.name)) for f in fields(mine)
         )
         if ours != theirs
     ]

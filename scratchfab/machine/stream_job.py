@@ -211,8 +211,6 @@ def _check_strokes(program: Program, gcode: Path) -> None:
     """
     if program.strokes or not any(b.motion and b.modal.motion != "G0" for b in program.blocks):
         return
-    zs = [b.modal.z for b in program.blocks if b.modal.z is not None]
-    span = f"Z {min(zs):g}..{max(zs):g}" if zs else "no Z"
     if program.z_threshold is None:
         levels = ", ".join(f"{z:g}" for z in z_levels(program.blocks)[:8])
         raise ScratchfabError(
@@ -221,6 +219,8 @@ def _check_strokes(program: Program, gcode: Path) -> None:
             "restart in the middle of a cut (give --machine, or a --z-threshold between the "
             "cutting and the travel heights)"
         )
+    zs = [b.modal.z for b in program.blocks if b.modal.z is not None]
+    span = f"Z {min(zs):g}..{max(zs):g}" if zs else "no Z"
     raise ScratchfabError(
         f"{gcode}: no stroke has the tool below the Z threshold {program.z_threshold:g} (the "
         f"job uses {span}); resuming could restart in the middle of a cut (give a "
