@@ -208,9 +208,9 @@ def test_moved_job_reads_its_own_board_pictures(finished_job, tmp_path):
 
     import numpy as np
 
-    from scratchfab.design.targets import cross_targets
+    from scratchfab.design.targets import cross_targets, job_cross_targets
     from scratchfab.model.design import load_design
-    from scratchfab.optimize.stage import _cross_targets, load_job_inputs
+    from scratchfab.optimize.stage import load_job_inputs
     from scratchfab.verify.verify import load_job_targets
 
     _, job, _ = finished_job
@@ -224,14 +224,40 @@ def test_moved_job_reads_its_own_board_pictures(finished_job, tmp_path):
     expected = cross_targets(load_design(job / "design" / "design.toml"))
     assert len(expected) == 4  # two views: every pair
 
-    design, targets, _ = load_job_inputs(moved)
+    design, _, _ = load_job_inputs(moved)
     assert all(
         Path(v.target).parent == (moved / "design" / "board").resolve() for v in design.views
     )
-    for cross in (_cross_targets(design, targets), load_job_targets(moved, design)[1]):
+    for cross in (job_cross_targets(design), load_job_targets(moved, design)[1]):
         assert cross is not None and set(cross) == set(expected)
         for key, image in expected.items():
             assert np.array_equal(cross[key], image, equal_nan=True)
+
+
+def test_job_without_board_pictures_falls_back_to_its_view_targets(finished_job, tmp_path):
+    import shutil
+
+    import numpy as np
+
+    from scratchfab.design.targets import job_cross_targets
+    from scratchfab.optimize.stage import load_job_inputs
+    from scratchfab.verify.verify import load_job_targets
+
+    _, job, _ = finished_job
+    moved = tmp_path / "no-pictures"
+    shutil.copytree(job, moved)
+    pictures = sorted((moved / "design" / "board").glob("*.png"))
+    assert pictures
+    pictures[0].write_bytes(b"not a picture")  # broken
+    for picture in pictures[1:]:
+        picture.unlink()  # gone
+
+    design, targets, _ = load_job_inputs(moved)
+    assert job_cross_targets(design) is None
+    view_targets, cross = load_job_targets(moved, design)
+    assert cross is None and set(view_targets) == set(targets) == {v.name for v in design.views}
+    for name, image in targets.items():
+        assert np.array_equal(view_targets[name], image, equal_nan=True)
 
 
 def test_changed_option_reruns_only_downstream(finished_job):

@@ -16,7 +16,7 @@ import numpy as np
 from PIL import Image
 
 from scratchfab.design.images import linear_to_srgb, load_image, srgb_to_linear
-from scratchfab.errors import ConfigError
+from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.model.camera import Camera
 from scratchfab.model.design import Board, Design, View
 
@@ -286,3 +286,15 @@ def cross_targets(
             if j.name in images:
                 out[(k.name, j.name)] = warp_to_view(images[j.name], design.board, k)
     return out
+
+
+def job_cross_targets(design: Design) -> dict[tuple[str, str], np.ndarray] | None:
+    """:func:`cross_targets` of a job's resolved design, or None if its pictures are unreadable.
+
+    A job's ``design/board/*.png`` may be gone or broken; optimize and verify then fall
+    back to the per-view ``targets/<view>.npy`` (the diagonal) instead of failing.
+    """
+    try:
+        return cross_targets(design)
+    except (ScratchfabError, OSError, KeyError):
+        return None

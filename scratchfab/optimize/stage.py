@@ -33,7 +33,8 @@ import drjit as dr
 import numpy as np
 
 from scratchfab.backend import array_module
-from scratchfab.errors import ConfigError, ScratchfabError
+from scratchfab.design.targets import job_cross_targets
+from scratchfab.errors import ConfigError
 from scratchfab.fileio import write_json, write_text
 from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design
@@ -168,16 +169,6 @@ def load_job_inputs(job: Path) -> tuple[Design, dict[str, np.ndarray], ScratchSe
     return design, targets, scratches
 
 
-def _cross_targets(design: Design, targets: dict[str, np.ndarray]) -> dict[tuple[str, str], Any]:
-    """T_j->k from the design stage's board images; only the diagonal if they are absent."""
-    try:
-        from scratchfab.design.targets import cross_targets
-
-        return dict(cross_targets(design))
-    except (ImportError, ScratchfabError, OSError, KeyError):
-        return {(k, k): t for k, t in targets.items()}
-
-
 def _fingerprint(
     options: OptimizeOptions, scratches: ScratchSet, targets: dict[str, Any]
 ) -> dict[str, Any]:
@@ -291,7 +282,7 @@ def _run(
     )
     report(Progress(0, options.iterations, math.nan, 0.0, math.nan, "compiling kernels"))
     opt = LayoutOptimizer(design, targets, start_layout, settings, m)
-    cross = _cross_targets(design, targets)
+    cross = job_cross_targets(design) or {(k, k): t for k, t in targets.items()}
     names = [v.name for v in opt.views]
     columns = log_columns(names)
     rows: list[list[float]] = []

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from scratchfab.backend import BackendName
+from scratchfab.design.targets import cross_targets, job_cross_targets
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import write_bytes, write_json
 from scratchfab.metrics import quality_report
@@ -540,13 +541,7 @@ def load_job_targets(
         path = job / "design" / "targets" / f"{view.name}.npy"
         if path.is_file():
             targets[view.name] = np.load(path, allow_pickle=False)
-    cross = None
-    try:
-        from scratchfab.design.targets import cross_targets
-
-        cross = cross_targets(design)
-    except (ImportError, ScratchfabError, OSError):
-        cross = None
+    cross = job_cross_targets(design)
     if not targets and cross:
         targets = {k: img for (k, j), img in cross.items() if k == j}
     return targets, cross
@@ -558,8 +553,6 @@ def design_targets(
     """Targets of a design file's views (those that name a target picture)."""
     if not any(v.target for v in design.views):
         return {}, None
-    from scratchfab.design.targets import cross_targets
-
     cross = cross_targets(design)
     return {k: img for (k, j), img in cross.items() if k == j}, cross
 
