@@ -397,54 +397,71 @@ def test_report_setup_step_follows_the_readme_not_a_generic_zeroing(finished_job
     assert f"<span data-stat='setup.z'>{profile.z.engrave_mm:g}</span>" in report
 
 
-def _real_port_pipeline(path: Path) -> Path:
+def _real_port_pipeline(path: Path, record: Path) -> Path:
+    """The pipeline with a port of its own (the emulator, recording what it receives)."""
     real = path.with_name("real-port.toml")
     text = path.read_text()
     start = text.index('port = "grblsim')
-    end = text.index("\n", start)
-    real.write_text(text[:start] + 'port = "/dev/scratchfab-no-such-port"' + text[end:])
+    end = text.index('"', start + len('port = "'))
+    real.write_text(text[:end] + f"&record={record}" + text[end:])
     return real
 
 
 @pytest.mark.parametrize(
-    ("flags", "interactive", "answer", "message"),
+    ("flags", "interactive", "answer", "refusal"),
     [
         ([], False, "", "stdin is not a terminal (pass --yes"),
-        ([], True, "n\n", "[stream] not confirmed; nothing was sent"),
-        ([], True, "y\n", "cannot open port '/dev/scratchfab-no-such-port'"),
-        (["--yes"], False, "", "cannot open port '/dev/scratchfab-no-such-port'"),
+        ([], True, "n\n", "not confirmed; nothing was sent"),
+        ([], True, "y\n", None),
+        (["--yes"], False, "", None),
     ],
 )
 def test_real_port_asks_before_streaming(
-    finished_job, tmp_path, monkeypatch, capsys, flags, interactive, answer, message
+    finished_job, tmp_path, monkeypatch, capsys, flags, interactive, answer, refusal
 ):
     import io
+    import json
     import shutil
 
     import scratchfab.cli.run_cmd as run_cmd
+    import scratchfab.pipeline.runner as runner
+    from scratchfab.machine.sender_program import load_program
 
     path, job, _ = finished_job
     run_pipeline(load_pipeline(path), job, say=lambda s: None)
     copy = tmp_path / "job"
     shutil.copytree(job, copy)
     journal = (copy / "stream" / "journal.jsonl").read_bytes()
-    real = _real_port_pipeline(path)
+    record = tmp_path / "received.jsonl"
+    real = _real_port_pipeline(path, record)
+    monkeypatch.setattr(runner, "is_emulator", lambda port: False)  # as a real machine
     monkeypatch.setattr(run_cmd, "_interactive", lambda: interactive)
     monkeypatch.setattr("sys.stdin", io.StringIO(answer))
+    code = 0
     try:
-        with pytest.raises(SystemExit) as info:
-            main(["run", str(real), "--out", str(copy), *flags])
+        main(["run", str(real), "--out", str(copy), *flags])
+    except SystemExit as exc:
+        code = exc.code
     finally:
         real.unlink()
     got = capsys.readouterr()
-    assert info.value.code == 2
-    assert message in got.err and "Traceback" not in got.err
-    asked = "Stream " in got.err and "The machine moves" in got.err
-    assert asked == interactive
-    # Every other stage was up to date; nothing was sent, the journal is as it was.
+    assert code == (0 if refusal is None else 2)
+    assert "Traceback" not in got.err
+    # Every other stage was up to date; the stream stage connected and checked first.
     assert got.out.count("up to date, skipped") == len(STAGES) - 1
-    assert ("[stream] running" in got.out) == message.startswith("cannot open")
-    assert (copy / "stream" / "journal.jsonl").read_bytes() == journal
+    assert "[stream] running" in got.out and "connected: Grbl" in got.out
+    asked = "The machine moves: board clamped and set up as README step 5 says" in got.err
+    assert asked == interactive
+    events = [json.loads(line) for line in record.read_text().splitlines()]
+    received = [e["text"] for e in events if e["ev"] == "rx" and e["g"]]
+    after = (copy / "stream" / "journal.jsonl").read_bytes()
+    if refusal is not None:
+        assert refusal in got.err
+        assert received == [] and after == journal  # nothing was sent
+    else:
+        program = load_program(copy / "export" / "board.gcode")
+        assert received == [b.text.replace(" ", "") for b in program.blocks]  # whole, in order
+        assert after.startswith(journal) and len(after) > len(journal)
 
 
 def test_pipeline_out_is_relative_to_the_pipeline_file(tmp_path, monkeypatch):

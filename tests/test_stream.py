@@ -782,7 +782,7 @@ def test_confirmation_required_without_yes(tmp_path):
         input="n\n",
     )
     assert result.exit_code != 0
-    assert "Board clamped" in result.output
+    assert "The machine moves: board clamped" in result.output
     assert not _received_gcode(read_record(rec))
 
 

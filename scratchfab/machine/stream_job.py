@@ -186,8 +186,8 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
         if req.check:
             _check(streamer, program, req.gcode, cb.say)
         if not cb.confirm(
-            f"Board clamped, tool zeroed, area clear? Stream {len(program.blocks) - start} "
-            f"lines to {req.port}"
+            f"Stream {len(program.blocks) - start} lines of {req.gcode} to {req.port}? The "
+            "machine moves: board clamped and set up as README step 5 says, area clear"
         ):
             raise ScratchfabError("not confirmed; nothing was sent")
         journal = Journal(journal_file).open()
@@ -291,10 +291,12 @@ def run_stream_job(
     machine: str | MachineProfile | None = None,
     recut_unsure: bool = False,
     say: Callable[[str], Any] = print,
+    confirm: Callable[[str], bool] = lambda _: True,
 ) -> Path:
-    """The pipeline's stream stage: JOB/export/board.gcode to ``port``, unattended.
+    """The pipeline's stream stage: JOB/export/board.gcode to ``port``.
 
-    The pipeline file naming a port is the confirmation; a Ctrl-C stops safely. A run
+    ``confirm`` is asked after the settings check (and check mode), as ``stream`` asks;
+    the default answers yes (the caller has consent). A Ctrl-C stops safely. A run
     after an interrupted stream of the same G-code resumes it from the journal.
     """
     last = [-1]
@@ -316,4 +318,4 @@ def run_stream_job(
         check=check,
         machine=machine,
     )
-    return stream_file(req, StreamCallbacks(progress, say, lambda: "stop", lambda _: True))
+    return stream_file(req, StreamCallbacks(progress, say, lambda: "stop", confirm))

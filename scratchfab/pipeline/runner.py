@@ -54,10 +54,11 @@ class RunResult:
 class _Stages:
     """The stage table: inputs, action and outputs of each stage of one pipeline."""
 
-    def __init__(self, pipe: Pipeline, job: Path, say: Say) -> None:
+    def __init__(self, pipe: Pipeline, job: Path, say: Say, confirm: Confirm | None) -> None:
         self.pipe = pipe
         self.job = job
         self.say = say
+        self.confirm = confirm
 
     # -- inputs -----------------------------------------------------------------------
     def inputs(self, stage: str) -> dict[str, Any]:
@@ -205,6 +206,9 @@ class _Stages:
             machine=self.pipe.profile,
             recut_unsure=s.recut_unsure,
             say=self.say,
+            confirm=self.confirm
+            if self.confirm is not None and not is_emulator(s.port)
+            else lambda _: True,
         )
         return ["stream/journal.jsonl"]
 
@@ -228,7 +232,8 @@ def run_pipeline(
         force: Run every stage.
         say: Called with one line per event (progress).
         confirm: Asked before the stream stage moves a real machine (any port but the
-            emulator); False stops with nothing sent. None: the caller has consent.
+            emulator), after its settings check as ``stream`` asks; False stops with
+            nothing sent. None: the caller has consent.
 
     Raises:
         ScratchfabError: A stage failed; earlier outputs and the manifest stay consistent,
@@ -242,7 +247,7 @@ def run_pipeline(
     t0 = time.perf_counter()
     job.mkdir(parents=True, exist_ok=True)
     manifest = Manifest.load(job)
-    stages = _Stages(pipe, job, say)
+    stages = _Stages(pipe, job, say, confirm)
     result = RunResult(job)
     last = STAGES.index(until) if until else len(STAGES) - 1
     rerun = force
@@ -260,14 +265,6 @@ def run_pipeline(
                         "not cutting it again (run with --from stream to cut it again)"
                     )
                     continue
-                port = pipe.stream.port or ""
-                if confirm is not None and not is_emulator(port):
-                    question = (
-                        f"Stream {stages.gcode()} to {port}? The machine moves: board clamped "
-                        "and set up as README step 5 says, area clear"
-                    )
-                    if not confirm(question):
-                        raise ScratchfabError("[stream] not confirmed; nothing was sent")
             else:
                 rerun = rerun or (start is not None and STAGES.index(start) <= index)
                 if not rerun and manifest.is_current(stage, inputs):
