@@ -181,6 +181,16 @@ def test_interpreter_catches_what_grbl_refuses():
         interpret("G21 G90\n(pause!)\n")
 
 
+def test_same_toolpath_gives_the_same_bytes(planned, tmp_path):
+    tp, profile = planned
+    for fmt in ("gcode", "dxf", "svg"):
+        first, second = tmp_path / f"a.{fmt}", tmp_path / f"b.{fmt}"
+        export(tp, profile, first)
+        export(tp, profile, second)
+        assert first.read_bytes() == second.read_bytes(), fmt
+    assert not ezdxf.options.write_fixed_meta_data_for_testing  # left as it was
+
+
 def test_dxf_reads_back_with_ezdxf(planned, tmp_path):
     tp, _ = planned
     out = tmp_path / "board.dxf"

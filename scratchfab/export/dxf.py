@@ -1,12 +1,16 @@
 """DXF (ezdxf): millimetres, layer BOARD with the outline, layer SCRATCHES with the strokes.
 
 Every piece is a LINE entity in machine coordinates, scratches in cut order and
-direction. The document passes ezdxf's audit before it is written.
+direction. The document passes ezdxf's audit before it is written. The same toolpath
+gives the same bytes: the header's dates and GUIDs are ezdxf's fixed ones, not the
+clock's and random ones.
 """
 
 from __future__ import annotations
 
 import io
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -22,11 +26,23 @@ BOARD_LAYER = "BOARD"
 SCRATCH_LAYER = "SCRATCHES"
 
 
+@contextmanager
+def _fixed_metadata() -> Iterator[None]:
+    """Use ezdxf's fixed dates, GUIDs and version marker within the block."""
+    before = ezdxf.options.write_fixed_meta_data_for_testing
+    ezdxf.options.write_fixed_meta_data_for_testing = True
+    try:
+        yield
+    finally:
+        ezdxf.options.write_fixed_meta_data_for_testing = before
+
+
 def write_dxf(
     toolpath: Toolpath, profile: MachineProfile | None, path: str | Path
 ) -> dict[str, Any]:
     """Write the DXF file atomically; returns entity counts and the file size."""
-    doc = ezdxf.new("R2010", setup=False)
+    with _fixed_metadata():
+        doc = ezdxf.new("R2010", setup=False)
     doc.units = units.MM
     doc.header["$MEASUREMENT"] = 1
     doc.layers.add(BOARD_LAYER, color=8)
@@ -42,7 +58,8 @@ def write_dxf(
         first = auditor.errors[0].message if auditor.errors else "unknown"
         raise ScratchfabError(f"DXF audit failed ({first}); nothing written")
     buffer = io.StringIO()
-    doc.write(buffer)
+    with _fixed_metadata():
+        doc.write(buffer)
     data = buffer.getvalue().encode("utf-8")
     write_bytes(path, data)
     return {
