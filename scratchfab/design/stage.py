@@ -7,7 +7,6 @@ folder (or none) and never half of a new one.
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections.abc import Callable
@@ -28,7 +27,7 @@ from scratchfab.design.targets import (
     warp_to_view,
 )
 from scratchfab.errors import ConfigError
-from scratchfab.fileio import atomic_folder, save_npy, save_png, write_text
+from scratchfab.fileio import atomic_folder, save_npy, save_png, write_json, write_text
 from scratchfab.model.design import Design, design_from_mapping
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
@@ -120,7 +119,7 @@ def run_design(
     count: int | None = None,
     resolution: tuple[int, int] | None = None,
     seed: int | None = None,
-    progress: Progress = print,
+    progress: Progress = lambda _: None,
 ) -> DesignResult:
     """Run the design stage.
 
@@ -212,7 +211,7 @@ def run_design(
             save_png(tmp / "targets" / f"{view.name}.png", preview_png(targets[view.name]))
             save_png(tmp / f"feasibility_{view.name}.png", report.map_image(view.name))
         scratches.save(tmp / "scratches.csv", design.scratch)
-        write_text(tmp / "feasibility.json", json.dumps(report.to_json(), indent=2) + "\n")
+        write_json(tmp / "feasibility.json", report.to_json())
     progress(f"design: wrote {folder} ({time.perf_counter() - start:.1f} s)")
     return DesignResult(folder, resolved, targets, scratches, report)
 

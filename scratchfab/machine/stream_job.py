@@ -290,7 +290,7 @@ def run_stream_job(
     check: bool = False,
     machine: str | MachineProfile | None = None,
     recut_unsure: bool = False,
-    say: Callable[[str], Any] = print,
+    say: Callable[[str], Any] = lambda _: None,
     confirm: Callable[[str], bool] = lambda _: True,
 ) -> Path:
     """The pipeline's stream stage: JOB/export/board.gcode to ``port``.

@@ -219,7 +219,7 @@ def run_pipeline(
     start: str | None = None,
     until: str | None = None,
     force: bool = False,
-    say: Say = print,
+    say: Say = lambda _: None,
     confirm: Confirm | None = None,
 ) -> RunResult:
     """Run the pipeline's stages into ``job``.

@@ -33,7 +33,7 @@ def run_toolpath(
     out_dir: Path,
     machine: str | Path | MachineProfile,
     options: OrderOptions | None = None,
-    say: Callable[[str], Any] = print,
+    say: Callable[[str], Any] = lambda _: None,
 ) -> Toolpath:
     """Plan the strokes of ``scratch_file`` for ``machine``; write toolpath.json and preview.png.
 
@@ -88,7 +88,7 @@ def run_toolpath_job(
     job: Path,
     machine: str | Path | MachineProfile,
     options: OrderOptions | None = None,
-    say: Callable[[str], Any] = print,
+    say: Callable[[str], Any] = lambda _: None,
 ) -> Toolpath:
     """``toolpath JOB``: the job's optimized layout (else the initial one) into JOB/toolpath."""
     scratch_file, design_file, note = job_toolpath_inputs(job)
