@@ -476,6 +476,12 @@ def test_pipeline_out_is_relative_to_the_pipeline_file(tmp_path, monkeypatch):
     assert list(elsewhere.iterdir()) == []
     main(["run", str(path), "--until", "design", "--out", "cli-job"])
     assert (elsewhere / "cli-job" / "design" / "design.toml").is_file()
+    # The same rule for library callers: load_pipeline + Pipeline.job_dir.
+    pipe = load_pipeline(Path("..") / "boards" / path.name)
+    assert pipe.job_dir().resolve() == (folder / "jobs" / "tiny").resolve()
+    assert pipe.job_dir(Path("cli-job")) == Path("cli-job")
+    path.write_text(path.read_text().replace('out = "jobs/tiny"\n', ""))
+    assert load_pipeline(path).job_dir() == Path(f"job-{path.stem}")  # in the current folder
 
 
 def test_recut_unsure_does_not_stream_a_finished_board_again(finished_job):

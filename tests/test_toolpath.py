@@ -311,7 +311,9 @@ def test_order_options_refuse_values_the_search_cannot_take(field, value):
         OrderOptions(**{field: value})
 
 
-@pytest.mark.parametrize(("option", "value"), [("--seed", str(2**40)), ("--kicks", "-1")])
+@pytest.mark.parametrize(
+    ("option", "value"), [("--seed", str(2**40)), ("--kicks", "-1"), ("--passes", "-1")]
+)
 def test_cli_toolpath_refuses_an_option_out_of_range(rng, tmp_path, capsys, option, value):
     job = make_job(tmp_path, rng, optimize=True)
     with pytest.raises(SystemExit) as exc:

@@ -64,12 +64,7 @@ def run(
     JOB/report.html shows the result.
     """
     pipe = load_pipeline(pipeline)
-    if out is not None:
-        job = out
-    elif pipe.pipeline.out is not None:
-        job = pipeline.parent / pipe.pipeline.out  # like the file's targets and machine
-    else:
-        job = Path(f"job-{pipeline.stem}")
+    job = pipe.job_dir(out)
     try:
         result = run_pipeline(
             pipe,

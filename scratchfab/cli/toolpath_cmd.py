@@ -52,6 +52,7 @@ def _inputs(
 )
 @click.option(
     "--passes",
+    type=click.IntRange(0),
     default=OrderOptions.passes,
     show_default=True,
     help="Cap on local-search work (flip chains, Or-opt), in visits per stroke (0: greedy only).",
@@ -87,8 +88,6 @@ def toolpath(
     than the tool's minimum, merges collinear duplicates, orders them to minimise pen-up
     travel from the start position and estimates the machining time.
     """
-    if passes < 0:
-        raise ScratchfabError(f"--passes must be >= 0, got {passes}")
     csv_path, design_path, out_dir = _inputs(job, scratches, design, out)
     options = OrderOptions(passes=passes, seed=seed, kicks=kicks)
     run_toolpath(csv_path, design_path, out_dir, machine, options, say=click.echo)

@@ -164,6 +164,18 @@ class Pipeline:
     design_tables: dict[str, Any] = field(compare=False, repr=False)
     profile: MachineProfile = field(compare=False, repr=False)
 
+    def job_dir(self, out: Path | None = None) -> Path:
+        """The job folder for ``run``.
+
+        ``out`` as given, else ``[pipeline] out`` read relative to this file (like its
+        targets), else ``job-<file name>`` in the current directory.
+        """
+        if out is not None:
+            return out
+        if self.pipeline.out is not None:
+            return self.path.parent / self.pipeline.out
+        return Path(f"job-{self.path.stem}")
+
     def machine_ref(self) -> str:
         """The toolpath machine as named: a bundled name, or its path (resolved)."""
         return _machine_ref(self.toolpath.machine, self.path)
