@@ -8,11 +8,8 @@ from pathlib import Path
 import click
 
 from scratchfab.cli.options import backend_option, job_or_files, job_or_files_options
-from scratchfab.model.design import load_design
 from scratchfab.model.job import job_inputs, stale_layout_warning
-from scratchfab.model.scratches import load_scratches
-from scratchfab.render.layout import write_render_layout
-from scratchfab.render.renderer import render_scratches
+from scratchfab.render.stage import run_render
 
 
 @click.command("render")
@@ -45,14 +42,7 @@ def render(
             click.echo(stale, err=True)
         out_dir = out_dir if out_dir is not None else inputs / "render"
     start = time.perf_counter()
-    design = load_design(design_file)
-    scratches = load_scratches(scratch_file, design.scratch, design.board)
-    click.echo(f"rendering {len(scratches)} scratches, {len(design.views)} views ({backend})")
-    images = render_scratches(
-        design,
-        scratches,
-        backend="cuda" if backend == "cuda" else "llvm",
-        progress=lambda line: click.echo(f"  {line}"),
+    run_render(
+        design_file, scratch_file, out_dir, "cuda" if backend == "cuda" else "llvm", click.echo
     )
-    write_render_layout(out_dir, images)
     click.echo(f"wrote {out_dir} in {time.perf_counter() - start:.1f} s")

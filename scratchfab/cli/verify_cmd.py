@@ -105,14 +105,11 @@ def verify_render(
     metrics.json: per view the relative L2 error against the analytic render, the noise
     estimate, PSNR, rho_kk, crosstalk, spp and time.
     """
-    from scratchfab.model.design import load_design
-    from scratchfab.model.scratches import load_scratches
     from scratchfab.verify.jitter import Tolerance
     from scratchfab.verify.scene import Sky
     from scratchfab.verify.verify import (
         VerifySettings,
-        design_targets,
-        run_verify,
+        run_verify_files,
         run_verify_job,
     )
 
@@ -143,11 +140,7 @@ def verify_render(
     inputs = job_or_files(job, design_file, scratch_file, out_dir)
     if isinstance(inputs, tuple):
         design_file, scratch_file, out = inputs
-        design = load_design(design_file)
-        scratches = load_scratches(scratch_file, design.scratch, design.board)
-        targets, cross = design_targets(design)
-        click.echo(f"verifying {len(scratches)} scratches, {len(design.views)} views ({backend})")
-        run_verify(design, scratches, out, settings, targets=targets, cross=cross, progress=say)
+        run_verify_files(design_file, scratch_file, out, settings, progress=say)
     else:
         out = out_dir if out_dir is not None else inputs / "verify"
         run_verify_job(inputs, settings, progress=say, out_dir=out)

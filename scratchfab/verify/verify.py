@@ -25,7 +25,7 @@ from scratchfab.design.targets import cross_targets, job_cross_targets
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import write_bytes, write_json
 from scratchfab.metrics import quality_report
-from scratchfab.model.design import Design, View
+from scratchfab.model.design import Design, View, load_design
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
 from scratchfab.verify.scene import Sky, board_bsdf, scene_dict, use_variant
@@ -555,6 +555,28 @@ def design_targets(
         return {}, None
     cross = cross_targets(design)
     return {k: img for (k, j), img in cross.items() if k == j}, cross
+
+
+def run_verify_files(
+    design_file: Path,
+    scratch_file: Path,
+    out_dir: Path,
+    settings: VerifySettings = VerifySettings(),
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """``verify-render --design FILE --scratches CSV --out DIR``: :func:`run_verify` on files.
+
+    The targets (for rho and crosstalk) are the design's target pictures, where it names
+    them; the comparison is a fresh analytic render.
+    """
+    design = load_design(design_file)
+    scratches = load_scratches(scratch_file, design.scratch, design.board)
+    targets, cross = design_targets(design)
+    if progress is not None:
+        progress(f"verifying {len(scratches)} scratches, {len(design.views)} views")
+    return run_verify(
+        design, scratches, out_dir, settings, targets=targets, cross=cross, progress=progress
+    )
 
 
 def run_verify_job(
