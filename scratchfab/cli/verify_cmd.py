@@ -101,9 +101,10 @@ def verify_render(
     """Render a board in Mitsuba 3 and compare with the analytic render.
 
     Either JOB (reads JOB/design/design.toml and JOB/optimize/scratches.csv, else
-    JOB/design/scratches.csv; writes JOB/verify/) or --design FILE --scratches CSV --out DIR. Writes <view>.npy and <view>.png like `render`, and
-    metrics.json: per view the relative L2 error against the analytic render, the noise
-    estimate, PSNR, rho_kk, crosstalk, spp and time.
+    JOB/design/scratches.csv; writes JOB/verify/) or --design FILE --scratches CSV --out
+    DIR. Writes <view>.npy and <view>.png like `render`, and metrics.json: per view
+    the relative L2 error against the analytic render, the noise estimate, PSNR,
+    rho_kk, crosstalk, spp and time.
     """
     from scratchfab.verify.jitter import Tolerance
     from scratchfab.verify.scene import Sky
