@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import time
+from dataclasses import FrozenInstanceError, replace
 
 import pytest
 import serial
 
 import scratchfab.machine.sender  # noqa: F401  (registers grblsim://)
+from scratchfab.cli import main
 from scratchfab.machine.grbl_codes import ALARM_CODES, ERROR_CODES, error_meaning
 from scratchfab.machine.grblsim import BANNER, GrblSim, SimOptions
 from scratchfab.machine.grblsim_pty import GrblPty
+from scratchfab.machine.sender_journal import default_journal_path
 
 
 def _open(query: str = "time_scale=0.01") -> serial.SerialBase:
@@ -242,10 +245,71 @@ def test_soft_limit_alarm_locks_until_reset():
         port.close()
 
 
-def test_url_options_are_checked():
-    with pytest.raises(serial.SerialException, match="unknown grblsim option 'bogus'"):
-        _open("bogus=1")
-    assert SimOptions.from_query({"error_at": "5", "$110": "900"}).settings == {110: 900.0}
+BAD_URL_OPTIONS = [
+    ("wco=1,2", "wco: expected x,y,z (3 numbers in mm), got '1,2'"),
+    ("wco=1,x,3", "wco: expected x,y,z (3 numbers in mm), got '1,x,3'"),
+    ("wco=1,2,inf", "wco[2]: expected a finite number, got inf"),
+    ("time_scale=nan", "time_scale: expected a finite number, got nan"),
+    ("time_scale=-1", "time_scale: expected a value at least 0, got -1.0"),
+    ("latency=", "latency: expected a number, got ''"),
+    ("slow=1_0", "slow: expected a number, got '1_0'"),
+    ("error_at=-3", "error_at: expected a value at least 0, got -3"),
+    ("error_at=2.5", "error_at: expected an integer, got '2.5'"),
+    ("error_code=0", "error_code: expected a value in [1, 255], got 0"),
+    ("baud=fast", "baud: expected an integer, got 'fast'"),
+    ("usb_powered=maybe", "usb_powered: expected 1, 0, true, false, yes or no, got 'maybe'"),
+    ("homed=on", "homed: expected 1, 0, true, false, yes or no, got 'on'"),
+    ("boto=1", "unknown key 'boto' (did you mean 'boot'?); valid keys: baud, time_scale"),
+    ("$110=abc", "$110: expected a number at least 0, got 'abc'"),
+    ("$110=-5", "$110: expected a number at least 0, got '-5'"),
+    ("$110=nan", "$110: expected a number at least 0, got 'nan'"),
+    ("$999=1", "$999: not a Grbl 1.1 setting (settings: $0, $1,"),
+    ("settings=1", "settings: set GRBL settings as $N=value"),
+    ("error_at=1&error_at=2", "error_at: given more than once"),
+]
+
+
+@pytest.mark.parametrize(("query", "expected"), BAD_URL_OPTIONS)
+def test_bad_url_option_is_one_line_error(tmp_path, capsys, query, expected):
+    """`scratchfab stream --port grblsim://?...` names the URL, key and value; no traceback."""
+    job = tmp_path / "job.gcode"
+    job.write_text("G21 G90\nG0 X1 Y1\nM2\n")
+    url = f"grblsim://?{query}"
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", url, "--yes"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: port {url!r}: ") and err.count("\n") == 1, err
+    assert expected in err and "Traceback" not in err
+    assert not default_journal_path(job).exists()  # nothing streamed, nothing written
+
+
+@pytest.mark.parametrize(
+    ("query", "expected"),
+    [
+        ("baud=9600", {"baud": 9600}),
+        ("time_scale=0.25&latency=1e-3", {"time_scale": 0.25, "latency": 0.001}),
+        ("error_at=7&error_code=255", {"error_at": 7, "error_code": 255}),
+        ("usb_powered=YES&homed=No&soft_limits=true&wco_field=0",
+         {"usb_powered": True, "homed": False, "soft_limits": True, "wco_field": False}),
+        ("wco=-1.5,2,3e1", {"wco": (-1.5, 2.0, 30.0)}),
+        ("$110=900&$20=1", {"settings": {110: 900.0, 20: 1.0}}),
+        ("record=", {"record": ""}),
+    ],
+)  # fmt: skip
+def test_url_options_parse_to_typed_values(query, expected):
+    port = serial.serial_for_url(f"grblsim://?{query}", baudrate=expected.get("baud", 115200))
+    try:
+        assert port.sim is not None
+        options = port.sim.options
+    finally:
+        port.close()
+    assert options == replace(SimOptions(), **expected)
+    for key, value in expected.items():
+        assert type(getattr(options, key)) is type(value)
+    assert all(type(v) is float for v in options.wco)
+    with pytest.raises(FrozenInstanceError):
+        options.baud = 1  # type: ignore[misc]
 
 
 def test_pty_speaks_grbl_to_pyserial():

@@ -30,10 +30,12 @@ import json
 import math
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field, fields
+import typing
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
+from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim_gcode import (
     Action,
     GcodeError,
@@ -41,6 +43,7 @@ from scratchfab.machine.grblsim_gcode import (
     Settings,
     interpret,
 )
+from scratchfab.model.schema import parse_table, spec
 
 VERSION = "1.1h"
 BUILD = "20190830"
@@ -68,17 +71,18 @@ class LinkDown(Exception):
     """The emulated serial link is gone (fault injection or closed)."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class SimOptions:
     """How the emulator behaves; every field can be set from a ``grblsim://?key=value`` URL.
+
+    Counts of G-code blocks are 1-based since power-up; 0 turns the fault off.
 
     Attributes:
         baud: Line speed for byte timing (10 bits per byte); 0 makes the line instantaneous.
         time_scale: Multiplies motion, dwell, hold and homing times (0.01 = 100x faster).
         latency: One-way link latency in seconds (e.g. a USB frame), added to both directions.
-        error_at: The N-th G-code block (1-based, counted since power-up) answers
-            ``error:<error_code>`` instead of running.
-        error_code: The code for ``error_at``.
+        error_at: The N-th G-code block answers ``error:<error_code>`` instead of running.
+        error_code: The code for ``error_at`` (Grbl sends it as one byte: 1 to 255).
         disconnect_after: After the N-th G-code block is received the link drops; the
             controller keeps running what it already received (the host vanished).
         usb_powered: The controller loses power with the link (``disconnect_after`` or
@@ -90,54 +94,96 @@ class SimOptions:
         boot: Seconds between power-up and the banner.
         soft_limits: Start with ``$20=1`` and ``$22=1`` (so also in ALARM until homed/unlocked).
         homed: With ``soft_limits``: start homed (Idle at ``MPos = -$27`` on every axis).
-        wco: Start with this G54 offset, ``"x,y,z"`` in mm.
+        wco: The G54 offset at power-up in mm; ``x,y,z`` in a URL.
         wco_field: Status reports carry ``WCO:`` (Grbl's compile option
             ``REPORT_FIELD_WORK_COORD_OFFSET``, on by default); off, only ``$#`` tells it.
-        record: Write the event record here (JSONL) when the emulator closes.
-        settings: ``$`` settings overrides, ``{number: value}``.
+        record: Write the event record here (JSONL) when the emulator closes ("": none).
+        settings: ``$`` settings overrides, ``{number: value}``; ``$N=value`` in a URL.
     """
 
-    baud: int = 115200
-    time_scale: float = 1.0
-    latency: float = 0.0
-    error_at: int = 0
-    error_code: int = 20
-    disconnect_after: int = 0
+    baud: int = field(default=115200, metadata=spec(ge=0))
+    time_scale: float = field(default=1.0, metadata=spec(ge=0))
+    latency: float = field(default=0.0, metadata=spec(ge=0))
+    error_at: int = field(default=0, metadata=spec(ge=0))
+    error_code: int = field(default=20, metadata=spec(ge=1, le=255))
+    disconnect_after: int = field(default=0, metadata=spec(ge=0))
     usb_powered: bool = False
-    lose_ok_at: int = 0
-    reset_after: int = 0
-    slow: float = 0.0
-    boot: float = 0.0
+    lose_ok_at: int = field(default=0, metadata=spec(ge=0))
+    reset_after: int = field(default=0, metadata=spec(ge=0))
+    slow: float = field(default=0.0, metadata=spec(ge=0))
+    boot: float = field(default=0.0, metadata=spec(ge=0))
     soft_limits: bool = False
     homed: bool = False
-    wco: str = ""
+    wco: tuple[float, float, float] = (0.0, 0.0, 0.0)
     wco_field: bool = True
     record: str = ""
     settings: dict[int, float] = field(default_factory=dict)
 
     @classmethod
-    def from_query(cls, query: dict[str, str]) -> SimOptions:
-        """Options from URL query pairs; unknown keys raise ValueError naming the key."""
-        kinds = {f.name: f.type for f in fields(cls)}
-        kwargs: dict[str, Any] = {}
+    def from_query(cls, query: Mapping[str, str], url: str = "grblsim://") -> SimOptions:
+        """Options from the query pairs of ``url``, every value checked now.
+
+        Raises:
+            ConfigError: One line naming ``url``, the key, the value and what is expected
+                (an unknown key also gets the nearest valid one).
+        """
+        source = f"port {url!r}"
+        hints = typing.get_type_hints(cls)
+        data: dict[str, Any] = {}
         overrides: dict[int, float] = {}
         for key, raw in query.items():
+            where = f"{source}: {key}"
             if key.startswith("$") and key[1:].isdigit():
-                overrides[int(key[1:])] = float(raw)
-                continue
-            if key not in kinds or key == "settings":
-                known = ", ".join(sorted(k for k in kinds if k != "settings"))
-                raise ValueError(f"unknown grblsim option {key!r} (known: {known}, $N)")
-            kind = str(kinds[key])
-            if kind == "bool":
-                kwargs[key] = raw.lower() in ("1", "true", "yes", "on")
-            elif kind == "int":
-                kwargs[key] = int(raw)
-            elif kind == "float":
-                kwargs[key] = float(raw)
+                number = int(key[1:])
+                if number not in DEFAULT_SETTINGS:
+                    known = ", ".join(f"${k}" for k in DEFAULT_SETTINGS)
+                    raise ConfigError(f"{where}: not a Grbl 1.1 setting (settings: {known})")
+                value = _number_from_text(raw, float)
+                if value is None or not math.isfinite(value) or value < 0:
+                    raise ConfigError(f"{where}: expected a number at least 0, got {raw!r}")
+                overrides[number] = value
+            elif key == "settings":
+                raise ConfigError(f"{where}: set GRBL settings as $N=value (e.g. $110=900)")
+            elif key in hints:
+                data[key] = _value_from_text(raw, hints[key], where)
             else:
-                kwargs[key] = raw
-        return cls(settings=overrides, **kwargs)
+                data[key] = raw  # parse_table names it with the nearest valid key
+        data["settings"] = overrides
+        return parse_table(cls, data, source)
+
+
+_TRUE = ("1", "true", "yes")
+_FALSE = ("0", "false", "no")
+
+
+def _number_from_text(raw: str, kind: type[int] | type[float]) -> float | None:
+    """``raw`` as a plain ASCII int or float (non-finite floats included), else None."""
+    if not raw.isascii() or raw != raw.strip() or "_" in raw:
+        return None
+    try:
+        return kind(raw)
+    except ValueError:
+        return None
+
+
+def _value_from_text(raw: str, tp: Any, where: str) -> Any:
+    """A URL query value as the field type ``tp``; parse_table then checks finiteness and bounds."""
+    if tp is bool:
+        if raw.lower() in _TRUE + _FALSE:
+            return raw.lower() in _TRUE
+        raise ConfigError(f"{where}: expected 1, 0, true, false, yes or no, got {raw!r}")
+    if tp is int or tp is float:
+        value = _number_from_text(raw, tp)
+        if value is None:
+            words = "an integer" if tp is int else "a number"
+            raise ConfigError(f"{where}: expected {words}, got {raw!r}")
+        return value
+    if tp == tuple[float, float, float]:
+        parts = [_number_from_text(v, float) for v in raw.split(",")]
+        if len(parts) != 3 or None in parts:
+            raise ConfigError(f"{where}: expected x,y,z (3 numbers in mm), got {raw!r}")
+        return tuple(parts)
+    return raw
 
 
 @dataclass
@@ -189,9 +235,7 @@ class GrblSim:
         self.settings.update(self.options.settings)
         self.startup_lines = ["", ""]
         self._offsets: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * 6
-        if self.options.wco:
-            x, y, z = (float(v) for v in self.options.wco.split(","))
-            self._offsets[0] = (x, y, z)
+        self._offsets[0] = self.options.wco
         self.g28 = (0.0, 0.0, 0.0)
         self.g30 = (0.0, 0.0, 0.0)
         self.mpos: tuple[float, float, float] = (0.0, 0.0, 0.0)

@@ -3,7 +3,8 @@
 ``serial.serial_for_url("grblsim://?time_scale=0.01&error_at=500")`` looks for a module
 named ``protocol_grblsim`` in ``serial.protocol_handler_packages``; importing
 :mod:`scratchfab.machine.sender` adds ``scratchfab.machine`` to that list. Query keys are the
-fields of :class:`~scratchfab.machine.grblsim.SimOptions` plus ``$N=value`` setting overrides.
+fields of :class:`~scratchfab.machine.grblsim.SimOptions` plus ``$N=value`` setting overrides,
+all checked on opening (a bad one raises :class:`~scratchfab.errors.ConfigError`).
 Opening the port powers the emulator up (like the DTR reset of an Arduino); closing it lets the
 controller finish what it received, then writes its record. The emulator is :attr:`Serial.sim`.
 """
@@ -16,6 +17,7 @@ from typing import Any
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
+from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim import GrblSim, LinkDown, SimOptions
 
 
@@ -29,7 +31,11 @@ class Serial(SerialBase):
         super().__init__(*args, **kwargs)
 
     def open(self) -> None:
-        """Create and power up the emulator described by the URL."""
+        """Create and power up the emulator described by the URL.
+
+        Raises:
+            ConfigError: A bad option in the URL (one line naming the URL and the key).
+        """
         if self.is_open:
             raise SerialException("Port is already open.")
         if self._port is None:
@@ -37,13 +43,13 @@ class Serial(SerialBase):
         parts = urllib.parse.urlsplit(self.portstr or "")
         if parts.scheme != "grblsim":
             raise SerialException(f"expected a grblsim:// URL, got {self.portstr!r}")
-        query = dict(urllib.parse.parse_qsl(parts.query, keep_blank_values=True))
+        query: dict[str, str] = {}
+        for key, value in urllib.parse.parse_qsl(parts.query, keep_blank_values=True):
+            if key in query:
+                raise ConfigError(f"port {self.portstr!r}: {key}: given more than once")
+            query[key] = value
         query.setdefault("baud", str(self._baudrate))
-        try:
-            options = SimOptions.from_query(query)
-        except ValueError as exc:
-            raise SerialException(f"grblsim://: {exc}") from exc
-        self.sim = GrblSim(options)
+        self.sim = GrblSim(SimOptions.from_query(query, self.portstr or ""))
         self.sim.start()
         self.is_open = True
 
