@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-from scratchfab.cli.options import FiniteFloat
-from scratchfab.design.quick import parse_resolution, parse_size, quick_design
+from scratchfab.cli.options import FiniteFloat, SizePair
+from scratchfab.design.quick import quick_design
 from scratchfab.design.stage import run_design
 from scratchfab.errors import ConfigError
 from scratchfab.model.design import Design
@@ -18,7 +18,13 @@ from scratchfab.model.design import Design
 @click.option(
     "--out", "-o", "out", required=True, type=click.Path(file_okay=False), help="Job folder."
 )
-@click.option("--board", default=None, help="Quick form: board size WxH in mm (default 100x100).")
+@click.option(
+    "--board",
+    type=SizePair(),
+    metavar="WxH",
+    default=None,
+    help="Quick form: board size WxH in mm (default 100x100).",
+)
 @click.option(
     "--fit",
     type=click.Choice(["contain", "cover"]),
@@ -40,7 +46,12 @@ from scratchfab.model.design import Design
     help="Contrast about the mean.",
 )
 @click.option("--count", type=click.IntRange(min=1), default=None, help="Number of scratches.")
-@click.option("--resolution", default=None, help="Camera pixels per view: N or WxH.")
+@click.option(
+    "--resolution",
+    type=SizePair(whole=True),
+    default=None,
+    help="Camera pixels per view: N or WxH.",
+)
 @click.option(
     "--seed",
     type=click.IntRange(min=0),
@@ -51,12 +62,12 @@ from scratchfab.model.design import Design
 def design(
     inputs: tuple[str, ...],
     out: str,
-    board: str | None,
+    board: tuple[float, float] | None,
     fit: str | None,
     gamma: float,
     contrast: float,
     count: int | None,
-    resolution: str | None,
+    resolution: tuple[int, int] | None,
     seed: int | None,
     force: bool | None,
 ) -> None:
@@ -69,7 +80,7 @@ def design(
     Writes JOB/design/: design.toml, targets/, board/, scratches.csv and the
     feasibility report; the quick form's design.toml can start the next run.
     """
-    res = parse_resolution(resolution) if resolution is not None else None
+    res = resolution
     toml = [p for p in inputs if p.lower().endswith(".toml")]
     if toml:
         if len(inputs) != 1:
@@ -80,8 +91,7 @@ def design(
             )
         source: str | Design = inputs[0]
     else:
-        size = parse_size(board, "--board") if board is not None else (100.0, 100.0)
-        source = quick_design([Path(p) for p in inputs], size, count, res)
+        source = quick_design([Path(p) for p in inputs], board or (100.0, 100.0), count, res)
         res = None
     result = run_design(
         source,

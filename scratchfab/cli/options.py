@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -31,6 +32,41 @@ class FiniteFloat(click.FloatRange):
         if self.min is None and self.max is None:
             return ""
         return super()._describe_range()
+
+
+_SIZE_RE = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*[xX*]\s*([0-9]*\.?[0-9]+)\s*(mm)?\s*$")
+
+
+class SizePair(click.ParamType):
+    """``WxH``: two positive numbers (a board in mm, ``100x80`` or ``100x80mm``; or pixels).
+
+    Args:
+        whole: Whole numbers only (camera pixels); a single ``N`` then means ``NxN``.
+    """
+
+    def __init__(self, whole: bool = False) -> None:
+        self.whole = whole
+        self.name = "N or WxH" if whole else "WxH"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        """The pair, or a usage error naming the option."""
+        if isinstance(value, tuple):
+            return value
+        text = str(value).strip()
+        if self.whole and text.isdigit():
+            text = f"{text}x{text}"
+        match = _SIZE_RE.match(text)
+        if not match or (self.whole and match.group(3)):
+            example = "128 or 128x96" if self.whole else "100x100"
+            self.fail(f"expected {self.name} such as {example}, got {value!r}", param, ctx)
+        w, h = float(match.group(1)), float(match.group(2))
+        if self.whole:
+            if w != int(w) or h != int(h) or w < 1 or h < 1:
+                self.fail(f"expected whole pixel counts of at least 1, got {value!r}", param, ctx)
+            return int(w), int(h)
+        if w <= 0 or h <= 0:
+            self.fail(f"both sizes must be positive, got {value!r}", param, ctx)
+        return w, h
 
 
 #: ``--backend llvm|cuda`` of the commands that run Dr.Jit kernels.

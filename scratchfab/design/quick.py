@@ -32,33 +32,6 @@ BASE_DISTANCE_MM = 500.0
 #: Quick-form camera resolution (pixels along the long side).
 DEFAULT_RESOLUTION = 128
 
-_SIZE_RE = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*[xX*]\s*([0-9]*\.?[0-9]+)\s*(mm)?\s*$")
-
-
-def parse_size(text: str, what: str) -> tuple[float, float]:
-    """Parse ``"WxH"`` (optionally ending in ``mm``) into two positive numbers."""
-    match = _SIZE_RE.match(text)
-    if not match:
-        raise ConfigError(f"{what}: expected WIDTHxHEIGHT such as 100x100, got {text!r}")
-    w, h = float(match.group(1)), float(match.group(2))
-    if w <= 0 or h <= 0:
-        raise ConfigError(f"{what}: both sizes must be positive, got {text!r}")
-    return w, h
-
-
-def parse_resolution(text: str) -> tuple[int, int]:
-    """``"N"`` (square) or ``"WxH"`` camera pixels."""
-    t = text.strip()
-    if t.isdigit():
-        n = int(t)
-        if n < 1:
-            raise ConfigError(f"--resolution: expected a positive number of pixels, got {text!r}")
-        return n, n
-    w, h = parse_size(t, "--resolution")
-    if w != int(w) or h != int(h) or w < 1 or h < 1:
-        raise ConfigError(f"--resolution: expected whole pixel counts such as 128x96, got {text!r}")
-    return int(w), int(h)
-
 
 def view_name(path: Path, taken: set[str]) -> str:
     """A file-name-safe, unique view name from an image's file name."""
@@ -92,7 +65,7 @@ def quick_mapping(
     try:
         board = Board(width_mm=width, height_mm=height)
     except ValueError as exc:
-        raise ConfigError(f"--board: {exc}") from None
+        raise ConfigError(f"quick form: board {width:g} x {height:g} mm: {exc}") from None
     tool = ScratchTool()
     az = camera_azimuth_deg(tool)
     distance = BASE_DISTANCE_MM * max(1.0, max(width, height) / 100.0)
