@@ -30,10 +30,9 @@ def spec(
     ge: float | None = None,
     lt: float | None = None,
     le: float | None = None,
-    doc: str = "",
 ) -> dict[str, Any]:
     """Metadata for a dataclass field: numeric bounds checked by :func:`parse_table`."""
-    return {"gt": gt, "ge": ge, "lt": lt, "le": le, "doc": doc}
+    return {"gt": gt, "ge": ge, "lt": lt, "le": le}
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:

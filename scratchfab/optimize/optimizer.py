@@ -106,8 +106,8 @@ class LayoutOptimizer:
         self.views = [v for v in design.views if v.name in targets]
         self.renderers = [ViewRenderer(design, v, m) for v in self.views]
         #: The renderer's float type (float64: its closed form needs the precision).
-        self.Float = self.renderers[0].Float if self.renderers else m.Float64
-        self.dtype = np.float64 if self.Float is m.Float64 else np.float32
+        self.Float = m.Float64
+        self.dtype = np.float64
         F = self.Float
         self.target_np = {v.name: np.asarray(targets[v.name], dtype=np.float64) for v in self.views}
         self._targets = []
@@ -140,8 +140,9 @@ class LayoutOptimizer:
         )
         self.ends = self._ends_np()
         self.refresh_ends: np.ndarray | None = None
-        self.pairs: list[Any] = []
+        self.pairs: list[Pairs] = []
         self.neighbours: tuple[Any, Any] | None = None
+        self._neighbour_count = 0
 
     # ------------------------------------------------------------------ state
     def _ends_np(self) -> np.ndarray:
@@ -204,26 +205,13 @@ class LayoutOptimizer:
         e = ends.astype(np.float64)
         p0, p1 = e[:, 0:2], e[:, 2:4]
         half = self.width / 2
-        self.pairs = [
-            self._aligned(r.find_pairs(p0, p1, half, self.margin)) for r in self.renderers
-        ]
+        self.pairs = [r.find_pairs(p0, p1, half, self.margin) for r in self.renderers]
         reach = self.tool_width + 2 * (self.margin - float(np.max(half)))
         slack = 2 * self.settings.refresh_every * float(self.settings.lr["theta"])
         i, j = neighbour_pairs(p0, p1, reach, slack)
         U = self.m.UInt32
         self.neighbours = (jit_array(U, i, np.uint32), jit_array(U, j, np.uint32))
         self._neighbour_count = len(i)
-
-    def _aligned(self, pairs: Pairs) -> Pairs:
-        """The same pairs in aligned Dr.Jit arrays (see :func:`params.jit_array`)."""
-        U = self.m.UInt32
-        return Pairs(
-            jit_array(U, pairs.pixel_np, np.uint32),
-            jit_array(U, pairs.scratch_np, np.uint32),
-            pairs.pixel_np,
-            pairs.scratch_np,
-            pairs.margin_mm,
-        )
 
     def pair_counts(self) -> list[int]:
         """Number of pairs per view in use."""
@@ -270,14 +258,13 @@ class LayoutOptimizer:
         if not self.pairs or self.iteration % self.settings.refresh_every == 0:
             self._refresh(self.ends)
         raw = [self.opt[k] for k in KEYS]
-        before = [dr.detach(v) for v in raw]
         loss, errors, renders, _ends = self._forward(raw)
         dr.backward(loss)
         saved = {k: self.opt.state[k] for k in KEYS}
         self.opt.step(eval=False)
         with dr.suspend_grad():
             new_ends = endpoints(*self._projected())
-        dr.schedule(loss, errors, renders, new_ends, before)
+        dr.schedule(loss, errors, renders, new_ends)
         dr.eval()
         loss_value = float(loss[0])
         images = {
@@ -315,13 +302,10 @@ class LayoutOptimizer:
         with dr.suspend_grad():
             raw = [jit_array(self.Float, params[k], self.dtype) for k in KEYS]
             saved_pairs, saved_nb = self.pairs, self.neighbours
-            saved_count = getattr(self, "_neighbour_count", 0)
+            saved_count = self._neighbour_count
             try:
                 half = layout.width / 2
-                self.pairs = [
-                    self._aligned(r.find_pairs(layout.p0, layout.p1, half, 0.0))
-                    for r in self.renderers
-                ]
+                self.pairs = [r.find_pairs(layout.p0, layout.p1, half, 0.0) for r in self.renderers]
                 i, j = neighbour_pairs(layout.p0, layout.p1, self.tool_width)
                 U = m.UInt32
                 self.neighbours = (jit_array(U, i, np.uint32), jit_array(U, j, np.uint32))

@@ -136,8 +136,9 @@ def pair_margin(lr: dict[str, float], max_length: float, steps: int, half_width:
     Every point of a moved scratch rectangle lies within D + w of the old segment, where
     D bounds the endpoint motion (a point (1 - s) p0' + s p1' is within D of
     (1 - s) p0 + s p1, and the rectangle adds at most w across). The old rectangle grown
-    by D + w on every side contains all such points. A relative 1e-4 and 1e-4 mm of slack
-    absorb float32 rounding of the stored coordinates.
+    by D + w on every side contains all such points. That holds in exact arithmetic; a
+    relative 1e-4 and 1e-4 mm of slack absorb the float64 rounding of the computed steps,
+    endpoints (Dr.Jit's sin and cos) and rectangle corners.
     """
     reach = steps * max_step_mm(lr, max_length) + half_width
     return reach * (1 + 1e-4) + 1e-4

@@ -76,7 +76,7 @@ def removal_effect(opt: LayoutOptimizer, layout: ScratchSet) -> np.ndarray:
     m = opt.m
     n = len(layout)
     half = layout.width / 2
-    pairs = [opt._aligned(r.find_pairs(layout.p0, layout.p1, half, 0.0)) for r in opt.renderers]
+    pairs = [r.find_pairs(layout.p0, layout.p1, half, 0.0) for r in opt.renderers]
     offsets = np.cumsum([0] + [r.pixel_count for r in opt.renderers])
     rows = np.concatenate([p.scratch_np for p in pairs])
     cols = np.concatenate([p.pixel_np + off for p, off in zip(pairs, offsets, strict=False)])
@@ -95,7 +95,7 @@ def removal_effect(opt: LayoutOptimizer, layout: ScratchSet) -> np.ndarray:
             target = opt.target_np[v.name].ravel()
             ok = np.isfinite(target)
             t = np.where(ok, target, 0.0)
-            empty = Pairs(m.UInt32(), m.UInt32(), np.zeros(0, np.int64), np.zeros(0, np.int64), 0.0)
+            empty = Pairs(m.UInt32(), m.UInt32(), np.zeros(0, np.uint32), np.zeros(0, np.uint32))
             bare = np.asarray(r.render(p0x, p0y, p1x, p1y, hw, wbar, empty), np.float64)
             full = np.asarray(r.render(p0x, p0y, p1x, p1y, hw, wbar, p), np.float64)
             full = np.where(ok, full, 0.0)
@@ -110,7 +110,6 @@ def removal_effect(opt: LayoutOptimizer, layout: ScratchSet) -> np.ndarray:
                     jit_array(m.UInt32, p.scratch_np[sel], np.uint32),
                     p.pixel_np[sel],
                     p.scratch_np[sel],
-                    0.0,
                 )
                 img = np.asarray(r.render(p0x, p0y, p1x, p1y, hw, wbar, sub), np.float64)
                 contrib[sel] = (img - bare)[p.pixel_np[sel]]

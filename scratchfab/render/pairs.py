@@ -35,14 +35,12 @@ class Pairs:
         scratch: Dr.Jit UInt32 scratch indices.
         pixel_np: The same pixel indices in numpy uint32 (read-only).
         scratch_np: The same scratch indices in numpy uint32 (read-only).
-        margin_mm: The margin the scratch rectangles were grown by.
     """
 
     pixel: Any
     scratch: Any
     pixel_np: np.ndarray
     scratch_np: np.ndarray
-    margin_mm: float
 
     def __len__(self) -> int:
         return len(self.pixel_np)

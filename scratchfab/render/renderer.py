@@ -169,7 +169,6 @@ class ViewRenderer:
             jit_array(self.m.UInt32, scratch_np, np.uint32),
             pixel_np,
             scratch_np,
-            float(margin_mm),
         )
 
     @property

@@ -27,20 +27,13 @@ def exposure(image: np.ndarray) -> float:
     positive = values[np.isfinite(values) & (values > 0)]
     if positive.size == 0:
         return 1.0
-    e = float(np.percentile(positive, WHITE_PERCENTILE))
-    return e if e > 0 else float(positive.max())
+    return float(np.percentile(positive, WHITE_PERCENTILE))
 
 
 def srgb_encode(v: np.ndarray) -> np.ndarray:
     """The sRGB transfer curve on linear values in [0, 1]."""
     v = np.clip(v, 0.0, 1.0)
     return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
-
-
-def srgb_decode(v: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`srgb_encode`."""
-    v = np.clip(np.asarray(v, dtype=np.float64), 0.0, 1.0)
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
 
 
 def tone_map(image: np.ndarray, exposure_value: float | None = None) -> tuple[np.ndarray, float]:
