@@ -171,6 +171,16 @@ def check_event(ev: dict[str, Any], blocks: int | None, where: str) -> int | Non
     return blocks
 
 
+def last_fresh_start(events: Sequence[dict[str, Any]]) -> int:
+    """Index of the last fresh (non-resume) start event, else of the first start, else 0.
+
+    The runs before it no longer count for a resume (a fresh start cut the board anew).
+    """
+    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
+    fresh = [k for k in starts if not events[k].get("resume")]
+    return fresh[-1] if fresh else (starts[0] if starts else 0)
+
+
 def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     """All complete events of a journal (a cut-off last line is skipped).
 
@@ -207,10 +217,7 @@ def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
         return events
     if events[0].get("ev") != "start":
         raise _expected(f"{p}:1", "ev", '"start" (a journal begins with one)', events[0].get("ev"))
-    fresh = [
-        k for k, ev in enumerate(events) if ev.get("ev") == "start" and ev.get("resume") is False
-    ]
-    first = fresh[-1] if fresh else 0
+    first = last_fresh_start(events)
     if first > 0:
         check_event(events[0], None, f"{p}:1")
     blocks: int | None = None
@@ -292,8 +299,7 @@ def done_blocks(
     starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
     if not starts:
         raise ConfigError(f"{path}: journal has no start event")
-    fresh = [k for k in starts if not events[k].get("resume")]
-    first = fresh[-1] if fresh else starts[0]  # runs before a fresh start no longer count
+    first = last_fresh_start(events)  # runs before a fresh start no longer count
     done: set[int] = set()
     session: set[int] = set()
     for k, ev in enumerate(events[first:], start=first):

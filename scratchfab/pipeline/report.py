@@ -227,9 +227,14 @@ def _export_section(job: Path) -> str:
 def _stream_section(job: Path) -> str:
     """What the journal's last run of streams (since its last fresh start) acknowledged."""
     from scratchfab.errors import ConfigError
-    from scratchfab.machine.sender_journal import done_blocks, interrupted, read_journal
+    from scratchfab.machine.sender_journal import (
+        default_journal_path,
+        done_blocks,
+        interrupted,
+        read_journal,
+    )
 
-    journal = job / "stream" / "journal.jsonl"
+    journal = default_journal_path(job / "export" / "board.gcode")
     if not journal.is_file():
         return "<p class='muted'>not streamed.</p>"
     try:
