@@ -7,7 +7,7 @@ like the design itself.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -139,7 +139,8 @@ def parse_stage_tables(data: Mapping[str, Any], source: str) -> StageTables:
     Raises:
         ConfigError: Naming ``source`` and the dotted key on any mistake.
     """
-    stage_data = {k: v for k, v in data.items() if k in StageTables.__dataclass_fields__}
+    tables = {f.name for f in fields(StageTables)}
+    stage_data = {k: v for k, v in data.items() if k in tables}
     return parse_table(StageTables, stage_data, source)
 
 
