@@ -289,6 +289,34 @@ def test_compare_with_profile_and_soft_limits(tmp_path):
     assert ok.refusals == []
 
 
+@pytest.mark.parametrize(
+    ("text", "clamped"),
+    [
+        ("G21G90\nG1X1F900\n", {"X": 900.0}),  # mm/min as written
+        ("G20G90\nG1X1F40\n", {"X": 1016.0}),  # 40 in/min is 1016 mm/min
+        ("G20G90\nG1X1F30\n", {}),  # 762 mm/min: within $110
+        ("G21G90\nG1X3Y4F1000\n", {}),  # X at 600, Y at 800 mm/min
+        ("G21G90\nG1X3Y4F1100\n", {"Y": 880.0}),  # X at 660, Y at 880
+        ("G21G90\nG0Z0\nG1Z-1F200\nG1X10F700\n", {}),  # Z moves at 200, X at 700
+        ("G21G90\nG0Z0\nG1Z-1F400\n", {"Z": 400.0}),
+        ("G21G90\nG0X-5Y0\nG2X5Y0I5J0F900\n", {"X": 900.0, "Y": 900.0}),  # arc: full feed
+        ("G21G90G93\nG1X1F5000\n", {}),  # inverse time: F is 1/min, not a speed
+        ("G21G90\nG0X100F5000\n", {}),  # G0 runs at the max rates by definition
+    ],
+)
+def test_compare_warns_of_axis_speeds_above_grbl_max_rates(tmp_path, text, clamped):
+    """Each axis' speed in mm/min, whatever the file's units, against its own ``$11x``."""
+    job = tmp_path / "j.gcode"
+    job.write_text(text)
+    found = compare({20: 0, 22: 1, 110: 800, 111: 800, 112: 300}, None, load_program(job))
+    rates = {"X": 800, "Y": 800, "Z": 300}
+    assert [w for w in found.warnings if "GRBL clamps it" in w] == [
+        f"the job moves {axis} at up to {speed:g} mm/min but GRBL's ${110 + 'XYZ'.index(axis)}="
+        f"{rates[axis]} mm/min: GRBL clamps it, the job runs slower"
+        for axis, speed in clamped.items()
+    ]
+
+
 def _arc_samples(start, end, cw, ij=None, r=None, n=20001):
     """Points along a G17 arc, centre by circle intersection (R) or offset (I, J)."""
     start, end = np.asarray(start, float), np.asarray(end, float)

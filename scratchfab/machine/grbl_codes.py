@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+#: Millimetres per inch: GRBL's inch mode (G20) and inch reports (``$13=1``).
+MM_PER_INCH = 25.4
+
 #: ``error:N`` -> meaning. Codes 18 and 19 are unused in Grbl 1.1.
 ERROR_CODES: dict[int, str] = {
     1: "G-code words consist of a letter and a value; the letter was not found",

@@ -37,6 +37,7 @@ from typing import Any
 
 from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim_gcode import (
+    MM_PER_INCH,
     Action,
     GcodeError,
     ModalState,
@@ -848,7 +849,7 @@ class GrblSim:
             )
         rate = self._planner[0].rate if self.state in ("Run", "Jog") and self._planner else 0.0
         if inches:
-            fields_.append(f"FS:{rate / 25.4:.1f},{self._spindle_speed:.0f}")
+            fields_.append(f"FS:{rate / MM_PER_INCH:.1f},{self._spindle_speed:.0f}")
         else:
             fields_.append(f"FS:{rate:.0f},{self._spindle_speed:.0f}")
         busy = self.state in ("Run", "Jog", "Hold", "Home")
@@ -1007,7 +1008,7 @@ class GrblSim:
             g.spindle,
             " ".join(sorted(g.coolant)) or "M9",
             f"T{g.tool}",
-            f"F{g.feed / (25.4 if g.inches else 1.0):g}",
+            f"F{g.feed / (MM_PER_INCH if g.inches else 1.0):g}",
             f"S{g.spindle_speed:g}",
         ]
         return "[GC:" + " ".join(parts) + "]\r\n"
@@ -1041,7 +1042,7 @@ def _r(p: tuple[float, float, float]) -> list[float]:
 
 def _fmt(p: tuple[float, ...], inches: bool) -> str:
     if inches:
-        return ",".join(f"{v / 25.4:.4f}" for v in p)
+        return ",".join(f"{v / MM_PER_INCH:.4f}" for v in p)
     return ",".join(f"{v:.3f}" for v in p)
 
 

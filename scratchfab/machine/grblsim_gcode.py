@@ -13,7 +13,8 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
-MM_PER_INCH = 25.4
+from scratchfab.machine.grbl_codes import MM_PER_INCH
+
 MAX_LINE_NUMBER = 10_000_000
 MAX_TOOL_NUMBER = 255
 _AXES = "XYZ"

@@ -37,7 +37,7 @@ from typing import Any, Protocol
 import serial
 
 from scratchfab.errors import ScratchfabError
-from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
+from scratchfab.machine.grbl_codes import MM_PER_INCH, alarm_meaning, error_meaning
 from scratchfab.machine.sender_journal import Journal
 from scratchfab.machine.sender_program import Block, Modal, Program
 
@@ -395,7 +395,7 @@ class Streamer:
         in inches (``$13=1``) are converted to mm. Leaves ``info.wco`` None when neither
         works.
         """
-        scale = 25.4 if self.info.settings.get(13, 0) else 1.0
+        scale = MM_PER_INCH if self.info.settings.get(13, 0) else 1.0
         try:
             params = self._command("$#")
             modal = self._command("$G")

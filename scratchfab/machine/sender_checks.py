@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from scratchfab.machine.sender_program import Program
+from scratchfab.machine.sender_program import Modal, Program
 
 _AXES = "XYZ"
 
@@ -70,6 +71,30 @@ def job_extent(program: Program) -> tuple[list[float], list[float]]:
             lo[0], hi[0] = min(lo[0], x_lo), max(hi[0], x_hi)
             lo[1], hi[1] = min(lo[1], y_lo), max(hi[1], y_hi)
     return lo, hi
+
+
+def axis_feeds(program: Program) -> list[float]:
+    """The highest speed (mm/min) the job's feed moves ask of each axis, X, Y and Z.
+
+    A G1 move at feed F runs each axis at F times its share of the move's length, which
+    GRBL clamps to the axis' max rate ``$11x``. Arcs (G17) count at the full feed on X and Y.
+    G0 runs at the max rates by definition, and G93's F is not a speed, so neither counts.
+    """
+    fastest = [0.0, 0.0, 0.0]
+    prev = Modal()
+    for b in program.blocks:
+        m = b.modal
+        if b.motion and not b.unfollowed and m.feed_mode == "G94" and m.motion != "G0":
+            dz = 0.0 if m.z is None or prev.z is None else m.z - prev.z
+            delta = (m.x - prev.x, m.y - prev.y, dz)
+            length = math.hypot(*delta)
+            share = [abs(d) / length if length > 0 else 0.0 for d in delta]
+            if m.motion in ("G2", "G3"):
+                share[0] = share[1] = 1.0
+            for k in range(3):
+                fastest[k] = max(fastest[k], m.feed_mm * share[k])
+        prev = m
+    return fastest
 
 
 def compare(
@@ -171,13 +196,10 @@ def compare(
                     f"the job's {axis} range is {m_lo:g}..{m_hi:g} mm in machine coordinates "
                     f"(work offset {wco[k]:g}); GRBL soft limits allow -{t:g}..0 (ALARM:2)"
                 )
-    fastest = max(
-        (b.modal.feed * (25.4 if b.modal.inches else 1.0) for b in program.blocks), default=0.0
-    )
-    limit = min((r for r in rates if r is not None), default=None)
-    if limit is not None and fastest > limit + tolerance:
-        out.warnings.append(
-            f"the job asks for F{fastest:g} mm/min but GRBL's max rates are "
-            f"{'/'.join(f'{r:g}' for r in rates if r is not None)} mm/min: GRBL clamps it"
-        )
+    for k, (asked, rate) in enumerate(zip(axis_feeds(program), rates, strict=True)):
+        if rate is not None and asked > rate + tolerance:
+            out.warnings.append(
+                f"the job moves {_AXES[k]} at up to {asked:g} mm/min but GRBL's "
+                f"${110 + k}={rate:g} mm/min: GRBL clamps it, the job runs slower"
+            )
     return out

@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import read_input
+from scratchfab.machine.grbl_codes import MM_PER_INCH
 from scratchfab.machine.profile import gcode_number
 
 MAX_BLOCK_CHARS = 79
@@ -71,6 +72,16 @@ class Modal:
     x: float = 0.0
     y: float = 0.0
     z: float | None = None  # unknown until the program sets it
+
+    @property
+    def mm_per_unit(self) -> float:
+        """Millimetres per unit of the file's coordinates and feeds (G20 inch or G21 mm)."""
+        return MM_PER_INCH if self.inches else 1.0
+
+    @property
+    def feed_mm(self) -> float:
+        """The feed in mm/min (or inverse time under G93, where units do not apply)."""
+        return self.feed * self.mm_per_unit if self.feed_mode == "G94" else self.feed
 
 
 @dataclass(frozen=True)
@@ -275,7 +286,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
             arc[letter] = value
     if nonmodal in ("G4", "G10", "G28.1", "G30.1"):
         sync = True
-    scale = 25.4 if s.inches else 1.0
+    scale = s.mm_per_unit
     motion = False
     seconds = dwell
     box = None
@@ -292,7 +303,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
             seconds += _rapid_seconds(rapid, rapid_mm_min)
         else:
             dist = math.dist(start, end)
-            rate = s.feed * scale if s.feed_mode == "G94" else dist * s.feed
+            rate = s.feed_mm if s.feed_mode == "G94" else dist * s.feed
             seconds += dist / rate * 60.0 if rate > 0 and math.isfinite(rate) else 0.0
         if s.motion in ("G2", "G3") and s.plane == "G17":
             box = _arc_box(start[:2], (end[0], end[1]), arc, s.motion == "G2", scale)
@@ -482,7 +493,7 @@ def travel_move(program: Program, start: int) -> tuple[str, float]:
             continue
         m = b.modal
         if m.motion == "G1" and m.feed_mode == "G94" and m.feed > 0:
-            return "G1", m.feed * (25.4 if m.inches else 1.0)
+            return "G1", m.feed_mm
         return "G0", 0.0
     return "G0", 0.0
 
