@@ -10,6 +10,7 @@ from scratchfab.errors import ScratchfabError
 from scratchfab.export import FORMATS, WRITERS, format_for
 from scratchfab.export import export as export_toolpath
 from scratchfab.machine.profile import load_profile
+from scratchfab.model.job import JobLayout
 from scratchfab.toolpath import Toolpath
 
 
@@ -58,13 +59,13 @@ def export(
     if toolpath_file is None:
         if job is None:
             raise ScratchfabError("give a JOB folder or --toolpath FILE")
-        toolpath_file = job / "toolpath" / "toolpath.json"
+        toolpath_file = JobLayout(job).toolpath_json
     if output is None:
         if fmt is None:
             raise ScratchfabError(f"give --format ({', '.join(FORMATS)}) or -o FILE")
         if job is None:
             raise ScratchfabError("give -o FILE (no JOB folder to write into)")
-        output = job / "export" / f"board.{fmt}"
+        output = JobLayout(job).export_file(fmt)
     name = format_for(output, fmt)
     tp = Toolpath.load(toolpath_file)
     profile = load_profile(machine) if machine else None

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from scratchfab.cli.options import backend_option, job_or_files, job_or_files_options
-from scratchfab.model.job import job_inputs, stale_layout_warning
+from scratchfab.model.job import JobLayout, job_inputs, stale_layout_warning
 from scratchfab.render.stage import run_render
 
 
@@ -40,7 +40,7 @@ def render(
         stale = stale_layout_warning(inputs)
         if stale is not None:
             click.echo(stale, err=True)
-        out_dir = out_dir if out_dir is not None else inputs / "render"
+        out_dir = out_dir if out_dir is not None else JobLayout(inputs).render_dir
     start = time.perf_counter()
     run_render(
         design_file, scratch_file, out_dir, "cuda" if backend == "cuda" else "llvm", click.echo

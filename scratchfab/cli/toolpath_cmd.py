@@ -8,6 +8,7 @@ import click
 
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.profile import bundled_profiles
+from scratchfab.model.job import JobLayout
 from scratchfab.toolpath import OrderOptions
 from scratchfab.toolpath.stage import job_toolpath_inputs, run_toolpath
 
@@ -24,7 +25,7 @@ def _inputs(
     scratch_file, design_file, note = job_toolpath_inputs(job, scratches, design)
     if note:
         click.echo(note, err=True)
-    return scratch_file, design_file, out or job / "toolpath"
+    return scratch_file, design_file, out or JobLayout(job).toolpath_dir
 
 
 @click.command("toolpath")

@@ -9,6 +9,7 @@ import click
 
 from scratchfab.cli.options import FiniteFloat, job_or_files, job_or_files_options
 from scratchfab.errors import ScratchfabError
+from scratchfab.model.job import JobLayout
 from scratchfab.verify.verify import DEFAULT_SPP
 
 
@@ -143,6 +144,6 @@ def verify_render(
         design_file, scratch_file, out = inputs
         run_verify_files(design_file, scratch_file, out, settings, progress=say)
     else:
-        out = out_dir if out_dir is not None else inputs / "verify"
+        out = out_dir if out_dir is not None else JobLayout(inputs).verify_dir
         run_verify_job(inputs, settings, progress=say, out_dir=out)
     click.echo(f"wrote {out} in {time.perf_counter() - start:.1f} s")

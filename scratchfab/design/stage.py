@@ -29,6 +29,7 @@ from scratchfab.design.targets import (
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import atomic_folder, save_npy, save_png, write_json, write_text
 from scratchfab.model.design import Design, design_from_mapping
+from scratchfab.model.job import DesignFolder, JobLayout
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.pipeline.config import PipelineOptions, parse_stage_tables
@@ -58,7 +59,7 @@ class DesignResult:
     @property
     def design_file(self) -> Path:
         """``JOB/design/design.toml``."""
-        return self.folder / "design.toml"
+        return DesignFolder(self.folder).design_toml
 
 
 def load_source(
@@ -181,7 +182,8 @@ def run_design(
         report.raise_if_errors(design.source)
 
     job = Path(out_job).resolve()
-    folder = job / "design"
+    files = JobLayout(job).design
+    folder = files.path
     targets: dict[str, np.ndarray] = {}
     for view in design.views:
         t0 = time.perf_counter()
@@ -196,22 +198,23 @@ def run_design(
     progress(f"  initial layout: {len(scratches)} scratches ({time.perf_counter() - t0:.1f} s)")
 
     resolved = design.with_views(
-        tuple(replace(v, target=str(folder / "board" / f"{v.name}.png")) for v in design.views)
+        tuple(replace(v, target=str(files.board_png(v.name))) for v in design.views)
     )
-    resolved = replace(resolved, base_dir=folder, source=str(folder / "design.toml"))
+    resolved = replace(resolved, base_dir=folder, source=str(files.design_toml))
 
     with atomic_folder(folder) as tmp:
+        staged = DesignFolder(tmp)
         write_text(
-            tmp / "design.toml",
+            staged.design_toml,
             _origin_comment(design, fit, gamma, contrast, seed) + resolved.to_toml(),
         )
         for view in design.views:
-            save_png(tmp / "board" / f"{view.name}.png", board_image_png(boards[view.name]))
-            save_npy(tmp / "targets" / f"{view.name}.npy", targets[view.name])
-            save_png(tmp / "targets" / f"{view.name}.png", preview_png(targets[view.name]))
-            save_png(tmp / f"feasibility_{view.name}.png", report.map_image(view.name))
-        scratches.save(tmp / "scratches.csv", design.scratch)
-        write_json(tmp / "feasibility.json", report.to_json())
+            save_png(staged.board_png(view.name), board_image_png(boards[view.name]))
+            save_npy(staged.target_npy(view.name), targets[view.name])
+            save_png(staged.target_png(view.name), preview_png(targets[view.name]))
+            save_png(staged.feasibility_png(view.name), report.map_image(view.name))
+        scratches.save(staged.initial_scratches, design.scratch)
+        write_json(staged.feasibility_json, report.to_json())
     progress(f"design: wrote {folder} ({time.perf_counter() - start:.1f} s)")
     return DesignResult(folder, resolved, targets, scratches, report)
 

@@ -30,6 +30,7 @@ from typing import IO, TYPE_CHECKING, Any
 
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import read_input
+from scratchfab.model.job import JobLayout
 
 if TYPE_CHECKING:
     from scratchfab.machine.sender_program import Program
@@ -38,8 +39,9 @@ if TYPE_CHECKING:
 def default_journal_path(gcode: str | os.PathLike[str]) -> Path:
     """``JOB/stream/journal.jsonl`` for ``JOB/export/*.gcode``, else ``<file>.journal.jsonl``."""
     p = Path(gcode).resolve()
-    if p.parent.name == "export":
-        return p.parent.parent / "stream" / "journal.jsonl"
+    job = JobLayout.for_export_file(p)
+    if job is not None:
+        return job.journal
     return p.with_name(p.name + ".journal.jsonl")
 
 

@@ -32,6 +32,7 @@ from scratchfab.machine.sender_program import (
     resume_preamble,
     z_levels,
 )
+from scratchfab.model.job import JobLayout
 
 if TYPE_CHECKING:
     from scratchfab.machine.profile import MachineProfile
@@ -258,10 +259,11 @@ def _profile_for(req: StreamRequest, say: Callable[[str], Any]) -> Any:
         from scratchfab.machine.profile import load_profile
 
         return load_profile(req.machine)
-    planned = req.gcode.resolve().parent.parent / "toolpath" / "toolpath.json"
-    if req.gcode.resolve().parent.name == "export" and planned.is_file():
+    job = JobLayout.for_export_file(req.gcode.resolve())
+    if job is not None and job.toolpath_json.is_file():
         from scratchfab.toolpath import Toolpath
 
+        planned = job.toolpath_json
         profile = Toolpath.load(planned).profile
         say(f"checking against machine '{profile.name}' of {planned}")
         return profile
@@ -307,12 +309,13 @@ def run_stream_job(
             last[0] = decile
             say(f"  {p.fraction:6.1%} {p.acked}/{p.total} lines  {p.state}")
 
+    layout = JobLayout(job)
     req = StreamRequest(
-        gcode=job / "export" / "board.gcode",
+        gcode=layout.export_file("gcode"),
         port=port,
         baud=baud,
         protocol=protocol,
-        journal=job / "stream" / "journal.jsonl",
+        journal=layout.journal,
         resume_interrupted=True,
         recut_unsure=recut_unsure,
         check=check,

@@ -3,12 +3,203 @@
 from __future__ import annotations
 
 import json
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import file_sha256
 from scratchfab.model.design import Design, load_design
+
+_EXPORT_STEM = "board"  # JOB/export/board.<format>
+
+
+@dataclass(frozen=True)
+class DesignFolder:
+    """The design stage's files: ``JOB/design/``, or the temporary folder that becomes it.
+
+    Attributes:
+        path: The folder.
+    """
+
+    path: Path
+
+    @property
+    def design_toml(self) -> Path:
+        """The resolved design (absolute target paths, every default filled in)."""
+        return self.path / "design.toml"
+
+    @property
+    def initial_scratches(self) -> Path:
+        """The initial layout."""
+        return self.path / "scratches.csv"
+
+    @property
+    def targets_dir(self) -> Path:
+        """Each view's target in its camera pixels."""
+        return self.path / "targets"
+
+    def target_npy(self, view: str) -> Path:
+        """``view``'s target, linear float32 (H, W); NaN outside the board."""
+        return self.targets_dir / f"{view}.npy"
+
+    def target_png(self, view: str) -> Path:
+        """``view``'s target as a person looks at it."""
+        return self.targets_dir / f"{view}.png"
+
+    @property
+    def boards_dir(self) -> Path:
+        """The board-space pictures the design's views name as targets."""
+        return self.path / "board"
+
+    def board_png(self, view: str) -> Path:
+        """``view``'s board-space picture (its target in ``design.toml``)."""
+        return self.boards_dir / f"{view}.png"
+
+    def feasibility_png(self, view: str) -> Path:
+        """Where on the board the tool can light ``view``."""
+        return self.path / f"feasibility_{view}.png"
+
+    @property
+    def feasibility_json(self) -> Path:
+        """The feasibility report."""
+        return self.path / "feasibility.json"
+
+    @property
+    def digested(self) -> tuple[Path, Path]:
+        """The files an optimized layout is made from (optimize records their digests)."""
+        return self.design_toml, self.initial_scratches
+
+
+@dataclass(frozen=True)
+class JobLayout:
+    """Where each file of a job folder lies (SPEC section 6).
+
+    The paths are ``root`` joined with the names, neither resolved nor checked, so a
+    message that shows one shows it as the caller named the job.
+
+    Attributes:
+        root: The job folder.
+    """
+
+    root: Path
+
+    @classmethod
+    def for_export_file(cls, file: Path) -> JobLayout | None:
+        """The job whose export folder holds ``file`` (as it is named), else None."""
+        job = cls(file.parent.parent)
+        return job if file.parent == job.export_dir else None
+
+    def relative(self, path: Path) -> str:
+        """``path`` relative to the job folder, with forward slashes."""
+        return path.relative_to(self.root).as_posix()
+
+    @property
+    def design(self) -> DesignFolder:
+        """``JOB/design/``: the design stage's files."""
+        return DesignFolder(self.root / "design")
+
+    @property
+    def optimize_dir(self) -> Path:
+        """The optimize stage's folder."""
+        return self.root / "optimize"
+
+    @property
+    def optimized_scratches(self) -> Path:
+        """The optimized layout (the board to cut)."""
+        return self.optimize_dir / "scratches.csv"
+
+    @property
+    def unpruned_scratches(self) -> Path:
+        """The optimized layout before pruning."""
+        return self.optimize_dir / "scratches_unpruned.csv"
+
+    @property
+    def optimize_renders(self) -> Path:
+        """``render`` layout of the optimized board."""
+        return self.optimize_dir / "renders"
+
+    @property
+    def optimize_log(self) -> Path:
+        """Iteration, loss and quality per view."""
+        return self.optimize_dir / "log.csv"
+
+    @property
+    def optimize_summary(self) -> Path:
+        """The optimize run's summary, with the digests of the design files it used."""
+        return self.optimize_dir / "summary.json"
+
+    @property
+    def optimize_checkpoint(self) -> Path:
+        """The state a resumed optimize run continues from."""
+        return self.optimize_dir / "checkpoint.npz"
+
+    @property
+    def loss_png(self) -> Path:
+        """The loss curve."""
+        return self.optimize_dir / "loss.png"
+
+    @property
+    def side_by_side_png(self) -> Path:
+        """Each view's target beside its optimized render."""
+        return self.optimize_dir / "side_by_side.png"
+
+    @property
+    def verify_dir(self) -> Path:
+        """``render`` layout from the independent renderer, and the metrics."""
+        return self.root / "verify"
+
+    @property
+    def verify_metrics(self) -> Path:
+        """The independent renderer's quality measures."""
+        return self.verify_dir / "metrics.json"
+
+    @property
+    def render_dir(self) -> Path:
+        """Where ``render JOB`` writes by default."""
+        return self.root / "render"
+
+    @property
+    def toolpath_dir(self) -> Path:
+        """The toolpath stage's folder."""
+        return self.root / "toolpath"
+
+    @property
+    def toolpath_json(self) -> Path:
+        """Ordered strokes in machine coordinates, with statistics."""
+        return self.toolpath_dir / "toolpath.json"
+
+    @property
+    def toolpath_preview(self) -> Path:
+        """The toolpath drawn over the board and the machine's envelope."""
+        return self.toolpath_dir / "preview.png"
+
+    @property
+    def export_dir(self) -> Path:
+        """The export stage's folder."""
+        return self.root / "export"
+
+    def export_file(self, fmt: str) -> Path:
+        """The board exported as ``fmt`` (``gcode``, ``dxf``, ``svg``)."""
+        return self.export_dir / f"{_EXPORT_STEM}.{fmt}"
+
+    def export_files(self) -> list[Path]:
+        """The board's exported files that exist, sorted by path."""
+        return sorted(self.export_dir.glob(f"{_EXPORT_STEM}.*"))
+
+    @property
+    def stream_dir(self) -> Path:
+        """The stream stage's folder."""
+        return self.root / "stream"
+
+    @property
+    def journal(self) -> Path:
+        """Acknowledged lines of the streaming runs."""
+        return self.stream_dir / "journal.jsonl"
+
+    @property
+    def report_html(self) -> Path:
+        """The page a person reads after a run."""
+        return self.root / "report.html"
 
 
 def job_inputs(job: str | Path) -> tuple[Path, Path]:
@@ -23,24 +214,22 @@ def job_inputs(job: str | Path) -> tuple[Path, Path]:
     folder = Path(job)
     if not folder.is_dir():
         raise ConfigError(f"{folder}: job folder not found")
-    design = folder / "design" / "design.toml"
+    layout = JobLayout(folder)
+    design = layout.design.design_toml
     if not design.is_file():
         raise ConfigError(f"{design}: file not found (is {folder} a job folder?)")
-    for scratches in (folder / "optimize" / "scratches.csv", folder / "design" / "scratches.csv"):
+    for scratches in (layout.optimized_scratches, layout.design.initial_scratches):
         if scratches.is_file():
             return design, scratches
     raise ConfigError(
-        f"{folder}: no scratch layout (expected optimize/scratches.csv or design/scratches.csv)"
+        f"{folder}: no scratch layout (expected {layout.relative(layout.optimized_scratches)} "
+        f"or {layout.relative(layout.design.initial_scratches)})"
     )
 
 
-#: The design stage's files an optimized layout is made from (recorded by optimize).
-DESIGN_FILES = ("design.toml", "scratches.csv")
-
-
 def design_digest(job: str | Path) -> dict[str, str]:
-    """SHA-256 of each of the job's :data:`DESIGN_FILES`, by name."""
-    return {name: file_sha256(Path(job) / "design" / name) for name in DESIGN_FILES}
+    """SHA-256 of each of the job's :attr:`DesignFolder.digested` files, by file name."""
+    return {path.name: file_sha256(path) for path in JobLayout(Path(job)).design.digested}
 
 
 def stale_layout_warning(job: str | Path) -> str | None:
@@ -52,20 +241,25 @@ def stale_layout_warning(job: str | Path) -> str | None:
     None when the layout is current, or when there is no record to tell by.
     """
     folder = Path(job)
-    if not (folder / "optimize" / "scratches.csv").is_file():
+    layout = JobLayout(folder)
+    if not layout.optimized_scratches.is_file():
         return None
     try:
-        summary = json.loads((folder / "optimize" / "summary.json").read_text(encoding="utf-8"))
+        summary = json.loads(layout.optimize_summary.read_text(encoding="utf-8"))
         recorded = summary["design_sha256"]
     except (OSError, ValueError, TypeError, KeyError):
         return None
     if not isinstance(recorded, dict):
         return None
-    changed = [f"design/{k}" for k, v in design_digest(folder).items() if recorded.get(k) != v]
+    changed = [
+        layout.relative(path)
+        for path in layout.design.digested
+        if recorded.get(path.name) != file_sha256(path)
+    ]
     if not changed:
         return None
     return (
-        f"warning: {folder / 'optimize' / 'scratches.csv'} was optimized from an earlier "
+        f"warning: {layout.optimized_scratches} was optimized from an earlier "
         f"design ({', '.join(changed)} changed since): it is used as it is; rerun "
         f"`scratchfab optimize {folder}` for the current design"
     )
@@ -83,8 +277,9 @@ def load_job_design(design_file: str | Path) -> Design:
     """
     file = Path(design_file)
     design = load_design(file)
+    folder = DesignFolder(file.parent)
     views = []
     for view in design.views:
-        own = (file.parent / "board" / f"{view.name}.png").resolve()
+        own = folder.board_png(view.name).resolve()
         views.append(replace(view, target=str(own)) if own.is_file() else view)
     return design.with_views(tuple(views))

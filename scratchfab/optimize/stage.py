@@ -38,7 +38,7 @@ from scratchfab.errors import ConfigError
 from scratchfab.fileio import write_json, write_text
 from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design
-from scratchfab.model.job import design_digest, load_job_design
+from scratchfab.model.job import JobLayout, design_digest, load_job_design
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.checkpoint import load_checkpoint, save_checkpoint
 from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
@@ -136,14 +136,14 @@ def load_job_inputs(job: Path) -> tuple[Design, dict[str, np.ndarray], ScratchSe
     Raises:
         ConfigError: Naming the missing or malformed file.
     """
-    folder = job / "design"
-    design_file = folder / "design.toml"
+    folder = JobLayout(job).design
+    design_file = folder.design_toml
     if not design_file.exists():
         raise ConfigError(f"{design_file}: file not found (run `scratchfab design` first)")
     design = load_job_design(design_file)
     targets: dict[str, np.ndarray] = {}
     for view in design.views:
-        path = folder / "targets" / f"{view.name}.npy"
+        path = folder.target_npy(view.name)
         if not path.exists():
             if view.target is not None:
                 raise ConfigError(
@@ -162,10 +162,10 @@ def load_job_inputs(job: Path) -> tuple[Design, dict[str, np.ndarray], ScratchSe
             )
         targets[view.name] = arr.astype(np.float64)
     if not targets:
-        raise ConfigError(f"{folder / 'targets'}: no <view>.npy target for any view")
-    scratches = load_scratches(folder / "scratches.csv", design.scratch, design.board)
+        raise ConfigError(f"{folder.targets_dir}: no <view>.npy target for any view")
+    scratches = load_scratches(folder.initial_scratches, design.scratch, design.board)
     if len(scratches) == 0:
-        raise ConfigError(f"{folder / 'scratches.csv'}: no scratches to optimize (header only)")
+        raise ConfigError(f"{folder.initial_scratches}: no scratches to optimize (header only)")
     return design, targets, scratches
 
 
@@ -233,7 +233,6 @@ def run_optimize(
             checkpoint is kept).
     """
     job = Path(job)
-    out = job / "optimize"
     design_files = design_digest(job)
     design, targets, initial = load_job_inputs(job)
     report = progress or (lambda p: None)
@@ -243,7 +242,7 @@ def run_optimize(
         dr.set_thread_count(options.threads if options.threads > 0 else (os.cpu_count() or 1))
     try:
         return _run(
-            job, out, design, targets, initial, design_files, options, m, report, should_stop
+            JobLayout(job), design, targets, initial, design_files, options, m, report, should_stop
         )
     finally:
         if options.backend == "llvm":
@@ -251,8 +250,7 @@ def run_optimize(
 
 
 def _run(
-    job: Path,
-    out: Path,
+    paths: JobLayout,
     design: Design,
     targets: dict[str, np.ndarray],
     initial: ScratchSet,
@@ -287,7 +285,7 @@ def _run(
     columns = log_columns(names)
     rows: list[list[float]] = []
     elapsed0 = 0.0
-    ckpt = out / "checkpoint.npz"
+    ckpt = paths.optimize_checkpoint
     if options.resume:
         state, meta, log_rows = load_checkpoint(ckpt)
         differ = [
@@ -315,9 +313,9 @@ def _run(
         save_checkpoint(
             ckpt, opt.state(), meta, np.asarray(rows, dtype=np.float64).reshape(-1, len(columns))
         )
-        _write_log(out / "log.csv", columns, rows)
+        _write_log(paths.optimize_log, columns, rows)
 
-    out.mkdir(parents=True, exist_ok=True)
+    paths.optimize_dir.mkdir(parents=True, exist_ok=True)
     stopped = "done"
     session_start = time.perf_counter()
     steps = 0
@@ -333,7 +331,7 @@ def _run(
             try:
                 result = opt.step()
             except NonFiniteError:
-                _write_log(out / "log.csv", columns, rows)
+                _write_log(paths.optimize_log, columns, rows)
                 raise
             steps += 1
             if steps > 1:  # the first step compiles the kernels
@@ -368,16 +366,16 @@ def _run(
             pruned = prune(
                 opt, layout, options.prune_tolerance, options.feed_mm_min, options.stroke_overhead_s
             )
-            layout.save(out / "scratches_unpruned.csv", design.scratch)
+            layout.save(paths.unpruned_scratches, design.scratch)
             layout = pruned.kept
             final = opt.evaluate(layout)
             quality = quality_report(final.renders, targets, cross)
         final_rows = rows + [_log_row(opt.iteration, final.loss, elapsed, quality)]
-        layout.save(out / "scratches.csv", design.scratch)
-        write_render_layout(out / "renders", final.renders)
-        _write_log(out / "log.csv", columns, final_rows)
-        save_loss_plot(out / "loss.png", [r[0] for r in final_rows], [r[1] for r in final_rows])
-        save_side_by_side(out / "side_by_side.png", targets, final.renders)
+        layout.save(paths.optimized_scratches, design.scratch)
+        write_render_layout(paths.optimize_renders, final.renders)
+        _write_log(paths.optimize_log, columns, final_rows)
+        save_loss_plot(paths.loss_png, [r[0] for r in final_rows], [r[1] for r in final_rows])
+        save_side_by_side(paths.side_by_side_png, targets, final.renders)
         per_iter = step_time / (steps - 1) if steps > 1 else math.nan
         summary: dict[str, Any] = {
             "iterations": opt.iteration,
@@ -405,9 +403,9 @@ def _run(
                     f"{pruned.stroke_overhead_s:g} s per stroke"
                 ),
             }
-        write_json(out / "summary.json", summary)
+        write_json(paths.optimize_summary, summary)
     return OptimizeResult(
-        out_dir=out,
+        out_dir=paths.optimize_dir,
         scratches=layout,
         iterations=opt.iteration,
         stopped=stopped,

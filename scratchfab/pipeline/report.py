@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from scratchfab.fileio import write_text
+from scratchfab.model.job import JobLayout
 
 _MIME = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
 
@@ -67,7 +68,8 @@ def _read_json(path: Path) -> Any:
 
 
 def _views_section(job: Path, metrics: dict[str, Any] | None) -> str:
-    targets = sorted((job / "design" / "targets").glob("*.png"))
+    layout = JobLayout(job)
+    targets = sorted(layout.design.targets_dir.glob("*.png"))
     if not targets:
         return "<p class='muted'>design has not run.</p>"
     parts = []
@@ -75,13 +77,13 @@ def _views_section(job: Path, metrics: dict[str, Any] | None) -> str:
         name = target.stem
         cards = [f"<div class='card'>target<br>{_img(target, f'{name} target')}</div>"]
         for label, folder in (
-            ("optimized render", job / "optimize" / "renders"),
-            ("verify render", job / "verify"),
+            ("optimized render", layout.optimize_renders),
+            ("verify render", layout.verify_dir),
         ):
             png = folder / f"{name}.png"
             if png.is_file():
                 cards.append(f"<div class='card'>{label}<br>{_img(png, f'{name} {label}')}</div>")
-        feas = job / "design" / f"feasibility_{name}.png"
+        feas = layout.design.feasibility_png(name)
         if feas.is_file():
             cards.append(
                 f"<div class='card'>feasibility<br>{_img(feas, f'{name} feasibility')}</div>"
@@ -132,11 +134,12 @@ def _metrics_table(metrics: dict[str, Any] | None) -> str:
 
 
 def _optimize_section(job: Path) -> str:
+    layout = JobLayout(job)
     out = []
-    for png in ("loss.png",):
-        if (job / "optimize" / png).is_file():
-            out.append(f"<div class='card wide'>{_img(job / 'optimize' / png, 'loss curve')}</div>")
-    log = job / "optimize" / "log.csv"
+    for png in (layout.loss_png,):
+        if png.is_file():
+            out.append(f"<div class='card wide'>{_img(png, 'loss curve')}</div>")
+    log = layout.optimize_log
     if log.is_file():
         with log.open(encoding="utf-8") as handle:
             rows = list(csv.DictReader(handle))
@@ -155,7 +158,7 @@ def _optimize_section(job: Path) -> str:
 
 
 def _verify_extras(job: Path) -> str:
-    gifs = sorted((job / "verify").glob("*.gif"))
+    gifs = sorted(JobLayout(job).verify_dir.glob("*.gif"))
     if not gifs:
         return "<p class='muted'>no sweep animation (verify --sweep).</p>"
     cards = "".join(f"<div class='card'>{g.stem}<br>{_img(g, g.stem)}</div>" for g in gifs)
@@ -163,9 +166,10 @@ def _verify_extras(job: Path) -> str:
 
 
 def _toolpath_section(job: Path) -> str:
-    data = _read_json(job / "toolpath" / "toolpath.json")
+    layout = JobLayout(job)
+    data = _read_json(layout.toolpath_json)
     parts = []
-    preview = job / "toolpath" / "preview.png"
+    preview = layout.toolpath_preview
     if preview.is_file():
         parts.append(f"<div class='card wide'>{_img(preview, 'toolpath preview')}</div>")
     stats = (data or {}).get("statistics") if isinstance(data, dict) else None
@@ -206,11 +210,12 @@ def gcode_statistics(path: Path) -> dict[str, Any]:
 
 
 def _export_section(job: Path) -> str:
-    files = sorted((job / "export").glob("board.*"))
+    layout = JobLayout(job)
+    files = layout.export_files()
     if not files:
         return "<p class='muted'>export has not run.</p>"
     items = "".join(f"<li>{html.escape(f.name)} ({f.stat().st_size} bytes)</li>" for f in files)
-    gcode = job / "export" / "board.gcode"
+    gcode = layout.export_file("gcode")
     table = ""
     if gcode.is_file():
         stats = gcode_statistics(gcode)
@@ -234,7 +239,7 @@ def _stream_section(job: Path) -> str:
         read_journal,
     )
 
-    journal = default_journal_path(job / "export" / "board.gcode")
+    journal = default_journal_path(JobLayout(job).export_file("gcode"))
     if not journal.is_file():
         return "<p class='muted'>not streamed.</p>"
     try:
@@ -265,7 +270,7 @@ def _setup_step(job: Path) -> str:
     from scratchfab.toolpath import Toolpath
 
     try:
-        profile = Toolpath.load(job / "toolpath" / "toolpath.json").profile
+        profile = Toolpath.load(JobLayout(job).toolpath_json).profile
     except ConfigError:  # no toolpath yet, or a damaged one: the pointer alone
         return text + "."
     x, y = profile.board.offset_mm
@@ -288,7 +293,7 @@ def _next_steps(job: Path, metrics: dict[str, Any] | None) -> str:
     steps += [
         "Check the toolpath preview: every stroke inside the board, travel moves sensible.",
         _setup_step(job),
-        f"Dry-run first: <code>scratchfab stream {html.escape(str(job / 'export' / 'board.gcode'))} --port PORT --check</code>.",
+        f"Dry-run first: <code>scratchfab stream {html.escape(str(JobLayout(job).export_file('gcode')))} --port PORT --check</code>.",
         "Then stream for real; after a dropped cable, rerun the same command with <code>--resume</code>.",
     ]
     return "<ol>" + "".join(f"<li>{s}</li>" for s in steps) + "</ol>"
@@ -296,7 +301,7 @@ def _next_steps(job: Path, metrics: dict[str, Any] | None) -> str:
 
 def write_report(job: Path, title: str = "scratchfab job") -> Path:
     """Write ``JOB/report.html`` from what the stages left in the job folder."""
-    metrics = _read_json(job / "verify" / "metrics.json")
+    metrics = _read_json(JobLayout(job).verify_metrics)
     body = [
         f"<h1>{html.escape(title)}</h1><p class='muted'>{html.escape(str(job.resolve()))}</p>",
         "<p id='image-check' class='muted'>images: checking…</p>",
@@ -320,6 +325,6 @@ def write_report(job: Path, title: str = "scratchfab job") -> Path:
         f"<title>{html.escape(title)}</title><style>{_STYLE}</style>"
         f"<script>{_SCRIPT}</script></head><body>{''.join(body)}</body></html>\n"
     )
-    out = job / "report.html"
+    out = JobLayout(job).report_html
     write_text(out, page)
     return out

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from scratchfab.errors import ConfigError, ScratchfabError
+from scratchfab.model.job import JobLayout
 from scratchfab.pipeline.config import STAGES, Pipeline
 from scratchfab.pipeline.manifest import Manifest, file_digest, fingerprint
 from scratchfab.pipeline.report import write_report
@@ -57,14 +58,15 @@ class _Stages:
     def __init__(self, pipe: Pipeline, job: Path, say: Say, confirm: Confirm | None) -> None:
         self.pipe = pipe
         self.job = job
+        self.layout = JobLayout(job)
         self.say = say
         self.confirm = confirm
 
     # -- inputs -----------------------------------------------------------------------
     def inputs(self, stage: str) -> dict[str, Any]:
         """The fingerprint of ``stage``'s inputs as they are now."""
-        job, pipe = self.job, self.pipe
-        design_dir = job / "design"
+        job, pipe, layout = self.job, self.pipe, self.layout
+        design_dir = layout.design.path
         if stage == "design":
             targets = [
                 p for v in pipe.design.views if (p := pipe.design.target_path(v)) is not None
@@ -73,14 +75,14 @@ class _Stages:
         if stage == "optimize":
             return fingerprint([design_dir], [], asdict(self.pipe.optimize), job)
         if stage == "verify":
-            files = [design_dir, job / "optimize" / "scratches.csv", job / "optimize" / "renders"]
+            files = [design_dir, layout.optimized_scratches, layout.optimize_renders]
             return fingerprint(files, [], asdict(pipe.verify), job)
         if stage == "toolpath":
-            files = [design_dir / "design.toml", job / "optimize" / "scratches.csv"]
+            files = [layout.design.design_toml, layout.optimized_scratches]
             profile = [Path(pipe.profile.source)]
             return fingerprint(files, profile, asdict(pipe.toolpath), job)
         if stage == "export":
-            return fingerprint([job / "toolpath" / "toolpath.json"], [], asdict(pipe.export), job)
+            return fingerprint([layout.toolpath_json], [], asdict(pipe.export), job)
         if stage == "stream":
             # recut_unsure only steers a resume: turning it on must not cut a finished board again
             options = {k: v for k, v in asdict(pipe.stream).items() if k != "recut_unsure"}
@@ -89,7 +91,7 @@ class _Stages:
 
     def gcode(self) -> Path:
         """The G-code file the stream stage sends."""
-        return self.job / "export" / "board.gcode"
+        return self.layout.export_file("gcode")
 
     def streamed_to_end(self) -> bool:
         """False when the journal's last run streamed the current G-code and did not finish.
@@ -118,6 +120,10 @@ class _Stages:
         """Run ``stage``; returns its outputs relative to the job folder."""
         return list(getattr(self, f"_run_{stage}")())
 
+    def _relative(self, *paths: Path) -> list[str]:
+        """``paths`` (in the job folder) as the manifest records outputs."""
+        return [self.layout.relative(p) for p in paths]
+
     def _run_design(self) -> Sequence[str]:
         from scratchfab.design.stage import run_design
 
@@ -130,7 +136,8 @@ class _Stages:
             seed=opts.seed,
             progress=self.say,
         )
-        return ["design/design.toml", "design/scratches.csv", "design/targets"]
+        design = self.layout.design
+        return self._relative(design.design_toml, design.initial_scratches, design.targets_dir)
 
     def _run_optimize(self) -> Sequence[str]:
         from scratchfab.optimize.progress import progress_printer
@@ -138,7 +145,10 @@ class _Stages:
 
         progress = progress_printer(lambda line: self.say(f"  {line}"))
         run_optimize(self.job, self.pipe.optimize, progress=progress)
-        return ["optimize/scratches.csv", "optimize/renders", "optimize/log.csv"]
+        layout = self.layout
+        return self._relative(
+            layout.optimized_scratches, layout.optimize_renders, layout.optimize_log
+        )
 
     def _run_verify(self) -> Sequence[str]:
         from scratchfab.verify.verify import VerifyGateError, VerifySettings, run_verify_job
@@ -163,7 +173,7 @@ class _Stages:
             run_verify_job(self.job, VerifySettings(**settings), progress=self.say)
         except VerifyGateError as exc:  # named as the pipeline file names it
             raise exc.named("[verify] min_rho =", str(self.pipe.path)) from None
-        return ["verify/metrics.json"]
+        return self._relative(self.layout.verify_metrics)
 
     def _run_toolpath(self) -> Sequence[str]:
         from scratchfab.toolpath import OrderOptions
@@ -172,24 +182,24 @@ class _Stages:
         t = self.pipe.toolpath
         options = OrderOptions(passes=t.passes, kicks=t.kicks, seed=t.seed)
         run_toolpath_job(self.job, self.pipe.profile, options, say=self.say)
-        return ["toolpath/toolpath.json", "toolpath/preview.png"]
+        return self._relative(self.layout.toolpath_json, self.layout.toolpath_preview)
 
     def _run_export(self) -> Sequence[str]:
         from scratchfab.export import FORMATS, export
         from scratchfab.toolpath import Toolpath
 
-        toolpath = Toolpath.load(self.job / "toolpath" / "toolpath.json")
+        toolpath = Toolpath.load(self.layout.toolpath_json)
         for fmt in FORMATS:  # a format left out of [export] formats: its old file goes
-            stale = self.job / "export" / f"board.{fmt}"
+            stale = self.layout.export_file(fmt)
             if fmt not in self.pipe.export.formats and stale.is_file():
                 stale.unlink()
                 self.say(f"  removed {stale} (not in [export] formats)")
         outputs = []
         for fmt in self.pipe.export.formats:
-            out = self.job / "export" / f"board.{fmt}"
+            out = self.layout.export_file(fmt)
             export(toolpath, None, out, fmt)
             self.say(f"  wrote {out}")
-            outputs.append(f"export/board.{fmt}")
+            outputs.append(self.layout.relative(out))
         return outputs
 
     def _run_stream(self) -> Sequence[str]:
@@ -210,7 +220,7 @@ class _Stages:
             if self.confirm is not None and not is_emulator(s.port)
             else lambda _: True,
         )
-        return ["stream/journal.jsonl"]
+        return self._relative(self.layout.journal)
 
 
 def run_pipeline(

@@ -8,7 +8,7 @@ from typing import Any
 
 from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
-from scratchfab.model.job import job_inputs, stale_layout_warning
+from scratchfab.model.job import JobLayout, job_inputs, stale_layout_warning
 from scratchfab.model.scratches import load_scratches
 from scratchfab.toolpath.order import OrderOptions
 from scratchfab.toolpath.plan import Toolpath, plan_toolpath, write_preview
@@ -73,12 +73,10 @@ def job_toolpath_inputs(
     if scratches is not None and design is not None:
         return scratches, design, None
     design_file, scratch_file = job_inputs(job)
+    optimized = JobLayout(job).optimized_scratches
     note = None
-    if scratches is None and scratch_file.parent.name != "optimize":
-        note = (
-            f"note: {job / 'optimize' / 'scratches.csv'} not found (optimize has not run); "
-            f"using {scratch_file}"
-        )
+    if scratches is None and scratch_file != optimized:
+        note = f"note: {optimized} not found (optimize has not run); using {scratch_file}"
     elif scratches is None:
         note = stale_layout_warning(job)
     return scratches or scratch_file, design or design_file, note
@@ -94,4 +92,6 @@ def run_toolpath_job(
     scratch_file, design_file, note = job_toolpath_inputs(job)
     if note:
         say(note)
-    return run_toolpath(scratch_file, design_file, job / "toolpath", machine, options, say)
+    return run_toolpath(
+        scratch_file, design_file, JobLayout(job).toolpath_dir, machine, options, say
+    )

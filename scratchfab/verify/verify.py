@@ -26,6 +26,7 @@ from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import write_bytes, write_json
 from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design, View, load_design
+from scratchfab.model.job import JobLayout, job_inputs, load_job_design, stale_layout_warning
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
 from scratchfab.verify.scene import Sky, board_bsdf, scene_dict, use_variant
@@ -538,7 +539,7 @@ def load_job_targets(
     """
     targets: dict[str, np.ndarray] = {}
     for view in design.views:
-        path = job / "design" / "targets" / f"{view.name}.npy"
+        path = JobLayout(job).design.target_npy(view.name)
         if path.is_file():
             targets[view.name] = np.load(path, allow_pickle=False)
     cross = job_cross_targets(design)
@@ -594,18 +595,17 @@ def run_verify_job(
     Raises:
         ConfigError: When the job lacks the design or a layout.
     """
-    from scratchfab.model.job import job_inputs, load_job_design, stale_layout_warning
-
     folder = Path(job)
+    layout = JobLayout(folder)
     design_file, scratch_file = job_inputs(folder)
     stale = stale_layout_warning(folder)
     if stale is not None and progress is not None:
         progress(stale)
     design = load_job_design(design_file)
     scratches = load_scratches(scratch_file, design.scratch, design.board)
-    renders_dir = folder / "optimize" / "renders"
+    renders_dir = layout.optimize_renders
     analytic: dict[str, np.ndarray] | None = None
-    if scratch_file.parent.name == "optimize" and all(
+    if scratch_file == layout.optimized_scratches and all(
         (renders_dir / f"{v.name}.npy").is_file() for v in design.views
     ):
         analytic = {
@@ -615,7 +615,7 @@ def run_verify_job(
     targets, cross = load_job_targets(folder, design)
     if cross is None and progress is not None:
         progress(
-            f"warning: no board pictures in {folder / 'design' / 'board'}: crosstalk is not "
+            f"warning: no board pictures in {layout.design.boards_dir}: crosstalk is not "
             "measured (rerun design to write them)"
         )
     if progress is not None:
@@ -623,7 +623,7 @@ def run_verify_job(
     return run_verify(
         design,
         scratches,
-        folder / "verify" if out_dir is None else out_dir,
+        layout.verify_dir if out_dir is None else out_dir,
         settings,
         analytic=analytic,
         analytic_source=source,

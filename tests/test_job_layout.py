@@ -1,0 +1,223 @@
+"""JobLayout against SPEC section 6, and against the files the stages really write."""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+
+import pytest
+from PIL import Image, ImageDraw
+
+from scratchfab.cli import main
+from scratchfab.machine.sender_journal import default_journal_path
+from scratchfab.model.job import DesignFolder, JobLayout, job_inputs
+from scratchfab.pipeline.config import load_pipeline
+from scratchfab.pipeline.runner import run_pipeline
+
+#: SPEC section 6's table, transcribed, with the files the stages add beside it. Every
+#: path JobLayout and DesignFolder name has a row here (checked below), so a new one
+#: cannot appear without a row.
+SPEC_SECTION_6 = {
+    "design.path": "design",
+    "design.design_toml": "design/design.toml",
+    "design.targets_dir": "design/targets",
+    "design.target_png(sun)": "design/targets/sun.png",
+    "design.target_npy(sun)": "design/targets/sun.npy",
+    "design.initial_scratches": "design/scratches.csv",
+    "design.boards_dir": "design/board",
+    "design.board_png(sun)": "design/board/sun.png",
+    "design.feasibility_png(sun)": "design/feasibility_sun.png",
+    "design.feasibility_json": "design/feasibility.json",
+    "optimize_dir": "optimize",
+    "optimized_scratches": "optimize/scratches.csv",
+    "unpruned_scratches": "optimize/scratches_unpruned.csv",
+    "optimize_renders": "optimize/renders",
+    "optimize_log": "optimize/log.csv",
+    "optimize_summary": "optimize/summary.json",
+    "optimize_checkpoint": "optimize/checkpoint.npz",
+    "loss_png": "optimize/loss.png",
+    "side_by_side_png": "optimize/side_by_side.png",
+    "verify_dir": "verify",
+    "verify_metrics": "verify/metrics.json",
+    "render_dir": "render",
+    "toolpath_dir": "toolpath",
+    "toolpath_json": "toolpath/toolpath.json",
+    "toolpath_preview": "toolpath/preview.png",
+    "export_dir": "export",
+    "export_file(gcode)": "export/board.gcode",
+    "export_file(dxf)": "export/board.dxf",
+    "export_file(svg)": "export/board.svg",
+    "stream_dir": "stream",
+    "journal": "stream/journal.jsonl",
+    "report_html": "report.html",
+}
+
+
+def _lookup(layout: JobLayout, key: str) -> Path:
+    """The path ``key`` (a row name of :data:`SPEC_SECTION_6`) names in ``layout``."""
+    owner: object = layout
+    if key.startswith("design."):
+        owner, key = layout.design, key.removeprefix("design.")
+    name, _, arg = key.partition("(")
+    value = getattr(owner, name)
+    return value(arg.rstrip(")")) if arg else value
+
+
+def _path_names(cls: type) -> set[str]:
+    """The public paths a layout class names: its properties and one-argument methods."""
+    names = set()
+    for name, member in vars(cls).items():
+        if name.startswith("_") or isinstance(member, classmethod):
+            continue
+        if isinstance(member, property) or (
+            inspect.isfunction(member) and len(inspect.signature(member).parameters) == 2
+        ):
+            names.add(name)
+    return names - {"relative"}
+
+
+@pytest.mark.parametrize("root", [Path("job"), Path("/abs/some job")])
+def test_every_layout_path_is_the_spec_table_row(root):
+    layout = JobLayout(root)
+    for key, rel in SPEC_SECTION_6.items():
+        path = _lookup(layout, key)
+        # As the caller named the job: messages show relative jobs as relative.
+        assert path == root / rel, key
+        assert str(path) == str(root) + "/" + rel, key
+        assert layout.relative(path) == rel, key
+    rows = {k.partition("(")[0] for k in SPEC_SECTION_6}
+    assert {n for n in rows if not n.startswith("design.")} == _path_names(JobLayout) - {
+        "design",
+        "export_files",
+    }
+    assert {n.removeprefix("design.") for n in rows if n.startswith("design.")} == (
+        _path_names(DesignFolder) | {"path"}
+    ) - {"digested"}
+    assert layout.design.digested == (
+        root / "design/design.toml",
+        root / "design/scratches.csv",
+    )
+
+
+def test_export_file_owner_and_journal(tmp_path):
+    job = tmp_path / "J"
+    gcode = job / "export" / "board.gcode"
+    found = JobLayout.for_export_file(gcode)
+    assert found is not None and found.root == job
+    assert JobLayout.for_export_file(Path("export/board.gcode")) == JobLayout(Path("."))
+    for elsewhere in (tmp_path / "board.gcode", job / "exports" / "b.nc", Path("board.gcode")):
+        assert JobLayout.for_export_file(elsewhere) is None, elsewhere
+    assert default_journal_path(gcode) == (tmp_path / "J/stream/journal.jsonl").resolve()
+    assert default_journal_path(tmp_path / "x.nc") == (tmp_path / "x.nc.journal.jsonl").resolve()
+
+
+PIPELINE = """
+[board]
+width_mm = 30.0
+height_mm = 30.0
+margin_mm = 1.5
+
+[light]
+position_mm = [0.0, 187.3, 463.6]
+
+[scratch]
+count = 150
+min_length_mm = 1.5
+max_length_mm = 5.0
+
+[[views]]
+name = "disc"
+target = "disc.png"
+azimuth_deg = -22.0
+elevation_deg = 0.0
+distance_mm = 400.0
+fov_deg = "auto"
+resolution = [16, 16]
+
+[[views]]
+name = "bar"
+target = "bar.png"
+azimuth_deg = 22.0
+elevation_deg = 0.0
+distance_mm = 400.0
+fov_deg = "auto"
+resolution = [16, 16]
+
+[optimize]
+iterations = 2
+prune_tolerance = 0.5
+
+[verify]
+spp = 16
+min_rho = -1.0
+
+[toolpath]
+machine = "grbl-3018-diamond"
+
+[export]
+formats = ["gcode", "dxf", "svg"]
+
+[stream]
+port = "grblsim://?time_scale=0&$130=300&$131=180&$132=45"
+"""
+
+
+@pytest.fixture(scope="module")
+def demo_like_job(tmp_path_factory) -> Path:
+    """A small two-view job made by every stage of ``scratchfab run`` (demo-like)."""
+    folder = tmp_path_factory.mktemp("layout")
+    disc = Image.new("L", (48, 48), 0)
+    ImageDraw.Draw(disc).ellipse((8, 8, 40, 40), fill=255)
+    disc.save(folder / "disc.png")
+    bar = Image.new("L", (48, 48), 0)
+    ImageDraw.Draw(bar).rectangle((6, 20, 42, 28), fill=255)
+    bar.save(folder / "bar.png")
+    path = folder / "small.toml"
+    path.write_text(PIPELINE)
+    job = folder / "job"
+    result = run_pipeline(load_pipeline(path), job, say=lambda _: None)
+    assert result.ran == ["design", "optimize", "verify", "toolpath", "export", "stream"]
+    main(["render", str(job)])
+    return job
+
+
+def test_stages_write_where_the_layout_says(demo_like_job):
+    job = demo_like_job
+    layout = JobLayout(job)
+    views = ("disc", "bar")
+    named_files = [
+        layout.design.design_toml,
+        layout.design.initial_scratches,
+        layout.design.feasibility_json,
+        *(layout.design.target_npy(v) for v in views),
+        *(layout.design.target_png(v) for v in views),
+        *(layout.design.board_png(v) for v in views),
+        *(layout.design.feasibility_png(v) for v in views),
+        layout.optimized_scratches,
+        layout.unpruned_scratches,
+        layout.optimize_log,
+        layout.optimize_summary,
+        layout.optimize_checkpoint,
+        layout.loss_png,
+        layout.side_by_side_png,
+        layout.verify_metrics,
+        layout.toolpath_json,
+        layout.toolpath_preview,
+        *(layout.export_file(fmt) for fmt in ("gcode", "dxf", "svg")),
+        layout.journal,
+        layout.report_html,
+    ]
+    # The `render` layout (SPEC section 4): <view>.npy and <view>.png in each such folder.
+    render_layouts = [layout.optimize_renders, layout.verify_dir, layout.render_dir]
+    rendered = [d / f"{v}.{ext}" for d in render_layouts for v in views for ext in ("npy", "png")]
+    for path in named_files + rendered:
+        assert path.is_file(), layout.relative(path)
+    assert layout.export_files() == sorted(layout.export_file(f) for f in ("dxf", "gcode", "svg"))
+    # Nothing the stages wrote lies outside what the layout names (the manifest is the
+    # runner's own record).
+    written = {p for p in job.rglob("*") if p.is_file()}
+    unnamed = written - set(named_files) - set(rendered) - {job / "manifest.json"}
+    assert not unnamed, sorted(layout.relative(p) for p in unnamed)
+    # Each stage reads its inputs where the layout says the stage before wrote them.
+    assert job_inputs(job) == (layout.design.design_toml, layout.optimized_scratches)
+    assert default_journal_path(layout.export_file("gcode")) == layout.journal.resolve()
