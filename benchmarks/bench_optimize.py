@@ -34,6 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
 from scratchfab.metrics import quality_report  # noqa: E402
+from scratchfab.model.job import JobLayout  # noqa: E402
 from scratchfab.optimize.loss import Space  # noqa: E402
 from scratchfab.optimize.stage import OptimizeOptions, run_optimize  # noqa: E402
 
@@ -73,18 +74,17 @@ def bench_demo(iterations: int, threads: int, space: Space) -> dict:
             job, OptimizeOptions(iterations=iterations, threads=threads, space=space)
         )
         wall = time.perf_counter() - start
-        design = load_design(job / "design" / "design.toml")
-        targets = {
-            v.name: np.load(job / "design" / "targets" / f"{v.name}.npy") for v in design.views
-        }
+        layout = JobLayout(job)
+        design = load_design(layout.design.design_toml)
+        targets = {v.name: np.load(layout.design.target_npy(v.name)) for v in design.views}
         cross = cross_targets(design)
         t0 = time.perf_counter()
         ref = reference_render(
             design, result.scratches, samples_per_pixel=64, across=24, along_step_mm=0.05
         )
         ref_s = time.perf_counter() - t0
-        bar = _bar_row(job / "optimize" / "log.csv")
-        with open(job / "optimize" / "log.csv") as fh:
+        bar = _bar_row(layout.optimize_log)
+        with open(layout.optimize_log) as fh:
             first = next(csv.DictReader(fh))
         return {
             "board": "demo: 60 mm, 2 views 80x80 px, 2000 scratches",

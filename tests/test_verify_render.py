@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -368,7 +369,7 @@ def test_bad_input_is_one_line_and_writes_nothing(half_job, tmp_path, capsys, ar
         (["--sky", "--sky-strength", "nan"], "'--sky-strength': 'nan' is not a finite"),
         (["--sky", "--sun", "nan", "0", "1"], "'--sun': 'nan' is not a finite number"),
         (["--sky", "--sun", "0", "inf", "1"], "'--sun': 'inf' is not a finite number"),
-        (["--sky", "--sun", "0", "0", "0"], "--sun: the direction must not be zero"),
+        (["--sky", "--sun", "0", "0", "0"], "--sun: expected three finite numbers, not all zero"),
         (["--min-rho", "nan"], "'--min-rho': 'nan' is not a finite number"),
     ],
 )
@@ -383,6 +384,30 @@ def test_option_values_that_are_not_finite_numbers_are_refused(
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err, err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"spp": 1}, "spp: expected at least 2"),
+        ({"sweep": 1}, "sweep: expected 0 (no sweep) or at least 2 frames, got 1"),
+        ({"min_rho": 1.5}, "min_rho: expected -1 to 1, got 1.5"),
+        ({"max_noise": 0.0}, "max_noise: expected a number > 0"),
+        ({"max_noise": float("nan")}, "max_noise: expected a number > 0"),
+        ({"sky": {"sun_direction": (0.0, 0.0, 0.0)}}, "sun_direction: expected three finite"),
+        ({"sky": {"sun_direction": (0.0, float("inf"), 1.0)}}, "sun_direction: expected"),
+        ({"sky": {"strength": 0.0}}, "strength: expected a finite number > 0"),
+        ({"sky": {"turbidity": 12.0}}, "turbidity: expected 1 (clear) to 10"),
+    ],
+)
+def test_verify_settings_refuse_what_the_cli_refuses(kwargs, message):
+    """Library callers get the checks the CLI and pipeline files get, as ValueError."""
+    from scratchfab.verify.scene import Sky
+
+    with pytest.raises(ValueError, match=re.escape(message)):
+        sky = kwargs.get("sky")
+        VerifySettings(**{**kwargs, "sky": Sky(**sky) if sky else None})
+    assert VerifySettings(spp=2, sweep=2, min_rho=-1, max_noise=1e-3, sky=Sky()).sweep == 2
 
 
 def test_cuda_backend_without_a_gpu_is_a_clear_error(half_job, tmp_path, capsys):

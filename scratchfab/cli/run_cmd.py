@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from scratchfab.errors import ScratchfabError
+from scratchfab.model.job import JobLayout
 from scratchfab.pipeline.config import STAGES, load_pipeline
 from scratchfab.pipeline.runner import run_pipeline
 
@@ -76,7 +77,7 @@ def run(
             confirm=None if yes else _confirm,
         )
     finally:
-        report = job / "report.html"
+        report = JobLayout(job).report_html
         if report.is_file():
             click.echo(f"report: {report}")
     ran = ", ".join(result.ran) or "nothing"

@@ -10,7 +10,7 @@ import click
 from scratchfab.cli.options import FiniteFloat, job_or_files, job_or_files_options
 from scratchfab.errors import ScratchfabError
 from scratchfab.model.job import JobLayout
-from scratchfab.verify.verify import DEFAULT_SPP
+from scratchfab.verify.verify import DEFAULT_SPP, bad_sweep_frames
 
 
 @click.command("verify-render")
@@ -108,7 +108,7 @@ def verify_render(
     rho_kk, crosstalk, spp and time.
     """
     from scratchfab.verify.jitter import Tolerance
-    from scratchfab.verify.scene import Sky
+    from scratchfab.verify.scene import Sky, bad_sun_direction
     from scratchfab.verify.verify import (
         VerifySettings,
         run_verify_files,
@@ -117,10 +117,10 @@ def verify_render(
 
     if machine is not None and not jitter:
         raise ScratchfabError("--machine only sets the --jitter tolerances; add --jitter")
-    if sweep == 1:
-        raise ScratchfabError("--sweep: give 0 (no sweep) or at least 2 frames")
-    if sum(abs(c) for c in sun_direction) == 0:
-        raise ScratchfabError("--sun: the direction must not be zero")
+    if (why := bad_sweep_frames(sweep)) is not None:
+        raise ScratchfabError(f"--sweep: {why}")
+    if sky and (why := bad_sun_direction(sun_direction)) is not None:
+        raise ScratchfabError(f"--sun: {why}")
     tolerance = None
     if jitter:
         tolerance = Tolerance.from_profile(machine) if machine else Tolerance()

@@ -15,7 +15,7 @@ from scratchfab.errors import ConfigError
 from scratchfab.model.design import Design, design_from_mapping
 from scratchfab.model.schema import load_toml, parse_table, spec
 from scratchfab.optimize.options import OptimizeOptions
-from scratchfab.verify.verify import DEFAULT_SPP
+from scratchfab.verify.verify import DEFAULT_SPP, bad_sweep_frames
 
 if TYPE_CHECKING:
     from scratchfab.machine.profile import MachineProfile
@@ -115,8 +115,8 @@ class StageTables:
     stream: StreamOptions = StreamOptions()
 
     def __post_init__(self) -> None:
-        if self.verify.sweep == 1:
-            raise ValueError("verify.sweep: expected 0 (no sweep) or at least 2 frames, got 1")
+        if (why := bad_sweep_frames(self.verify.sweep)) is not None:
+            raise ValueError(f"verify.sweep: {why}")
         port = self.stream.port
         if port is not None and not port.strip():
             raise ValueError(

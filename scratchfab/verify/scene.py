@@ -24,6 +24,14 @@ from scratchfab.model.scratches import ScratchSet
 SAMPLER = "multijitter"
 
 
+def bad_sun_direction(direction: tuple[float, ...]) -> str | None:
+    """Why ``direction`` cannot point at the sun (three finite numbers, not all 0), or None."""
+    values = np.asarray(direction, dtype=np.float64)
+    if values.shape == (3,) and np.all(np.isfinite(values)) and values.any():
+        return None
+    return f"expected three finite numbers, not all zero, got {tuple(direction)}"
+
+
 @dataclass(frozen=True)
 class Sky:
     """Mitsuba's sun-and-sky emitter, scaled against the design's light.
@@ -38,6 +46,14 @@ class Sky:
     sun_direction: tuple[float, float, float] = (0.35, 0.8, 0.5)
     strength: float = 1.0
     turbidity: float = 3.0
+
+    def __post_init__(self) -> None:
+        if (why := bad_sun_direction(self.sun_direction)) is not None:
+            raise ValueError(f"sun_direction: {why}")
+        if not (np.isfinite(self.strength) and self.strength > 0):
+            raise ValueError(f"strength: expected a finite number > 0, got {self.strength}")
+        if not 1 <= self.turbidity <= 10:
+            raise ValueError(f"turbidity: expected 1 (clear) to 10, got {self.turbidity}")
 
 
 def use_variant(backend: BackendName = "llvm", color: bool = False) -> ModuleType:

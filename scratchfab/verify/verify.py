@@ -89,6 +89,13 @@ class VerifyGateError(ScratchfabError):
         )
 
 
+def bad_sweep_frames(frames: int) -> str | None:
+    """Why ``frames`` is not a sweep length (0: no sweep, else at least 2), or None."""
+    if frames == 0 or frames >= 2:
+        return None
+    return f"expected 0 (no sweep) or at least 2 frames, got {frames}"
+
+
 @dataclass(frozen=True)
 class VerifySettings:
     """What ``verify-render`` does beyond the plain comparison.
@@ -112,6 +119,16 @@ class VerifySettings:
     jitter: Tolerance | None = None
     min_rho: float | None = None
     max_noise: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.spp < 2:
+            raise ValueError(f"spp: expected at least 2 (two independent halves), got {self.spp}")
+        if (why := bad_sweep_frames(self.sweep)) is not None:
+            raise ValueError(f"sweep: {why}")
+        if self.min_rho is not None and not -1 <= self.min_rho <= 1:
+            raise ValueError(f"min_rho: expected -1 to 1, got {self.min_rho}")
+        if self.max_noise is not None and not self.max_noise > 0:
+            raise ValueError(f"max_noise: expected a number > 0, got {self.max_noise}")
 
 
 @dataclass(frozen=True)
