@@ -11,7 +11,7 @@ import click
 
 from scratchfab.cli.options import FiniteFloat
 from scratchfab.errors import ScratchfabError
-from scratchfab.machine.sender import Progress
+from scratchfab.machine.sender import StreamProgress
 from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
 
 
@@ -22,7 +22,7 @@ class _ProgressLine:
         self.tty = sys.stderr.isatty()
         self._last_decile = -1
 
-    def __call__(self, p: Progress) -> None:
+    def __call__(self, p: StreamProgress) -> None:
         pos = "" if p.wpos is None else " X{:.2f} Y{:.2f} Z{:.2f}".format(*p.wpos)
         eta = time.strftime("%H:%M:%S", time.gmtime(p.eta_s))
         text = f"{p.fraction:6.1%} {p.acked}/{p.total} lines  ETA {eta}  {p.state}{pos}"

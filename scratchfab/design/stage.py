@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from scratchfab.console import Say
 from scratchfab.design.feasibility import FeasibilityReport, check_feasibility
 from scratchfab.design.layout import initial_layout
 from scratchfab.design.targets import (
@@ -33,8 +32,6 @@ from scratchfab.model.job import DesignFolder, JobLayout
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.pipeline.config import PipelineOptions, parse_stage_tables
-
-Progress = Callable[[str], Any]
 
 
 @dataclass(frozen=True)
@@ -120,7 +117,7 @@ def run_design(
     count: int | None = None,
     resolution: tuple[int, int] | None = None,
     seed: int | None = None,
-    progress: Progress = lambda _: None,
+    progress: Say = lambda _: None,
 ) -> DesignResult:
     """Run the design stage.
 

@@ -129,7 +129,7 @@ def parse_status(line: str, wco: tuple[float, float, float] | None) -> Status:
 
 
 @dataclass
-class Progress:
+class StreamProgress:
     """What the progress display shows."""
 
     acked: int
@@ -218,7 +218,7 @@ class Streamer:
     Args:
         port: An open pyserial port (see :func:`open_port`).
         options: Sender behaviour.
-        on_progress: Called with a :class:`Progress` at most ``poll_hz`` times a second.
+        on_progress: Called with a :class:`StreamProgress` at most ``poll_hz`` times a second.
         on_message: Called with informational lines (warnings, controller messages).
         ask_interrupt: After Ctrl-C (machine held): return ``"resume"`` or ``"stop"``.
     """
@@ -227,7 +227,7 @@ class Streamer:
         self,
         port: Port,
         options: StreamOptions | None = None,
-        on_progress: Callable[[Progress], None] | None = None,
+        on_progress: Callable[[StreamProgress], None] | None = None,
         on_message: Callable[[str], None] | None = None,
         ask_interrupt: Callable[[], str] | None = None,
     ) -> None:
@@ -661,7 +661,7 @@ class Streamer:
     def _report(self, acked_through: int, total: int) -> None:
         done = self._cum[acked_through + 1] if acked_through >= 0 else 0.0
         self.on_progress(
-            Progress(
+            StreamProgress(
                 acked=acked_through + 1,
                 total=total,
                 eta_s=max(0.0, self._cum[-1] - done),

@@ -13,9 +13,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from scratchfab.console import Confirm, Say
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
-from scratchfab.machine.sender import Progress, Streamer, StreamOptions, open_port
+from scratchfab.machine.sender import Streamer, StreamOptions, StreamProgress, open_port
 from scratchfab.machine.sender_checks import compare
 from scratchfab.machine.sender_journal import (
     Journal,
@@ -90,11 +91,11 @@ class StreamCallbacks:
         result: Called with the outcome lines (resume point, done); default ``say``.
     """
 
-    progress: Callable[[Progress], Any]
-    say: Callable[[str], Any]
+    progress: Callable[[StreamProgress], Any]
+    say: Say
     ask_interrupt: Callable[[], str]
-    confirm: Callable[[str], bool]
-    result: Callable[[str], Any] | None = None
+    confirm: Confirm
+    result: Say | None = None
 
     def outcome(self, text: str) -> None:
         """Report an outcome line."""
@@ -229,9 +230,7 @@ def _check_strokes(program: Program, gcode: Path) -> None:
     )
 
 
-def _say_unsure(
-    program: Program, unsure_blocks: set[int], recut_unsure: bool, say: Callable[[str], Any]
-) -> None:
+def _say_unsure(program: Program, unsure_blocks: set[int], recut_unsure: bool, say: Say) -> None:
     """Name the lines a lost link left unsure, and how they are treated on this resume."""
     if not unsure_blocks:
         return
@@ -248,7 +247,7 @@ def _say_unsure(
         )
 
 
-def _profile_for(req: StreamRequest, say: Callable[[str], Any]) -> Any:
+def _profile_for(req: StreamRequest, say: Say) -> Any:
     """The machine profile to check against: the one asked for, else the job's own.
 
     A G-code file in ``JOB/export/`` was planned for the profile recorded in
@@ -270,7 +269,7 @@ def _profile_for(req: StreamRequest, say: Callable[[str], Any]) -> Any:
     return None
 
 
-def _check(streamer: Streamer, program: Any, gcode: Path, say: Callable[[str], Any]) -> None:
+def _check(streamer: Streamer, program: Any, gcode: Path, say: Say) -> None:
     """Run check mode and raise when GRBL finds any problem, listing each with its line."""
     report = streamer.check(program)
     for block, code in report.errors:
@@ -292,8 +291,8 @@ def run_stream_job(
     check: bool = False,
     machine: str | MachineProfile | None = None,
     recut_unsure: bool = False,
-    say: Callable[[str], Any] = lambda _: None,
-    confirm: Callable[[str], bool] = lambda _: True,
+    say: Say = lambda _: None,
+    confirm: Confirm = lambda _: True,
 ) -> Path:
     """The pipeline's stream stage: JOB/export/board.gcode to ``port``.
 
@@ -303,7 +302,7 @@ def run_stream_job(
     """
     last = [-1]
 
-    def progress(p: Progress) -> None:
+    def progress(p: StreamProgress) -> None:
         decile = int(p.fraction * 10)
         if decile != last[0]:
             last[0] = decile

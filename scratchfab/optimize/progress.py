@@ -7,6 +7,8 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from scratchfab.console import Say
+
 if TYPE_CHECKING:
     from scratchfab.optimize.stage import Progress
 
@@ -37,7 +39,7 @@ def progress_text(p: Progress, width: int = 30) -> str:
 
 
 def progress_printer(
-    say: Callable[[str], Any],
+    say: Say,
     redraw: Callable[[str, bool], Any] | None = None,
     width: int = 30,
 ) -> Callable[[Progress], None]:

@@ -13,19 +13,17 @@ the next run starts again at that stage.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from scratchfab.console import Confirm, Say
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.model.job import JobLayout
 from scratchfab.pipeline.config import STAGES, Pipeline
 from scratchfab.pipeline.manifest import Manifest, file_digest, fingerprint
 from scratchfab.pipeline.report import write_report
-
-Say = Callable[[str], Any]
-Confirm = Callable[[str], bool]
 
 
 def is_emulator(port: str) -> bool:

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from scratchfab.backend import BackendName
+from scratchfab.console import Say
 from scratchfab.model.design import load_design
 from scratchfab.model.scratches import load_scratches
 from scratchfab.render.layout import write_render_layout
@@ -18,7 +17,7 @@ def run_render(
     scratch_file: Path,
     out_dir: Path,
     backend: BackendName = "llvm",
-    say: Callable[[str], Any] = lambda _: None,
+    say: Say = lambda _: None,
 ) -> list[Path]:
     """Render every view of the board into ``out_dir`` (``<view>.npy`` and ``<view>.png``).
 

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
+from scratchfab.console import Say
 from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
 from scratchfab.model.job import JobLayout, job_inputs, stale_layout_warning
@@ -33,7 +32,7 @@ def run_toolpath(
     out_dir: Path,
     machine: str | Path | MachineProfile,
     options: OrderOptions | None = None,
-    say: Callable[[str], Any] = lambda _: None,
+    say: Say = lambda _: None,
 ) -> Toolpath:
     """Plan the strokes of ``scratch_file`` for ``machine``; write toolpath.json and preview.png.
 
@@ -86,7 +85,7 @@ def run_toolpath_job(
     job: Path,
     machine: str | Path | MachineProfile,
     options: OrderOptions | None = None,
-    say: Callable[[str], Any] = lambda _: None,
+    say: Say = lambda _: None,
 ) -> Toolpath:
     """``toolpath JOB``: the job's optimized layout (else the initial one) into JOB/toolpath."""
     scratch_file, design_file, note = job_toolpath_inputs(job)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from scratchfab.backend import BackendName
+from scratchfab.console import Say
 from scratchfab.design.targets import cross_targets, job_cross_targets
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import write_bytes, write_json
@@ -43,8 +44,6 @@ FLAT_SPP_FRACTION = 0.125
 MIN_PART_SPP = 16
 #: Sweep frames get at most this many samples per pixel.
 SWEEP_SPP = 1024
-
-Progress = Callable[[str], None]
 
 
 class VerifyGateError(ScratchfabError):
@@ -303,7 +302,7 @@ def run_verify(
     analytic_source: str = "render_scratches",
     targets: Mapping[str, np.ndarray] | None = None,
     cross: Mapping[tuple[str, str], np.ndarray] | None = None,
-    progress: Progress | None = None,
+    progress: Say | None = None,
 ) -> dict[str, Any]:
     """Render every view in Mitsuba, compare with the analytic render, write the results.
 
@@ -460,7 +459,7 @@ def _run_sky(
     settings: VerifySettings,
     targets: Mapping[str, np.ndarray],
     cross: Mapping[tuple[str, str], np.ndarray] | None,
-    say: Progress,
+    say: Say,
 ) -> dict[str, Any]:
     assert settings.sky is not None
     renderer = BoardRenderer(design, scratches, settings.backend, sky=settings.sky, mode="physical")
@@ -493,7 +492,7 @@ def _run_jitter(
     settings: VerifySettings,
     targets: Mapping[str, np.ndarray],
     base: Mapping[str, Any],
-    say: Progress,
+    say: Say,
 ) -> dict[str, Any]:
     assert settings.jitter is not None
     rng = np.random.default_rng(settings.seed + 4242)
@@ -518,7 +517,7 @@ def _run_jitter(
 
 
 def _run_sweep(
-    design: Design, scratches: ScratchSet, settings: VerifySettings, say: Progress
+    design: Design, scratches: ScratchSet, settings: VerifySettings, say: Say
 ) -> tuple[dict[str, Any], bytes]:
     frames, view_params = sweep_path(design, settings.sweep)
     renderer = BoardRenderer(design, scratches, settings.backend, mode="physical")
@@ -580,7 +579,7 @@ def run_verify_files(
     scratch_file: Path,
     out_dir: Path,
     settings: VerifySettings = VerifySettings(),
-    progress: Progress | None = None,
+    progress: Say | None = None,
 ) -> dict[str, Any]:
     """``verify-render --design FILE --scratches CSV --out DIR``: :func:`run_verify` on files.
 
@@ -600,7 +599,7 @@ def run_verify_files(
 def run_verify_job(
     job: str | Path,
     settings: VerifySettings = VerifySettings(),
-    progress: Progress | None = None,
+    progress: Say | None = None,
     out_dir: str | Path | None = None,
 ) -> dict[str, Any]:
     """``verify-render JOB``: verify the job's board into ``JOB/verify`` (or ``out_dir``).
