@@ -1,5 +1,8 @@
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import ezdxf
@@ -189,6 +192,27 @@ def test_same_toolpath_gives_the_same_bytes(planned, tmp_path):
         export(tp, profile, second)
         assert first.read_bytes() == second.read_bytes(), fmt
     assert not ezdxf.options.write_fixed_meta_data_for_testing  # left as it was
+
+
+def test_dxf_bytes_do_not_depend_on_the_hash_seed(rng, tmp_path):
+    """ezdxf orders CLASS entries by set iteration; Python's hash seed must not show."""
+    profile = PROFILES["z"]()
+    board = Board(width_mm=40.0, height_mm=40.0, margin_mm=1.0)
+    plan_toolpath(random_scratches(rng, 50), board, profile).save(tmp_path / "t.json")
+    script = (
+        "import sys; from scratchfab.export import export; "
+        "from scratchfab.toolpath import Toolpath; "
+        "export(Toolpath.load(sys.argv[1]), None, sys.argv[2])"
+    )
+    outputs = set()
+    for seed in range(1, 7):  # before the fix, seed 4 gave other bytes than 1-3, 5, 6
+        out = tmp_path / f"{seed}.dxf"
+        env = {**os.environ, "PYTHONHASHSEED": str(seed)}
+        subprocess.run(
+            [sys.executable, "-c", script, str(tmp_path / "t.json"), str(out)], check=True, env=env
+        )
+        outputs.add(out.read_bytes())
+    assert len(outputs) == 1
 
 
 def test_dxf_reads_back_with_ezdxf(planned, tmp_path):

@@ -3,7 +3,7 @@
 Every piece is a LINE entity in machine coordinates, scratches in cut order and
 direction. The document passes ezdxf's audit before it is written. The same toolpath
 gives the same bytes: the header's dates and GUIDs are ezdxf's fixed ones, not the
-clock's and random ones.
+clock's and random ones, and the CLASS entries are in name order, not hash order.
 """
 
 from __future__ import annotations
@@ -37,6 +37,17 @@ def _fixed_metadata() -> Iterator[None]:
         ezdxf.options.write_fixed_meta_data_for_testing = before
 
 
+def _register_classes_sorted(doc: Any) -> None:
+    """Register the document's CLASS entries now, sorted by name.
+
+    ezdxf registers a class per entity type in use while writing, iterating a set, so the
+    CLASSES section's order would follow ``PYTHONHASHSEED``; a class registered before
+    keeps its place.
+    """
+    doc.classes.add_required_classes(doc.dxfversion)
+    doc.classes.classes = dict(sorted(doc.classes.classes.items()))
+
+
 def write_dxf(
     toolpath: Toolpath, profile: MachineProfile | None, path: str | Path
 ) -> dict[str, Any]:
@@ -57,6 +68,7 @@ def write_dxf(
     if auditor.has_errors:
         first = auditor.errors[0].message if auditor.errors else "unknown"
         raise ScratchfabError(f"DXF audit failed ({first}); nothing written")
+    _register_classes_sorted(doc)
     buffer = io.StringIO()
     with _fixed_metadata():
         doc.write(buffer)
