@@ -1347,3 +1347,158 @@ def test_stream_help_shows_no_empty_range():
 
     out = CliRunner().invoke(cli, ["stream", "--help"], terminal_width=200).output
     assert "--z-threshold" in out and "None" not in out
+
+
+# --------------------------------------------------------------------------- crash safety
+
+
+class _Tripwire:
+    """A port that raises ``exc`` from ``read`` once armed (a Ctrl-C at the worst moment)."""
+
+    def __init__(self, port):
+        object.__setattr__(self, "_port", port)
+        object.__setattr__(self, "armed", None)
+
+    def read(self, size=1):
+        exc = self.armed
+        if exc is not None:
+            object.__setattr__(self, "armed", None)
+            raise exc
+        return self._port.read(size)
+
+    def __getattr__(self, name):
+        return getattr(self._port, name)
+
+    def __setattr__(self, name, value):
+        if name == "armed":
+            object.__setattr__(self, name, value)
+        else:
+            setattr(self._port, name, value)
+
+
+def _held_then_reset(record) -> None:
+    """Feed hold, then a soft reset, and nothing cut after the reset."""
+    hold = next(e["t"] for e in record if e["ev"] == "rt" and e["ch"] == ord("!"))
+    resets = [e["t"] for e in record if e["ev"] == "reset" and e["t"] >= hold]
+    assert resets, "no soft reset after the feed hold"
+    assert not [e for e in record if e["ev"] == "exec" and e["t"] > resets[0] + 1e-6]
+
+
+def _fire_after(n, exc=KeyboardInterrupt):
+    fired = []
+
+    def progress(p):
+        if p.acked > n and not fired:
+            fired.append(1)
+            raise exc
+
+    return progress
+
+
+@pytest.mark.parametrize("answer", ["abort", "eof", "second_ctrl_c"])
+def test_a_failed_prompt_after_ctrl_c_still_stops_safely(tmp_path, answer):
+    """click.prompt raises Abort for a second Ctrl-C or a closed stdin: stop, never stay held."""
+    import click
+
+    job = tmp_path / "job.gcode"
+    write_job(job, 40)
+    prog = load_program(job)
+    journal = tmp_path / "j.jsonl"
+
+    def ask():
+        raise {
+            "abort": click.exceptions.Abort(),
+            "eof": EOFError(),
+            "second_ctrl_c": (KeyboardInterrupt()),
+        }[answer]
+
+    port = open_port("grblsim://?time_scale=0.02", 115200)
+    try:
+        with pytest.raises(StreamStopped):
+            _stream(port, prog, journal, on_progress=_fire_after(60), ask_interrupt=ask)
+    finally:
+        port.close()
+    _held_then_reset(port.sim.record)
+    assert read_journal(journal)[-1]["ev"] == "stop"
+
+
+def test_ctrl_c_while_waiting_for_the_hold_still_resets(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 40)
+    prog = load_program(job)
+    journal = tmp_path / "j.jsonl"
+    port = open_port("grblsim://?time_scale=0.02", 115200)
+    trip = _Tripwire(port)
+
+    def ask():
+        trip.armed = KeyboardInterrupt()  # the next read, in the wait for Hold:0
+        return "stop"
+
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            _stream(trip, prog, journal, on_progress=_fire_after(60), ask_interrupt=ask)
+    finally:
+        port.close()
+    _held_then_reset(port.sim.record)
+    last = read_journal(journal)[-1]
+    assert last["ev"] == "stop" and "KeyboardInterrupt" in last["reason"]
+
+
+class _FullDiskJournal(Journal):
+    """A journal whose disk fills after ``room`` writes."""
+
+    room = 80
+
+    def write(self, event, **data):
+        if event == "ack":
+            self.room -= 1
+            if self.room < 0:
+                raise OSError(28, "No space left on device")
+        super().write(event, **data)
+
+
+def test_a_journal_write_error_stops_the_machine(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 40)
+    prog = load_program(job)
+    port = open_port("grblsim://?time_scale=0.02", 115200)
+    try:
+        streamer = Streamer(port, FAST)
+        streamer.connect()
+        journal = _FullDiskJournal(tmp_path / "j.jsonl").open()
+        with pytest.raises(OSError, match="No space left"):
+            streamer.stream(prog, journal)
+        journal.close()
+    finally:
+        port.close()
+    assert any(e["ev"] == "rt" and e["ch"] == ord("!") for e in port.sim.record)
+    _held_then_reset(port.sim.record)
+
+
+def test_ctrl_c_in_check_mode_leaves_check_mode(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 40)
+    prog = load_program(job)
+    port = open_port("grblsim://?time_scale=0.02", 115200)
+    trip = _Tripwire(port)
+    try:
+        streamer = Streamer(trip, FAST)
+        streamer.connect()
+        sent = []
+        original = port.write
+
+        def write(data):
+            sent.append(data)
+            if len(sent) == 30:
+                trip.armed = KeyboardInterrupt()
+            return original(data)
+
+        trip._port.write = write  # type: ignore[method-assign]
+        with pytest.raises(KeyboardInterrupt):
+            streamer.check(prog)
+        assert streamer._status_now().state == "Idle"
+    finally:
+        port.close()
+    record = port.sim.record
+    enabled = next(e["t"] for e in record if e["ev"] == "state" and e["state"] == "Check")
+    assert any(e["ev"] == "reset" and e["t"] > enabled for e in record)

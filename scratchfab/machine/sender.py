@@ -475,6 +475,14 @@ class Streamer:
                 raise StreamFault("check mode: no reset after leaving check mode")
         except _Fault as fault:
             raise StreamFault(str(fault)) from None
+        except BaseException:
+            # Ctrl-C, a signal or a bug: do not leave the controller in check mode ($C)
+            try:
+                self._write(REALTIME_RESET)
+                self._wait_banner(self.options.banner_timeout)
+            except (Exception, KeyboardInterrupt):
+                pass
+            raise
         return report
 
     # ------------------------------------------------------------------ streaming
@@ -511,6 +519,13 @@ class Streamer:
         except _Fault as fault:
             self._stop_after_fault(fault)
             raise StreamFault(str(fault)) from None
+        except StreamStopped:
+            raise  # stopped safely already
+        except BaseException as exc:
+            # anything else (a second Ctrl-C, a closed prompt, a journal write error,
+            # SystemExit, a bug) must not leave the machine running or held
+            self._stop_on_escape(exc)
+            raise
         journal.write("end", complete=True)
 
     def _items(self, program: Program, start: int, preamble: Sequence[str]) -> list[_Item]:
@@ -689,12 +704,13 @@ class Streamer:
 
     def _interrupted(self) -> None:
         self._write(REALTIME_HOLD)
-        self.on_message("feed hold sent")
+        self._tell("feed hold sent")
         choice = "stop"
         if self.ask_interrupt is not None:
             try:
                 choice = self.ask_interrupt()
-            except (KeyboardInterrupt, EOFError):
+            except (Exception, KeyboardInterrupt):
+                # a second Ctrl-C, stdin closed or not a terminal (click's Abort): stop
                 choice = "stop"
         if choice == "resume":
             # GRBL ignores ~ until the hold is complete (Hold:0)
@@ -707,6 +723,53 @@ class Streamer:
             f"stopped by the user after line {self._last_acked_line()}; machine held, then "
             "soft-reset (spindle off); continue later with --resume"
         )
+
+    def _tell(self, text: str) -> None:
+        """``on_message`` on a stop path: a closed terminal must not keep the machine held."""
+        try:
+            self.on_message(text)
+        except Exception:  # noqa: BLE001, S110
+            pass
+
+    def _stop_on_escape(self, exc: BaseException) -> None:
+        """The safe stop when anything but a fault or a user's stop escapes the stream.
+
+        Feed hold, a short wait for ``Hold:0`` (a further Ctrl-C cuts it short), soft reset
+        (spindle off, queue flushed), then ``stop`` in the journal, or ``lost`` when the port
+        is gone. Errors on the way are swallowed: the caller re-raises ``exc``.
+        """
+        self._stopping = True
+        reason = (
+            f"sender interrupted ({type(exc).__name__}: {exc})"
+            if str(exc)
+            else (f"sender interrupted ({type(exc).__name__})")
+        )
+        wpos = None
+        try:
+            self._write(REALTIME_HOLD)
+            try:
+                held = self._wait_held(min(self.options.hold_timeout, 5.0))
+                wpos = held.wpos if held is not None else None
+            except (Exception, KeyboardInterrupt):
+                wpos = None
+            self._write(REALTIME_RESET)
+        except _Fault:
+            self._journal_quietly(
+                "lost", reason=reason, executed_through=self._executed_guess(self.status.wpos)
+            )
+            return
+        try:
+            self._wait_banner(self.options.banner_timeout)
+        except (Exception, KeyboardInterrupt):
+            pass
+        self._journal_quietly("stop", reason=reason, executed_through=self._executed_guess(wpos))
+        self._tell("machine held, then soft-reset (spindle off)")
+
+    def _journal_quietly(self, event: str, **data: Any) -> None:
+        try:
+            self._journal.write(event, **data)
+        except (Exception, KeyboardInterrupt):
+            pass
 
     def _stop_after_fault(self, fault: _Fault) -> None:
         """Bring the machine to a safe state after a fault and journal what surely ran."""
