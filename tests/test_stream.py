@@ -1502,3 +1502,95 @@ def test_ctrl_c_in_check_mode_leaves_check_mode(tmp_path):
     record = port.sim.record
     enabled = next(e["t"] for e in record if e["ev"] == "state" and e["state"] == "Check")
     assert any(e["ev"] == "reset" and e["t"] > enabled for e in record)
+
+
+class _Killed(Exception):
+    pass
+
+
+@pytest.mark.parametrize("signame", ["SIGTERM", "SIGHUP"])
+def test_sigterm_and_sighup_stop_the_stream_safely(tmp_path, signame):
+    """An ssh drop (SIGHUP) or a kill (SIGTERM) holds and resets like Ctrl-C's stop."""
+    import os
+    import signal
+
+    signum = getattr(signal, signame)
+
+    def outer(signum, frame):
+        raise _Killed  # what the old sender did: die at once (without killing pytest)
+
+    job = tmp_path / "job.gcode"
+    write_job(job, 40)
+    prog = load_program(job)
+    journal = tmp_path / "j.jsonl"
+    asked, fired = [], []
+    previous = signal.signal(signum, outer)
+    try:
+        port = open_port("grblsim://?time_scale=0.02", 115200)
+        try:
+            with pytest.raises(StreamStopped, match=f"stopped by {signame} after line"):
+                _stream(
+                    port,
+                    prog,
+                    journal,
+                    on_progress=lambda p: (
+                        p.acked > 60 and not fired and fired.append(os.kill(os.getpid(), signum))
+                    ),
+                    ask_interrupt=lambda: asked.append(1) or "resume",
+                )
+        finally:
+            port.close()
+        first_record = port.sim.record
+        assert signal.getsignal(signum) is outer  # restored after the stream
+        # check mode too
+        port = open_port("grblsim://?time_scale=0.02", 115200)
+        try:
+            streamer = Streamer(port, FAST)
+            streamer.connect()
+            streamer.on_message = lambda m: None
+            original = port.write
+            sent = []
+
+            def write(data):
+                sent.append(data)
+                if len(sent) == 30:
+                    os.kill(os.getpid(), signum)
+                return original(data)
+
+            port.write = write
+            with pytest.raises(StreamStopped, match=f"check mode stopped by {signame}"):
+                streamer.check(prog)
+            port.write = original
+            assert streamer._status_now().state == "Idle"
+        finally:
+            port.close()
+        assert signal.getsignal(signum) is outer
+    finally:
+        signal.signal(signum, previous)
+    assert not asked  # nobody may be at the terminal: no prompt
+    _held_then_reset(first_record)
+    assert read_journal(journal)[-1]["ev"] == "stop"
+
+
+def test_a_stream_in_a_thread_installs_no_signal_handler(tmp_path):
+    import threading
+
+    job = tmp_path / "job.gcode"
+    write_job(job, 5)
+    prog = load_program(job)
+    errors = []
+
+    def run():
+        port = open_port("grblsim://?time_scale=0.001", 115200)
+        try:
+            _stream(port, prog, tmp_path / "j.jsonl")
+        except BaseException as exc:  # noqa: BLE001
+            errors.append(exc)
+        finally:
+            port.close()
+
+    th = threading.Thread(target=run)
+    th.start()
+    th.join(60)
+    assert not errors
+    assert read_journal(tmp_path / "j.jsonl")[-1]["ev"] == "end"

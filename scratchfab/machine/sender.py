@@ -28,9 +28,12 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
+import signal
+import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -60,6 +63,35 @@ class StreamStopped(ScratchfabError):
     """The user stopped the job (exit status 130)."""
 
     exit_code = 130
+
+
+class StopSignal(KeyboardInterrupt):
+    """SIGTERM or SIGHUP while streaming: taken as Ctrl-C answered with stop."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def _signals_stop(streamer: Streamer) -> Iterator[None]:
+    """Turn SIGTERM and SIGHUP into :class:`StopSignal` for the duration (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    names = ("SIGTERM", "SIGHUP")
+    nums = [getattr(signal, n) for n in names if hasattr(signal, n)]
+
+    def handler(signum: int, frame: object) -> None:
+        if not streamer._stopping:  # already stopping: let the stop finish
+            raise StopSignal(signum)
+
+    previous = {n: signal.signal(n, handler) for n in nums}
+    try:
+        yield
+    finally:
+        for n, old in previous.items():
+            signal.signal(n, old)
 
 
 class Port(Protocol):
@@ -447,42 +479,54 @@ class Streamer:
         """Run the program through check mode (``$C``), one line at a time; no motion."""
         report = CheckReport(errors=[])
         try:
-            self._command("$C")
-            for block in program.blocks:
-                if block.system:
-                    continue
-                self._write(block.text.encode("ascii") + b"\n")
-                answered = False
-                deadline = time.monotonic() + 5.0
-                while not answered:
-                    if time.monotonic() > deadline:
-                        raise StreamFault(f"check mode: no answer to line {block.lineno}")
-                    for line in self._read_lines(0.05):
-                        if line == "ok":
-                            answered = True
-                        elif line.startswith("error:"):
-                            report.errors.append((block, _code(line)))
-                            answered = True
-                        elif line.startswith("ALARM:"):
-                            report.alarm = (block, _code(line))
-                            answered = True
-                if report.alarm is not None:
-                    self._write(REALTIME_RESET)
-                    self._wait_banner(self.options.banner_timeout)
-                    return report
-            self._write(b"$C\n")
-            if self._wait_banner(self.options.banner_timeout) is None:
-                raise StreamFault("check mode: no reset after leaving check mode")
+            with _signals_stop(self):
+                return self._check(program, report)
         except _Fault as fault:
             raise StreamFault(str(fault)) from None
-        except BaseException:
+        except BaseException as exc:
             # Ctrl-C, a signal or a bug: do not leave the controller in check mode ($C)
+            self._stopping = True
             try:
                 self._write(REALTIME_RESET)
                 self._wait_banner(self.options.banner_timeout)
             except (Exception, KeyboardInterrupt):
                 pass
+            if isinstance(exc, StopSignal):
+                raise StreamStopped(
+                    f"check mode stopped by {exc}; controller soft-reset, nothing moved"
+                ) from None
             raise
+        finally:
+            self._stopping = False
+
+    def _check(self, program: Program, report: CheckReport) -> CheckReport:
+        """Check mode proper: ``$C``, every line, ``$C`` again (reset and banner)."""
+        self._command("$C")
+        for block in program.blocks:
+            if block.system:
+                continue
+            self._write(block.text.encode("ascii") + b"\n")
+            answered = False
+            deadline = time.monotonic() + 5.0
+            while not answered:
+                if time.monotonic() > deadline:
+                    raise StreamFault(f"check mode: no answer to line {block.lineno}")
+                for line in self._read_lines(0.05):
+                    if line == "ok":
+                        answered = True
+                    elif line.startswith("error:"):
+                        report.errors.append((block, _code(line)))
+                        answered = True
+                    elif line.startswith("ALARM:"):
+                        report.alarm = (block, _code(line))
+                        answered = True
+            if report.alarm is not None:
+                self._write(REALTIME_RESET)
+                self._wait_banner(self.options.banner_timeout)
+                return report
+        self._write(b"$C\n")
+        if self._wait_banner(self.options.banner_timeout) is None:
+            raise StreamFault("check mode: no reset after leaving check mode")
         return report
 
     # ------------------------------------------------------------------ streaming
@@ -515,7 +559,8 @@ class Streamer:
             cum.append(cum[-1] + b.seconds)
         self._cum = cum
         try:
-            self._run(items, program, journal)
+            with _signals_stop(self):
+                self._run(items, program, journal)
         except _Fault as fault:
             self._stop_after_fault(fault)
             raise StreamFault(str(fault)) from None
@@ -525,6 +570,11 @@ class Streamer:
             # anything else (a second Ctrl-C, a closed prompt, a journal write error,
             # SystemExit, a bug) must not leave the machine running or held
             self._stop_on_escape(exc)
+            if isinstance(exc, StopSignal):
+                raise StreamStopped(
+                    f"stopped by {exc} after line {self._last_acked_line()}; machine held, "
+                    "then soft-reset (spindle off); continue later with --resume"
+                ) from None
             raise
         journal.write("end", complete=True)
 
@@ -635,8 +685,8 @@ class Streamer:
                 if now - last_report >= 1.0 / min(self.options.poll_hz, 5.0):
                     last_report = now
                     self._report(self._acked_through, len(program.blocks))
-            except KeyboardInterrupt:
-                self._interrupted()
+            except KeyboardInterrupt as exc:
+                self._interrupted(exc)
                 self._last_rx = time.monotonic()
                 idle_since = None
         self._report(len(program.blocks) - 1, len(program.blocks))
@@ -702,11 +752,14 @@ class Streamer:
 
     # ------------------------------------------------------------------ stopping
 
-    def _interrupted(self) -> None:
+    def _interrupted(self, exc: KeyboardInterrupt) -> None:
         self._write(REALTIME_HOLD)
         self._tell("feed hold sent")
         choice = "stop"
-        if self.ask_interrupt is not None:
+        by = "the user"
+        if isinstance(exc, StopSignal):
+            by = str(exc)  # no prompt: nobody may be there to answer
+        elif self.ask_interrupt is not None:
             try:
                 choice = self.ask_interrupt()
             except (Exception, KeyboardInterrupt):
@@ -718,9 +771,9 @@ class Streamer:
             self._write(REALTIME_RESUME)
             self.on_message("resumed")
             return
-        self._safe_stop("stopped by the user", wait=self.options.hold_timeout)
+        self._safe_stop(f"stopped by {by}", wait=self.options.hold_timeout)
         raise StreamStopped(
-            f"stopped by the user after line {self._last_acked_line()}; machine held, then "
+            f"stopped by {by} after line {self._last_acked_line()}; machine held, then "
             "soft-reset (spindle off); continue later with --resume"
         )
 
