@@ -39,7 +39,8 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) ->
         **kwargs: Passed to :func:`open` (e.g. ``newline``, ``encoding``).
 
     Raises:
-        ScratchfabError: The folder cannot be made or written (one line naming the file).
+        ScratchfabError: The folder cannot be made or the file cannot be written (one
+            line naming the file); the old file is kept.
     """
     target = Path(path)
     try:
@@ -57,9 +58,11 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) ->
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp_name, target)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp_name)
+        if isinstance(exc, OSError):  # a full disk, a quota, a vanished folder
+            raise ScratchfabError(f"{target}: cannot write ({exc.strerror or exc})") from None
         raise
 
 
@@ -71,7 +74,7 @@ def atomic_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
     swap fails, so a reader finds the old folder or the new one, never a mix.
 
     Raises:
-        ScratchfabError: The parent folder cannot be made or written.
+        ScratchfabError: The parent folder cannot be made or written, or the swap fails.
     """
     target = Path(path)
     try:
@@ -97,6 +100,8 @@ def atomic_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
             raise
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
+    except OSError as exc:
+        raise ScratchfabError(f"{target}: cannot write ({exc.strerror or exc})") from None
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)

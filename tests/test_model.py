@@ -169,6 +169,33 @@ def test_atomic_write_gives_the_usual_permissions_and_keeps_the_old_file(tmp_pat
     assert [p.name for p in tmp_path.iterdir()] == ["b.txt"]  # no temporary file left
 
 
+def test_full_disk_is_one_line_naming_the_file_and_keeps_the_old_one(tmp_path, monkeypatch):
+    import errno
+    import os
+
+    from scratchfab.errors import ScratchfabError
+    from scratchfab.fileio import atomic_folder, write_text
+
+    write_text(tmp_path / "b.txt", "old")
+    with atomic_folder(tmp_path / "stage") as new:
+        write_text(new / "a.txt", "old")
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(ScratchfabError) as info:
+        write_text(tmp_path / "b.txt", "new")
+    assert str(info.value) == f"{tmp_path / 'b.txt'}: cannot write (No space left on device)"
+    with pytest.raises(ScratchfabError) as info, atomic_folder(tmp_path / "stage") as new:
+        (new / "a.txt").write_text("new")  # a write that is not through write_text
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    assert str(info.value) == f"{tmp_path / 'stage'}: cannot write (No space left on device)"
+    assert (tmp_path / "b.txt").read_text() == "old"
+    assert (tmp_path / "stage" / "a.txt").read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.txt", "stage"]  # no temporaries
+
+
 def test_atomic_folder_gives_the_usual_permissions_and_keeps_the_old_folder(tmp_path):
     import os
 
