@@ -9,6 +9,12 @@ class ScratchfabError(Exception):
     exit_code = 2
 
 
+class Interrupted(ScratchfabError):
+    """The person stopped the work (Ctrl-C) and what was done is saved; exit 130 as a shell."""
+
+    exit_code = 130
+
+
 class ConfigError(ScratchfabError):
     """A configuration or data file is invalid; the message names the file and the key or row."""
 

@@ -50,6 +50,7 @@ SPEC_SECTION_6 = {
     "stream_dir": "stream",
     "journal": "stream/journal.jsonl",
     "report_html": "report.html",
+    "run_lock": ".run.lock",
 }
 
 
@@ -206,6 +207,7 @@ def test_stages_write_where_the_layout_says(demo_like_job):
         *(layout.export_file(fmt) for fmt in ("gcode", "dxf", "svg")),
         layout.journal,
         layout.report_html,
+        layout.run_lock,
     ]
     # The `render` layout (SPEC section 4): <view>.npy and <view>.png in each such folder.
     render_layouts = [layout.optimize_renders, layout.verify_dir, layout.render_dir]

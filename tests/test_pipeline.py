@@ -542,6 +542,84 @@ def test_failed_stage_keeps_earlier_outputs_and_next_run_resumes_there(tmp_path)
     assert (job / "optimize" / "scratches.csv").read_bytes() == before
 
 
+def test_stage_killed_midway_runs_again(finished_job, tmp_path, monkeypatch):
+    """A stage that never got to say it failed (kill -9) is not left marked done."""
+    import shutil
+
+    from scratchfab.pipeline import runner
+
+    path, job, _ = finished_job
+    copy = tmp_path / "job"
+    shutil.copytree(job, copy)
+
+    def killed(self):
+        raise SystemExit("killed")
+
+    with monkeypatch.context() as mp:
+        mp.setattr(Manifest, "invalidate", lambda *a: None)  # a kill runs no except clause
+        mp.setattr(runner._Stages, "_run_toolpath", killed)
+        with pytest.raises(SystemExit):
+            run_pipeline(load_pipeline(path), copy, start="toolpath", until="export")
+    assert Manifest.load(copy).stages["toolpath"]["status"] == "running"
+    result = run_pipeline(load_pipeline(path), copy, until="export")
+    assert result.skipped == ["design", "optimize", "verify"]
+    assert result.ran == ["toolpath", "export"]
+
+
+def test_ctrl_c_in_optimize_stops_the_run_and_the_next_run_continues_it(
+    tmp_path, monkeypatch, capsys
+):
+    import contextlib
+
+    from scratchfab.optimize import stage as optimize_stage
+
+    text = write_pipeline(tmp_path).read_text().replace("iterations = 4", "iterations = 12")
+    path = tmp_path / "tiny.toml"
+    path.write_text(text)
+    reference = tmp_path / "reference"
+    run_pipeline(load_pipeline(path), reference, until="optimize")
+
+    @contextlib.contextmanager
+    def ctrl_c_after_five_steps():
+        polls = iter(range(10**6))
+        yield lambda: next(polls) >= 4
+
+    job = tmp_path / "job"
+    with monkeypatch.context() as mp:
+        mp.setattr(optimize_stage, "interrupt_flag", ctrl_c_after_five_steps)
+        with pytest.raises(SystemExit) as exc:
+            main(["run", str(path), "--out", str(job)])
+    assert exc.value.code == 130
+    err = capsys.readouterr().err
+    assert "[optimize] interrupted after 5 of 12 iterations; the pipeline stops here" in err
+    assert "error" not in err and "Traceback" not in err
+    assert Manifest.load(job).stages["optimize"]["status"] == "interrupted"
+    assert not (job / "verify").exists() and not (job / "export").exists()
+
+    said: list[str] = []
+    result = run_pipeline(load_pipeline(path), job, until="optimize", say=said.append)
+    assert result.ran == ["optimize"]
+    assert any("continuing the interrupted run" in line for line in said)
+    scratches = "optimize/scratches.csv"
+    assert (job / scratches).read_bytes() == (reference / scratches).read_bytes()
+    assert Manifest.load(job).stages["optimize"]["status"] == "done"
+
+
+def test_a_second_run_on_a_busy_job_is_refused(tmp_path):
+    import fcntl
+
+    path = write_pipeline(tmp_path)
+    job = tmp_path / "job"
+    job.mkdir()
+    with open(job / ".run.lock", "a") as held:  # as a run in another process holds it
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(ScratchfabError, match="another `scratchfab run` is working on"):
+            run_pipeline(load_pipeline(path), job)
+    assert sorted(p.name for p in job.iterdir()) == [".run.lock"]  # nothing run
+    result = run_pipeline(load_pipeline(path), job, until="design")  # free again
+    assert result.ran == ["design"]
+
+
 def test_until_and_from(tmp_path):
     path = write_pipeline(tmp_path)
     job = tmp_path / "job"

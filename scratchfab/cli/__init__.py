@@ -14,7 +14,7 @@ from typing import Any
 import click
 
 from scratchfab import __version__
-from scratchfab.errors import ScratchfabError
+from scratchfab.errors import Interrupted, ScratchfabError
 
 #: name -> (module, attribute, one-line help), in pipeline order.
 COMMANDS: dict[str, tuple[str, str, str]] = {
@@ -75,6 +75,9 @@ def main(argv: list[str] | None = None) -> Any:
     """Entry point: run the CLI, turning user errors into one line and a non-zero exit."""
     try:
         return cli.main(args=argv, prog_name="scratchfab", standalone_mode=False)
+    except Interrupted as exc:
+        click.echo(str(exc), err=True)
+        sys.exit(exc.exit_code)
     except ScratchfabError as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(exc.exit_code)

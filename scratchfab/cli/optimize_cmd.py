@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from scratchfab.cli.options import FiniteFloat, backend_option
+from scratchfab.errors import Interrupted
 from scratchfab.optimize.progress import clock, progress_printer
 from scratchfab.optimize.stage import OptimizeOptions, Progress, run_optimize
 
@@ -101,7 +102,8 @@ def optimize(
 ) -> None:
     """Optimize the scratch layout of JOB (reads JOB/design, writes JOB/optimize).
 
-    Ctrl-C stops after the current step and writes everything; --resume continues.
+    Ctrl-C stops after the current step, writes everything and exits with 130;
+    --resume continues.
     """
     options = OptimizeOptions(
         iterations=iterations,
@@ -132,3 +134,10 @@ def optimize(
         f"{result.iterations} iterations ({result.stopped}), loss {result.loss:.5f}; "
         f"wrote {result.out_dir}"
     )
+    if (
+        result.stopped == "interrupted"
+    ):  # a non-zero exit keeps `optimize && toolpath` from going on
+        raise Interrupted(
+            f"interrupted after {result.iterations} of {iterations} iterations; "
+            f"`scratchfab optimize {job} --resume` continues it"
+        )

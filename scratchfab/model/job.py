@@ -201,6 +201,11 @@ class JobLayout:
         """The page a person reads after a run."""
         return self.root / "report.html"
 
+    @property
+    def run_lock(self) -> Path:
+        """Locked by ``scratchfab run`` while it works on the job (empty; a dot file)."""
+        return self.root / ".run.lock"
+
 
 def job_inputs(job: str | Path) -> tuple[Path, Path]:
     """The design and scratch files a stage working on a job uses.

@@ -114,6 +114,21 @@ class Manifest:
         }
         self.save()
 
+    def start(self, stage: str, inputs: Mapping[str, Any]) -> None:
+        """Mark ``stage`` as running on ``inputs``, so a kill leaves it not done."""
+        self.stages[stage] = {"status": "running", "inputs": dict(inputs)}
+        self.save()
+
+    def interrupt(self, stage: str, inputs: Mapping[str, Any], reason: str) -> None:
+        """Mark ``stage`` as stopped by the person on ``inputs``, its work so far saved."""
+        self.stages[stage] = {"status": "interrupted", "inputs": dict(inputs), "reason": reason}
+        self.save()
+
+    def unfinished(self, stage: str, inputs: Mapping[str, Any]) -> bool:
+        """True when ``stage`` last started on exactly ``inputs`` and did not finish."""
+        entry = self.stages.get(stage) or {}
+        return entry.get("status") in ("running", "interrupted") and entry.get("inputs") == inputs
+
     def invalidate(self, stage: str, reason: str) -> None:
         """Mark ``stage`` as not done (it failed or its inputs changed)."""
         self.stages[stage] = {"status": "failed", "reason": reason}

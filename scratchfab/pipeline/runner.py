@@ -12,14 +12,16 @@ the next run starts again at that stage.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from scratchfab.console import Confirm, Say
-from scratchfab.errors import ConfigError, ScratchfabError
+from scratchfab.errors import ConfigError, Interrupted, ScratchfabError
 from scratchfab.model.job import JobLayout
 from scratchfab.pipeline.config import STAGES, Pipeline
 from scratchfab.pipeline.manifest import Manifest, file_digest, fingerprint
@@ -59,6 +61,7 @@ class _Stages:
         self.layout = JobLayout(job)
         self.say = say
         self.confirm = confirm
+        self.resume = False  # continue the stage's interrupted work (optimize's checkpoint)
 
     # -- inputs -----------------------------------------------------------------------
     def inputs(self, stage: str) -> dict[str, Any]:
@@ -142,8 +145,23 @@ class _Stages:
         from scratchfab.optimize.stage import run_optimize
 
         progress = progress_printer(lambda line: self.say(f"  {line}"))
-        run_optimize(self.job, self.pipe.optimize, progress=progress)
         layout = self.layout
+        options = self.pipe.optimize
+        if self.resume and layout.optimize_checkpoint.is_file():
+            self.say(f"  continuing the interrupted run from {layout.optimize_checkpoint}")
+            try:
+                result = run_optimize(self.job, replace(options, resume=True), progress=progress)
+            except ConfigError as exc:
+                self.say(f"  cannot continue it ({exc}); optimizing from the start")
+                result = run_optimize(self.job, options, progress=progress)
+        else:
+            result = run_optimize(self.job, options, progress=progress)
+        if result.stopped == "interrupted":
+            raise Interrupted(
+                f"[optimize] interrupted after {result.iterations} of {options.iterations} "
+                f"iterations; the pipeline stops here. Its work is saved: run again to "
+                f"continue from {layout.optimize_checkpoint}"
+            )
         return self._relative(
             layout.optimized_scratches, layout.optimize_renders, layout.optimize_log
         )
@@ -243,7 +261,12 @@ def run_pipeline(
             emulator), after its settings check as ``stream`` asks; False stops with
             nothing sent. None: the caller has consent.
 
+    A stage is marked running in the manifest before it starts, so one killed midway is
+    run again next time. An optimize stopped by Ctrl-C (or killed) on the same inputs
+    continues from its checkpoint, unless ``force`` or ``start`` asks for it afresh.
+
     Raises:
+        Interrupted: Ctrl-C stopped optimize; its work is saved, later stages did not run.
         ScratchfabError: A stage failed; earlier outputs and the manifest stay consistent,
             and the report is still written.
     """
@@ -254,6 +277,42 @@ def run_pipeline(
         raise ScratchfabError(f"--from {start} comes after --until {until}; nothing to run")
     t0 = time.perf_counter()
     job.mkdir(parents=True, exist_ok=True)
+    with _job_lock(JobLayout(job).run_lock):
+        return _run_stages(pipe, job, start, until, force, say, confirm, t0)
+
+
+@contextlib.contextmanager
+def _job_lock(path: Path) -> Iterator[None]:
+    """Hold ``path`` locked, or refuse: two runs on one job would mix their files and cut twice.
+
+    The lock (``flock``) goes with the process, so a killed run leaves none behind.
+    """
+    try:
+        handle = open(path, "a")  # held for the whole run
+    except OSError as exc:
+        raise ScratchfabError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    with handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ScratchfabError(
+                f"{path.parent}: another `scratchfab run` is working on this job; "
+                "wait until it ends"
+            ) from None
+        yield
+
+
+def _run_stages(
+    pipe: Pipeline,
+    job: Path,
+    start: str | None,
+    until: str | None,
+    force: bool,
+    say: Say,
+    confirm: Confirm | None,
+    t0: float,
+) -> RunResult:
+    """The body of :func:`run_pipeline`, under the job's lock."""
     manifest = Manifest.load(job)
     stages = _Stages(pipe, job, say, confirm)
     result = RunResult(job)
@@ -274,15 +333,21 @@ def run_pipeline(
                     )
                     continue
             else:
-                rerun = rerun or (start is not None and STAGES.index(start) <= index)
+                asked = force or (start is not None and STAGES.index(start) <= index)
+                rerun = rerun or asked
                 if not rerun and manifest.is_current(stage, inputs):
                     result.skipped.append(stage)
                     say(f"[{stage}] up to date, skipped")
                     continue
             say(f"[{stage}] running")
             began = time.perf_counter()
+            stages.resume = not asked and manifest.unfinished(stage, inputs)
+            manifest.start(stage, inputs)
             try:
                 outputs = stages.run(stage)
+            except Interrupted as exc:
+                manifest.interrupt(stage, inputs, str(exc))
+                raise
             except BaseException as exc:
                 manifest.invalidate(stage, f"{type(exc).__name__}: {exc}")
                 raise
