@@ -12,6 +12,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 from hypothesis import settings
+from PIL import Image, ImageDraw
 
 from scratchfab.backend import array_module
 from scratchfab.model.design import Design, design_from_mapping
@@ -106,3 +107,82 @@ def check_report_in_chromium(report: Path, profile_dir: Path) -> dict[str, str]:
     assert total and decoded, dom[:2000]
     assert int(total.group(1)) > 0 and decoded.group(1) == total.group(1)
     return dict(re.findall(r'data-metric="([^"]+)"[^>]*>([^<]*)<', dom))
+
+
+PIPELINE = """
+[board]
+width_mm = 30.0
+height_mm = 30.0
+margin_mm = 1.5
+
+[light]
+position_mm = [0.0, 187.3, 463.6]
+
+[scratch]
+count = 250
+min_length_mm = 1.5
+max_length_mm = 5.0
+
+[[views]]
+name = "disc"
+target = "disc.png"
+azimuth_deg = -22.0
+elevation_deg = 0.0
+distance_mm = 400.0
+fov_deg = "auto"
+resolution = [24, 24]
+
+[[views]]
+name = "bar"
+target = "bar.png"
+azimuth_deg = 22.0
+elevation_deg = 0.0
+distance_mm = 400.0
+fov_deg = "auto"
+resolution = [24, 24]
+
+[pipeline]
+name = "tiny"
+
+[optimize]
+iterations = 4
+
+[verify]
+spp = 256
+min_rho = {min_rho}
+
+[toolpath]
+machine = "grbl-3018-diamond"
+
+[export]
+formats = {formats}
+
+[stream]
+port = "grblsim://?time_scale=0&$130=300&$131=180&$132=45"
+"""
+
+
+def write_pipeline(
+    folder: Path,
+    min_rho: float = -1.0,
+    formats: str = '["gcode", "svg"]',
+    edits: dict[str, str] | None = None,
+) -> Path:
+    """A tiny two-view pipeline (disc and bar targets) in ``folder``, every stage in seconds.
+
+    ``edits`` replaces text of the file (old -> new) for a variant.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    disc = Image.new("L", (64, 64), 0)
+    ImageDraw.Draw(disc).ellipse((12, 12, 52, 52), fill=255)
+    disc.save(folder / "disc.png")
+    bar = Image.new("L", (64, 64), 0)
+    ImageDraw.Draw(bar).rectangle((8, 26, 56, 38), fill=255)
+    bar.save(folder / "bar.png")
+    text = PIPELINE.format(min_rho=min_rho, formats=formats)
+    for old, new in (edits or {}).items():
+        assert old in text, old
+        text = text.replace(old, new)
+    path = folder / "tiny.toml"
+    path.write_text(text)
+    return path

@@ -6,7 +6,7 @@ import inspect
 from pathlib import Path
 
 import pytest
-from PIL import Image, ImageDraw
+from conftest import write_pipeline
 
 from scratchfab.cli import main
 from scratchfab.machine.sender_journal import default_journal_path
@@ -112,69 +112,20 @@ def test_export_file_owner_and_journal(tmp_path):
     assert default_journal_path(tmp_path / "x.nc") == (tmp_path / "x.nc.journal.jsonl").resolve()
 
 
-PIPELINE = """
-[board]
-width_mm = 30.0
-height_mm = 30.0
-margin_mm = 1.5
-
-[light]
-position_mm = [0.0, 187.3, 463.6]
-
-[scratch]
-count = 150
-min_length_mm = 1.5
-max_length_mm = 5.0
-
-[[views]]
-name = "disc"
-target = "disc.png"
-azimuth_deg = -22.0
-elevation_deg = 0.0
-distance_mm = 400.0
-fov_deg = "auto"
-resolution = [16, 16]
-
-[[views]]
-name = "bar"
-target = "bar.png"
-azimuth_deg = 22.0
-elevation_deg = 0.0
-distance_mm = 400.0
-fov_deg = "auto"
-resolution = [16, 16]
-
-[optimize]
-iterations = 2
-prune_tolerance = 0.5
-
-[verify]
-spp = 16
-min_rho = -1.0
-
-[toolpath]
-machine = "grbl-3018-diamond"
-
-[export]
-formats = ["gcode", "dxf", "svg"]
-
-[stream]
-port = "grblsim://?time_scale=0&$130=300&$131=180&$132=45"
-"""
+#: The tiny pipeline, smaller still, pruned, writing every format.
+EDITS = {
+    "count = 250": "count = 150",
+    "resolution = [24, 24]": "resolution = [16, 16]",
+    "iterations = 4": "iterations = 2\nprune_tolerance = 0.5",
+    "spp = 256": "spp = 16",
+}
 
 
 @pytest.fixture(scope="module")
 def demo_like_job(tmp_path_factory) -> Path:
     """A small two-view job made by every stage of ``scratchfab run`` (demo-like)."""
     folder = tmp_path_factory.mktemp("layout")
-    disc = Image.new("L", (48, 48), 0)
-    ImageDraw.Draw(disc).ellipse((8, 8, 40, 40), fill=255)
-    disc.save(folder / "disc.png")
-    bar = Image.new("L", (48, 48), 0)
-    ImageDraw.Draw(bar).rectangle((6, 20, 42, 28), fill=255)
-    bar.save(folder / "bar.png")
-    path = folder / "small.toml"
-    path.write_text(PIPELINE)
+    path = write_pipeline(folder, formats='["gcode", "dxf", "svg"]', edits=EDITS)
     job = folder / "job"
     result = run_pipeline(load_pipeline(path), job, say=lambda _: None)
     assert result.ran == ["design", "optimize", "verify", "toolpath", "export", "stream"]

@@ -7,79 +7,13 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from conftest import CHROMIUM, check_report_in_chromium
-from PIL import Image, ImageDraw
+from conftest import CHROMIUM, check_report_in_chromium, write_pipeline
 
 from scratchfab.cli import main
 from scratchfab.errors import ScratchfabError
 from scratchfab.pipeline.config import STAGES, load_pipeline
 from scratchfab.pipeline.manifest import Manifest
 from scratchfab.pipeline.runner import run_pipeline
-
-PIPELINE = """
-[board]
-width_mm = 30.0
-height_mm = 30.0
-margin_mm = 1.5
-
-[light]
-position_mm = [0.0, 187.3, 463.6]
-
-[scratch]
-count = 250
-min_length_mm = 1.5
-max_length_mm = 5.0
-
-[[views]]
-name = "disc"
-target = "disc.png"
-azimuth_deg = -22.0
-elevation_deg = 0.0
-distance_mm = 400.0
-fov_deg = "auto"
-resolution = [24, 24]
-
-[[views]]
-name = "bar"
-target = "bar.png"
-azimuth_deg = 22.0
-elevation_deg = 0.0
-distance_mm = 400.0
-fov_deg = "auto"
-resolution = [24, 24]
-
-[pipeline]
-name = "tiny"
-
-[optimize]
-iterations = 4
-
-[verify]
-spp = 256
-min_rho = {min_rho}
-
-[toolpath]
-machine = "grbl-3018-diamond"
-
-[export]
-formats = {formats}
-
-[stream]
-port = "grblsim://?time_scale=0&$130=300&$131=180&$132=45"
-"""
-
-
-def write_pipeline(folder: Path, min_rho: float = -1.0, formats: str = '["gcode", "svg"]') -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    disc = Image.new("L", (64, 64), 0)
-    ImageDraw.Draw(disc).ellipse((12, 12, 52, 52), fill=255)
-    disc.save(folder / "disc.png")
-    bar = Image.new("L", (64, 64), 0)
-    ImageDraw.Draw(bar).rectangle((8, 26, 56, 38), fill=255)
-    bar.save(folder / "bar.png")
-    path = folder / "tiny.toml"
-    path.write_text(PIPELINE.format(min_rho=min_rho, formats=formats))
-    return path
 
 
 @pytest.fixture(scope="module")
