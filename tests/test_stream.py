@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -1594,3 +1595,68 @@ def test_a_stream_in_a_thread_installs_no_signal_handler(tmp_path):
     th.join(60)
     assert not errors
     assert read_journal(tmp_path / "j.jsonl")[-1]["ev"] == "end"
+
+
+def test_a_killed_senders_unsure_acks_are_cut_again(tmp_path, capsys):
+    """A session with no closing event (SIGKILL): its last planner-full of acks may never
+    have run (the next connection resets the controller), so a resume cuts them again."""
+    job = tmp_path / "job.gcode"
+    cuts = write_job(job, 60)
+    prog = load_program(job)
+    journal = default_journal_path(job)
+    rec1, rec2 = tmp_path / "r1.jsonl", tmp_path / "r2.jsonl"
+    port = open_port(f"grblsim://?time_scale=0.02&usb_powered=1&record={rec1}", 115200)
+    streamer = Streamer(port, FAST)
+    streamer.connect()
+    j = Journal(journal).open()
+
+    def die(p):
+        if p.acked > 150:
+            port.sim.drop_link()  # the host vanished; the reconnect resets the board
+            raise SystemExit(137)
+
+    streamer.on_progress = die
+    # what SIGKILL leaves: the journal without a closing event
+    streamer._stop_on_escape = lambda exc: None  # type: ignore[method-assign]
+    with pytest.raises(SystemExit):
+        streamer.stream(prog, j)
+    j.close()
+    port.close()
+    events = read_journal(journal)
+    assert events[-1]["ev"] == "ack" and events[0]["planner"] == 15
+    acked = [e["i"] for e in events if e["ev"] == "ack"]
+    done = done_blocks(events, prog.sha256, journal, program=prog)
+    assert done < set(acked)
+    assert done_blocks(events, prog.sha256, journal, program=prog, recut_unclosed=False) == set(
+        acked
+    )
+    main(["stream", str(job), "--port", f"grblsim://?time_scale=0.002&record={rec2}",
+          "--resume", "--yes", "--banner-timeout", "0.3"])  # fmt: skip
+    out = capsys.readouterr().out
+    assert "ended without a stop" in out and "they are cut again" in out
+    counts = cut_counts([read_record(rec1), read_record(rec2)], cuts)
+    assert min(counts) == 1 and max(counts) <= 2
+
+
+def test_connect_waits_for_a_controller_still_running_before_resetting(tmp_path):
+    """Over a port without DTR reset a killed sender's queue keeps running: no reset mid-move."""
+    with GrblPty(SimOptions(time_scale=0.5)) as pty:
+        first = serial.Serial(pty.path, 115200, timeout=0.5)
+        assert b"Grbl" in first.read_until(b"help]\r\n")
+        first.write(b"G21G90\nG1X3F100\n")  # 1.8 s at 100 mm/min, scaled to 0.9 s
+        time.sleep(0.3)
+        first.close()
+        said = []
+        port = serial.Serial(pty.path, 115200, timeout=0.01)
+        try:
+            streamer = Streamer(port, FAST, on_message=said.append)
+            info = streamer.connect()
+        finally:
+            port.close()
+        record = pty.sim.record
+    assert info.status.state == "Idle"
+    assert any("still moving (Run)" in s for s in said)
+    done = next(e["t"] for e in record if e["ev"] == "exec" and e["to"][0] == 3.0)
+    reset = next(e["t"] for e in record if e["ev"] == "reset")
+    assert reset >= done
+    assert not any(e["ev"] == "alarm" for e in record)

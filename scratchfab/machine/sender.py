@@ -41,7 +41,7 @@ import serial
 
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.grbl_codes import MM_PER_INCH, alarm_meaning, error_meaning
-from scratchfab.machine.sender_journal import Journal
+from scratchfab.machine.sender_journal import Journal, last_surely_run
 from scratchfab.machine.sender_program import Block, Modal, Program
 
 if "scratchfab.machine" not in serial.protocol_handler_packages:
@@ -202,6 +202,8 @@ class StreamOptions:
         stall_timeout: Seconds with lines in flight, controller Idle and no answer.
         silence_timeout: Seconds without any byte from the controller while polling.
         hold_timeout: Seconds to wait for ``Hold:0`` when stopping.
+        busy_timeout: Seconds to wait on connecting for a controller still running (another
+            sender's queue, e.g. a killed one) to finish before it is held and reset.
         stroke_barrier: Send a stroke's first block only when the previous stroke is acked.
     """
 
@@ -213,6 +215,7 @@ class StreamOptions:
     stall_timeout: float = 10.0
     silence_timeout: float = 5.0
     hold_timeout: float = 30.0
+    busy_timeout: float = 120.0
     stroke_barrier: bool = True
 
 
@@ -377,6 +380,7 @@ class Streamer:
         try:
             after = self._wait_banner(self.options.banner_timeout)
             if after is None:
+                self._wait_until_still()
                 self.on_message("no banner; sending a soft reset")
                 self._write(REALTIME_RESET)
                 after = self._wait_banner(self.options.banner_timeout)
@@ -415,6 +419,45 @@ class Streamer:
         except _Fault as fault:
             raise StreamFault(str(fault)) from None
         return self.info
+
+    def _wait_until_still(self) -> None:
+        """Before a soft reset: let a controller that is still moving finish first.
+
+        A port without DTR reset (a pty, some USB bridges) keeps the controller running
+        what an earlier sender queued, e.g. one that was killed. A reset now would stop it
+        mid-move (``ALARM:3``, position lost). Waits up to ``busy_timeout`` for Idle (or
+        Hold:0, where a reset is safe), then holds it and waits for Hold:0.
+        """
+        try:
+            state = self._status_now().state
+        except _Fault:
+            return  # no status: nothing is known to be moving; reset as before
+        moving = ("Run", "Jog", "Hold:1", "Home")
+        if not state.startswith(moving):
+            return
+        timeout = self.options.busy_timeout
+        self.on_message(
+            f"controller is still moving ({state}): an earlier sender's queue; waiting up to "
+            f"{timeout:g} s for it to finish before the soft reset"
+        )
+        deadline = time.monotonic() + timeout
+        period = 1.0 / min(self.options.poll_hz, 5.0)
+        while time.monotonic() < deadline:
+            time.sleep(max(0.0, self._last_poll + period - time.monotonic()))
+            with contextlib.suppress(_Fault):
+                state = self._status_now().state
+            if not state.startswith(moving):
+                self.on_message(f"controller is {state} now")
+                return
+        self.on_message(
+            f"controller still {state} after {timeout:g} s: feed hold, then a soft reset"
+        )
+        self._write(REALTIME_HOLD)
+        deadline = time.monotonic() + self.options.hold_timeout
+        while time.monotonic() < deadline and state not in ("Hold:0", "Idle"):
+            time.sleep(max(0.0, self._last_poll + period - time.monotonic()))
+            with contextlib.suppress(_Fault):
+                state = self._status_now().state
 
     def _read_work_offset(self, reports: int = 12) -> None:
         """Fill ``info.wco``: from ``$#`` and ``$G``, else from a status report's ``WCO:``.
@@ -549,7 +592,9 @@ class Streamer:
             StreamStopped: The user chose to stop after Ctrl-C.
         """
         items = self._items(program, start, preamble)
-        journal.start(program, resume, start, self.options.protocol, preamble)
+        journal.start(
+            program, resume, start, self.options.protocol, preamble, self.info.planner_blocks
+        )
         self._journal = journal
         self._program = program
         self._acked_blocks = []
@@ -897,20 +942,10 @@ class Streamer:
         if not acked:
             return -1
         blocks = self._program.blocks
-        window: list[int] = []
-        motions = 0
-        for i in reversed(acked):
-            b = blocks[i]
-            if b.sync and b.index != acked[-1]:
-                break
-            window.append(i)
-            if b.motion:
-                motions += 1
-                if motions > self.info.planner_blocks + 1:
-                    break
-        window.reverse()
+        surely = last_surely_run(blocks, acked, self.info.planner_blocks)
+        window = [i for i in acked if i > surely]
         if wpos is None or self._acks_at_status == 0:
-            return window[0] - 1
+            return surely
         reported = [i for i in window if i <= acked[self._acks_at_status - 1]]
         for i in reported:
             b = blocks[i]
@@ -921,7 +956,7 @@ class Streamer:
                 return i - 1
         if reported and math.dist(wpos, _xyz(blocks[reported[-1]].modal, wpos)) < 0.01:
             return reported[-1]
-        return window[0] - 1
+        return surely
 
 
 def _xyz(modal: Modal | None, fallback: tuple[float, float, float]) -> tuple[float, float, float]:

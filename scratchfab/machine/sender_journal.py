@@ -16,7 +16,11 @@ line, which the reader skips). Events:
 - ``{"ev": "end", "complete": true}``
 
 A block is *done* when a session acknowledged it and did not later flush it with a reset;
-only the sessions since the last fresh (non-resume) start count.
+only the sessions since the last fresh (non-resume) start count. A session with no closing
+event (``stop``, ``lost`` or ``end``: the sender was killed or crashed) is read like one
+that ended in a reset with no known position: the next connection resets the controller
+(our soft reset, an Arduino's DTR reset), so its last acknowledged blocks, up to a planner
+full, may never have run (:func:`last_surely_run`).
 """
 
 from __future__ import annotations
@@ -33,7 +37,10 @@ from scratchfab.fileio import read_input
 from scratchfab.model.job import JobLayout
 
 if TYPE_CHECKING:
-    from scratchfab.machine.sender_program import Program
+    from scratchfab.machine.sender_program import Block, Program
+
+#: GRBL 1.1's usable planner blocks, for a journal that does not record them.
+PLANNER_BLOCKS = 15
 
 
 def default_journal_path(gcode: str | os.PathLike[str]) -> Path:
@@ -88,6 +95,7 @@ class Journal:
         start: int = 0,
         protocol: str = "",
         preamble: Sequence[str] = (),
+        planner_blocks: int = PLANNER_BLOCKS,
     ) -> None:
         """Begin a run of ``program`` at block ``start`` (a fresh one, or a resume)."""
         self.write(
@@ -99,6 +107,7 @@ class Journal:
             resume_from=(program.blocks[start].lineno if 0 < start < len(program.blocks) else None),
             protocol=protocol,
             preamble=list(preamble),
+            planner=planner_blocks,
         )
 
     def close(self) -> None:
@@ -155,6 +164,8 @@ def check_event(ev: dict[str, Any], blocks: int | None, where: str) -> int | Non
         if not isinstance(ev.get("resume"), bool):
             raise _expected(where, "resume", "true or false", ev.get("resume"))
         _integer(ev, "blocks", 0, None, where)
+        if "planner" in ev:
+            _integer(ev, "planner", 1, None, where)
         return int(ev["blocks"])
     last = None if blocks is None else blocks - 1
     if kind == "ack":
@@ -276,11 +287,36 @@ def _same_file(a: Path, b: Path) -> bool:
         return a.resolve() == b.resolve()
 
 
+def last_surely_run(blocks: Sequence[Block], acked: Sequence[int], planner_blocks: int) -> int:
+    """The last of the ``acked`` blocks (in order) that surely ran, without a position.
+
+    After its last acknowledgement the controller may still hold up to ``planner_blocks``
+    motion blocks plus one being parsed; an acknowledged sync block (M3/M5, G4, ...) means
+    everything before it ran. Returns -1 when none surely ran.
+    """
+    if not acked:
+        return -1
+    earliest = acked[-1]
+    motions = 0
+    for i in reversed(acked):
+        b = blocks[i]
+        if b.sync and i != acked[-1]:
+            break
+        earliest = i
+        if b.motion:
+            motions += 1
+            if motions > planner_blocks + 1:
+                break
+    return earliest - 1
+
+
 def done_blocks(
     events: list[dict[str, Any]],
     sha256: str,
     path: str | os.PathLike[str],
     recut_unsure: bool = False,
+    program: Program | None = None,
+    recut_unclosed: bool = True,
 ) -> set[int]:
     """Blocks acknowledged and not flushed, over all sessions of the journal for this file.
 
@@ -293,6 +329,12 @@ def done_blocks(
             board that lost power with the cable). By default they count as done (the
             controller kept power and ran them). An earlier run's lost link was settled by
             the resume that followed it.
+        program: The program, to judge which acknowledged blocks of a session with no
+            closing event surely ran (:func:`last_surely_run`); without it the last
+            planner-full of acknowledged blocks counts as not done.
+        recut_unclosed: Count the unsure blocks of a session with no closing event as not
+            done (default: the controller was reset by the next connection). False trusts
+            every acknowledgement, for saying which lines are unsure.
 
     Raises:
         ConfigError: The journal has no start event, or its runs since the last fresh
@@ -303,12 +345,26 @@ def done_blocks(
         raise ConfigError(f"{path}: journal has no start event")
     first = last_fresh_start(events)  # runs before a fresh start no longer count
     done: set[int] = set()
-    session: set[int] = set()
+    session: list[int] = []
+    closed = True
+    planner = PLANNER_BLOCKS
+
+    def settled() -> set[int]:
+        if closed or not recut_unclosed or not session:
+            return set(session)
+        if program is not None:
+            through = last_surely_run(program.blocks, session, planner)
+        else:
+            through = session[-planner - 2] if len(session) > planner + 1 else -1
+        return {i for i in session if i <= through}
+
     for k, ev in enumerate(events[first:], start=first):
         kind = ev.get("ev")
         if kind == "start":
-            done |= session
-            session = set()
+            done |= settled()
+            session = []
+            closed = False
+            planner = int(ev.get("planner", PLANNER_BLOCKS))
             if ev.get("sha256") != sha256:
                 raise ConfigError(
                     f"{path}: the journal was written for a different version of "
@@ -316,12 +372,14 @@ def done_blocks(
                     "(stream without --resume to start from the top)"
                 )
         elif kind == "ack" and "i" in ev:
-            session.add(int(ev["i"]))
+            session.append(int(ev["i"]))
         elif kind == "stop" or (kind == "lost" and recut_unsure and k > starts[-1]):
             through = ev.get("executed_through")
             limit = -1 if through is None else int(through)
-            session = {i for i in session if i <= limit}
-    return done | session
+            session = [i for i in session if i <= limit]
+        if kind in ("stop", "lost", "end"):
+            closed = True
+    return done | settled()
 
 
 def interrupted(events: list[dict[str, Any]], sha256: str) -> bool:

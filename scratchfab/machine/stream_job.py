@@ -138,8 +138,14 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     if resume:
         assert events is not None  # a resume reads the journal or raises
         _check_strokes(program, req.gcode)
-        trusted = done_blocks(events, program.sha256, journal_file)
-        cautious = done_blocks(events, program.sha256, journal_file, recut_unsure=True)
+        trusted = done_blocks(events, program.sha256, journal_file, program=program)
+        cautious = done_blocks(
+            events, program.sha256, journal_file, recut_unsure=True, program=program
+        )
+        blind = done_blocks(
+            events, program.sha256, journal_file, program=program, recut_unclosed=False
+        )
+        _say_unclosed(program, blind - trusted, cb.outcome)
         _say_unsure(program, trusted - cautious, req.recut_unsure, cb.outcome)
         done = cautious if req.recut_unsure else trusted
         start = resume_point(program, done)
@@ -227,6 +233,18 @@ def _check_strokes(program: Program, gcode: Path) -> None:
         f"{gcode}: no stroke has the tool below the Z threshold {program.z_threshold:g} (the "
         f"job uses {span}); resuming could restart in the middle of a cut (give a "
         "--z-threshold between the cutting and the travel heights)"
+    )
+
+
+def _say_unclosed(program: Program, unsure_blocks: set[int], say: Say) -> None:
+    """Name the lines a killed or crashed sender left unsure; they are cut again."""
+    if not unsure_blocks:
+        return
+    unsure = sorted(unsure_blocks)
+    say(
+        "an earlier stream ended without a stop (the sender was killed or crashed): lines "
+        f"{program.blocks[unsure[0]].lineno}-{program.blocks[unsure[-1]].lineno} were "
+        "acknowledged but may not have run before the controller was reset; they are cut again"
     )
 
 
