@@ -14,7 +14,7 @@ import pytest
 import serial
 
 from scratchfab.cli import main
-from scratchfab.errors import ConfigError
+from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.grblsim import SimOptions
 from scratchfab.machine.grblsim_pty import GrblPty
 from scratchfab.machine.profile import Z_UNLIMITED_MM, load_profile
@@ -1660,3 +1660,94 @@ def test_connect_waits_for_a_controller_still_running_before_resetting(tmp_path)
     reset = next(e["t"] for e in record if e["ev"] == "reset")
     assert reset >= done
     assert not any(e["ev"] == "alarm" for e in record)
+
+
+def test_a_torn_journal_line_is_ended_and_skipped_by_the_next_session(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 3)
+    prog = load_program(job)
+    path = tmp_path / "j.jsonl"
+    j = Journal(path).open()
+    j.start(prog, resume=False)
+    j.write("ack", i=0, line=2)
+    j.close()
+    with open(path, "a") as handle:
+        handle.write('{"ev":"ack","i":1,"li')  # a full disk tore the line
+    for _ in range(2):  # every later resume appends as well
+        j = Journal(path).open()
+        j.start(prog, resume=True, start=1)
+        j.write("ack", i=1, line=3)
+        j.close()
+    events = read_journal(path)
+    assert [e["ev"] for e in events] == ["start", "ack", "start", "ack", "start", "ack"]
+    with open(path, "a") as handle:
+        handle.write('{"ev":"ack","i":1,"li\n{"ev":"ack","i":2}\n')  # not before a start
+    with pytest.raises(ConfigError, match=rf"j.jsonl:{len(events) + 2}: not a journal line"):
+        read_journal(path)
+
+
+class _FullDisk:
+    def __init__(self, handle, room):
+        self.handle, self.room = handle, room
+
+    def write(self, text):
+        self.room -= 1
+        if self.room < 0:
+            self.handle.write(text[:7])  # a torn line
+            raise OSError(28, "No space left on device")
+        return self.handle.write(text)
+
+    def __getattr__(self, name):
+        return getattr(self.handle, name)
+
+
+def test_a_full_disk_stops_safely_with_one_line_naming_the_journal(tmp_path, monkeypatch, capsys):
+    job = tmp_path / "job.gcode"
+    write_job(job, 40)
+    journal = default_journal_path(job)
+    rec = tmp_path / "r.jsonl"
+    real_open = Journal.open
+
+    def open_full(self):
+        real_open(self)
+        self._handle = _FullDisk(self._handle, 60)
+        return self
+
+    monkeypatch.setattr(Journal, "open", open_full)
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", f"grblsim://?time_scale=0.02&record={rec}", "--yes",
+              "--banner-timeout", "0.3"])  # fmt: skip
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"error: {journal}: cannot write the journal (No space left on device)" in err
+    assert "Traceback" not in err
+    _held_then_reset(read_record(rec))
+    monkeypatch.undo()
+    read_journal(journal)  # the torn last line is skipped
+    main(["stream", str(job), "--port", "grblsim://?time_scale=0.001", "--yes", "--resume",
+          "--banner-timeout", "0.3"])  # fmt: skip
+    assert read_journal(journal)[-1]["ev"] == "end"
+
+
+def test_a_second_stream_of_the_same_job_or_port_is_refused(tmp_path, capsys):
+    job = tmp_path / "job.gcode"
+    write_job(job, 3)
+    rec = tmp_path / "r.jsonl"
+    held = Journal(default_journal_path(job)).open()
+    try:
+        with pytest.raises(SystemExit) as exc:
+            main(["stream", str(job), "--port", f"grblsim://?record={rec}", "--yes"])
+        assert exc.value.code == 2
+    finally:
+        held.close()
+    err = capsys.readouterr().err
+    assert f"another stream is using {default_journal_path(job)}" in err
+    assert not rec.exists()  # refused before connecting
+    with GrblPty(SimOptions()) as pty:
+        first = open_port(pty.path, 115200)
+        try:
+            with pytest.raises(ScratchfabError, match=f"cannot open port '{pty.path}'"):
+                open_port(pty.path, 115200)
+        finally:
+            first.close()
+        open_port(pty.path, 115200).close()  # free again

@@ -113,8 +113,10 @@ class Port(Protocol):
 
 def open_port(port: str, baud: int) -> Any:
     """Open a serial device or pyserial URL (``grblsim://...`` included)."""
+    # a real port is locked (flock) so that a second sender cannot interleave its lines
+    extra = {} if "://" in port else {"exclusive": True}
     try:
-        return serial.serial_for_url(port, baudrate=baud, timeout=0.01, write_timeout=5.0)
+        return serial.serial_for_url(port, baudrate=baud, timeout=0.01, write_timeout=5.0, **extra)
     except (serial.SerialException, ValueError, OSError) as exc:
         raise ScratchfabError(f"cannot open port {port!r}: {exc}") from None
 

@@ -25,6 +25,7 @@ full, may never have run (:func:`last_surely_run`).
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import time
@@ -58,35 +59,74 @@ class Journal:
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         self._handle: IO[str] | None = None
+        self.failed: str | None = None  # the first write error; later writes are skipped
+        self.created = False
+        self._torn = False
 
     def open(self) -> Journal:
-        """Open for appending (creating the folder).
+        """Open for appending (creating the folder) and lock it against a second stream.
+
+        A last line cut off by a crash or a full disk is ended by the first write, so it
+        stays a line of its own (:func:`read_journal` skips it when a new session follows).
 
         Raises:
-            ScratchfabError: The journal cannot be written, or the file exists and is not a
-                journal (:func:`check_journal_file`; one line naming it).
+            ScratchfabError: The journal cannot be written, another stream holds it, or the
+                file exists and is not a journal (:func:`check_journal_file`; one line
+                naming it).
         """
         check_journal_file(self.path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.created = not self.path.exists()
             self._handle = open(self.path, "a", encoding="utf-8", newline="\n")  # noqa: SIM115
         except OSError as exc:
+            raise self._error(exc) from None
+        try:
+            fcntl.flock(self._handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self._handle.close()
+            self._handle = None
             raise ScratchfabError(
-                f"{self.path}: cannot write the journal ({exc.strerror or exc})"
+                f"another stream is using {self.path}; wait for it to end (nothing was sent)"
             ) from None
+        try:
+            size = self.path.stat().st_size
+            if size:
+                with open(self.path, "rb") as handle:
+                    handle.seek(size - 1)
+                    torn = handle.read(1) != b"\n"
+                self._torn = torn  # ended by the first write
+        except OSError as exc:
+            self.close()
+            raise self._error(exc) from None
         return self
 
+    def _error(self, exc: OSError) -> ScratchfabError:
+        return ScratchfabError(f"{self.path}: cannot write the journal ({exc.strerror or exc})")
+
     def write(self, event: str, **data: Any) -> None:
-        """Append one event and flush it to the OS."""
-        if self._handle is None:
+        """Append one event and flush it to the OS.
+
+        Raises:
+            ScratchfabError: The journal could not be written (a full disk; one line naming
+                it). Later writes are skipped, so the safe stop can still run.
+        """
+        if self._handle is None or self.failed is not None:
             return
         record = {"ev": event, **data}
         if event in ("start", "stop", "lost", "end", "error", "alarm"):
             record["time"] = time.strftime("%Y-%m-%dT%H:%M:%S")
-        self._handle.write(json.dumps(record, separators=(",", ":")) + "\n")
-        self._handle.flush()
-        if event != "ack":
-            os.fsync(self._handle.fileno())
+        try:
+            lead = "\n" if self._torn else ""
+            self._handle.write(lead + json.dumps(record, separators=(",", ":")) + "\n")
+            self._torn = False
+            self._handle.flush()
+            if event != "ack":
+                os.fsync(self._handle.fileno())
+        except OSError as exc:
+            error = self._error(exc)
+            self.failed = str(error)
+            raise error from None
 
     def start(
         self,
@@ -110,13 +150,37 @@ class Journal:
             planner=planner_blocks,
         )
 
-    def close(self) -> None:
-        """Flush to disk and close."""
-        if self._handle is not None:
-            self._handle.flush()
-            os.fsync(self._handle.fileno())
-            self._handle.close()
-            self._handle = None
+    def close(self, remove_if_empty: bool = False) -> None:
+        """Flush to disk, unlock and close (a journal that failed closes quietly).
+
+        Args:
+            remove_if_empty: Delete the file if :meth:`open` created it and nothing was
+                written (a stream refused before sending).
+
+        Raises:
+            ScratchfabError: The last events could not be written (one line naming it).
+        """
+        handle, self._handle = self._handle, None
+        if handle is None:
+            return
+        error: OSError | None = None
+        try:
+            handle.flush()
+            os.fsync(handle.fileno())
+        except OSError as exc:
+            error = exc
+        try:
+            if remove_if_empty and self.created and self.path.stat().st_size == 0:
+                self.path.unlink()
+        except OSError:
+            pass
+        try:
+            handle.close()
+        except OSError as exc:
+            error = error or exc
+        if error is not None and self.failed is None:
+            self.failed = str(self._error(error))
+            raise self._error(error) from None
 
 
 #: The events :class:`Journal` writes; any other ``"ev"`` is a damaged line.
@@ -195,7 +259,9 @@ def last_fresh_start(events: Sequence[dict[str, Any]]) -> int:
 
 
 def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
-    """All complete events of a journal (a cut-off last line is skipped).
+    """All complete events of a journal; a line cut off by a crash or a full disk is skipped.
+
+    Such a line is let be only as the last line, or when a new session's start follows it.
 
     Every line must be a JSON object and the first a start event. From the last fresh
     (non-resume) start on, the lines that count for a resume are checked field by field
@@ -220,6 +286,8 @@ def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
         except json.JSONDecodeError:
             if k == len(lines) and not text.endswith("\n"):
                 break  # cut off by a crash while it was written
+            if k < len(lines) and _is_start(lines[k]):
+                continue  # cut off (crash, full disk), ended by the next session's open
             event = None
         if not isinstance(event, dict):
             raise ConfigError(
@@ -237,6 +305,14 @@ def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     for k in range(first, len(events)):
         blocks = check_event(events[k], blocks, f"{p}:{k + 1}")
     return events
+
+
+def _is_start(line: str) -> bool:
+    try:
+        event = json.loads(line)
+    except json.JSONDecodeError:
+        return False
+    return isinstance(event, dict) and event.get("ev") == "start"
 
 
 def check_journal_file(

@@ -8,6 +8,7 @@ callbacks they pass.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -112,17 +113,40 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     journal_file = req.journal or default_journal_path(req.gcode)
     check_journal_file(journal_file, req.gcode)
     profile = _profile_for(req, cb.say)
-    baud = req.baud or (profile.serial.baud if profile is not None else 115200)
     z_threshold = req.z_threshold
     if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
         z_threshold = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
     program = load_program(req.gcode, z_threshold=z_threshold)
     if not program.blocks:
         raise ScratchfabError(f"{req.gcode}: no G-code lines to send")
+    journal = Journal(journal_file).open()  # locked: a second stream of this job refuses
+    try:
+        _stream_locked(req, cb, journal, program, profile)
+    except BaseException:
+        with contextlib.suppress(ScratchfabError):
+            journal.close(remove_if_empty=True)
+        raise
+    journal.close(remove_if_empty=True)
+    return journal_file
+
+
+def _stream_locked(
+    req: StreamRequest,
+    cb: StreamCallbacks,
+    journal: Journal,
+    program: Program,
+    profile: MachineProfile | None,
+) -> None:
+    """:func:`stream_file` once the journal is open and locked."""
+    journal_file = journal.path
     start = 0
     preamble: list[str] = []
     events = None
-    if req.resume or journal_file.is_file():
+    if req.resume and journal.created:
+        raise ConfigError(
+            f"{journal_file}: no journal to resume from (stream without --resume first)"
+        )
+    if not journal.created:
         try:
             events = read_journal(journal_file)
         except ConfigError:
@@ -150,16 +174,13 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
         done = cautious if req.recut_unsure else trusted
         start = resume_point(program, done)
         if start >= len(program.blocks):
-            journal = Journal(journal_file).open()  # closes the run: the next one is fresh
-            try:
-                journal.start(program, resume=True, start=start, protocol=req.protocol)
-                journal.write("end", complete=True)
-            finally:
-                journal.close()
+            # closes the run: the next one is fresh
+            journal.start(program, resume=True, start=start, protocol=req.protocol)
+            journal.write("end", complete=True)
             cb.outcome(
                 f"{req.gcode}: every line is done according to {journal_file}; nothing to do"
             )
-            return journal_file
+            return
         preamble = resume_preamble(program, start)
         n_done = sum(1 for a, b in program.strokes if all(i in done for i in range(a, b + 1)))
         cb.outcome(
@@ -173,6 +194,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
         stall_timeout=req.stall_timeout,
         banner_timeout=req.banner_timeout,
     )
+    baud = req.baud or (profile.serial.baud if profile is not None else 115200)
     ser = open_port(req.port, baud)
     try:
         streamer = Streamer(ser, options, cb.progress, cb.say, cb.ask_interrupt)
@@ -198,17 +220,13 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
             "machine moves: board clamped and set up as README step 5 says, area clear"
         ):
             raise ScratchfabError("not confirmed; nothing was sent")
-        journal = Journal(journal_file).open()
-        try:
-            streamer.stream(program, journal, start=start, preamble=preamble, resume=resume)
-        finally:
-            journal.close()
+        streamer.stream(program, journal, start=start, preamble=preamble, resume=resume)
+        journal.close()
         cb.outcome(
             f"done: {len(program.blocks) - start} lines acknowledged; journal {journal_file}"
         )
     finally:
         ser.close()
-    return journal_file
 
 
 def _check_strokes(program: Program, gcode: Path) -> None:
