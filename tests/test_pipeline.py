@@ -300,6 +300,27 @@ def test_interrupted_stream_of_the_same_gcode_is_resumed(finished_job):
     assert 0 < first_i <= acks[-1]["i"] + 1
 
 
+def test_report_counts_the_acknowledgements_of_a_killed_stream(finished_job, tmp_path):
+    """A session with no closing event: every ack counts as acknowledged in the report."""
+    import shutil
+
+    from scratchfab.pipeline.report import write_report
+
+    path, job, _ = finished_job
+    copy = tmp_path / "job"
+    shutil.copytree(job, copy)
+    journal = copy / "stream" / "journal.jsonl"
+    events = [json.loads(ln) for ln in journal.read_text().splitlines()]
+    fresh = max(k for k, e in enumerate(events) if e["ev"] == "start" and not e["resume"])
+    acks = [e for e in events[fresh:] if e["ev"] == "ack" and "i" in e][:40]
+    with journal.open("a") as handle:  # the sender was killed after 40 acknowledgements
+        for event in [events[fresh], *acks]:
+            handle.write(json.dumps(event) + "\n")
+    report = write_report(copy, "tiny").read_text()
+    assert f"<span data-stat='stream.acknowledged'>{len(acks)}</span> of " in report
+    assert "unfinished (the next run resumes it)" in report
+
+
 def test_unfinished_stream_of_another_file_does_not_restream_the_board(finished_job):
     path, job, _ = finished_job
     run_pipeline(load_pipeline(path), job, say=lambda s: None)

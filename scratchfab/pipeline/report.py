@@ -248,7 +248,7 @@ def _stream_section(job: Path) -> str:
         if not starts:
             return "<p class='muted'>not streamed (the journal is empty).</p>"
         sha256 = str(starts[-1].get("sha256"))
-        done = len(done_blocks(events, sha256, journal))
+        done = len(done_blocks(events, sha256, journal, recut_unclosed=False))
     except ConfigError as exc:
         return f"<p class='bad'>{html.escape(str(exc))}</p>"
     total = starts[-1].get("blocks")
