@@ -134,9 +134,7 @@ def optimize(
         f"{result.iterations} iterations ({result.stopped}), loss {result.loss:.5f}; "
         f"wrote {result.out_dir}"
     )
-    if (
-        result.stopped == "interrupted"
-    ):  # a non-zero exit keeps `optimize && toolpath` from going on
+    if result.stopped == "interrupted":  # exit 130: `optimize && toolpath` stops here
         raise Interrupted(
             f"interrupted after {result.iterations} of {iterations} iterations; "
             f"`scratchfab optimize {job} --resume` continues it"

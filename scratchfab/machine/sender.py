@@ -39,7 +39,7 @@ from typing import Any, Protocol
 
 import serial
 
-from scratchfab.errors import ScratchfabError
+from scratchfab.errors import Interrupted, ScratchfabError
 from scratchfab.machine.grbl_codes import MM_PER_INCH, alarm_meaning, error_meaning
 from scratchfab.machine.sender_journal import Journal, last_surely_run
 from scratchfab.machine.sender_program import Block, Modal, Program
@@ -59,10 +59,8 @@ class StreamFault(ScratchfabError):
     exit_code = 3
 
 
-class StreamStopped(ScratchfabError):
-    """The user stopped the job (exit status 130)."""
-
-    exit_code = 130
+class StreamStopped(Interrupted):
+    """The user stopped the job: machine held and soft-reset, the journal says where."""
 
 
 class StopSignal(KeyboardInterrupt):

@@ -80,8 +80,8 @@ class Modal:
 
     @property
     def feed_mm(self) -> float:
-        """The feed in mm/min (or inverse time under G93, where units do not apply)."""
-        return self.feed * self.mm_per_unit if self.feed_mode == "G94" else self.feed
+        """The feed in mm/min; meaningful under G94 only (G93's F is an inverse time)."""
+        return self.feed * self.mm_per_unit
 
 
 @dataclass(frozen=True)

@@ -275,10 +275,9 @@ def run_pipeline(
             raise ScratchfabError(f"unknown stage '{name}'; stages: {', '.join(STAGES)}")
     if start is not None and until is not None and STAGES.index(start) > STAGES.index(until):
         raise ScratchfabError(f"--from {start} comes after --until {until}; nothing to run")
-    t0 = time.perf_counter()
     job.mkdir(parents=True, exist_ok=True)
     with _job_lock(JobLayout(job).run_lock):
-        return _run_stages(pipe, job, start, until, force, say, confirm, t0)
+        return _run_stages(pipe, job, start, until, force, say, confirm)
 
 
 @contextlib.contextmanager
@@ -310,9 +309,9 @@ def _run_stages(
     force: bool,
     say: Say,
     confirm: Confirm | None,
-    t0: float,
 ) -> RunResult:
     """The body of :func:`run_pipeline`, under the job's lock."""
+    t0 = time.perf_counter()
     manifest = Manifest.load(job)
     stages = _Stages(pipe, job, say, confirm)
     result = RunResult(job)
