@@ -595,6 +595,11 @@ def test_until_and_from(tmp_path):
             ("[optimize]\n", "[optimize]\niteratons = 3\n"),
             "optimize: unknown key 'iteratons' (did you mean 'iterations'?)",
         ),
+        (
+            ("[optimize]\n", "[optimise]\n"),
+            "unknown key 'optimise' (did you mean 'optimize'?); valid keys: board, light, "
+            "scratch, views, pipeline, optimize, verify, toolpath, export, stream",
+        ),
         (("spp = 256", "spp = 0"), "verify.spp: expected a value at least 2, got 0"),
         (("spp = 256", "spp = 1"), "verify.spp: expected a value at least 2, got 1"),
         (
@@ -646,6 +651,9 @@ def test_pipeline_errors_are_one_line(tmp_path, capsys, edit, message):
         (("[verify]\n", "[verify]\nsweep = 2\n"), lambda p: p.verify.sweep == 2),
         (("spp = 256", "spp = 2"), lambda p: p.verify.spp == 2),
         (("[pipeline]\n", "[pipeline]\nseed = 7\n"), lambda p: p.pipeline.seed == 7),
+        # unset: the machine profile's baud, as `stream` takes it
+        (("[pipeline]\n", "[pipeline]\n"), lambda p: p.stream.baud is None),
+        (("[stream]\n", "[stream]\nbaud = 57600\n"), lambda p: p.stream.baud == 57600),
         (('formats = ["gcode", "svg"]', 'formats = ["gcode"]'), lambda p: p.stream.port),
         # Without a port nothing is streamed, so export may leave out G-code (or write nothing).
         (("[stream]\nport", "[stream]\n# port"), lambda p: p.stream.port is None),

@@ -264,6 +264,26 @@ def test_resume_with_nothing_left_closes_the_journal(tmp_path):
     assert not interrupted(read_journal(journal), prog.sha256)  # a later run starts fresh
 
 
+@pytest.mark.parametrize(("baud", "opened"), [(None, 57600), (9600, 9600)])
+def test_port_opens_at_the_given_baud_else_the_profiles(tmp_path, monkeypatch, baud, opened):
+    job = tmp_path / "job"
+    gcode = job / "export" / "board.gcode"
+    gcode.parent.mkdir(parents=True)
+    write_job(gcode, 2)
+    base = load_profile("grbl-3018-diamond")
+    profile = replace(base, serial=replace(base.serial, baud=57600))
+    bauds: list[int] = []
+
+    def fake_open(port: str, rate: int):
+        bauds.append(rate)
+        raise ScratchfabError("not opened")
+
+    monkeypatch.setattr("scratchfab.machine.stream_job.open_port", fake_open)
+    with pytest.raises(ScratchfabError, match="not opened"):
+        run_stream_job(job, "/dev/ttyFAKE", baud=baud, machine=profile)
+    assert bauds == [opened]
+
+
 def test_compare_with_profile_and_soft_limits(tmp_path):
     job = tmp_path / "j.gcode"
     write_job(job, 5)

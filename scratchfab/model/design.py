@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +19,13 @@ import tomli_w
 
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import write_text
-from scratchfab.model.schema import load_toml, parse_table, spec, to_table
+from scratchfab.model.schema import (
+    load_toml,
+    parse_table,
+    reject_unknown_keys,
+    spec,
+    to_table,
+)
 
 Vec3 = tuple[float, float, float]
 
@@ -321,6 +327,7 @@ def design_from_mapping(
         raise ConfigError(
             f"{source}: put board, light, scratch and views at the top level, not under [design]"
         )
+    reject_unknown_keys(data, [f.name for f in fields(_DesignTables)] + list(STAGE_TABLES), source)
     tables = parse_table(_DesignTables, design_data, source)
     if tables.light is None:
         raise ConfigError(f"{source}: light: missing required table [light]")

@@ -155,18 +155,28 @@ def _check_bounds(value: Any, meta: Mapping[str, Any], where: str) -> None:
             raise ConfigError(f"{where}: expected a value {words} {bound}, got {value}")
 
 
+def reject_unknown_keys(data: Mapping[str, Any], valid: list[str], here: str) -> None:
+    """Raise a ConfigError naming the first key of ``data`` not in ``valid`` and the nearest one.
+
+    Args:
+        data: A TOML table.
+        valid: Its valid keys, in the order the message lists them.
+        here: The file and dotted key of ``data``, the message's prefix.
+    """
+    for key in data:
+        if key not in valid:
+            close = difflib.get_close_matches(str(key), valid, n=1, cutoff=0.5)
+            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            raise ConfigError(f"{here}: unknown key '{key}'{hint}; valid keys: {', '.join(valid)}")
+
+
 def _parse(cls: type[T], data: Any, where: str) -> T:
     here = where.rstrip(":")
     if not isinstance(data, Mapping):
         raise ConfigError(f"{here}: expected a table, got {data!r}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
-    for key in data:
-        if key not in fields:
-            close = difflib.get_close_matches(str(key), list(fields), n=1, cutoff=0.5)
-            hint = f" (did you mean '{close[0]}'?)" if close else ""
-            valid = ", ".join(fields)
-            raise ConfigError(f"{here}: unknown key '{key}'{hint}; valid keys: {valid}")
+    reject_unknown_keys(data, list(fields), here)
     kwargs: dict[str, Any] = {}
     for name, field in fields.items():
         key_where = f"{where}.{name}" if not where.endswith(":") else f"{where} {name}"

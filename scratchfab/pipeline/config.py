@@ -93,7 +93,7 @@ class StreamOptions:
 
     port: str | None = None
     protocol: Literal["counting", "simple"] = "counting"
-    baud: int = field(default=115200, metadata=spec(gt=0))
+    baud: int | None = field(default=None, metadata=spec(gt=0))  # None: the profile's
     check: bool = False
     recut_unsure: bool = False
 
