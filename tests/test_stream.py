@@ -1164,6 +1164,53 @@ def test_grbl_sim_refuses_bad_option_values(capsys, option, value):
     assert f"Invalid value for '{option}'" in err.err and err.out == ""  # no pty path printed
 
 
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        ("$999=1", "grbl-sim --set: $999: not a Grbl 1.1 setting"),
+        ("bot=1", "grbl-sim --set: unknown key 'bot' (did you mean 'boot'?)"),
+        ("$130=-5", "grbl-sim --set: $130: expected a number at least 0"),
+        ("homed", "expected KEY=VALUE, got 'homed'"),
+    ],
+)
+def test_grbl_sim_set_refuses_bad_pairs(capsys, extra, message):
+    with pytest.raises(SystemExit) as exc:
+        main(["grbl-sim", "--pty", "--set", extra])
+    assert exc.value.code == 2
+    err = capsys.readouterr()
+    assert message in err.err and err.out == "" and "Traceback" not in err.err
+
+
+def test_grbl_sim_set_reaches_the_emulator(monkeypatch, capsys):
+    """--set takes what a grblsim:// URL takes; the options above still apply."""
+    seen = []
+
+    class FakePty:
+        path = "/dev/pts/fake"
+        sim = SimpleNamespace(record=[], overruns=0)
+
+        def __init__(self, options):
+            seen.append(options)
+
+        def start(self):
+            return self
+
+        def close(self):
+            pass
+
+    class Quit:
+        def wait(self, timeout):
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr("scratchfab.machine.grblsim_pty.GrblPty", FakePty)
+    monkeypatch.setattr("scratchfab.cli.stream_cmd.threading.Event", Quit)
+    main(["grbl-sim", "--pty", "--slow", "0.25", "--set", "$130=300", "--set", "wco=1,2,3"])
+    (options,) = seen
+    assert options.settings == {130: 300.0}
+    assert options.wco == (1.0, 2.0, 3.0) and options.slow == 0.25 and options.baud == 115200
+    assert capsys.readouterr().out == "/dev/pts/fake\n"
+
+
 def test_resume_refuses_a_z_threshold_that_finds_no_stroke(tmp_path, capsys, interrupted_run):
     gcode, saved = interrupted_run
     job = tmp_path / "job.gcode"
@@ -1663,7 +1710,8 @@ def test_connect_waits_for_a_controller_still_running_before_resetting(tmp_path)
     with GrblPty(SimOptions(time_scale=0.5)) as pty:
         first = serial.Serial(pty.path, 115200, timeout=0.5)
         assert b"Grbl" in first.read_until(b"help]\r\n")
-        first.write(b"G21G90\nG1X3F100\n")  # 1.8 s at 100 mm/min, scaled to 0.9 s
+        # 3.6 s at 100 mm/min, scaled to 1.8 s: still moving on a busy machine's connect
+        first.write(b"G21G90\nG1X6F100\n")
         time.sleep(0.3)
         first.close()
         said = []
@@ -1676,7 +1724,7 @@ def test_connect_waits_for_a_controller_still_running_before_resetting(tmp_path)
         record = pty.sim.record
     assert info.status.state == "Idle"
     assert any("still moving (Run)" in s for s in said)
-    done = next(e["t"] for e in record if e["ev"] == "exec" and e["to"][0] == 3.0)
+    done = next(e["t"] for e in record if e["ev"] == "exec" and e["to"][0] == 6.0)
     reset = next(e["t"] for e in record if e["ev"] == "reset")
     assert reset >= done
     assert not any(e["ev"] == "alarm" for e in record)

@@ -559,7 +559,8 @@ def test_board_partly_off_the_envelope_is_shown_and_warned(rng, tmp_path, capsys
     tp = Toolpath.load(job / "toolpath" / "toolpath.json")
     lost = tp.stats["outside_count"] + tp.stats["clipped_count"]
     assert lost > 0 and tp.strokes[..., 0].max() <= offset[0] + 20.0
-    assert "outside the machine's envelope" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert f"{tp.stats['outside_count']} of {tp.stats['input_count']} scratches lie outside" in said
     # The envelope's edge is drawn (blue) across the board, between its left and right.
     with Image.open(job / "toolpath" / "preview.png") as im:
         rgb = np.asarray(im.convert("RGB")).astype(int)

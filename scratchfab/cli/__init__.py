@@ -58,10 +58,10 @@ class LazyGroup(click.Group):
         return command
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
-        """List the stages with their one-line help without importing them."""
+        """List the commands with their one-line help without importing them."""
         rows = [(name, COMMANDS[name][2]) for name in self.list_commands(ctx)]
         if rows:
-            with formatter.section("Stages"):
+            with formatter.section("Commands"):
                 formatter.write_dl(rows)
 
 

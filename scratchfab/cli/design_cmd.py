@@ -29,28 +29,34 @@ from scratchfab.model.design import Design
     "--fit",
     type=click.Choice(["contain", "cover"]),
     default=None,
-    help="Fit images to the board: whole picture (contain) or fill the board (cover).",
+    help="Fit images to the board: whole picture (contain) or fill the board (cover) "
+    "[file's pipeline.fit, else contain].",
 )
 @click.option(
     "--gamma",
     type=FiniteFloat(min=0, min_open=True),
     default=1.0,
     show_default=True,
-    help="Exponent on linear values.",
+    help="Exponent on linear values (1: unchanged).",
 )
 @click.option(
     "--contrast",
     type=FiniteFloat(min=0),
     default=1.0,
     show_default=True,
-    help="Contrast about the mean.",
+    help="Contrast about the mean (1: unchanged).",
 )
-@click.option("--count", type=click.IntRange(min=1), default=None, help="Number of scratches.")
+@click.option(
+    "--count",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Number of scratches [file's scratch.count; quick form: 0.5 per mm^2].",
+)
 @click.option(
     "--resolution",
     type=SizePair(whole=True),
     default=None,
-    help="Camera pixels per view: N or WxH.",
+    help="Camera pixels per view: N (NxN) or WxH [file's; quick form: 128 on the long side].",
 )
 @click.option(
     "--seed",

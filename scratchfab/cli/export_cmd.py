@@ -21,7 +21,7 @@ from scratchfab.toolpath import Toolpath
     "-f",
     "fmt",
     type=click.Choice(sorted(WRITERS)),
-    help=f"One of {', '.join(FORMATS)} (default: from -o's extension).",
+    help=f"One of {', '.join(FORMATS)}; nc is G-code named .nc (default: from -o's extension).",
 )
 @click.option(
     "--output",

@@ -79,7 +79,9 @@ def _bar() -> Callable[[Progress], None]:
     default=None,
     is_flag=False,
     flag_value=0.01,
-    help="Drop scratches while the loss rises by at most this fraction [0.01].",
+    metavar="[FRACTION]",
+    help="After optimizing, drop scratches while the loss rises by at most this fraction "
+    "(--prune alone: 0.01; put it after JOB).",
 )
 @click.option(
     "--checkpoint-every",

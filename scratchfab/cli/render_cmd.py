@@ -27,7 +27,7 @@ def render(
     Either JOB (reads JOB/design/design.toml and JOB/optimize/scratches.csv, else
     JOB/design/scratches.csv; writes JOB/render/) or --design FILE --scratches CSV --out DIR.
 
-    The .npy files are float32 (H, W) linear radiance (SPEC section 4). The .png preview
+    The .npy files are float32 (H, W) linear radiance (docs/files.md). The .png preview
     is 8-bit grey: radiance divided by the image's 99.5th percentile of positive values,
     clipped to [0, 1], sRGB-encoded; that exposure is stored in the PNG's text chunk
     "scratchfab.exposure".

@@ -83,8 +83,17 @@ def _ask_interrupt() -> str:
     help="With --resume after a lost link: also cut again what the controller acknowledged "
     "but may not have run (a board that lost power with the USB cable).",
 )
-@click.option("--check", "check_first", is_flag=True, help="Run GRBL check mode ($C) first.")
-@click.option("--machine", default=None, help="Machine profile NAME or PATH to compare with $$.")
+@click.option(
+    "--check",
+    "check_first",
+    is_flag=True,
+    help="Run the file through GRBL check mode ($C) first; stream only if it is clean.",
+)
+@click.option(
+    "--machine",
+    default=None,
+    help="Machine profile NAME or PATH to compare with $$ [the job's toolpath machine].",
+)
 @click.option(
     "--margin",
     type=click.IntRange(0, 64),
@@ -97,21 +106,22 @@ def _ask_interrupt() -> str:
     type=FiniteFloat(min=0, min_open=True),
     default=10.0,
     show_default=True,
-    help="Seconds.",
+    help="Seconds without an answer, lines in flight and the controller Idle, before "
+    "the stream stops as stalled.",
 )
 @click.option(
     "--banner-timeout",
     type=FiniteFloat(min=0, min_open=True),
     default=2.5,
     show_default=True,
-    help="Seconds.",
+    help="Seconds to wait for GRBL's banner after opening the port or a soft reset.",
 )
 @click.option(
     "--z-threshold",
     type=FiniteFloat(),
     default=None,
-    help="Tool is down below this Z [machine: halfway engrave..safe; else read from the "
-    "G-code: between its cutting and rapid heights].",
+    help="Tool is down below this Z in mm [machine: halfway engrave..safe; else read from "
+    "the G-code: between its cutting and rapid heights].",
 )
 def stream(
     gcode: Path,
@@ -220,6 +230,14 @@ def stream(
     default=None,
     help="Write what the controller received and ran (JSONL) on exit.",
 )
+@click.option(
+    "--set",
+    "extra",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Any other emulator key of a grblsim:// URL, or a GRBL setting such as $130=300 "
+    "(repeatable; overrides the options above).",
+)
 def grbl_sim(
     use_pty: bool,
     baud: int,
@@ -231,11 +249,13 @@ def grbl_sim(
     slow: float,
     soft_limits: bool,
     record: Path | None,
+    extra: tuple[str, ...],
 ) -> None:
     """Run the built-in GRBL 1.1 emulator on a pseudo-terminal until Ctrl-C.
 
     Any sender can open the printed device. In-process, the same emulator is the pyserial
-    URL grblsim://?time_scale=0.01&error_at=500 (keys as the options here, with underscores).
+    URL grblsim://?time_scale=0.01&error_at=500&$130=300 (keys as the options here, with
+    underscores, and as --set).
     """
     from scratchfab.machine.grblsim import SimOptions
     from scratchfab.machine.grblsim_pty import GrblPty
@@ -248,17 +268,23 @@ def grbl_sim(
         from scratchfab.fileio import write_text
 
         write_text(record, "")  # fails now, in one line, rather than on exit
-    options = SimOptions(
-        baud=baud,
-        time_scale=time_scale,
-        error_at=error_at,
-        error_code=error_code,
-        disconnect_after=disconnect_after,
-        usb_powered=usb_powered,
-        slow=slow,
-        soft_limits=soft_limits,
-        record=str(record) if record else "",
-    )
+    query = {
+        "baud": str(baud),
+        "time_scale": repr(time_scale),
+        "error_at": str(error_at),
+        "error_code": str(error_code),
+        "disconnect_after": str(disconnect_after),
+        "usb_powered": str(usb_powered),
+        "slow": repr(slow),
+        "soft_limits": str(soft_limits),
+        "record": str(record) if record else "",
+    }
+    for pair in extra:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise click.BadParameter(f"expected KEY=VALUE, got {pair!r}", param_hint="'--set'")
+        query[key] = value
+    options = SimOptions.from_query(query, "grbl-sim --set")
     sim = GrblPty(options).start()
     click.echo(sim.path)
     click.echo(f"GRBL 1.1h emulator on {sim.path} (Ctrl-C to quit)", err=True)

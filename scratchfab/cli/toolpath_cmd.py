@@ -85,6 +85,9 @@ def toolpath(
 ) -> None:
     """Order the strokes for a machine: JOB/toolpath/toolpath.json and preview.png.
 
+    Either JOB (reads JOB/optimize/scratches.csv, else JOB/design/scratches.csv with a
+    note, and JOB/design/design.toml) or all of --scratches, --design and --out.
+
     Clips the scratches to the board and the machine's envelope, drops those shorter
     than the tool's minimum, merges collinear duplicates, orders them to minimise pen-up
     travel from the start position and estimates the machining time.

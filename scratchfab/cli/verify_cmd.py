@@ -20,7 +20,8 @@ from scratchfab.verify.verify import DEFAULT_SPP, bad_sweep_frames
     type=click.IntRange(min=2),
     default=DEFAULT_SPP,
     show_default=True,
-    help="Samples per pixel (two independent halves; their difference gives the noise).",
+    help="Samples per pixel, at least 16 taken (two independent halves; their difference "
+    "gives the noise).",
 )
 @click.option(
     "--max-noise",

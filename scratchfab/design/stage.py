@@ -99,7 +99,7 @@ def load_source(
 def _origin_comment(design: Design, fit: str, gamma: float, contrast: float, seed: int) -> str:
     lines = [
         "# Resolved by `scratchfab design`. Each target is the board-space image made from",
-        f"# the original picture (fit = {fit}, gamma = {gamma:g}, contrast = {contrast:g}),",
+        f"# the picture named below (fit = {fit}, gamma = {gamma:g}, contrast = {contrast:g}),",
         "# so a run from this file reproduces targets/*.npy; layout seed = " + str(seed) + ".",
     ]
     for view in design.views:

@@ -121,14 +121,13 @@ class SimOptions:
     settings: dict[int, float] = field(default_factory=dict)
 
     @classmethod
-    def from_query(cls, query: Mapping[str, str], url: str = "grblsim://") -> SimOptions:
-        """Options from the query pairs of ``url``, every value checked now.
+    def from_query(cls, query: Mapping[str, str], source: str = "port 'grblsim://'") -> SimOptions:
+        """Options from text pairs (a ``grblsim://`` URL's query), every value checked now.
 
         Raises:
-            ConfigError: One line naming ``url``, the key, the value and what is expected
-                (an unknown key also gets the nearest valid one).
+            ConfigError: One line starting with ``source``, naming the key, the value and
+                what is expected (an unknown key also gets the nearest valid one).
         """
-        source = f"port {url!r}"
         hints = typing.get_type_hints(cls)
         data: dict[str, Any] = {}
         overrides: dict[int, float] = {}

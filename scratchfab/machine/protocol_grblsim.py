@@ -49,7 +49,7 @@ class Serial(SerialBase):
                 raise ConfigError(f"port {self.portstr!r}: {key}: given more than once")
             query[key] = value
         query.setdefault("baud", str(self._baudrate))
-        self.sim = GrblSim(SimOptions.from_query(query, self.portstr or ""))
+        self.sim = GrblSim(SimOptions.from_query(query, f"port {self.portstr!r}"))
         self.sim.start()
         self.is_open = True
 

@@ -52,7 +52,8 @@ def run_toolpath(
     s = result.stats
     if s["outside_count"] or s["clipped_count"]:
         say(
-            f"warning: {s['outside_count']} scratches lie outside the machine's envelope and "
+            f"warning: {s['outside_count']} of {s['input_count']} scratches lie outside the "
+            "machine's envelope (not cut) and "
             f"{s['clipped_count']} were clipped to it: check the profile's [board] offset_mm "
             "and [envelope] (see preview.png)"
         )
