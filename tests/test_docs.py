@@ -5,12 +5,14 @@ from __future__ import annotations
 import dataclasses
 import re
 import tomllib
+import typing
 from pathlib import Path
 
 import pytest
 from test_job_layout import SPEC_SECTION_6
 
 from scratchfab.machine.grblsim import SimOptions
+from scratchfab.machine.profile import MachineProfile
 from scratchfab.model.design import Board, Light, ScratchTool, View
 from scratchfab.model.schema import to_table
 from scratchfab.optimize.options import OptimizeOptions
@@ -87,3 +89,28 @@ def test_job_folder_table_names_every_path_of_the_layout():
     for path in SPEC_SECTION_6.values():
         path = path.replace("sun", "<view>")
         assert path in listed or any(p.startswith(path + "/") for p in listed), path
+
+
+def profile_keys(cls: type, prefix: str = "") -> set[str]:
+    """Dotted keys of a profile table, nested tables expanded."""
+    keys = set()
+    for field in dataclasses.fields(cls):
+        if not field.init:
+            continue
+        tp = typing.get_type_hints(cls)[field.name]
+        if dataclasses.is_dataclass(tp):
+            keys |= profile_keys(tp, f"{prefix}{field.name}.")
+        else:
+            keys.add(prefix + field.name)
+    return keys
+
+
+def test_machine_profile_readme_lists_every_key():
+    readme = (DOC.parents[1] / "machine_profiles" / "README.md").read_text()
+    documented = set()
+    for cell in re.findall(r"^\| `([^`]+)` \|", readme, flags=re.MULTILINE):
+        table, _, names = cell.rpartition("] ") if cell.startswith("[") else ("", "", cell)
+        prefix = table.lstrip("[") + "." if table else ""
+        documented |= {prefix + name.strip() for name in names.split(",")}
+    documented -= {"grbl-3018-diamond", "grbl-plotter-scribe"}  # the bundled list's rows
+    assert documented == profile_keys(MachineProfile)
