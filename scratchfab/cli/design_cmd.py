@@ -23,14 +23,15 @@ from scratchfab.model.design import Design
     type=SizePair(),
     metavar="WxH",
     default=None,
-    help="Quick form: board size WxH in mm (default 100x100).",
+    show_default="100x100",
+    help="Quick form: board size WxH in mm.",
 )
 @click.option(
     "--fit",
     type=click.Choice(["contain", "cover"]),
     default=None,
-    help="Fit images to the board: whole picture (contain) or fill the board (cover) "
-    "[file's pipeline.fit, else contain].",
+    show_default="the file's pipeline.fit, else contain",
+    help="Fit images to the board: whole picture (contain) or fill the board (cover).",
 )
 @click.option(
     "--gamma",
@@ -50,19 +51,22 @@ from scratchfab.model.design import Design
     "--count",
     type=click.IntRange(min=1),
     default=None,
-    help="Number of scratches [file's scratch.count; quick form: 0.5 per mm^2].",
+    show_default="the file's scratch.count; quick form: 0.5 per mm^2",
+    help="Number of scratches.",
 )
 @click.option(
     "--resolution",
     type=SizePair(whole=True),
     default=None,
-    help="Camera pixels per view: N (NxN) or WxH [file's; quick form: 128 on the long side].",
+    show_default="the file's; quick form: 128 on the long side",
+    help="Camera pixels per view: N (NxN) or WxH.",
 )
 @click.option(
     "--seed",
     type=click.IntRange(min=0),
     default=None,
-    help="Seed of the initial layout [file's pipeline.seed, else 0].",
+    show_default="the file's pipeline.seed, else 0",
+    help="Seed of the initial layout.",
 )
 @click.option("--force", is_flag=True, default=None, help="Go on despite feasibility errors.")
 def design(

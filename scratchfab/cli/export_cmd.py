@@ -21,19 +21,22 @@ from scratchfab.toolpath import Toolpath
     "-f",
     "fmt",
     type=click.Choice(sorted(WRITERS)),
-    help=f"One of {', '.join(FORMATS)}; nc is G-code named .nc (default: from -o's extension).",
+    show_default="from -o's extension",
+    help=f"One of {', '.join(FORMATS)}; nc is G-code named .nc.",
 )
 @click.option(
     "--output",
     "-o",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="Output file (default: JOB/export/board.<format>).",
+    show_default="JOB/export/board.<format>",
+    help="Output file.",
 )
 @click.option(
     "--toolpath",
     "toolpath_file",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="toolpath.json (default: JOB/toolpath/toolpath.json).",
+    show_default="JOB/toolpath/toolpath.json",
+    help="The toolpath.",
 )
 @click.option(
     "--machine",

@@ -91,7 +91,8 @@ def job_or_files_options(out_default: str) -> Callable[[_F], _F]:
             "--out",
             "out_dir",
             type=click.Path(path_type=Path),
-            help=f"Output folder (default JOB/{out_default}).",
+            show_default=f"JOB/{out_default}",
+            help="Output folder.",
         )(f)
         f = click.option(
             "--scratches", "scratch_file", type=click.Path(path_type=Path), help="Scratch CSV (mm)."

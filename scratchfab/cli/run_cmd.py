@@ -34,8 +34,9 @@ def _confirm(question: str) -> bool:
     "--out",
     type=click.Path(file_okay=False, path_type=Path),
     default=None,
-    help="Job folder [the pipeline's [pipeline] out (relative to the pipeline file), "
-    "else job-<file name>].",
+    show_default="the pipeline's [pipeline] out (relative to the pipeline file), "
+    "else job-<file name>",
+    help="Job folder.",
 )
 @click.option(
     "--from",

@@ -60,7 +60,8 @@ def _ask_interrupt() -> str:
     "--baud",
     type=click.IntRange(min=1),
     default=None,
-    help="Baud rate [machine profile, else 115200].",
+    show_default="the machine profile's, else 115200",
+    help="Baud rate.",
 )
 @click.option(
     "--protocol",
@@ -74,7 +75,8 @@ def _ask_interrupt() -> str:
     "journal_path",
     type=click.Path(dir_okay=False, path_type=Path),
     default=None,
-    help="Journal file [JOB/stream/journal.jsonl, or beside the G-code].",
+    show_default="JOB/stream/journal.jsonl, or beside the G-code",
+    help="Journal file.",
 )
 @click.option("--resume", is_flag=True, help="Restart at the first stroke not completely done.")
 @click.option(
@@ -92,7 +94,8 @@ def _ask_interrupt() -> str:
 @click.option(
     "--machine",
     default=None,
-    help="Machine profile NAME or PATH to compare with $$ [the job's toolpath machine].",
+    show_default="the job's toolpath machine",
+    help="Machine profile NAME or PATH to compare with $$.",
 )
 @click.option(
     "--margin",
@@ -120,8 +123,9 @@ def _ask_interrupt() -> str:
     "--z-threshold",
     type=FiniteFloat(),
     default=None,
-    help="Tool is down below this Z in mm [machine: halfway engrave..safe; else read from "
-    "the G-code: between its cutting and rapid heights].",
+    show_default="machine: halfway engrave..safe; else from the G-code: between its cutting "
+    "and rapid heights",
+    help="The tool is down below this Z (mm).",
 )
 def stream(
     gcode: Path,

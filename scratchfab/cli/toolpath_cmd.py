@@ -39,17 +39,20 @@ def _inputs(
 @click.option(
     "--scratches",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="Scratch CSV (default: JOB/optimize/scratches.csv).",
+    show_default="JOB/optimize/scratches.csv",
+    help="Scratch CSV.",
 )
 @click.option(
     "--design",
     type=click.Path(dir_okay=False, path_type=Path),
-    help="Design TOML (default: JOB/design/design.toml).",
+    show_default="JOB/design/design.toml",
+    help="Design TOML.",
 )
 @click.option(
     "--out",
     type=click.Path(file_okay=False, path_type=Path),
-    help="Output folder (default: JOB/toolpath).",
+    show_default="JOB/toolpath",
+    help="Output folder.",
 )
 @click.option(
     "--passes",
@@ -69,9 +72,8 @@ def _inputs(
     "--kicks",
     type=click.IntRange(0),
     default=None,
-    help="Perturbation trials in all (default: "
-    f"{OrderOptions.kicks_per_stroke:g} per stroke, at most {OrderOptions.max_kicks}). "
-    "More trials: shorter travel, longer run.",
+    show_default=f"{OrderOptions.kicks_per_stroke:g} per stroke, at most {OrderOptions.max_kicks}",
+    help="Perturbation trials in all. More trials: shorter travel, longer run.",
 )
 def toolpath(
     job: Path | None,
