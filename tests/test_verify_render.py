@@ -370,6 +370,7 @@ def test_bad_input_is_one_line_and_writes_nothing(half_job, tmp_path, capsys, ar
         (["--sky", "--sun", "nan", "0", "1"], "'--sun': 'nan' is not a finite number"),
         (["--sky", "--sun", "0", "inf", "1"], "'--sun': 'inf' is not a finite number"),
         (["--sky", "--sun", "0", "0", "0"], "--sun: expected three finite numbers, not all zero"),
+        (["--sky", "--sun", "0.3", "-0.2", "1"], "--sun: the sun must be above the horizon (y > 0"),
         (["--min-rho", "nan"], "'--min-rho': 'nan' is not a finite number"),
     ],
 )
@@ -395,6 +396,7 @@ def test_option_values_that_are_not_finite_numbers_are_refused(
         ({"max_noise": 0.0}, "max_noise: expected a number > 0"),
         ({"max_noise": float("nan")}, "max_noise: expected a number > 0"),
         ({"sky": {"sun_direction": (0.0, 0.0, 0.0)}}, "sun_direction: expected three finite"),
+        ({"sky": {"sun_direction": (1.0, 0.0, 1.0)}}, "sun_direction: the sun must be above"),
         ({"sky": {"sun_direction": (0.0, float("inf"), 1.0)}}, "sun_direction: expected"),
         ({"sky": {"strength": 0.0}}, "strength: expected a finite number > 0"),
         ({"sky": {"turbidity": 12.0}}, "turbidity: expected 1 (clear) to 10"),

@@ -25,11 +25,17 @@ SAMPLER = "multijitter"
 
 
 def bad_sun_direction(direction: tuple[float, ...]) -> str | None:
-    """Why ``direction`` cannot point at the sun (three finite numbers, not all 0), or None."""
+    """Why ``direction`` cannot point at the sun, or None.
+
+    Three finite numbers with y > 0: y is up (the board hangs like a picture), and a sun
+    at or below the horizon lights nothing (Mitsuba's sun-and-sky model only warns).
+    """
     values = np.asarray(direction, dtype=np.float64)
-    if values.shape == (3,) and np.all(np.isfinite(values)) and values.any():
-        return None
-    return f"expected three finite numbers, not all zero, got {tuple(direction)}"
+    if not (values.shape == (3,) and np.all(np.isfinite(values)) and values.any()):
+        return f"expected three finite numbers, not all zero, got {tuple(direction)}"
+    if values[1] <= 0:
+        return f"the sun must be above the horizon (y > 0; y is up), got {tuple(direction)}"
+    return None
 
 
 @dataclass(frozen=True)
