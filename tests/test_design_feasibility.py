@@ -159,3 +159,75 @@ def test_one_sided_crosstalk_is_still_an_error(order):
     assert seps[("high", "low")] < lobe_deg(0.05) < seps[("low", "high")]
     assert len(report.errors) == 1 and "indistinguishable" in report.errors[0]
     assert "light 'high' also light 'low'" in report.errors[0]
+
+
+def test_map_classes_by_pixels_stay_apart_for_colour_blind_eyes():
+    from scratchfab import figures
+    from scratchfab.design import feasibility as fz
+    from scratchfab.design.feasibility import board_points, map_figure
+    from scratchfab.render.profile import steepest_wall_deg
+
+    design = _design([("near", -22.0, 0.0), ("far", 40.0, 0.0)])
+    report = check_feasibility(design, grid=48)
+    fig = map_figure(report, "far")
+    rgb = np.asarray(fig.image.convert("RGB")).astype(int)
+    x0, y0, x1, y1 = fig.map_box
+    assert x1 - x0 + 1 >= fz.MAP_MIN_PX and fig.cell * 48 == x1 - x0 + 1
+    # Classes from the geometry, independently of the report's maps.
+    reach = float(steepest_wall_deg(design.scratch.width_mm, design.scratch.depth_mm))
+    limit = reach + lobe_deg(design.board.roughness)
+    view = next(v for v in design.views if v.name == "far")
+    tilt = tilt_deg(half_vectors(design, view, board_points(design.board, 48)))
+    classes = {"reach": tilt <= reach, "lobe": (tilt > reach) & (tilt <= limit), "no": tilt > limit}
+    assert all(c.sum() > 20 for c in classes.values())
+    blocks = rgb[y0 : y1 + 1, x0 : x1 + 1].reshape(48, fig.cell, 48, fig.cell, 3)
+    blocks = blocks.transpose(0, 2, 1, 3, 4)
+    means = {k: blocks[c].mean(axis=(1, 2)) for k, c in classes.items()}
+    # Nearest neighbour: reachable cells are flat blocks; unreachable ones hatched.
+    flat = blocks[classes["reach"]]
+    assert np.all(flat == flat[:, :1, :1])
+    hatched = blocks[classes["no"]]
+    assert np.all(np.any(np.all(hatched == fz.HATCH, axis=-1), axis=(1, 2)))
+    for kind in ("protanopia", "deuteranopia"):
+        sim = {k: figures.simulate_cvd(v, kind) for k, v in means.items()}
+        # Blue against yellow and orange survive: blue minus red keeps its sign.
+        assert np.all(sim["reach"][:, 2] - sim["reach"][:, 0] > 0.25)
+        for k in ("lobe", "no"):
+            assert np.all(sim[k][:, 0] - sim[k][:, 2] > 0.25)
+        # The hatched orange is far darker than the lobe's yellow.
+        gap = figures.lightness(sim["lobe"]).min() - figures.lightness(sim["no"]).max()
+        assert gap > 25
+    # The old red/green map failed exactly this: both shaded classes looked olive.
+    red = figures.simulate_cvd(np.array([217, 26, 26]))
+    green = figures.simulate_cvd(np.array([0.1, 0.75, 0.2]) * 255 * 0.6)
+    assert np.sign(red[2] - red[0]) == np.sign(green[2] - green[0])
+
+
+def test_map_scale_bar_and_key_show_the_map_colours():
+    from scratchfab.design import feasibility as fz
+    from scratchfab.design.feasibility import map_figure, tilt_colours
+
+    report = check_feasibility(_design([("near", -22.0, 0.0), ("dup", -22.3, 0.2)]), grid=32)
+    fig = map_figure(report, "near")
+    rgb = np.asarray(fig.image.convert("RGB")).astype(int)
+    reach = report.steepest_wall_deg
+    limit = reach + report.lobe_deg
+    bx0, by0, bx1, by1 = fig.bar_box
+    row = rgb[(by0 + by1) // 2, bx0 : bx1 + 1]
+    deg = (np.arange(bx1 - bx0 + 1) + 0.5) * fig.bar_deg / (bx1 - bx0 + 1)
+    want = tilt_colours(deg, reach, limit).astype(int)
+    plain = np.all(row != fz.HATCH, axis=-1)
+    assert np.all(row[plain] == want[plain])
+    # The bar's yellow starts at the steepest wall and its orange at wall + lobe.
+    yellow = deg[np.all(row == fz.LOBE_ONLY, axis=-1)]
+    assert yellow.min() == pytest.approx(reach, abs=fig.bar_deg / 100)
+    assert yellow.max() == pytest.approx(limit, abs=fig.bar_deg / 100)
+    # Every map colour class appears in the key box.
+    lx0, ly0, lx1, ly1 = fig.legend_box
+    key = rgb[ly0 : ly1 + 1, lx0 : lx1 + 1]
+    for color in (fz.REACH_DARK, fz.LOBE_ONLY, fz.UNREACHABLE, fz.HATCH):
+        assert np.all(key == color, axis=-1).any(), color
+    # Near-duplicate views light each other: the map carries the crosstalk dots.
+    mx0, my0, mx1, my1 = fig.map_box
+    assert np.all(rgb[my0 : my1 + 1, mx0 : mx1 + 1] == 0, axis=-1).sum() > 50
+    assert "blue" in report.to_json()["maps"] and "green" not in report.to_json()["maps"]

@@ -569,3 +569,78 @@ def test_board_partly_off_the_envelope_is_shown_and_warned(rng, tmp_path, capsys
     assert len(cols) and 0.3 * rgb.shape[1] < cols.mean() < 0.7 * rgb.shape[1]
     main(["export", str(job), "--format", "gcode"])
     assert f"{tp.stats['outside_count']} scratches were left out" in capsys.readouterr().err
+
+
+def _preview_case(rng, start_offset, envelope_cut=None):
+    from scratchfab.toolpath.plan import preview_figure
+
+    board, s = board_and_scratches(rng, 80)
+    table = load_profile("grbl-3018-diamond").to_table()
+    offset = table["board"]["offset_mm"]
+    table["start_mm"] = [offset[0] + start_offset[0], offset[1] + start_offset[1]]
+    if envelope_cut is not None:
+        table["envelope"]["x_mm"] = [table["envelope"]["x_mm"][0], offset[0] + envelope_cut]
+    tp = plan_toolpath(s, board, profile_from_mapping(table, "t"), ScratchTool())
+    fig = preview_figure(tp, max_px=500)
+    return tp, fig, np.asarray(fig.image.convert("RGB")).astype(int)
+
+
+def _mask(rgb, color):
+    return np.all(rgb == np.array(color), axis=-1)
+
+
+def test_preview_start_ring_sits_at_the_start_and_the_key_matches_the_colours(rng):
+    from scratchfab.toolpath import plan
+
+    tp, fig, full = _preview_case(rng, (-3.0, -4.0), envelope_cut=30.0)
+    assert fig.start_inside
+    # The plot: left of the key, below the title band (the key starts a margin down).
+    m = plan.PREVIEW_MARGIN_PX
+    top, left = fig.legend_box[1] - m, fig.legend_box[0] - m
+    rgb = full[top:, :left]
+    # Map mm to pixels from the drawn board outline alone: its grey pixels span the
+    # outline's corners (2 px wide lines, centred on the corners).
+    ys, xs = np.nonzero(_mask(rgb, plan.BOARD_RGB))
+    (x0, y0), (x1, y1) = tp.outline.min(axis=0), tp.outline.max(axis=0)
+    sx = (xs.max() - xs.min()) / (x1 - x0)
+    sy = (ys.max() - ys.min()) / (y1 - y0)
+    assert sx == pytest.approx(sy, rel=0.02)
+    want = np.array([xs.min() + (tp.start[0] - x0) * sx, ys.max() - (tp.start[1] - y0) * sy])
+    ry, rx = np.nonzero(_mask(rgb, plan.START_RGB))
+    assert np.abs(np.array([rx.mean(), ry.mean()]) - want).max() < 2.0
+    # The whole ring is in the picture, clear of its border.
+    assert rx.min() > 2 and ry.min() > 2 and ry.max() < rgb.shape[0] - 3
+    # The envelope's right edge (30 mm into the board) is drawn where it belongs.
+    blue = _mask(rgb, plan.ENVELOPE_RGB)
+    cols = np.flatnonzero(blue.sum(axis=0) > 0.5 * rgb.shape[0])
+    assert len(cols) and np.abs(cols - (xs.min() + 30.0 * sx)).max() < 2.0
+    # Every colour drawn in the plot is in the key, and every key colour is drawn.
+    drawn = {tuple(c) for c in np.unique(rgb.reshape(-1, 3), axis=0)} - {(255, 255, 255)}
+    keyed = {it.color for it in fig.legend}
+    assert drawn == keyed
+    box = fig.legend_box
+    key = full[box[1] : box[3] + 1, box[0] : box[2] + 1]
+    for color in keyed:
+        assert _mask(key, color).any(), color
+
+
+def test_preview_travel_to_a_far_start_ends_in_arrows_at_the_frame(rng):
+    from scratchfab.toolpath import plan
+
+    tp, fig, full = _preview_case(rng, (200.0, 120.0))
+    assert not fig.start_inside
+    m = plan.PREVIEW_MARGIN_PX
+    top, left = fig.legend_box[1] - m, fig.legend_box[0] - m
+    travel = _mask(full[top:, :left], plan.TRAVEL_RGB)
+    # The start lies up and to the right: the two legs toward it stop in arrows on the
+    # drawn extent's top or right edge, a margin inside the plot's border.
+    ys, xs = np.nonzero(travel)
+    h, w = travel.shape
+    assert xs.max() < w - m + 3 and ys.min() > m - 3
+    assert xs.max() > w - m - 3 or ys.min() < m + 3
+    # Beyond the strokes' own reach there are only the two arrows (and their label).
+    beyond = int(fig.to_px(tp.strokes.reshape(-1, 2))[:, 0].max()) + 2
+    assert travel[:, beyond:].sum() > 20
+    assert any(it.kind == "arrow" and it.color == plan.TRAVEL_RGB for it in fig.legend)
+    assert not any(it.kind == "ring" for it in fig.legend)
+    assert not _mask(full, plan.START_RGB).any()

@@ -19,8 +19,9 @@ from itertools import combinations
 from typing import Any
 
 import numpy as np
-from PIL import Image
+from PIL import Image, ImageDraw
 
+from scratchfab import figures
 from scratchfab.errors import ConfigError
 from scratchfab.model.design import Board, Design, View
 from scratchfab.render.profile import steepest_wall_deg
@@ -29,6 +30,16 @@ from scratchfab.render.profile import steepest_wall_deg
 MIN_REACHABLE_FRACTION = 0.5
 #: Pairs closer than this many lobe widths (median over the board) get a warning.
 WARN_SEPARATION_LOBES = 3.0
+#: Map dots where another view sees at least this share of the GGX peak (one lobe width).
+CROSSTALK_DOTS = 0.25
+#: Map colours (Okabe-Ito based; blue against yellow/orange survives red-green blindness).
+REACH_LIGHT = (166, 206, 227)
+REACH_DARK = (31, 90, 160)
+LOBE_ONLY = figures.OKABE_ITO["yellow"]
+UNREACHABLE = figures.OKABE_ITO["vermillion"]
+HATCH = (40, 40, 40)
+#: The map is drawn at least this wide (pixels), each grid cell a square block.
+MAP_MIN_PX = 384
 
 
 def lobe_deg(roughness: float) -> float:
@@ -171,9 +182,12 @@ class FeasibilityReport:
             "errors": list(self.errors),
             "warnings": list(self.warnings),
             "maps": (
-                "feasibility_<view>.png: board seen from the front (top = +y); green: the "
-                "profile reaches the half-vector, yellow: only through the roughness lobe, "
-                "red: unreachable; magenta tint: expected crosstalk with another view"
+                "feasibility_<view>.png: board seen from the front (top = +y); blue: the "
+                "profile reaches the half-vector (darker: tilted closer to the steepest wall), "
+                "yellow: only through the roughness lobe, orange with hatching: unreachable; "
+                f"black dots: expected crosstalk with another view at least {CROSSTALK_DOTS:g} "
+                "of the peak (within one lobe width); the key under the map gives the tilt "
+                "scale in degrees"
             ),
         }
 
@@ -210,24 +224,8 @@ class FeasibilityReport:
             )
 
     def map_image(self, name: str) -> Image.Image:
-        """The feasibility map of one view as an RGB image (board seen from the front)."""
-        v = self.views[name]
-        reach = self.steepest_wall_deg
-        limit = reach + self.lobe_deg
-        rgb = np.empty(v.tilt_map.shape + (3,))
-        shade = 0.45 + 0.55 * (1.0 - np.clip(v.tilt_map / max(limit, 1e-9), 0.0, 1.0))
-        rgb[...] = (0.85, 0.1, 0.1)
-        rgb[v.tilt_map <= limit] = (0.95, 0.8, 0.1)
-        ok = v.tilt_map <= reach
-        rgb[ok] = np.array([0.1, 0.75, 0.2])
-        rgb[ok] *= shade[ok][:, None]
-        cross = np.zeros(v.tilt_map.shape)
-        for p in self.pairs:
-            if p.lit == name or p.other == name:
-                cross = np.maximum(cross, p.crosstalk_map)
-        tint = np.clip(cross, 0.0, 1.0)[..., None]
-        rgb = rgb * (1 - tint) + np.array([0.9, 0.1, 0.9]) * tint
-        return Image.fromarray(np.round(rgb * 255).astype(np.uint8))
+        """The feasibility map of one view as an RGB picture with its key (see :func:`map_figure`)."""
+        return map_figure(self, name).image
 
 
 def check_feasibility(design: Design, grid: int = 96) -> FeasibilityReport:
@@ -308,3 +306,156 @@ def check_feasibility(design: Design, grid: int = 96) -> FeasibilityReport:
                 f"lobe {lobe:.1f} deg)"
             )
     return FeasibilityReport(steepest, lobe, views, pairs, errors, warnings)
+
+
+def tilt_colours(tilt: np.ndarray, reach_deg: float, limit_deg: float) -> np.ndarray:
+    """Map colour (uint8 RGB, (..., 3)) of half-vector tilts in degrees.
+
+    Blue, lighter toward 0 and darker toward the steepest wall ``reach_deg``; yellow up
+    to ``limit_deg`` (steepest wall + lobe); orange beyond (hatched on the map).
+    """
+    t = np.asarray(tilt, dtype=np.float64)
+    f = np.clip(t / max(reach_deg, 1e-9), 0.0, 1.0)[..., None]
+    rgb = (1.0 - f) * np.array(REACH_LIGHT) + f * np.array(REACH_DARK)
+    rgb = np.where((t > reach_deg)[..., None], np.array(LOBE_ONLY, dtype=np.float64), rgb)
+    rgb = np.where((t > limit_deg)[..., None], np.array(UNREACHABLE, dtype=np.float64), rgb)
+    return np.round(rgb).astype(np.uint8)
+
+
+@dataclass
+class MapFigure:
+    """A drawn feasibility map and where its parts are (pixels, inclusive boxes).
+
+    Attributes:
+        image: The whole picture.
+        map_box: The map: grid cell (i, j) fills ``cell`` x ``cell`` pixels from
+            (map_box[0] + j * cell, map_box[1] + i * cell).
+        cell: Pixels per grid cell.
+        bar_box: The tilt scale bar; ``bar_deg`` is the tilt at its right end.
+        bar_deg: Tilt at the bar's right end (its left end is 0 deg).
+        legend_box: The key.
+    """
+
+    image: Image.Image
+    map_box: tuple[int, int, int, int]
+    cell: int
+    bar_box: tuple[int, int, int, int]
+    bar_deg: float
+    legend_box: tuple[int, int, int, int]
+
+
+def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
+    """Draw one view's feasibility map with its title, tilt scale and key.
+
+    The map shows the board from the front (row 0 at +y), each grid cell as a square
+    block of pixels (nearest neighbour). Unreachable cells are hatched as well as
+    orange, so they stay apart in grey too; cells where a scratch for this view lights
+    another one (or back) at :data:`CROSSTALK_DOTS` of the peak or more carry dots.
+    """
+    v = report.views[name]
+    reach = report.steepest_wall_deg
+    limit = reach + report.lobe_deg
+    tilt = v.tilt_map
+    rows, cols = tilt.shape
+    cell = max(1, -(-MAP_MIN_PX // cols))
+    mw, mh = cols * cell, rows * cell
+    cells = tilt_colours(tilt, reach, limit)
+    big = np.repeat(np.repeat(cells, cell, axis=0), cell, axis=1)
+    img = Image.fromarray(big)
+    draw = ImageDraw.Draw(img)
+    bad = tilt > limit
+    if bad.any():
+        mask = Image.new("RGB", img.size, (255, 255, 255))
+        figures.hatch(ImageDraw.Draw(mask), (0, 0, mw - 1, mh - 1), HATCH, step=6)
+        lines = np.all(np.asarray(mask) == HATCH, axis=-1)
+        lines &= np.repeat(np.repeat(bad, cell, axis=0), cell, axis=1)
+        arr = np.asarray(img).copy()
+        arr[lines] = HATCH
+        img = Image.fromarray(arr)
+        draw = ImageDraw.Draw(img)
+    cross = np.zeros(tilt.shape)
+    for p in report.pairs:
+        if name in (p.lit, p.other):
+            cross = np.maximum(cross, p.crosstalk_map)
+    step = max(4, cell * 2)
+    for y in range(step // 2, mh, step):
+        for x in range(step // 2, mw, step):
+            if cross[y // cell, x // cell] >= CROSSTALK_DOTS:
+                draw.rectangle((x - 1, y - 1, x, y), fill=(0, 0, 0))
+
+    size = figures.TEXT_PX
+    m = 12
+    text_w = figures.text_size("+y", size)[0]
+    side = text_w + 14  # the +y arrow right of the map
+    bar_deg = float(max(1.25 * limit, v.tilt_max_deg * 1.05))
+    items = [
+        figures.LegendItem("profile reaches it (darker: steeper)", REACH_DARK, "box"),
+        figures.LegendItem("only through the roughness lobe", LOBE_ONLY, "box"),
+        figures.LegendItem("unreachable", UNREACHABLE, "hatch"),
+        figures.LegendItem(f"crosstalk >= {CROSSTALK_DOTS:g} of peak", (0, 0, 0), "dots"),
+    ]
+    lw, lh = figures.legend_size(items, size)
+    bar_label = "half-vector tilt from the board normal (deg)"
+    width = max(mw + side, lw, figures.text_size(bar_label, size)[0] + 10)
+    bar_h = 14
+    tick_h = figures.text_size("0", size)[1]
+    height = mh + 10 + tick_h + 10 + bar_h + 6 + tick_h + 6 + 2 * tick_h + 14 + lh
+    canvas = Image.new("RGB", (width + 2 * m, height + 2 * m), (255, 255, 255))
+    canvas.paste(img, (m, m))
+    cd = ImageDraw.Draw(canvas)
+    cd.rectangle((m - 1, m - 1, m + mw, m + mh), outline=figures.FRAME)
+    ax = m + mw + 8 + text_w // 2
+    figures.draw_arrow(cd, (ax, m + 50), (ax, m + 6), (0, 0, 0), width=2, head=8)
+    cd.text((m + mw + 8, m + 54), "+y", fill=(0, 0, 0), font=figures.font(size))
+
+    # Tilt scale: this view's range on top, the colour bar, ticks under it.
+    bx0, bx1 = m, m + mw - 1
+    y = m + mh + 10
+    span = bx1 - bx0
+
+    def xdeg(d: float) -> int:
+        return bx0 + int(round(span * d / bar_deg))
+
+    r0, r1 = xdeg(v.tilt_min_deg), xdeg(min(v.tilt_max_deg, bar_deg))
+    label = f"view '{name}': {v.tilt_min_deg:.1f}-{v.tilt_max_deg:.1f}"
+    lx = min(max(bx0, (r0 + r1) // 2 - figures.text_size(label, size)[0] // 2), bx1 - 10)
+    cd.text((lx, y), label, fill=(0, 0, 0), font=figures.font(size))
+    y += tick_h + 10
+    cd.line([(r0, y - 4), (r1, y - 4)], fill=(0, 0, 0), width=3)
+    degs = (np.arange(span + 1) + 0.5) * bar_deg / (span + 1)
+    strip = np.repeat(tilt_colours(degs, reach, limit)[None], bar_h, axis=0)
+    strip_img = Image.fromarray(strip)
+    sd = ImageDraw.Draw(strip_img)
+    lim_x = xdeg(limit) - bx0
+    if lim_x < span:
+        figures.hatch(sd, (lim_x + 1, 0, span, bar_h - 1), HATCH, step=6)
+    canvas.paste(strip_img, (bx0, y))
+    bar_box = (bx0, y, bx1, y + bar_h - 1)
+    cd.rectangle((bx0 - 1, y - 1, bx1 + 1, y + bar_h), outline=figures.FRAME)
+    y += bar_h + 2
+    ticks = [(0.0, "0"), (reach, f"{reach:.1f}"), (limit, f"{limit:.1f}")]
+    ticks.append((bar_deg, f"{bar_deg:.0f}"))
+    last_right = -999
+    for d, text in ticks:
+        x = xdeg(d)
+        cd.line([(x, y), (x, y + 4)], fill=(0, 0, 0), width=1)
+        tw = figures.text_size(text, size)[0]
+        tx = min(max(bx0, x - tw // 2), bx1 - tw)
+        if tx > last_right + 4:
+            cd.text((tx, y + 4), text, fill=(0, 0, 0), font=figures.font(size))
+            last_right = tx + tw
+    y += 4 + tick_h + 6
+    note = f"{bar_label}\ntool: steepest wall {reach:.1f} + lobe {report.lobe_deg:.1f} deg"
+    cd.multiline_text((bx0, y), note, fill=(0, 0, 0), font=figures.font(size), spacing=3)
+    y += figures.text_size(note, size)[1] + 10
+    legend_box = figures.draw_legend(canvas, items, (m, y), size)
+    title = [f"view '{name}': where a scratch can light it", "board seen from the front, top = +y"]
+    out = figures.add_title(canvas, title, size + 1, margin=m)
+    dy = out.height - canvas.height
+
+    def shift(b: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
+        return (b[0], b[1] + dy, b[2], b[3] + dy)
+
+    return MapFigure(
+        out, shift((m, m, m + mw - 1, m + mh - 1)), cell, shift(bar_box), bar_deg, shift(legend_box)
+    )

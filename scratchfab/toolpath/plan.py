@@ -20,6 +20,7 @@ import numpy as np
 import shapely
 from PIL import Image, ImageDraw
 
+from scratchfab import figures
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import save_png, write_text
 from scratchfab.machine.profile import MachineProfile, profile_from_mapping
@@ -271,53 +272,167 @@ def plan_toolpath(
     return Toolpath(strokes, rows[result.order], size, outline, profile, stats)
 
 
-def write_preview(toolpath: Toolpath, path: str | Path, max_px: int = 1200) -> None:
-    """PNG of the board outline (grey), the cuts (black) and the travel moves (red), +y up.
+#: Preview colours (Okabe-Ito based, apart under red-green blindness).
+CUT_RGB = (0, 0, 0)
+TRAVEL_RGB = figures.OKABE_ITO["vermillion"]
+BOARD_RGB = (150, 150, 150)
+ENVELOPE_RGB = (60, 90, 220)
+START_RGB = figures.OKABE_ITO["bluish_green"]
+#: Pixels around the drawn extent, so marks on its edge are not cut off.
+PREVIEW_MARGIN_PX = 16
 
-    The machine's envelope is drawn in blue where it crosses the picture, so a board
-    that sticks out of it shows where scratches were clipped or dropped. The start
-    position (green ring) is framed too unless it lies far off the board; the travel
-    legs to and from it then run off the picture.
+
+@dataclass
+class PreviewFigure:
+    """The drawn preview and its geometry.
+
+    Attributes:
+        image: The whole picture (title band on top, key on the right).
+        origin_px: Pixel of the extent's lower-left corner ``lo_mm``.
+        lo_mm: Lower-left corner of the drawn extent, machine mm.
+        px_per_mm: Scale.
+        start_inside: Whether the start position lies in the picture.
+        legend_box: The key's box.
+        legend: The key's rows.
+    """
+
+    image: Image.Image
+    origin_px: tuple[float, float]
+    lo_mm: np.ndarray
+    px_per_mm: float
+    start_inside: bool
+    legend_box: tuple[int, int, int, int]
+    legend: list[figures.LegendItem]
+
+    def to_px(self, p: np.ndarray) -> np.ndarray:
+        """Machine XY (..., 2) mm to picture pixels (x right, y down)."""
+        q = (np.asarray(p, dtype=np.float64) - self.lo_mm) * self.px_per_mm
+        return np.stack([self.origin_px[0] + q[..., 0], self.origin_px[1] - q[..., 1]], axis=-1)
+
+
+def _leave_box(
+    inside: np.ndarray, outside: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> np.ndarray:
+    """Where the segment from ``inside`` (in the box) to ``outside`` crosses the box's edge."""
+    d = outside - inside
+    t = 1.0
+    for k in range(2):
+        if d[k] > 0:
+            t = min(t, (hi[k] - inside[k]) / d[k])
+        elif d[k] < 0:
+            t = min(t, (lo[k] - inside[k]) / d[k])
+    return inside + max(t, 0.0) * d
+
+
+def preview_figure(toolpath: Toolpath, max_px: int = 1200) -> PreviewFigure:
+    """Draw the board outline, cuts, travel moves, envelope and start with a title and key.
+
+    The picture frames the board and the strokes; it takes in the start position too
+    unless that more than doubles the area, and then the travel legs to and from the
+    start end in arrows on the picture's edge, labelled with the start's coordinates.
     """
     pts = [toolpath.outline]
     if len(toolpath):
         pts.append(toolpath.strokes.reshape(-1, 2))
     allp = np.vstack(pts)
     lo, hi = allp.min(axis=0), allp.max(axis=0)
-    # Frame the board; take the start position in only if that does not shrink it much.
-    pad = 0.05 * float((hi - lo).max())
-    lo, hi = lo - pad, hi + pad
-    with_start = np.minimum(lo, toolpath.start), np.maximum(hi, toolpath.start)
-    if np.prod(with_start[1] - with_start[0]) <= 2.0 * np.prod(hi - lo):
+    extra = 0.05 * float((hi - lo).max())
+    lo, hi = lo - extra, hi + extra
+    start = toolpath.start
+    with_start = np.minimum(lo, start), np.maximum(hi, start)
+    start_inside = bool(np.prod(with_start[1] - with_start[0]) <= 2.0 * np.prod(hi - lo))
+    if start_inside:
         lo, hi = with_start
     span = np.maximum(hi - lo, 1e-9)
-    margin = 20
-    scale = (max_px - 2 * margin) / float(span.max())
-    w = int(math.ceil(span[0] * scale)) + 2 * margin
-    h = int(math.ceil(span[1] * scale)) + 2 * margin
+    m = PREVIEW_MARGIN_PX
+    scale = (max_px - 2 * m) / float(span.max())
+    w = int(math.ceil(span[0] * scale)) + 2 * m
+    h = int(math.ceil(span[1] * scale)) + 2 * m
 
-    def px(p: np.ndarray) -> np.ndarray:
-        q = (np.asarray(p).reshape(-1, 2) - lo) * scale
-        return np.stack([q[:, 0] + margin, h - margin - q[:, 1]], axis=1)
+    def px(p: np.ndarray) -> list[tuple[float, float]]:
+        q = (np.asarray(p, dtype=np.float64).reshape(-1, 2) - lo) * scale
+        return [(float(a) + m, h - m - float(b)) for a, b in q]
 
     image = Image.new("RGB", (w, h), "white")
     draw = ImageDraw.Draw(image)
     env = toolpath.profile.envelope
-    box = px(np.array([[env.x_mm[0], env.y_mm[1]], [env.x_mm[1], env.y_mm[0]]]))
-    box = np.clip(box, -10.0, [w + 10.0, h + 10.0])  # edges out of the picture stay out
-    draw.rectangle([tuple(box[0]), tuple(box[1])], outline=(60, 90, 220), width=2)
-    ring = px(np.vstack([toolpath.outline, toolpath.outline[:1]]))
-    draw.line([tuple(p) for p in ring.tolist()], fill=(150, 150, 150), width=2)
+    ex = np.array(env.x_mm, dtype=np.float64)
+    ey = np.array(env.y_mm, dtype=np.float64)
+    (bx0, by0), (bx1, by1) = px(np.array([[ex[0], ey[1]], [ex[1], ey[0]]]))
+    # Edges beyond the margin stay out of the picture; those inside are drawn whole.
+    box = (max(bx0, -10.0), max(by0, -10.0), min(bx1, w + 10.0), min(by1, h + 10.0))
+    envelope_shown = (
+        (0 <= bx0 <= w or 0 <= bx1 <= w or 0 <= by0 <= h or 0 <= by1 <= h)
+        and box[0] < box[2]
+        and box[1] < box[3]
+    )
+    if box[0] < box[2] and box[1] < box[3]:
+        draw.rectangle(box, outline=ENVELOPE_RGB, width=2)
+    draw.line(px(np.vstack([toolpath.outline, toolpath.outline[:1]])), fill=BOARD_RGB, width=2)
+    size = figures.TEXT_PX
     if len(toolpath):
-        start = toolpath.start[None, :]
-        stops = px(np.vstack([start, toolpath.strokes[:, 1]])).tolist()
-        goes = px(np.vstack([toolpath.strokes[:, 0], start])).tolist()
-        for a, b in zip(stops, goes, strict=True):
-            draw.line([tuple(a), tuple(b)], fill=(230, 60, 60), width=1)
-        for a, b in zip(
-            px(toolpath.strokes[:, 0]).tolist(), px(toolpath.strokes[:, 1]).tolist(), strict=True
-        ):
-            draw.line([tuple(a), tuple(b)], fill=(0, 0, 0), width=1)
-    sx, sy = px(toolpath.start[None, :])[0]
-    draw.ellipse([sx - 5, sy - 5, sx + 5, sy + 5], outline=(0, 120, 0), width=2)
-    save_png(path, image)
+        legs_from = np.vstack([start[None, :], toolpath.strokes[:, 1]])
+        legs_to = np.vstack([toolpath.strokes[:, 0], start[None, :]])
+        inner = slice(None) if start_inside else slice(1, -1)
+        for a, b in zip(px(legs_from[inner]), px(legs_to[inner]), strict=True):
+            draw.line([a, b], fill=TRAVEL_RGB, width=1)
+        if not start_inside:
+            exits = []
+            for near in (toolpath.strokes[0, 0], toolpath.strokes[-1, 1]):
+                edge = _leave_box(near, start, lo, hi)
+                (a, b) = px(np.vstack([near, edge]))
+                figures.draw_arrow(draw, a, b, TRAVEL_RGB, width=2, head=10)
+                exits.append(b)
+            label = f"to start ({start[0]:g}, {start[1]:g}) mm"
+            tw, th = figures.text_size(label, size)
+            cx = float(np.mean([e[0] for e in exits]))
+            cy = float(np.mean([e[1] for e in exits]))
+            # Inside the picture, on the side of the exits away from the edge.
+            tx = min(max(cx - tw / 2, m), w - m - tw)
+            ty = min(max(cy + (14 if cy < h / 2 else -14 - th), m), h - m - th)
+            draw.rectangle((tx - 3, ty - 1, tx + tw + 3, ty + th + 3), fill=(255, 255, 255))
+            draw.text((tx, ty), label, fill=TRAVEL_RGB, font=figures.font(size))
+        for a, b in zip(px(toolpath.strokes[:, 0]), px(toolpath.strokes[:, 1]), strict=True):
+            draw.line([a, b], fill=CUT_RGB, width=1)
+    if start_inside:
+        ((sx, sy),) = px(start[None, :])
+        draw.ellipse([sx - 6, sy - 6, sx + 6, sy + 6], outline=START_RGB, width=2)
+
+    items = [
+        figures.LegendItem("cut", CUT_RGB, "line"),
+        figures.LegendItem("travel (tool up)", TRAVEL_RGB, "line"),
+        figures.LegendItem("board outline", BOARD_RGB, "line"),
+    ]
+    if envelope_shown:
+        items.append(figures.LegendItem("machine envelope", ENVELOPE_RGB, "line"))
+    if start_inside:
+        items.append(
+            figures.LegendItem(f"start/end ({start[0]:g}, {start[1]:g}) mm", START_RGB, "ring")
+        )
+    else:
+        items.append(figures.LegendItem("travel to/from start (off picture)", TRAVEL_RGB, "arrow"))
+    lw, lh = figures.legend_size(items, size)
+    panel = lw + 2 * m
+    canvas = figures.pad(image, (0, 0, panel, max(0, lh + 80 + m - h)))
+    legend_box = figures.draw_legend(canvas, items, (w + m, m), size)
+    figures.draw_scale_bar(canvas, scale, (w + m + 2, legend_box[3] + 30), max_px=lw - 70)
+    stats = toolpath.stats
+    minutes = float(stats.get("estimated_time_s", 0.0)) / 60.0
+    title = [
+        f"{toolpath.profile.name}: {len(toolpath)} strokes, "
+        f"cut {float(stats.get('cut_length_mm', 0.0)):.0f} mm, "
+        f"travel {float(stats.get('travel_length_mm', 0.0)):.0f} mm, about {minutes:.0f} min",
+        f"board {toolpath.board_mm[0]:g} x {toolpath.board_mm[1]:g} mm in machine coordinates, "
+        "+y up",
+    ]
+    out = figures.add_title(canvas, title, size + 1, margin=m)
+    dy = out.height - canvas.height
+    shifted = (legend_box[0], legend_box[1] + dy, legend_box[2], legend_box[3] + dy)
+    return PreviewFigure(
+        out, (float(m), float(h - m + dy)), lo, scale, start_inside, shifted, items
+    )
+
+
+def write_preview(toolpath: Toolpath, path: str | Path, max_px: int = 1200) -> None:
+    """Write the PNG of :func:`preview_figure`: cuts, travel, board, envelope, start, key."""
+    save_png(path, preview_figure(toolpath, max_px).image)
