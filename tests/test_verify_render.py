@@ -183,16 +183,21 @@ def test_sweep_frames_nearest_each_view_show_that_views_image(half_job, tmp_path
         targets=targets,
         cross=cross,
     )
-    gif = Image.open(tmp_path / "out" / "sweep.gif")
-    frames = [np.asarray(f.convert("L"), dtype=np.float64) for f in ImageSequence.Iterator(gif)]
-    assert len(frames) == frames_n == metrics["sweep"]["frames"]
     path, view_params = sweep_path(design, frames_n)
+    frames = sweep_pictures(tmp_path / "out" / "sweep.gif", path)
+    assert len(frames) == frames_n == metrics["sweep"]["frames"]
     boards = {
         "left": board_image(root / "left.png", design.board),
         "right": board_image(root / "top.png", design.board),
     }
     nearest = metrics["sweep"]["nearest_frame"]
     assert set(nearest) == {"left", "right"} and nearest["left"] != nearest["right"]
+    durations = [
+        f.info["duration"]
+        for f in ImageSequence.Iterator(Image.open(tmp_path / "out" / "sweep.gif"))
+    ]
+    held = {k for k, d in enumerate(durations[:frames_n]) if d > min(durations)}
+    assert held == set(nearest.values())  # the design views' frames hold longer
     for name, index in nearest.items():
         assert path[index].view.position_mm != design.view(name).position_mm  # not the view
     for name, corr in frame_correlations(frames, path, nearest, boards, design.board).items():
@@ -427,6 +432,27 @@ def test_cuda_backend_without_a_gpu_is_a_clear_error(half_job, tmp_path, capsys)
     assert not (tmp_path / "o").exists()
 
 
+def sweep_pictures(gif_path: Path, path: list) -> list[np.ndarray]:
+    """The rendered pictures of a sweep GIF, in path order.
+
+    The GIF plays the N frames forward then back (2N - 2 frames), each picture enlarged
+    by a whole factor above a label strip: the first N, shrunk back, are the renders.
+    """
+    gif = Image.open(gif_path)
+    n = len(path)
+    assert gif.n_frames == 2 * n - 2
+    w, h = path[0].view.resolution
+    factor = gif.width // w
+    assert gif.width == factor * w and gif.height > factor * h
+    out = [
+        np.asarray(f.convert("L"), dtype=np.float64)[: h * factor : factor, ::factor]
+        for f in ImageSequence.Iterator(gif)
+    ]
+    for k in range(1, n - 1):
+        assert np.array_equal(out[k], out[2 * n - 2 - k])  # played back in reverse
+    return out[:n]
+
+
 def frame_correlations(frames, path, nearest, boards, board):
     """For each design view, its nearest frame's correlation with every view's image."""
     out = {}
@@ -453,9 +479,8 @@ def test_demo_job_verifies_within_two_percent_and_its_sweep_shows_each_image(tmp
         assert v["rel_l2"] <= 0.02, (name, v["rel_l2"], v["noise"])
         assert v["rho"] > 0.8
     design = load_design(job / "design" / "design.toml")
-    gif = Image.open(job / "verify" / "sweep.gif")
-    frames = [np.asarray(f.convert("L"), dtype=np.float64) for f in ImageSequence.Iterator(gif)]
     path, _ = sweep_path(design, frames_n)
+    frames = sweep_pictures(job / "verify" / "sweep.gif", path)
     boards = {v.name: board_image(design.target_path(v), design.board) for v in design.views}
     nearest = metrics["sweep"]["nearest_frame"]
     for name, corr in frame_correlations(frames, path, nearest, boards, design.board).items():

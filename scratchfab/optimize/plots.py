@@ -4,74 +4,283 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from PIL import Image, ImageDraw
 
+from scratchfab.figures import OKABE_ITO, TEXT_PX, LegendItem, draw_legend, font, legend_size
 from scratchfab.fileio import save_png
+from scratchfab.metrics import exposure, pearson
+
+#: Colour of pixels off the board (a target's NaN) in the side-by-side picture.
+OFF_BOARD_RGB = (128, 128, 128)
+#: What the off-board colour means, printed under the side-by-side picture.
+OFF_BOARD_CAPTION = "grey: off the board (not scratched, not scored)"
+#: Side-by-side cells are enlarged (nearest neighbour) to at least this width.
+MIN_CELL_PX = 160
+#: Loss curve colour.
+LOSS_RGB = OKABE_ITO["blue"]
+#: Per-view curve colours, in view order (repeating).
+VIEW_RGB = [
+    OKABE_ITO[k]
+    for k in ("vermillion", "bluish_green", "orange", "reddish_purple", "sky_blue", "black")
+]
+#: Gridline colour.
+GRID_RGB = (215, 215, 215)
+#: Plot frame colour.
+AXIS_RGB = (0, 0, 0)
+
+_WIDTH = 760
+_LEFT = 78
+_RIGHT = 24
+_PANEL_H = 300
+_TITLE_H = 2 * TEXT_PX + 20
+_XLABEL_H = 2 * TEXT_PX + 14
 
 
 def _encode(values: np.ndarray, scale: float) -> np.ndarray:
-    """8-bit sRGB gray of linear values times ``scale``; NaN shows dark blue."""
+    """8-bit sRGB gray of linear values times ``scale``; NaN shows ``OFF_BOARD_RGB``."""
     finite = np.isfinite(values)
     v = np.clip(np.where(finite, values * scale, 0.0), 0.0, 1.0)
     enc = np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
     rgb = np.repeat(np.round(enc * 255).astype(np.uint8)[..., None], 3, axis=2)
-    rgb[~finite] = (16, 24, 64)
+    rgb[~finite] = OFF_BOARD_RGB
     return rgb
 
 
-def save_loss_plot(path: Path, iterations: Sequence[float], losses: Sequence[float]) -> None:
-    """Loss against iteration on a log scale, with axis labels."""
-    w, h, left, bottom, pad = 640, 400, 70, 40, 20
-    img = Image.new("RGB", (w, h), "white")
+def log_ticks(lo: float, hi: float) -> list[float]:
+    """Round values between ``10**lo`` and ``10**hi`` for a log axis, ascending.
+
+    Decades where the range holds at least three; else 1, 2 and 5 times a decade; else
+    every integer multiple. Over many decades every second (third, ...) decade.
+    """
+    first, last = math.floor(lo) - 1, math.ceil(hi) + 1
+    for mults in ((1,), (1, 2, 5), tuple(range(1, 10))):
+        ticks = [
+            m * 10.0**e
+            for e in range(first, last + 1)
+            for m in mults
+            if lo - 1e-9 <= e + math.log10(m) <= hi + 1e-9
+        ]
+        if len(ticks) >= (3 if mults == (1,) else 2):
+            break
+    step = max(1, math.ceil(len(ticks) / 8))
+    return ticks[::step]
+
+
+def linear_ticks(lo: float, hi: float, target: int = 6) -> list[float]:
+    """About ``target`` round values (1, 2 or 5 times a power of ten apart) in [lo, hi]."""
+    span = hi - lo
+    if not span > 0:
+        return [lo]
+    raw = span / target
+    base = 10.0 ** math.floor(math.log10(raw))
+    step = next(m * base for m in (1, 2, 5, 10) if m * base >= raw)
+    start = math.ceil(lo / step - 1e-9)
+    return [k * step for k in range(start, math.floor(hi / step + 1e-9) + 1)]
+
+
+def _label(value: float) -> str:
+    return f"{value:.3g}"
+
+
+@dataclass(frozen=True)
+class _Axes:
+    """A plot box and the data range it shows (y on a log10 scale when ``log``)."""
+
+    box: tuple[int, int, int, int]
+    x_range: tuple[float, float]
+    y_range: tuple[float, float]
+    log: bool
+
+    def px(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x0, y0, x1, y1 = self.box
+        (a, b), (c, d) = self.x_range, self.y_range
+        yy = np.log10(y) if self.log else y
+        return x0 + (x - a) / (b - a) * (x1 - x0), y1 - (yy - c) / (d - c) * (y1 - y0)
+
+    def frame(self, img: Image.Image, x_ticks: list[float], y_ticks: list[float]) -> None:
+        draw = ImageDraw.Draw(img)
+        x0, y0, x1, y1 = self.box
+        f = font(TEXT_PX - 2)
+        xs, _ = self.px(np.asarray(x_ticks, dtype=np.float64), np.ones(len(x_ticks)))
+        for t, x in zip(x_ticks, xs.tolist(), strict=True):
+            xi = round(x)
+            draw.line([(xi, y0), (xi, y1)], fill=GRID_RGB)
+            draw.line([(xi, y1), (xi, y1 + 4)], fill=AXIS_RGB)
+            draw.text((xi, y1 + 6), f"{t:g}", fill=AXIS_RGB, font=f, anchor="mt")
+        _, ys = self.px(np.zeros(len(y_ticks)), np.asarray(y_ticks, dtype=np.float64))
+        for t, y in zip(y_ticks, ys.tolist(), strict=True):
+            yi = round(y)
+            draw.line([(x0, yi), (x1, yi)], fill=GRID_RGB)
+            draw.line([(x0 - 4, yi), (x0, yi)], fill=AXIS_RGB)
+            draw.text((x0 - 7, yi), _label(t), fill=AXIS_RGB, font=f, anchor="rm")
+        draw.rectangle(self.box, outline=AXIS_RGB)
+
+    def curve(self, img: Image.Image, x: np.ndarray, y: np.ndarray, color: tuple) -> None:
+        px, py = self.px(x, y)
+        draw = ImageDraw.Draw(img)
+        points = list(zip(px.tolist(), py.tolist(), strict=True))
+        if len(points) == 1:
+            cx, cy = points[0]
+            draw.ellipse((cx - 3, cy - 3, cx + 3, cy + 3), fill=color)
+        else:
+            draw.line(points, fill=color, width=2)
+
+
+_KEY_TITLE = "view: last rho"
+
+
+def _emptiest_corner(
+    img: Image.Image, box: tuple[int, int, int, int], items: list[LegendItem]
+) -> tuple[int, int]:
+    """Top-left pixel of the key in the corner of ``box`` that hides the fewest curve pixels."""
+    w, h = legend_size(items, TEXT_PX - 1, _KEY_TITLE)
+    x0, y0, x1, y1 = box
+    rgb = np.asarray(img, dtype=np.int16)
+    drawn = np.any(rgb != 255, axis=2) & np.any(rgb != GRID_RGB, axis=2)
+    corners = [
+        (x1 - w - 8, y1 - h - 8),
+        (x0 + 8, y1 - h - 8),
+        (x1 - w - 8, y0 + 8),
+        (x0 + 8, y0 + 8),
+    ]
+    hidden = [int(drawn[y + 1 : y + h - 1, x + 1 : x + w - 1].sum()) for x, y in corners]
+    return corners[int(np.argmin(hidden))]
+
+
+def _titles(draw: ImageDraw.ImageDraw, top: int, title: str, subtitle: str) -> None:
+    draw.text((_LEFT, top + 6), title, fill=AXIS_RGB, font=font(TEXT_PX + 2))
+    draw.text((_LEFT, top + TEXT_PX + 12), subtitle, fill=(70, 70, 70), font=font(TEXT_PX - 1))
+
+
+def save_loss_plot(
+    path: Path,
+    iterations: Sequence[float],
+    losses: Sequence[float],
+    rho: Mapping[str, Sequence[float]] | None = None,
+) -> None:
+    """Loss against iteration on a log scale and, given ``rho``, each view's correlation.
+
+    Args:
+        path: The PNG to write.
+        iterations: Iteration of each row of ``log.csv``.
+        losses: Loss of each row (non-positive or NaN rows are left out of the curve).
+        rho: Per view name, its target correlation rho_kk of each row (a second panel
+            on a 0..1 axis with a key by view name).
+    """
+    views = dict(rho or {})
+    height = _TITLE_H + _PANEL_H + _XLABEL_H
+    if views:
+        height += _TITLE_H + _PANEL_H + _XLABEL_H
+    img = Image.new("RGB", (_WIDTH, height), "white")
     draw = ImageDraw.Draw(img)
-    x0, x1, y0, y1 = left, w - pad, h - bottom, pad
-    draw.rectangle((x0, y1, x1, y0), outline="black")
     it = np.asarray(iterations, dtype=np.float64)
     loss = np.asarray(losses, dtype=np.float64)
-    ok = np.isfinite(loss) & (loss > 0)
-    if ok.sum() >= 1:
-        it, loss = it[ok], loss[ok]
-        lo, hi = math.log10(loss.min()), math.log10(loss.max())
-        if hi - lo < 1e-9:
-            lo, hi = lo - 0.5, hi + 0.5
-        span = max(it.max() - it.min(), 1.0)
-        px = x0 + (it - it.min()) / span * (x1 - x0)
-        py = y0 - (np.log10(loss) - lo) / (hi - lo) * (y0 - y1)
-        draw.line(list(zip(px.tolist(), py.tolist(), strict=True)), fill=(200, 40, 40), width=2)
-        draw.text((5, y1), f"{10**hi:.3g}", fill="black")
-        draw.text((5, y0 - 10), f"{10**lo:.3g}", fill="black")
-        draw.text((x0, y0 + 5), f"{it.min():.0f}", fill="black")
-        draw.text((x1 - 40, y0 + 5), f"{it.max():.0f}", fill="black")
-    draw.text((w // 2 - 40, h - 18), "iteration", fill="black")
-    draw.text((5, h // 2), "loss (log)", fill="black")
+    ok = np.isfinite(loss) & (loss > 0) & np.isfinite(it)
+    box = (_LEFT, _TITLE_H, _WIDTH - _RIGHT, _TITLE_H + _PANEL_H)
+    x_range = (float(it[ok].min()), float(it[ok].max())) if ok.any() else (0.0, 1.0)
+    if x_range[1] - x_range[0] < 1:
+        x_range = (x_range[0], x_range[0] + 1.0)
+    x_ticks = linear_ticks(*x_range)
+    if ok.any():
+        lo, hi = math.log10(loss[ok].min()), math.log10(loss[ok].max())
+        margin = 0.05 * max(hi - lo, 0.2)
+        axes = _Axes(box, x_range, (lo - margin, hi + margin), log=True)
+        axes.frame(img, x_ticks, log_ticks(lo - margin, hi + margin))
+        axes.curve(img, it[ok], loss[ok], LOSS_RGB)
+        first, last = np.flatnonzero(ok)[[0, -1]]
+        subtitle = (
+            f"lower is better: {_label(loss[first])} at iteration {it[first]:.0f}, "
+            f"{_label(loss[last])} at iteration {it[last]:.0f}"
+        )
+    else:
+        _Axes(box, x_range, (0.0, 1.0), log=False).frame(img, x_ticks, [])
+        subtitle = "no finite loss was logged"
+    _titles(draw, 0, "Optimization loss (log scale)", subtitle)
+    draw.text(
+        ((box[0] + box[2]) // 2, box[3] + TEXT_PX + 10),
+        "iteration",
+        fill=AXIS_RGB,
+        font=font(),
+        anchor="mt",
+    )
+    if views:
+        top = box[3] + _XLABEL_H
+        box2 = (_LEFT, top + _TITLE_H, _WIDTH - _RIGHT, top + _TITLE_H + _PANEL_H)
+        axes = _Axes(box2, x_range, (0.0, 1.0), log=False)
+        axes.frame(img, x_ticks, linear_ticks(0.0, 1.0, 5))
+        items = []
+        for k, (name, values) in enumerate(views.items()):
+            color = VIEW_RGB[k % len(VIEW_RGB)]
+            r = np.asarray(values, dtype=np.float64)
+            keep = np.isfinite(r) & np.isfinite(it)
+            if keep.any():
+                axes.curve(img, it[keep], np.clip(r[keep], 0.0, 1.0), color)
+                final = f"{r[keep][-1]:.3f}"
+            else:
+                final = "n/a"
+            items.append(LegendItem(f"{name}: {final}", color, "line"))
+        draw_legend(img, items, _emptiest_corner(img, box2, items), TEXT_PX - 1, _KEY_TITLE)
+        _titles(
+            draw,
+            top,
+            "How well each view shows its picture",
+            "correlation rho of the render with the view's target: 1 = perfect, 0 = unrelated",
+        )
+        draw.text(
+            ((box2[0] + box2[2]) // 2, box2[3] + TEXT_PX + 10),
+            "iteration",
+            fill=AXIS_RGB,
+            font=font(),
+            anchor="mt",
+        )
     save_png(path, img)
+
+
+def _enlarge(rgb: np.ndarray, factor: int) -> np.ndarray:
+    return np.repeat(np.repeat(rgb, factor, axis=0), factor, axis=1)
 
 
 def save_side_by_side(
     path: Path, targets: Mapping[str, np.ndarray], renders: Mapping[str, np.ndarray]
 ) -> None:
-    """One row per view: target | exposed render (both sRGB-encoded), labelled."""
+    """One row per view: target | exposed render (both sRGB-encoded), labelled.
+
+    Cells are enlarged by a whole factor (nearest neighbour) to at least ``MIN_CELL_PX``
+    wide; pixels off the board show ``OFF_BOARD_RGB``, which a caption line explains.
+    """
     rows = []
     for name, target in targets.items():
         render = renders[name]
-        ok = np.isfinite(target) & np.isfinite(render)
-        rr = float(np.sum(render[ok].astype(np.float64) ** 2))
-        s = float(np.sum(render[ok] * target[ok])) / rr if rr > 0 else 0.0
+        s = exposure(render, target)
         shown = np.where(np.isfinite(target), render, np.nan)
-        rows.append((name, _encode(target, 1.0), _encode(shown, s)))
+        rho = pearson(render, target)
+        rows.append((f"{name}: target | render (rho {rho:.3f})", target, shown, s))
     if not rows:
         return
-    label = 16
     cell_w = max(r[1].shape[1] for r in rows)
     cell_h = max(r[1].shape[0] for r in rows)
-    img = Image.new("RGB", (2 * cell_w + 12, len(rows) * (cell_h + label) + 4), "white")
+    factor = max(1, math.ceil(MIN_CELL_PX / cell_w))
+    cell_w, cell_h = cell_w * factor, cell_h * factor
+    gap, label = 8, TEXT_PX + 10
+    caption = [OFF_BOARD_CAPTION, "render scaled to best match its target's brightness"]
+    width = max(2 * cell_w + 3 * gap, 330)
+    height = len(rows) * (cell_h + label + gap) + len(caption) * (TEXT_PX + 4) + gap
+    img = Image.new("RGB", (width, height), "white")
     draw = ImageDraw.Draw(img)
-    for k, (name, t, r) in enumerate(rows):
-        y = k * (cell_h + label)
-        draw.text((4, y + 2), f"{name}: target | render", fill="black")
-        img.paste(Image.fromarray(t), (4, y + label))
-        img.paste(Image.fromarray(r), (cell_w + 8, y + label))
+    y = gap // 2
+    for text, t, r, s in rows:
+        draw.text((gap, y + 3), text, fill=AXIS_RGB, font=font())
+        img.paste(Image.fromarray(_enlarge(_encode(t, 1.0), factor)), (gap, y + label))
+        img.paste(Image.fromarray(_enlarge(_encode(r, s), factor)), (2 * gap + cell_w, y + label))
+        y += cell_h + label + gap
+    swatch = TEXT_PX - 3
+    draw.rectangle((gap, y + 2, gap + swatch, y + 2 + swatch), fill=OFF_BOARD_RGB, outline=AXIS_RGB)
+    for k, line in enumerate(caption):
+        x = gap + (swatch + 6 if k == 0 else 0)
+        draw.text((x, y), line, fill=(60, 60, 60), font=font(TEXT_PX - 2))
+        y += TEXT_PX + 4
     save_png(path, img)

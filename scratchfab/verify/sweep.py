@@ -13,9 +13,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from PIL import Image
+from PIL import Image, ImageDraw
 
 from scratchfab.design.images import linear_to_srgb
+from scratchfab.figures import TEXT_PX, font, text_size
 from scratchfab.model.design import Design, View
 
 #: Beyond the outermost views the path goes on by this fraction of the views' span.
@@ -26,6 +27,14 @@ MIN_SPAN_DEG = 30.0
 MAX_SIDE = 192
 #: Percentile of the positive pixels of all frames that maps to white.
 WHITE_PERCENTILE = 99.5
+#: GIF frames are enlarged by a whole factor to at least this many pixels wide.
+GIF_MIN_WIDTH = 240
+#: Milliseconds each frame shows, and the frames nearest a design view.
+FRAME_MS = 120
+HOLD_MS = 1000
+#: Grey of the label strip under each GIF frame, and its padding in pixels.
+LABEL_BACKGROUND = 235
+LABEL_PAD = 6
 
 
 @dataclass(frozen=True)
@@ -117,21 +126,78 @@ def nearest_frames(frames: list[SweepFrame], view_params: dict[str, float]) -> d
     return {name: int(np.argmin(np.abs(params - p))) for name, p in view_params.items()}
 
 
-def gif_bytes(images: list[np.ndarray], frame_ms: int = 100) -> bytes:
-    """An endlessly looping grey GIF of linear images with one common exposure."""
+def frame_labels(frames: list[SweepFrame], nearest: dict[str, int]) -> list[str]:
+    """Each frame's caption: its camera's azimuth and elevation, then ``view: NAME``.
+
+    The second line appears only on the frame nearest that design view.
+    """
+    out = []
+    for i, frame in enumerate(frames):
+        az, el, _ = _polar(np.asarray(frame.view.position_mm, dtype=np.float64))
+        text = f"azimuth {math.degrees(az):+.0f}\u00b0  elevation {math.degrees(el):+.0f}\u00b0"
+        names = sorted(name for name, k in nearest.items() if k == i)
+        out.append(text + ("\nview: " + ", ".join(names) if names else ""))
+    return out
+
+
+def ping_pong(count: int) -> list[int]:
+    """Frame order forward then back without repeating either end: 0..n-1, n-2..1."""
+    return list(range(count)) + list(range(count - 2, 0, -1))
+
+
+def _scale_factor(width: int, text_width: int) -> int:
+    return max(1, math.ceil(max(GIF_MIN_WIDTH, text_width + 2 * LABEL_PAD) / width))
+
+
+def gif_bytes(
+    images: list[np.ndarray],
+    labels: list[str] | None = None,
+    hold: set[int] | frozenset[int] = frozenset(),
+) -> bytes:
+    """An endlessly looping grey GIF of linear images with one common exposure.
+
+    The frames play forward then back (:func:`ping_pong`), each enlarged by a whole
+    factor (nearest neighbour) to at least ``GIF_MIN_WIDTH`` px wide, with its label
+    (dark text) in a light strip below the picture. Frames in ``hold`` (the design
+    views' nearest) show for ``HOLD_MS``, the others for ``FRAME_MS``.
+    """
     stack = [np.nan_to_num(np.asarray(im, dtype=np.float64), nan=0.0) for im in images]
     positive = np.concatenate([im[im > 0] for im in stack]) if stack else np.zeros(0)
     white = float(np.percentile(positive, WHITE_PERCENTILE)) if positive.size else 1.0
     white = white if white > 0 else 1.0
-    frames = [
-        Image.fromarray(
-            np.round(linear_to_srgb(np.clip(im / white, 0.0, 1.0)) * 255).astype(np.uint8),
-            mode="L",
-        )
-        for im in stack
-    ]
+    texts = labels if labels is not None else [""] * len(stack)
+    size = TEXT_PX
+    text_w = max((text_size(t, size)[0] for t in texts if t), default=0)
+    lines = max((t.count("\n") + 1 for t in texts if t), default=0)
+    height, width = stack[0].shape
+    factor = _scale_factor(width, text_w)
+    strip = lines * (size + 3) + 2 * LABEL_PAD if lines else 0
+    frames = []
+    for im, text in zip(stack, texts, strict=True):
+        enc = np.round(linear_to_srgb(np.clip(im / white, 0.0, 1.0)) * 255).astype(np.uint8)
+        big = np.repeat(np.repeat(enc, factor, axis=0), factor, axis=1)
+        frame = Image.new("L", (width * factor, height * factor + strip), LABEL_BACKGROUND)
+        frame.paste(Image.fromarray(big, mode="L"), (0, 0))
+        if text:
+            ImageDraw.Draw(frame).multiline_text(
+                (LABEL_PAD, height * factor + LABEL_PAD), text, fill=0, font=font(size), spacing=3
+            )
+        frames.append(frame)
+    order = ping_pong(len(frames)) if len(frames) > 1 else [0]
+    durations = [HOLD_MS if i in hold else FRAME_MS for i in order]
     buf = io.BytesIO()
-    frames[0].save(
-        buf, format="GIF", save_all=True, append_images=frames[1:], duration=frame_ms, loop=0
+    frames[order[0]].save(
+        buf,
+        format="GIF",
+        save_all=True,
+        append_images=[frames[i] for i in order[1:]],
+        duration=durations,
+        loop=0,
+        optimize=False,
     )
     return buf.getvalue()
+
+
+def sweep_gif(images: list[np.ndarray], frames: list[SweepFrame], nearest: dict[str, int]) -> bytes:
+    """The sweep's GIF: labelled frames that hold at the design views' nearest ones."""
+    return gif_bytes(images, frame_labels(frames, nearest), set(nearest.values()))

@@ -31,7 +31,7 @@ from scratchfab.model.job import JobLayout, job_inputs, load_job_design, stale_l
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
 from scratchfab.verify.scene import Sky, board_bsdf, scene_dict, use_variant
-from scratchfab.verify.sweep import gif_bytes, nearest_frames, sweep_path
+from scratchfab.verify.sweep import nearest_frames, sweep_gif, sweep_path
 
 #: Samples per pixel by default: about 1 % noise where a pixel's footprint spans up to
 #: eight scratch widths (the bundled demo), well below 1 % at four.
@@ -520,6 +520,7 @@ def _run_sweep(
     design: Design, scratches: ScratchSet, settings: VerifySettings, say: Say
 ) -> tuple[dict[str, Any], bytes]:
     frames, view_params = sweep_path(design, settings.sweep)
+    nearest = nearest_frames(frames, view_params)
     renderer = BoardRenderer(design, scratches, settings.backend, mode="physical")
     spp = min(settings.spp, SWEEP_SPP)
     images = []
@@ -531,7 +532,7 @@ def _run_sweep(
         "frames": len(frames),
         "spp": 2 * half_spp(spp),
         "gif": "sweep.gif",
-        "nearest_frame": nearest_frames(frames, view_params),
+        "nearest_frame": nearest,
         "cameras": [
             {
                 "param_deg": f.param,
@@ -542,7 +543,7 @@ def _run_sweep(
             for f in frames
         ],
     }
-    return info, gif_bytes(images)
+    return info, sweep_gif(images, frames, nearest)
 
 
 def load_job_targets(
