@@ -18,6 +18,8 @@ from typing import Literal
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from scratchfab.design.images import LUMA_709, linear_to_srgb, srgb_to_linear
+
 RGB = tuple[int, int, int]
 Box = tuple[int, int, int, int]
 Corner = Literal["top-left", "top-right", "bottom-left", "bottom-right"]
@@ -37,6 +39,8 @@ OKABE_ITO: dict[str, RGB] = {
 TEXT_PX = 15
 #: Frame and key border colour.
 FRAME: RGB = (90, 90, 90)
+#: Pixels off the board (a target's NaN) in grey previews.
+OFF_BOARD_RGB: RGB = (128, 128, 128)
 
 LegendKind = Literal["line", "box", "ring", "hatch", "dots", "arrow"]
 
@@ -273,16 +277,13 @@ _CVD = {
 }
 
 
-def srgb_to_linear(rgb: np.ndarray) -> np.ndarray:
-    """Convert sRGB values in [0, 1] to linear light."""
-    c = np.asarray(rgb, dtype=np.float64)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
-def linear_to_srgb(lin: np.ndarray) -> np.ndarray:
-    """Convert linear light in [0, 1] to sRGB values."""
-    c = np.clip(np.asarray(lin, dtype=np.float64), 0.0, 1.0)
-    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
+def gray_rgb(values: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """8-bit sRGB grey (H, W, 3) of linear ``values * scale``; NaN shows ``OFF_BOARD_RGB``."""
+    finite = np.isfinite(values)
+    enc = linear_to_srgb(np.where(finite, values * scale, 0.0))
+    rgb = np.repeat(np.round(enc * 255).astype(np.uint8)[..., None], 3, axis=2)
+    rgb[~finite] = OFF_BOARD_RGB
+    return rgb
 
 
 def simulate_cvd(rgb: np.ndarray, kind: str = "deuteranopia") -> np.ndarray:
@@ -298,5 +299,5 @@ def simulate_cvd(rgb: np.ndarray, kind: str = "deuteranopia") -> np.ndarray:
 
 def lightness(rgb01: np.ndarray) -> np.ndarray:
     """CIE L* (0-100) of sRGB colours in [0, 1] (..., 3)."""
-    y = srgb_to_linear(rgb01) @ np.array([0.2126, 0.7152, 0.0722])
+    y = srgb_to_linear(rgb01) @ LUMA_709
     return np.where(y > (6 / 29) ** 3, 116 * np.cbrt(y) - 16, y * (29 / 3) ** 3)

@@ -17,6 +17,7 @@ from PIL import Image
 
 from scratchfab.design.images import linear_to_srgb, load_image, srgb_to_linear
 from scratchfab.errors import ConfigError, ScratchfabError
+from scratchfab.figures import gray_rgb
 from scratchfab.model.camera import Camera
 from scratchfab.model.design import Board, Design, View
 
@@ -152,12 +153,8 @@ def board_image_png(board_img: np.ndarray) -> Image.Image:
 
 
 def preview_png(values: np.ndarray) -> Image.Image:
-    """An 8-bit sRGB preview of linear values in [0, 1]; NaN (off the board) shows dark blue."""
-    finite = np.isfinite(values)
-    enc = np.round(linear_to_srgb(np.where(finite, values, 0.0)) * 255).astype(np.uint8)
-    rgb = np.repeat(enc[..., None], 3, axis=2)
-    rgb[~finite] = (16, 24, 64)
-    return Image.fromarray(rgb)
+    """An 8-bit sRGB preview of linear values in [0, 1]; NaN (off the board) shows grey."""
+    return Image.fromarray(gray_rgb(values))
 
 
 def bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:

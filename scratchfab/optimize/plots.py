@@ -10,12 +10,19 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-from scratchfab.figures import OKABE_ITO, TEXT_PX, LegendItem, draw_legend, font, legend_size
+from scratchfab.figures import (
+    OFF_BOARD_RGB,
+    OKABE_ITO,
+    TEXT_PX,
+    LegendItem,
+    draw_legend,
+    font,
+    gray_rgb,
+    legend_size,
+)
 from scratchfab.fileio import save_png
 from scratchfab.metrics import exposure, pearson
 
-#: Colour of pixels off the board (a target's NaN) in the side-by-side picture.
-OFF_BOARD_RGB = (128, 128, 128)
 #: What the off-board colour means, printed under the side-by-side picture.
 OFF_BOARD_CAPTION = "grey: off the board (not scratched, not scored)"
 #: Side-by-side cells are enlarged (nearest neighbour) to at least this width.
@@ -38,16 +45,6 @@ _RIGHT = 24
 _PANEL_H = 300
 _TITLE_H = 2 * TEXT_PX + 20
 _XLABEL_H = 2 * TEXT_PX + 14
-
-
-def _encode(values: np.ndarray, scale: float) -> np.ndarray:
-    """8-bit sRGB gray of linear values times ``scale``; NaN shows ``OFF_BOARD_RGB``."""
-    finite = np.isfinite(values)
-    v = np.clip(np.where(finite, values * scale, 0.0), 0.0, 1.0)
-    enc = np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
-    rgb = np.repeat(np.round(enc * 255).astype(np.uint8)[..., None], 3, axis=2)
-    rgb[~finite] = OFF_BOARD_RGB
-    return rgb
 
 
 def log_ticks(lo: float, hi: float) -> list[float]:
@@ -274,8 +271,8 @@ def save_side_by_side(
     y = gap // 2
     for text, t, r, s in rows:
         draw.text((gap, y + 3), text, fill=AXIS_RGB, font=font())
-        img.paste(Image.fromarray(_enlarge(_encode(t, 1.0), factor)), (gap, y + label))
-        img.paste(Image.fromarray(_enlarge(_encode(r, s), factor)), (2 * gap + cell_w, y + label))
+        img.paste(Image.fromarray(_enlarge(gray_rgb(t), factor)), (gap, y + label))
+        img.paste(Image.fromarray(_enlarge(gray_rgb(r, s), factor)), (2 * gap + cell_w, y + label))
         y += cell_h + label + gap
     swatch = TEXT_PX - 3
     draw.rectangle((gap, y + 2, gap + swatch, y + 2 + swatch), fill=OFF_BOARD_RGB, outline=AXIS_RGB)

@@ -374,7 +374,12 @@ def _run(
         layout.save(paths.optimized_scratches, design.scratch)
         write_render_layout(paths.optimize_renders, final.renders)
         _write_log(paths.optimize_log, columns, final_rows)
-        save_loss_plot(paths.loss_png, [r[0] for r in final_rows], [r[1] for r in final_rows])
+        save_loss_plot(
+            paths.loss_png,
+            [r[0] for r in final_rows],
+            [r[1] for r in final_rows],
+            {k: [r[columns.index(f"rho_{k}")] for r in final_rows] for k in names},
+        )
         save_side_by_side(paths.side_by_side_png, targets, final.renders)
         per_iter = step_time / (steps - 1) if steps > 1 else math.nan
         summary: dict[str, Any] = {

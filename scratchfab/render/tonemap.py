@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from scratchfab.design.images import linear_to_srgb
+
 #: Percentile of the positive pixels that maps to white.
 WHITE_PERCENTILE = 99.5
 
@@ -30,12 +32,6 @@ def exposure(image: np.ndarray) -> float:
     return float(np.percentile(positive, WHITE_PERCENTILE))
 
 
-def srgb_encode(v: np.ndarray) -> np.ndarray:
-    """The sRGB transfer curve on linear values in [0, 1]."""
-    v = np.clip(v, 0.0, 1.0)
-    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1 / 2.4) - 0.055)
-
-
 def tone_map(image: np.ndarray, exposure_value: float | None = None) -> tuple[np.ndarray, float]:
     """8-bit preview of a linear image (non-finite pixels become black).
 
@@ -44,5 +40,5 @@ def tone_map(image: np.ndarray, exposure_value: float | None = None) -> tuple[np
     """
     e = exposure(image) if exposure_value is None else float(exposure_value)
     values = np.nan_to_num(np.asarray(image, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    encoded = srgb_encode(values / e)
+    encoded = linear_to_srgb(values / e)
     return np.round(255 * encoded).astype(np.uint8), e
