@@ -1,5 +1,8 @@
 from __future__ import annotations
 
+import base64
+import hashlib
+import html
 import json
 import re
 from pathlib import Path
@@ -19,7 +22,26 @@ def _png(path: Path, seed: int) -> None:
     Image.fromarray(rng.integers(0, 255, (16, 16), dtype=np.uint8)).save(path)
 
 
-def fake_job(root: Path) -> Path:
+# The fabricated design: views in the order right, left (not alphabetical), each placed
+# by azimuth, elevation (degrees) and distance (mm) from the board's centre.
+PLACES = {"right": (30.0, 10.0, 420.0), "left": (-15.0, -5.0, 600.0)}
+LIGHT = (0.0, 25.0, 500.0)
+
+
+def _cartesian(azimuth: float, elevation: float, distance: float) -> list[float]:
+    """A point seen at these angles: a rotation of (0, 0, distance) about x, then about y."""
+    el, az = np.radians(elevation), np.radians(azimuth)
+    about_x = np.array([[1, 0, 0], [0, np.cos(el), np.sin(el)], [0, -np.sin(el), np.cos(el)]])
+    about_y = np.array([[np.cos(az), 0, np.sin(az)], [0, 1, 0], [-np.sin(az), 0, np.cos(az)]])
+    return list(about_y @ about_x @ np.array([0.0, 0.0, distance]))
+
+
+def _vec(v: list[float]) -> str:
+    return "[" + ", ".join(repr(float(x)) for x in v) + "]"
+
+
+def fake_job(root: Path, rho: tuple[float, float] = (0.91234, 0.8765)) -> Path:
+    """A job folder as the stages leave it, every file fabricated (no stage runs)."""
     job = root / "job"
     for i, name in enumerate(("left", "right")):
         _png(job / "design" / "targets" / f"{name}.png", i)
@@ -28,9 +50,10 @@ def fake_job(root: Path) -> Path:
     frames = [Image.fromarray(np.full((8, 8), v, np.uint8)) for v in (0, 128, 255)]
     frames[0].save(job / "verify" / "sweep.gif", save_all=True, append_images=frames[1:])
     metrics = {
+        "names": ["left", "right"],
         "views": {
             "left": {
-                "rho": 0.91234,
+                "rho": rho[0],
                 "psnr": 21.5,
                 "rel_l2": 0.0123,
                 "spp": 64,
@@ -38,29 +61,300 @@ def fake_job(root: Path) -> Path:
                 "crosstalk": {"right": 0.0456},
             },
             "right": {
-                "rho": 0.8765,
+                "rho": rho[1],
                 "psnr": 19.25,
                 "rel_l2": 0.0099,
                 "spp": 64,
                 "seconds": 2.1,
                 "crosstalk": {"left": -0.0123},
             },
-        }
+        },
     }
     (job / "verify" / "metrics.json").write_text(json.dumps(metrics))
+    views = "".join(
+        f'[[views]]\nname = "{name}"\nposition_mm = {_vec(_cartesian(*place))}\n'
+        "look_at_mm = [0.0, 0.0, 0.0]\n"
+        for name, place in PLACES.items()
+    )
+    (job / "design" / "design.toml").write_text(
+        f"[board]\nwidth_mm = 60.0\n\n[light]\nposition_mm = {_vec(_cartesian(*LIGHT))}\n\n" + views
+    )
+    feasibility = {"views": {}, "pairs": [], "errors": [], "warnings": []}
+    (job / "design" / "feasibility.json").write_text(json.dumps(feasibility))
+    stats = {
+        "input_count": 2000,
+        "outside_count": 0,
+        "clipped_count": 0,
+        "short_count": 0,
+        "merged_count": 0,
+        "count": 2000,
+        "cut_length_mm": 15220.8,
+        "travel_length_mm": 1217.5,
+        "travel_input_order_mm": 41815.7,
+        "estimated_time_s": 5009.1,
+    }
+    (job / "toolpath").mkdir()
+    (job / "toolpath" / "toolpath.json").write_text(json.dumps({"statistics": stats}))
+    (job / "export").mkdir()
+    (job / "export" / "board.gcode").write_text(GCODE)
+    (job / "export" / "board.svg").write_text("<svg xmlns='http://www.w3.org/2000/svg'/>")
+    (job / "optimize" / "scratches.csv").write_text("x0,y0,x1,y1\n")
+    (job / "optimize" / "log.csv").write_text(
+        "iteration,loss,seconds,psnr_left,rho_left,x_left_right,psnr_right,rho_right,x_right_left\n"
+        "119,0.0313,0.4,20.61,0.9123,0.0211,26.88,0.8801,0.0190\n"
+    )
     return job
+
+
+GCODE = "G21\nG90\nG0 Z5\nG0 X1 Y1\nG1 Z-0.1 F200\nG1 X5 Y5 F600\nG0 Z5\nM2\n"
+
+
+def _journal(job: Path, acked: int, finished: bool, gcode: bytes | None = None) -> int:
+    """Journal a stream of the job's G-code (or of ``gcode``); returns its line count."""
+    body = gcode if gcode is not None else (job / "export" / "board.gcode").read_bytes()
+    lines = [n for n, ln in enumerate(body.decode().splitlines(), 1) if ln.strip()]
+    events: list[dict[str, object]] = [
+        {
+            "ev": "start",
+            "file": "job/export/board.gcode",
+            "sha256": hashlib.sha256(body).hexdigest(),
+            "blocks": len(lines),
+            "resume": False,
+            "resume_from": None,
+            "protocol": "counting",
+            "preamble": [],
+            "planner": 15,
+            "time": "2026-01-01T00:00:00",
+        }
+    ]
+    events += [{"ev": "ack", "i": i, "line": n} for i, n in enumerate(lines[:acked])]
+    if finished:
+        events.append({"ev": "end", "complete": True, "time": "2026-01-01T00:01:00"})
+    (job / "stream").mkdir(exist_ok=True)
+    (job / "stream" / "journal.jsonl").write_text("".join(json.dumps(e) + "\n" for e in events))
+    return len(lines)
+
+
+def _verdict(page: str) -> tuple[str, str, list[tuple[str, str]]]:
+    """The verdict box: its state, its headline and its (status, text) lines."""
+    box = re.search(
+        r"<div class='verdict [^']*' data-verdict='([^']+)'><h2>(.*?)</h2>(.*?)</div>", page
+    )
+    assert box, page[:2000]
+    lines = re.findall(r"<li data-check='(\w+)'>(.*?)</li>", box.group(3))
+    return box.group(1), html.unescape(box.group(2)), [(s, _text(t)) for s, t in lines]
+
+
+def _text(fragment: str) -> str:
+    return html.unescape(re.sub(r"<[^>]+>", "", fragment))
 
 
 def test_report_is_self_contained_and_shows_metrics(tmp_path):
     job = fake_job(tmp_path)
     page = write_report(job).read_text()
-    # No external resources: every src is a data URI.
+    # No external resources: every src is a data URI (2 views x 3 pictures + the sweep).
     srcs = re.findall(r'src="([^"]*)"', page)
     assert len(srcs) == 7 and all(s.startswith("data:image/") for s in srcs)
     values = dict(re.findall(r'data-metric="([^"]+)" data-value="([^"]+)"', page))
     assert float(values["left.rho"]) == 0.91234
     assert float(values["left.crosstalk.right"]) == 0.0456
     assert float(values["right.crosstalk.left"]) == -0.0123
+    # Moving the folder keeps every picture: nothing refers to where it was.
+    assert str(job.resolve()) not in page and "images decoded" not in page
+    assert str(tmp_path) not in page
+
+
+def test_verdict_ready_lists_every_check_with_the_configured_min_rho(tmp_path):
+    job = fake_job(tmp_path)
+    page = write_report(job, min_rho=0.85).read_text()
+    verdict, head, lines = _verdict(page)
+    assert verdict == "ready" and head == "Ready to cut"
+    texts = " | ".join(t for _, t in lines)
+    metrics = json.loads((job / "verify" / "metrics.json").read_text())["views"]
+    for name in PLACES:
+        assert f"{name} looks like its target: rho_kk {metrics[name]['rho']:.3f} ≥ 0.85" in texts
+    assert "feasibility" in texts and "crosstalk: at most 0.046" in texts
+    assert "all 2000 scratches inside it" in texts
+    stats = json.loads((job / "toolpath" / "toolpath.json").read_text())["statistics"]
+    hours, minutes = divmod(round(stats["estimated_time_s"] / 60), 60)
+    assert f"estimated cutting time: {hours} h {minutes} min" in texts
+    # Every status has a word and a symbol besides its colour.
+    statuses = {s for s, _ in lines}
+    assert statuses <= {"ok", "info"}
+    for status, text in lines:
+        assert text.startswith({"ok": "✔ ok", "info": "ℹ info"}[status])
+    # Crosstalk has no configured threshold: informative, never coloured as good or bad.
+    cross = re.findall(r'<td([^>]*)data-metric="\w+\.crosstalk\.\w+"', page)
+    assert cross and all("class" not in attrs for attrs in cross)
+
+
+def test_verdict_not_ready_when_a_view_falls_below_min_rho(tmp_path):
+    job = fake_job(tmp_path, rho=(0.91234, 0.75))
+    page = write_report(job, min_rho=0.8).read_text()
+    verdict, head, lines = _verdict(page)
+    assert verdict == "not-ready" and head.startswith("Not ready: ")
+    assert "right rho 0.750 below 0.8" in head and "left" not in head
+    assert (
+        "fail",
+        "✘ no right looks like its target: rho_kk 0.750 < 0.8 ([verify] min_rho; 1 = perfect)",
+    ) in lines
+    # The table marks the low view in words too, against the configured threshold.
+    right = re.search(r'data-metric="right.rho"[^>]*>([^<]*)<span class=\'(\w+)\'>([^<]*)<', page)
+    left = re.search(r'data-metric="left.rho"[^>]*>([^<]*)<span class=\'(\w+)\'>([^<]*)<', page)
+    assert right and right.group(2, 3) == ("bad", "✘ low")
+    assert left and left.group(2, 3) == ("ok", "✔ ok")
+    assert "<span data-stat='min_rho'>0.8</span>" in page
+    # The next steps fix the view; they do not send anyone to the machine.
+    steps = re.search(r"<ol data-next='([\w-]+)'>(.*?)</ol>", page)
+    assert steps and steps.group(1) == "fix" and "run optimize longer" in steps.group(2)
+    assert "--check" not in steps.group(2)
+    # A lower configured min_rho passes the same view; without one, verify's gate decides.
+    assert _verdict(write_report(job, min_rho=0.7).read_text())[0] == "ready"
+    metrics = json.loads((job / "verify" / "metrics.json").read_text())
+    metrics["gate"] = {"min_rho": 0.76}
+    (job / "verify" / "metrics.json").write_text(json.dumps(metrics))
+    assert _verdict(write_report(job).read_text())[1] == "Not ready: right rho 0.750 below 0.76"
+
+
+def test_verdict_not_ready_on_feasibility_errors_envelope_and_missing_stages(tmp_path):
+    job = fake_job(tmp_path)
+    feasibility = json.loads((job / "design" / "feasibility.json").read_text())
+    feasibility["errors"] = ["views 'left' and 'right' are indistinguishable"]
+    feasibility["warnings"] = ["view 'left' is steep"]
+    (job / "design" / "feasibility.json").write_text(json.dumps(feasibility))
+    data = json.loads((job / "toolpath" / "toolpath.json").read_text())
+    data["statistics"].update(outside_count=3, clipped_count=2)
+    (job / "toolpath" / "toolpath.json").write_text(json.dumps(data))
+    (job / "export" / "board.gcode").unlink()
+    _, head, lines = _verdict(write_report(job).read_text())
+    assert head == (
+        "Not ready: feasibility error; 5 of 2000 scratches left out or clipped; no G-code yet"
+    )
+    assert ("fail", "✘ no feasibility: views 'left' and 'right' are indistinguishable") in lines
+    assert ("warn", "⚠ check feasibility: view 'left' is steep") in lines
+    assert any(s == "fail" and "3 of 2000 scratches lie outside" in t for s, t in lines)
+
+
+def test_stream_wording_follows_the_pipeline_port_and_the_journal(tmp_path):
+    job = fake_job(tmp_path)
+
+    def report(port: str | None) -> tuple[str, str, str]:
+        page = write_report(job, port=port).read_text()
+        steps = re.search(r"<ol data-next='([\w-]+)'>(.*?)</ol>", page)
+        stream = re.search(r"<h2>Stream</h2>(.*?)</body>", page)
+        assert steps and stream
+        return steps.group(1), _text(steps.group(2)), _text(stream.group(1))
+
+    kind, steps, stream = report("grblsim://?time_scale=0")
+    assert (kind, stream) == ("not-streamed", "not streamed.")
+    assert "--check" in steps
+    lines = _journal(job, acked=len(GCODE.splitlines()), finished=True)
+    kind, steps, stream = report("grblsim://?time_scale=0.001")
+    assert kind == "emulator"
+    assert "Streamed to the built-in GRBL emulator: nothing was cut." in stream
+    assert f"{lines} of {lines} G-code lines acknowledged by the emulator" in stream
+    assert "nothing was cut yet" in steps and "--check" in steps
+    assert "streamed to the built-in GRBL emulator (to the end): nothing was cut" in (
+        " ".join(t for _, t in _verdict(write_report(job, port="grblsim://").read_text())[2])
+    )
+    kind, steps, stream = report("/dev/ttyUSB0")
+    assert kind == "cut" and "nothing was cut" not in stream + steps
+    assert "Streamed to the machine on /dev/ttyUSB0" in stream and "finished" in stream
+    assert "The board is cut" in steps and "--from stream" in steps
+    _journal(job, acked=4, finished=False)
+    kind, steps, stream = report("/dev/ttyUSB0")
+    assert kind == "resume" and f"4 of {lines} G-code lines" in stream
+    assert "unfinished (the next run resumes it)" in stream
+    assert f"stopped after 4 of {lines} lines" in steps and "recut_unsure" in steps
+    # A journal of another G-code says nothing about this one.
+    _journal(job, acked=2, finished=True, gcode=b"G0 X9\n")
+    kind, _, stream = report("/dev/ttyUSB0")
+    assert kind == "not-streamed" and "earlier G-code" in stream
+
+
+def test_stand_here_sentence_from_the_design_positions(tmp_path):
+    job = fake_job(tmp_path)
+    page = write_report(job).read_text()
+    section = re.search(r"<h2>Where to stand</h2>(.*?)<h2>", page)
+    assert section
+    items = re.findall(r"<li data-stand='(\w+)'[^>]*>(.*?)</li>", section.group(1))
+    assert [name for name, _ in items] == list(PLACES)  # the design's order
+    for name, text in items:
+        azimuth, elevation, distance = PLACES[name]
+        side = "left" if azimuth < 0 else "right"
+        updown = "above" if elevation > 0 else "below"
+        assert _text(text) == (
+            f"{name}: stand {abs(azimuth):.0f}° to the {side} of the board’s front, "
+            f"{abs(elevation):.0f}° {updown} its centre, {distance / 10:.0f} cm away; "
+            f"light straight in front of the board, {LIGHT[1]:.0f}° above its centre, "
+            f"{LIGHT[2] / 10:.0f} cm away."
+        )
+
+
+def test_views_follow_the_design_order_everywhere(tmp_path):
+    job = fake_job(tmp_path)
+    page = write_report(job).read_text()
+    order = list(PLACES)  # right, left: metrics.json and the folders list left first
+    headings = re.findall(r"<h3>view (\w+)</h3>", page)
+    assert headings == order
+    rows = re.findall(r'data-metric="(\w+)\.rho"', page)
+    assert rows == order
+    checks = re.findall(r"(\w+) looks like its target: rho_kk", page)
+    assert checks == order
+
+
+def test_plain_labels_links_and_captions(tmp_path):
+    job = fake_job(tmp_path)
+    page = write_report(job, pipeline_file=tmp_path / "board.toml").read_text()
+    stats = json.loads((job / "toolpath" / "toolpath.json").read_text())["statistics"]
+    table = dict(
+        re.findall(r"<td data-stat='toolpath\.(\w+)' data-value='[^']*'>([^<]*)</td>", page)
+    )
+    assert table["cut_length_mm"] == f"{stats['cut_length_mm'] / 1000:.2f} m"
+    assert table["travel_length_mm"] == f"{stats['travel_length_mm'] / 1000:.2f} m"
+    assert table["estimated_time_s"] == "1 h 23 min"  # 5009 s
+    rel = re.search(r'data-metric="left.rel_l2" data-value="([^"]+)">([^<]*)<', page)
+    assert rel and rel.group(2) == f"{100 * float(rel.group(1)):.2f} %"
+    # No raw keys of log.csv or toolpath.json as labels.
+    for raw in ("rho_left", "x_left_right", "psnr_right", "cut_length_mm", "rel. L2 vs"):
+        assert f">{raw}<" not in page
+    # Relative links to the files a maker takes away; each points at an existing file.
+    links = re.findall(r"<a href='([^']+)'>", page)
+    for wanted in (
+        "export/board.gcode",
+        "export/board.svg",
+        "optimize/scratches.csv",
+        "verify/metrics.json",
+    ):
+        assert wanted in links
+    assert all((job / link).is_file() for link in links)
+    assert "export/board.dxf" not in page  # not exported
+    # Commands work from the job folder.
+    assert "scratchfab run ../board.toml --out ." in page
+    assert "scratchfab stream export/board.gcode --port PORT --check" in page
+    # One caption per figure.
+    assert page.count("<figure") == page.count("<figcaption>")
+    assert page.count("<img") == len(re.findall(r"<figure[^>]*><img", page))
+
+
+def test_walk_past_and_sun_and_sky_headings(tmp_path):
+    job = fake_job(tmp_path)
+    page = write_report(job).read_text()
+    assert "Beyond the design light" not in page and "Under sun and sky" not in page
+    walk = re.search(r"<h2>Walking past the board</h2>(.*?)<h2>", page)
+    gif = base64.b64encode((job / "verify" / "sweep.gif").read_bytes()).decode()
+    assert walk and f"data:image/gif;base64,{gif}" in walk.group(1)
+    for i, name in enumerate(PLACES):
+        _png(job / "verify" / "sky" / f"{name}.png", 40 + i)
+    page = write_report(job).read_text()
+    sky = re.search(r"<h2>Under sun and sky</h2>(.*?)<h2>", page)
+    assert sky
+    shown = re.findall(
+        r'alt="(\w+) under sun and sky" src="data:image/png;base64,([^"]+)"', sky.group(1)
+    )
+    assert [name for name, _ in shown] == list(PLACES)
+    for name, data in shown:
+        assert base64.b64decode(data) == (job / "verify" / "sky" / f"{name}.png").read_bytes()
 
 
 @pytest.mark.skipif(

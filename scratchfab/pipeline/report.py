@@ -1,7 +1,10 @@
 """``JOB/report.html``: one self-contained page a person reads after a run.
 
 Everything is read back from the job folder (SPEC section 6), so the report shows what
-the stages actually wrote. Images are inlined as data URIs; numbers that come from
+the stages actually wrote; the pipeline adds only what the folder does not hold (its
+``[stream]`` port and ``[verify] min_rho``). The page opens with a verdict (ready to cut
+or not, and why), says where to stand, and picks its next steps from the job's state.
+Images are inlined as data URIs so the page survives moving the folder; numbers from
 ``verify/metrics.json`` carry ``data-metric`` attributes so tests can compare them.
 """
 
@@ -12,8 +15,11 @@ import csv
 import html
 import json
 import math
+import os
+import tomllib
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from scratchfab.fileio import write_text
 from scratchfab.model.job import JobLayout
@@ -23,31 +29,74 @@ _MIME = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg":
 _STYLE = """
 body{font-family:system-ui,sans-serif;margin:2em;max-width:1200px;color:#222}
 h1{margin-bottom:0}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
-.row{display:flex;flex-wrap:wrap;gap:1em}.card{border:1px solid #ddd;padding:.5em;border-radius:4px}
-.card img{image-rendering:pixelated;width:256px;display:block}
+.row{display:flex;flex-wrap:wrap;gap:1em}
+figure{border:1px solid #ddd;padding:.5em;border-radius:4px;margin:0;max-width:300px}
+figure img{image-rendering:pixelated;width:256px;display:block}
+figure.wide{max-width:660px}figure.wide img{width:auto;max-width:640px}
+figcaption{font-size:.85em;color:#444;margin-top:.3em}
 table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
-.bad{color:#b00;font-weight:bold}.ok{color:#070}.wide img{width:auto;max-width:640px}
+th[scope=row],td.text{text-align:left}
+.bad{color:#b00;font-weight:bold}.ok{color:#070}.warn{color:#a60;font-weight:bold}
 .muted{color:#777}
+.verdict{border:3px solid;border-radius:6px;padding:.6em 1em;margin-top:1em}
+.verdict.ready{border-color:#070;background:#f2fbf2}.verdict.notready{border-color:#b00;background:#fdf2f2}
+.verdict h2{margin:0 0 .4em 0;border:0}.verdict ul{list-style:none;padding-left:0;margin:0}
+.verdict li{margin:.2em 0}
 """
 
-# Runs in the page: reports whether every image decoded, for people and for tests.
+# Runs in the page: counts the images that decoded, for tests (nothing is shown).
 _SCRIPT = """
 window.addEventListener('load', function () {
   var imgs = Array.prototype.slice.call(document.images);
   var bad = imgs.filter(function (i) { return !(i.complete && i.naturalWidth > 0); });
   var el = document.getElementById('image-check');
-  el.textContent = 'images decoded: ' + (imgs.length - bad.length) + '/' + imgs.length;
   el.setAttribute('data-total', imgs.length);
   el.setAttribute('data-decoded', imgs.length - bad.length);
 });
 """
 
+# Symbol and word of each check status: readable without colour.
+_MARK = {"ok": "✔ ok", "fail": "✘ no", "warn": "⚠ check", "info": "ℹ info"}
+_CSS = {"ok": "ok", "fail": "bad", "warn": "warn", "info": "muted"}
 
-def _img(path: Path, alt: str, css: str = "") -> str:
+Status = Literal["ok", "fail", "warn", "info"]
+
+
+@dataclass(frozen=True)
+class _Check:
+    """One line of the verdict box: ``html`` is the line, ``reason`` its short form."""
+
+    status: Status
+    html: str
+    reason: str = ""
+    fix: str = ""
+
+
+@dataclass(frozen=True)
+class _Stream:
+    """What the journal says about streaming the job's current G-code.
+
+    ``kind``: "none" (not streamed), "emulator", "real" (the pipeline's port is a
+    machine), "unknown" (streamed, but no pipeline port says where to).
+    """
+
+    kind: Literal["none", "emulator", "real", "unknown"]
+    finished: bool = False
+    done: int = 0
+    total: int = 0
+    port: str | None = None
+    note: str = ""
+
+
+def _img(path: Path, alt: str) -> str:
     data = base64.b64encode(path.read_bytes()).decode("ascii")
     mime = _MIME.get(path.suffix.lower(), "application/octet-stream")
-    cls = f' class="{css}"' if css else ""
-    return f'<img{cls} alt="{html.escape(alt)}" src="data:{mime};base64,{data}">'
+    return f'<img alt="{html.escape(alt)}" src="data:{mime};base64,{data}">'
+
+
+def _figure(path: Path, alt: str, caption: str, wide: bool = False) -> str:
+    cls = " class='wide'" if wide else ""
+    return f"<figure{cls}>{_img(path, alt)}<figcaption>{caption}</figcaption></figure>"
 
 
 def _fmt(value: Any, digits: int = 3) -> str:
@@ -60,6 +109,15 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return html.escape(str(value))
 
 
+def duration_text(seconds: float) -> str:
+    """A duration as a person says it: ``1 h 23 min``, ``23 min``, ``45 s``."""
+    if seconds < 59.5:
+        return f"{max(0, round(seconds))} s"
+    minutes = round(seconds / 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours} h {minutes} min" if hours else f"{minutes} min"
+
+
 def _read_json(path: Path) -> Any:
     try:
         return json.loads(path.read_text(encoding="utf-8"))
@@ -67,50 +125,382 @@ def _read_json(path: Path) -> Any:
         return None
 
 
-def _views_section(job: Path, metrics: dict[str, Any] | None) -> str:
-    layout = JobLayout(job)
-    targets = sorted(layout.design.targets_dir.glob("*.png"))
-    if not targets:
-        return "<p class='muted'>design has not run.</p>"
+def _link(job: Path, path: Path) -> str:
+    rel = path.relative_to(job).as_posix()
+    return f"<a href='{html.escape(rel)}'><code>{html.escape(rel)}</code></a>"
+
+
+def _code(text: str) -> str:
+    return f"<code>{html.escape(text)}</code>"
+
+
+# --- the design's geometry --------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Design:
+    """What the report needs of ``design/design.toml``: view order and positions (mm)."""
+
+    views: list[tuple[str, tuple[float, float, float] | None]]
+    light: tuple[float, float, float] | None
+
+
+def _read_design(job: Path) -> _Design:
+    """Read the resolved design without loading its pictures (the job may have moved)."""
+    try:
+        data = tomllib.loads(JobLayout(job).design.design_toml.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return _Design([], None)
+
+    def vec(value: Any) -> tuple[float, float, float] | None:
+        if isinstance(value, list) and len(value) == 3:
+            try:
+                return (float(value[0]), float(value[1]), float(value[2]))
+            except (TypeError, ValueError):
+                return None
+        return None
+
+    views = [
+        (str(v["name"]), vec(v.get("position_mm")))
+        for v in data.get("views", [])
+        if isinstance(v, dict) and "name" in v
+    ]
+    light = data.get("light")
+    return _Design(views, vec(light.get("position_mm")) if isinstance(light, dict) else None)
+
+
+def direction(position: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Azimuth and elevation (degrees) and distance (mm) of ``position`` from the board's centre.
+
+    Azimuth turns from the board's normal (+z) toward +x (positive: to the right, seen
+    from the front); elevation from the board's horizontal toward +y (its top edge), as
+    the design's ``azimuth_deg`` / ``elevation_deg`` (SPEC section 2).
+    """
+    x, y, z = position
+    distance = math.sqrt(x * x + y * y + z * z)
+    azimuth = math.degrees(math.atan2(x, z))
+    elevation = math.degrees(math.atan2(y, math.hypot(x, z)))
+    return azimuth, elevation, distance
+
+
+def _place(position: tuple[float, float, float], subject: str) -> str:
+    """``22° to the left of the board's front, level with its centre, 50 cm away``."""
+    azimuth, elevation, distance = direction(position)
     parts = []
-    for target in targets:
-        name = target.stem
-        cards = [f"<div class='card'>target<br>{_img(target, f'{name} target')}</div>"]
-        for label, folder in (
-            ("optimized render", layout.optimize_renders),
-            ("verify render", layout.verify_dir),
-        ):
-            png = folder / f"{name}.png"
-            if png.is_file():
-                cards.append(f"<div class='card'>{label}<br>{_img(png, f'{name} {label}')}</div>")
-        feas = layout.design.feasibility_png(name)
-        if feas.is_file():
-            cards.append(
-                f"<div class='card'>feasibility<br>{_img(feas, f'{name} feasibility')}</div>"
+    if round(abs(azimuth)) == 0:
+        parts.append(f"straight in front of {subject}")
+    else:
+        side = "left" if azimuth < 0 else "right"
+        parts.append(f"{abs(azimuth):.0f}° to the {side} of {subject}")
+    if round(abs(elevation)) == 0:
+        parts.append("level with its centre")
+    else:
+        parts.append(f"{abs(elevation):.0f}° {'above' if elevation > 0 else 'below'} its centre")
+    parts.append(f"{distance / 10:.0f} cm away")
+    return ", ".join(parts)
+
+
+def _stand_section(design: _Design) -> str:
+    if not design.views:
+        return "<p class='muted'>design has not run.</p>"
+    light = f"; light {_place(design.light, 'the board')}" if design.light is not None else ""
+    items = []
+    for name, position in design.views:
+        if position is None:
+            continue
+        az, el, dist = direction(position)
+        items.append(
+            f"<li data-stand='{html.escape(name)}' data-azimuth='{az:.3f}' "
+            f"data-elevation='{el:.3f}' data-distance='{dist:.3f}'><b>{html.escape(name)}</b>: "
+            f"stand {_place(position, 'the board’s front')}{light}.</li>"
+        )
+    return (
+        "<p>Angles are from the board's front (its normal) with its top edge up; distances "
+        "from its centre. Each picture shows only from its own place, under a small light "
+        "where the design puts it.</p>"
+        f"<ul>{''.join(items)}</ul>"
+    )
+
+
+def _view_order(design: _Design, metrics: dict[str, Any] | None, job: Path) -> list[str]:
+    """The views in the design's order (else metrics.json's, else the targets' names)."""
+    if design.views:
+        return [name for name, _ in design.views]
+    if metrics and isinstance(metrics.get("names"), list):
+        return [str(n) for n in metrics["names"]]
+    if metrics and isinstance(metrics.get("views"), dict):
+        return list(metrics["views"])
+    return sorted(p.stem for p in JobLayout(job).design.targets_dir.glob("*.png"))
+
+
+# --- the verdict ------------------------------------------------------------------
+
+
+def _stage_checks(job: Path) -> list[_Check]:
+    """Stages before stream that failed, stopped or never finished (from the manifest)."""
+    manifest = _read_json(job / "manifest.json")
+    if not isinstance(manifest, dict) or not isinstance(manifest.get("stages"), dict):
+        return []
+    checks = []
+    for stage, entry in manifest["stages"].items():
+        if stage == "stream" or not isinstance(entry, dict) or entry.get("status") == "done":
+            continue
+        status = str(entry.get("status"))
+        why = str(entry.get("reason") or "")
+        checks.append(
+            _Check(
+                "fail",
+                f"stage {html.escape(stage)} {html.escape(status)}"
+                + (f": {html.escape(why)}" if why else "")
+                + " (files after it may be from an earlier run)",
+                f"stage {stage} {status}",
+                f"Fix what stage {html.escape(stage)} reports above, then run again.",
             )
-        parts.append(f"<h3>view {html.escape(name)}</h3><div class='row'>{''.join(cards)}</div>")
-    return "\n".join(parts) + _metrics_table(metrics)
+        )
+    return checks
 
 
-def _metrics_table(metrics: dict[str, Any] | None) -> str:
-    if not metrics or "views" not in metrics:
-        return "<p class='muted'>verify-render has not run: no metrics.</p>"
+def _feasibility_checks(job: Path) -> list[_Check]:
+    path = JobLayout(job).design.feasibility_json
+    data = _read_json(path)
+    if not isinstance(data, dict):
+        return [_Check("fail", "feasibility: design has not run", "design has not run")]
+    errors = [str(e) for e in data.get("errors", [])]
+    warnings = [str(w) for w in data.get("warnings", [])]
+    checks = [
+        _Check(
+            "fail",
+            f"feasibility: {html.escape(e)}",
+            "feasibility error",
+            "Move the views or the light (the feasibility errors above say which); "
+            "the tool's walls cannot tilt enough for them.",
+        )
+        for e in errors
+    ]
+    checks += [_Check("warn", f"feasibility: {html.escape(w)}") for w in warnings]
+    if not errors and not warnings:
+        checks.append(
+            _Check("ok", "feasibility: the tool reaches every view, no view too close to another")
+        )
+    return checks
+
+
+def _rho_checks(
+    names: list[str], metrics: dict[str, Any] | None, min_rho: float | None
+) -> list[_Check]:
+    views = (metrics or {}).get("views")
+    if not isinstance(views, dict):
+        return [_Check("fail", "looks like its target: verify has not run", "verify has not run")]
+    checks = []
+    for name in names:
+        rho = views.get(name, {}).get("rho")
+        label = f"{html.escape(name)} looks like its target: rho_kk"
+        if rho is None:
+            checks.append(_Check("fail", f"{label} missing", f"{name}: no rho"))
+        elif min_rho is None:
+            checks.append(_Check("info", f"{label} {rho:.3f} (1 = perfect; no min_rho set)"))
+        elif rho >= min_rho:
+            checks.append(
+                _Check(
+                    "ok",
+                    f"{label} {rho:.3f} ≥ {min_rho:g} ([verify] min_rho; 1 = perfect)",
+                )
+            )
+        else:
+            checks.append(
+                _Check(
+                    "fail",
+                    f"{label} {rho:.3f} &lt; {min_rho:g} ([verify] min_rho; 1 = perfect)",
+                    f"{name} rho {rho:.3f} below {min_rho:g}",
+                    "A view looks too little like its target: run optimize longer "
+                    "([optimize] iterations), add scratches ([scratch] count), or move the "
+                    "views further apart.",
+                )
+            )
+    return checks
+
+
+def _crosstalk_check(names: list[str], metrics: dict[str, Any] | None) -> list[_Check]:
+    views = (metrics or {}).get("views")
+    if not isinstance(views, dict) or len(names) < 2:
+        return []
+    worst: tuple[float, str, str] | None = None
+    for k in names:
+        for j, x in (views.get(k, {}).get("crosstalk") or {}).items():
+            if x is not None and (worst is None or x > worst[0]):
+                worst = (float(x), k, str(j))
+    if worst is None:
+        return []
+    x, k, j = worst
+    return [
+        _Check(
+            "info",
+            f"crosstalk: at most {x:.3f} ({html.escape(j)}'s picture showing in view "
+            f"{html.escape(k)}, beyond what the two pictures share; 0 = none, 1 = fully). "
+            "No crosstalk limit is configured, so it does not decide the verdict.",
+        )
+    ]
+
+
+def _toolpath_checks(job: Path) -> list[_Check]:
+    data = _read_json(JobLayout(job).toolpath_json)
+    stats = data.get("statistics") if isinstance(data, dict) else None
+    if not isinstance(stats, dict):
+        return [_Check("fail", "machine travel: toolpath has not run", "toolpath has not run")]
+    outside = int(stats.get("outside_count", 0))
+    clipped = int(stats.get("clipped_count", 0))
+    total = int(stats.get("input_count", 0))
+    checks = []
+    if outside or clipped:
+        checks.append(
+            _Check(
+                "fail",
+                f"machine travel: {outside} of {total} scratches lie outside it (left out) and "
+                f"{clipped} were clipped to it",
+                f"{outside + clipped} of {total} scratches left out or clipped",
+                "Some scratches fall outside the machine's travel: check the machine "
+                "profile's [board] offset_mm and [envelope] (the toolpath preview draws the "
+                "travel in blue).",
+            )
+        )
+    else:
+        checks.append(_Check("ok", f"machine travel: all {total} scratches inside it"))
+    seconds = stats.get("estimated_time_s")
+    if isinstance(seconds, int | float):
+        checks.append(
+            _Check(
+                "info",
+                f"estimated cutting time: <span data-stat='toolpath.time'>"
+                f"{duration_text(float(seconds))}</span>",
+            )
+        )
+    return checks
+
+
+def _gcode_check(job: Path) -> list[_Check]:
+    gcode = JobLayout(job).export_file("gcode")
+    if gcode.is_file():
+        return [_Check("ok", f"G-code written: {_link(job, gcode)}")]
+    return [_Check("fail", "G-code: export has not run", "no G-code yet")]
+
+
+def _stream_check(state: _Stream) -> list[_Check]:
+    if state.kind == "none":
+        return [_Check("info", f"not streamed{state.note}")]
+    end = "to the end" if state.finished else f"{state.done} of {state.total} lines, unfinished"
+    text = {
+        "emulator": f"streamed to the built-in GRBL emulator ({end}): nothing was cut",
+        "real": f"streamed to the machine on {html.escape(state.port or '')} ({end})",
+        "unknown": f"streamed ({end}) to a port this report does not know",
+    }[state.kind]
+    return [_Check("info", text)]
+
+
+def _verdict(checks: list[_Check]) -> str:
+    fails = [c for c in checks if c.status == "fail"]
+    warns = [c for c in checks if c.status == "warn"]
+    if fails:
+        head = "Not ready: " + html.escape("; ".join(c.reason for c in fails))
+        cls, verdict = "notready", "not-ready"
+    else:
+        head = "Ready to cut" + (
+            f" (read the {len(warns)} warning{'s' if len(warns) > 1 else ''} below)"
+            if warns
+            else ""
+        )
+        cls, verdict = "ready", "ready"
+    lines = "".join(
+        f"<li data-check='{c.status}'><span class='{_CSS[c.status]}'>{_MARK[c.status]}</span> "
+        f"{c.html}</li>"
+        for c in checks
+    )
+    return (
+        f"<div class='verdict {cls}' data-verdict='{verdict}'><h2>{head}</h2><ul>{lines}</ul></div>"
+    )
+
+
+# --- sections ---------------------------------------------------------------------
+
+
+def _views_section(
+    job: Path, names: list[str], metrics: dict[str, Any] | None, min_rho: float | None
+) -> str:
+    layout = JobLayout(job)
+    if not names:
+        return "<p class='muted'>design has not run.</p>"
+    maps = _read_json(layout.design.feasibility_json)
+    maps_text = (
+        str(maps.get("maps", "")).split(": ", 1)[-1]
+        if isinstance(maps, dict)
+        else "where the tool reaches this view"
+    )
+    parts = []
+    for name in names:
+        n = html.escape(name)
+        figures = []
+        shown = (
+            (layout.design.target_png(name), "target", f"target: what {n} should look like"),
+            (
+                layout.optimize_renders / f"{name}.png",
+                "optimized render",
+                "optimizer's prediction: the optimized scratches under the design light "
+                "(its fast model)",
+            ),
+            (
+                layout.verify_dir / f"{name}.png",
+                "verify render",
+                "independent check: Mitsuba 3 render of the optimized scratches from here",
+            ),
+            (
+                layout.design.feasibility_png(name),
+                "feasibility",
+                f"feasibility map: {html.escape(maps_text)}",
+            ),
+        )
+        for png, label, caption in shown:
+            if png.is_file():
+                figures.append(_figure(png, f"{name} {label}", caption))
+        parts.append(f"<h3>view {n}</h3><div class='row'>{''.join(figures)}</div>")
+    return "\n".join(parts) + _metrics_table(names, metrics, min_rho)
+
+
+def _metrics_table(names: list[str], metrics: dict[str, Any] | None, min_rho: float | None) -> str:
+    if not metrics or not isinstance(metrics.get("views"), dict):
+        return "<p class='muted'>verify has not run: no measurements.</p>"
     views = metrics["views"]
-    names = list(views)
-    head = "<tr><th>view</th><th>rho_kk</th><th>PSNR (dB)</th><th>rel. L2 vs render</th><th>spp</th><th>seconds</th></tr>"
+    names = [k for k in names if k in views] or list(views)
+    head = (
+        "<tr><th>view</th><th>looks like its target: rho (1 = perfect)</th>"
+        "<th>PSNR (dB, higher is better)</th>"
+        "<th>Mitsuba vs optimizer's render: difference (rel. L2)</th>"
+        "<th>samples per pixel</th><th>render time</th></tr>"
+    )
     rows = []
     for k in names:
         v = views[k]
         cells = []
-        for key, digits in (("rho", 3), ("psnr", 2), ("rel_l2", 4), ("spp", 0), ("seconds", 1)):
+        for key, shown in (
+            ("rho", lambda x: f"{x:.3f}"),
+            ("psnr", lambda x: f"{x:.2f}"),
+            ("rel_l2", lambda x: f"{100 * x:.2f} %"),
+            ("spp", lambda x: f"{x:.0f}"),
+            ("seconds", lambda x: f"{x:.1f} s"),
+        ):
             value = v.get(key)
-            attr = (
-                f' data-metric="{html.escape(k)}.{key}" data-value="{value}"'
-                if value is not None
-                else ""
+            if value is None:
+                cells.append("<td>–</td>")
+                continue
+            mark = ""
+            if key == "rho" and min_rho is not None:
+                good = value >= min_rho
+                mark = (
+                    f" <span class='{'ok' if good else 'bad'}'>{'✔ ok' if good else '✘ low'}</span>"
+                )
+            cells.append(
+                f'<td data-metric="{html.escape(k)}.{key}" data-value="{value}">'
+                f"{shown(value)}{mark}</td>"
             )
-            cells.append(f"<td{attr}>{_fmt(value, digits) if value is not None else '–'}</td>")
-        rows.append(f"<tr><th>{html.escape(k)}</th>{''.join(cells)}</tr>")
+        rows.append(f"<tr><th scope='row'>{html.escape(k)}</th>{''.join(cells)}</tr>")
     matrix_rows = []
     for k in names:
         cells = []
@@ -119,67 +509,203 @@ def _metrics_table(metrics: dict[str, Any] | None) -> str:
             if j == k or x is None:
                 cells.append("<td>–</td>")
             else:
-                cls = "bad" if x > 0.2 else "ok"
                 cells.append(
-                    f'<td class="{cls}" data-metric="{html.escape(k)}.crosstalk.{html.escape(j)}" '
+                    f'<td data-metric="{html.escape(k)}.crosstalk.{html.escape(j)}" '
                     f'data-value="{x}">{_fmt(x)}</td>'
                 )
-        matrix_rows.append(f"<tr><th>{html.escape(k)}</th>{''.join(cells)}</tr>")
+        matrix_rows.append(f"<tr><th scope='row'>{html.escape(k)}</th>{''.join(cells)}</tr>")
     header = "".join(f"<th>{html.escape(j)}</th>" for j in names)
-    return (
-        f"<h3>metrics (verify-render)</h3><table>{head}{''.join(rows)}</table>"
-        f"<h3>crosstalk x<sub>kj</sub> (row k shows image j)</h3>"
-        f"<table><tr><th></th>{header}</tr>{''.join(matrix_rows)}</table>"
+    gate = (
+        f"rho is marked ok at or above <span data-stat='min_rho'>{min_rho:g}</span> "
+        "([verify] min_rho), low below it."
+        if min_rho is not None
+        else "No [verify] min_rho is set: rho is not judged."
     )
+    table = (
+        "<h3>Measured by the independent renderer (verify)</h3>"
+        f"<table>{head}{''.join(rows)}</table><p>{gate}</p>"
+    )
+    if len(names) > 1:
+        table += (
+            "<h3>Crosstalk: how much of picture j (column) shows in view k (row)</h3>"
+            "<p>Beyond what the two pictures already share; 0 = none, 1 = fully. No limit is "
+            "configured for it.</p>"
+            f"<table><tr><th></th>{header}</tr>{''.join(matrix_rows)}</table>"
+        )
+    return table
 
 
-def _optimize_section(job: Path) -> str:
+def _optimize_section(job: Path, names: list[str]) -> str:
     layout = JobLayout(job)
     out = []
-    for png in (layout.loss_png,):
-        if png.is_file():
-            out.append(f"<div class='card wide'>{_img(png, 'loss curve')}</div>")
+    if layout.loss_png.is_file():
+        out.append(
+            _figure(
+                layout.loss_png,
+                "loss curve",
+                "optimize's loss per iteration: how far the renders are from the targets "
+                "(lower is better)",
+                wide=True,
+            )
+        )
+    summary = _read_json(layout.optimize_summary)
+    intro = ""
+    if isinstance(summary, dict) and "iterations" in summary:
+        elapsed = summary.get("elapsed_s")
+        took = f" in {duration_text(float(elapsed))}" if isinstance(elapsed, int | float) else ""
+        count = summary.get("scratches")
+        intro = (
+            f"<p>{_fmt(summary['iterations'])} iterations{took}"
+            + (f", {_fmt(count)} scratches" if count is not None else "")
+            + (
+                ", run to the end"
+                if summary.get("stopped") == "done"
+                else f" (stopped: {html.escape(str(summary.get('stopped')))})"
+            )
+            + ".</p>"
+        )
     log = layout.optimize_log
     if log.is_file():
         with log.open(encoding="utf-8") as handle:
             rows = list(csv.DictReader(handle))
         if rows:
-            last = rows[-1]
-            cells = "".join(
-                f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>"
-                for k, v in last.items()
-            )
-            out.append(f"<div class='card'>last logged iteration<table>{cells}</table></div>")
+            out.append(_last_iteration(rows[-1], names))
+    if not out and not intro:
+        return "<p class='muted'>optimize has not run.</p>"
+    return f"{intro}<div class='row'>{''.join(out)}</div>"
+
+
+def _last_iteration(last: dict[str, str], names: list[str]) -> str:
+    """The log's last row as one line per view, in words (not log.csv's column names)."""
+
+    def cell(key: str, digits: int) -> str:
+        raw = last.get(key)
+        try:
+            return f"<td>{float(raw):.{digits}f}</td>" if raw not in (None, "") else "<td>–</td>"
+        except ValueError:
+            return "<td>–</td>"
+
+    others = len(names) > 1
+    head = (
+        "<tr><th>view</th><th>looks like its target: rho (1 = perfect)</th>"
+        "<th>PSNR (dB)</th>"
+        + ("<th>crosstalk (worst other picture)</th>" if others else "")
+        + "</tr>"
+    )
+    rows = []
+    for k in names:
+        xs = []
+        for j in names:
+            try:
+                xs.append(float(last.get(f"x_{k}_{j}") or "nan"))
+            except ValueError:
+                continue
+        finite = [x for x in xs if not math.isnan(x)]
+        cross = f"<td>{max(finite):.3f}</td>" if finite else "<td>–</td>"
+        rows.append(
+            f"<tr><th scope='row'>{html.escape(k)}</th>{cell(f'rho_{k}', 3)}"
+            f"{cell(f'psnr_{k}', 2)}{cross if others else ''}</tr>"
+        )
+    iteration = html.escape(last.get("iteration", "?"))
     return (
-        f"<div class='row'>{''.join(out)}</div>"
-        if out
-        else "<p class='muted'>optimize has not run.</p>"
+        f"<figure><table>{head}{''.join(rows)}</table><figcaption>the optimizer's own "
+        f"measure of its fast model at its last logged iteration ({iteration}); loss "
+        f"{html.escape(last.get('loss', '?'))}</figcaption></figure>"
     )
 
 
-def _verify_extras(job: Path) -> str:
-    gifs = sorted(JobLayout(job).verify_dir.glob("*.gif"))
-    if not gifs:
-        return "<p class='muted'>no sweep animation (verify --sweep).</p>"
-    cards = "".join(f"<div class='card'>{g.stem}<br>{_img(g, g.stem)}</div>" for g in gifs)
-    return f"<p>What a viewer walking past the board sees (verify-render --sweep).</p><div class='row'>{cards}</div>"
+def _walk_section(job: Path, metrics: dict[str, Any] | None) -> str:
+    gif = JobLayout(job).verify_dir / "sweep.gif"
+    if not gif.is_file():
+        return "<p class='muted'>no walk-past animation ([verify] sweep = 0).</p>"
+    sweep = (metrics or {}).get("sweep") if isinstance(metrics, dict) else None
+    detail = ""
+    if isinstance(sweep, dict):
+        cameras = sweep.get("cameras") or []
+        try:
+            first = direction(tuple(cameras[0]["position_mm"]))[0]
+            last = direction(tuple(cameras[-1]["position_mm"]))[0]
+            detail = f", from {_side(first)} to {_side(last)} of the board's front"
+        except (IndexError, KeyError, TypeError, ValueError):
+            detail = ""
+        if isinstance(sweep.get("nearest_frame"), dict) and sweep["nearest_frame"]:
+            detail += ", passing the place of each view"
+    caption = f"the board under the design light as a viewer walking past it sees it{detail}"
+    return f"<div class='row'>{_figure(gif, 'walk past the board', caption, wide=True)}</div>"
+
+
+def _side(azimuth: float) -> str:
+    if round(abs(azimuth)) == 0:
+        return "straight in front"
+    return f"{abs(azimuth):.0f}° {'left' if azimuth < 0 else 'right'}"
+
+
+def _sky_section(job: Path, names: list[str], metrics: dict[str, Any] | None) -> str:
+    folder = JobLayout(job).verify_dir / "sky"
+    pngs = {p.stem: p for p in folder.glob("*.png")}
+    if not pngs:
+        return ""
+    order = [n for n in names if n in pngs] + sorted(set(pngs) - set(names))
+    sky = (metrics or {}).get("sky") if isinstance(metrics, dict) else None
+    sky_views = sky.get("views", {}) if isinstance(sky, dict) else {}
+    figures = []
+    for name in order:
+        rho = sky_views.get(name, {}).get("rho")
+        said = f"; looks like its target: rho {rho:.3f}" if isinstance(rho, float) else ""
+        figures.append(
+            _figure(
+                pngs[name],
+                f"{name} under sun and sky",
+                f"view {html.escape(name)} outdoors, under sun and sky instead of the "
+                f"design light{said}",
+            )
+        )
+    return (
+        "<h2>Under sun and sky</h2><p>The same board in daylight (verify's sky option): "
+        "a broad sky washes the pictures out; a low sun picks them out.</p>"
+        f"<div class='row'>{''.join(figures)}</div>"
+    )
+
+
+_TOOLPATH_ROWS = (
+    ("count", "scratches to cut", lambda v: f"{v:.0f}"),
+    ("input_count", "scratches in the design", lambda v: f"{v:.0f}"),
+    ("outside_count", "left out: outside the machine's travel", lambda v: f"{v:.0f}"),
+    ("clipped_count", "clipped to the machine's travel", lambda v: f"{v:.0f}"),
+    ("short_count", "left out: too short for the tool", lambda v: f"{v:.0f}"),
+    ("merged_count", "left out: duplicates", lambda v: f"{v:.0f}"),
+    ("cut_length_mm", "cut length", lambda v: f"{v / 1000:.2f} m"),
+    ("travel_length_mm", "travel between cuts", lambda v: f"{v / 1000:.2f} m"),
+    ("travel_input_order_mm", "travel in the design's order", lambda v: f"{v / 1000:.2f} m"),
+    ("estimated_time_s", "estimated cutting time", lambda v: duration_text(v)),
+)
 
 
 def _toolpath_section(job: Path) -> str:
     layout = JobLayout(job)
     data = _read_json(layout.toolpath_json)
     parts = []
-    preview = layout.toolpath_preview
-    if preview.is_file():
-        parts.append(f"<div class='card wide'>{_img(preview, 'toolpath preview')}</div>")
+    if layout.toolpath_preview.is_file():
+        parts.append(
+            _figure(
+                layout.toolpath_preview,
+                "toolpath preview",
+                "toolpath seen from the front: the board's outline, the cuts, the travel "
+                "moves between them, the limits of the machine's travel and the start point",
+                wide=True,
+            )
+        )
     stats = (data or {}).get("statistics") if isinstance(data, dict) else None
     if isinstance(stats, dict):
         cells = "".join(
-            f"<tr><th>{html.escape(str(k))}</th><td data-stat='toolpath.{html.escape(str(k))}'>{_fmt(v, 1)}</td></tr>"
-            for k, v in stats.items()
-            if not isinstance(v, dict | list)
+            f"<tr><th scope='row'>{label}</th><td data-stat='toolpath.{key}' "
+            f"data-value='{stats[key]}'>{shown(float(stats[key]))}</td></tr>"
+            for key, label, shown in _TOOLPATH_ROWS
+            if isinstance(stats.get(key), int | float)
         )
-        parts.append(f"<div class='card'><table>{cells}</table></div>")
+        parts.append(
+            f"<figure><table>{cells}</table><figcaption>the toolpath's figures (toolpath/toolpath.json)</figcaption></figure>"
+        )
     return (
         f"<div class='row'>{''.join(parts)}</div>"
         if parts
@@ -209,12 +735,36 @@ def gcode_statistics(path: Path) -> dict[str, Any]:
     }
 
 
-def _export_section(job: Path) -> str:
+_GCODE_LABELS = {
+    "lines": "lines",
+    "bytes": "size (bytes)",
+    "longest_line": "longest line (characters)",
+    "G0": "rapid moves (G0)",
+    "G1": "cutting moves (G1)",
+}
+
+
+def _files_section(job: Path) -> str:
     layout = JobLayout(job)
-    files = layout.export_files()
-    if not files:
+    what = {
+        "gcode": "for the machine",
+        "svg": "drawing, for a look or a laser",
+        "dxf": "drawing, for CAD",
+    }
+    items = [
+        f"<li>{_link(job, f)} ({f.stat().st_size} bytes"
+        + (f", {what[f.suffix[1:]]}" if f.suffix[1:] in what else "")
+        + ")</li>"
+        for f in layout.export_files()
+    ]
+    for path, text in (
+        (layout.optimized_scratches, "the optimized scratches (one per row, mm)"),
+        (layout.verify_metrics, "every measurement of verify"),
+    ):
+        if path.is_file():
+            items.append(f"<li>{_link(job, path)}: {text}</li>")
+    if not items:
         return "<p class='muted'>export has not run.</p>"
-    items = "".join(f"<li>{html.escape(f.name)} ({f.stat().st_size} bytes)</li>" for f in files)
     gcode = layout.export_file("gcode")
     table = ""
     if gcode.is_file():
@@ -222,42 +772,75 @@ def _export_section(job: Path) -> str:
         table = (
             "<table>"
             + "".join(
-                f"<tr><th>{k}</th><td data-stat='gcode.{k}'>{v}</td></tr>" for k, v in stats.items()
+                f"<tr><th scope='row'>{_GCODE_LABELS.get(k, html.escape(k))}</th>"
+                f"<td data-stat='gcode.{k}'>{v}</td></tr>"
+                for k, v in stats.items()
             )
             + "</table>"
         )
-    return f"<ul>{items}</ul>{table}"
+    return f"<ul>{''.join(items)}</ul>{table}"
 
 
-def _stream_section(job: Path) -> str:
-    """What the journal's last run of streams (since its last fresh start) acknowledged."""
+def _stream_state(job: Path, port: str | None) -> tuple[_Stream, str]:
+    """The stream's state and the Stream section's paragraph."""
     from scratchfab.errors import ConfigError
+    from scratchfab.fileio import file_sha256
     from scratchfab.machine.sender_journal import (
         default_journal_path,
         done_blocks,
         interrupted,
         read_journal,
     )
+    from scratchfab.pipeline.runner import is_emulator
 
-    journal = default_journal_path(JobLayout(job).export_file("gcode"))
-    if not journal.is_file():
-        return "<p class='muted'>not streamed.</p>"
+    gcode = JobLayout(job).export_file("gcode")
+    journal = default_journal_path(gcode)
+    if not journal.is_file() or not gcode.is_file():
+        return _Stream("none"), "<p class='muted'>not streamed.</p>"
     try:
         events = read_journal(journal)
         starts = [ev for ev in events if ev.get("ev") == "start"]
         if not starts:
-            return "<p class='muted'>not streamed (the journal is empty).</p>"
+            return _Stream("none"), "<p class='muted'>not streamed (the journal is empty).</p>"
         sha256 = str(starts[-1].get("sha256"))
         done = len(done_blocks(events, sha256, journal, recut_unclosed=False))
     except ConfigError as exc:
-        return f"<p class='bad'>{html.escape(str(exc))}</p>"
-    total = starts[-1].get("blocks")
-    state = "unfinished (the next run resumes it)" if interrupted(events, sha256) else "finished"
-    return (
-        f"<p><span data-stat='stream.acknowledged'>{done}</span> of "
-        f"<span data-stat='stream.lines'>{total}</span> G-code lines acknowledged by the "
-        f"controller since the last fresh start; {state} (journal.jsonl).</p>"
+        return _Stream("none", note=" (the journal is damaged)"), (
+            f"<p class='bad'>{html.escape(str(exc))}</p>"
+        )
+    if sha256 != file_sha256(gcode):
+        note = " (the journal's last stream was of an earlier G-code)"
+        return _Stream("none", note=note), f"<p>Not streamed{note}.</p>"
+    total = int(starts[-1].get("blocks") or 0)
+    finished = not interrupted(events, sha256)
+    kind: Literal["emulator", "real", "unknown"] = (
+        "unknown" if port is None else "emulator" if is_emulator(port) else "real"
     )
+    state = _Stream(kind, finished, done, total, port)
+    progress = "finished" if finished else "unfinished (the next run resumes it)"
+    counted = (
+        f"<span data-stat='stream.acknowledged'>{done}</span> of "
+        f"<span data-stat='stream.lines'>{total}</span> G-code lines acknowledged"
+    )
+    rel = _link(job, JobLayout(job).journal)
+    if kind == "emulator":
+        text = (
+            f"<p data-stream='emulator'><b>Streamed to the built-in GRBL emulator: nothing "
+            f"was cut.</b> {counted} by the emulator since the last fresh start; {progress} "
+            f"({rel}). The emulator only checks that the machine would take the file.</p>"
+        )
+    elif kind == "real":
+        text = (
+            f"<p data-stream='real'>Streamed to the machine on {_code(port or '')}: {counted} "
+            f"by the controller since the last fresh start; {progress} ({rel}).</p>"
+        )
+    else:
+        text = (
+            f"<p data-stream='unknown'>{counted} since the last fresh start; {progress} "
+            f"({rel}). The pipeline names no [stream] port, so this report cannot tell a "
+            "machine from the emulator.</p>"
+        )
+    return state, text
 
 
 def _setup_step(job: Path) -> str:
@@ -284,41 +867,123 @@ def _setup_step(job: Path) -> str:
     )
 
 
-def _next_steps(job: Path, metrics: dict[str, Any] | None) -> str:
-    steps = []
-    if metrics and any(v.get("rho", 1.0) < 0.8 for v in metrics.get("views", {}).values()):
-        steps.append(
-            "A view falls short: run optimize longer, add scratches, or move the views apart."
-        )
-    steps += [
-        "Check the toolpath preview: every stroke inside the board, travel moves sensible.",
-        _setup_step(job),
-        f"Dry-run first: <code>scratchfab stream {html.escape(str(JobLayout(job).export_file('gcode')))} --port PORT --check</code>.",
-        "Then stream for real; after a dropped cable, rerun the same command with <code>--resume</code>.",
-    ]
-    return "<ol>" + "".join(f"<li>{s}</li>" for s in steps) + "</ol>"
+def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: Path | None) -> str:
+    """Steps chosen from the job's state: fix, resume, cut, or look at the cut board."""
+    if pipeline_file is not None:
+        # Whichever works from the job folder and is shorter to type.
+        pipe = min(os.path.relpath(pipeline_file, job), str(pipeline_file.resolve()), key=len)
+        rerun = _code(f"scratchfab run {pipe} --out .")
+        again = _code(f"scratchfab run {pipe} --out . --from stream")
+    else:
+        rerun = _code("scratchfab run PIPELINE.toml --out .")
+        again = _code("scratchfab run PIPELINE.toml --out . --from stream")
+    where = " (commands from the job folder; PORT is your machine's serial port, e.g. /dev/ttyUSB0)"
+    steps: list[str] = []
+    state_kind = "not-streamed"
+    if state.kind == "real" and not state.finished:
+        state_kind = "resume"
+        steps += [
+            f"The cut stopped after {state.done} of {state.total} lines: leave the board "
+            "clamped where it is and do not move the machine's axes by hand.",
+            f"Resume: run {rerun} again: it continues from the journal. If the controller "
+            "lost power, set <code>recut_unsure = true</code> in [stream] first.",
+        ]
+    elif state.kind == "real":
+        state_kind = "cut"
+        steps += [
+            "The board is cut. Lift the tool, take the board off, wipe it clean (no "
+            "abrasives) and look at it from the places under <i>Where to stand</i>.",
+            f"To cut another board with the same G-code: {again}.",
+        ]
+    fails = [c for c in checks if c.status == "fail"]
+    if fails and state_kind == "not-streamed":
+        state_kind = "fix"
+        seen: list[str] = []
+        for c in fails:
+            if c.fix and c.fix not in seen:
+                seen.append(c.fix)
+        steps += seen or ["Run the stages that have not run."]
+        steps.append(f"Then run again: {rerun}.")
+    elif state_kind == "not-streamed":
+        if state.kind == "emulator":
+            state_kind = "emulator"
+            steps.append(
+                "The emulator took the file"
+                + ("" if state.finished else " only in part (the next run finishes it)")
+                + ": that checks the G-code, but nothing was cut yet."
+            )
+        steps += [
+            "Check the toolpath preview: every scratch inside the board, travel moves sensible.",
+            _setup_step(job),
+            "Dry-run and cut: "
+            + _code("scratchfab stream export/board.gcode --port PORT --check")
+            + " runs the file through GRBL's check mode "
+            "(nothing moves), then asks before it cuts.",
+            "Or set [stream] <code>port</code> in the pipeline file to your machine's port and "
+            f"run {rerun}. After a dropped cable, run the same command again "
+            "(<code>scratchfab stream</code> needs <code>--resume</code>).",
+        ]
+    items = "".join(f"<li>{s}</li>" for s in steps)
+    return f"<ol data-next='{state_kind}'>{items}</ol><p class='muted'>{html.escape(where)}</p>"
 
 
-def write_report(job: Path, title: str = "scratchfab job") -> Path:
-    """Write ``JOB/report.html`` from what the stages left in the job folder."""
+def write_report(
+    job: Path,
+    title: str = "scratchfab job",
+    *,
+    port: str | None = None,
+    min_rho: float | None = None,
+    pipeline_file: Path | None = None,
+) -> Path:
+    """Write ``JOB/report.html`` from what the stages left in the job folder.
+
+    Args:
+        job: The job folder.
+        title: The page's heading (``[pipeline] name``).
+        port: The pipeline's ``[stream] port``: says whether a stream moved a machine
+            or the built-in emulator (None: the report cannot tell).
+        min_rho: The pipeline's ``[verify] min_rho`` (None: the one verify recorded in
+            ``metrics.json``, if any).
+        pipeline_file: The pipeline file, for the commands the next steps give.
+    """
     metrics = _read_json(JobLayout(job).verify_metrics)
+    metrics = metrics if isinstance(metrics, dict) else None
+    if min_rho is None and metrics and isinstance(metrics.get("gate"), dict):
+        min_rho = metrics["gate"].get("min_rho")
+    design = _read_design(job)
+    names = _view_order(design, metrics, job)
+    state, stream_text = _stream_state(job, port)
+    checks = (
+        _stage_checks(job)
+        + _feasibility_checks(job)
+        + _rho_checks(names, metrics, min_rho)
+        + _crosstalk_check(names, metrics)
+        + _toolpath_checks(job)
+        + _gcode_check(job)
+        + _stream_check(state)
+    )
     body = [
-        f"<h1>{html.escape(title)}</h1><p class='muted'>{html.escape(str(job.resolve()))}</p>",
-        "<p id='image-check' class='muted'>images: checking…</p>",
+        f"<h1>{html.escape(title)}</h1><p class='muted'>job folder "
+        f"{_code(job.resolve().name)}; every path below is relative to it.</p>",
+        "<span id='image-check' hidden></span>",
+        _verdict(checks),
+        "<h2>What to do next</h2>",
+        _next_steps(job, checks, state, pipeline_file),
+        "<h2>Where to stand</h2>",
+        _stand_section(design),
         "<h2>Views</h2>",
-        _views_section(job, metrics),
+        _views_section(job, names, metrics, min_rho),
         "<h2>Optimization</h2>",
-        _optimize_section(job),
-        "<h2>Beyond the design light</h2>",
-        _verify_extras(job),
+        _optimize_section(job, names),
+        "<h2>Walking past the board</h2>",
+        _walk_section(job, metrics),
+        _sky_section(job, names, metrics),
         "<h2>Toolpath</h2>",
         _toolpath_section(job),
-        "<h2>Export</h2>",
-        _export_section(job),
+        "<h2>Files</h2>",
+        _files_section(job),
         "<h2>Stream</h2>",
-        _stream_section(job),
-        "<h2>What to do next</h2>",
-        _next_steps(job, metrics),
+        stream_text,
     ]
     page = (
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"

@@ -356,6 +356,12 @@ def _run_stages(
             rerun = True
             say(f"[{stage}] done in {time.perf_counter() - began:.1f} s")
     finally:
-        result.report = write_report(job, pipe.pipeline.name)
+        result.report = write_report(
+            job,
+            pipe.pipeline.name,
+            port=pipe.stream.port,
+            min_rho=pipe.verify.min_rho,
+            pipeline_file=pipe.path,
+        )
         result.seconds = time.perf_counter() - t0
     return result
