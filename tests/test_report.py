@@ -390,3 +390,17 @@ def test_manifest_detects_changes_and_touches(tmp_path):
     st = src.stat()
     os.utime(src, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # touched, same bytes
     assert not again.is_current("design", fingerprint([made], [src], {"seed": 1}))
+
+
+def test_verdict_names_a_failed_stage_from_the_manifest(tmp_path):
+    job = fake_job(tmp_path)
+    reason = "VerifyGateError: view right: rho_kk 0.700 is below min_rho 0.8"
+    stages = {
+        "design": {"status": "done"},
+        "verify": {"status": "failed", "reason": reason},
+        "stream": {"status": "interrupted", "reason": "stopped"},
+    }
+    (job / "manifest.json").write_text(json.dumps({"stages": stages}))
+    _, head, lines = _verdict(write_report(job).read_text())
+    assert head == "Not ready: stage verify failed"  # stream's state is its own line
+    assert any(s == "fail" and reason in t for s, t in lines)
