@@ -23,6 +23,7 @@ import contextlib
 import csv
 import json
 import math
+import resource
 import sys
 import tempfile
 import time
@@ -206,6 +207,8 @@ def bench_large(
         "measured_steps": steps,
         "seconds_per_iteration": round(per, 3),
         "pair_refresh_s": round(float(np.mean(refresh)), 2) if refresh else None,
+        # the whole process's peak so far: the demo case (run first) peaks far lower
+        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
     }
     if until_bar:
         out["measured_to_quality_bar"] = bar or f"not reached in {until_bar} iterations"

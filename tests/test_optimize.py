@@ -146,14 +146,17 @@ def test_pairs_are_never_missed_between_refreshes(m, board) -> None:
     assert missed_without_margin > 0
 
 
-def test_neighbour_pairs_match_brute_force(rng) -> None:
+@pytest.mark.parametrize(("spacing", "strip_points"), [(1.0, 5000), (0.0, 37), (3.0, 200)])
+def test_neighbour_pairs_match_brute_force(rng, spacing, strip_points) -> None:
+    """Any sample spacing and any strip size find the same pairs: those brute force finds."""
     n = 400
     c = rng.uniform(-10, 10, (n, 2))
     theta = rng.choice([0.0, 0.1, 1.2], n) + rng.normal(0, 0.05, n)
     half = (rng.uniform(1, 4, n) / 2)[:, None] * np.stack([np.cos(theta), np.sin(theta)], 1)
     p0, p1 = c - half, c + half
     reach = 0.4
-    i, j = neighbour_pairs(p0, p1, reach)
+    i, j = neighbour_pairs(p0, p1, reach, spacing=spacing, strip_points=strip_points)
+    assert np.all(np.diff(i * n + j) > 0)  # sorted by (i, j), no repeats
     got = set(zip(i.tolist(), j.tolist(), strict=True))
     ii, jj = np.triu_indices(n, 1)
     d = segment_distance_np(p0, p1, ii, jj)

@@ -42,6 +42,10 @@ SPACES: tuple[str, ...] = ("linear", "perceptual")
 
 #: Pairs more than this far from parallel are never merge candidates (radians).
 PARALLEL_LIMIT = math.radians(35.0)
+#: Longest gap between the points :func:`neighbour_pairs` samples along a scratch.
+NEIGHBOUR_SPACING_MM = 1.0
+#: Sample points per strip of :func:`neighbour_pairs`' KD-tree queries (bounds its memory).
+NEIGHBOUR_STRIP_POINTS = 5_000
 
 
 def srgb_encode(x: Any) -> Any:
@@ -142,37 +146,66 @@ def segment_distance_np(p0: np.ndarray, p1: np.ndarray, i: np.ndarray, j: np.nda
 
 
 def neighbour_pairs(
-    p0: np.ndarray, p1: np.ndarray, reach: float, angle_slack: float = 0.0
+    p0: np.ndarray,
+    p1: np.ndarray,
+    reach: float,
+    angle_slack: float = 0.0,
+    spacing: float = NEIGHBOUR_SPACING_MM,
+    strip_points: int = NEIGHBOUR_STRIP_POINTS,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (i < j) of scratches closer than ``reach`` and within the parallel limit.
 
-    Points sampled along each segment every ``reach`` mm (ends included) find every pair
-    of segments closer than ``reach``: each segment point is within reach / 2 of a
-    sample, so a KD-tree query at radius 2 reach is complete; the exact segment distance
-    then filters. Pairs further from parallel than PARALLEL_LIMIT + ``angle_slack`` are
-    dropped (their penalty weight is below 0.05 there).
+    Points sampled along each segment at most ``step = max(spacing, reach)`` apart (ends
+    included) find every pair of segments closer than ``reach``: each segment point is
+    within step / 2 of a sample, so a KD-tree query at radius reach + step is complete;
+    the exact segment distance then filters. Pairs further from parallel than
+    PARALLEL_LIMIT + ``angle_slack`` are dropped (their penalty weight is below 0.05
+    there). The query runs strip by strip across x (about ``strip_points`` samples
+    each, a point pair belonging to the strip of its left point), filtered as it goes,
+    so memory follows the pairs kept rather than the point pairs found (tens of times
+    more on a dense board).
+
+    Returns:
+        (i, j), sorted by (i, j).
     """
     n = len(p0)
     if n < 2:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     d = p1 - p0
     length = np.linalg.norm(d, axis=1)
-    counts = np.maximum(2, np.ceil(length / reach).astype(np.int64) + 1)
+    step = max(spacing, reach)
+    radius = reach + step
+    counts = np.maximum(2, np.ceil(length / step).astype(np.int64) + 1)
     owner = np.repeat(np.arange(n), counts)
     starts = np.cumsum(counts) - counts
     t = (np.arange(int(counts.sum())) - starts[owner]) / (counts[owner] - 1)
     pts = p0[owner] + t[:, None] * d[owner]
-    pairs = cKDTree(pts).query_pairs(2 * reach, output_type="ndarray")
-    i, j = owner[pairs[:, 0]], owner[pairs[:, 1]]
-    keep = i != j
-    i, j = np.minimum(i[keep], j[keep]), np.maximum(i[keep], j[keep])
-    if len(i) == 0:
-        return i, j
-    uniq = np.unique(i * n + j)
-    i, j = uniq // n, uniq % n
-    cos = np.abs(np.sum(d[i] * d[j], axis=1)) / np.maximum(length[i] * length[j], 1e-300)
+    by_x = np.argsort(pts[:, 0], kind="stable")
+    xs = pts[by_x, 0]
     limit = math.cos(min(math.pi / 2, PARALLEL_LIMIT + angle_slack))
-    keep = cos >= limit
-    i, j = i[keep], j[keep]
-    keep = segment_distance_np(p0, p1, i, j) < reach
-    return i[keep], j[keep]
+    found = [np.zeros(0, np.int64)]
+    for first in range(0, len(pts), strip_points):
+        core_end = min(first + strip_points, len(pts))
+        # the strip's own points, and those up to the query radius to their right
+        last = int(np.searchsorted(xs, xs[core_end - 1] + radius, side="right"))
+        rows = by_x[first:last]
+        near = cKDTree(pts[rows]).query_pairs(radius, output_type="ndarray")
+        near = near[np.minimum(near[:, 0], near[:, 1]) < core_end - first]
+        i, j = owner[rows[near[:, 0]]], owner[rows[near[:, 1]]]
+        keep = i != j
+        i, j = np.minimum(i[keep], j[keep]), np.maximum(i[keep], j[keep])
+        keys = _sorted_unique(i * n + j)
+        i, j = keys // n, keys % n
+        cos = np.abs(np.sum(d[i] * d[j], axis=1)) / np.maximum(length[i] * length[j], 1e-300)
+        keep = cos >= limit
+        i, j = i[keep], j[keep]
+        keep = segment_distance_np(p0, p1, i, j) < reach
+        found.append(i[keep] * n + j[keep])
+    keys = _sorted_unique(np.concatenate(found))
+    return keys // n, keys % n
+
+
+def _sorted_unique(keys: np.ndarray) -> np.ndarray:
+    """The distinct values of ``keys``, sorted (sorting beats numpy's hash-based unique here)."""
+    keys = np.sort(keys)
+    return keys[np.concatenate(([True], keys[1:] != keys[:-1]))] if len(keys) else keys
