@@ -7,6 +7,7 @@ one line at a time, and a ``confirm`` callback before a machine moves. The CLI p
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -15,3 +16,15 @@ Say = Callable[[str], Any]
 
 #: Takes a yes/no question; returns True to go on.
 Confirm = Callable[[str], bool]
+
+
+def clock(seconds: float) -> str:
+    """``mm:ss``, or ``h:mm:ss`` from an hour on; ``--:--`` when not known."""
+    if not math.isfinite(seconds):
+        return "--:--"
+    s = int(round(seconds))
+    return (
+        f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
+        if s >= 3600
+        else f"{s // 60:02d}:{s % 60:02d}"
+    )

@@ -8,8 +8,9 @@ from types import SimpleNamespace
 
 import pytest
 
+from scratchfab.console import clock
 from scratchfab.optimize import progress as progress_mod
-from scratchfab.optimize.progress import clock, progress_printer
+from scratchfab.optimize.progress import progress_printer
 from scratchfab.optimize.stage import Progress
 
 BAR = re.compile(r"\[(#*)(\.*)\] (\d+)/(\d+) loss (\S+)  elapsed (\S+)  eta (\S+)")

@@ -175,6 +175,7 @@ def test_sweep_frames_nearest_each_view_show_that_views_image(half_job, tmp_path
     root, design, scratches, _, _ = half_job
     targets, cross = design_targets(design)
     frames_n = 8
+    said: list[str] = []
     metrics = run_verify(
         design,
         scratches,
@@ -182,7 +183,14 @@ def test_sweep_frames_nearest_each_view_show_that_views_image(half_job, tmp_path
         VerifySettings(spp=256, sweep=frames_n),
         targets=targets,
         cross=cross,
+        progress=said.append,
     )
+    # progress names each view's place and the sweep's frames, with the time left
+    views = [line for line in said if line.startswith("verify ") and " spp, " in line]
+    assert [v.split(" ")[2] for v in views] == ["(1/2):", "(2/2):"]
+    assert views[-1].endswith("views left about 00:00")
+    sweeps = [line for line in said if line.startswith("sweep: ")]
+    assert sweeps[-1] == f"sweep: {frames_n}/{frames_n} frames, eta 00:00" and len(sweeps) == 2
     path, view_params = sweep_path(design, frames_n)
     frames = sweep_pictures(tmp_path / "out" / "sweep.gif", path)
     assert len(frames) == frames_n == metrics["sweep"]["frames"]

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import sys
 import threading
-import time
 from pathlib import Path
 
 import click
 
 from scratchfab.cli.options import FiniteFloat
+from scratchfab.console import clock
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.sender import StreamProgress
 from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
@@ -24,8 +24,7 @@ class _ProgressLine:
 
     def __call__(self, p: StreamProgress) -> None:
         pos = "" if p.wpos is None else " X{:.2f} Y{:.2f} Z{:.2f}".format(*p.wpos)
-        eta = time.strftime("%H:%M:%S", time.gmtime(p.eta_s))
-        text = f"{p.fraction:6.1%} {p.acked}/{p.total} lines  ETA {eta}  {p.state}{pos}"
+        text = f"{p.fraction:6.1%} {p.acked}/{p.total} lines  ETA {clock(p.eta_s)}  {p.state}{pos}"
         if self.tty:
             width = 28
             fill = int(width * p.fraction)

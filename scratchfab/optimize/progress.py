@@ -2,30 +2,17 @@
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from scratchfab.console import Say
+from scratchfab.console import Say, clock
 
 if TYPE_CHECKING:
     from scratchfab.optimize.stage import Progress
 
 #: A log gets a line per this fraction of the steps, and one at least every THROTTLE_S.
 THROTTLE_S = 5.0
-
-
-def clock(seconds: float) -> str:
-    """``mm:ss``, or ``h:mm:ss`` from an hour on; ``--:--`` when not known."""
-    if not math.isfinite(seconds):
-        return "--:--"
-    s = int(round(seconds))
-    return (
-        f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
-        if s >= 3600
-        else f"{s // 60:02d}:{s % 60:02d}"
-    )
 
 
 def progress_text(p: Progress, width: int = 30) -> str:

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from scratchfab.backend import BackendName
-from scratchfab.console import Say
+from scratchfab.console import Say, clock
 from scratchfab.design.targets import cross_targets, job_cross_targets
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import write_bytes, write_json
@@ -347,12 +347,15 @@ def run_verify(
 
     renderer = BoardRenderer(design, scratches, settings.backend)
     results: dict[str, ViewRender] = {}
+    n = len(design.views)
     for i, view in enumerate(design.views):
         result = renderer.render(view, settings.spp, settings.seed + 1000 * i, settings.max_noise)
         results[view.name] = result
+        spent = sum(r.seconds for r in results.values())
         say(
-            f"verify {view.name}: {view.width}x{view.height} px, {result.spp} spp, "
-            f"noise {100 * result.noise:.2f} %, {result.seconds:.1f} s"
+            f"verify {view.name} ({i + 1}/{n}): {view.width}x{view.height} px, {result.spp} spp, "
+            f"noise {100 * result.noise:.2f} %, {result.seconds:.1f} s, "
+            f"views left about {clock(spent / (i + 1) * (n - i - 1))}"
         )
     images = {name: r.image for name, r in results.items()}
     quality = _quality(images, targets, cross)
@@ -524,10 +527,12 @@ def _run_sweep(
     renderer = BoardRenderer(design, scratches, settings.backend, mode="physical")
     spp = min(settings.spp, SWEEP_SPP)
     images = []
+    started = time.perf_counter()
     for i, frame in enumerate(frames):
         images.append(renderer.render(frame.view, spp, settings.seed + 7 * i + 1).image)
-        if (i + 1) % 10 == 0 or i + 1 == len(frames):
-            say(f"sweep: {i + 1}/{len(frames)} frames")
+        if (i + 1) % 4 == 0 or i + 1 == len(frames):
+            per = (time.perf_counter() - started) / (i + 1)
+            say(f"sweep: {i + 1}/{len(frames)} frames, eta {clock(per * (len(frames) - i - 1))}")
     info = {
         "frames": len(frames),
         "spp": 2 * half_spp(spp),
