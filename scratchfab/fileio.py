@@ -181,3 +181,21 @@ def save_png(path: str | os.PathLike[str], image: Any) -> None:
     """Save a Pillow image as PNG atomically."""
     with atomic_open(path, "wb") as handle:
         image.save(handle, format="PNG")
+
+
+def try_lock(handle: IO[Any]) -> bool:
+    """Lock an open file for this process alone, without waiting; False if another holds it.
+
+    An advisory ``flock``: it goes with the process, so a killed one leaves none behind.
+    POSIX only; elsewhere (Windows) nothing is locked and True is returned, so the
+    commands still run there, without the guard against a second run or stream.
+    """
+    if os.name != "posix":
+        return True
+    import fcntl
+
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return False
+    return True

@@ -214,3 +214,35 @@ def test_atomic_folder_gives_the_usual_permissions_and_keeps_the_old_folder(tmp_
         write_text(new / "b.txt", "new")
     assert sorted(p.name for p in (tmp_path / "stage").iterdir()) == ["b.txt"]
     assert [p.name for p in tmp_path.iterdir()] == ["stage"]  # nothing temporary left
+
+
+def test_try_lock_refuses_a_file_another_process_holds_until_it_ends(tmp_path):
+    import subprocess
+    import sys
+
+    from scratchfab.fileio import try_lock
+
+    path = tmp_path / "lock"
+    path.touch()
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import fcntl, sys; h = open(sys.argv[1], 'a'); "
+            "fcntl.flock(h, fcntl.LOCK_EX); print('held', flush=True); sys.stdin.read()",
+            str(path),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        with open(path, "a") as handle:
+            assert not try_lock(handle)
+    finally:
+        holder.communicate("")  # the holder exits; its lock goes with it
+    with open(path, "a") as handle:
+        assert try_lock(handle)
+        with open(path, "a") as second:
+            assert not try_lock(second)  # a second handle, even in this process

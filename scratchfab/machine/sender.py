@@ -30,6 +30,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import math
+import os
 import signal
 import threading
 import time
@@ -111,8 +112,9 @@ class Port(Protocol):
 
 def open_port(port: str, baud: int) -> Any:
     """Open a serial device or pyserial URL (``grblsim://...`` included)."""
-    # a real port is locked (flock) so that a second sender cannot interleave its lines
-    extra = {} if "://" in port else {"exclusive": True}
+    # a real port is locked (flock) so that a second sender cannot interleave its lines;
+    # pyserial offers that on POSIX only (a Windows COM port is exclusive anyway)
+    extra = {"exclusive": True} if "://" not in port and os.name == "posix" else {}
     try:
         return serial.serial_for_url(port, baudrate=baud, timeout=0.01, write_timeout=5.0, **extra)
     except (serial.SerialException, ValueError, OSError) as exc:

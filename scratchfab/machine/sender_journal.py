@@ -25,7 +25,6 @@ full, may never have run (:func:`last_surely_run`).
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import time
@@ -34,7 +33,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 from scratchfab.errors import ConfigError, ScratchfabError
-from scratchfab.fileio import read_input
+from scratchfab.fileio import read_input, try_lock
 from scratchfab.model.job import JobLayout
 
 if TYPE_CHECKING:
@@ -81,9 +80,7 @@ class Journal:
             self._handle = open(self.path, "a", encoding="utf-8", newline="\n")  # noqa: SIM115
         except OSError as exc:
             raise self._error(exc) from None
-        try:
-            fcntl.flock(self._handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
+        if not try_lock(self._handle):
             self._handle.close()
             self._handle = None
             raise ScratchfabError(

@@ -13,7 +13,6 @@ the next run starts again at that stage.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -22,6 +21,7 @@ from typing import Any
 
 from scratchfab.console import Confirm, Say
 from scratchfab.errors import ConfigError, Interrupted, ScratchfabError
+from scratchfab.fileio import try_lock
 from scratchfab.model.job import JobLayout
 from scratchfab.pipeline.config import STAGES, Pipeline
 from scratchfab.pipeline.manifest import Manifest, file_digest, fingerprint
@@ -291,13 +291,11 @@ def _job_lock(path: Path) -> Iterator[None]:
     except OSError as exc:
         raise ScratchfabError(f"{path}: cannot write ({exc.strerror or exc})") from None
     with handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        if not try_lock(handle):
             raise ScratchfabError(
                 f"{path.parent}: another `scratchfab run` is working on this job; "
                 "wait until it ends"
-            ) from None
+            )
         yield
 
 
