@@ -107,7 +107,7 @@ def test_solve_wbar_satisfies_eq2_and_agrees_with_the_renderers_solver():
     np.testing.assert_allclose(wbar, profile.solve_wbar(width, depth), rtol=1e-10)
 
 
-def test_grid_lists_every_scratch_that_covers_a_point(rng):
+def test_grid_lists_every_scratch_that_covers_a_point(rng, monkeypatch):
     n = 300
     centre = rng.uniform(-9, 9, (n, 2))
     angle = rng.uniform(0, np.pi, n)
@@ -135,6 +135,11 @@ def test_grid_lists_every_scratch_that_covers_a_point(rng):
         listed = set(grid.candidates(*p).tolist())
         assert set(np.flatnonzero(row).tolist()) <= listed
     assert grid.max_count < 40
+    # built in batches of a few scratches' cells, the grid is the same
+    monkeypatch.setattr("scratchfab.verify.index.BATCH_CELLS", 50)
+    batched = build_grid(p0, p1, half, (10.0, 10.0))
+    assert np.array_equal(batched.starts, grid.starts)
+    assert np.array_equal(batched.items, grid.items)
 
 
 def test_flat_board_matches_the_closed_form_highlight():

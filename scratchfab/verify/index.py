@@ -18,6 +18,8 @@ import numpy as np
 PAD_FRACTION = 1e-3
 #: Upper bound on the number of cells.
 MAX_CELLS = 1 << 22
+#: Candidate (scratch, cell) pairs tested at a time while building the grid.
+BATCH_CELLS = 1 << 20
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,6 +100,7 @@ def build_grid(
     ny = max(1, math.ceil(2 * extent[1] / cell))
     origin = (-extent[0], -extent[1])
     pad = PAD_FRACTION * cell
+    half_c = 0.5 * cell + pad
 
     seg = p1 - p0
     length = np.linalg.norm(seg, axis=1)
@@ -112,27 +115,36 @@ def build_grid(
     iy0 = np.clip(np.floor((centre[:, 1] - by - pad - origin[1]) / cell), 0, ny - 1).astype(int)
     iy1 = np.clip(np.floor((centre[:, 1] + by + pad - origin[1]) / cell), 0, ny - 1).astype(int)
     spans_x = ix1 - ix0 + 1
-    spans_y = iy1 - iy0 + 1
-    counts = spans_x * spans_y
-    sid = np.repeat(np.arange(len(p0)), counts)
-    local = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
-    cx = ix0[sid] + local % spans_x[sid]
-    cy = iy0[sid] + local // spans_x[sid]
-
-    # Separating axes: the cell's x and y (bounding boxes above, recheck per cell) and the
-    # rectangle's along/across axes.
-    lo_x = origin[0] + cx * cell - pad
-    lo_y = origin[1] + cy * cell - pad
-    half_c = 0.5 * cell + pad
-    dx = lo_x + half_c - centre[sid, 0]
-    dy = lo_y + half_c - centre[sid, 1]
-    keep = (np.abs(dx) <= half_c + bx[sid]) & (np.abs(dy) <= half_c + by[sid])
-    for axis, half_rect in ((along, 0.5 * length), (across, w)):
-        ax = axis[sid]
-        reach = half_c * (np.abs(ax[:, 0]) + np.abs(ax[:, 1])) + half_rect[sid]
-        keep &= np.abs(dx * ax[:, 0] + dy * ax[:, 1]) <= reach
-    flat = (cy * nx + cx)[keep]
-    ids = sid[keep]
+    counts = spans_x * (iy1 - iy0 + 1)
+    # Candidate cells in batches of scratches: a long diagonal scratch's box holds
+    # thousands of cells, and all of them at once would take gigabytes.
+    begin = np.cumsum(counts) - counts  # each scratch's first candidate, counted over all
+    flats, idss = [], []
+    first = 0
+    while first < len(p0):
+        last = max(first + 1, int(np.searchsorted(begin, begin[first] + BATCH_CELLS, "right")))
+        sid = np.repeat(np.arange(first, last), counts[first:last])
+        local = np.arange(len(sid)) - np.repeat(
+            begin[first:last] - begin[first], counts[first:last]
+        )
+        cx = ix0[sid] + local % spans_x[sid]
+        cy = iy0[sid] + local // spans_x[sid]
+        # Separating axes: the cell's x and y (bounding boxes above, recheck per cell) and
+        # the rectangle's along/across axes.
+        lo_x = origin[0] + cx * cell - pad
+        lo_y = origin[1] + cy * cell - pad
+        dx = lo_x + half_c - centre[sid, 0]
+        dy = lo_y + half_c - centre[sid, 1]
+        keep = (np.abs(dx) <= half_c + bx[sid]) & (np.abs(dy) <= half_c + by[sid])
+        for axis, half_rect in ((along, 0.5 * length), (across, w)):
+            ax = axis[sid]
+            reach = half_c * (np.abs(ax[:, 0]) + np.abs(ax[:, 1])) + half_rect[sid]
+            keep &= np.abs(dx * ax[:, 0] + dy * ax[:, 1]) <= reach
+        flats.append((cy * nx + cx)[keep])
+        idss.append(sid[keep])
+        first = last
+    flat = np.concatenate(flats) if flats else np.zeros(0, np.int64)
+    ids = np.concatenate(idss) if idss else np.zeros(0, np.int64)
     order = np.lexsort((ids, flat))
     flat = flat[order]
     ids = ids[order]
