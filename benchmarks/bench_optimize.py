@@ -23,7 +23,6 @@ import contextlib
 import csv
 import json
 import math
-import resource
 import sys
 import tempfile
 import time
@@ -38,6 +37,16 @@ from scratchfab.metrics import quality_report  # noqa: E402
 from scratchfab.model.job import JobLayout  # noqa: E402
 from scratchfab.optimize.loss import Space  # noqa: E402
 from scratchfab.optimize.stage import OptimizeOptions, run_optimize  # noqa: E402
+
+
+def peak_rss_mb() -> int | None:
+    """This process's peak resident memory in MB (None where the OS does not say)."""
+    try:
+        import resource
+    except ImportError:  # Windows
+        return None
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return round(peak / (1 << 20) if sys.platform == "darwin" else peak / 1024)  # bytes / KiB
 
 
 def _bar_row(log: Path) -> dict[str, float] | None:
@@ -208,7 +217,7 @@ def bench_large(
         "seconds_per_iteration": round(per, 3),
         "pair_refresh_s": round(float(np.mean(refresh)), 2) if refresh else None,
         # the whole process's peak so far: the demo case (run first) peaks far lower
-        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
+        "peak_rss_mb": peak_rss_mb(),
     }
     if until_bar:
         out["measured_to_quality_bar"] = bar or f"not reached in {until_bar} iterations"

@@ -10,6 +10,7 @@ from __future__ import annotations
 import glob
 import os
 import re
+import sys
 from types import ModuleType
 from typing import Any, Literal
 
@@ -27,11 +28,24 @@ _LIB_DIRS = (
     "/usr/local/lib",
     "/opt/homebrew/opt/llvm/lib",
     "/usr/local/opt/llvm/lib",
+    r"C:\Program Files\LLVM\bin",
 )
-_FIX = (
-    "Dr.Jit's CPU backend needs a shared libLLVM 16 or newer: run `bash scripts/setup.sh` "
-    "(Debian/Ubuntu: `apt-get install libllvm19`), or set DRJIT_LIBLLVM_PATH to such a library"
-)
+_LIB_PATTERNS = ("libLLVM*.so*", "libLLVM*.dylib", "LLVM-C.dll")
+_FIXES = {
+    "linux": "run `bash scripts/setup.sh` (Debian/Ubuntu: `apt-get install libllvm19`)",
+    "darwin": "`brew install llvm`",
+    "win32": "install LLVM (github.com/llvm/llvm-project/releases) and set "
+    "DRJIT_LIBLLVM_PATH to its bin\\LLVM-C.dll",
+}
+
+
+def llvm_fix(platform: str | None = None) -> str:
+    """What to do when Dr.Jit's CPU backend finds no libLLVM, for this operating system."""
+    how = _FIXES.get(sys.platform if platform is None else platform, _FIXES["linux"])
+    return (
+        f"Dr.Jit's CPU backend needs a shared libLLVM {MIN_LLVM_MAJOR} or newer: {how}, "
+        "or set DRJIT_LIBLLVM_PATH to such a library"
+    )
 
 
 def _llvm_major(path: str) -> int | None:
@@ -40,32 +54,45 @@ def _llvm_major(path: str) -> int | None:
 
 
 def find_libllvm() -> str | None:
-    """The newest shared libLLVM >= 16 on this machine, or None."""
+    """The newest shared libLLVM >= 16 on this machine, else one without a version, or None.
+
+    A macOS or Windows name without a version (Homebrew's ``libLLVM.dylib``, ``LLVM-C.dll``)
+    is taken only when no named version >= 16 is found; a Linux ``libLLVM.so`` without one
+    may be an old LLVM, which crashes Dr.Jit, so it is never taken.
+    """
     best: tuple[int, str] | None = None
+    unversioned: str | None = None
     for folder in _LIB_DIRS:
-        for path in glob.glob(os.path.join(folder, "libLLVM*.so*")) + glob.glob(
-            os.path.join(folder, "libLLVM*.dylib")
-        ):
-            major = _llvm_major(path)
-            if major is not None and major >= MIN_LLVM_MAJOR and (best is None or major > best[0]):
-                best = (major, path)
-    return best[1] if best else None
+        for pattern in _LIB_PATTERNS:
+            for path in sorted(glob.glob(os.path.join(folder, pattern))):
+                major = _llvm_major(path)
+                if major is None:
+                    if path.endswith((".dylib", ".dll")):
+                        unversioned = unversioned or path
+                elif major >= MIN_LLVM_MAJOR and (best is None or major > best[0]):
+                    best = (major, path)
+    return best[1] if best else unversioned
 
 
 def ensure_llvm_path() -> None:
-    """Point Dr.Jit at a usable libLLVM before it is first used, or raise BackendError."""
+    """Point Dr.Jit at a usable libLLVM before it is first used, or raise BackendError.
+
+    Off Linux, where LLVM lives in fewer known places, a library not found here is left
+    to Dr.Jit's own search (:func:`array_module` still fails cleanly if that finds none).
+    """
     configured = os.environ.get("DRJIT_LIBLLVM_PATH")
     if configured:
         if not os.path.exists(configured):
-            raise BackendError(f"DRJIT_LIBLLVM_PATH={configured} does not exist. {_FIX}")
+            raise BackendError(f"DRJIT_LIBLLVM_PATH={configured} does not exist. {llvm_fix()}")
         major = _llvm_major(configured)
         if major is not None and major < MIN_LLVM_MAJOR:
-            raise BackendError(f"DRJIT_LIBLLVM_PATH={configured} is LLVM {major}. {_FIX}")
+            raise BackendError(f"DRJIT_LIBLLVM_PATH={configured} is LLVM {major}. {llvm_fix()}")
         return
     found = find_libllvm()
-    if found is None:
-        raise BackendError(f"no usable libLLVM found. {_FIX}")
-    os.environ["DRJIT_LIBLLVM_PATH"] = found
+    if found is not None:
+        os.environ["DRJIT_LIBLLVM_PATH"] = found
+    elif sys.platform.startswith("linux"):
+        raise BackendError(f"no usable libLLVM found. {llvm_fix()}")
 
 
 def array_module(backend: BackendName = "llvm") -> ModuleType:
@@ -84,7 +111,7 @@ def array_module(backend: BackendName = "llvm") -> ModuleType:
             raise BackendError(
                 "the CUDA backend needs an NVIDIA GPU and driver; use --backend llvm"
             )
-        raise BackendError(f"Dr.Jit could not start its LLVM backend. {_FIX}")
+        raise BackendError(f"Dr.Jit could not start its LLVM backend. {llvm_fix()}")
     import importlib
 
     return importlib.import_module(f"drjit.{backend}.ad")

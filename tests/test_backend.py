@@ -64,3 +64,40 @@ def test_cli_reports_backend_error_in_one_line(monkeypatch, tmp_path, capsys):
     assert info.value.code == 2
     err = capsys.readouterr().err
     assert err.strip() == "error: no usable libLLVM found. fix it"
+
+
+@pytest.mark.parametrize(
+    ("names", "chosen"),
+    [
+        (["libLLVM.dylib", "libLLVM-18.dylib"], "libLLVM-18.dylib"),  # a version wins
+        (["libLLVM.dylib"], "libLLVM.dylib"),  # Homebrew's only name
+        (["LLVM-C.dll"], "LLVM-C.dll"),  # Windows' LLVM
+        (["libLLVM.so", "libLLVM-14.so"], None),  # Linux: maybe old, never guessed
+    ],
+)
+def test_a_library_without_a_version_is_the_last_resort(monkeypatch, tmp_path, names, chosen):
+    monkeypatch.setattr(backend, "_LIB_DIRS", (str(tmp_path),))
+    for name in names:
+        (tmp_path / name).write_bytes(b"")
+    found = backend.find_libllvm()
+    assert found == (None if chosen is None else str(tmp_path / chosen))
+
+
+@pytest.mark.parametrize(
+    ("platform", "raises", "fix"),
+    [("linux", True, "apt-get install libllvm19"), ("darwin", False, "brew install llvm")],
+)
+def test_missing_libllvm_off_linux_is_left_to_drjit(monkeypatch, tmp_path, platform, raises, fix):
+    import os
+
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "")
+    monkeypatch.setattr(backend, "_LIB_DIRS", (str(tmp_path),))
+    monkeypatch.setattr(backend.sys, "platform", platform)
+    if raises:
+        with pytest.raises(BackendError, match="no usable libLLVM"):
+            backend.ensure_llvm_path()
+    else:
+        backend.ensure_llvm_path()  # Dr.Jit searches on its own; array_module checks
+        assert os.environ["DRJIT_LIBLLVM_PATH"] == ""
+    assert fix in backend.llvm_fix()
+    assert "LLVM-C.dll" in backend.llvm_fix("win32")

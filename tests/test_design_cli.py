@@ -353,3 +353,26 @@ def test_out_of_range_options_are_usage_errors(tmp_path, capsys, option, value, 
     assert info.value.code == 2
     assert f"Invalid value for '{option}'" in err and "Traceback" not in err
     assert not job.exists()
+
+
+def test_a_path_the_console_cannot_encode_is_escaped_not_a_traceback(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from PIL import Image
+
+    for name in ("a.png", "b.png"):
+        Image.new("L", (16, 16), 200).save(tmp_path / name)
+    out = tmp_path / "Łódź"
+    code = "import sys; from scratchfab.cli import main; main(sys.argv[1:])"
+    args = [str(tmp_path / "a.png"), str(tmp_path / "b.png"), "--out", str(out), "--force"]
+    env = {**os.environ, "PYTHONIOENCODING": "cp1252"}
+    done = subprocess.run(
+        [sys.executable, "-c", code, "design", *args, "--count", "50", "--resolution", "16"],
+        capture_output=True,
+        env=env,
+    )
+    assert done.returncode == 0, done.stderr.decode("cp1252")
+    assert b"\\u0141\xf3d\\u017a" in done.stdout  # cp1252 has the o with acute accent
+    assert b"Traceback" not in done.stderr

@@ -46,6 +46,12 @@ BAD_DESIGNS = [
     (_with("views.0.resolution", [64]), "views[0].resolution: expected a list of 2"),
     ({"board": {}, "views": BASE["views"]}, "missing required table [light]"),
     (_with("views.0.name", "a/b"), "not file-name safe"),
+    (_with("views.0.name", "NUL"), "not a Windows device name"),
+    (_with("views.0.name", "com3.left"), "not a Windows device name"),
+    (
+        _with("views", [{"name": n, "position_mm": [0, 0, 1.0]} for n in ("Left", "left")]),
+        "duplicate view name 'left' (names that differ only in case",
+    ),
     (_with("views.0.resolution", [400000, 400000]), "resolution must be two integers in 1..16384"),
     ({**BASE, "scratch": {"count": 10**11}}, "scratch.count: expected a value in (0, 10000000]"),
 ]
@@ -246,3 +252,18 @@ def test_try_lock_refuses_a_file_another_process_holds_until_it_ends(tmp_path):
         assert try_lock(handle)
         with open(path, "a") as second:
             assert not try_lock(second)  # a second handle, even in this process
+
+
+def test_files_saved_with_a_byte_order_mark_read_as_without(tmp_path, small_design):
+    """Excel's "CSV UTF-8" and older Notepad start a file with a BOM; it is not a character."""
+    from scratchfab.model.schema import load_toml
+
+    rows = "x0,y0,x1,y1\n0,0,3,0\n1,1,1,4\n"
+    (tmp_path / "plain.csv").write_text(rows, encoding="utf-8")
+    (tmp_path / "bom.csv").write_text(rows, encoding="utf-8-sig")
+    plain = load_scratches(tmp_path / "plain.csv", small_design.scratch, small_design.board)
+    bom = load_scratches(tmp_path / "bom.csv", small_design.scratch, small_design.board)
+    assert np.array_equal(plain.p0, bom.p0) and np.array_equal(plain.p1, bom.p1)
+    assert (tmp_path / "bom.csv").read_bytes().startswith(b"\xef\xbb\xbf")
+    (tmp_path / "bom.toml").write_text("[board]\nwidth_mm = 50.0\n", encoding="utf-8-sig")
+    assert load_toml(tmp_path / "bom.toml") == {"board": {"width_mm": 50.0}}

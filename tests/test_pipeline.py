@@ -692,3 +692,19 @@ def test_machine_ref_is_the_bundled_name_or_the_resolved_path(tmp_path):
     assert Path(pipe.machine_ref()).resolve() == (machines / "mine.toml").resolve()
     assert Path(pipe.profile.source).resolve() == (machines / "mine.toml").resolve()
     assert pipe.profile.tool == load_profile("grbl-3018-diamond").tool
+
+
+@pytest.mark.parametrize(
+    ("ref", "is_file"),
+    [
+        ("grbl-3018-diamond", False),
+        ("my-engraver.toml", True),
+        ("profiles/my3018", True),
+        ("profiles\\my3018", True),  # a Windows path, as profile loading reads it
+    ],
+)
+def test_toolpath_machine_is_a_name_or_a_file_beside_the_pipeline(tmp_path, ref, is_file):
+    from scratchfab.pipeline.config import _machine_ref
+
+    pipeline = tmp_path / "p.toml"
+    assert _machine_ref(ref, pipeline) == (str(tmp_path / ref) if is_file else ref)

@@ -404,3 +404,17 @@ def test_verdict_names_a_failed_stage_from_the_manifest(tmp_path):
     _, head, lines = _verdict(write_report(job).read_text())
     assert head == "Not ready: stage verify failed"  # stream's state is its own line
     assert any(s == "fail" and reason in t for s, t in lines)
+
+
+def test_rerun_command_names_the_pipeline_even_across_windows_drives(tmp_path, monkeypatch):
+    job = fake_job(tmp_path)
+    pipeline = tmp_path / "board.toml"
+    page = write_report(job, pipeline_file=pipeline).read_text()
+    assert "scratchfab run ../board.toml --out ." in page
+
+    def other_drive(path, start):
+        raise ValueError("path is on mount 'C:', start on mount 'D:'")
+
+    monkeypatch.setattr("scratchfab.pipeline.report.os.path.relpath", other_drive)
+    page = write_report(job, pipeline_file=pipeline).read_text()
+    assert f"scratchfab run {pipeline.resolve()} --out ." in page

@@ -1821,3 +1821,12 @@ def test_a_second_stream_of_the_same_job_or_port_is_refused(tmp_path, capsys):
         finally:
             first.close()
         open_port(pty.path, 115200).close()  # free again
+
+
+def test_grbl_sim_pty_off_posix_is_one_line(monkeypatch, capsys):
+    monkeypatch.setattr("scratchfab.cli.stream_cmd.os.name", "nt")
+    with pytest.raises(SystemExit) as exc:
+        main(["grbl-sim", "--pty"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "needs a POSIX pseudo-terminal" in err and "grblsim://" in err

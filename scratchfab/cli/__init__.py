@@ -73,6 +73,12 @@ def cli() -> None:
 
 def main(argv: list[str] | None = None) -> Any:
     """Entry point: run the CLI, turning user errors into one line and a non-zero exit."""
+    for stream in (sys.stdout, sys.stderr):
+        # A path the console's code page cannot show (Windows' cp1252, a redirect) is
+        # escaped, not a traceback.
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is not None:
+            reconfigure(errors="backslashreplace")
     try:
         return cli.main(args=argv, prog_name="scratchfab", standalone_mode=False)
     except Interrupted as exc:

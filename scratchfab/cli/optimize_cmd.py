@@ -8,28 +8,16 @@ from pathlib import Path
 
 import click
 
-from scratchfab.cli.options import FiniteFloat, backend_option
+from scratchfab.cli.options import FiniteFloat, RedrawnLine, backend_option
 from scratchfab.errors import Interrupted
 from scratchfab.optimize.progress import clock, progress_printer
 from scratchfab.optimize.stage import OptimizeOptions, Progress, run_optimize
 
 
-class _Line:
-    """One line of a terminal, redrawn in place."""
-
-    def __init__(self) -> None:
-        self.last_len = 0
-
-    def __call__(self, text: str, newline: bool) -> None:
-        pad = " " * max(0, self.last_len - len(text))
-        click.echo(f"\r{text}{pad}", nl=newline, err=True)
-        self.last_len = 0 if newline else len(text)
-
-
 def _bar() -> Callable[[Progress], None]:
     """Progress on stderr: a bar redrawn in place on a terminal, else throttled lines."""
     return progress_printer(
-        lambda text: click.echo(text, err=True), _Line() if sys.stderr.isatty() else None
+        lambda text: click.echo(text, err=True), RedrawnLine() if sys.stderr.isatty() else None
     )
 
 

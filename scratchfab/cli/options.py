@@ -121,3 +121,20 @@ def job_or_files(
     if design_file is None or scratch_file is None or out_dir is None:
         raise ScratchfabError("give JOB, or all of --design FILE --scratches CSV --out DIR")
     return design_file, scratch_file, out_dir
+
+
+class RedrawnLine:
+    """One line of a terminal on stderr, redrawn in place.
+
+    Spaces, not an ANSI erase code, blank what a shorter line leaves: a Windows console
+    prints ANSI codes as text.
+    """
+
+    def __init__(self) -> None:
+        self.last_len = 0
+
+    def __call__(self, text: str, newline: bool) -> None:
+        """Draw ``text`` over the line; ``newline`` ends it."""
+        pad = " " * max(0, self.last_len - len(text))
+        click.echo(f"\r{text}{pad}", nl=newline, err=True)
+        self.last_len = 0 if newline else len(text)

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 from pathlib import Path
 
 import click
 
-from scratchfab.cli.options import FiniteFloat
+from scratchfab.cli.options import FiniteFloat, RedrawnLine
 from scratchfab.console import clock
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.sender import StreamProgress
@@ -21,6 +22,7 @@ class _ProgressLine:
     def __init__(self) -> None:
         self.tty = sys.stderr.isatty()
         self._last_decile = -1
+        self._line = RedrawnLine()
 
     def __call__(self, p: StreamProgress) -> None:
         pos = "" if p.wpos is None else " X{:.2f} Y{:.2f} Z{:.2f}".format(*p.wpos)
@@ -28,7 +30,7 @@ class _ProgressLine:
         if self.tty:
             width = 28
             fill = int(width * p.fraction)
-            click.echo(f"\r[{'#' * fill}{'.' * (width - fill)}] {text}\x1b[K", err=True, nl=False)
+            self._line(f"[{'#' * fill}{'.' * (width - fill)}] {text}", newline=False)
         elif int(p.fraction * 10) != self._last_decile:
             self._last_decile = int(p.fraction * 10)
             click.echo(text, err=True)
@@ -260,13 +262,18 @@ def grbl_sim(
     URL grblsim://?time_scale=0.01&error_at=500&$130=300 (keys as the options here, with
     underscores, and as --set).
     """
-    from scratchfab.machine.grblsim import SimOptions
-    from scratchfab.machine.grblsim_pty import GrblPty
-
     if not use_pty:
         raise ScratchfabError(
             "grbl-sim serves a pseudo-terminal: pass --pty (in-process, use the URL grblsim://)"
         )
+    if os.name != "posix":
+        raise ScratchfabError(
+            "grbl-sim --pty needs a POSIX pseudo-terminal (Linux, macOS); here, stream to "
+            "the in-process emulator instead: --port grblsim://"
+        )
+    from scratchfab.machine.grblsim import SimOptions
+    from scratchfab.machine.grblsim_pty import GrblPty
+
     if record is not None:
         from scratchfab.fileio import write_text
 

@@ -373,6 +373,11 @@ def bundled_profiles() -> list[str]:
     return sorted(p.stem for p in folder.glob("*.toml"))
 
 
+def names_a_file(ref: str) -> bool:
+    """Whether a ``--machine`` value names a profile file (else a bundled profile's name)."""
+    return ref.endswith(".toml") or "/" in ref or "\\" in ref
+
+
 def load_profile(name_or_path: str | Path | MachineProfile) -> MachineProfile:
     """Load a bundled profile by name, or any profile file by path.
 
@@ -385,8 +390,7 @@ def load_profile(name_or_path: str | Path | MachineProfile) -> MachineProfile:
         return name_or_path
     text = str(name_or_path)
     path = Path(text)
-    looks_like_path = path.suffix == ".toml" or "/" in text or "\\" in text
-    if not looks_like_path:
+    if not names_a_file(text):
         bundled = bundled_dir() / f"{text}.toml"
         if bundled.is_file():
             path = bundled

@@ -78,7 +78,7 @@ def _signals_stop(streamer: Streamer) -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    names = ("SIGTERM", "SIGHUP")
+    names = ("SIGTERM", "SIGHUP", "SIGBREAK")  # SIGBREAK: Ctrl-Break on Windows
     nums = [getattr(signal, n) for n in names if hasattr(signal, n)]
 
     def handler(signum: int, frame: object) -> None:

@@ -166,15 +166,17 @@ class Journal:
             os.fsync(handle.fileno())
         except OSError as exc:
             error = exc
-        try:
-            if remove_if_empty and self.created and self.path.stat().st_size == 0:
-                self.path.unlink()
-        except OSError:
-            pass
+        # Unlinked while still locked, so no other stream can take the file in between;
+        # Windows cannot delete an open file, so there it goes after the close.
+        remove = remove_if_empty and self.created and _is_empty(self.path)
+        if remove:
+            remove = not _unlink(self.path)
         try:
             handle.close()
         except OSError as exc:
             error = error or exc
+        if remove:
+            _unlink(self.path)
         if error is not None and self.failed is None:
             self.failed = str(self._error(error))
             raise self._error(error) from None
@@ -461,3 +463,20 @@ def interrupted(events: list[dict[str, Any]], sha256: str) -> bool:
     if not starts or events[starts[-1]].get("sha256") != sha256:
         return False
     return not any(ev.get("ev") == "end" for ev in events[starts[-1] :])
+
+
+def _is_empty(path: Path) -> bool:
+    """Whether ``path`` is an empty file (False when it cannot be read)."""
+    try:
+        return path.stat().st_size == 0
+    except OSError:
+        return False
+
+
+def _unlink(path: Path) -> bool:
+    """Delete ``path``; False when it cannot be deleted (yet)."""
+    try:
+        path.unlink()
+    except OSError:
+        return False
+    return True

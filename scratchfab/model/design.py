@@ -37,6 +37,8 @@ MAX_SCRATCHES = 10_000_000
 MAX_RESOLUTION = 16384
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+#: Names Windows keeps for devices (with any extension, in any case): no file can have them.
+_RESERVED_RE = re.compile(r"^(con|prn|aux|nul|com[1-9]|lpt[1-9])(\..*)?$", re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -119,9 +121,10 @@ class View:
     light_position_mm: Vec3 | None = None
 
     def __post_init__(self) -> None:
-        if not _NAME_RE.match(self.name):
+        if not _NAME_RE.match(self.name) or _RESERVED_RE.match(self.name):
             raise ValueError(
-                f"name {self.name!r} is not file-name safe (letters, digits, '_', '-', '.')"
+                f"name {self.name!r} is not file-name safe (letters, digits, '_', '-', '.'; "
+                "not a Windows device name such as con or com1)"
             )
         polar = (self.azimuth_deg, self.elevation_deg, self.distance_mm)
         if self.position_mm is None and any(v is None for v in polar):
@@ -336,9 +339,13 @@ def design_from_mapping(
     names: set[str] = set()
     resolved = []
     for i, view in enumerate(tables.views):
-        if view.name in names:
-            raise ConfigError(f"{source}: views[{i}].name: duplicate view name '{view.name}'")
-        names.add(view.name)
+        # Names that differ only in case name the same files on Windows and macOS disks.
+        if view.name.casefold() in names:
+            raise ConfigError(
+                f"{source}: views[{i}].name: duplicate view name '{view.name}' "
+                "(names that differ only in case count as the same)"
+            )
+        names.add(view.name.casefold())
         try:
             resolved.append(resolve_view(view, tables.board))
         except ValueError as exc:

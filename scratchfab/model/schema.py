@@ -40,7 +40,7 @@ def load_toml(path: str | Path) -> dict[str, Any]:
     file = Path(path)
     raw = read_input(file, "a TOML file")
     try:
-        return tomllib.loads(raw.decode("utf-8"))
+        return tomllib.loads(raw.decode("utf-8-sig"))  # -sig: a BOM (Notepad, Excel) is dropped
     except UnicodeDecodeError:
         raise ConfigError(f"{file}: not a UTF-8 text file, expected TOML") from None
     except tomllib.TOMLDecodeError as exc:

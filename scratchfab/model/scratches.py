@@ -106,7 +106,7 @@ def load_scratches(
     """
     file = Path(path)
     try:
-        text = file.read_text(encoding="utf-8")
+        text = file.read_text(encoding="utf-8-sig")  # a BOM (Excel's "CSV UTF-8") is dropped
     except FileNotFoundError:
         raise ConfigError(f"{file}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:

@@ -184,7 +184,9 @@ class Pipeline:
 
 def _machine_ref(ref: str, pipeline_file: Path) -> str:
     """``[toolpath] machine``: a bundled name, or a path resolved against ``pipeline_file``."""
-    if ref.endswith(".toml") or "/" in ref:
+    from scratchfab.machine.profile import names_a_file
+
+    if names_a_file(ref):
         candidate = Path(ref)
         return str(candidate if candidate.is_absolute() else (pipeline_file.parent / candidate))
     return ref

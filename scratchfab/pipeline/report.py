@@ -870,14 +870,22 @@ def _setup_step(job: Path) -> str:
 def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: Path | None) -> str:
     """Steps chosen from the job's state: fix, resume, cut, or look at the cut board."""
     if pipeline_file is not None:
-        # Whichever works from the job folder and is shorter to type.
-        pipe = min(os.path.relpath(pipeline_file, job), str(pipeline_file.resolve()), key=len)
+        # Whichever works from the job folder and is shorter to type (no relative path
+        # between two Windows drives).
+        absolute = str(pipeline_file.resolve())
+        try:
+            pipe = min(os.path.relpath(pipeline_file, job), absolute, key=len)
+        except ValueError:
+            pipe = absolute
         rerun = _code(f"scratchfab run {pipe} --out .")
         again = _code(f"scratchfab run {pipe} --out . --from stream")
     else:
         rerun = _code("scratchfab run PIPELINE.toml --out .")
         again = _code("scratchfab run PIPELINE.toml --out . --from stream")
-    where = " (commands from the job folder; PORT is your machine's serial port, e.g. /dev/ttyUSB0)"
+    where = (
+        " (commands from the job folder; PORT is your machine's serial port, e.g. /dev/ttyUSB0"
+        " on Linux, /dev/cu.usbserial-1410 on macOS, COM3 on Windows)"
+    )
     steps: list[str] = []
     state_kind = "not-streamed"
     if state.kind == "real" and not state.finished:
