@@ -28,3 +28,12 @@ def clock(seconds: float) -> str:
         if s >= 3600
         else f"{s // 60:02d}:{s % 60:02d}"
     )
+
+
+def duration_text(seconds: float) -> str:
+    """A duration as a person says it: ``1 h 23 min``, ``23 min``, ``45 s``."""
+    if seconds < 59.5:
+        return f"{max(0, round(seconds))} s"
+    minutes = round(seconds / 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours} h {minutes} min" if hours else f"{minutes} min"

@@ -301,3 +301,8 @@ def lightness(rgb01: np.ndarray) -> np.ndarray:
     """CIE L* (0-100) of sRGB colours in [0, 1] (..., 3)."""
     y = srgb_to_linear(rgb01) @ LUMA_709
     return np.where(y > (6 / 29) ** 3, 116 * np.cbrt(y) - 16, y * (29 / 3) ** 3)
+
+
+def enlarge(pixels: np.ndarray, factor: int) -> np.ndarray:
+    """Each pixel of an (H, W[, C]) array as a ``factor`` x ``factor`` block (nearest neighbour)."""
+    return np.repeat(np.repeat(pixels, factor, axis=0), factor, axis=1)

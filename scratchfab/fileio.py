@@ -189,6 +189,9 @@ def try_lock(handle: IO[Any]) -> bool:
     An advisory ``flock``: it goes with the process, so a killed one leaves none behind.
     POSIX only; elsewhere (Windows) nothing is locked and True is returned, so the
     commands still run there, without the guard against a second run or stream.
+
+    Raises:
+        ScratchfabError: The file system cannot lock (some network or FUSE mounts).
     """
     if os.name != "posix":
         return True
@@ -196,6 +199,10 @@ def try_lock(handle: IO[Any]) -> bool:
 
     try:
         fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    except (BlockingIOError, PermissionError):
         return False
+    except OSError as exc:
+        raise ScratchfabError(
+            f"{handle.name}: cannot lock ({exc.strerror or exc}); use a job folder on a local disk"
+        ) from None
     return True

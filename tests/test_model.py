@@ -267,3 +267,19 @@ def test_files_saved_with_a_byte_order_mark_read_as_without(tmp_path, small_desi
     assert (tmp_path / "bom.csv").read_bytes().startswith(b"\xef\xbb\xbf")
     (tmp_path / "bom.toml").write_text("[board]\nwidth_mm = 50.0\n", encoding="utf-8-sig")
     assert load_toml(tmp_path / "bom.toml") == {"board": {"width_mm": 50.0}}
+
+
+def test_try_lock_on_a_file_system_that_cannot_lock_says_so(tmp_path, monkeypatch):
+    import errno
+    import fcntl
+
+    from scratchfab.errors import ScratchfabError
+    from scratchfab.fileio import try_lock
+
+    def no_locks(fd, operation):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    with open(tmp_path / "lock", "a") as handle:
+        with pytest.raises(ScratchfabError, match="cannot lock .No locks available.; use a job"):
+            try_lock(handle)

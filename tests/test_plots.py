@@ -69,6 +69,9 @@ def srgb8(v: np.ndarray) -> np.ndarray:
         (0.03, 0.13, [0.05, 0.1]),  # under a decade: 1, 2, 5
         (0.012, 0.9, [0.02, 0.05, 0.1, 0.2, 0.5]),  # two decade ticks are too few
         (0.031, 0.069, [0.04, 0.05, 0.06]),  # not even 1-2-5 twice: every multiple
+        (0.031, 0.038, [0.032, 0.034, 0.036, 0.038]),  # no multiple twice: linear steps
+        (0.0342, 0.0358, [0.0345, 0.035, 0.0355]),
+        (0.035, 0.035, [0.035]),  # one value: labelled all the same
     ],
 )
 def test_log_ticks_are_decades_then_1_2_5_then_every_multiple(lo, hi, expected):

@@ -109,8 +109,13 @@ def fake_job(root: Path, rho: tuple[float, float] = (0.91234, 0.8765)) -> Path:
 GCODE = "G21\nG90\nG0 Z5\nG0 X1 Y1\nG1 Z-0.1 F200\nG1 X5 Y5 F600\nG0 Z5\nM2\n"
 
 
-def _journal(job: Path, acked: int, finished: bool, gcode: bytes | None = None) -> int:
-    """Journal a stream of the job's G-code (or of ``gcode``); returns its line count."""
+def _journal(
+    job: Path, acked: int, finished: bool, gcode: bytes | None = None, port: str | None = None
+) -> int:
+    """Journal a stream of the job's G-code (or of ``gcode``); returns its line count.
+
+    ``port``: recorded in the start event as the sender does (None: an older journal).
+    """
     body = gcode if gcode is not None else (job / "export" / "board.gcode").read_bytes()
     lines = [n for n, ln in enumerate(body.decode().splitlines(), 1) if ln.strip()]
     events: list[dict[str, object]] = [
@@ -127,6 +132,8 @@ def _journal(job: Path, acked: int, finished: bool, gcode: bytes | None = None) 
             "time": "2026-01-01T00:00:00",
         }
     ]
+    if port is not None:
+        events[0]["port"] = port
     events += [{"ev": "ack", "i": i, "line": n} for i, n in enumerate(lines[:acked])]
     if finished:
         events.append({"ev": "end", "complete": True, "time": "2026-01-01T00:01:00"})
@@ -272,6 +279,17 @@ def test_stream_wording_follows_the_pipeline_port_and_the_journal(tmp_path):
     assert kind == "not-streamed" and "earlier G-code" in stream
 
 
+def test_the_port_the_journal_names_beats_the_pipelines(tmp_path):
+    """Streamed by hand to the emulator, then the pipeline named a real port: not cut."""
+    job = fake_job(tmp_path)
+    _journal(job, acked=3, finished=True, port="grblsim://?time_scale=0.01")
+    page = write_report(job, port="/dev/ttyUSB0").read_text()
+    assert "data-stream='emulator'" in page and "nothing was cut" in page
+    _journal(job, acked=3, finished=True, port="/dev/ttyACM0")
+    page = write_report(job, port=None).read_text()
+    assert "Streamed to the machine on <code>/dev/ttyACM0</code>" in page
+
+
 def test_stand_here_sentence_from_the_design_positions(tmp_path):
     job = fake_job(tmp_path)
     page = write_report(job).read_text()
@@ -289,6 +307,26 @@ def test_stand_here_sentence_from_the_design_positions(tmp_path):
             f"light straight in front of the board, {LIGHT[1]:.0f}° above its centre, "
             f"{LIGHT[2] / 10:.0f} cm away."
         )
+
+
+def test_a_view_with_its_own_light_is_told_that_light(tmp_path):
+    job = fake_job(tmp_path)
+    design = job / "design" / "design.toml"
+    name = next(iter(PLACES))
+    own = (35.0, 10.0, 800.0)  # azimuth, elevation, distance
+    design.write_text(
+        design.read_text().replace(
+            f'name = "{name}"\n',
+            f'name = "{name}"\nlight_position_mm = {_vec(_cartesian(*own))}\n',
+        )
+    )
+    page = write_report(job).read_text()
+    stands = dict(re.findall(r"<li data-stand='(\w+)'[^>]*>(.*?)</li>", page))
+    assert "light 35° to the right of the board, 10° above its centre, 80 cm away" in _text(
+        stands[name]
+    )
+    other = next(n for n in PLACES if n != name)
+    assert f"light straight in front of the board, {LIGHT[1]:.0f}° above" in _text(stands[other])
 
 
 def test_views_follow_the_design_order_everywhere(tmp_path):

@@ -500,8 +500,11 @@ def test_1000_lines_arrive_once_in_order(tmp_path, protocol, link):
         assert 40 < streamer.max_inflight_bytes <= 120
     else:
         assert streamer.max_inflight_lines == 1
-    acks = [e["i"] for e in read_journal(tmp_path / "j.jsonl") if e["ev"] == "ack"]
+    events = read_journal(tmp_path / "j.jsonl")
+    acks = [e["i"] for e in events if e["ev"] == "ack"]
     assert acks == list(range(len(prog.blocks)))
+    # the session names where it went: the emulator's URL, or the pty's device
+    assert events[0]["port"] == ("grblsim://?time_scale=0.0005" if link == "grblsim" else pty.path)
 
 
 def test_error_stops_feed_holds_and_names_line_cli(tmp_path, capsys):
@@ -1167,9 +1170,9 @@ def test_grbl_sim_refuses_bad_option_values(capsys, option, value):
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        ("$999=1", "grbl-sim --set: $999: not a Grbl 1.1 setting"),
-        ("bot=1", "grbl-sim --set: unknown key 'bot' (did you mean 'boot'?)"),
-        ("$130=-5", "grbl-sim --set: $130: expected a number at least 0"),
+        ("$999=1", "grbl-sim: $999: not a Grbl 1.1 setting"),
+        ("bot=1", "grbl-sim: unknown key 'bot' (did you mean 'boot'?)"),
+        ("$130=-5", "grbl-sim: $130: expected a number at least 0"),
         ("homed", "expected KEY=VALUE, got 'homed'"),
     ],
 )

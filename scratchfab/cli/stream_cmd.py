@@ -274,10 +274,6 @@ def grbl_sim(
     from scratchfab.machine.grblsim import SimOptions
     from scratchfab.machine.grblsim_pty import GrblPty
 
-    if record is not None:
-        from scratchfab.fileio import write_text
-
-        write_text(record, "")  # fails now, in one line, rather than on exit
     query = {
         "baud": str(baud),
         "time_scale": repr(time_scale),
@@ -294,7 +290,11 @@ def grbl_sim(
         if not sep or not key:
             raise click.BadParameter(f"expected KEY=VALUE, got {pair!r}", param_hint="'--set'")
         query[key] = value
-    options = SimOptions.from_query(query, "grbl-sim --set")
+    options = SimOptions.from_query(query, "grbl-sim")
+    if options.record:
+        from scratchfab.fileio import write_text
+
+        write_text(options.record, "")  # fails now, in one line, rather than on exit
     sim = GrblPty(options).start()
     click.echo(sim.path)
     click.echo(f"GRBL 1.1h emulator on {sim.path} (Ctrl-C to quit)", err=True)

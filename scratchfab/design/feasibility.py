@@ -360,7 +360,7 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
     cell = max(1, -(-MAP_MIN_PX // cols))
     mw, mh = cols * cell, rows * cell
     cells = tilt_colours(tilt, reach, limit)
-    big = np.repeat(np.repeat(cells, cell, axis=0), cell, axis=1)
+    big = figures.enlarge(cells, cell)
     img = Image.fromarray(big)
     draw = ImageDraw.Draw(img)
     bad = tilt > limit
@@ -368,7 +368,7 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
         mask = Image.new("RGB", img.size, (255, 255, 255))
         figures.hatch(ImageDraw.Draw(mask), (0, 0, mw - 1, mh - 1), HATCH, step=6)
         lines = np.all(np.asarray(mask) == HATCH, axis=-1)
-        lines &= np.repeat(np.repeat(bad, cell, axis=0), cell, axis=1)
+        lines &= figures.enlarge(bad, cell)
         arr = np.asarray(img).copy()
         arr[lines] = HATCH
         img = Image.fromarray(arr)

@@ -594,8 +594,15 @@ class Streamer:
             StreamStopped: The user chose to stop after Ctrl-C.
         """
         items = self._items(program, start, preamble)
+        name = getattr(self.port, "port", None)  # a pyserial port's device or URL
         journal.start(
-            program, resume, start, self.options.protocol, preamble, self.info.planner_blocks
+            program,
+            resume,
+            start,
+            self.options.protocol,
+            preamble,
+            self.info.planner_blocks,
+            name if isinstance(name, str) else None,
         )
         self._journal = journal
         self._program = program

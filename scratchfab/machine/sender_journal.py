@@ -80,7 +80,13 @@ class Journal:
             self._handle = open(self.path, "a", encoding="utf-8", newline="\n")  # noqa: SIM115
         except OSError as exc:
             raise self._error(exc) from None
-        if not try_lock(self._handle):
+        try:
+            locked = try_lock(self._handle)
+        except ScratchfabError:
+            self._handle.close()
+            self._handle = None
+            raise
+        if not locked:
             self._handle.close()
             self._handle = None
             raise ScratchfabError(
@@ -133,8 +139,13 @@ class Journal:
         protocol: str = "",
         preamble: Sequence[str] = (),
         planner_blocks: int = PLANNER_BLOCKS,
+        port: str | None = None,
     ) -> None:
-        """Begin a run of ``program`` at block ``start`` (a fresh one, or a resume)."""
+        """Begin a run of ``program`` at block ``start`` (a fresh one, or a resume).
+
+        ``port`` (the device or URL streamed to) lets a reader tell the emulator from a
+        machine.
+        """
         self.write(
             "start",
             file=str(program.path),
@@ -145,6 +156,7 @@ class Journal:
             protocol=protocol,
             preamble=list(preamble),
             planner=planner_blocks,
+            port=port,
         )
 
     def close(self, remove_if_empty: bool = False) -> None:

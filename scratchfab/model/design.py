@@ -256,18 +256,43 @@ class Design:
         write_text(path, self.to_toml())
 
 
+def position_from_polar(
+    azimuth_deg: float, elevation_deg: float, distance_mm: float, centre: Vec3 = (0.0, 0.0, 0.0)
+) -> Vec3:
+    """The point at azimuth, elevation and distance about ``centre``.
+
+    Azimuth turns from +z toward +x (positive: to the right, seen from the front),
+    elevation from the board's horizontal toward +y, as a view's keys say.
+    """
+    az = math.radians(azimuth_deg)
+    el = math.radians(elevation_deg)
+    cx, cy, cz = centre
+    return (
+        cx + distance_mm * math.cos(el) * math.sin(az),
+        cy + distance_mm * math.sin(el),
+        cz + distance_mm * math.cos(el) * math.cos(az),
+    )
+
+
+def polar_from_position(
+    position: Vec3, centre: Vec3 = (0.0, 0.0, 0.0)
+) -> tuple[float, float, float]:
+    """(azimuth_deg, elevation_deg, distance_mm) of ``position`` about ``centre``.
+
+    The inverse of :func:`position_from_polar`.
+    """
+    x, y, z = (p - c for p, c in zip(position, centre, strict=True))
+    azimuth = math.degrees(math.atan2(x, z))
+    elevation = math.degrees(math.atan2(y, math.hypot(x, z)))
+    return azimuth, elevation, math.sqrt(x * x + y * y + z * z)
+
+
 def polar_position(view: View) -> Vec3:
     """Camera position from azimuth, elevation and distance about ``look_at_mm``."""
     assert view.azimuth_deg is not None and view.elevation_deg is not None
     assert view.distance_mm is not None
-    az = math.radians(view.azimuth_deg)
-    el = math.radians(view.elevation_deg)
-    d = view.distance_mm
-    lx, ly, lz = view.look_at_mm
-    return (
-        lx + d * math.cos(el) * math.sin(az),
-        ly + d * math.sin(el),
-        lz + d * math.cos(el) * math.cos(az),
+    return position_from_polar(
+        view.azimuth_deg, view.elevation_deg, view.distance_mm, view.look_at_mm
     )
 
 

@@ -16,6 +16,7 @@ from scratchfab.figures import (
     TEXT_PX,
     LegendItem,
     draw_legend,
+    enlarge,
     font,
     gray_rgb,
     legend_size,
@@ -51,7 +52,8 @@ def log_ticks(lo: float, hi: float) -> list[float]:
     """Round values between ``10**lo`` and ``10**hi`` for a log axis, ascending.
 
     Decades where the range holds at least three; else 1, 2 and 5 times a decade; else
-    every integer multiple. Over many decades every second (third, ...) decade.
+    every integer multiple; else (a range narrower than that) round linear steps inside
+    it, and at least its two ends. Over many decades every second (third, ...) decade.
     """
     first, last = math.floor(lo) - 1, math.ceil(hi) + 1
     for mults in ((1,), (1, 2, 5), tuple(range(1, 10))):
@@ -63,6 +65,10 @@ def log_ticks(lo: float, hi: float) -> list[float]:
         ]
         if len(ticks) >= (3 if mults == (1,) else 2):
             break
+    else:
+        ticks = [t for t in linear_ticks(10.0**lo, 10.0**hi, 4) if t > 0]
+        if len(ticks) < 2:
+            ticks = sorted({10.0**lo, 10.0**hi})
     step = max(1, math.ceil(len(ticks) / 8))
     return ticks[::step]
 
@@ -237,10 +243,6 @@ def save_loss_plot(
     save_png(path, img)
 
 
-def _enlarge(rgb: np.ndarray, factor: int) -> np.ndarray:
-    return np.repeat(np.repeat(rgb, factor, axis=0), factor, axis=1)
-
-
 def save_side_by_side(
     path: Path, targets: Mapping[str, np.ndarray], renders: Mapping[str, np.ndarray]
 ) -> None:
@@ -271,8 +273,8 @@ def save_side_by_side(
     y = gap // 2
     for text, t, r, s in rows:
         draw.text((gap, y + 3), text, fill=AXIS_RGB, font=font())
-        img.paste(Image.fromarray(_enlarge(gray_rgb(t), factor)), (gap, y + label))
-        img.paste(Image.fromarray(_enlarge(gray_rgb(r, s), factor)), (2 * gap + cell_w, y + label))
+        img.paste(Image.fromarray(enlarge(gray_rgb(t), factor)), (gap, y + label))
+        img.paste(Image.fromarray(enlarge(gray_rgb(r, s), factor)), (2 * gap + cell_w, y + label))
         y += cell_h + label + gap
     swatch = TEXT_PX - 3
     draw.rectangle((gap, y + 2, gap + swatch, y + 2 + swatch), fill=OFF_BOARD_RGB, outline=AXIS_RGB)

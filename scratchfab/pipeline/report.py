@@ -21,7 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from scratchfab.console import duration_text
 from scratchfab.fileio import write_text
+from scratchfab.model.design import Vec3, polar_from_position
 from scratchfab.model.job import JobLayout
 
 _MIME = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
@@ -109,15 +111,6 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return html.escape(str(value))
 
 
-def duration_text(seconds: float) -> str:
-    """A duration as a person says it: ``1 h 23 min``, ``23 min``, ``45 s``."""
-    if seconds < 59.5:
-        return f"{max(0, round(seconds))} s"
-    minutes = round(seconds / 60)
-    hours, minutes = divmod(minutes, 60)
-    return f"{hours} h {minutes} min" if hours else f"{minutes} min"
-
-
 def _read_json(path: Path) -> Any:
     try:
         return json.loads(path.read_text(encoding="utf-8"))
@@ -139,10 +132,15 @@ def _code(text: str) -> str:
 
 @dataclass(frozen=True)
 class _Design:
-    """What the report needs of ``design/design.toml``: view order and positions (mm)."""
+    """What the report needs of ``design/design.toml``: view order and positions (mm).
 
-    views: list[tuple[str, tuple[float, float, float] | None]]
-    light: tuple[float, float, float] | None
+    Attributes:
+        views: (name, camera position, the view's own light position or None).
+        light: The design's light position.
+    """
+
+    views: list[tuple[str, Vec3 | None, Vec3 | None]]
+    light: Vec3 | None
 
 
 def _read_design(job: Path) -> _Design:
@@ -152,7 +150,7 @@ def _read_design(job: Path) -> _Design:
     except (OSError, ValueError):
         return _Design([], None)
 
-    def vec(value: Any) -> tuple[float, float, float] | None:
+    def vec(value: Any) -> Vec3 | None:
         if isinstance(value, list) and len(value) == 3:
             try:
                 return (float(value[0]), float(value[1]), float(value[2]))
@@ -161,7 +159,7 @@ def _read_design(job: Path) -> _Design:
         return None
 
     views = [
-        (str(v["name"]), vec(v.get("position_mm")))
+        (str(v["name"]), vec(v.get("position_mm")), vec(v.get("light_position_mm")))
         for v in data.get("views", [])
         if isinstance(v, dict) and "name" in v
     ]
@@ -169,23 +167,9 @@ def _read_design(job: Path) -> _Design:
     return _Design(views, vec(light.get("position_mm")) if isinstance(light, dict) else None)
 
 
-def direction(position: tuple[float, float, float]) -> tuple[float, float, float]:
-    """Azimuth and elevation (degrees) and distance (mm) of ``position`` from the board's centre.
-
-    Azimuth turns from the board's normal (+z) toward +x (positive: to the right, seen
-    from the front); elevation from the board's horizontal toward +y (its top edge), as
-    the design's ``azimuth_deg`` / ``elevation_deg`` (SPEC section 2).
-    """
-    x, y, z = position
-    distance = math.sqrt(x * x + y * y + z * z)
-    azimuth = math.degrees(math.atan2(x, z))
-    elevation = math.degrees(math.atan2(y, math.hypot(x, z)))
-    return azimuth, elevation, distance
-
-
 def _place(position: tuple[float, float, float], subject: str) -> str:
     """``22° to the left of the board's front, level with its centre, 50 cm away``."""
-    azimuth, elevation, distance = direction(position)
+    azimuth, elevation, distance = polar_from_position(position)
     parts = []
     if round(abs(azimuth)) == 0:
         parts.append(f"straight in front of {subject}")
@@ -203,12 +187,13 @@ def _place(position: tuple[float, float, float], subject: str) -> str:
 def _stand_section(design: _Design) -> str:
     if not design.views:
         return "<p class='muted'>design has not run.</p>"
-    light = f"; light {_place(design.light, 'the board')}" if design.light is not None else ""
     items = []
-    for name, position in design.views:
+    for name, position, own_light in design.views:
         if position is None:
             continue
-        az, el, dist = direction(position)
+        lamp = own_light if own_light is not None else design.light
+        light = f"; light {_place(lamp, 'the board')}" if lamp is not None else ""
+        az, el, dist = polar_from_position(position)
         items.append(
             f"<li data-stand='{html.escape(name)}' data-azimuth='{az:.3f}' "
             f"data-elevation='{el:.3f}' data-distance='{dist:.3f}'><b>{html.escape(name)}</b>: "
@@ -225,7 +210,7 @@ def _stand_section(design: _Design) -> str:
 def _view_order(design: _Design, metrics: dict[str, Any] | None, job: Path) -> list[str]:
     """The views in the design's order (else metrics.json's, else the targets' names)."""
     if design.views:
-        return [name for name, _ in design.views]
+        return [name for name, _, _ in design.views]
     if metrics and isinstance(metrics.get("names"), list):
         return [str(n) for n in metrics["names"]]
     if metrics and isinstance(metrics.get("views"), dict):
@@ -272,8 +257,8 @@ def _feasibility_checks(job: Path) -> list[_Check]:
             "fail",
             f"feasibility: {html.escape(e)}",
             "feasibility error",
-            "Move the views or the light (the feasibility errors above say which); "
-            "the tool's walls cannot tilt enough for them.",
+            "Change the design as the feasibility error above advises (where the views or "
+            "the light stand, or the tool), then run again.",
         )
         for e in errors
     ]
@@ -623,8 +608,8 @@ def _walk_section(job: Path, metrics: dict[str, Any] | None) -> str:
     if isinstance(sweep, dict):
         cameras = sweep.get("cameras") or []
         try:
-            first = direction(tuple(cameras[0]["position_mm"]))[0]
-            last = direction(tuple(cameras[-1]["position_mm"]))[0]
+            first = polar_from_position(tuple(cameras[0]["position_mm"]))[0]
+            last = polar_from_position(tuple(cameras[-1]["position_mm"]))[0]
             detail = f", from {_side(first)} to {_side(last)} of the board's front"
         except (IndexError, KeyError, TypeError, ValueError):
             detail = ""
@@ -813,6 +798,9 @@ def _stream_state(job: Path, port: str | None) -> tuple[_Stream, str]:
         return _Stream("none", note=note), f"<p>Not streamed{note}.</p>"
     total = int(starts[-1].get("blocks") or 0)
     finished = not interrupted(events, sha256)
+    streamed_to = starts[-1].get("port")
+    if isinstance(streamed_to, str):  # journals before this field: the pipeline's port
+        port = streamed_to
     kind: Literal["emulator", "real", "unknown"] = (
         "unknown" if port is None else "emulator" if is_emulator(port) else "real"
     )

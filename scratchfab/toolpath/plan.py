@@ -21,6 +21,7 @@ import shapely
 from PIL import Image, ImageDraw
 
 from scratchfab import figures
+from scratchfab.console import duration_text
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import save_png, write_text
 from scratchfab.machine.profile import MachineProfile, profile_from_mapping
@@ -417,11 +418,11 @@ def preview_figure(toolpath: Toolpath, max_px: int = 1200) -> PreviewFigure:
     legend_box = figures.draw_legend(canvas, items, (w + m, m), size)
     figures.draw_scale_bar(canvas, scale, (w + m + 2, legend_box[3] + 30), max_px=lw - 70)
     stats = toolpath.stats
-    minutes = float(stats.get("estimated_time_s", 0.0)) / 60.0
     title = [
         f"{toolpath.profile.name}: {len(toolpath)} strokes, "
         f"cut {float(stats.get('cut_length_mm', 0.0)):.0f} mm, "
-        f"travel {float(stats.get('travel_length_mm', 0.0)):.0f} mm, about {minutes:.0f} min",
+        f"travel {float(stats.get('travel_length_mm', 0.0)):.0f} mm, "
+        f"about {duration_text(float(stats.get('estimated_time_s', 0.0)))}",
         f"board {toolpath.board_mm[0]:g} x {toolpath.board_mm[1]:g} mm in machine coordinates, "
         "+y up",
     ]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from scratchfab.console import Say
+from scratchfab.console import Say, duration_text
 from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
 from scratchfab.model.job import JobLayout, job_inputs, stale_layout_warning
@@ -22,7 +22,7 @@ def summary(toolpath: Toolpath) -> str:
         f"{s['short_count']} too short, {s['merged_count']} duplicates); "
         f"cut {s['cut_length_mm']:.1f} mm, travel {s['travel_length_mm']:.1f} mm "
         f"(input order {s['travel_input_order_mm']:.1f} mm); "
-        f"about {s['estimated_time_s'] / 60:.1f} min"
+        f"about {duration_text(s['estimated_time_s'])}"
     )
 
 

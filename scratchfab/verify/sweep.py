@@ -16,8 +16,8 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from scratchfab.design.images import linear_to_srgb
-from scratchfab.figures import TEXT_PX, font, text_size
-from scratchfab.model.design import Design, View
+from scratchfab.figures import TEXT_PX, enlarge, font, text_size
+from scratchfab.model.design import Design, View, polar_from_position, position_from_polar
 
 #: Beyond the outermost views the path goes on by this fraction of the views' span.
 EXTEND = 0.5
@@ -51,17 +51,13 @@ class SweepFrame:
 
 
 def _polar(p: np.ndarray) -> np.ndarray:
-    x, y, z = p
-    dist = float(np.linalg.norm(p))
-    return np.array([math.atan2(x, z), math.asin(y / dist), dist])
+    """(azimuth, elevation in radians, distance) of a camera about the board's centre."""
+    az, el, dist = polar_from_position((float(p[0]), float(p[1]), float(p[2])))
+    return np.array([math.radians(az), math.radians(el), dist])
 
 
 def _cartesian(az: float, el: float, dist: float) -> tuple[float, float, float]:
-    return (
-        dist * math.cos(el) * math.sin(az),
-        dist * math.sin(el),
-        dist * math.cos(el) * math.cos(az),
-    )
+    return position_from_polar(math.degrees(az), math.degrees(el), dist)
 
 
 def sweep_path(design: Design, frames: int) -> tuple[list[SweepFrame], dict[str, float]]:
@@ -175,7 +171,7 @@ def gif_bytes(
     frames = []
     for im, text in zip(stack, texts, strict=True):
         enc = np.round(linear_to_srgb(np.clip(im / white, 0.0, 1.0)) * 255).astype(np.uint8)
-        big = np.repeat(np.repeat(enc, factor, axis=0), factor, axis=1)
+        big = enlarge(enc, factor)
         frame = Image.new("L", (width * factor, height * factor + strip), LABEL_BACKGROUND)
         frame.paste(Image.fromarray(big, mode="L"), (0, 0))
         if text:
