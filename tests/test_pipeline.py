@@ -452,6 +452,21 @@ def test_recut_unsure_does_not_stream_a_finished_board_again(finished_job):
         path.write_text(text)
 
 
+def test_naming_the_profiles_own_baud_does_not_stream_a_finished_board_again(finished_job):
+    """The stream's fingerprint holds the baud used, whether [stream] or the profile gave it."""
+    path, job, _ = finished_job
+    run_pipeline(load_pipeline(path), job, say=lambda s: None)  # up to date after other tests
+    text = path.read_text()
+    baud = load_pipeline(path).profile.serial.baud
+    path.write_text(text.replace("[stream]\n", f"[stream]\nbaud = {baud}\n"))
+    try:
+        pipe = load_pipeline(path)
+        assert pipe.stream.baud == baud
+        assert run_pipeline(pipe, job, say=lambda s: None).ran == []
+    finally:
+        path.write_text(text)
+
+
 def test_toolpath_table_reaches_the_ordering_and_reruns_from_toolpath(finished_job, monkeypatch):
     import scratchfab.toolpath.stage as stage
     from scratchfab.toolpath import OrderOptions

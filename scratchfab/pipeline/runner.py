@@ -85,8 +85,10 @@ class _Stages:
         if stage == "export":
             return fingerprint([layout.toolpath_json], [], asdict(pipe.export), job)
         if stage == "stream":
-            # recut_unsure only steers a resume: turning it on must not cut a finished board again
+            # recut_unsure only steers a resume: turning it on must not cut a finished board
+            # again; the baud is the one used (leaving out the profile's own changes nothing)
             options = {k: v for k, v in asdict(pipe.stream).items() if k != "recut_unsure"}
+            options["baud"] = pipe.stream.baud or pipe.profile.serial.baud
             return fingerprint([self.gcode()], [], options, job)
         raise KeyError(stage)
 
