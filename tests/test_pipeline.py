@@ -1,9 +1,11 @@
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -45,6 +47,17 @@ def finished_job(tmp_path_factory, toml_reads, said):
         mp.setattr(schema, "read_input", spy)  # every TOML file is read by load_toml
         result = run_pipeline(load_pipeline(path), job, say=said.append)
     return path, job, result
+
+
+@contextlib.contextmanager
+def _edited(path: Path, old: str, new: str) -> Iterator[None]:
+    """The shared pipeline file with ``old`` replaced by ``new`` for a while, then restored."""
+    text = path.read_text()
+    path.write_text(text.replace(old, new))
+    try:
+        yield
+    finally:
+        path.write_text(text)
 
 
 def test_run_produces_every_stage_output(finished_job):
@@ -198,15 +211,11 @@ def test_changed_option_reruns_only_downstream(finished_job):
     path, job, _ = finished_job
     run_pipeline(load_pipeline(path), job, say=lambda s: None)  # up to date after other tests
     journal = (job / "stream" / "journal.jsonl").read_bytes()
-    text = path.read_text()
-    path.write_text(text.replace('formats = ["gcode", "svg"]', 'formats = ["gcode", "svg", "dxf"]'))
-    try:
+    with _edited(path, 'formats = ["gcode", "svg"]', 'formats = ["gcode", "svg", "dxf"]'):
         result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
         assert result.ran == ["export"] and result.skipped[-1] == "stream"
         assert (job / "export" / "board.dxf").is_file()
         assert (job / "stream" / "journal.jsonl").read_bytes() == journal
-    finally:
-        path.write_text(text)
     # The format left out again: its file goes, from the folder, the manifest and the report.
     result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
     assert result.ran == ["export"]
@@ -222,12 +231,8 @@ def test_upstream_option_change_does_not_stream_the_same_gcode_again(finished_jo
     run_pipeline(load_pipeline(path), job, say=lambda s: None)
     gcode = (job / "export" / "board.gcode").read_bytes()
     journal = (job / "stream" / "journal.jsonl").read_bytes()
-    text = path.read_text()
-    path.write_text(text.replace("[verify]\n", "[verify]\nseed = 3\n"))
-    try:
+    with _edited(path, "[verify]\n", "[verify]\nseed = 3\n"):
         result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
-    finally:
-        path.write_text(text)
     assert result.ran == ["verify", "toolpath", "export"] and result.skipped[-1] == "stream"
     assert (job / "export" / "board.gcode").read_bytes() == gcode
     assert (job / "stream" / "journal.jsonl").read_bytes() == journal
@@ -269,12 +274,8 @@ def test_changed_gcode_is_streamed_again(finished_job):
     run_pipeline(load_pipeline(path), job, say=lambda s: None)
     gcode = (job / "export" / "board.gcode").read_bytes()
     before = len(_fresh_starts(job))
-    text = path.read_text()
-    path.write_text(text.replace("[toolpath]\n", "[toolpath]\nseed = 11\npasses = 0\n"))
-    try:
+    with _edited(path, "[toolpath]\n", "[toolpath]\nseed = 11\npasses = 0\n"):
         result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
-    finally:
-        path.write_text(text)
     assert (job / "export" / "board.gcode").read_bytes() != gcode
     assert result.ran == ["toolpath", "export", "stream"]
     assert len(_fresh_starts(job)) == before + 1
@@ -442,29 +443,21 @@ def test_pipeline_out_is_relative_to_the_pipeline_file(tmp_path, monkeypatch):
 def test_recut_unsure_does_not_stream_a_finished_board_again(finished_job):
     path, job, _ = finished_job
     run_pipeline(load_pipeline(path), job, say=lambda s: None)  # up to date after other tests
-    text = path.read_text()
-    path.write_text(text.replace("[stream]\n", "[stream]\nrecut_unsure = true\n"))
-    try:
+    with _edited(path, "[stream]\n", "[stream]\nrecut_unsure = true\n"):
         pipe = load_pipeline(path)
         assert pipe.stream.recut_unsure
         assert run_pipeline(pipe, job, say=lambda s: None).ran == []
-    finally:
-        path.write_text(text)
 
 
 def test_naming_the_profiles_own_baud_does_not_stream_a_finished_board_again(finished_job):
     """The stream's fingerprint holds the baud used, whether [stream] or the profile gave it."""
     path, job, _ = finished_job
     run_pipeline(load_pipeline(path), job, say=lambda s: None)  # up to date after other tests
-    text = path.read_text()
     baud = load_pipeline(path).profile.serial.baud
-    path.write_text(text.replace("[stream]\n", f"[stream]\nbaud = {baud}\n"))
-    try:
+    with _edited(path, "[stream]\n", f"[stream]\nbaud = {baud}\n"):
         pipe = load_pipeline(path)
         assert pipe.stream.baud == baud
         assert run_pipeline(pipe, job, say=lambda s: None).ran == []
-    finally:
-        path.write_text(text)
 
 
 def test_toolpath_table_reaches_the_ordering_and_reruns_from_toolpath(finished_job, monkeypatch):
@@ -480,14 +473,10 @@ def test_toolpath_table_reaches_the_ordering_and_reruns_from_toolpath(finished_j
         return real(*args, **kwargs)
 
     monkeypatch.setattr(stage, "run_toolpath_job", spy)
-    text = path.read_text()
-    path.write_text(text.replace("[toolpath]\n", "[toolpath]\nkicks = 30\nseed = 5\npasses = 4\n"))
-    try:
+    with _edited(path, "[toolpath]\n", "[toolpath]\nkicks = 30\nseed = 5\npasses = 4\n"):
         result = run_pipeline(load_pipeline(path), job, say=lambda s: None)
         assert result.ran[:2] == ["toolpath", "export"]
         assert seen == [OrderOptions(passes=4, kicks=30, seed=5)]
-    finally:
-        path.write_text(text)
 
 
 def test_failed_stage_keeps_earlier_outputs_and_next_run_resumes_there(tmp_path):
