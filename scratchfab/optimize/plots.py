@@ -159,6 +159,17 @@ def _titles(draw: ImageDraw.ImageDraw, top: int, title: str, subtitle: str) -> N
     draw.text((_LEFT, top + TEXT_PX + 12), subtitle, fill=(70, 70, 70), font=font(TEXT_PX - 1))
 
 
+def _iteration_label(draw: ImageDraw.ImageDraw, box: tuple[int, int, int, int]) -> None:
+    """The x axis' name, centred under a panel's tick labels."""
+    draw.text(
+        ((box[0] + box[2]) // 2, box[3] + TEXT_PX + 10),
+        "iteration",
+        fill=AXIS_RGB,
+        font=font(),
+        anchor="mt",
+    )
+
+
 def save_loss_plot(
     path: Path,
     iterations: Sequence[float],
@@ -203,13 +214,7 @@ def save_loss_plot(
         _Axes(box, x_range, (0.0, 1.0), log=False).frame(img, x_ticks, [])
         subtitle = "no finite loss was logged"
     _titles(draw, 0, "Optimization loss (log scale)", subtitle)
-    draw.text(
-        ((box[0] + box[2]) // 2, box[3] + TEXT_PX + 10),
-        "iteration",
-        fill=AXIS_RGB,
-        font=font(),
-        anchor="mt",
-    )
+    _iteration_label(draw, box)
     if views:
         top = box[3] + _XLABEL_H
         box2 = (_LEFT, top + _TITLE_H, _WIDTH - _RIGHT, top + _TITLE_H + _PANEL_H)
@@ -233,13 +238,7 @@ def save_loss_plot(
             "How well each view shows its picture",
             "correlation rho of the render with the view's target: 1 = perfect, 0 = unrelated",
         )
-        draw.text(
-            ((box2[0] + box2[2]) // 2, box2[3] + TEXT_PX + 10),
-            "iteration",
-            fill=AXIS_RGB,
-            font=font(),
-            anchor="mt",
-        )
+        _iteration_label(draw, box2)
     save_png(path, img)
 
 
