@@ -16,14 +16,14 @@ import html
 import json
 import math
 import os
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 from scratchfab.console import duration_text
+from scratchfab.errors import ConfigError
 from scratchfab.fileio import write_text
-from scratchfab.model.design import Vec3, polar_from_position
+from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
 from scratchfab.model.job import JobLayout
 
 _MIME = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
@@ -130,44 +130,19 @@ def _code(text: str) -> str:
 # --- the design's geometry --------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class _Design:
-    """What the report needs of ``design/design.toml``: view order and positions (mm).
-
-    Attributes:
-        views: (name, camera position, the view's own light position or None).
-        light: The design's light position.
-    """
-
-    views: list[tuple[str, Vec3 | None, Vec3 | None]]
-    light: Vec3 | None
-
-
-def _read_design(job: Path) -> _Design:
-    """Read the resolved design without loading its pictures (the job may have moved)."""
+def _read_design(job: Path) -> Design | None:
+    """The job's resolved design (no pictures are read, so a moved job works), or None."""
     try:
-        data = tomllib.loads(JobLayout(job).design.design_toml.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return _Design([], None)
-
-    def vec(value: Any) -> Vec3 | None:
-        if isinstance(value, list) and len(value) == 3:
-            try:
-                return (float(value[0]), float(value[1]), float(value[2]))
-            except (TypeError, ValueError):
-                return None
+        return load_design(JobLayout(job).design.design_toml, require_views=False)
+    except ConfigError:
         return None
 
-    views = [
-        (str(v["name"]), vec(v.get("position_mm")), vec(v.get("light_position_mm")))
-        for v in data.get("views", [])
-        if isinstance(v, dict) and "name" in v
-    ]
-    light = data.get("light")
-    return _Design(views, vec(light.get("position_mm")) if isinstance(light, dict) else None)
+
+def _vec3(values: Any) -> Vec3:
+    return (float(values[0]), float(values[1]), float(values[2]))
 
 
-def _place(position: tuple[float, float, float], subject: str) -> str:
+def _place(position: Vec3, subject: str) -> str:
     """``22° to the left of the board's front, level with its centre, 50 cm away``."""
     azimuth, elevation, distance = polar_from_position(position)
     parts = []
@@ -184,15 +159,14 @@ def _place(position: tuple[float, float, float], subject: str) -> str:
     return ", ".join(parts)
 
 
-def _stand_section(design: _Design) -> str:
-    if not design.views:
+def _stand_section(design: Design | None) -> str:
+    if design is None or not design.views:
         return "<p class='muted'>design has not run.</p>"
     items = []
-    for name, position, own_light in design.views:
-        if position is None:
-            continue
-        lamp = own_light if own_light is not None else design.light
-        light = f"; light {_place(lamp, 'the board')}" if lamp is not None else ""
+    for view in design.views:
+        name = view.name
+        position = _vec3(view.camera_position)
+        light = f"; light {_place(_vec3(design.light_for(view)), 'the board')}"
         az, el, dist = polar_from_position(position)
         items.append(
             f"<li data-stand='{html.escape(name)}' data-azimuth='{az:.3f}' "
@@ -207,10 +181,10 @@ def _stand_section(design: _Design) -> str:
     )
 
 
-def _view_order(design: _Design, metrics: dict[str, Any] | None, job: Path) -> list[str]:
+def _view_order(design: Design | None, metrics: dict[str, Any] | None, job: Path) -> list[str]:
     """The views in the design's order (else metrics.json's, else the targets' names)."""
-    if design.views:
-        return [name for name, _, _ in design.views]
+    if design is not None and design.views:
+        return [view.name for view in design.views]
     if metrics and isinstance(metrics.get("names"), list):
         return [str(n) for n in metrics["names"]]
     if metrics and isinstance(metrics.get("views"), dict):
@@ -768,7 +742,6 @@ def _files_section(job: Path) -> str:
 
 def _stream_state(job: Path, port: str | None) -> tuple[_Stream, str]:
     """The stream's state and the Stream section's paragraph."""
-    from scratchfab.errors import ConfigError
     from scratchfab.fileio import file_sha256
     from scratchfab.machine.sender_journal import (
         default_journal_path,
@@ -837,7 +810,7 @@ def _setup_step(job: Path) -> str:
         "Set the machine up as README step 5 (<b>Cut.</b>) says for your profile: the G-code "
         "moves in the profile's own coordinates"
     )
-    from scratchfab.errors import ConfigError
+
     from scratchfab.toolpath import Toolpath
 
     try:
