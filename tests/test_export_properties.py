@@ -47,6 +47,8 @@ def profiles(draw):
         "tool_control": {"mode": mode, "dwell_s": draw(st.sampled_from([0.0, 0.2]))},
         "gcode": {"decimals": draw(st.integers(0, 5))},
     }
+    # the rounding of the drawn decimals within the tool's tolerance, as a profile must be
+    table["tool"]["tolerance_mm"] = max(0.01, 0.5 * 10.0 ** -table["gcode"]["decimals"])
     if draw(st.booleans()):
         table["feeds"]["travel_mm_min"] = 2000.0
     try:

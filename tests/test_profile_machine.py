@@ -98,6 +98,7 @@ engrave_mm = {cut!r}
 [tool]
 width_mm = 0.1
 depth_mm = 0.01
+tolerance_mm = 0.5
 [gcode]
 decimals = {decimals}
 """
@@ -126,6 +127,30 @@ def test_z_heights_the_decimals_cannot_write_are_refused_on_load(
     profile = load_profile(write_z_profile(path, safe, cut, 6))
     written = [float(gcode_number(v, 6)) for v in (profile.z.engrave_mm, profile.z.safe_mm)]
     assert -40.6 <= written[0] < written[1] <= 0.5
+
+
+@pytest.mark.parametrize(
+    ("decimals", "tolerance", "need"),
+    [(0, 0.01, 2), (1, 0.01, 2), (2, 0.01, None), (1, 0.05, None), (2, 0.004, 3), (0, 0.5, None)],
+)
+def test_decimals_that_round_beyond_the_tolerance_are_refused(tmp_path, decimals, tolerance, need):
+    """Rounding moves a coordinate by up to half the last digit: never more than the tolerance."""
+    path = write_z_profile(tmp_path / "m.toml", 0.5, -1.0, decimals)
+    path.write_text(path.read_text().replace("tolerance_mm = 0.5", f"tolerance_mm = {tolerance}"))
+    values = np.random.default_rng(0).uniform(-100, 0, 20000)
+    moved = np.abs(np.array([float(gcode_number(v, decimals)) for v in values]) - values).max()
+    if need is None:
+        assert moved <= tolerance
+        assert load_profile(path).gcode.decimals == decimals
+        return
+    assert moved > tolerance  # the brute-force rounding error the refusal is about
+    with pytest.raises(ConfigError) as err:
+        load_profile(path)
+    text = str(err.value)
+    assert text.startswith(f"{path}: ") and "tool.tolerance_mm" in text
+    assert f"use gcode.decimals = {need} or more" in text
+    path.write_text(path.read_text().replace(f"decimals = {decimals}", f"decimals = {need}"))
+    assert load_profile(path).gcode.decimals == need
 
 
 def test_unknown_name_lists_bundled(tmp_path):

@@ -289,16 +289,7 @@ def test_compare_with_profile_and_soft_limits(tmp_path):
     write_job(job, 5)
     prog = load_program(job)
     settings = {20: 1, 22: 1, 110: 500, 111: 500, 112: 500, 130: 200, 131: 200, 132: 200}
-    profile = SimpleNamespace(
-        name="bench",
-        envelope=SimpleNamespace(
-            x_mm=(-10.0, 10.0),
-            y_mm=(-40.0, 40.0),
-            z_mm=(-5.0, 5.0),
-            max_travel_mm=(20.0, 80.0, 10.0),
-        ),
-        motion=SimpleNamespace(max_rate_mm_min=(1000.0, 500.0, 500.0)),
-    )
+    profile = _bench_profile()
     found = compare(settings, (0.0, 0.0, 0.0), prog, profile)
     assert any("X range" in r and "envelope" in r for r in found.refusals)  # job wider than 10 mm
     assert any("soft limits allow" in r for r in found.refusals)  # positive X in machine space
@@ -394,7 +385,11 @@ def _bench_profile(x=(-10.0, 10.0)):
     return SimpleNamespace(
         name="bench",
         envelope=SimpleNamespace(
-            x_mm=x, y_mm=(-40.0, 40.0), z_mm=(-5.0, 5.0), max_travel_mm=(20.0, 80.0, 10.0)
+            x_mm=x,
+            y_mm=(-40.0, 40.0),
+            z_mm=(-5.0, 5.0),
+            max_travel_mm=(20.0, 80.0, 10.0),
+            coordinates="work",
         ),
         motion=SimpleNamespace(max_rate_mm_min=(1000.0, 500.0, 500.0)),
     )
@@ -403,7 +398,8 @@ def _bench_profile(x=(-10.0, 10.0)):
 def test_profile_without_z_range_asks_no_z_travel(tmp_path):
     job = tmp_path / "j.gcode"
     job.write_text("G21G90\nG0Z0\nG0X-20Y-20\nG1Z-1F100\nG1X-18\nG0Z0\n")
-    profile = load_profile("grbl-3018-diamond")
+    base = load_profile("grbl-3018-diamond")  # in work coordinates: any offset will do
+    profile = replace(base, envelope=replace(base.envelope, coordinates="work"))
     settings = {20: 1, 22: 1, 110: 5000, 111: 5000, 112: 600, 130: 300, 131: 180, 132: 45}
     wco = (-150.0, -90.0, -40.0)
     assert compare(settings, wco, load_program(job), profile).refusals == []
@@ -1395,6 +1391,58 @@ def test_resume_outside_a_job_folder_finds_the_stroke_without_machine(tmp_path, 
         done = len([s for s in prog.strokes if prog.blocks[s[1]].lineno < int(said.split()[3])])
         assert f"({done} of {len(tp)} strokes done)" in said and done >= 20
     assert lines[False] == lines[True]
+
+
+def test_a_machine_coordinate_profile_refuses_a_work_offset(tmp_path, capsys):
+    """G54 zeroed on the board under the 3018's machine-coordinate profile: refused, with
+    soft limits and homing off, before any line of the job is sent."""
+    path, _ = _profile_job(tmp_path, "grbl-3018-diamond", n=10)
+    first = load_program(path).blocks[0].text
+    for wco, refused in (("-220,-150,-30", True), ("0,0,0.005", False)):
+        rec = tmp_path / f"rec{refused}.jsonl"
+        args = ["stream", str(path), "--machine", "grbl-3018-diamond", "--yes"]
+        main_args = [*args, "--port", f"{SIM}&wco={wco}&record={rec}"]
+        if refused:
+            with pytest.raises(SystemExit) as exc:
+                main(main_args)
+            assert exc.value.code == 2
+        else:
+            main(main_args)  # within the 0.01 mm tolerance: streamed
+        err = capsys.readouterr().err
+        sent = [e["text"] for e in read_record(rec) if e["ev"] == "rx"]
+        assert ("work offset is X-220 Y-150 Z-30 mm" in err) == refused
+        assert (first in sent) == (not refused)
+        assert "G10 L2 P1 X0 Y0 Z0" in err or not refused
+
+
+@pytest.mark.parametrize(
+    ("settings", "wco", "refused", "warned"),
+    [
+        ({20: 0, 22: 1}, (-100.0, -100.0, -10.0), False, False),  # fits the homed travel
+        ({20: 0, 22: 1}, (0.0, 0.0, 0.0), True, False),  # positive X, Y, Z: past the ends
+        ({20: 0, 22: 0}, (0.0, 0.0, 0.0), False, False),  # not homed: nothing to check against
+        ({20: 0, 22: 1}, None, False, True),  # homed, offset unknown: said, not refused
+        ({20: 1, 22: 1}, None, True, False),  # soft limits on, offset unknown: refused
+    ],
+)
+def test_the_homed_travel_is_checked_with_soft_limits_off(tmp_path, settings, wco, refused, warned):
+    job = tmp_path / "job.gcode"
+    write_job(job, 5)  # X, Y in -30..30, Z -0.05..2
+    travel = {130: 200.0, 131: 200.0, 132: 200.0}
+    found = compare({**settings, **travel}, wco, load_program(job))
+    assert bool(found.refusals) == refused
+    assert any("not checked against the travel" in w for w in found.warnings) == warned
+    if refused and wco is not None:
+        assert all("the travel after homing is -200..0" in r for r in found.refusals)
+
+
+def test_a_machine_coordinate_profile_refuses_an_unknown_offset(tmp_path):
+    path, tp = _profile_job(tmp_path, "grbl-3018-diamond", n=5)
+    found = compare({20: 0, 22: 0}, None, load_program(path), tp.profile)
+    (refusal,) = found.refusals
+    assert "written in GRBL machine coordinates" in refusal and "could not be read" in refusal
+    work = replace(tp.profile, envelope=replace(tp.profile.envelope, coordinates="work"))
+    assert compare({20: 0, 22: 0}, None, load_program(path), work).refusals == []
 
 
 def test_resume_refuses_when_the_program_does_not_show_which_z_cuts(tmp_path, capsys):

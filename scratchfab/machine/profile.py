@@ -17,6 +17,8 @@ Schema (every table and key; defaults in brackets)::
     y_mm = [-170.0, 0.0]    #                                     -$131 <= Y <= 0
     z_mm = [-40.0, 0.0]     #                                     -$132 <= Z <= 0
                             # (optional: without it Z is not checked against $132)
+    coordinates = "work"    # "machine": these are GRBL machine coordinates (G54 cleared);
+                            # stream refuses while GRBL's work offset is not zero ["work"]
 
     [board]                 # where and how the board lies on the bed
     origin = "lower-left"   # board corner (after rotation) placed at offset_mm:
@@ -57,12 +59,14 @@ Schema (every table and key; defaults in brackets)::
     rx_buffer_bytes = 128   # GRBL 1.1: 128
 
     [gcode]
-    decimals = 3            # digits after the point for X, Y, Z
+    decimals = 3            # digits after the point for X, Y, Z; the rounding (half the
+                            # last digit) may not exceed tool.tolerance_mm
     max_line_length = 79    # GRBL 1.1 accepts at most 79 characters per line
 """
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from importlib import resources
@@ -116,11 +120,17 @@ Z_UNLIMITED_MM: Range = (-1000.0, 1000.0)  # no ``z_mm`` given
 
 @dataclass(frozen=True)
 class Envelope:
-    """Reachable work coordinates per axis, [min, max] in mm."""
+    """Reachable work coordinates per axis, [min, max] in mm.
+
+    ``coordinates`` says which frame the profile's positions are in: ``"work"``, the work
+    coordinates the user sets up on the machine, or ``"machine"``, GRBL's machine
+    coordinates after homing with the work offset cleared, which the sender then checks.
+    """
 
     x_mm: Range
     y_mm: Range
     z_mm: Range = Z_UNLIMITED_MM
+    coordinates: Literal["work", "machine"] = "work"
 
     def __post_init__(self) -> None:
         for name in ("x_mm", "y_mm", "z_mm"):
@@ -276,6 +286,14 @@ class MachineProfile:
             raise ValueError(
                 f"start_mm {list(self.start_mm)} is outside the envelope "
                 f"x {list(self.envelope.x_mm)}, y {list(self.envelope.y_mm)}"
+            )
+        rounding = 0.5 * 10.0**-self.gcode.decimals
+        if rounding > self.tool.tolerance_mm * (1 + 1e-9):
+            need = math.ceil(math.log10(0.5 / self.tool.tolerance_mm) - 1e-9)
+            raise ValueError(
+                f"gcode.decimals = {self.gcode.decimals} moves a coordinate by up to "
+                f"{rounding:g} mm, more than tool.tolerance_mm ({self.tool.tolerance_mm:g}): "
+                f"use gcode.decimals = {need} or more"
             )
         if self.tool_control.mode != "servo":
             self._check_z_heights()

@@ -24,6 +24,9 @@ class _Envelope(Protocol):
     @property
     def max_travel_mm(self) -> tuple[float, float, float | None]: ...
 
+    @property
+    def coordinates(self) -> str: ...
+
 
 class _Motion(Protocol):
     @property
@@ -107,10 +110,12 @@ def compare(
     """Compare GRBL's settings, the job and (optionally) the machine profile.
 
     Refuses a job that leaves the profile's envelope, spans more than GRBL's travel
-    ``$13x`` on any axis, or leaves GRBL's soft-limit travel
-    (``-$13x <= work + WCO <= 0`` when ``$20=1``; with ``wco`` None, an unknown work
-    offset, such a job is refused as unchecked); refuses a profile whose travel exceeds
-    GRBL's with soft limits on. With any of those checks to make, refuses a job holding a
+    ``$13x`` on any axis, or leaves the travel in machine coordinates
+    (``-$13x <= work + WCO <= 0``) when soft limits (``$20=1``) or homing (``$22=1``)
+    reference it; with ``wco`` None, an unknown work offset, and soft limits on, such a
+    job is refused as unchecked. Refuses a profile whose travel exceeds GRBL's with soft
+    limits on, and a profile written in machine coordinates (``coordinates = "machine"``)
+    unless the work offset is known to be zero. With any of those checks to make, refuses a job holding a
     block whose position the sender cannot follow (G92, G10, another work coordinate
     system, G53, G28/G30, arcs outside G17): past it every check would be wrong. Warns
     about slower GRBL max rates than the profile or the job's feeds, and about soft limits
@@ -120,6 +125,7 @@ def compare(
     travel = [settings.get(130 + k) for k in range(3)]
     rates = [settings.get(110 + k) for k in range(3)]
     soft = bool(settings.get(20, 0))
+    homed = bool(settings.get(22, 0))
     if settings and not soft:
         out.warnings.append(
             "GRBL soft limits are off ($20=0): nothing stops a move past the travel"
@@ -185,7 +191,18 @@ def compare(
             "the status reports' WCO gave none), so the job cannot be checked against "
             "the travel under the current offset"
         )
-    if soft and wco is not None and all(t is not None for t in travel):
+    if homed and not soft and wco is None and any(a <= b for a, b in zip(lo, hi, strict=True)):
+        out.warnings.append(
+            "the work offset could not be read ($# and the status reports' WCO gave none): "
+            "the job was not checked against the travel in machine coordinates"
+        )
+    if (soft or homed) and wco is not None and all(t is not None for t in travel):
+        limit = (
+            "GRBL soft limits allow -{t:g}..0 (ALARM:2)"
+            if soft
+            else "the travel after homing is -{t:g}..0 and soft limits are off: the machine "
+            "would run into its end (not homed since power-on? home first, $H)"
+        )
         for k, axis in enumerate(_AXES):
             if lo[k] > hi[k]:
                 continue
@@ -194,8 +211,10 @@ def compare(
             if m_lo < -t - tolerance or m_hi > tolerance:
                 out.refusals.append(
                     f"the job's {axis} range is {m_lo:g}..{m_hi:g} mm in machine coordinates "
-                    f"(work offset {wco[k]:g}); GRBL soft limits allow -{t:g}..0 (ALARM:2)"
+                    f"(work offset {wco[k]:g}); " + limit.format(t=t)
                 )
+    if profile is not None and profile.envelope.coordinates == "machine":
+        out.refusals.extend(_machine_frame_refusals(profile.name, wco, tolerance))
     for k, (asked, rate) in enumerate(zip(axis_feeds(program), rates, strict=True)):
         if rate is not None and asked > rate + tolerance:
             out.warnings.append(
@@ -203,3 +222,27 @@ def compare(
                 f"${110 + k}={rate:g} mm/min: GRBL clamps it, the job runs slower"
             )
     return out
+
+
+def _machine_frame_refusals(
+    name: str, wco: tuple[float, float, float] | None, tolerance: float
+) -> list[str]:
+    """Refuse a profile in machine coordinates unless GRBL's work offset is known to be zero.
+
+    Its G-code moves in the work coordinates, which equal the machine's only with the
+    offset cleared; otherwise every move lands that far off, Z into the board or above it.
+    """
+    fix = "clear it (G10 L2 P1 X0 Y0 Z0, G92.1) and check with $#"
+    if wco is None:
+        return [
+            f"machine '{name}' is written in GRBL machine coordinates, but the work offset "
+            f"could not be read ($# and the status reports' WCO gave none); {fix}"
+        ]
+    if all(abs(w) <= tolerance for w in wco):
+        return []
+    offset = " ".join(f"{axis}{w:g}" for axis, w in zip(_AXES, wco, strict=True))
+    return [
+        f"machine '{name}' is written in GRBL machine coordinates, but GRBL's work offset "
+        f"is {offset} mm: every move would land that far off (Z into the board or above "
+        f"it); {fix}"
+    ]
