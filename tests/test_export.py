@@ -136,6 +136,17 @@ def test_gcode_refuses_overlong_lines(planned, tmp_path):
     with pytest.raises(ScratchfabError, match="max_line_length 20"):
         export(tp, narrow, tmp_path / "x.gcode")
     assert not (tmp_path / "x.gcode").exists()
+    # A limit that every move line meets: the comments are cut to fit, nothing else changes.
+    export(tp, None, tmp_path / "wide.gcode")
+    wide = (tmp_path / "wide.gcode").read_text().splitlines()
+    table["gcode"]["max_line_length"] = max(len(ln) for ln in wide if not ln.startswith("("))
+    assert table["gcode"]["max_line_length"] < max(map(len, wide))  # a comment is longer
+    fitted = profile_from_mapping(table, "<fitted>")
+    export(tp, fitted, tmp_path / "fitted.gcode")
+    text = (tmp_path / "fitted.gcode").read_text()
+    interpret(text, fitted.gcode.max_line_length)
+    for short, full in zip(text.splitlines(), wide, strict=True):
+        assert short == full or (short.startswith("(") and full.startswith(short[:-1].rstrip()))
 
 
 def test_export_for_another_profile_changes_feeds_and_heights_only(planned, tmp_path):

@@ -644,3 +644,40 @@ def test_preview_travel_to_a_far_start_ends_in_arrows_at_the_frame(rng):
     assert any(it.kind == "arrow" and it.color == plan.TRAVEL_RGB for it in fig.legend)
     assert not any(it.kind == "ring" for it in fig.legend)
     assert not _mask(full, plan.START_RGB).any()
+
+
+@pytest.mark.parametrize("rotation", [0, 90, 180, 270])
+def test_the_board_top_is_marked_in_the_preview_and_the_gcode(rng, rotation):
+    """A board turned on the bed cuts the same; the preview and G-code say which edge is up."""
+    from scratchfab.export.gcode import gcode_lines
+    from scratchfab.toolpath import plan
+
+    board, s = board_and_scratches(rng, 40)
+    table = load_profile("grbl-3018-diamond").to_table()
+    table["board"]["rotation_deg"] = rotation
+    tp = plan_toolpath(s, board, profile_from_mapping(table, "t"), ScratchTool())
+    # Where the design's +y goes, from the outline alone: the edge whose corners came from
+    # the board's two top corners (the outline is the board's corners, mapped).
+    corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * 0.5 * np.array(tp.board_mm)
+    mapped = tp.profile.board_to_machine(corners, tp.board_mm)
+    top_mid = mapped[2:].mean(axis=0)
+    outward = top_mid - mapped.mean(axis=0)
+    axis = int(np.argmax(np.abs(outward)))
+    name = ("+" if outward[axis] > 0 else "-") + "XY"[axis]
+    assert f"(board top edge, design +y, faces machine {name})" in gcode_lines(tp)
+    fig = plan.preview_figure(tp, max_px=500)
+    rgb = np.asarray(fig.image.convert("RGB")).astype(int)
+    ys, xs = np.nonzero(_mask(rgb, plan.TOP_RGB))
+    key = fig.legend_box
+    inside = ~((xs >= key[0]) & (xs <= key[2]) & (ys >= key[1]) & (ys <= key[3]))
+    marked = np.array([xs[inside].mean(), ys[inside].mean()])
+    (mid_px,) = fig.to_px(top_mid[None, :])
+    (centre_px,) = fig.to_px(mapped.mean(axis=0)[None, :])
+    away = (marked - mid_px) @ (mid_px - centre_px) / np.linalg.norm(mid_px - centre_px)
+    assert 10 < away < 80  # beyond the top edge, near it
+    assert (
+        np.linalg.norm(
+            marked - mid_px - away * (mid_px - centre_px) / np.linalg.norm(mid_px - centre_px)
+        )
+        < 40
+    )  # at the edge's middle

@@ -30,9 +30,16 @@ from scratchfab.toolpath.plan import Toolpath
 _COMMENT_SAFE = re.compile(r"[^A-Za-z0-9 .,:_+=/-]")
 
 
-def comment(text: str) -> str:
-    """A ``( ... )`` comment with only harmless characters (no realtime bytes, no parens)."""
-    return "(" + _COMMENT_SAFE.sub(" ", text).strip() + ")"
+def comment(text: str, max_length: int | None = None) -> str:
+    """A ``( ... )`` comment with only harmless characters (no realtime bytes, no parens).
+
+    Cut to ``max_length`` characters, parentheses included, where one is given: a
+    comment must never make a line the controller refuses.
+    """
+    body = _COMMENT_SAFE.sub(" ", text).strip()
+    if max_length is not None:
+        body = body[: max(0, max_length - 2)].rstrip()
+    return "(" + body + ")"
 
 
 class _Grid:
@@ -107,15 +114,15 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
     ctl = prof.tool_control
     feeds = prof.feeds
     stats = toolpath.stats
-    lines = [
-        "G21 G90 G17 G94",
-        comment(f"scratchfab toolpath for {prof.name}"),
-        comment(
-            f"{len(toolpath)} strokes, cut {stats.get('cut_length_mm', 0.0):.1f} mm, "
-            f"travel {stats.get('travel_length_mm', 0.0):.1f} mm, "
-            f"about {stats.get('estimated_time_s', 0.0) / 60:.1f} min"
-        ),
+    limit = prof.gcode.max_line_length
+    notes = [
+        f"scratchfab toolpath for {prof.name}",
+        f"{len(toolpath)} strokes, cut {stats.get('cut_length_mm', 0.0):.1f} mm, "
+        f"travel {stats.get('travel_length_mm', 0.0):.1f} mm, "
+        f"about {stats.get('estimated_time_s', 0.0) / 60:.1f} min",
+        f"board top edge, design +y, faces machine {prof.board_top()}",
     ]
+    lines = ["G21 G90 G17 G94", *(comment(text, limit) for text in notes)]
     modal_feed: list[float | None] = [None]
 
     def xy(p: np.ndarray) -> str:
@@ -158,7 +165,6 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
     if ctl.mode != "servo":
         lines.append(ctl.command("off") if ctl.mode == "spindle" else "M5")
     lines += [travel(start), "M2"]
-    limit = prof.gcode.max_line_length
     for number, line in enumerate(lines, start=1):
         if len(line) > limit:
             raise ScratchfabError(

@@ -364,6 +364,10 @@ class MachineProfile:
         )
         return rotated + shift
 
+    def board_top(self) -> str:
+        """The machine direction the board's top edge (the design's +y) faces: ``"+Y"``, ``"-X"``..."""
+        return ("+Y", "-X", "-Y", "+X")[self.board.rotation_deg // 90]
+
     def board_outline(self, board_size: tuple[float, float]) -> np.ndarray:
         """(4, 2) machine XY of the board corners, counter-clockwise."""
         hw, hh = board_size[0] / 2, board_size[1] / 2

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -279,6 +280,7 @@ TRAVEL_RGB = figures.OKABE_ITO["vermillion"]
 BOARD_RGB = (150, 150, 150)
 ENVELOPE_RGB = (60, 90, 220)
 START_RGB = figures.OKABE_ITO["bluish_green"]
+TOP_RGB = figures.OKABE_ITO["reddish_purple"]
 #: Pixels around the drawn extent, so marks on its edge are not cut off.
 PREVIEW_MARGIN_PX = 16
 
@@ -398,11 +400,13 @@ def preview_figure(toolpath: Toolpath, max_px: int = 1200) -> PreviewFigure:
     if start_inside:
         ((sx, sy),) = px(start[None, :])
         draw.ellipse([sx - 6, sy - 6, sx + 6, sy + 6], outline=START_RGB, width=2)
+    _draw_board_top(draw, toolpath, px, size)
 
     items = [
         figures.LegendItem("cut", CUT_RGB, "line"),
         figures.LegendItem("travel (tool up)", TRAVEL_RGB, "line"),
         figures.LegendItem("board outline", BOARD_RGB, "line"),
+        figures.LegendItem("board top edge (design +y)", TOP_RGB, "arrow"),
     ]
     if envelope_shown:
         items.append(figures.LegendItem("machine envelope", ENVELOPE_RGB, "line"))
@@ -424,7 +428,7 @@ def preview_figure(toolpath: Toolpath, max_px: int = 1200) -> PreviewFigure:
         f"travel {float(stats.get('travel_length_mm', 0.0)):.0f} mm, "
         f"about {duration_text(float(stats.get('estimated_time_s', 0.0)))}",
         f"board {toolpath.board_mm[0]:g} x {toolpath.board_mm[1]:g} mm in machine coordinates, "
-        "+y up",
+        f"+y up; the board's top edge faces machine {toolpath.profile.board_top()}",
     ]
     out = figures.add_title(canvas, title, size + 1, margin=m)
     dy = out.height - canvas.height
@@ -432,6 +436,33 @@ def preview_figure(toolpath: Toolpath, max_px: int = 1200) -> PreviewFigure:
     return PreviewFigure(
         out, (float(m), float(h - m + dy)), lo, scale, start_inside, shifted, items
     )
+
+
+def _draw_board_top(
+    draw: ImageDraw.ImageDraw,
+    toolpath: Toolpath,
+    px: Callable[[np.ndarray], list[tuple[float, float]]],
+    size: int,
+) -> None:
+    """An arrow out of the middle of the board's top edge (the design's +y), labelled "board top".
+
+    A board turned on the bed looks the same cut; this tells which way up it hangs.
+    """
+    half = 0.5 * toolpath.board_mm[1]
+    mid, out = toolpath.profile.board_to_machine(
+        np.array([[0.0, half], [0.0, half + 1.0]]), toolpath.board_mm
+    )
+    (a, b) = px(np.vstack([mid, out]))
+    d = np.array([b[0] - a[0], b[1] - a[1]])
+    d /= max(float(np.hypot(*d)), 1e-9)
+    tip = (a[0] + 30.0 * float(d[0]), a[1] + 30.0 * float(d[1]))
+    figures.draw_arrow(draw, a, tip, TOP_RGB, width=2, head=10)
+    tw, th = figures.text_size("board top", size)
+    tx = tip[0] + 6.0 * float(d[0]) - tw / 2 + 0.5 * tw * float(d[0])
+    ty = tip[1] + 6.0 * float(d[1]) - th / 2 + 0.5 * th * float(d[1])
+    mode, draw.fontmode = draw.fontmode, "1"  # one colour, the key's, not anti-aliased shades
+    draw.text((tx, ty), "board top", fill=TOP_RGB, font=figures.font(size))
+    draw.fontmode = mode
 
 
 def write_preview(toolpath: Toolpath, path: str | Path, max_px: int = 1200) -> None:
