@@ -32,7 +32,8 @@ _LIB_DIRS = (
 )
 _LIB_PATTERNS = ("libLLVM*.so*", "libLLVM*.dylib", "LLVM-C.dll")
 _FIXES = {
-    "linux": "run `bash scripts/setup.sh` (Debian/Ubuntu: `apt-get install libllvm19`)",
+    "linux": "install one (Debian/Ubuntu: `sudo apt-get install libllvm19`; "
+    "in a checkout, `bash scripts/setup.sh` does this)",
     "darwin": "`brew install llvm`",
     "win32": "install LLVM (github.com/llvm/llvm-project/releases) and set "
     "DRJIT_LIBLLVM_PATH to its bin\\LLVM-C.dll",
