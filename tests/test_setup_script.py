@@ -47,3 +47,21 @@ def test_have_llvm_looks_in_every_folder_given(tmp_path):
     assert not have_llvm(old)
     (new / "libLLVM-19.so").write_bytes(b"")
     assert have_llvm(old, new)
+
+
+def test_python_m_scratchfab_runs_the_cli_with_the_single_sourced_version():
+    import sys
+    from importlib.metadata import version
+
+    import scratchfab
+
+    run = subprocess.run(
+        [sys.executable, "-m", "scratchfab", "--version"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == f"scratchfab, version {scratchfab.__version__}"
+    # pyproject's version is dynamic: the installed metadata reads scratchfab.__version__.
+    assert version("scratchfab") == scratchfab.__version__
