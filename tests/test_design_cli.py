@@ -209,12 +209,16 @@ def test_user_errors_are_one_line_and_keep_the_old_job(tmp_path, capsys):
 def test_one_pixel_and_black_images_still_make_a_job(tmp_path, capsys):
     Image.new("L", (1, 1), 180).save(tmp_path / "dot.png")
     Image.new("RGB", (20, 10), (0, 0, 0)).save(tmp_path / "night.jpg")
+    logo = Image.new("RGBA", (20, 20), (0, 0, 0, 0))  # a white logo on a transparent ground:
+    logo.paste((255, 255, 255, 255), (5, 5, 15, 15))  # not uniform, no warning
+    logo.save(tmp_path / "logo.png")
     job = tmp_path / "job"
     out = _run(
         [
             "design",
             str(tmp_path / "dot.png"),
             str(tmp_path / "night.jpg"),
+            str(tmp_path / "logo.png"),
             "--board",
             "30x30",
             "--count",
@@ -227,6 +231,10 @@ def test_one_pixel_and_black_images_still_make_a_job(tmp_path, capsys):
         capsys,
     )
     assert "initial layout: 50 scratches" in out
+    # The two even pictures are named, with what they read as, and the logo is not.
+    assert "warning: target 'dot' is uniform (brightness 0.4" in out
+    assert "warning: target 'night' is uniform (brightness 0.000" in out
+    assert "transparent pixels read as black" in out and "'logo' is uniform" not in out
     dot = np.load(job / "design" / "targets" / "dot.npy")
     night = np.load(job / "design" / "targets" / "night.npy")
     board = np.isfinite(dot)

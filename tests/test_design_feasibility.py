@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -231,3 +232,20 @@ def test_map_scale_bar_and_key_show_the_map_colours():
     mx0, my0, mx1, my1 = fig.map_box
     assert np.all(rgb[my0 : my1 + 1, mx0 : mx1 + 1] == 0, axis=-1).sum() > 50
     assert "blue" in report.to_json()["maps"] and "green" not in report.to_json()["maps"]
+
+
+@pytest.mark.parametrize(("count", "crowded"), [(14440, False), (14441, True), (50000, True)])
+def test_more_scratches_than_fit_side_by_side_are_refused(count, crowded):
+    """38 x 38 mm inside the 1 mm margin, 1 mm x 0.1 mm dents at the shortest: 14440 fit.
+
+    That many tile the inner square exactly (38 rows of 1 mm scratches, 380 across).
+    """
+    base = _design([("left", -22.0, 0.0), ("right", 22.0, 0.0)])
+    assert (base.board.width_mm, base.board.margin_mm, base.scratch.min_length_mm) == (40, 1, 1)
+    assert base.scratch.width_mm == 0.1
+    report = check_feasibility(replace(base, scratch=replace(base.scratch, count=count)), grid=16)
+    said = [e for e in report.errors if "would overlap" in e]
+    assert bool(said) == crowded
+    if crowded:
+        assert f"{count} scratches of at least 1 x 0.1 mm" in said[0]
+        assert "count to at most 14440" in said[0]

@@ -268,6 +268,7 @@ def check_feasibility(design: Design, grid: int = 96) -> FeasibilityReport:
                 f"view '{v.name}': only {100 * frac:.1f}% of the board can light up "
                 f"(half-vector tilt up to {tilt.max():.1f} deg)"
             )
+    errors += _crowding_errors(design)
     pairs: list[PairFeasibility] = []
     for k in design.views:
         across = across_directions(hs[k.name])
@@ -306,6 +307,25 @@ def check_feasibility(design: Design, grid: int = 96) -> FeasibilityReport:
                 f"lobe {lobe:.1f} deg)"
             )
     return FeasibilityReport(steepest, lobe, views, pairs, errors, warnings)
+
+
+def _crowding_errors(design: Design) -> list[str]:
+    """Refuse more scratches than fit side by side, even at their shortest, inside the margin.
+
+    Each cuts a dent ``width_mm`` wide along at least ``min_length_mm``; more dent than
+    board means overlapping dents, which cut each other's walls away.
+    """
+    tool, board = design.scratch, design.board
+    usable = (board.width_mm - 2 * board.margin_mm) * (board.height_mm - 2 * board.margin_mm)
+    least = tool.count * tool.min_length_mm * tool.width_mm
+    fits = math.floor(usable / (tool.min_length_mm * tool.width_mm) * (1 + 1e-12))
+    if tool.count <= fits:
+        return []
+    return [
+        f"{tool.count} scratches of at least {tool.min_length_mm:g} x {tool.width_mm:g} mm "
+        f"cover {least:g} mm^2, more than the {usable:g} mm^2 of board inside the margin: "
+        f"they would overlap; set [scratch] count to at most {fits} or shorten min_length_mm"
+    ]
 
 
 def tilt_colours(tilt: np.ndarray, reach_deg: float, limit_deg: float) -> np.ndarray:

@@ -33,6 +33,9 @@ from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.pipeline.config import PipelineOptions, parse_stage_tables
 
+#: A target whose brightness varies less than this (linear, 0..1) is reported as uniform.
+UNIFORM_TARGET_SPREAD = 0.01
+
 
 @dataclass(frozen=True)
 class DesignResult:
@@ -165,6 +168,13 @@ def run_design(
                 raise ConfigError(f"{design.source}: views[{i}].target: {exc}") from None
             cache[path] = quantize_like_png(image)
         boards[view.name] = cache[path]
+        spread = float(np.ptp(boards[view.name]))
+        if spread < UNIFORM_TARGET_SPREAD:
+            progress(
+                f"  warning: target '{view.name}' is uniform (brightness {boards[view.name].mean():.3f}"
+                f" everywhere, spread {spread:.4f}): the view will show an even board; transparent "
+                "pixels read as black (bare board)"
+            )
     progress(f"  loaded {len(cache)} target image(s)")
 
     progress(
