@@ -1881,3 +1881,94 @@ def test_grbl_sim_pty_off_posix_is_one_line(monkeypatch, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "needs a POSIX pseudo-terminal" in err and "grblsim://" in err
+
+
+# --------------------------------------------------------------------------- coverage review
+
+
+def _feed_cuts(segments) -> list[tuple[float, ...]]:
+    """Sorted (x0, y0, x1, y1) of XY feed moves, rounded to the exported decimals."""
+    return sorted(tuple(round(v, 3) for v in (*a[:2], *b[:2])) for a, b in segments)
+
+
+def test_resumed_spindle_job_dwells_before_it_moves(tmp_path):
+    """The preamble's M3 is followed by the file's spin-up G4 before any move (the spindle
+    is at speed before the plunge), and the resumed job cuts exactly the strokes left."""
+    from test_export import spindle_profile
+
+    from scratchfab.export import export
+    from scratchfab.model.design import Board
+    from scratchfab.model.scratches import ScratchSet
+    from scratchfab.toolpath import plan_toolpath
+
+    profile = spindle_profile()
+    centres = np.random.default_rng(0).uniform(-15, 15, (6, 2))
+    scratches = ScratchSet.from_arrays(centres - 1, centres + 1, 0.1, 0.01)
+    board = Board(width_mm=40.0, height_mm=40.0, margin_mm=1.0)
+    job = tmp_path / "spindle.gcode"
+    export(plan_toolpath(scratches, board, profile), None, job)
+    z_cut = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
+    prog = load_program(job, z_threshold=z_cut)
+    assert len(prog.strokes) == 6
+    dwells = [b for b in prog.blocks if b.text.startswith("G4")]
+    assert [b.text for b in dwells] == [f"G4P{profile.tool_control.dwell_s:g}"]
+    start = prog.strokes[2][0]
+    pre = resume_preamble(prog, start)
+    spindle_on = next(k for k, t in enumerate(pre) if t.startswith("M3"))
+    dwell = pre.index(dwells[0].text)
+    moves = [k for k, t in enumerate(pre) if t.startswith(("G0", "G1")) and ("X" in t or "Z" in t)]
+    assert moves and spindle_on < dwell < min(moves)
+
+    port = open_port("grblsim://?time_scale=0.001", 115200)
+    try:
+        streamer = Streamer(port, FAST)
+        streamer.connect()
+        journal = Journal(tmp_path / "j.jsonl").open()
+        streamer.stream(prog, journal, start=start, preamble=pre, resume=True)
+        journal.close()
+    finally:
+        port.close()
+    record = port.sim.record
+    received = _received_gcode(record)
+    assert (
+        received.index("M3S8000") < received.index(dwells[0].text) < received.index(pre[min(moves)])
+    )
+    cut = [
+        (e["frm"], e["to"])
+        for e in record
+        if e["ev"] == "exec"
+        and not e["rapid"]
+        and max(e["frm"][2], e["to"][2]) < z_cut
+        and e["frm"][:2] != e["to"][:2]
+    ]
+    expected = [
+        ((prog.blocks[i - 1].modal.x, prog.blocks[i - 1].modal.y), (b.modal.x, b.modal.y))
+        for first, last in prog.strokes[2:]
+        for i, b in enumerate(prog.blocks[first : last + 1], start=first)
+        if b.motion
+        and b.modal.z is not None
+        and b.modal.z < z_cut
+        and (b.modal.x, b.modal.y) != (prog.blocks[i - 1].modal.x, prog.blocks[i - 1].modal.y)
+    ]
+    assert len(expected) == 4 and _feed_cuts(cut) == _feed_cuts(expected)
+
+
+@pytest.mark.parametrize(
+    ("setup", "dwell"),
+    [
+        (["M3 S12000", "M8", "G4 P2.25"], "G4P2.25"),  # the dwell need not follow M3 at once
+        (["M3 S12000", "G0 X1", "G4 P2"], None),  # a dwell after a move is not a spin-up
+        (["M4 S900"], None),  # the file did not dwell: neither does the resume
+        (["M3 S100", "G4 P1", "M5"], None),  # spindle off again before the stroke
+    ],
+)
+def test_resume_preamble_dwells_as_the_file_did(tmp_path, setup, dwell):
+    job = tmp_path / "sp.gcode"
+    strokes = ["G0 Z5", "G0 X1 Y1", "G1 Z-0.1 F200", "G1 X5 Y1 F600", "G0 Z5"]
+    job.write_text("\n".join(["G21 G90", *setup, *strokes, *strokes[1:], "M5", "M2"]) + "\n")
+    prog = load_program(job)
+    pre = resume_preamble(prog, prog.strokes[1][0])
+    dwells = [t for t in pre if t.startswith("G4")]
+    assert dwells == ([dwell] if dwell else [])
+    if dwell:
+        assert pre[pre.index(dwell) - 1].startswith("M3")

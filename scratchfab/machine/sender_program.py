@@ -192,7 +192,7 @@ def _arc_box(
     elif "I" in arc or "J" in arc:
         ci, cj = arc.get("I", 0.0) * scale, arc.get("J", 0.0) * scale
     else:
-        return None  # error:26, no motion
+        return None  # error:35 (no I/J offset in the plane), no motion
     cx, cy = start[0] + ci, start[1] + cj
     radius = math.hypot(ci, cj)
     a0 = math.atan2(start[1] - cy, start[0] - cx)
@@ -498,11 +498,36 @@ def travel_move(program: Program, start: int) -> tuple[str, float]:
     return "G0", 0.0
 
 
+def spin_up_dwell(program: Program, start: int) -> float:
+    """Seconds the file dwelt (``G4 P``) after its last spindle start before block ``start``.
+
+    The spindle start is the last block that turned the output on (M3/M4 from M5, or a
+    change of direction); its dwell is the first ``G4`` from that block up to the next
+    motion block. 0 when the spindle is off there or the file did not dwell.
+    """
+    blocks = program.blocks[: max(0, min(start, len(program.blocks)))]
+    on = -1
+    for b in blocks:
+        prev = blocks[b.index - 1].modal.spindle if b.index > 0 else "M5"
+        if b.modal.spindle != "M5" and b.modal.spindle != prev:
+            on = b.index
+    if on < 0 or blocks[-1].modal.spindle == "M5":
+        return 0.0
+    for b in blocks[on:]:
+        words = _words(b.text)
+        if ("G", 4.0) in words:
+            return next((v for letter, v in words if letter == "P"), 0.0)
+        if b.motion:
+            break
+    return 0.0
+
+
 def resume_preamble(program: Program, start: int) -> list[str]:
     """Blocks that restore the state the file had before block ``start``, safely.
 
     Order: mm and absolute (G21 G90, plane, G94, work coordinates), spindle/servo and
-    coolant as the file had them (the tool is up before a stroke by definition), Z up to the
+    coolant as the file had them, with the spin-up dwell the file used after its spindle
+    start (:func:`spin_up_dwell`; the tool is up before a stroke by definition), Z up to the
     highest Z the file used so far, XY to where the file was, Z down to the file's travel
     height there, then the file's units, distance mode, feed mode, feed and motion mode.
     The moves travel as the file does (:func:`travel_move`: G0, or G1 at its travel feed).
@@ -518,6 +543,9 @@ def resume_preamble(program: Program, start: int) -> list[str]:
         lines.append("M5")
     else:
         lines.append(f"{before.spindle}S{gcode_number(before.speed, 4)}")
+        dwell = spin_up_dwell(program, start)
+        if dwell > 0:
+            lines.append(f"G4P{gcode_number(dwell, 4)}")
     lines.append(before.coolant)
     move = mode if mode == "G0" else f"G1F{gcode_number(feed, 4)}"
     if zs:
