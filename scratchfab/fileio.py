@@ -9,6 +9,8 @@ import math
 import os
 import shutil
 import tempfile
+import zipfile
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -206,3 +208,35 @@ def try_lock(handle: IO[Any]) -> bool:
             f"{handle.name}: cannot lock ({exc.strerror or exc}); use a job folder on a local disk"
         ) from None
     return True
+
+
+def load_numpy(path: str | os.PathLike[str]) -> Any:
+    """A ``.npy`` file's array, or a ``.npz`` file's arrays (name -> array); never a pickle.
+
+    The suffix says which the file must be. numpy's own error for a file that is neither
+    advises loading it with pickles enabled, which no user should do with our files.
+
+    Raises:
+        ConfigError: One line naming the file: missing, unreadable, not a NumPy file of
+            that kind, or a damaged one.
+    """
+    file = Path(path)
+    kind = ".npz" if file.suffix.lower() == ".npz" else ".npy"
+    magic = b"PK" if kind == ".npz" else b"\x93NUMPY"
+    try:
+        with file.open("rb") as handle:
+            head = handle.read(8)
+            if not head.startswith(magic):
+                seen = f"it begins with {head!r}" if head else "it is empty"
+                raise ConfigError(f"{file}: not a NumPy {kind} file ({seen})")
+            handle.seek(0)
+            if kind == ".npy":
+                return np.load(handle, allow_pickle=False)
+            with np.load(handle, allow_pickle=False) as archive:
+                return {name: archive[name] for name in archive.files}
+    except FileNotFoundError:
+        raise ConfigError(f"{file}: file not found") from None
+    except OSError as exc:
+        raise ConfigError(f"{file}: cannot read ({exc.strerror or exc})") from None
+    except (ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise ConfigError(f"{file}: unreadable NumPy {kind} file ({exc})") from None

@@ -585,3 +585,102 @@ def test_acceptance_demo_checked_with_reference_renderer(tmp_path: Path) -> None
         assert v["rho"] >= 0.8, (k, v)
         for j, x in v["crosstalk"].items():
             assert x <= 0.2, (k, j, x)
+
+
+# ---------------------------------------------------------------- coverage of user-facing paths
+
+
+def _csv_segments(path: Path) -> np.ndarray:
+    """(N, 4) x0, y0, x1, y1 of a scratches.csv, read with the csv module alone."""
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    return np.array([[float(r[k]) for k in ("x0", "y0", "x1", "y1")] for r in rows])
+
+
+@pytest.mark.parametrize("damage", ["checkpoint", "target"])
+@pytest.mark.parametrize("content", [b"garbage", b""])
+def test_garbage_numpy_file_is_one_line_naming_it(
+    job: Path, capsys, damage: str, content: bytes
+) -> None:
+    """Not numpy's 'load it unsafely using allow_pickle=' advice: what the file is not."""
+    if damage == "checkpoint":
+        main(["optimize", str(job), "--iterations", "1"])
+        path = job / "optimize" / "checkpoint.npz"
+        args = ["--resume"]
+    else:
+        path = sorted((job / "design" / "targets").glob("*.npy"))[0]
+        args = []
+    path.write_bytes(content)
+    before = {p: p.read_bytes() for p in (job / "optimize").glob("*.csv")}
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        main(["optimize", str(job), "--iterations", "2", *args])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    seen = "it is empty" if not content else "it begins with b'garbage'"
+    assert err.splitlines()[-1] == f"error: {path}: not a NumPy {path.suffix} file ({seen})"
+    assert "Traceback" not in err and "allow_pickle" not in err
+    assert path.read_bytes() == content  # nothing rewritten
+    assert {p: p.read_bytes() for p in (job / "optimize").glob("*.csv")} == before
+
+
+def test_time_budget_stops_after_one_step_with_every_output(job: Path, capsys) -> None:
+    main(["optimize", str(job), "--iterations", "50", "--time-budget", "0.001"])
+    out = capsys.readouterr().out
+    assert "1 iterations (time budget), loss " in out
+    folder = job / "optimize"
+    for name in ("scratches.csv", "log.csv", "loss.png", "side_by_side.png", "summary.json"):
+        assert (folder / name).is_file(), name
+    with open(folder / "log.csv", newline="") as fh:
+        iterations = [int(r["iteration"]) for r in csv.DictReader(fh)]
+    assert iterations == [0, 1]  # the step taken, then the final layout's row
+    state, _, rows = load_checkpoint(folder / "checkpoint.npz")
+    assert int(state["iteration"]) == 1 and len(rows) == 1
+    import json
+
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["stopped"] == "time budget" and summary["iterations"] == 1
+    assert len(_csv_segments(folder / "scratches.csv")) == len(
+        _csv_segments(job / "design" / "scratches.csv")
+    )
+
+
+def test_prune_cli_reports_what_it_dropped(job: Path, capsys) -> None:
+    main(["optimize", str(job), "--iterations", "4", "--prune", "0.05"])
+    out = capsys.readouterr().out
+    found = re.search(r"pruned (\d+) scratches: (\d+) mm of cutting, about (.+) of machining", out)
+    assert found, out
+    folder = job / "optimize"
+    before = _csv_segments(folder / "scratches_unpruned.csv")
+    after = _csv_segments(folder / "scratches.csv")
+    assert len(before) == len(_csv_segments(job / "design" / "scratches.csv"))
+    removed = len(before) - len(after)
+    assert removed > 0 and int(found.group(1)) == removed
+    # The kept scratches are a subset of the unpruned ones, and the length is theirs.
+    kept = {tuple(np.round(r, 9)) for r in after}
+    assert kept <= {tuple(np.round(r, 9)) for r in before}
+    length = lambda s: np.hypot(s[:, 2] - s[:, 0], s[:, 3] - s[:, 1]).sum()  # noqa: E731
+    assert int(found.group(2)) == round(length(before) - length(after))
+    import json
+
+    assert json.loads((folder / "summary.json").read_text())["scratches"] == len(after)
+
+
+def test_jitter_turns_each_scratch_about_its_centre(tmp_path: Path) -> None:
+    design = make_design(resolution=16, size_mm=30.0)
+    runs = {}
+    for jitter in (0.0, 4.0):
+        job = make_job(tmp_path / f"j{jitter:g}", design, count=150)
+        run_optimize(job, OptimizeOptions(iterations=0, jitter_deg=jitter, seed=5))
+        runs[jitter] = _csv_segments(job / "optimize" / "scratches.csv")
+    plain, turned = runs[0.0], runs[4.0]
+    np.testing.assert_allclose(plain, _csv_segments(tmp_path / "j0" / "design" / "scratches.csv"))
+    centre = lambda s: 0.5 * (s[:, :2] + s[:, 2:])  # noqa: E731
+    length = lambda s: np.hypot(s[:, 2] - s[:, 0], s[:, 3] - s[:, 1])  # noqa: E731
+    np.testing.assert_allclose(centre(turned), centre(plain), atol=1e-9)
+    np.testing.assert_allclose(length(turned), length(plain), rtol=1e-9)
+    angle = lambda s: np.arctan2(s[:, 3] - s[:, 1], s[:, 2] - s[:, 0])  # noqa: E731
+    turn = np.degrees(np.angle(np.exp(1j * (angle(turned) - angle(plain)))))
+    assert np.all(np.abs(turn) > 0)
+    # 150 draws of N(0, 4 deg): the sample deviation is within 20 % with room to spare.
+    assert 3.2 < float(np.std(turn)) < 4.8

@@ -712,3 +712,39 @@ def test_toolpath_machine_is_a_name_or_a_file_beside_the_pipeline(tmp_path, ref,
 
     pipeline = tmp_path / "p.toml"
     assert _machine_ref(ref, pipeline) == (str(tmp_path / ref) if is_file else ref)
+
+
+def test_damaged_checkpoint_of_an_interrupted_optimize_starts_it_afresh(
+    finished_job, tmp_path, monkeypatch
+):
+    import shutil
+
+    from scratchfab.pipeline import runner
+
+    path, job, _ = finished_job
+    copy = tmp_path / "job"
+    shutil.copytree(job, copy)
+
+    def killed(self):
+        raise SystemExit("killed")
+
+    with monkeypatch.context() as mp:  # optimize killed midway: the manifest says "running"
+        mp.setattr(Manifest, "invalidate", lambda *a: None)
+        mp.setattr(runner._Stages, "_run_optimize", killed)
+        with pytest.raises(SystemExit):
+            run_pipeline(load_pipeline(path), copy, start="optimize", until="optimize")
+    ckpt = copy / "optimize" / "checkpoint.npz"
+    ckpt.write_bytes(b"garbage")
+    said: list[str] = []
+    result = run_pipeline(load_pipeline(path), copy, until="optimize", say=said.append)
+    assert result.ran == ["optimize"]
+    assert f"  continuing the interrupted run from {ckpt}" in said
+    assert (
+        f"  cannot continue it ({ckpt}: not a NumPy .npz file (it begins with b'garbage')); "
+        "optimizing from the start"
+    ) in said
+    # The fresh run is the finished job's run again, and leaves a readable checkpoint.
+    scratches = "optimize/scratches.csv"
+    assert (copy / scratches).read_bytes() == (job / scratches).read_bytes()
+    assert Manifest.load(copy).stages["optimize"]["status"] == "done"
+    assert ckpt.read_bytes()[:2] == b"PK"

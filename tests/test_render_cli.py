@@ -246,3 +246,53 @@ def test_cuda_backend_renders_or_says_why(tmp_path, rng, capsys):
     a, b = read_render_layout(tmp_path / "cuda"), read_render_layout(tmp_path / "llvm")
     for name in a:
         np.testing.assert_allclose(a[name], b[name], rtol=1e-5, atol=1e-6 * b[name].max())
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda d: None, "{d}: render folder not found"),
+        (lambda d: d.mkdir(), "{d}: no <view>.npy images in this folder"),
+        (
+            lambda d: _put(d, b"garbage"),
+            "{d}/a.npy: not a NumPy .npy file (it begins with b'garbage')",
+        ),
+        (lambda d: _put(d, b""), "{d}/a.npy: not a NumPy .npy file (it is empty)"),
+        (
+            lambda d: _put(d, _npy(np.zeros(3))),
+            "{d}/a.npy: expected a 2-D float image, got float64 (3,)",
+        ),
+        (
+            lambda d: _put(d, _npy(np.zeros((2, 2), int))),
+            "{d}/a.npy: expected a 2-D float image, got int64",
+        ),
+        (
+            lambda d: _put(d, _npy(np.zeros(4))[:-8]),
+            "{d}/a.npy: unreadable NumPy .npy file (Failed to read",
+        ),
+    ],
+    ids=["missing", "empty folder", "garbage", "empty file", "1-D", "integers", "truncated"],
+)
+def test_render_folder_errors_are_one_line_naming_the_file(tmp_path, make, message):
+    from scratchfab.errors import ConfigError
+
+    folder = tmp_path / "renders"
+    make(folder)
+    with pytest.raises(ConfigError) as exc:
+        read_render_layout(folder)
+    text = str(exc.value)
+    assert text.startswith(message.format(d=folder)) and "\n" not in text
+    assert "allow_pickle" not in text
+
+
+def _npy(array: np.ndarray) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, array)
+    return buf.getvalue()
+
+
+def _put(folder: Path, data: bytes) -> None:
+    folder.mkdir()
+    (folder / "a.npy").write_bytes(data)

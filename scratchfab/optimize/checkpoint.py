@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import io
 import json
-import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from scratchfab.errors import ScratchfabError
-from scratchfab.fileio import atomic_open
+from scratchfab.errors import ConfigError
+from scratchfab.fileio import atomic_open, load_numpy
 
 FORMAT = 1
 
@@ -52,20 +51,17 @@ def load_checkpoint(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any], 
     """Read a checkpoint: (state, meta, log_rows).
 
     Raises:
-        ScratchfabError: When the file is missing or unreadable, naming it.
+        ConfigError: When the file is missing, unreadable or not a checkpoint, naming it
+            (a pipeline then optimizes from the start).
     """
     if not path.exists():
-        raise ScratchfabError(f"{path}: no checkpoint to resume from (run without --resume)")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise ScratchfabError(f"{path}: unreadable checkpoint ({exc})") from None
+        raise ConfigError(f"{path}: no checkpoint to resume from (run without --resume)")
+    arrays: dict[str, np.ndarray] = load_numpy(path)
     try:
         meta = json.loads(arrays.pop("meta").tobytes().decode("utf-8"))
         log_rows = arrays.pop("log_rows")
     except (KeyError, ValueError) as exc:
-        raise ScratchfabError(f"{path}: not a scratchfab checkpoint ({exc})") from None
+        raise ConfigError(f"{path}: not a scratchfab checkpoint ({exc})") from None
     if meta.get("format") != FORMAT:
-        raise ScratchfabError(f"{path}: checkpoint format {meta.get('format')} is not {FORMAT}")
+        raise ConfigError(f"{path}: checkpoint format {meta.get('format')} is not {FORMAT}")
     return arrays, meta, log_rows

@@ -35,7 +35,7 @@ import numpy as np
 from scratchfab.backend import array_module
 from scratchfab.design.targets import job_cross_targets
 from scratchfab.errors import ConfigError
-from scratchfab.fileio import write_json, write_text
+from scratchfab.fileio import load_numpy, write_json, write_text
 from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design
 from scratchfab.model.job import JobLayout, design_digest, load_job_design
@@ -151,10 +151,7 @@ def load_job_inputs(job: Path) -> tuple[Design, dict[str, np.ndarray], ScratchSe
                     "rerun `scratchfab design`)"
                 )
             continue
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise ConfigError(f"{path}: not a readable .npy file ({exc})") from None
+        arr = load_numpy(path)
         if arr.shape != (view.height, view.width) or not np.issubdtype(arr.dtype, np.floating):
             raise ConfigError(
                 f"{path}: expected float (H, W) = ({view.height}, {view.width}), "

@@ -12,7 +12,7 @@ import numpy as np
 from PIL import Image, PngImagePlugin
 
 from scratchfab.errors import ConfigError
-from scratchfab.fileio import save_npy, write_bytes
+from scratchfab.fileio import load_numpy, save_npy, write_bytes
 from scratchfab.render.tonemap import tone_map
 
 #: PNG text key holding the tone map's exposure.
@@ -72,10 +72,7 @@ def read_render_layout(directory: str | Path) -> dict[str, np.ndarray]:
         raise ConfigError(f"{folder}: render folder not found")
     images = {}
     for path in sorted(folder.glob("*.npy")):
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise ConfigError(f"{path}: not a readable .npy file ({exc})") from None
+        arr = load_numpy(path)
         if arr.ndim != 2 or not np.issubdtype(arr.dtype, np.floating):
             raise ConfigError(f"{path}: expected a 2-D float image, got {arr.dtype} {arr.shape}")
         images[path.stem] = arr
