@@ -1972,3 +1972,48 @@ def test_resume_preamble_dwells_as_the_file_did(tmp_path, setup, dwell):
     assert dwells == ([dwell] if dwell else [])
     if dwell:
         assert pre[pre.index(dwell) - 1].startswith("M3")
+
+
+def _executed_in_emulator(record, prog) -> int:
+    """The last program block the emulator finished moving before its first reset."""
+    reset = next(e["t"] for e in record if e["ev"] == "rt" and e["ch"] == 0x18)
+    block_of = {}
+    for e in record:
+        if e["ev"] == "rx" and e["g"]:
+            block_of[e["n"]] = len(block_of)
+    done = [block_of[e["n"]] for e in record if e["ev"] == "exec" and e["t"] <= reset]
+    last = max(done)
+    assert sorted(done) == list(range(1, last + 1))  # block 0 (G21 G90 ...) does not move
+    return last
+
+
+@pytest.mark.parametrize("inches", [0, 1])
+def test_stop_position_matches_in_inch_reports(tmp_path, inches):
+    """Under $13=1 GRBL reports inches; the hold position still finds the interrupted block,
+    so the journal's executed-through is what the emulator ran (not the planner bound)."""
+    from scratchfab.machine.sender_journal import last_surely_run
+
+    job = tmp_path / "job.gcode"
+    write_job(job, 40)
+    prog = load_program(job)
+    journal = tmp_path / "j.jsonl"
+    fired = []
+
+    def progress(p):
+        if p.acked > 60 and not fired:
+            fired.append(1)
+            raise KeyboardInterrupt
+
+    port = open_port(f"grblsim://?time_scale=0.02&$13={inches}", 115200)
+    try:
+        with pytest.raises(StreamStopped):
+            _stream(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
+    finally:
+        port.close()
+    events = read_journal(journal)
+    stop = events[-1]
+    assert stop["ev"] == "stop"
+    truth = _executed_in_emulator(port.sim.record, prog)
+    acked = [e["i"] for e in events if e["ev"] == "ack" and "i" in e]
+    assert last_surely_run(prog.blocks, acked, 15) < truth  # the position decides here
+    assert stop["executed_through"] == truth

@@ -123,7 +123,7 @@ def open_port(port: str, baud: int) -> Any:
 
 @dataclass
 class Status:
-    """A parsed status report."""
+    """A parsed status report; positions in mm and feed in mm/min, whatever $13 says."""
 
     state: str = "?"
     mpos: tuple[float, float, float] | None = None
@@ -133,8 +133,15 @@ class Status:
     time: float = 0.0
 
 
-def parse_status(line: str, wco: tuple[float, float, float] | None) -> Status:
-    """Parse ``<State|MPos:...|FS:...|WCO:...>``; WPos/MPos completed from the last WCO."""
+def parse_status(line: str, wco: tuple[float, float, float] | None, scale: float = 1.0) -> Status:
+    """Parse ``<State|MPos:...|FS:...|WCO:...>``; WPos/MPos completed from the last WCO.
+
+    Args:
+        line: The report.
+        wco: The last work offset known (mm), for a report without ``WCO:``.
+        scale: Millimetres per reported unit (25.4 under ``$13=1``); positions, offset
+            and feed come back in mm.
+    """
     st = Status(time=time.monotonic(), wco=wco)
     parts = line.strip("<>").split("|")
     st.state = parts[0]
@@ -143,7 +150,7 @@ def parse_status(line: str, wco: tuple[float, float, float] | None) -> Status:
         nums = value.split(",")
         try:
             if key in ("MPos", "WPos", "WCO"):
-                xyz = (float(nums[0]), float(nums[1]), float(nums[2]))
+                xyz = (float(nums[0]) * scale, float(nums[1]) * scale, float(nums[2]) * scale)
                 if key == "MPos":
                     st.mpos = xyz
                 elif key == "WPos":
@@ -151,7 +158,7 @@ def parse_status(line: str, wco: tuple[float, float, float] | None) -> Status:
                 else:
                     st.wco = xyz
             elif key in ("FS", "F"):
-                st.feed = float(nums[0])
+                st.feed = float(nums[0]) * scale
         except (ValueError, IndexError):
             continue
     if st.wco is not None:
@@ -330,8 +337,13 @@ class Streamer:
             self._last_poll = now
             self._write(REALTIME_STATUS)
 
+    @property
+    def _mm_per_reported_unit(self) -> float:
+        """GRBL reports positions and offsets in inches under ``$13=1``: the one place read."""
+        return MM_PER_INCH if self.info.settings.get(13, 0) else 1.0
+
     def _note_status(self, line: str) -> None:
-        self.status = parse_status(line, self._wco)
+        self.status = parse_status(line, self._wco, self._mm_per_reported_unit)
         # answers arrive in order: the block running at this report was acknowledged before it
         self._acks_at_status = len(self._acked_blocks)
         if self.status.wco is not None:
@@ -472,7 +484,7 @@ class Streamer:
         in inches (``$13=1``) are converted to mm. Leaves ``info.wco`` None when neither
         works.
         """
-        scale = MM_PER_INCH if self.info.settings.get(13, 0) else 1.0
+        scale = self._mm_per_reported_unit
         try:
             params = self._command("$#")
             modal = self._command("$G")
@@ -502,9 +514,8 @@ class Streamer:
                 break
             time.sleep(max(0.0, self._last_poll + period - time.monotonic()))
             self._status_now()
-        if self._wco is not None:
-            wco = self._wco
-            self.info.wco = (wco[0] * scale, wco[1] * scale, wco[2] * scale)
+        if self._wco is not None:  # in mm already (parse_status)
+            self.info.wco = self._wco
             self.info.wco_source = "status"
 
     def _status_now(self, timeout: float = 2.0) -> Status:
