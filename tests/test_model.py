@@ -283,3 +283,119 @@ def test_try_lock_on_a_file_system_that_cannot_lock_says_so(tmp_path, monkeypatc
     with open(tmp_path / "lock", "a") as handle:
         with pytest.raises(ScratchfabError, match="cannot lock .No locks available.; use a job"):
             try_lock(handle)
+
+
+# A design file as a person writes it; each case below edits it (old -> new) or replaces it.
+SCENE = """\
+[board]
+width_mm = 30.0
+height_mm = 30.0
+margin_mm = 1.5
+
+[light]
+position_mm = [0.0, 187.3, 463.6]
+
+[scratch]
+count = 50
+min_length_mm = 1.5
+max_length_mm = 5.0
+
+[[views]]
+name = "a"
+azimuth_deg = -22.0
+elevation_deg = 0.0
+distance_mm = 400.0
+fov_deg = "auto"
+resolution = [16, 16]
+"""
+POLAR = "azimuth_deg = -22.0\nelevation_deg = 0.0\ndistance_mm = 400.0\n"
+NESTED = "[design]\n" + SCENE.replace("[board]", "[design.board]").replace(
+    "[light]", "[design.light]"
+).replace("[scratch]", "[design.scratch]").replace("[[views]]", "[[design.views]]")
+
+SCENE_ERRORS = [
+    # (id, file bytes, expected fragment after "<file>: ")
+    ("invalid toml", SCENE + "\n[oops\n", "invalid TOML: Expected ']' at the end of a table"),
+    ("latin-1", (SCENE + "# caf\xe9\n").encode("latin-1"), "not a UTF-8 text file, expected TOML"),
+    (
+        "[design]",
+        NESTED,
+        "put board, light, scratch and views at the top level, not under [design]",
+    ),
+    ("no views", SCENE.split("[[views]]")[0], "views: at least one [[views]] table is required"),
+    (
+        "position and polar",
+        SCENE.replace(POLAR, POLAR + "position_mm = [0.0, 0.0, 400.0]\n"),
+        "views[0]: view 'a': give either position_mm or azimuth/elevation/distance, not both",
+    ),
+    (
+        "look_at == position",
+        SCENE.replace(POLAR, "position_mm = [0.0, 0.0, 400.0]\nlook_at_mm = [0.0, 0.0, 400.0]\n"),
+        "views[0]: view 'a': look_at_mm equals position_mm",
+    ),
+    (
+        "up along the view",
+        SCENE.replace(POLAR, "position_mm = [0.0, 0.0, 400.0]\nup = [0.0, 0.0, 1.0]\n"),
+        "views[0]: view 'a': up is parallel to the viewing direction",
+    ),
+    (
+        "view's light behind",
+        SCENE + "light_position_mm = [0.0, 0.0, -10.0]\n",
+        "views[0]: view 'a': light_position_mm must be in front of the board (z > 0), got z = -10.0",
+    ),
+    (
+        "min > max length",
+        SCENE.replace("min_length_mm = 1.5", "min_length_mm = 6.0"),
+        "scratch: min_length_mm (6.0) is larger than max_length_mm (5.0)",
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    ("content", "fragment"), [c[1:] for c in SCENE_ERRORS], ids=[c[0] for c in SCENE_ERRORS]
+)
+def test_design_file_errors_are_one_line_naming_file_and_key(tmp_path, content, fragment):
+    path = tmp_path / "scene.toml"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
+    with pytest.raises(ConfigError) as info:
+        load_design(path)
+    text = str(info.value)
+    assert text.startswith(f"{path}: {fragment}") and "\n" not in text
+
+
+def test_invalid_toml_names_the_line(tmp_path):
+    path = tmp_path / "scene.toml"
+    path.write_text(SCENE_ERRORS[0][1])
+    line = path.read_text().splitlines().index("[oops") + 1
+    with pytest.raises(ConfigError, match=rf"\(at line {line}, column \d+\)$"):
+        load_design(path)
+
+
+@pytest.mark.parametrize("case", ["invalid toml", "latin-1", "[design]", "up along the view"])
+def test_design_cli_turns_file_errors_into_one_line_and_exit_2(tmp_path, capsys, case):
+    from scratchfab.cli import main
+
+    _, content, fragment = next(c for c in SCENE_ERRORS if c[0] == case)
+    path = tmp_path / "scene.toml"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
+    job = tmp_path / "job"
+    with pytest.raises(SystemExit) as exc:
+        main(["design", str(path), "--out", str(job)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {path}: {fragment}")
+    assert not job.exists()
+
+
+def test_the_unedited_scene_loads(tmp_path):
+    """The cases above fail for their edit alone."""
+    path = tmp_path / "scene.toml"
+    path.write_text(SCENE)
+    design = load_design(path)
+    assert [v.name for v in design.views] == ["a"] and design.scratch.min_length_mm == 1.5
