@@ -505,3 +505,72 @@ def test_tolerance_from_a_profile_name_or_a_loaded_profile():
     assert by_name.position_mm == loaded.position_mm == profile.tool.tolerance_mm
     # The report names the profile as the user did, not the installed file's path.
     assert by_name.source == loaded.source == "grbl-3018-diamond"
+
+
+def test_sky_writes_its_render_layout_and_metrics(half_job, tmp_path, capsys):
+    _, design, _, design_file, scratch_file = half_job
+    out = tmp_path / "v"
+    main(
+        [
+            "verify-render",
+            "--design",
+            str(design_file),
+            "--scratches",
+            str(scratch_file),
+            "--out",
+            str(out),
+            "--spp",
+            "16",
+            "--sky",
+            "--sun",
+            "0.2",
+            "0.9",
+            "0.4",
+            "--sky-strength",
+            "2",
+        ]
+    )
+    captured = capsys.readouterr()
+    said = captured.out + captured.err
+    metrics = json.loads((out / "metrics.json").read_text())
+    sky = metrics["sky"]
+    assert sky["folder"] == "sky" and sky["strength"] == 2.0 and sky["seconds"] > 0
+    sun = np.array(sky["sun_direction"])
+    np.testing.assert_allclose(
+        sun / np.linalg.norm(sun), np.array([0.2, 0.9, 0.4]) / math.hypot(0.2, 0.9, 0.4)
+    )
+    targets, _ = design_targets(design)
+    for name in ("left", "right"):
+        img = np.load(out / "sky" / f"{name}.npy")
+        assert img.dtype == np.float32 and img.shape == (32, 32)
+        assert Image.open(out / "sky" / f"{name}.png").size == (32, 32)
+        assert re.search(rf"sky {name}: \d+\.\d s, noise \d+\.\d\d %", said)
+        # The metrics are those of the pictures on disk, and the sky lights the board
+        # otherwise than the design's lamp does.
+        assert sky["views"][name]["rho"] == pytest.approx(pearson(img, targets[name]), abs=1e-6)
+        lamp = np.load(out / f"{name}.npy")
+        assert np.isfinite(img).any() and not np.allclose(img, lamp, equal_nan=True)
+
+
+def test_one_view_sweep_turns_the_azimuth_across_that_view():
+    from scratchfab.verify.sweep import MIN_SPAN_DEG, nearest_frames
+
+    tables = two_view_tables(resolution=16)
+    tables["views"] = [{**tables["views"][0], "position_mm": [-120.0, 60.0, 300.0]}]
+    design = design_from_mapping(tables, "<test>", Path("."))
+    (view,) = design.views
+    frames, view_params = sweep_path(design, 5)
+    assert view_params == {"left": MIN_SPAN_DEG / 2}
+    assert nearest_frames(frames, view_params) == {"left": 2}
+    pos = np.array([f.view.position_mm for f in frames])
+    np.testing.assert_allclose(pos[2], view.camera_position, atol=1e-9)
+    # Same height and distance throughout; the azimuth (from +z toward +x) steps evenly
+    # across the span, centred on the view's own.
+    np.testing.assert_allclose(pos[:, 1], 60.0, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(pos, axis=1), math.hypot(120, 60, 300), rtol=1e-12)
+    azimuth = np.degrees(np.arctan2(pos[:, 0], pos[:, 2]))
+    centre = math.degrees(math.atan2(-120.0, 300.0))
+    np.testing.assert_allclose(azimuth, centre + np.linspace(-0.5, 0.5, 5) * MIN_SPAN_DEG)
+    for f in frames:
+        assert f.view.fov == pytest.approx(view.fov)
+        np.testing.assert_allclose(design.light_for(f.view), design.light_for(view))
