@@ -1,7 +1,8 @@
-"""scripts/llvm.sh: setup's check for a shared libLLVM 16+ (Dr.Jit's CPU backend)."""
+"""Installing scratchfab: scripts/setup.sh (and its libLLVM check, scripts/llvm.sh), the sdist."""
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -96,7 +97,7 @@ def test_the_sdist_carries_every_local_module_and_repo_path_the_tests_use():
     grafts, files = _manifest()
     carried = grafts | files
     local = {p.stem: p for p in ROOT.glob("tests/*.py")}
-    top = {p.name for p in ROOT.iterdir()}
+    top = {p.name for p in ROOT.iterdir() if not p.name.startswith(".")}
     needed: dict[str, str] = {}
     for test in sorted(ROOT.glob("tests/*.py")):
         for node in ast.walk(ast.parse(test.read_text(encoding="utf-8"))):
@@ -117,3 +118,211 @@ def test_the_sdist_carries_every_local_module_and_repo_path_the_tests_use():
     assert {"tests", "pipelines", "machine_profiles", "docs"} <= set(needed)
     missing = {name: user for name, user in needed.items() if name not in carried}
     assert not missing, f"used by tests, not in MANIFEST.in: {missing}"
+
+
+# scripts/setup.sh, run in a copy of the checkout with stand-ins on PATH for the
+# interpreters, the venv's python (pip), id, sudo and apt-get: nothing is installed.
+SETUP_SH = ROOT / "scripts" / "setup.sh"
+TOOLS = ("dirname", "cat", "sha256sum", "cut", "mkdir", "cp", "env", "touch")
+
+
+def _stub(path: Path, body: str) -> Path:
+    path.write_text("#!/bin/bash\n" + body, encoding="utf-8")
+    path.chmod(0o755)
+    return path
+
+
+class Sandbox:
+    """A checkout with setup.sh, a PATH of stand-ins, and a log of what they were asked."""
+
+    def __init__(self, tmp_path: Path, uid: int = 0, llvm: bool = True):
+        self.tmp, self.repo, self.bin = tmp_path, tmp_path / "repo", tmp_path / "bin"
+        self.log = tmp_path / "log"
+        self.lib = tmp_path / "libLLVM-19.so"  # appears when apt-get installs libllvm19
+        (self.repo / "scripts").mkdir(parents=True)
+        (self.repo / "scratchfab").mkdir()
+        self.bin.mkdir()
+        (self.repo / "scripts" / "setup.sh").write_text(SETUP_SH.read_text())
+        (self.repo / "scripts" / "llvm.sh").write_text(f'have_llvm() {{ [ -e "{self.lib}" ]; }}\n')
+        (self.repo / "pyproject.toml").write_text((ROOT / "pyproject.toml").read_text())
+        (self.repo / "scratchfab" / "__init__.py").write_text('__version__ = "0"\n')
+        if llvm:
+            self.lib.write_bytes(b"")
+        self.log.write_text("")
+        for tool in TOOLS:
+            found = shutil.which(tool)
+            assert found, tool
+            (self.bin / tool).symlink_to(found)
+        _stub(self.bin / "id", f"echo {uid}\n")
+
+    def venv_python(self, path: Path, ok: bool) -> Path:
+        """A venv's python: logs its calls; ``-c`` (setup's health check) succeeds if ``ok``."""
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return _stub(
+            path, f'echo "venv-python $*" >>"{self.log}"\n[ "$1" != -c ] || {str(ok).lower()}\n'
+        )
+
+    def python(self, name: str, version: str | None) -> Path:
+        """An interpreter on PATH reporting ``version`` (None: fails like a pyenv shim)."""
+        if version is None:
+            return _stub(self.bin / name, 'echo "pyenv: $0: command not found" >&2; exit 127\n')
+        major, minor = map(int, version.split("."))
+        template = self.venv_python(self.tmp / "templates" / name, (major, minor) >= (3, 11))
+        return _stub(
+            self.bin / name,
+            f'if [ "$1" = -c ]; then echo {version}; exit 0; fi\n'
+            f'echo "{name} $*" >>"{self.log}"\n'
+            'd="${@: -1}"; mkdir -p "$d/bin"\n'
+            f'cp "{template}" "$d/bin/python"\n',
+        )
+
+    def run(self, **env: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [shutil.which("bash") or "bash", str(self.repo / "scripts" / "setup.sh")],
+            env={"PATH": str(self.bin), **env},
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+
+    def calls(self) -> list[str]:
+        return self.log.read_text().splitlines()
+
+
+PIP = ["venv-python -m pip install -q --upgrade pip", "venv-python -m pip install -q -e .[dev]"]
+
+
+def test_setup_picks_the_newest_python_that_runs_and_is_3_11_or_newer(tmp_path):
+    box = Sandbox(tmp_path)
+    box.python("python3.13", None)  # a pyenv shim of a version that is not selected
+    box.python("python3.11", "3.11")
+    box.python("python3", "3.10")
+    run = box.run()
+    assert run.returncode == 0, run.stderr
+    assert box.calls() == ["python3.11 -m venv .venv", *PIP]
+    # The second run finds the stamp and asks nothing, not even the venv's python.
+    again = box.run()
+    assert again.returncode == 0 and again.stdout == again.stderr == ""
+    assert box.calls() == ["python3.11 -m venv .venv", *PIP]
+
+
+def test_setup_uses_PYTHON_when_set(tmp_path):
+    box = Sandbox(tmp_path)
+    box.python("python3.13", "3.13")
+    chosen = box.python("py312", "3.12")
+    run = box.run(PYTHON=str(chosen))
+    assert run.returncode == 0, run.stderr
+    assert box.calls() == ["py312 -m venv .venv", *PIP]
+
+
+@pytest.mark.parametrize(
+    ("pythons", "env", "found"),
+    [
+        ({"python3": "3.10", "python3.12": None}, {}, "python3.12 (does not run), python3 3.10"),
+        ({"python3.11": "3.11", "old": "3.9"}, {"PYTHON": "old"}, "old 3.9"),
+        ({}, {}, "none of python3.13 python3.12 python3.11 python3"),
+    ],
+)
+def test_setup_without_python_3_11_says_what_it_found(tmp_path, pythons, env, found):
+    box = Sandbox(tmp_path)
+    for name, version in pythons.items():
+        box.python(name, version)
+    run = box.run(**env)
+    assert run.returncode == 1
+    assert run.stderr == (
+        f"setup: scratchfab needs Python >= 3.11; found {found}; "
+        "set PYTHON to a Python 3.11 or newer\n"
+    )
+    assert not (box.repo / ".venv").exists() and box.calls() == []
+
+
+def test_setup_reuses_a_good_venv_and_recreates_a_bad_one(tmp_path):
+    box = Sandbox(tmp_path)
+    box.python("python3.12", "3.12")
+    box.venv_python(box.repo / ".venv" / "bin" / "python", ok=True)
+    run = box.run()
+    assert run.returncode == 0, run.stderr
+    assert box.calls() == [
+        "venv-python -c import sys, pip; assert sys.version_info >= (3, 11)",
+        *PIP,
+    ]
+
+    # A venv of Python 3.10, or one without pip, that never took the install (no stamp).
+    box.log.write_text("")
+    (box.repo / ".venv" / ".scratchfab-installed").unlink()
+    box.venv_python(box.repo / ".venv" / "bin" / "python", ok=False)
+    run = box.run()
+    assert run.returncode == 0, run.stderr
+    assert "setup: .venv has no working Python >= 3.11 with pip; recreating it" in run.stdout
+    assert box.calls() == [
+        "venv-python -c import sys, pip; assert sys.version_info >= (3, 11)",
+        "python3.12 -m venv --clear .venv",
+        *PIP,
+    ]
+
+
+LLVM_HINT = (
+    "install libllvm19 (Debian/Ubuntu: sudo apt-get install libllvm19) or any shared libLLVM "
+    ">= 16, set DRJIT_LIBLLVM_PATH to it if it is not in /usr/lib, and run this again\n"
+)
+
+
+def _apt(box: Sandbox, rc: int = 0) -> None:
+    _stub(
+        box.bin / "apt-get",
+        f'echo "apt-get $*" >>"{box.log}"\n'
+        f'[ "$1" != install ] || {{ [ {rc} -ne 0 ] || touch "{box.lib}"; exit {rc}; }}\n',
+    )
+
+
+def test_setup_skips_the_libllvm_step_for_an_existing_DRJIT_LIBLLVM_PATH(tmp_path):
+    box = Sandbox(tmp_path, uid=1000, llvm=False)
+    _apt(box)
+    box.python("python3", "3.11")
+    own = tmp_path / "own-libLLVM.so"
+    own.write_bytes(b"")
+    run = box.run(DRJIT_LIBLLVM_PATH=str(own))
+    assert run.returncode == 0, run.stderr
+    assert not any(call.startswith("apt-get") for call in box.calls())
+    # A path that names nothing is not taken: setup goes on to look for libLLVM itself.
+    run = Sandbox(tmp_path / "again", uid=1000, llvm=False).run(
+        DRJIT_LIBLLVM_PATH=str(tmp_path / "missing.so")
+    )
+    assert run.returncode == 1 and run.stderr.endswith(LLVM_HINT)
+
+
+@pytest.mark.parametrize("sudo", [None, "exit 1\n"])
+def test_setup_without_root_or_sudo_prints_the_manual_libllvm_fix(tmp_path, sudo):
+    box = Sandbox(tmp_path, uid=1000, llvm=False)
+    _apt(box)
+    if sudo is not None:  # sudo that wants a password: `sudo -n true` fails
+        _stub(box.bin / "sudo", f'echo "sudo $*" >>"{box.log}"\n{sudo}')
+    run = box.run()
+    assert run.returncode == 1
+    assert run.stderr == (
+        "setup: installing libllvm19 needs root and sudo cannot run without a password; "
+        + LLVM_HINT
+    )
+    assert box.calls() == ([] if sudo is None else ["sudo -n true"])
+    assert not (box.repo / ".venv").exists()
+
+
+@pytest.mark.parametrize(("uid", "rc"), [(0, 0), (0, 100), (1000, 0), (1000, 100)])
+def test_setup_installs_libllvm19_with_apt_or_prints_the_fix(tmp_path, uid, rc):
+    box = Sandbox(tmp_path, uid=uid, llvm=False)
+    _apt(box, rc)
+    _stub(box.bin / "sudo", f'echo "sudo $*" >>"{box.log}"\n[ "$1" = -n ] && shift && "$@"\n')
+    box.python("python3", "3.11")
+    run = box.run()
+    apt = ["apt-get update -qq", "apt-get install -y -qq libllvm19"]
+    if uid != 0:  # each through `sudo -n` (the install through env, which sudo would reset)
+        install = "sudo -n env DEBIAN_FRONTEND=noninteractive " + apt[1]
+        apt = ["sudo -n true", "sudo -n " + apt[0], apt[0], install, apt[1]]
+    if rc == 0:
+        assert run.returncode == 0, run.stderr
+        assert box.lib.exists() and "python3 -m venv .venv" in box.calls()
+    else:
+        assert run.returncode == 1
+        assert run.stderr == "setup: apt-get could not install libllvm19; " + LLVM_HINT
+        assert not (box.repo / ".venv").exists()
+    assert [c for c in box.calls() if not c.startswith(("python3", "venv-python"))] == apt
