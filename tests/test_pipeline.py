@@ -748,3 +748,39 @@ def test_damaged_checkpoint_of_an_interrupted_optimize_starts_it_afresh(
     assert (copy / scratches).read_bytes() == (job / scratches).read_bytes()
     assert Manifest.load(copy).stages["optimize"]["status"] == "done"
     assert ckpt.read_bytes()[:2] == b"PK"
+
+
+def test_pipeline_without_a_stream_port_runs_to_the_end_and_says_not_streamed(tmp_path):
+    from conftest import PIPELINE
+
+    port = next(line for line in PIPELINE.splitlines() if line.startswith("port ="))
+    path = write_pipeline(tmp_path, edits={f"[stream]\n{port}\n": ""})
+    assert "[stream]" not in path.read_text()
+    job = tmp_path / "job"
+    said: list[str] = []
+    result = run_pipeline(load_pipeline(path), job, say=said.append)
+    assert result.ran == [s for s in STAGES if s != "stream"]
+    assert (job / "export" / "board.gcode").is_file()
+    assert not (job / "stream").exists() and "stream" not in Manifest.load(job).stages
+    assert not any(line.startswith("[stream]") for line in said)
+    report = (job / "report.html").read_text()
+    assert "<span class='muted'>ℹ info</span> not streamed</li>" in report
+    assert "<p class='muted'>not streamed.</p>" in report
+    assert "Or set [stream] <code>port</code> in the pipeline file" in report
+
+
+def test_report_after_design_failed_says_design_has_not_run(tmp_path):
+    path = write_pipeline(tmp_path)
+    (tmp_path / "disc.png").write_bytes(b"not a png")
+    job = tmp_path / "job"
+    with pytest.raises(ScratchfabError, match=r"disc\.png: not an image file"):
+        run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    assert Manifest.load(job).stages["design"]["status"] == "failed"
+    assert not (job / "design").exists()
+    report = (job / "report.html").read_text()
+    assert "data-verdict='not-ready'" in report
+    assert "stage design failed" in report and "disc.png: not an image file" in report
+    assert "feasibility: design has not run</li>" in report
+    assert "<p class='muted'>design has not run.</p>" in report  # where to stand, the views
+    for later in ("optimize", "toolpath", "export"):
+        assert f"<p class='muted'>{later} has not run.</p>" in report
