@@ -36,8 +36,6 @@ DEFAULT_RESOLUTION = 128
 def view_name(path: Path, taken: set[str]) -> str:
     """A file-name-safe, unique view name from an image's file name."""
     stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", path.stem).strip("._-") or "view"
-    if not stem[0].isalnum():
-        stem = "v" + stem
     name, i = stem, 2
     while name in taken:
         name = f"{stem}_{i}"
