@@ -296,3 +296,27 @@ def _npy(array: np.ndarray) -> bytes:
 def _put(folder: Path, data: bytes) -> None:
     folder.mkdir()
     (folder / "a.npy").write_bytes(data)
+
+
+# ---------------------------------------------------------------- the command line as a whole
+
+
+def test_help_lists_every_command_and_each_resolves(capsys):
+    import re
+
+    import click
+
+    from scratchfab.cli import COMMANDS, cli
+
+    # click (standalone_mode=False) returns --help's exit code instead of raising.
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    listed = re.findall(r"^  (\S+)  +(.+)$", out.split("\nCommands:\n")[1], re.MULTILINE)
+    assert [name for name, _ in listed] == list(COMMANDS)
+    ctx = click.Context(cli)
+    for name, text in listed:
+        command = cli.get_command(ctx, name)
+        assert isinstance(command, click.Command) and command.name == name
+        assert text == COMMANDS[name][2]
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.startswith("scratchfab, version ")
