@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -2017,3 +2018,159 @@ def test_stop_position_matches_in_inch_reports(tmp_path, inches):
     acked = [e["i"] for e in events if e["ev"] == "ack" and "i" in e]
     assert last_surely_run(prog.blocks, acked, 15) < truth  # the position decides here
     assert stop["executed_through"] == truth
+
+
+_CLI = "import sys; from scratchfab.cli import main; main(sys.argv[1:])"
+
+
+def _stream_on_a_terminal(args, interrupt_at=None, timeout=60.0):
+    """``scratchfab stream ARGS`` with stdin, stdout and stderr on a pty; (exit code, text).
+
+    ``interrupt_at``: once the output shows this many progress bars, Ctrl-C (SIGINT to the
+    process group), then answer the prompt with ``s``.
+    """
+    import os
+    import pty
+    import select
+    import signal
+    import subprocess
+    import sys
+
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _CLI, "stream", *args],
+        stdin=slave,
+        stdout=slave,
+        stderr=slave,
+        start_new_session=True,
+    )
+    os.close(slave)
+    out = b""
+    interrupted = answered = False
+    deadline = time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            ready, _, _ = select.select([master], [], [], 0.05)
+            if ready:
+                try:
+                    data = os.read(master, 65536)
+                except OSError:  # the slave side closed: the process ended
+                    break
+                if not data:
+                    break
+                out += data
+            elif proc.poll() is not None:
+                break
+            if interrupt_at is not None and not interrupted and out.count(b"\r[") >= interrupt_at:
+                os.killpg(proc.pid, signal.SIGINT)
+                interrupted = True
+            if interrupted and not answered and b"[r]esume or [s]top" in out:
+                os.write(master, b"s\n")
+                answered = True
+        proc.wait(timeout=max(1.0, deadline - time.monotonic()))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+    return proc.returncode, out.decode("ascii", "replace")
+
+
+def _shown_lines(text: str) -> list[str]:
+    """The lines a terminal ends up showing: each line's last redraw (after its last CR)."""
+    shown = []
+    for line in text.replace("\r\n", "\n").split("\n")[:-1]:
+        parts = [p for p in line.split("\r") if p]
+        shown.append(parts[-1].rstrip() if parts else "")
+    return shown
+
+
+def _assert_clean_lines(shown: list[str]) -> None:
+    for line in shown:
+        assert line, "an empty line"
+        if line.startswith("["):  # a progress bar: nothing glued after its position
+            assert re.fullmatch(
+                r"\[[#.]{28}\] .* lines  ETA \S+  \S+( X\S+ Y\S+ Z-?\d+\.\d\d)?", line
+            )
+        else:
+            assert "lines  ETA" not in line
+
+
+def test_on_a_terminal_the_bar_ends_before_each_message(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 3)
+    rc, text = _stream_on_a_terminal(
+        [str(job), "--port", "grblsim://?time_scale=0.001", "--yes", "--banner-timeout", "0.3"]
+    )
+    assert rc == 0, text
+    shown = _shown_lines(text)
+    _assert_clean_lines(shown)
+    assert shown[-1].startswith("done: 18 lines acknowledged")
+    assert shown[-2].startswith("[") and " 100.0% 18/18 lines " in shown[-2]
+
+
+def test_on_a_terminal_ctrl_c_asks_on_its_own_line_and_stops(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 40)
+    rc, text = _stream_on_a_terminal(
+        [str(job), "--port", "grblsim://?time_scale=0.02", "--yes", "--banner-timeout", "0.3"],
+        interrupt_at=3,
+    )
+    assert rc == 130, text
+    shown = _shown_lines(text)
+    _assert_clean_lines(shown)
+    prompt = next(k for k, line in enumerate(shown) if "[r]esume or [s]top" in line)
+    assert shown[prompt].startswith("machine held: ") and shown[prompt].endswith(": s")
+    assert shown[prompt - 1] == "feed hold sent" and shown[prompt - 2].startswith("[")
+    assert shown[-1].startswith("stopped by the user after line ")
+
+
+def test_check_then_stream_ends_with_the_final_position(tmp_path, capsys):
+    """Off a terminal the 100 % line waits for the end: the controller Idle where the job
+    ended, not an earlier report's position."""
+    job = tmp_path / "job.gcode"
+    write_job(job, 20)
+    main(
+        [
+            "stream",
+            str(job),
+            "--port",
+            "grblsim://?time_scale=0.01",
+            "--yes",
+            "--check",
+            "--banner-timeout",
+            "0.3",
+        ]
+    )
+    err = capsys.readouterr().err.splitlines()
+    assert "check mode: 103 lines, no errors" in err
+    full = [line for line in err if "100.0%" in line]
+    end = load_program(job).blocks[-1].modal
+    assert full == [f"100.0% 103/103 lines  ETA 00:00  Idle X{end.x:.2f} Y{end.y:.2f} Z{end.z:.2f}"]
+    assert err[-1] == full[0]
+
+
+def test_declining_the_confirmation_sends_nothing(tmp_path):
+    from click.testing import CliRunner
+
+    job = tmp_path / "job.gcode"
+    write_job(job, 2)
+    rec = tmp_path / "rec.jsonl"
+    with CliRunner().isolation(input="n\n") as (_, stderr, _):
+        with pytest.raises(SystemExit) as exc:
+            main(
+                [
+                    "stream",
+                    str(job),
+                    "--port",
+                    f"grblsim://?record={rec}",
+                    "--banner-timeout",
+                    "0.3",
+                ]
+            )
+        err = stderr.getvalue().decode()
+    assert exc.value.code == 2  # as `run` declining its stream stage; 130 is Ctrl-C's
+    assert err.rstrip().endswith("error: not confirmed; nothing was sent")
+    assert "aborted" not in err
+    assert not _received_gcode(read_record(rec))
+    assert not default_journal_path(job).exists()

@@ -17,12 +17,17 @@ from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream
 
 
 class _ProgressLine:
-    """One status line on stderr, redrawn in place on a terminal, every 10 % otherwise."""
+    """One status line on stderr, redrawn in place on a terminal, every 10 % otherwise.
+
+    Off a terminal the 100 % line waits for the job's end, so that it shows the final
+    state and position (an earlier report's position can be seconds old).
+    """
 
     def __init__(self) -> None:
         self.tty = sys.stderr.isatty()
         self._last_decile = -1
         self._line = RedrawnLine()
+        self._open = False  # a bar is drawn and its line not yet ended
 
     def __call__(self, p: StreamProgress) -> None:
         pos = "" if p.wpos is None else " X{:.2f} Y{:.2f} Z{:.2f}".format(*p.wpos)
@@ -31,24 +36,17 @@ class _ProgressLine:
             width = 28
             fill = int(width * p.fraction)
             self._line(f"[{'#' * fill}{'.' * (width - fill)}] {text}", newline=False)
-        elif int(p.fraction * 10) != self._last_decile:
+            self._open = True
+        elif int(p.fraction * 10) != self._last_decile and (p.fraction < 1.0 or p.final):
             self._last_decile = int(p.fraction * 10)
             click.echo(text, err=True)
 
     def end(self) -> None:
-        if self.tty:
+        """End the bar's line (before any other output); nothing when none is drawn."""
+        if self._open:
+            self._line.last_len = 0
             click.echo("", err=True)
-
-
-def _ask_interrupt() -> str:
-    click.echo("", err=True)
-    answer = click.prompt(
-        "machine held: [r]esume or [s]top (stop = wait for the hold, then soft reset)",
-        type=click.Choice(["r", "s"]),
-        default="s",
-        err=True,
-    )
-    return "resume" if answer == "r" else "stop"
+            self._open = False
 
 
 @click.command("stream")
@@ -170,17 +168,28 @@ def stream(
     bar = _ProgressLine()
 
     def message(text: str) -> None:
-        if bar.tty:
-            click.echo("", err=True)
+        bar.end()
         click.echo(text, err=True)
 
+    def outcome(text: str) -> None:
+        bar.end()
+        click.echo(text)
+
+    def ask_interrupt() -> str:
+        bar.end()
+        answer = click.prompt(
+            "machine held: [r]esume or [s]top (stop = wait for the hold, then soft reset)",
+            type=click.Choice(["r", "s"]),
+            default="s",
+            err=True,
+        )
+        return "resume" if answer == "r" else "stop"
+
     def confirm(question: str) -> bool:
-        if not yes:
-            click.confirm(question, abort=True, err=True)
-        return True
+        return yes or click.confirm(question, default=False, err=True)
 
     try:
-        stream_file(request, StreamCallbacks(bar, message, _ask_interrupt, confirm, click.echo))
+        stream_file(request, StreamCallbacks(bar, message, ask_interrupt, confirm, outcome))
     finally:
         bar.end()
 

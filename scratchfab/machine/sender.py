@@ -178,6 +178,7 @@ class StreamProgress:
     eta_s: float
     state: str
     wpos: tuple[float, float, float] | None
+    final: bool = False  # the job is done: the controller reported Idle after the last ack
 
     @property
     def fraction(self) -> float:
@@ -754,7 +755,7 @@ class Streamer:
                 self._interrupted(exc)
                 self._last_rx = time.monotonic()
                 idle_since = None
-        self._report(len(program.blocks) - 1, len(program.blocks))
+        self._report(len(program.blocks) - 1, len(program.blocks), final=True)
 
     def _answer(self, line: str) -> bool:
         """Handle ``ok``/``error:N`` for the oldest line in flight; False for other lines."""
@@ -788,7 +789,7 @@ class Streamer:
         """After the last ack: done once a status report after it says Idle."""
         return self.status.state == "Idle" and self.status.time > self._last_ack_time
 
-    def _report(self, acked_through: int, total: int) -> None:
+    def _report(self, acked_through: int, total: int, final: bool = False) -> None:
         done = self._cum[acked_through + 1] if acked_through >= 0 else 0.0
         self.on_progress(
             StreamProgress(
@@ -797,6 +798,7 @@ class Streamer:
                 eta_s=max(0.0, self._cum[-1] - done),
                 state=self.status.state,
                 wpos=self.status.wpos,
+                final=final,
             )
         )
 

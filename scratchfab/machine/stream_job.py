@@ -340,7 +340,7 @@ def run_stream_job(
 
     def progress(p: StreamProgress) -> None:
         decile = int(p.fraction * 10)
-        if decile != last[0]:
+        if decile != last[0] and (decile < 10 or p.final):  # 100 %: once the job is done
             last[0] = decile
             say(f"  {p.fraction:6.1%} {p.acked}/{p.total} lines  {p.state}")
 
