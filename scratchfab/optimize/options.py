@@ -19,7 +19,8 @@ class OptimizeOptions:
 
     Attributes:
         iterations: Total Adam steps (a resumed run continues up to this count).
-        time_budget_s: Stop after this many seconds of optimizing (0: no limit).
+        time_budget_s: Stop after this many seconds of optimizing (0: no limit); a run
+            takes one step at least, unless it resumes one that had spent them.
         seed: Seed of the run's random generator (initial angle jitter).
         backend: ``"llvm"`` (CPU) or ``"cuda"``.
         space: Image error in ``"linear"`` or ``"perceptual"`` (sRGB) space.

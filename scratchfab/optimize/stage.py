@@ -320,7 +320,9 @@ def _run(
     with interrupt_flag() as interrupted:
         while opt.iteration < options.iterations:
             elapsed = elapsed0 + time.perf_counter() - session_start
-            if options.time_budget_s > 0 and elapsed >= options.time_budget_s:
+            budget = options.time_budget_s
+            # At least one step per session, unless a resumed run had spent the budget.
+            if budget > 0 and elapsed >= budget and (steps or elapsed0 >= budget):
                 stopped = "time budget"
                 break
             t0 = time.perf_counter()
