@@ -384,3 +384,17 @@ def test_a_path_the_console_cannot_encode_is_escaped_not_a_traceback(tmp_path):
     assert done.returncode == 0, done.stderr.decode("cp1252")
     assert b"\\u0141\xf3d\\u017a" in done.stdout  # cp1252 has the o with acute accent
     assert b"Traceback" not in done.stderr
+
+
+def test_quick_form_names_views_that_every_disk_keeps_apart(tmp_path, capsys):
+    """Names from file names: unique ignoring case, never a Windows device name."""
+    files = []
+    for name in ("Left.png", "sub/left.PNG", "nul.png", "COM1.jpg", "left_2.png"):
+        path = tmp_path / name
+        path.parent.mkdir(exist_ok=True)
+        Image.new("L", (8, 8), 40 * len(files) + 20).save(path)
+        files.append(str(path))
+    design = quick_design([Path(f) for f in files], (30.0, 30.0), count=20, resolution=(8, 8))
+    names = [v.name for v in design.views]
+    assert names == ["Left", "left_2", "view_nul", "view_COM1", "left_2_2"]
+    assert len({n.lower() for n in names}) == len(names)

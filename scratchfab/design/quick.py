@@ -20,7 +20,13 @@ from typing import Any
 import numpy as np
 
 from scratchfab.errors import ConfigError
-from scratchfab.model.design import Board, Design, ScratchTool, design_from_mapping
+from scratchfab.model.design import (
+    RESERVED_NAME_RE,
+    Board,
+    Design,
+    ScratchTool,
+    design_from_mapping,
+)
 from scratchfab.render.profile import steepest_wall_deg
 
 #: Share of the steepest wall used by the half-vector at the board's centre.
@@ -34,13 +40,20 @@ DEFAULT_RESOLUTION = 128
 
 
 def view_name(path: Path, taken: set[str]) -> str:
-    """A file-name-safe, unique view name from an image's file name."""
+    """A file-name-safe view name from an image's file name, unique ignoring case.
+
+    ``taken`` holds the names given so far, in lower case (a case-insensitive disk keeps
+    one file for ``Left`` and ``left``); a Windows device name (``nul``, ``com1``) gets
+    a ``view_`` prefix.
+    """
     stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", path.stem).strip("._-") or "view"
+    if RESERVED_NAME_RE.match(stem):
+        stem = f"view_{stem}"
     name, i = stem, 2
-    while name in taken:
+    while name.lower() in taken:
         name = f"{stem}_{i}"
         i += 1
-    taken.add(name)
+    taken.add(name.lower())
     return name
 
 
