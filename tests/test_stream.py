@@ -2174,3 +2174,87 @@ def test_declining_the_confirmation_sends_nothing(tmp_path):
     assert "aborted" not in err
     assert not _received_gcode(read_record(rec))
     assert not default_journal_path(job).exists()
+
+
+def test_sigterm_stops_the_cli_stream_and_resume_finishes(tmp_path, capsys):
+    """A kill (SIGTERM) of `scratchfab stream`: exit 130, one line naming the signal and the
+    line, a stop in the journal; --resume then finishes every stroke."""
+    import signal
+    import subprocess
+    import sys
+
+    job = tmp_path / "job.gcode"
+    cuts = write_job(job, 40)
+    recs = [tmp_path / "r1.jsonl", tmp_path / "r2.jsonl"]
+    journal = default_journal_path(job)
+    common = ["--yes", "--banner-timeout", "0.3"]
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _CLI, "stream", str(job), "--port",
+         f"grblsim://?time_scale=0.02&record={recs[0]}", *common],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and proc.poll() is None:
+            if journal.is_file() and journal.read_text().count('"ev":"ack"') >= 30:
+                break
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert re.search(r"^stopped by SIGTERM after line \d+; machine held", err, re.M)
+    events = read_journal(journal)
+    assert events[-1]["ev"] == "stop" and "SIGTERM" in events[-1]["reason"]
+    main(["stream", str(job), "--port", f"grblsim://?time_scale=0.001&record={recs[1]}",
+          "--resume", *common])  # fmt: skip
+    out = capsys.readouterr().out
+    assert "resuming at line" in out and "done:" in out
+    last = read_journal(journal)[-1]
+    assert last["ev"] == "end" and last["complete"] is True
+    counts = cut_counts([read_record(recs[0]), read_record(recs[1])], cuts)
+    assert min(counts) == 1 and max(counts) <= 2
+
+
+@pytest.mark.parametrize(
+    ("content", "args", "message"),
+    [
+        (None, ["--resume"], "no journal to resume from (stream without --resume first)"),
+        (b"", [], "job.gcode: no G-code lines to send"),
+        (b"(only a comment)\n; and another\n%\n", [], "job.gcode: no G-code lines to send"),
+        (b"G21\nG0 X1 (caf\xc3\xa9)\n", [], "job.gcode:2: non-ASCII byte in G-code"),
+    ],
+)
+def test_refusals_before_connecting(tmp_path, capsys, content, args, message):
+    job = tmp_path / "job.gcode"
+    if content is None:
+        write_job(job, 2)
+    else:
+        job.write_bytes(content)
+    rec = tmp_path / "rec.jsonl"
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", f"grblsim://?record={rec}", "--yes", *args])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and message in err and len(err.splitlines()) == 1
+    assert not rec.exists()  # refused before connecting
+    assert not default_journal_path(job).exists()
+
+
+def test_a_jobs_gcode_is_checked_against_the_jobs_machine(tmp_path, capsys):
+    from scratchfab.model.job import JobLayout
+
+    layout = JobLayout(tmp_path / "job")
+    gcode, tp = _profile_job(tmp_path, "grbl-3018-diamond", n=3)
+    layout.export_file("gcode").parent.mkdir(parents=True)
+    layout.toolpath_json.parent.mkdir(parents=True)
+    gcode.replace(layout.export_file("gcode"))
+    tp.save(layout.toolpath_json)
+    main(["stream", str(layout.export_file("gcode")), "--port", SIM, "--yes"])
+    err = capsys.readouterr().err
+    assert f"checking against machine '{tp.profile.name}' of {layout.toolpath_json}" in err
