@@ -326,3 +326,48 @@ def test_setup_installs_libllvm19_with_apt_or_prints_the_fix(tmp_path, uid, rc):
         assert run.stderr == "setup: apt-get could not install libllvm19; " + LLVM_HINT
         assert not (box.repo / ".venv").exists()
     assert [c for c in box.calls() if not c.startswith(("python3", "venv-python"))] == apt
+
+
+LOCAL_SEARCH = ROOT / "scratchfab" / "toolpath" / "local_search.py"
+
+
+@pytest.mark.parametrize("tmp_folder", ["private", "shared"])
+def test_numba_search_imports_where_numba_cannot_cache_in_its_own_places(tmp_path, tmp_folder):
+    """A read-only install run by a user without a home: no __pycache__, no ~/.cache."""
+    import os
+    import sys
+
+    (tmp_path / "mod").mkdir()
+    (tmp_path / "mod" / "local_search.py").write_text(LOCAL_SEARCH.read_text())
+    # Files where numba wants folders: it can write neither beside the module nor in ~.
+    (tmp_path / "mod" / "__pycache__").write_bytes(b"")
+    (tmp_path / "home").write_bytes(b"")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    cache = tmp / f"scratchfab-numba-{os.getuid()}"
+    if tmp_folder == "shared":  # made by someone else, or open to all: not to be trusted
+        cache.mkdir(mode=0o777)
+        cache.chmod(0o777)
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "XDG_"))}
+    env.update(HOME=str(tmp_path / "home"), TMPDIR=str(tmp), PYTHONDONTWRITEBYTECODE="1")
+    code = (
+        "import os, sys; import numpy as np; sys.path.insert(0, sys.argv[1]); import local_search;"
+        "print(local_search._CACHE, os.environ.get('NUMBA_CACHE_DIR'));"
+        "print(local_search.cut_region(np.array([True, False, True])))"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / "mod")],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert run.returncode == 0, run.stderr
+    cached, folder = run.stdout.splitlines()[0].split()
+    if tmp_folder == "private":
+        assert (cached, folder) == ("True", str(cache))
+        assert (cache.stat().st_mode & 0o777) == 0o700
+        assert any(cache.rglob("local_search.cut_region-*.nbi"))
+    else:
+        assert (cached, folder) == ("False", "None")
+        assert not any(cache.iterdir())
