@@ -35,13 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from scratchfab.toolpath.local_search import (
-    SETTLED_ITEMS_PER_MOVE,
-    cut_region,
-    expand_region,
-    greedy_steps,
-    improve,
-)
+# scratchfab.toolpath.local_search (numba, ~0.2-0.7 s to import) is imported where it is
+# used: tour_travel alone, which the exporters need, is plain numpy.
 
 
 @dataclass(frozen=True)
@@ -133,6 +128,8 @@ def _stroke_order(ent: np.ndarray, start_item: int) -> tuple[np.ndarray, np.ndar
 
 def _greedy(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Entry endpoints in greedy nearest-neighbour order from the start (the last item)."""
+    from scratchfab.toolpath.local_search import greedy_steps
+
     n = (len(points) - 2) // 2
     near = np.ascontiguousarray(neighbours, dtype=np.int64)
     used = np.zeros(n, dtype=np.bool_)
@@ -194,6 +191,13 @@ def _improve_region(
     expanded back, and its reversals cost at most its size. Returns the new tour and
     the improving moves and trials kept.
     """
+    from scratchfab.toolpath.local_search import (
+        SETTLED_ITEMS_PER_MOVE,
+        cut_region,
+        expand_region,
+        improve,
+    )
+
     starts, ends = cut_region(inside)
     w = len(starts)
     sub = np.empty((2 * w, 2))
@@ -284,6 +288,8 @@ def order_strokes(
     travel_greedy = _tour_travel(points, ent)
     moves = 0
     if opts.passes > 0:
+        from scratchfab.toolpath.local_search import SETTLED_ITEMS_PER_MOVE, improve
+
         kicks = opts.kicks
         if kicks is None:
             kicks = min(int(opts.kicks_per_stroke * n), opts.max_kicks)
