@@ -8,7 +8,10 @@ one line at a time, and a ``confirm`` callback before a machine moves. The CLI p
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+import os
+import shlex
+import subprocess
+from collections.abc import Callable, Sequence
 from typing import Any
 
 #: Takes one line of progress or result (no trailing newline); its return is ignored.
@@ -37,3 +40,15 @@ def duration_text(seconds: float) -> str:
     minutes = round(seconds / 60)
     hours, minutes = divmod(minutes, 60)
     return f"{hours} h {minutes} min" if hours else f"{minutes} min"
+
+
+def command_line(args: Sequence[str | os.PathLike[str]]) -> str:
+    """Arguments as one command line a person can paste into their shell unchanged.
+
+    Each argument is quoted so the shell passes it back as it is, never expanding
+    ``$(...)``, quotes or spaces: POSIX shell rules, or ``CommandLineToArgvW``'s on Windows.
+    """
+    words = [os.fspath(a) for a in args]
+    if os.name == "nt":
+        return subprocess.list2cmdline(words)
+    return " ".join(shlex.quote(w) for w in words)

@@ -186,3 +186,15 @@ def write_pipeline(
     path = folder / "tiny.toml"
     path.write_text(text)
     return path
+
+
+def pasted_words(command: str, cwd: Path) -> list[str]:
+    """The arguments a POSIX shell hands ``scratchfab`` when a person pastes ``command``.
+
+    ``scratchfab`` is a shell function here that prints its arguments, so a command the
+    shell would expand (``$(...)``, a quote left open) shows it instead of running anything.
+    """
+    script = 'scratchfab() { printf "%s\\0" "$@"; }\n' + command
+    done = subprocess.run(["sh", "-c", script], cwd=cwd, capture_output=True, check=True)
+    assert done.stderr == b"", done.stderr
+    return ["scratchfab", *done.stdout.decode().split("\0")[:-1]]

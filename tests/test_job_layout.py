@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import inspect
+import json
+import os
+import re
+import shlex
 from pathlib import Path
 
 import pytest
-from conftest import write_pipeline
+from conftest import pasted_words, write_pipeline
 
 from scratchfab.cli import main
 from scratchfab.machine.sender_journal import default_journal_path
-from scratchfab.model.job import DesignFolder, JobLayout, job_inputs
+from scratchfab.model.job import DesignFolder, JobLayout, job_inputs, stale_layout_warning
 from scratchfab.pipeline.config import load_pipeline
 from scratchfab.pipeline.runner import run_pipeline
 
@@ -174,3 +178,22 @@ def test_stages_write_where_the_layout_says(demo_like_job):
     # Each stage reads its inputs where the layout says the stage before wrote them.
     assert job_inputs(job) == (layout.design.design_toml, layout.optimized_scratches)
     assert default_journal_path(layout.export_file("gcode")) == layout.journal.resolve()
+
+
+@pytest.mark.skipif(os.name == "nt", reason="the POSIX shell's quoting")
+def test_stale_layout_warning_command_pastes_as_the_job_folder(tmp_path):
+    job = tmp_path / "job $(touch PWNED) 'it's' `touch PWNED2`"
+    layout = JobLayout(job)
+    for path in (*layout.design.digested, layout.optimized_scratches):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("x\n")
+    digests = {p.name: "made from another design" for p in layout.design.digested}
+    layout.optimize_summary.write_text(json.dumps({"design_sha256": digests}))
+    warning = stale_layout_warning(job)
+    assert warning is not None
+    found = re.search(r"rerun `(.*)` for the current design$", warning)
+    assert found
+    words = shlex.split(found.group(1))  # an independent reader of the quoting
+    assert words == ["scratchfab", "optimize", str(job)]
+    assert pasted_words(found.group(1), tmp_path) == words  # and the shell agrees
+    assert not list(tmp_path.rglob("PWNED*"))  # nothing ran

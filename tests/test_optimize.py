@@ -6,6 +6,7 @@ import csv
 import math
 import os
 import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -15,7 +16,7 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 import pytest
-from conftest import FULL, make_design
+from conftest import FULL, make_design, pasted_words
 from test_optimize_helpers import cross_of, make_job, make_layout
 
 from scratchfab.cli import main
@@ -684,3 +685,29 @@ def test_jitter_turns_each_scratch_about_its_centre(tmp_path: Path) -> None:
     assert np.all(np.abs(turn) > 0)
     # 150 draws of N(0, 4 deg): the sample deviation is within 20 % with room to spare.
     assert 3.2 < float(np.std(turn)) < 4.8
+
+
+@pytest.mark.skipif(os.name == "nt", reason="the POSIX shell's quoting")
+def test_interrupted_resume_command_pastes_as_the_job_folder(tmp_path, monkeypatch, capsys):
+    from types import SimpleNamespace
+
+    job = tmp_path / "job $(touch PWNED) 'it's' `touch PWNED2`"
+    stopped = SimpleNamespace(
+        quality={"views": {}},
+        prune=None,
+        iterations=3,
+        stopped="interrupted",
+        loss=0.5,
+        out_dir=job / "optimize",
+    )
+    monkeypatch.setattr("scratchfab.cli.optimize_cmd.run_optimize", lambda *a, **k: stopped)
+    with pytest.raises(SystemExit) as info:
+        main(["optimize", str(job), "--iterations", "9"])
+    assert info.value.code == 130
+    err = capsys.readouterr().err
+    found = re.search(r"^interrupted after 3 of 9 iterations; `(.*)` continues it$", err.strip())
+    assert found
+    words = shlex.split(found.group(1))  # an independent reader of the quoting
+    assert words == ["scratchfab", "optimize", str(job), "--resume"]
+    assert pasted_words(found.group(1), tmp_path) == words  # and the shell agrees
+    assert not list(tmp_path.rglob("PWNED*"))  # nothing ran

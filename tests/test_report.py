@@ -4,12 +4,14 @@ import base64
 import hashlib
 import html
 import json
+import os
 import re
+import shlex
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import CHROMIUM, check_report_in_chromium
+from conftest import CHROMIUM, check_report_in_chromium, pasted_words
 from PIL import Image
 
 from scratchfab.pipeline.manifest import Manifest, fingerprint
@@ -456,3 +458,25 @@ def test_rerun_command_names_the_pipeline_even_across_windows_drives(tmp_path, m
     monkeypatch.setattr("scratchfab.pipeline.report.os.path.relpath", other_drive)
     page = write_report(job, pipeline_file=pipeline).read_text()
     assert f"scratchfab run {pipeline.resolve()} --out ." in page
+
+
+@pytest.mark.skipif(os.name == "nt", reason="the POSIX shell's quoting")
+def test_commands_paste_back_as_the_same_arguments(tmp_path):
+    job = fake_job(tmp_path)
+    folder = tmp_path / "p dir $(touch PWNED)'q"
+    folder.mkdir()
+    pipeline = folder / 'a "b" `touch PWNED2`.toml'
+    page = write_report(job, pipeline_file=pipeline).read_text()
+    commands = [
+        html.unescape(c)
+        for c in re.findall(r"<code>([^<]*)</code>", page)
+        if c.startswith("scratchfab run")
+    ]
+    assert commands
+    for command in commands:
+        words = shlex.split(command)  # an independent reader of the quoting
+        assert words[:2] == ["scratchfab", "run"] and words[3:5] == ["--out", "."]
+        assert words[5:] in ([], ["--from", "stream"])
+        assert (job / words[2]).resolve() == pipeline.resolve()
+        assert pasted_words(command, job) == words  # and the shell agrees
+    assert not list(tmp_path.rglob("PWNED*"))  # nothing ran

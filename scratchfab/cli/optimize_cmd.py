@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from scratchfab.cli.options import FiniteFloat, RedrawnLine, backend_option
+from scratchfab.console import command_line
 from scratchfab.errors import Interrupted
 from scratchfab.optimize.progress import clock, progress_printer
 from scratchfab.optimize.stage import OptimizeOptions, Progress, run_optimize
@@ -127,5 +128,5 @@ def optimize(
     if result.stopped == "interrupted":  # exit 130: `optimize && toolpath` stops here
         raise Interrupted(
             f"interrupted after {result.iterations} of {iterations} iterations; "
-            f"`scratchfab optimize {job} --resume` continues it"
+            f"`{command_line(['scratchfab', 'optimize', job, '--resume'])}` continues it"
         )

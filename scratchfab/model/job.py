@@ -6,6 +6,7 @@ import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from scratchfab.console import command_line
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import file_sha256
 from scratchfab.model.design import Design, load_design
@@ -266,7 +267,7 @@ def stale_layout_warning(job: str | Path) -> str | None:
     return (
         f"warning: {layout.optimized_scratches} was optimized from an earlier "
         f"design ({', '.join(changed)} changed since): it is used as it is; rerun "
-        f"`scratchfab optimize {folder}` for the current design"
+        f"`{command_line(['scratchfab', 'optimize', folder])}` for the current design"
     )
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from scratchfab.console import duration_text
+from scratchfab.console import command_line, duration_text
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import write_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
@@ -838,11 +838,11 @@ def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: 
             pipe = min(os.path.relpath(pipeline_file, job), absolute, key=len)
         except ValueError:
             pipe = absolute
-        rerun = _code(f"scratchfab run {pipe} --out .")
-        again = _code(f"scratchfab run {pipe} --out . --from stream")
     else:
-        rerun = _code("scratchfab run PIPELINE.toml --out .")
-        again = _code("scratchfab run PIPELINE.toml --out . --from stream")
+        pipe = "PIPELINE.toml"
+    run = ["scratchfab", "run", pipe, "--out", "."]
+    rerun = _code(command_line(run))
+    again = _code(command_line([*run, "--from", "stream"]))
     where = (
         " (commands from the job folder; PORT is your machine's serial port, e.g. /dev/ttyUSB0"
         " on Linux, /dev/cu.usbserial-1410 on macOS, COM3 on Windows)"
