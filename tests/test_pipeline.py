@@ -353,13 +353,25 @@ def test_report_setup_step_follows_the_readme_not_a_generic_zeroing(finished_job
     assert f"<span data-stat='setup.z'>{profile.z.engrave_mm:g}</span>" in report
 
 
-def _real_port_pipeline(path: Path, record: Path) -> Path:
-    """The pipeline with a port of its own (the emulator, recording what it receives)."""
+def _real_port_pipeline(path: Path, record: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """The pipeline with a port of its own: the emulator, recording what it receives.
+
+    A pipeline may not name a record file (it would overwrite it on every run), so the
+    port the stream stage opens gets ``record=`` here, as ``stream --port`` would give it.
+    """
+    import scratchfab.machine.stream_job as stream_job
+
     real = path.with_name("real-port.toml")
     text = path.read_text()
     start = text.index('port = "grblsim')
     end = text.index('"', start + len('port = "'))
-    real.write_text(text[:end] + f"&record={record}" + text[end:])
+    real.write_text(text[:end] + "&latency=0" + text[end:])
+    stream = stream_job.run_stream_job
+
+    def recording(job: Path, port: str, **kwargs: object) -> object:
+        return stream(job, port=f"{port}&record={record}", **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(stream_job, "run_stream_job", recording)
     return real
 
 
@@ -389,7 +401,7 @@ def test_real_port_asks_before_streaming(
     shutil.copytree(job, copy)
     journal = (copy / "stream" / "journal.jsonl").read_bytes()
     record = tmp_path / "received.jsonl"
-    real = _real_port_pipeline(path, record)
+    real = _real_port_pipeline(path, record, monkeypatch)
     monkeypatch.setattr(runner, "is_emulator", lambda port: False)  # as a real machine
     monkeypatch.setattr(run_cmd, "_interactive", lambda: interactive)
     monkeypatch.setattr("sys.stdin", io.StringIO(answer))
@@ -784,3 +796,43 @@ def test_report_after_design_failed_says_design_has_not_run(tmp_path):
     assert "<p class='muted'>design has not run.</p>" in report  # where to stand, the views
     for later in ("optimize", "toolpath", "export"):
         assert f"<p class='muted'>{later} has not run.</p>" in report
+
+
+@pytest.mark.parametrize(
+    "port",
+    [
+        "grblsim://?time_scale=0&record={victim}",
+        "GrblSim://?record={victim}&time_scale=0",
+        "grblsim://?time_scale=0&recor%64={victim}",  # the handler percent-decodes keys
+        "grblsim://?record",
+    ],
+)
+def test_a_pipelines_emulator_port_may_not_record(tmp_path, capsys, port):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    port = port.format(victim=victim)
+    path = write_pipeline(tmp_path, edits={'port = "grblsim://?time_scale=0&': f'port = "{port}&'})
+    with pytest.raises(SystemExit) as info:
+        main(["run", str(path), "--out", str(tmp_path / "job")])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and "Traceback" not in err
+    (line,) = err.splitlines()
+    assert line.startswith(f"error: {path}: stream.port: ") and "[stream] port" in line
+    assert "scratchfab grbl-sim --record" in line and "stream --port" in line
+    assert victim.read_text() == "precious\n"
+    assert not (tmp_path / "job").exists()  # refused on loading, before any stage ran
+
+
+@pytest.mark.parametrize(
+    "port",
+    [
+        "grblsim://?time_scale=0&$130=300&$131=180&$132=45",  # the emulator, no record
+        "grblsim://?time_scale=0&recorder=1",  # not the key (the emulator names it)
+        "socket://localhost:7000?record=1",  # another handler's URL is its own business
+    ],
+)
+def test_other_ports_load(tmp_path, port):
+    path = write_pipeline(
+        tmp_path, edits={"grblsim://?time_scale=0&$130=300&$131=180&$132=45": port}
+    )
+    assert load_pipeline(path).stream.port == port

@@ -6,6 +6,7 @@ like the design itself.
 
 from __future__ import annotations
 
+import urllib.parse
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -123,11 +124,34 @@ class StageTables:
                 f"stream.port: expected a serial device, pty path or URL, got {port!r} "
                 "(leave the key out to stop after export)"
             )
+        if port is not None and _grblsim_record(port):
+            raise ValueError(
+                "stream.port: a pipeline's [stream] port may not set the emulator's record= "
+                "(it would overwrite that file on every run); record on the command line "
+                "instead: `scratchfab grbl-sim --record FILE` or `scratchfab stream --port "
+                "'grblsim://?record=FILE'`"
+            )
         if port is not None and "gcode" not in self.export.formats:
             raise ValueError(
                 'stream.port: streaming needs "gcode" in export.formats, '
                 f"got export.formats = {list(self.export.formats)}"
             )
+
+
+def _grblsim_record(port: str) -> bool:
+    """True when ``port`` opens the GRBL emulator with a ``record`` key in its query.
+
+    Read as pyserial picks the handler (the text before ``://``, any case) and as the
+    handler reads its query (percent-decoded), so no spelling slips past.
+    """
+    scheme, sep, _ = port.partition("://")
+    if not sep or scheme.strip().lower() != "grblsim":
+        return False
+    query = urllib.parse.urlsplit(port.strip()).query
+    return any(
+        key.strip().lower() == "record"
+        for key, _ in urllib.parse.parse_qsl(query, keep_blank_values=True)
+    )
 
 
 def parse_stage_tables(data: Mapping[str, Any], source: str) -> StageTables:
