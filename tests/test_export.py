@@ -299,3 +299,19 @@ def test_format_registry():
             ScratchfabError, match=rf"{path}: the extension says .* format .* {fmt}"
         ):
             format_for(Path(path), fmt)
+
+
+@pytest.mark.parametrize("mode", ["servo", "spindle"])
+def test_gcode_refuses_a_control_byte_whatever_let_it_into_the_profile(rng, tmp_path, mode):
+    """The last check before writing: even a profile built around its checks writes none."""
+    profile = PROFILES[mode]()
+    board = Board(width_mm=40.0, height_mm=40.0, margin_mm=1.0)
+    tp = plan_toolpath(random_scratches(rng, 20), board, profile)
+    control = profile.tool_control
+    object.__setattr__(control, "off", control.off + "\x18")  # bypasses ToolControl's check
+    try:
+        with pytest.raises(ScratchfabError, match="holds a control character"):
+            export(tp, profile, tmp_path / "x.gcode")
+    finally:
+        object.__setattr__(control, "off", control.off[:-1])
+    assert not (tmp_path / "x.gcode").exists()

@@ -198,3 +198,58 @@ def test_board_placement_matches_shapely(rotation, origin):
     assert outline.equals_exact(affinity.translate(turned, dx, dy).normalize(), 1e-9) or (
         outline.symmetric_difference(affinity.translate(turned, dx, dy)).area < 1e-9
     )
+
+
+@pytest.mark.parametrize(
+    ("key", "template", "message"),
+    [
+        ("off", "$RST=*", "not a list of G-code words"),  # a settings reset on every stroke
+        ("off", "$J=G91 X-500 F1000", "not a list of G-code words"),  # a jog past the envelope
+        ("off", "M5 G0 X-900", "G0 is not a tool command"),  # a move the export never checks
+        ("off", "M5 X-900", "X words do not belong"),
+        ("on", "G10 L2 P1 X0", "G10 is not a tool command"),
+        ("on", "M3 S{power}\u000b$RST=*", "printable ASCII"),  # VT: a line end to some readers
+        ("on", "M3 S{power}\u0018", "printable ASCII"),  # Ctrl-X: GRBL's soft reset
+        ("on", "M3 S{power.__class__}", "only {power}"),
+        ("on", "M3 S{power!r}", "only {power}"),
+        ("off", "", "not a list of G-code words"),  # the scribe would never lift
+        ("off", "(lift)", "not a list of G-code words"),
+        ("off", "M3 S{power}", "same command"),
+        ("on", "M3 S{power} G4", "G4 needs its P"),
+        ("on", "M3 S-5", "negative"),
+        ("off", "M5 ; up", "not a list of G-code words"),
+    ],
+)
+def test_tool_commands_only_switch_the_tool(key, template, message):
+    """Sent once per stroke: anything beyond M3/M4/M5, coolant, S and a dwell is refused."""
+    table = copy.deepcopy(base_table())
+    table["tool_control"] = {"mode": "spindle", key: template}
+    with pytest.raises(ConfigError) as err:
+        profile_from_mapping(table, "my.toml")
+    text = str(err.value)
+    assert text.startswith("my.toml: ") and message in text and "\n" not in text
+
+
+@pytest.mark.parametrize(
+    ("on", "off"),
+    [
+        ("M3 S{power}", "M5"),
+        ("M3S{power}", "M3 S10 (pen up)"),  # a servo lifted by another angle
+        ("M4 S{power} G4 P0.2", "M5 M9"),
+        ("m3 s{power} m8", "m5"),
+    ],
+)
+def test_tool_commands_that_switch_the_tool_load(on, off):
+    table = copy.deepcopy(base_table())
+    table["tool_control"] = {"mode": "spindle", "on": on, "off": off, "power": 60}
+    control = profile_from_mapping(table, "my.toml").tool_control
+    assert control.command("on") == on.format(power="60")
+
+
+def test_a_profile_name_is_one_printable_line():
+    table = copy.deepcopy(base_table())
+    table["name"] = "shop\nmill\x18"
+    with pytest.raises(ConfigError, match="control characters"):
+        profile_from_mapping(table, "my.toml")
+    table["name"] = "Fräse (Werkstatt), 3018"
+    assert profile_from_mapping(table, "my.toml").name == "Fräse (Werkstatt), 3018"

@@ -2258,3 +2258,33 @@ def test_a_jobs_gcode_is_checked_against_the_jobs_machine(tmp_path, capsys):
     main(["stream", str(layout.export_file("gcode")), "--port", SIM, "--yes"])
     err = capsys.readouterr().err
     assert f"checking against machine '{tp.profile.name}' of {layout.toolpath_json}" in err
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("G0 X1 ; see notes\x0b$RST=*\n", "control character '\\x0b'"),  # one line to GRBL
+        ("G0 X1\nM3 S100\x18\n", "control character '\\x18'"),
+        ("G0 X1\x0c\n", "control character '\\x0c'"),
+        ("G21\n$RST=*\n", "'$RST=*': a GRBL system command"),
+        ("G21\n$J=G91 X-500 F1000\n", "'$J=G91X-500F1000': a GRBL system command"),
+        ("G21\n$H\n", "'$H': a GRBL system command"),
+        ("G21\n$130=5\n", "'$130=5': a GRBL system command"),
+        ("G21\n$N0=G0X0\n", "'$N0=G0X0': a GRBL system command"),
+    ],
+)
+def test_lines_that_act_beyond_the_job_are_refused_before_connecting(tmp_path, text, message):
+    job = tmp_path / "job.gcode"
+    job.write_bytes(text.encode("ascii"))
+    with pytest.raises(ConfigError) as err:
+        load_program(job)
+    assert str(err.value).startswith(f"{job}:") and message in str(err.value)
+
+
+def test_lines_end_where_grbl_ends_them(tmp_path):
+    """LF, CR or CRLF end a line, as in GRBL; read-only $ reports may stay in a job."""
+    job = tmp_path / "job.gcode"
+    job.write_bytes(b"G21 G90\r\nG0 X1\rG1 X2 F100\n$G\n\tG1 X3 (tab indented)\n")
+    prog = load_program(job)
+    assert [b.text for b in prog.blocks] == ["G21G90", "G0X1", "G1X2F100", "$G", "G1X3"]
+    assert [b.lineno for b in prog.blocks] == [1, 2, 3, 4, 5]

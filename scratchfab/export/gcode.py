@@ -166,6 +166,8 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
         lines.append(ctl.command("off") if ctl.mode == "spindle" else "M5")
     lines += [travel(start), "M2"]
     for number, line in enumerate(lines, start=1):
+        if not all(" " <= c <= "~" for c in line):  # a control or realtime byte acts at once
+            raise ScratchfabError(f"G-code line {number} holds a control character: {line!r}")
         if len(line) > limit:
             raise ScratchfabError(
                 f"G-code line {number} is {len(line)} characters, over the machine's "

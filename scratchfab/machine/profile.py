@@ -49,7 +49,8 @@ Schema (every table and key; defaults in brackets)::
     [tool_control]
     mode = "z"              # "z": Z moves only; "spindle": spindle on for the job, Z moves;
                             # "servo": no Z, the on/off commands lower and lift the tool
-    on = "M3 S{power}"      # [as shown] template; {power} is replaced by power
+    on = "M3 S{power}"      # [as shown] template; {power} is replaced by power; tool
+                            # words only: M3 M4 M5 M7 M8 M9, S, G4 with P (no $, no moves)
     off = "M5"
     power = 1000.0
     dwell_s = 0.0           # G4 pause after each on/off command (servo travel, spin-up)
@@ -68,6 +69,7 @@ from __future__ import annotations
 
 import math
 import re
+import string
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -214,6 +216,62 @@ class Tool:
     tolerance_mm: float = field(default=0.01, metadata=spec(gt=0))
 
 
+_TOOL_CODE = re.compile(r"(?:\s*[A-Z]\s*[-+]?(?:\d+\.?\d*|\.\d+))+\s*")
+_TOOL_WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+#: What a tool command may do: spindle/servo (M3 M4 M5 with S), coolant (M7 M8 M9), dwell (G4 P).
+_TOOL_CODES = {"M": (3.0, 4.0, 5.0, 7.0, 8.0, 9.0), "G": (4.0,)}
+
+
+def _check_tool_command(name: str, template: str, power: float) -> None:
+    """Refuse a tool command that could do more than switch the tool, or that GRBL rejects.
+
+    The command is sent once per stroke, so a ``$`` system command (a settings reset, a
+    jog), a move, a control byte or a realtime character in it would act on every stroke.
+
+    Raises:
+        ValueError: Naming ``name`` and what is wrong.
+    """
+    fields = list(string.Formatter().parse(template)) if "{" in template or "}" in template else []
+    for _, field_name, spec_text, conversion in fields:
+        if field_name is not None and (field_name != "power" or spec_text or conversion):
+            raise ValueError(f"{name}: bad template {template!r} (only {{power}} may be used)")
+    try:
+        text = template.format(power=gcode_number(power, 3))
+    except (KeyError, IndexError, ValueError) as exc:
+        raise ValueError(
+            f"{name}: bad template {template!r} (only {{power}} may be used): {exc}"
+        ) from None
+    if not all(" " <= c <= "~" for c in text):
+        raise ValueError(f"{name}: the command must be one line of printable ASCII, got {text!r}")
+    if any(c in text for c in "!?~"):
+        raise ValueError(f"{name}: '!', '?' and '~' are GRBL realtime commands")
+    upper = text.upper()
+    for word in _FORBIDDEN_WORDS:
+        if _has_word(upper.replace(" ", ""), word):
+            raise ValueError(f"{name}: {word} is not supported by GRBL 1.1 (error 20)")
+    code = re.sub(r"\([^()]*\)", " ", upper)  # GRBL comments; nested ones are errors
+    if not _TOOL_CODE.fullmatch(code):
+        raise ValueError(
+            f"{name}: {text!r} is not a list of G-code words (a letter and a number each; "
+            "no $ commands, ';' or unbalanced parentheses)"
+        )
+    words = [(letter, float(value)) for letter, value in _TOOL_WORD.findall(code)]
+    allowed = "M3, M4, M5, M7, M8, M9, S and G4 with P"
+    for letter, value in words:
+        if letter in _TOOL_CODES and value not in _TOOL_CODES[letter]:
+            raise ValueError(
+                f"{name}: {letter}{value:g} is not a tool command (allowed: {allowed})"
+            )
+        if letter not in _TOOL_CODES and letter not in "SP":
+            raise ValueError(
+                f"{name}: {letter} words do not belong in a tool command (allowed: {allowed})"
+            )
+        if letter in "SP" and value < 0:
+            raise ValueError(f"{name}: {letter}{value:g} is negative")
+    if any(letter == "P" for letter, _ in words) != (("G", 4.0) in words):
+        raise ValueError(f"{name}: G4 needs its P (seconds), and P only goes with G4")
+
+
 @dataclass(frozen=True)
 class ToolControl:
     """How the tool goes down and up."""
@@ -226,21 +284,9 @@ class ToolControl:
 
     def __post_init__(self) -> None:
         for name in ("on", "off"):
-            template = getattr(self, name)
-            try:
-                text = template.format(power=gcode_number(self.power, 3))
-            except (KeyError, IndexError, ValueError) as exc:
-                raise ValueError(
-                    f"{name}: bad template {template!r} (only {{power}} may be used): {exc}"
-                ) from None
-            if not text.isascii() or "\n" in text or "\r" in text:
-                raise ValueError(f"{name}: the command must be a single line of ASCII")
-            if any(c in text for c in "!?~"):
-                raise ValueError(f"{name}: '!', '?' and '~' are GRBL realtime commands")
-            upper = text.upper().replace(" ", "")
-            for word in _FORBIDDEN_WORDS:
-                if _has_word(upper, word):
-                    raise ValueError(f"{name}: {word} is not supported by GRBL 1.1 (error 20)")
+            _check_tool_command(name, getattr(self, name), self.power)
+        if self.command("on") == self.command("off"):
+            raise ValueError(f"on and off are the same command ({self.command('on')!r})")
 
     def command(self, which: Literal["on", "off"]) -> str:
         """The on or off command with the power filled in."""
@@ -282,6 +328,8 @@ class MachineProfile:
     source: str = field(default="<profile>", compare=False, repr=False, init=False)
 
     def __post_init__(self) -> None:
+        if not self.name.isprintable():
+            raise ValueError(f"name: {self.name!r} holds control characters (one printable line)")
         if not self.envelope.contains_xy(np.asarray(self.start_mm))[0]:
             raise ValueError(
                 f"start_mm {list(self.start_mm)} is outside the envelope "

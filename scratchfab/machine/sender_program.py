@@ -32,6 +32,9 @@ MAX_BLOCK_CHARS = 79
 DEFAULT_RAPID_MM_MIN = (500.0, 500.0, 500.0)  # G0 rates for the estimate until $110-$112 are known
 _WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
 _REALTIME = set("?!~")
+_LINE_END = re.compile(r"\r\n|[\r\n]")
+#: ``$`` lines a job may hold: reports that move nothing and change no setting or state.
+_QUERIES = frozenset({"$", "$$", "$#", "$G", "$I", "$N"})
 
 
 def strip_block(raw: str) -> str:
@@ -406,15 +409,29 @@ def load_program(
         raise ConfigError(f"{p}:{lineno}: non-ASCII byte in G-code") from None
     blocks: list[Block] = []
     state = Modal()
-    for lineno, raw in enumerate(text.splitlines(), start=1):
+    # GRBL ends a line at LF or CR only (str.splitlines also splits at VT, FF and
+    # \x1c-\x1e, which would send a comment's tail as a command).
+    for lineno, raw in enumerate(_LINE_END.split(text.removesuffix("\n")), start=1):
+        control = next((c for c in raw if (c < " " and c != "\t") or c == "\x7f"), None)
+        if control is not None:
+            raise ConfigError(
+                f"{p}:{lineno}: control character {control!r} in G-code (0x18 is a soft "
+                "reset, others end a line for some senders and not for GRBL)"
+            )
         block = strip_block(raw)
         if not block:
             continue
         bad = _REALTIME.intersection(block)
-        if bad or any(ord(c) < 32 for c in block):
-            what = "".join(sorted(bad)) or "a control character"
+        if bad:
             raise ConfigError(
-                f"{p}:{lineno}: {what!r} is a GRBL realtime command and would act at once"
+                f"{p}:{lineno}: {''.join(sorted(bad))!r} is a GRBL realtime command and would "
+                "act at once"
+            )
+        if block.startswith("$") and block not in _QUERIES:
+            raise ConfigError(
+                f"{p}:{lineno}: {block!r}: a GRBL system command that moves the machine or "
+                "changes its settings or state does not belong in a job (home, jog and set up "
+                "before streaming)"
             )
         if len(block) > MAX_BLOCK_CHARS:
             raise ConfigError(
