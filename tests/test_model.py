@@ -399,3 +399,63 @@ def test_the_unedited_scene_loads(tmp_path):
     path.write_text(SCENE)
     design = load_design(path)
     assert [v.name for v in design.views] == ["a"] and design.scratch.min_length_mm == 1.5
+
+
+@pytest.mark.parametrize("name", ["sun\n", "sun\r\n", "\nsun", "su\nn"])
+def test_a_view_name_with_a_newline_is_refused_in_one_line(tmp_path, name):
+    with pytest.raises(ConfigError) as info:
+        design_from_mapping(_with("views.0.name", name), "scene.toml", Path("."))
+    text = str(info.value)
+    assert text.startswith("scene.toml:") and "not file-name safe" in text
+    assert "\n" not in text and repr(name) in text
+    # the same from a file, as a person writes it
+    import tomli_w
+
+    file = tmp_path / "scene.toml"
+    file.write_text(tomli_w.dumps(_with("views.0.name", name)))
+    with pytest.raises(ConfigError) as info:
+        load_design(file)
+    assert str(info.value).startswith(str(file)) and "\n" not in str(info.value)
+
+
+def test_design_toml_round_trips_a_target_path_with_a_newline(tmp_path):
+    import tomllib
+
+    from PIL import Image
+
+    from scratchfab.design.stage import run_design
+
+    # A folder name that, written raw into the header comment, would add a key.
+    folder = tmp_path / "in\nx = 1\n[extra]\n"
+    folder.mkdir()
+    target = folder / "sun\n.png"
+    Image.fromarray(np.tile(np.arange(32, dtype=np.uint8) * 8, (32, 1))).save(target)
+    data = {
+        "board": {"width_mm": 40.0, "height_mm": 40.0, "margin_mm": 1.0},
+        "light": {"position_mm": [0.0, 150.0, 300.0]},
+        "scratch": {"count": 40, "min_length_mm": 1.0, "max_length_mm": 5.0},
+        "views": [
+            {
+                "name": "sun",
+                "position_mm": [0.0, 40.0, 300.0],
+                "fov_deg": "auto",
+                "resolution": [16, 16],
+                "target": str(target),
+            }
+        ],
+    }
+    design = design_from_mapping(data, "<test>", tmp_path)
+    result = run_design(design, tmp_path / "job", progress=lambda s: None)
+    text = (result.folder / "design.toml").read_text(encoding="utf-8")
+    parsed = tomllib.loads(text)  # a second reader
+    header = [line for line in text.splitlines() if line.startswith("#")]
+    assert len(header) == 3 + 1  # one comment line per view, none broken
+    assert header[-1] == "# sun: " + str(target).replace("\n", "\\n")
+    body = "\n".join(line for line in text.splitlines() if not line.startswith("#"))
+    assert tomllib.loads(body) == parsed  # the comment adds no value
+    assert set(parsed) == {"board", "light", "scratch", "views"}
+    assert parsed["views"][0]["name"] == "sun"
+    assert parsed["views"][0]["target"] == str(result.folder / "board" / "sun.png")
+    assert parsed["board"]["width_mm"] == 40.0 and parsed["scratch"]["count"] == 40
+    again = load_design(result.folder / "design.toml")
+    assert again.views[0].position_mm == pytest.approx(design.views[0].position_mm)

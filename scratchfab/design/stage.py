@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import time
+import unicodedata
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -106,8 +107,16 @@ def _origin_comment(design: Design, fit: str, gamma: float, contrast: float, see
         "# so a run from this file reproduces targets/*.npy; layout seed = " + str(seed) + ".",
     ]
     for view in design.views:
-        lines.append(f"# {view.name}: {design.target_path(view)}")
+        lines.append(f"# {view.name}: {_comment_safe(str(design.target_path(view)))}")
     return "\n".join(lines) + "\n"
+
+
+def _comment_safe(text: str) -> str:
+    """``text`` safe inside a TOML comment: control characters written as Python escapes.
+
+    A newline would end the comment; lone surrogates (undecodable file-name bytes) are no UTF-8.
+    """
+    return "".join(repr(c)[1:-1] if unicodedata.category(c) in ("Cc", "Cs") else c for c in text)
 
 
 def run_design(

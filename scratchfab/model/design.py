@@ -36,7 +36,7 @@ STAGE_TABLES = ("pipeline", "optimize", "verify", "toolpath", "export", "stream"
 MAX_SCRATCHES = 10_000_000
 MAX_RESOLUTION = 16384
 
-_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+_NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")  # fullmatch: no "sun\n"
 #: Names Windows keeps for devices (with any extension, in any case): no file can have them.
 RESERVED_NAME_RE = re.compile(r"^(con|prn|aux|nul|com[1-9]|lpt[1-9])(\..*)?$", re.IGNORECASE)
 
@@ -121,7 +121,7 @@ class View:
     light_position_mm: Vec3 | None = None
 
     def __post_init__(self) -> None:
-        if not _NAME_RE.match(self.name) or RESERVED_NAME_RE.match(self.name):
+        if not _NAME_RE.fullmatch(self.name) or RESERVED_NAME_RE.match(self.name):
             raise ValueError(
                 f"name {self.name!r} is not file-name safe (letters, digits, '_', '-', '.'; "
                 "not a Windows device name such as con or com1)"
