@@ -480,3 +480,65 @@ def test_commands_paste_back_as_the_same_arguments(tmp_path):
         assert (job / words[2]).resolve() == pipeline.resolve()
         assert pasted_words(command, job) == words  # and the shell agrees
     assert not list(tmp_path.rglob("PWNED*"))  # nothing ran
+
+
+def _windows_argv(line: str) -> list[str]:
+    """``line`` split as the Microsoft C runtime splits a command line (its documented rules).
+
+    Whitespace separates arguments outside double quotes; 2n backslashes before a quote
+    give n and the quote toggles quoting, 2n+1 give n and a literal quote; other
+    backslashes are literal.
+    """
+    args: list[str] = []
+    word: list[str] = []
+    quoted = started = False
+    i = 0
+    while i < len(line):
+        c = line[i]
+        if c == "\\":
+            n = len(line[i:]) - len(line[i:].lstrip("\\"))
+            i += n
+            if line[i : i + 1] == '"':
+                word += "\\" * (n // 2)
+                if n % 2:
+                    word.append('"')
+                    i += 1
+            else:
+                word += "\\" * n
+            started = True
+            continue
+        if c == '"':
+            quoted, started = not quoted, True
+        elif c in " \t" and not quoted:
+            if started:
+                args.append("".join(word))
+            word, started = [], False
+        else:
+            word.append(c)
+            started = True
+        i += 1
+    if started:
+        args.append("".join(word))
+    return args
+
+
+def test_commands_for_windows_split_back_into_the_same_arguments(monkeypatch):
+    from scratchfab.console import command_line
+
+    args = [
+        "scratchfab",
+        "run",
+        r"C:\p dir $(touch PWNED)'q\a \"b\" c\\",
+        "",
+        'say "hi"',
+        "tab\there",
+        "--out",
+        ".",
+    ]
+    with monkeypatch.context() as patch:
+        patch.setattr(os, "name", "nt")
+        line = command_line(args)
+    assert _windows_argv(line) == args
+    posix = command_line(args)
+    assert shlex.split(posix) == args  # and here, the POSIX form
+    assert _windows_argv(posix) != args  # which Windows would read otherwise
