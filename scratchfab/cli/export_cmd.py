@@ -8,10 +8,7 @@ import click
 
 from scratchfab.errors import ScratchfabError
 from scratchfab.export import FORMATS, WRITERS, format_for
-from scratchfab.export import export as export_toolpath
-from scratchfab.machine.profile import load_profile
 from scratchfab.model.job import JobLayout
-from scratchfab.toolpath import Toolpath
 
 
 @click.command("export")
@@ -59,6 +56,11 @@ def export(
     G-code is checked before anything is written: every coordinate inside the machine's
     envelope, every line within its length limit.
     """
+    # Imported here, not for --help: the toolpath package and the profiles.
+    from scratchfab.export import export as export_toolpath
+    from scratchfab.machine.profile import load_profile
+    from scratchfab.toolpath import Toolpath
+
     if toolpath_file is None:
         if job is None:
             raise ScratchfabError("give a JOB folder or --toolpath FILE")

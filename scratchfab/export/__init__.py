@@ -2,6 +2,6 @@
 
 from __future__ import annotations
 
-from scratchfab.export.registry import FORMATS, WRITERS, export, format_for
+from scratchfab.export.registry import FORMATS, WRITERS, export, format_for, writer
 
-__all__ = ["FORMATS", "WRITERS", "export", "format_for"]
+__all__ = ["FORMATS", "WRITERS", "export", "format_for", "writer"]

@@ -2,26 +2,27 @@
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from scratchfab.errors import ScratchfabError
-from scratchfab.export.dxf import write_dxf
-from scratchfab.export.gcode import write_gcode
-from scratchfab.export.svg import write_svg
-from scratchfab.machine.profile import MachineProfile
-from scratchfab.toolpath.plan import Toolpath
 
-Writer = Callable[[Toolpath, MachineProfile | None, str | Path], dict[str, Any]]
+if TYPE_CHECKING:
+    from scratchfab.machine.profile import MachineProfile
+    from scratchfab.toolpath.plan import Toolpath
 
-#: extension (no dot) -> writer; "nc" is another name for G-code.
-WRITERS: dict[str, Writer] = {
-    "gcode": write_gcode,
-    "nc": write_gcode,
-    "dxf": write_dxf,
-    "svg": write_svg,
+Writer = Callable[["Toolpath", "MachineProfile | None", "str | Path"], dict[str, Any]]
+
+#: extension (no dot) -> (module, function) of its writer; "nc" is another name for
+#: G-code. A writer's module is imported when it is used: ezdxf alone costs ~0.2 s.
+WRITERS: dict[str, tuple[str, str]] = {
+    "gcode": ("scratchfab.export.gcode", "write_gcode"),
+    "nc": ("scratchfab.export.gcode", "write_gcode"),
+    "dxf": ("scratchfab.export.dxf", "write_dxf"),
+    "svg": ("scratchfab.export.svg", "write_svg"),
 }
 
 #: The formats ``scratchfab export --format`` offers.
@@ -41,12 +42,19 @@ def format_for(path: str | Path, format: str | None = None) -> str:
         known = ", ".join(sorted(WRITERS))
         what = f"format '{format}'" if format else f"file extension of {path}"
         raise ScratchfabError(f"unknown {what}; known: {known}")
-    if extension in WRITERS and WRITERS[extension] is not WRITERS[name]:
+    if extension in WRITERS and WRITERS[extension] != WRITERS[name]:
         raise ScratchfabError(
             f"{path}: the extension says {extension} but the format asked for is {name}; "
             f"name the file .{name} or leave the format out"
         )
     return name
+
+
+def writer(name: str) -> Writer:
+    """The writer of format ``name`` (a key of :data:`WRITERS`), its module imported."""
+    module, function = WRITERS[name]
+    found: Writer = getattr(importlib.import_module(module), function)
+    return found
 
 
 def check_same_plan(toolpath: Toolpath, profile: MachineProfile) -> None:
@@ -102,5 +110,5 @@ def export(
     name = format_for(path, format)
     if profile is not None:
         check_same_plan(toolpath, profile)
-    stats = WRITERS[name](toolpath, profile, path)
+    stats = writer(name)(toolpath, profile, path)
     return {"format": name, "path": str(path), **stats}

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+
+# scipy (~0.2 s to import) is imported in merge_collinear, the one function that uses it:
+# importing the toolpath package (the CLI's help, the exporters) does not need it.
 
 
 def clip_strokes(
@@ -63,6 +63,10 @@ def merge_collinear(
         Segments without duplicates come back unchanged, in input order, before the
         merged ones.
     """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
     n = len(p0)
     if n < 2:
         return p0.copy(), p1.copy(), [np.array([i]) for i in range(n)]

@@ -33,10 +33,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-# scratchfab.toolpath.local_search (numba, ~0.2-0.7 s to import) is imported where it is
-# used: tour_travel alone, which the exporters need, is plain numpy.
+# scratchfab.toolpath.local_search (numba, ~0.2-0.7 s to import) and scipy (~0.2 s) are
+# imported where they are used: OrderOptions, which the toolpath command needs for its
+# help, and tour_travel, which the exporters need, are plain numpy.
 
 
 @dataclass(frozen=True)
@@ -128,6 +128,8 @@ def _stroke_order(ent: np.ndarray, start_item: int) -> tuple[np.ndarray, np.ndar
 
 def _greedy(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Entry endpoints in greedy nearest-neighbour order from the start (the last item)."""
+    from scipy.spatial import cKDTree
+
     from scratchfab.toolpath.local_search import greedy_steps
 
     n = (len(points) - 2) // 2
@@ -191,6 +193,8 @@ def _improve_region(
     expanded back, and its reversals cost at most its size. Returns the new tour and
     the improving moves and trials kept.
     """
+    from scipy.spatial import cKDTree
+
     from scratchfab.toolpath.local_search import (
         SETTLED_ITEMS_PER_MOVE,
         cut_region,
@@ -268,6 +272,8 @@ def order_strokes(
     Returns:
         The order, per-stroke reversal and travel figures.
     """
+    from scipy.spatial import cKDTree
+
     opts = options or OrderOptions()
     p0 = np.asarray(p0, dtype=np.float64).reshape(-1, 2)
     p1 = np.asarray(p1, dtype=np.float64).reshape(-1, 2)
