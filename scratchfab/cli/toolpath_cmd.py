@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import click
@@ -10,12 +11,28 @@ from scratchfab.errors import ScratchfabError
 from scratchfab.machine.profile import bundled_profiles
 from scratchfab.model.job import JobLayout
 from scratchfab.toolpath import OrderOptions
-from scratchfab.toolpath.stage import job_toolpath_inputs, run_toolpath
+
+
+def run_toolpath(
+    scratch_file: Path,
+    design_file: Path,
+    out_dir: Path,
+    machine: str,
+    options: OrderOptions,
+    say: Callable[[str], None],
+) -> None:
+    """:func:`scratchfab.toolpath.stage.run_toolpath`, the stage imported when it runs."""
+    # Not imported for --help: the stage plans with shapely and draws with Pillow.
+    from scratchfab.toolpath.stage import run_toolpath as run
+
+    run(scratch_file, design_file, out_dir, machine, options, say)
 
 
 def _inputs(
     job: Path | None, scratches: Path | None, design: Path | None, out: Path | None
 ) -> tuple[Path, Path, Path]:
+    from scratchfab.toolpath.stage import job_toolpath_inputs
+
     if job is None:
         if scratches is None or design is None or out is None:
             raise ScratchfabError(
