@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from scratchfab.cli.options import FiniteFloat, SizePair
-from scratchfab.design.quick import quick_design
-from scratchfab.design.stage import run_design
 from scratchfab.errors import ConfigError
-from scratchfab.model.design import Design
+
+if TYPE_CHECKING:
+    from scratchfab.model.design import Design
 
 
 @click.command("design")
@@ -90,6 +91,10 @@ def design(
     Writes JOB/design/: design.toml, targets/, board/, scratches.csv and the
     feasibility report; the quick form's design.toml can start the next run.
     """
+    # Imported here, not for --help: the design stage loads scipy (~0.2 s).
+    from scratchfab.design.quick import quick_design
+    from scratchfab.design.stage import run_design
+
     res = resolution
     toml = [p for p in inputs if p.lower().endswith(".toml")]
     if toml:

@@ -9,7 +9,6 @@ import click
 
 from scratchfab.cli.options import backend_option, job_or_files, job_or_files_options
 from scratchfab.model.job import JobLayout, job_inputs, stale_layout_warning
-from scratchfab.render.stage import run_render
 
 
 @click.command("render")
@@ -32,6 +31,9 @@ def render(
     clipped to [0, 1], sRGB-encoded; that exposure is stored in the PNG's text chunk
     "scratchfab.exposure".
     """
+    # Imported here, not for --help: the renderer loads Dr.Jit.
+    from scratchfab.render.stage import run_render
+
     inputs = job_or_files(job, design_file, scratch_file, out_dir)
     if isinstance(inputs, tuple):
         design_file, scratch_file, out_dir = inputs
