@@ -586,7 +586,7 @@ def test_disconnect_then_resume_cuts_every_stroke_at_most_one_twice(tmp_path, li
     assert max(counts) <= 2 and counts.count(2) <= 1
     first_rx = [e["text"] for e in read_record(rec2) if e["ev"] == "rx" and e["g"]]
     assert first_rx[0].startswith("G21G90")
-    assert [t[:3] for t in first_rx[3:5]] == ["G0Z", "G0X"]  # Z up before XY
+    assert [t[:3] for t in first_rx[1:5]] == ["G0Z", "M5", "M9", "G0X"]  # Z up first, XY after
 
 
 def test_usb_powered_disconnect_needs_recut_unsure(tmp_path, capsys):
@@ -1918,7 +1918,10 @@ def test_resumed_spindle_job_dwells_before_it_moves(tmp_path):
     spindle_on = next(k for k, t in enumerate(pre) if t.startswith("M3"))
     dwell = pre.index(dwells[0].text)
     moves = [k for k, t in enumerate(pre) if t.startswith(("G0", "G1")) and ("X" in t or "Z" in t)]
-    assert moves and spindle_on < dwell < min(moves)
+    z_up = pre.index(f"G0Z{profile.z.safe_mm:g}")
+    assert moves and min(moves) == z_up  # Z up first: the bit may be in the board
+    moves = [k for k in moves if k != z_up]
+    assert moves and z_up < spindle_on < dwell < min(moves)
 
     port = open_port("grblsim://?time_scale=0.001", 115200)
     try:
@@ -2336,3 +2339,70 @@ def test_an_error_around_a_stroke_never_moves_the_tool_down(tmp_path, name, rate
         assert not [e for e in moved if e["spindle"] != "M5"]
     else:
         assert not [e for e in moved if min(e["frm"][2], e["to"][2]) < prog.z_threshold]
+
+
+def test_a_resumed_spindle_job_starts_the_spindle_only_above_the_board(tmp_path):
+    """A stop can leave the bit in the board: the preamble raises Z to the safe height
+    before M3 and its spin-up dwell, and moves in XY only after them."""
+    from test_export import spindle_profile
+
+    from scratchfab.export import export
+    from scratchfab.model.design import Board
+    from scratchfab.model.scratches import ScratchSet
+    from scratchfab.toolpath import plan_toolpath
+
+    profile = spindle_profile()
+    centres = np.random.default_rng(1).uniform(-15, 15, (4, 2))
+    scratches = ScratchSet.from_arrays(centres - 1, centres + 1, 0.1, 0.01)
+    job = tmp_path / "spindle.gcode"
+    board = Board(width_mm=40.0, height_mm=40.0, margin_mm=1.0)
+    export(plan_toolpath(scratches, board, profile), None, job)
+    prog = load_program(job, z_threshold=0.5 * (profile.z.safe_mm + profile.z.engrave_mm))
+    start = prog.strokes[2][0]
+    pre = resume_preamble(prog, start)
+    # the stop left the bit at cutting depth, mid-stroke
+    stuck = tmp_path / "stuck.gcode"
+    stuck.write_text(f"G21 G90\nG1 Z{profile.z.engrave_mm:g} F200\n")
+    rec = tmp_path / "rec.jsonl"
+    port = open_port(f"grblsim://?time_scale=0.001&record={rec}", 115200)
+    try:
+        streamer = Streamer(port, FAST)
+        streamer.connect()
+        for program, kwargs in [
+            (load_program(stuck), {}),
+            (prog, {"start": start, "preamble": pre, "resume": True}),
+        ]:
+            journal = Journal(tmp_path / f"{program.path.stem}.jsonl").open()
+            streamer.stream(program, journal, **kwargs)
+            journal.close()
+    finally:
+        port.close()
+    record = read_record(rec)
+    z_at = None
+    spindle_on = []
+    for e in record:
+        if e["ev"] in ("exec", "partial"):
+            z_at = e["to"][2]
+        elif e["ev"] == "spindle" and e["spindle"] == "M3":
+            spindle_on.append((z_at, e["t"]))
+    assert spindle_on and z_at is not None
+    assert spindle_on[0][0] == pytest.approx(profile.z.safe_mm)  # not engrave_mm
+    stuck_at = next(
+        k for k, e in enumerate(record) if e["ev"] == "exec" and e["to"][2] == profile.z.engrave_mm
+    )
+    first_xy = next(
+        e["t"]
+        for e in record[stuck_at:]
+        if e["ev"] in ("exec", "partial") and e["frm"][:2] != e["to"][:2]
+    )
+    assert first_xy >= spindle_on[0][1]
+
+
+def test_a_resumed_servo_job_lifts_the_pen_before_any_move(tmp_path):
+    job, _ = _profile_job(tmp_path, "grbl-plotter-scribe", n=6, seed=2)
+    prog = load_program(job)
+    assert prog.pen_mode and prog.strokes
+    pre = resume_preamble(prog, prog.strokes[3][0])
+    moves = [k for k, t in enumerate(pre) if t.startswith(("G0", "G1")) and "X" in t]
+    assert moves and "M5" in pre[: min(moves)]
+    assert not [t for t in pre if t.startswith(("M3", "M4"))]

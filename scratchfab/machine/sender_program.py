@@ -542,32 +542,36 @@ def spin_up_dwell(program: Program, start: int) -> float:
 def resume_preamble(program: Program, start: int) -> list[str]:
     """Blocks that restore the state the file had before block ``start``, safely.
 
-    Order: mm and absolute (G21 G90, plane, G94, work coordinates), spindle/servo and
-    coolant as the file had them, with the spin-up dwell the file used after its spindle
-    start (:func:`spin_up_dwell`; the tool is up before a stroke by definition), Z up to the
-    highest Z the file used so far, XY to where the file was, Z down to the file's travel
-    height there, then the file's units, distance mode, feed mode, feed and motion mode.
-    The moves travel as the file does (:func:`travel_move`: G0, or G1 at its travel feed).
-    The stroke's own first block then plunges.
+    Order: mm and absolute (G21 G90, plane, G94, work coordinates); Z up to the highest Z
+    the file used so far (a stop may have left the bit in the board: the spindle must not
+    start there), or, in a job without Z (a servo), the tool output off (pen up) before any
+    move; then spindle/servo and coolant as the file had them, with the spin-up dwell the
+    file used after its spindle start (:func:`spin_up_dwell`; the tool is up before a stroke
+    by definition); XY to where the file was, Z down to the file's travel height there, then
+    the file's units, distance mode, feed mode, feed and motion mode. The moves travel as
+    the file does (:func:`travel_move`: G0, or G1 at its travel feed). The stroke's own
+    first block then plunges.
     """
     if start <= 0 or start > len(program.blocks):
         return []
     before = program.blocks[start - 1].modal
     zs = [b.modal.z for b in program.blocks[:start] if b.modal.z is not None]
     mode, feed = travel_move(program, start)
+    move = mode if mode == "G0" else f"G1F{gcode_number(feed, 4)}"
     lines = [f"G21G90{before.plane}G94{before.wcs}"]
+    if zs:
+        lines.append(f"{move}Z{gcode_number(max(zs), 4)}")
+    else:
+        lines.append("M5")  # no Z: the output lifts the tool
     if before.spindle == "M5":
-        lines.append("M5")
+        if zs:
+            lines.append("M5")
     else:
         lines.append(f"{before.spindle}S{gcode_number(before.speed, 4)}")
         dwell = spin_up_dwell(program, start)
         if dwell > 0:
             lines.append(f"G4P{gcode_number(dwell, 4)}")
     lines.append(before.coolant)
-    move = mode if mode == "G0" else f"G1F{gcode_number(feed, 4)}"
-    if zs:
-        z_safe = max(zs)
-        lines.append(f"{move}Z{gcode_number(z_safe, 4)}")
     lines.append(f"{move}X{gcode_number(before.x, 4)}Y{gcode_number(before.y, 4)}")
     if zs and before.z is not None and before.z < max(zs):
         lines.append(f"{move}Z{gcode_number(before.z, 4)}")
