@@ -2406,3 +2406,32 @@ def test_a_resumed_servo_job_lifts_the_pen_before_any_move(tmp_path):
     moves = [k for k, t in enumerate(pre) if t.startswith(("G0", "G1")) and "X" in t]
     assert moves and "M5" in pre[: min(moves)]
     assert not [t for t in pre if t.startswith(("M3", "M4"))]
+
+
+def test_a_second_ctrl_c_while_stopping_after_an_error_still_resets(tmp_path, monkeypatch):
+    """Ctrl-C in the wait for Hold:0 after error:N: the stop still ends with a soft reset
+    (spindle off, queue flushed) and a ``stop`` in the journal, then reports the stop."""
+    job = tmp_path / "job.gcode"
+    write_job(job, 60)
+    prog = load_program(job)
+    journal = tmp_path / "j.jsonl"
+    port = open_port("grblsim://?time_scale=0.02&error_at=120", 115200)
+    trip = _Tripwire(port)
+    original = Streamer._stop_after_fault
+
+    def stop_after_fault(self, fault):
+        trip.armed = KeyboardInterrupt()  # the next read: the wait for Hold:0
+        original(self, fault)
+
+    monkeypatch.setattr(Streamer, "_stop_after_fault", stop_after_fault)
+    try:
+        with pytest.raises(StreamStopped, match=r"error:20 .*Ctrl-C while stopping"):
+            _stream(trip, prog, journal)
+    except KeyboardInterrupt:
+        pytest.fail("the Ctrl-C escaped the stop")
+    finally:
+        port.close()
+    assert trip.armed is None  # the Ctrl-C did come during the stop
+    _held_then_reset(port.sim.record)
+    last = read_journal(journal)[-1]
+    assert last["ev"] == "stop" and "error:20" in last["reason"]

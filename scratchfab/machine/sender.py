@@ -632,7 +632,17 @@ class Streamer:
             with _signals_stop(self):
                 self._run(items, program, journal)
         except _Fault as fault:
-            self._stop_after_fault(fault)
+            try:
+                self._stop_after_fault(fault)
+            except KeyboardInterrupt as again:
+                # a further Ctrl-C (or signal) while stopping: finish the stop, then say so
+                self._stop_on_escape(
+                    again, reason=f"{fault}; {_interrupt_name(again)} while stopping"
+                )
+                raise StreamStopped(
+                    f"{fault}; {_interrupt_name(again)} while stopping: machine held, then "
+                    "soft-reset (spindle off); continue later with --resume"
+                ) from None
             raise StreamFault(str(fault)) from None
         except StreamStopped:
             raise  # stopped safely already
@@ -855,7 +865,7 @@ class Streamer:
         except Exception:  # noqa: BLE001, S110
             pass
 
-    def _stop_on_escape(self, exc: BaseException) -> None:
+    def _stop_on_escape(self, exc: BaseException, reason: str = "") -> None:
         """The safe stop when anything but a fault or a user's stop escapes the stream.
 
         Feed hold, a short wait for ``Hold:0`` (a further Ctrl-C cuts it short), soft reset
@@ -863,20 +873,21 @@ class Streamer:
         is gone. Errors on the way are swallowed: the caller re-raises ``exc``.
         """
         self._stopping = True
-        reason = (
+        reason = reason or (
             f"sender interrupted ({type(exc).__name__}: {exc})"
             if str(exc)
             else (f"sender interrupted ({type(exc).__name__})")
         )
         wpos = None
         try:
-            self._write(REALTIME_HOLD)
+            with contextlib.suppress(KeyboardInterrupt):
+                self._write(REALTIME_HOLD)
             try:
                 held = self._wait_held(min(self.options.hold_timeout, 5.0))
                 wpos = held.wpos if held is not None else None
             except (Exception, KeyboardInterrupt):
                 wpos = None
-            self._write(REALTIME_RESET)
+            self._write_surely(REALTIME_RESET)
         except _Fault:
             self._journal_quietly(
                 "lost", reason=reason, executed_through=self._executed_guess(self.status.wpos)
@@ -888,6 +899,15 @@ class Streamer:
             pass
         self._journal_quietly("stop", reason=reason, executed_through=self._executed_guess(wpos))
         self._tell("machine held, then soft-reset (spindle off)")
+
+    def _write_surely(self, data: bytes) -> None:
+        """Write ``data`` even if Ctrl-C arrives meanwhile (a stop must reach the machine)."""
+        for _ in range(3):
+            try:
+                self._write(data)
+                return
+            except KeyboardInterrupt:
+                continue
 
     def _journal_quietly(self, event: str, **data: Any) -> None:
         try:
@@ -1009,6 +1029,11 @@ def _on_segment(
         return False
     closest = [a[k] + t * ab[k] for k in range(3)]
     return math.dist(p, closest) <= tol
+
+
+def _interrupt_name(exc: KeyboardInterrupt) -> str:
+    """``Ctrl-C``, or the signal's name for a :class:`StopSignal`."""
+    return str(exc) if isinstance(exc, StopSignal) else "Ctrl-C"
 
 
 def _code(line: str) -> int:
