@@ -2435,3 +2435,27 @@ def test_a_second_ctrl_c_while_stopping_after_an_error_still_resets(tmp_path, mo
     _held_then_reset(port.sim.record)
     last = read_journal(journal)[-1]
     assert last["ev"] == "stop" and "error:20" in last["reason"]
+
+
+def test_a_brown_out_flushes_the_lines_already_on_the_way(tmp_path):
+    """The controller resets itself mid-job: on its banner the sender stops writing and
+    soft-resets it, so no line sent before it saw the banner runs from the lost position."""
+    job, _ = _profile_job(tmp_path, "grbl-3018-diamond", n=40, seed=11)
+    prog = load_program(job)
+    rec = tmp_path / "rec.jsonl"
+    url = f"grblsim://?time_scale=0.02&{_3018_RATES}&reset_after=133&record={rec}"
+    port = open_port(url, 115200)
+    try:
+        with pytest.raises(StreamFault, match="reset itself mid-job"):
+            _stream(port, prog, tmp_path / "j.jsonl")
+    finally:
+        port.close()
+    record = read_record(rec)
+    brown_out = next(k for k, e in enumerate(record) if e["ev"] == "reset")
+    assert not record[brown_out]["command"]
+    # a line that reached the controller before the banner reached the sender may have
+    # started; the sender's reset cuts it short, and nothing runs to its end
+    assert not [e for e in record[brown_out:] if e["ev"] == "exec"]
+    flush = next(e["t"] for e in record[brown_out:] if e["ev"] == "reset" and e["command"])
+    assert all(e["t"] == flush for e in record[brown_out:] if e["ev"] == "partial")
+    assert read_journal(tmp_path / "j.jsonl")[-1]["ev"] == "stop"

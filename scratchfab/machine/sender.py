@@ -17,7 +17,8 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
   at most one stroke can have run unacknowledged.
 - Status ``?`` at most ``poll_hz`` (5 Hz) for the progress report and the watchdogs.
 - Faults: ``error:N`` stops feeding at once and sends feed hold; ``ALARM:N``; an unexpected
-  banner (controller reset); a stall (lines in flight, controller Idle, no answer for
+  banner (controller reset: soft-reset at once so that lines already on the way do not run
+  from a lost position); a stall (lines in flight, controller Idle, no answer for
   ``stall_timeout``); silence; a lost connection. Ctrl-C holds, then asks resume or stop.
   Stopping safely is: feed hold, wait for ``Hold:0`` (or Idle), soft reset (spindle off,
   queue flushed, no alarm), banner.
@@ -733,6 +734,9 @@ class Streamer:
                             kind="alarm",
                         )
                     elif line.startswith("Grbl "):
+                        # lines already on the way would run from a lost position: flush them
+                        with contextlib.suppress(_Fault):
+                            self._write(REALTIME_RESET)
                         raise _Fault(
                             "the controller reset itself mid-job (banner received after line "
                             f"{self._last_acked_line()}); its position may be lost: re-home or "
@@ -930,6 +934,7 @@ class Streamer:
                 # answers nothing until reset
                 self._reset(str(fault), self.status.wpos)
             elif fault.kind == "reset":
+                self._wait_banner(self.options.banner_timeout)  # the reset sent on the banner
                 self._journal.write(
                     "stop", reason=str(fault), executed_through=self._executed_guess(None)
                 )
