@@ -2297,50 +2297,6 @@ _SCRIBE_RATES = "$110=5000&$111=5000&$112=500&$120=500&$121=500&$122=100&$130=30
 _3018_RATES = "$110=2000&$111=2000&$112=600&$120=100&$121=100&$122=50&$130=300&$131=180&$132=45"
 
 
-@pytest.mark.parametrize(
-    ("name", "rates", "scale", "which"),
-    [  # time scales at which the old sender sent past the failed line
-        ("grbl-plotter-scribe", _SCRIBE_RATES, 0.02, "travel"),
-        ("grbl-plotter-scribe", _SCRIBE_RATES, 0.02, "lift"),
-        ("grbl-3018-diamond", _3018_RATES, 0.002, "travel"),
-        ("grbl-3018-diamond", _3018_RATES, 0.002, "lift"),
-    ],
-    ids=["servo-travel", "servo-lift", "z-travel", "z-lift"],
-)
-def test_an_error_around_a_stroke_never_moves_the_tool_down(tmp_path, name, rates, scale, which):
-    """error:20 on the travel before a stroke: the tool does not go down at the previous
-    stroke's end; on a stroke's lift: nothing travels with the tool down (counting)."""
-    job, _ = _profile_job(tmp_path, name, n=12, seed=5)
-    prog = load_program(job)
-    stroke = prog.strokes[6]
-    bad = stroke[0] - 1 if which == "travel" else stroke[1]
-    if which == "travel":
-        assert prog.stroke_of()[bad] < 0 and prog.blocks[bad].motion  # the travel move
-    rec = tmp_path / "rec.jsonl"
-    url = f"grblsim://?time_scale={scale}&{rates}&error_at={bad + 1}&error_code=20&record={rec}"
-    port = open_port(url, 115200)
-    try:
-        with pytest.raises(StreamFault, match=rf":{prog.blocks[bad].lineno}: error:20"):
-            _stream(port, prog, tmp_path / "j.jsonl")
-    finally:
-        port.close()
-    record = read_record(rec)
-    err = next(k for k, e in enumerate(record) if e["ev"] == "resp" and e["r"] == "error:20")
-    after = record[err + 1 :]
-    assert not [e for e in after if e["ev"] == "rx" and e["g"] and e["g"] > bad + 1]
-    g_of = {e["n"]: e["g"] for e in record if e["ev"] == "rx"}
-    moved = [  # moves of lines after the failed one (the stroke's own cut may be cut short)
-        e
-        for e in after
-        if e["ev"] in ("exec", "partial") and g_of[e["n"]] > bad + 1 and e["frm"][:2] != e["to"][:2]
-    ]
-    if prog.pen_mode:  # the servo's pen goes down with M3
-        assert not [e for e in after if e["ev"] == "spindle" and e["spindle"] != "M5"]
-        assert not [e for e in moved if e["spindle"] != "M5"]
-    else:
-        assert not [e for e in moved if min(e["frm"][2], e["to"][2]) < prog.z_threshold]
-
-
 def test_a_resumed_spindle_job_starts_the_spindle_only_above_the_board(tmp_path):
     """A stop can leave the bit in the board: the preamble raises Z to the safe height
     before M3 and its spin-up dwell, and moves in XY only after them."""

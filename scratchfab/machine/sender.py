@@ -10,11 +10,8 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
   ``?`` is realtime and does not. **Simple** sends one line and waits for its answer. Only
   ``ok`` and ``error:N`` answer a line (oldest first); ``<...>``, ``[...]``, ``ALARM:N`` and
   banners do not. ``$`` lines are always sent one at a time.
-- Stroke barrier: the first block of a stroke (the tool going down) is sent only when every
-  line before it is acknowledged, the travel to it included, so an error on that travel
-  never lets the tool go down elsewhere; the first block after a stroke waits likewise for
-  the stroke's lift, so a failed lift never lets the tool travel down. After a disconnect
-  at most one stroke can have run unacknowledged.
+- Stroke barrier: the first block of a stroke is sent only when every block of the previous
+  stroke is acknowledged, so after a disconnect at most one stroke can have run unacknowledged.
 - Status ``?`` at most ``poll_hz`` (5 Hz) for the progress report and the watchdogs.
 - Faults: ``error:N`` stops feeding at once and sends feed hold; ``ALARM:N``; an unexpected
   banner (controller reset: soft-reset at once so that lines already on the way do not run
@@ -218,8 +215,7 @@ class StreamOptions:
         hold_timeout: Seconds to wait for ``Hold:0`` when stopping.
         busy_timeout: Seconds to wait on connecting for a controller still running (another
             sender's queue, e.g. a killed one) to finish before it is held and reset.
-        stroke_barrier: Send a stroke's first block only when every line before it is
-            acknowledged, and the block after a stroke only when the stroke's lift is.
+        stroke_barrier: Send a stroke's first block only when the previous stroke is acked.
     """
 
     protocol: str = "counting"
@@ -247,7 +243,7 @@ class _Item:
     text: str
     block: Block | None  # None for preamble/system lines of the sender
     pre: int = -1
-    drain: bool = False  # send only when every line before it is acknowledged
+    barrier: int = -1  # send only when blocks up to this index are acknowledged
 
 
 class _Fault(Exception):
@@ -662,15 +658,15 @@ class Streamer:
     def _items(self, program: Program, start: int, preamble: Sequence[str]) -> list[_Item]:
         items = [_Item(text, None, pre=k) for k, text in enumerate(preamble)]
         stroke_of = program.stroke_of()
-        barrier = self.options.stroke_barrier
+        prev_last = -1
         for block in program.blocks[start:]:
-            i = block.index
-            s = stroke_of[i]
-            # tool down (a stroke's first block) or the block after a lift: only once every
-            # earlier line is acknowledged (an error on it stops the feed before this one)
-            first = s >= 0 and program.strokes[s][0] == i
-            after_lift = i > start and stroke_of[i - 1] >= 0 and stroke_of[i - 1] != s
-            items.append(_Item(block.text, block, drain=barrier and (first or after_lift)))
+            barrier = -1
+            s = stroke_of[block.index]
+            if self.options.stroke_barrier and s >= 0 and program.strokes[s][0] == block.index:
+                barrier = prev_last
+            if s >= 0:
+                prev_last = program.strokes[s][1]
+            items.append(_Item(block.text, block, barrier=barrier))
         return items
 
     def _run(self, items: list[_Item], program: Program, journal: Journal) -> None:
@@ -699,7 +695,7 @@ class Streamer:
                         break
                     if self._inflight and self._inflight_bytes + size > budget:
                         break
-                    if item.drain and self._inflight:
+                    if item.barrier >= 0 and self._acked_through < item.barrier:
                         break
                     self._write(item.text.encode("ascii") + b"\n")
                     self.sent_log.append(item.text)
