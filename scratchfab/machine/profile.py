@@ -83,19 +83,8 @@ from scratchfab.model.schema import load_toml, parse_table, spec, to_table
 Range = tuple[float, float]
 Corner = Literal["lower-left", "lower-right", "upper-left", "upper-right", "center"]
 
-_FORBIDDEN_WORDS = ("M6", "G64")
-
-
-def _has_word(upper_line: str, word: str) -> bool:
-    """True if the G-code ``word`` (e.g. ``M6``) occurs with that value (``M06`` too, not ``M60``)."""
-    letter, value = word[0], float(word[1:])
-    for found, number in re.findall(r"([A-Z])([-+]?[0-9.]+)", upper_line):
-        try:
-            if found == letter and float(number) == value:
-                return True
-        except ValueError:
-            continue
-    return False
+#: Words GRBL 1.1 rejects (error 20) that other controllers take: refused even in a comment.
+_FORBIDDEN_WORDS = (("M", 6.0), ("G", 64.0))
 
 
 def gcode_number(value: float, decimals: int) -> str:
@@ -231,11 +220,10 @@ def _check_tool_command(name: str, template: str, power: float) -> None:
     Raises:
         ValueError: Naming ``name`` and what is wrong.
     """
-    fields = list(string.Formatter().parse(template)) if "{" in template or "}" in template else []
-    for _, field_name, spec_text, conversion in fields:
-        if field_name is not None and (field_name != "power" or spec_text or conversion):
-            raise ValueError(f"{name}: bad template {template!r} (only {{power}} may be used)")
     try:
+        for _, field_name, spec_text, conversion in string.Formatter().parse(template):
+            if field_name is not None and (field_name != "power" or spec_text or conversion):
+                raise ValueError("another field than a bare {power}")
         text = template.format(power=gcode_number(power, 3))
     except (KeyError, IndexError, ValueError) as exc:
         raise ValueError(
@@ -246,9 +234,11 @@ def _check_tool_command(name: str, template: str, power: float) -> None:
     if any(c in text for c in "!?~"):
         raise ValueError(f"{name}: '!', '?' and '~' are GRBL realtime commands")
     upper = text.upper()
-    for word in _FORBIDDEN_WORDS:
-        if _has_word(upper.replace(" ", ""), word):
-            raise ValueError(f"{name}: {word} is not supported by GRBL 1.1 (error 20)")
+    for letter, value in _TOOL_WORD.findall(upper.replace(" ", "")):  # M06 too, not M60
+        if (letter, float(value)) in _FORBIDDEN_WORDS:
+            raise ValueError(
+                f"{name}: {letter}{float(value):g} is not supported by GRBL 1.1 (error 20)"
+            )
     code = re.sub(r"\([^()]*\)", " ", upper)  # GRBL comments; nested ones are errors
     if not _TOOL_CODE.fullmatch(code):
         raise ValueError(
