@@ -49,7 +49,7 @@ class OrderOptions:
         kicks_per_stroke: Perturbation trials after the local optimum, per stroke.
         kicks: Perturbation trials in all (overrides ``kicks_per_stroke``).
         max_kicks: Cap on the trials from ``kicks_per_stroke`` (keeps 100k strokes
-            well under 10 s; it governs from 6000 strokes on).
+            well under 10 s; it governs from 2400 strokes on).
         seed: Seed of the perturbations (the result is deterministic for a seed).
         min_gain_mm: Moves that save less than this are ignored (rounding noise).
         window: Tours of more than this many strokes get their perturbation trials in
@@ -61,11 +61,11 @@ class OrderOptions:
     passes: int = 50
     kicks_per_stroke: float = 25.0
     kicks: int | None = None
-    max_kicks: int = 150_000
+    max_kicks: int = 60_000
     seed: int = 0
     min_gain_mm: float = 1e-9
     window: int = 1000
-    depth: int = 3
+    depth: int = 8
 
     def __post_init__(self) -> None:
         checks = {
