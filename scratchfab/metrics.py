@@ -32,11 +32,23 @@ def exposure(render: np.ndarray, target: np.ndarray) -> float:
 
 def psnr(render: np.ndarray, target: np.ndarray) -> float:
     """PSNR in dB of the exposed render ``s R`` against ``T`` (peak 1)."""
-    mask = board_mask(target, render)
-    s = exposure(render, target)
-    err = s * render[mask].astype(np.float64) - target[mask].astype(np.float64)
+    diff, _ = exposed_difference(render, target)
+    err = diff[np.isfinite(diff)]
     mse = float(np.mean(err * err)) if err.size else 0.0
     return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
+
+
+def exposed_difference(render: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, float]:
+    """The signed error ``s R - T`` that :func:`psnr` squares, and the exposure ``s``.
+
+    Positive where the exposed render is brighter than the target; NaN off the board
+    (where :func:`board_mask` leaves a pixel out of every measure).
+    """
+    s = exposure(render, target)
+    mask = board_mask(target, render)
+    diff = np.full(target.shape, np.nan)
+    diff[mask] = s * render[mask].astype(np.float64) - target[mask].astype(np.float64)
+    return diff, s
 
 
 def pearson(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:

@@ -14,6 +14,15 @@ from scratchfab.model.design import Design, load_design
 _EXPORT_STEM = "board"  # JOB/export/board.<format>
 
 
+def diff_map_png(verify_dir: Path, view: str) -> Path:
+    """``view``'s difference map in a verify output folder (``JOB/verify`` or ``--out``).
+
+    In a folder of its own: beside the render layout, ``<view>_diff.png`` would be the
+    preview of a view named so.
+    """
+    return verify_dir / "diff" / f"{view}.png"
+
+
 @dataclass(frozen=True)
 class DesignFolder:
     """The design stage's files: ``JOB/design/``, or the temporary folder that becomes it.
@@ -153,6 +162,10 @@ class JobLayout:
     def verify_metrics(self) -> Path:
         """The independent renderer's quality measures."""
         return self.verify_dir / "metrics.json"
+
+    def verify_diff_png(self, view: str) -> Path:
+        """Where ``view``'s verified render is brighter or darker than its target."""
+        return diff_map_png(self.verify_dir, view)
 
     @property
     def render_dir(self) -> Path:

@@ -411,6 +411,13 @@ def _views_section(
                 "independent check: Mitsuba 3 render of the optimized scratches from here",
             ),
             (
+                layout.verify_diff_png(name),
+                "difference map",
+                "difference map: where the verified board is brighter (orange) or darker "
+                "(blue) than the target, measured as the PSNR below measures it; the "
+                "colour scale is the same for every view and run",
+            ),
+            (
                 layout.design.feasibility_png(name),
                 "feasibility",
                 f"feasibility map: {html.escape(maps_text)}",
@@ -418,7 +425,8 @@ def _views_section(
         )
         for png, label, caption in shown:
             if png.is_file():
-                figures.append(_figure(png, f"{name} {label}", caption))
+                wide = png == layout.verify_diff_png(name)  # its key is drawn at full size
+                figures.append(_figure(png, f"{name} {label}", caption, wide=wide))
         parts.append(f"<h3>view {n}</h3><div class='row'>{''.join(figures)}</div>")
     return "\n".join(parts) + _metrics_table(names, metrics, min_rho)
 

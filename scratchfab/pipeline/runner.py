@@ -188,10 +188,12 @@ class _Stages:
 
             settings["jitter"] = Tolerance.from_profile(self.pipe.machine_ref(), self.pipe.profile)
         try:
-            run_verify_job(self.job, VerifySettings(**settings), progress=self.say)
+            metrics = run_verify_job(self.job, VerifySettings(**settings), progress=self.say)
         except VerifyGateError as exc:  # named as the pipeline file names it
             raise exc.named("[verify] min_rho =", str(self.pipe.path)) from None
-        return self._relative(self.layout.verify_metrics)
+        # The difference maps too (views with a target), so a deleted one reruns verify.
+        diffs = [self.layout.verify_diff_png(name) for name in metrics["names"]]
+        return self._relative(self.layout.verify_metrics, *(p for p in diffs if p.is_file()))
 
     def _run_toolpath(self) -> Sequence[str]:
         from scratchfab.toolpath import OrderOptions

@@ -27,8 +27,15 @@ from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import write_bytes, write_json
 from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design, View, load_design
-from scratchfab.model.job import JobLayout, job_inputs, load_job_design, stale_layout_warning
+from scratchfab.model.job import (
+    JobLayout,
+    diff_map_png,
+    job_inputs,
+    load_job_design,
+    stale_layout_warning,
+)
 from scratchfab.model.scratches import ScratchSet, load_scratches
+from scratchfab.verify.diffmap import write_diff_map
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
 from scratchfab.verify.scene import Sky, board_bsdf, scene_dict, use_variant
 from scratchfab.verify.sweep import nearest_frames, sweep_gif, sweep_path
@@ -292,6 +299,21 @@ def _write_layout(out_dir: Path, images: Mapping[str, np.ndarray]) -> None:
     write_render_layout(out_dir, dict(images))
 
 
+def _write_diff_maps(
+    out_dir: Path, images: Mapping[str, np.ndarray], targets: Mapping[str, np.ndarray]
+) -> None:
+    """Write ``diff/<view>.png`` for each view with a target.
+
+    An earlier run's map of a view without a target now is removed: it showed another board.
+    """
+    for name, image in images.items():
+        path = diff_map_png(out_dir, name)
+        if name in targets:
+            write_diff_map(path, image, targets[name], name)
+        else:
+            path.unlink(missing_ok=True)
+
+
 def run_verify(
     design: Design,
     scratches: ScratchSet,
@@ -306,7 +328,8 @@ def run_verify(
 ) -> dict[str, Any]:
     """Render every view in Mitsuba, compare with the analytic render, write the results.
 
-    Writes ``out_dir/<view>.npy`` and ``.png`` (the render layout), ``metrics.json`` and,
+    Writes ``out_dir/<view>.npy`` and ``.png`` (the render layout), ``metrics.json``,
+    ``diff/<view>.png`` for each view with a target (:mod:`scratchfab.verify.diffmap`) and,
     when asked, ``sky/`` (renders under sun and sky), ``sweep.gif`` and the jitter report
     inside ``metrics.json``.
 
@@ -429,6 +452,7 @@ def run_verify(
         }
 
     _write_layout(out, images)
+    _write_diff_maps(out, images, targets)
     if sweep_gif is not None:
         write_bytes(out / "sweep.gif", sweep_gif)
     write_json(out / "metrics.json", metrics)

@@ -1,0 +1,267 @@
+"""Difference maps of verify: the array against hand arithmetic, the PNG read back, the report."""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import make_design, write_pipeline
+from PIL import Image
+from test_report import fake_job
+
+from scratchfab.figures import OFF_BOARD_RGB, lightness, simulate_cvd
+from scratchfab.metrics import exposed_difference, psnr
+from scratchfab.model.job import JobLayout
+from scratchfab.model.scratches import ScratchSet
+from scratchfab.pipeline.config import load_pipeline
+from scratchfab.pipeline.manifest import Manifest
+from scratchfab.pipeline.report import write_report
+from scratchfab.pipeline.runner import run_pipeline
+from scratchfab.render.renderer import render_scratches
+from scratchfab.verify.diffmap import (
+    BRIGHTER_RGB,
+    DARKER_RGB,
+    DIFF_SCALE,
+    EQUAL_RGB,
+    HATCH_RGB,
+    diff_colours,
+    write_diff_map,
+)
+from scratchfab.verify.verify import VerifySettings, run_verify
+
+NAN = math.nan
+
+
+def _exact_exposure(render: list[list[float]], target: list[list[float]]) -> Fraction:
+    """sum(R T) / sum(R R) over the pixels where both are numbers, in exact arithmetic."""
+    pairs = [
+        (Fraction(r), Fraction(t))
+        for rr, tt in zip(render, target, strict=True)
+        for r, t in zip(rr, tt, strict=True)
+        if not (math.isnan(r) or math.isnan(t))
+    ]
+    return sum(r * t for r, t in pairs) / sum(r * r for r, _ in pairs)
+
+
+def test_difference_is_the_exposed_render_minus_the_target_on_the_board():
+    target = [[0.25, 0.5, NAN], [0.75, 1.0, 0.5]]
+    render = [[1.0, 2.0, 7.0], [3.0, 8.0, NAN]]  # (1, 1) far brighter than the rest
+    diff, s = exposed_difference(np.array(render), np.array(target))
+    # By hand: the board is the four pixels where both are numbers;
+    # s = (0.25 + 1 + 2.25 + 8) / (1 + 4 + 9 + 64) = 11.5 / 78.
+    assert _exact_exposure(render, target) == Fraction(23, 156)
+    assert s == pytest.approx(23 / 156, rel=1e-15)
+    for i in range(2):
+        for j in range(3):
+            if math.isnan(render[i][j]) or math.isnan(target[i][j]):
+                assert math.isnan(diff[i, j]), (i, j)
+            else:
+                want = Fraction(23, 156) * Fraction(render[i][j]) - Fraction(target[i][j])
+                assert diff[i, j] == pytest.approx(float(want), abs=1e-15), (i, j)
+    assert diff[1, 1] > 0 and diff[0, 0] < 0  # brighter is positive
+    # The PSNR of metrics.json squares exactly this difference.
+    board = np.isfinite(diff)
+    assert psnr(np.array(render), np.array(target)) == pytest.approx(
+        -10 * math.log10(np.mean(diff[board] ** 2)), rel=1e-12
+    )
+
+
+def test_colours_are_symmetric_clipped_at_the_scale_and_white_at_zero():
+    d = DIFF_SCALE * np.array([[-3.0, -1.0, -0.5, 0.0, 0.5, 1.0, 3.0, NAN]])
+    rgb = diff_colours(d)
+    assert tuple(rgb[0, 0]) == tuple(rgb[0, 1]) == DARKER_RGB  # clipped at -scale
+    assert tuple(rgb[0, 6]) == tuple(rgb[0, 5]) == BRIGHTER_RGB  # clipped at +scale
+    assert tuple(rgb[0, 3]) == EQUAL_RGB == (255, 255, 255)
+    assert tuple(rgb[0, 7]) == OFF_BOARD_RGB
+    # Half the scale: half way from white to the end colour, per channel.
+    for col, end in ((2, DARKER_RGB), (4, BRIGHTER_RGB)):
+        for c in range(3):
+            assert abs(int(rgb[0, col, c]) - (255 + end[c]) / 2) <= 0.5
+    # A scale of its own: the end colour at that scale, not before.
+    assert tuple(diff_colours(np.array([0.2]), scale=0.2)[0]) == BRIGHTER_RGB
+    assert tuple(diff_colours(np.array([0.19]), scale=0.2)[0]) != BRIGHTER_RGB
+    with pytest.raises(ValueError, match="scale"):
+        diff_colours(d, scale=0.0)
+
+
+def test_lightness_tells_the_size_and_the_sides_survive_colour_blindness():
+    steps = DIFF_SCALE * np.linspace(0, 1, 21)
+    up = diff_colours(steps[None])[0]
+    down = diff_colours(-steps[None])[0]
+    for side in (up, down):
+        assert np.all(np.diff(lightness(side / 255.0)) < 0)  # larger: darker, both sides
+    # Equal sizes look equally strong: the same CIE L* within 1.5 at every step.
+    assert np.max(np.abs(lightness(up / 255.0) - lightness(down / 255.0))) < 1.5
+    # Seen by a dichromat, brighter stays yellowish (red > blue channel) and darker
+    # blue, from a fifth of the scale on.
+    for kind in ("protanopia", "deuteranopia"):
+        seen_up, seen_down = simulate_cvd(up, kind), simulate_cvd(down, kind)
+        strong = steps >= DIFF_SCALE / 5
+        assert np.all(seen_up[strong, 0] - seen_up[strong, 2] > 0.05), kind
+        assert np.all(seen_down[strong, 2] - seen_down[strong, 0] > 0.05), kind
+
+
+def _block(img: np.ndarray, box: tuple[int, int, int, int], factor: int, i: int, j: int):
+    y, x = box[1] + i * factor, box[0] + j * factor
+    return img[y : y + factor, x : x + factor].reshape(-1, 3)
+
+
+def test_png_shows_each_pixel_in_its_colour_with_off_board_hatched(tmp_path):
+    # Target 0 except three bright pixels; column 0 lies off the board.
+    target = np.zeros((6, 5))
+    target[:, 0] = NAN
+    target[1, 1] = target[2, 2] = 1.0
+    render = np.zeros((6, 5))
+    render[2, 2] = 1.0  # lit as wanted
+    render[3, 3] = 1.0  # lit where the target is black
+    render[4, 4] = 0.5
+    # s = 1 / (1 + 1 + 0.25) = 4/9: (1, 1) -1, (2, 2) -5/9, (3, 3) +4/9, (4, 4) +2/9.
+    path = tmp_path / "diff" / "v.png"
+    fig = write_diff_map(path, render, target, "v")
+    img = np.asarray(Image.open(path).convert("RGB"))
+    assert img.shape[:2] == (fig.image.height, fig.image.width)
+    assert fig.factor * 5 >= 256 and fig.map_box[2] - fig.map_box[0] + 1 == 5 * fig.factor
+
+    def colour(i: int, j: int) -> tuple[int, ...]:
+        pixels = np.unique(_block(img, fig.map_box, fig.factor, i, j), axis=0)
+        assert len(pixels) == 1, (i, j, pixels)
+        return tuple(int(v) for v in pixels[0])
+
+    def blend(end: tuple[int, int, int], t: float) -> tuple[int, ...]:
+        return tuple(round(255 + t * (e - 255)) for e in end)
+
+    assert colour(1, 1) == DARKER_RGB  # -1, clipped
+    assert colour(2, 2) == DARKER_RGB  # -5/9, clipped
+    assert colour(3, 3) == blend(BRIGHTER_RGB, (4 / 9) / DIFF_SCALE)  # brighter: red side
+    assert colour(4, 4) == blend(BRIGHTER_RGB, (2 / 9) / DIFF_SCALE)
+    assert colour(0, 1) == colour(5, 4) == EQUAL_RGB
+    # Off the board: grey with dark hatch lines, nothing else.
+    off = np.vstack([_block(img, fig.map_box, fig.factor, i, 0) for i in range(6)])
+    seen = {tuple(int(v) for v in p) for p in np.unique(off, axis=0)}
+    assert seen == {OFF_BOARD_RGB, HATCH_RGB}
+    # The colour bar runs from darker (left) through white to brighter (right).
+    x0, y0, x1, y1 = fig.bar_box
+    mid_y = (y0 + y1) // 2
+    assert tuple(int(v) for v in img[mid_y, x0]) == pytest.approx(DARKER_RGB, abs=2)
+    assert tuple(int(v) for v in img[mid_y, x1]) == pytest.approx(BRIGHTER_RGB, abs=2)
+    assert tuple(int(v) for v in img[mid_y, (x0 + x1) // 2]) == pytest.approx(EQUAL_RGB, abs=2)
+    # The key shows both colours and the hatch.
+    lx0, ly0, lx1, ly1 = fig.legend_box
+    key = {tuple(int(v) for v in p) for p in img[ly0 : ly1 + 1, lx0 : lx1 + 1].reshape(-1, 3)}
+    assert {BRIGHTER_RGB, DARKER_RGB, OFF_BOARD_RGB, HATCH_RGB} <= key
+    # The title names the view: another name draws another title, the same map.
+    other = write_diff_map(tmp_path / "w.png", render, target, "another-view")
+    mine = np.asarray(fig.image)
+    theirs = np.asarray(other.image)
+    y, x = fig.map_box[1], fig.map_box[0]
+    assert other.map_box[1] == y
+    assert not np.array_equal(mine[:y], theirs[:y])
+    assert np.array_equal(
+        mine[y : fig.map_box[3] + 1, x : fig.map_box[2] + 1],
+        theirs[y : other.map_box[3] + 1, x : other.map_box[2] + 1],
+    )
+
+
+def test_verify_draws_the_map_of_its_own_render_on_the_metrics_footing(tmp_path):
+    design = make_design(resolution=16)
+    rng = np.random.default_rng(5)
+    p0 = rng.uniform(-15, 15, (120, 2))
+    angle = rng.uniform(0, np.pi, 120)
+    p1 = np.clip(p0 + 3 * np.column_stack([np.cos(angle), np.sin(angle)]), -18, 18)
+    board = ScratchSet.from_arrays(p0, p1, design.scratch.width_mm, design.scratch.depth_mm)
+    analytic = render_scratches(design, board)
+    target = rng.uniform(0, 1, (16, 16))
+    target[:3] = NAN
+    out = tmp_path / "v"
+    stale = out / "diff" / "right.png"
+    stale.parent.mkdir(parents=True)
+    stale.write_bytes(b"a map of another board")
+    metrics = run_verify(
+        design, board, out, VerifySettings(spp=32), analytic=analytic, targets={"left": target}
+    )
+    assert not stale.exists()  # right has no target: no map, and the old one is gone
+    render = np.load(out / "left.npy")
+    diff, s = exposed_difference(render, target)
+    assert s == pytest.approx(metrics["views"]["left"]["exposure"], rel=1e-12)
+    img = np.asarray(Image.open(out / "diff" / "left.png").convert("RGB"))
+    # The map of Mitsuba's render, not of the analytic one it is compared with.
+    fig = write_diff_map(tmp_path / "mine.png", render, target, "left")
+    assert np.array_equal(img, np.asarray(fig.image))
+    analytic_fig = write_diff_map(tmp_path / "analytic.png", analytic["left"], target, "left")
+    assert not np.array_equal(img, np.asarray(analytic_fig.image))
+    want = diff_colours(diff)
+    for i in range(3, 16):
+        for j in range(16):
+            block = _block(img, fig.map_box, fig.factor, i, j)
+            assert np.all(block == want[i, j]), (i, j)
+
+
+def _tiny_job(tmp_path: Path) -> Path:
+    edits = {
+        "count = 250": "count = 150",
+        "resolution = [24, 24]": "resolution = [16, 16]",
+        "iterations = 4": "iterations = 2",
+        "spp = 256": "spp = 16",
+    }
+    return write_pipeline(tmp_path, edits=edits)
+
+
+def test_report_shows_the_map_after_the_verify_render_and_not_without_it(tmp_path):
+    job = fake_job(tmp_path)
+    layout = JobLayout(job)
+    target = np.full((8, 8), 0.5)
+    write_diff_map(layout.verify_diff_png("left"), np.eye(8), target, "left")
+    page = write_report(job).read_text()
+    data = base64.b64encode(layout.verify_diff_png("left").read_bytes()).decode("ascii")
+
+    def row(name: str) -> str:
+        start = page.index(f"<h3>view {name}</h3>")
+        return page[start : page.index("<h3", start + 1)]
+
+    left = row("left")
+    assert left.index("left verify render") < left.index(data)  # after the verify render
+    assert left.index(data) < left.index("left feasibility") if "feasibility" in left else True
+    assert "brighter (orange) or darker (blue) than the target" in left
+    assert "difference map" not in row("right")  # right has none
+    assert page.count(data) == 1
+    assert page.count("<figure") == page.count("<figcaption>")
+    # An old job (verified before the maps existed) still reports, without one.
+    layout.verify_diff_png("left").unlink()
+    page = write_report(job).read_text()
+    assert data not in page and "difference map" not in page
+    assert "verify render" in page
+
+
+def test_pipeline_records_the_maps_so_a_missing_one_reruns_verify(tmp_path):
+    path = _tiny_job(tmp_path)
+    pipe = load_pipeline(path)
+    job = tmp_path / "job"
+    layout = JobLayout(job)
+    first = run_pipeline(pipe, job, until="verify")
+    assert "verify" in first.ran
+    outputs = Manifest.load(job).stages["verify"]["outputs"]
+    maps = ["verify/diff/bar.png", "verify/diff/disc.png"]
+    assert outputs == sorted(["verify/metrics.json", *maps])
+    page = layout.report_html.read_text()
+    for name in ("disc", "bar"):
+        assert base64.b64encode(layout.verify_diff_png(name).read_bytes()).decode() in page
+    assert run_pipeline(pipe, job, until="verify").skipped == ["design", "optimize", "verify"]
+    layout.verify_diff_png("bar").unlink()
+    assert run_pipeline(pipe, job, until="verify").ran == ["verify"]
+    assert layout.verify_diff_png("bar").is_file()
+    # A job verified before the maps: its manifest names metrics.json alone. It stays up
+    # to date (verify is not run again for a picture) and its report simply lacks them.
+    manifest = json.loads((job / "manifest.json").read_text())
+    manifest["stages"]["verify"]["outputs"] = ["verify/metrics.json"]
+    (job / "manifest.json").write_text(json.dumps(manifest))
+    for name in ("disc", "bar"):
+        layout.verify_diff_png(name).unlink()
+    again = run_pipeline(pipe, job, until="verify")
+    assert again.skipped == ["design", "optimize", "verify"]
+    page = layout.report_html.read_text()
+    assert "difference map" not in page and "verify render" in page
