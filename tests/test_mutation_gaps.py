@@ -190,19 +190,7 @@ _REPORTS = [
     pytest.param(0, 1, 1, id="WPos-inch-WCO"),
     pytest.param(1, 1, 1, id="MPos-inch-WCO"),
     pytest.param(0, 0, 0, id="WPos-mm-noWCO"),
-    pytest.param(
-        1,
-        0,
-        0,
-        id="MPos-mm-noWCO",
-        marks=pytest.mark.xfail(
-            strict=True,
-            reason="BUG: the offset read with $# at connect (info.wco) never reaches "
-            "parse_status, so a build without the WCO field reporting MPos gives no work "
-            "position: a stop cannot be matched to a block and falls back to the planner "
-            "bound, re-cutting strokes that had finished",
-        ),
-    ),
+    pytest.param(1, 0, 0, id="MPos-mm-noWCO"),  # the offset read with $# at connect
 ]
 
 
@@ -229,20 +217,7 @@ def test_the_senders_work_position_is_the_emulators(mpos, inches, wco_field):
     assert status.wpos == pytest.approx([12.345, -6.789, 3.21], abs=3e-3)
 
 
-@pytest.mark.parametrize(
-    "wco_field",
-    [
-        1,
-        pytest.param(
-            0,
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="BUG (same as MPos-mm-noWCO): without the WCO field the hold position "
-                "is unknown and the stop journals the planner bound, before blocks that ran",
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("wco_field", [1, 0])
 def test_a_stop_journals_the_block_the_emulator_reached(tmp_path, wco_field):
     """Ctrl-C and stop under a G54 offset: executed_through is the emulator's last finished
     block (a re-cut of finished strokes otherwise), with or without the WCO field."""
@@ -270,20 +245,7 @@ def test_a_stop_journals_the_block_the_emulator_reached(tmp_path, wco_field):
     assert events[-1]["ev"] == "stop" and events[-1]["executed_through"] == truth
 
 
-@pytest.mark.parametrize(
-    "inches",
-    [
-        0,
-        pytest.param(
-            1,
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="EMULATOR BUG: grblsim prints $# in mm under $13=1; Grbl 1.1 prints "
-                "it with printFloat_CoordValue, in inches (the sender scales it by 25.4)",
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("inches", [0, 1])
 def test_the_work_offset_read_with_dollar_hash_is_in_mm(inches):
     """$# gives G54 + G92 (+ TLO on Z); under $13=1 GRBL prints it in inches."""
     port = open_port(f"grblsim://?time_scale=0.01&wco=5,7,1&$13={inches}", 115200)
@@ -614,7 +576,8 @@ def _messy_set(rng: np.random.Generator, bases: int = 12) -> tuple[np.ndarray, n
     """Random segments with exact and reversed duplicates, collinear overlaps, pieces that
     touch (gap <= tol/2) or stop short (gap 2 tol), parallel copies tol/2 off and 1.5 tol
     off (on the other side), a short piece tol/2 off, copies tilted by 2e-6 mm (across
-    the angle's wrap at 180 degrees for the horizontal bases), in random order."""
+    the angle's wrap at 180 degrees for the horizontal bases), copies turned about their
+    middle so that their ends move 0.4 tol sideways, in random order."""
     segs = []
     for _ in range(bases):
         a = rng.uniform(-60, 60, 2)
@@ -624,7 +587,7 @@ def _messy_set(rng: np.random.Generator, bases: int = 12) -> tuple[np.ndarray, n
         nrm = np.array([-d[1], d[0]])
         b = a + length * d
         segs.append((a, b))
-        pick = rng.choice(10, size=rng.integers(0, 6), replace=False)
+        pick = rng.choice(11, size=rng.integers(0, 6), replace=False)
         for kind in pick:
             if kind == 0:
                 segs.append((a.copy(), b.copy()))
@@ -646,6 +609,8 @@ def _messy_set(rng: np.random.Generator, bases: int = 12) -> tuple[np.ndarray, n
                 segs.append((a + 0.2 * length * d, a + 0.7 * length * d))
             elif kind == 8:
                 segs.append((a + 1e-6 * nrm, b - 1e-6 * nrm))
+            elif kind == 10:
+                segs.append(_rotated_copy(a, b, 0.4 * TOL))
             else:
                 segs.append(
                     (a + 0.3 * length * d + 0.5 * TOL * nrm, a + 0.5 * length * d + 0.5 * TOL * nrm)
@@ -699,12 +664,6 @@ def _rotated_copy(a, b, delta):
     return mid - rot @ half, mid + rot @ half
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG: merge_collinear's k-d tree prefilter (angle x median length, offset from "
-    "the centroid) misses duplicates within tolerance that differ in angle, away from the "
-    "centroid or shorter than the median: the same line is cut twice",
-)
 @pytest.mark.parametrize("case", ["far_from_centroid", "shorter_than_the_median"])
 def test_merge_collinear_merges_nearly_collinear_duplicates(case):
     if case == "far_from_centroid":

@@ -915,11 +915,13 @@ class GrblSim:
         elif not idle_or_alarm:
             reply = "error:8"
         elif cmd == "#":
+            inches = bool(self.settings[13])  # like GRBL's printFloat_CoordValue
             for k in range(6):
-                self._emit(t, f"[G{54 + k}:{_fmt(self._offsets[k], False)}]\r\n")
-            self._emit(t, f"[G28:{_fmt(self.g28, False)}]\r\n[G30:{_fmt(self.g30, False)}]\r\n")
-            self._emit(t, f"[G92:{_fmt(self._gc.g92, False)}]\r\n[TLO:{self._gc.tlo:.3f}]\r\n")
-            self._emit(t, "[PRB:0.000,0.000,0.000:0]\r\n")
+                self._emit(t, f"[G{54 + k}:{_fmt(self._offsets[k], inches)}]\r\n")
+            self._emit(t, f"[G28:{_fmt(self.g28, inches)}]\r\n[G30:{_fmt(self.g30, inches)}]\r\n")
+            tlo = _fmt((self._gc.tlo,), inches)
+            self._emit(t, f"[G92:{_fmt(self._gc.g92, inches)}]\r\n[TLO:{tlo}]\r\n")
+            self._emit(t, f"[PRB:{_fmt((0.0, 0.0, 0.0), inches)}:0]\r\n")
         elif cmd == "I":
             self._emit(
                 t, f"[VER:{VERSION}.{BUILD}:]\r\n[OPT:V,{PLANNER_BLOCKS},{RX_BUFFER_SIZE}]\r\n"

@@ -508,6 +508,8 @@ class Streamer:
                 xyz[2] += tlo[0]
                 self.info.wco = (xyz[0] * scale, xyz[1] * scale, xyz[2] * scale)
                 self.info.wco_source = "$#"
+                # Status reports without WCO: (most of them) derive positions from it too.
+                self._wco = self.info.wco
                 return
             self.on_message(f"$# or $G did not name the active work offset ({wcs or '?'})")
         period = 1.0 / min(self.options.poll_hz, 5.0)

@@ -65,7 +65,6 @@ def merge_collinear(
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
 
     n = len(p0)
     if n < 2:
@@ -74,23 +73,7 @@ def merge_collinear(
     length = np.hypot(*d.T)
     theta = np.mod(np.arctan2(d[:, 1], d[:, 0]), np.pi)
     u = np.stack([np.cos(theta), np.sin(theta)], axis=1)
-    centre = 0.5 * (p0 + p1).mean(axis=0)
-    rel = p0 - centre
-    offset = u[:, 0] * rel[:, 1] - u[:, 1] * rel[:, 0]
-    scale = float(np.median(length))
-    # Candidates are near in (angle * typical length, signed offset from the centre):
-    # exact and near-exact duplicates. Theta wraps at pi, where the offset changes sign,
-    # so a mirrored copy is indexed too. Every candidate is then checked exactly.
-    feats = np.stack([theta * scale, offset], axis=1)
-    mirror = np.stack([(theta - np.pi) * scale, -offset], axis=1)
-    tree = cKDTree(np.vstack([feats, mirror]))
-    radius = 4.0 * tolerance + 1e-12
-    pairs = tree.query_pairs(radius, output_type="ndarray")
-    if len(pairs) == 0:
-        return p0.copy(), p1.copy(), [np.array([i]) for i in range(n)]
-    i, j = pairs[:, 0] % n, pairs[:, 1] % n
-    ok = i != j
-    i, j = i[ok], j[ok]
+    i, j = _candidate_pairs(p0, p1, u, tolerance)
     ok = _collinear_overlap(p0, p1, u, i, j, tolerance)
     i, j = i[ok], j[ok]
     if len(i) == 0:
@@ -113,6 +96,42 @@ def merge_collinear(
         out1.append((base + t.max() * axis)[None, :])
         groups.append(members)
     return np.vstack(out0), np.vstack(out1), groups
+
+
+def _candidate_pairs(
+    p0: np.ndarray, p1: np.ndarray, u: np.ndarray, tolerance: float, step: float = 4.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (i < j) that may be duplicates: a superset, from points sampled along each.
+
+    Of two duplicates, one has an endpoint within ``tolerance`` of the other's line and at
+    most ``tolerance`` past its extent, so within ``r`` of one of the other's points
+    sampled at most ``step`` apart (ends included); and their directions differ by at
+    most asin(2 tolerance / length) for either length. Endpoints and samples carry their
+    direction doubled (a stroke and its reverse are one line), scaled so that the
+    largest such difference spans ``r`` too; the endpoints within ``sqrt(2) r`` of each
+    sample are the candidates.
+    """
+    from scipy.spatial import cKDTree
+
+    n = len(p0)
+    d = p1 - p0
+    length = np.hypot(*d.T)
+    count = np.ceil(length / step).astype(np.int64) + 1
+    seg = np.repeat(np.arange(n), count)
+    first = np.cumsum(count) - count
+    frac = (np.arange(len(seg)) - first[seg]) / (count[seg] - 1)
+    r = float(np.hypot(tolerance, max(0.5 * step, tolerance)))
+    chord = 2.0 * min(1.0, 2.0 * tolerance / max(float(length.min()), 1e-12))
+    turn = (r / chord) * np.stack([u[:, 0] ** 2 - u[:, 1] ** 2, 2.0 * u[:, 0] * u[:, 1]], 1)
+    samples = np.hstack([p0[seg] + frac[:, None] * d[seg], turn[seg]])
+    ends = np.vstack([np.hstack([p0, turn]), np.hstack([p1, turn])])
+    near = cKDTree(samples).sparse_distance_matrix(
+        cKDTree(ends), np.sqrt(2.0) * r * (1.0 + 1e-9), output_type="ndarray"
+    )
+    i, j = seg[near["i"]], near["j"] % n
+    i, j = np.minimum(i, j), np.maximum(i, j)
+    key = np.unique(i[i != j] * n + j[i != j])
+    return key // n, key % n
 
 
 def _collinear_overlap(
