@@ -35,6 +35,9 @@ STAGE_TABLES = ("pipeline", "optimize", "verify", "toolpath", "export", "stream"
 #: Sanity limits: far beyond any engraver, small enough to fail early instead of in numpy.
 MAX_SCRATCHES = 10_000_000
 MAX_RESOLUTION = 16384
+#: Any length or coordinate (1 km): keeps the camera arithmetic far from overflow.
+MAX_MM = 1e6
+_COORD = spec(ge=-MAX_MM, le=MAX_MM)
 
 _NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")  # fullmatch: no "sun\n"
 #: Names Windows keeps for devices (with any extension, in any case): no file can have them.
@@ -53,6 +56,11 @@ class Board:
     margin_mm: float = field(default=2.0, metadata=spec(ge=0))
 
     def __post_init__(self) -> None:
+        for key in ("width_mm", "height_mm"):
+            if getattr(self, key) > MAX_MM:
+                raise ValueError(
+                    f"{key}: expected at most {MAX_MM:g} mm, got {getattr(self, key):g}"
+                )
         if 2 * self.margin_mm >= min(self.width_mm, self.height_mm):
             raise ValueError(
                 f"margin_mm ({self.margin_mm}) leaves no room on a "
@@ -69,7 +77,7 @@ class Board:
 class Light:
     """The point light."""
 
-    position_mm: Vec3
+    position_mm: Vec3 = field(metadata=_COORD)
     intensity: float = field(default=1.0, metadata=spec(gt=0))
 
     def __post_init__(self) -> None:
@@ -78,6 +86,23 @@ class Light:
                 f"position_mm: the light must be in front of the board (z > 0), "
                 f"got z = {self.position_mm[2]}"
             )
+
+
+#: depth/width of a dent whose profile (eq. 2) resolves in double precision: a flatter one's
+#: shape parameter overflows, a deeper one's wall reaches 90 degrees.
+DENT_RATIO = (1e-9, 30.0)
+
+
+def dent_problem(width_mm: float, depth_mm: float) -> str | None:
+    """Why a dent of full width ``width_mm`` and depth ``depth_mm`` cannot be modelled, or None."""
+    ratio = depth_mm / width_mm
+    lo, hi = DENT_RATIO
+    if lo <= ratio <= hi:
+        return None
+    return (
+        f"depth/width = {ratio:.3g}: expected {lo:g} to {hi:g} (a dent flatter or deeper "
+        "than that has no computable profile, eq. 2)"
+    )
 
 
 @dataclass(frozen=True)
@@ -91,6 +116,8 @@ class ScratchTool:
     max_length_mm: float = field(default=12.0, metadata=spec(gt=0))
 
     def __post_init__(self) -> None:
+        if (why := dent_problem(self.width_mm, self.depth_mm)) is not None:
+            raise ValueError(f"width_mm {self.width_mm:g} and depth_mm {self.depth_mm:g}: {why}")
         if self.min_length_mm > self.max_length_mm:
             raise ValueError(
                 f"min_length_mm ({self.min_length_mm}) is larger than "
@@ -110,15 +137,15 @@ class View:
 
     name: str
     target: str | None = None
-    position_mm: Vec3 | None = None
+    position_mm: Vec3 | None = field(default=None, metadata=_COORD)
     azimuth_deg: float | None = None
     elevation_deg: float | None = None
     distance_mm: float | None = field(default=None, metadata=spec(gt=0))
-    look_at_mm: Vec3 = (0.0, 0.0, 0.0)
-    up: Vec3 = (0.0, 1.0, 0.0)
+    look_at_mm: Vec3 = field(default=(0.0, 0.0, 0.0), metadata=_COORD)
+    up: Vec3 = field(default=(0.0, 1.0, 0.0), metadata=_COORD)
     fov_deg: float | str = 12.0
     resolution: tuple[int, int] = (256, 256)
-    light_position_mm: Vec3 | None = None
+    light_position_mm: Vec3 | None = field(default=None, metadata=_COORD)
 
     def __post_init__(self) -> None:
         if not _NAME_RE.fullmatch(self.name) or RESERVED_NAME_RE.match(self.name):
@@ -127,6 +154,11 @@ class View:
                 "not a Windows device name such as con or com1)"
             )
         polar = (self.azimuth_deg, self.elevation_deg, self.distance_mm)
+        if self.distance_mm is not None and self.distance_mm > MAX_MM:
+            raise ValueError(
+                f"view '{self.name}': distance_mm: expected at most {MAX_MM:g} mm, "
+                f"got {self.distance_mm:g}"
+            )
         if self.position_mm is None and any(v is None for v in polar):
             raise ValueError(
                 f"view '{self.name}': give position_mm, or azimuth_deg, elevation_deg "
@@ -359,6 +391,13 @@ def design_from_mapping(
     tables = parse_table(_DesignTables, design_data, source)
     if tables.light is None:
         raise ConfigError(f"{source}: light: missing required table [light]")
+    side = min(tables.board.width_mm, tables.board.height_mm)
+    for key in ("width_mm", "depth_mm"):
+        if getattr(tables.scratch, key) > side:
+            raise ConfigError(
+                f"{source}: scratch.{key}: expected at most the board's {side:g} mm side, "
+                f"got {getattr(tables.scratch, key):g}"
+            )
     if require_views and not tables.views:
         raise ConfigError(f"{source}: views: at least one [[views]] table is required")
     names: set[str] = set()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import sys
 import tomllib
 import types
 import typing
@@ -22,6 +23,9 @@ from scratchfab.errors import ConfigError
 from scratchfab.fileio import read_input
 
 T = TypeVar("T")
+
+#: The largest integer that converts to a finite float (larger ones overflow).
+_MAX_FLOAT_INT = int(sys.float_info.max)
 
 
 def spec(
@@ -45,6 +49,18 @@ def load_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{file}: not a UTF-8 text file, expected TOML") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{file}: invalid TOML: {exc}") from None
+    except ValueError:  # Python converts integers of at most 4300 digits
+        raise ConfigError(f"{file}: invalid TOML: an integer of more than 4300 digits") from None
+    except RecursionError:
+        raise ConfigError(f"{file}: invalid TOML: arrays or tables nested too deeply") from None
+
+
+def _show(value: Any) -> str:
+    """``value`` for a one-line message: a huge integer by its digits, a long value cut short."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**30:
+        return f"an integer of {len(str(abs(value)))} digits"
+    text = repr(value)
+    return text if len(text) <= 100 else f"{text[:60]}... ({len(text)} characters)"
 
 
 def _type_name(tp: Any) -> str:
@@ -82,33 +98,35 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
                 return _convert(value, option, where)
             except ConfigError:
                 continue
-        raise ConfigError(f"{where}: expected {_type_name(tp)}, got {value!r}")
+        raise ConfigError(f"{where}: expected {_type_name(tp)}, got {_show(value)}")
     if origin is Literal:
         if value in get_args(tp):
             return value
-        raise ConfigError(f"{where}: expected {_type_name(tp)}, got {value!r}")
+        raise ConfigError(f"{where}: expected {_type_name(tp)}, got {_show(value)}")
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
+            raise ConfigError(f"{where}: expected a number, got {_show(value)}")
+        if isinstance(value, int) and abs(value) > _MAX_FLOAT_INT:
+            raise ConfigError(f"{where}: expected a finite number, got {_show(value)}")
         if not math.isfinite(value):
-            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+            raise ConfigError(f"{where}: expected a finite number, got {_show(value)}")
         return float(value)
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+            raise ConfigError(f"{where}: expected an integer, got {_show(value)}")
         return value
     if tp is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+            raise ConfigError(f"{where}: expected true or false, got {_show(value)}")
         return value
     if tp is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{where}: expected a string, got {value!r}")
+            raise ConfigError(f"{where}: expected a string, got {_show(value)}")
         return value
     if origin is tuple:
         args = get_args(tp)
         if not isinstance(value, list | tuple):
-            raise ConfigError(f"{where}: expected {_type_name(tp)}, got {value!r}")
+            raise ConfigError(f"{where}: expected {_type_name(tp)}, got {_show(value)}")
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_convert(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
         if len(value) != len(args):
@@ -122,7 +140,7 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
     if origin is dict:
         key_tp, val_tp = get_args(tp)
         if not isinstance(value, Mapping):
-            raise ConfigError(f"{where}: expected a table, got {value!r}")
+            raise ConfigError(f"{where}: expected a table, got {_show(value)}")
         return {
             _convert(k, key_tp, where): _convert(v, val_tp, f"{where}.{k}")
             for k, v in value.items()
@@ -150,9 +168,9 @@ def _check_bounds(value: Any, meta: Mapping[str, Any], where: str) -> None:
                 lo = "(" if meta.get("gt") is not None else "["
                 hi = ")" if meta.get("lt") is not None else "]"
                 raise ConfigError(
-                    f"{where}: expected a value in {lo}{lower}, {upper}{hi}, got {value}"
+                    f"{where}: expected a value in {lo}{lower}, {upper}{hi}, got {_show(value)}"
                 )
-            raise ConfigError(f"{where}: expected a value {words} {bound}, got {value}")
+            raise ConfigError(f"{where}: expected a value {words} {bound}, got {_show(value)}")
 
 
 def reject_unknown_keys(data: Mapping[str, Any], valid: list[str], here: str) -> None:
