@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import numpy as np
 
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import write_text
-from scratchfab.model.design import Board, ScratchTool
+from scratchfab.model.design import Board, ScratchTool, dent_problem
 
 REQUIRED_COLUMNS = ("x0", "y0", "x1", "y1")
 OPTIONAL_COLUMNS = ("width", "depth")
@@ -118,6 +119,8 @@ def load_scratches(
         raise ConfigError(
             f"{file}: empty file, expected a header x0,y0,x1,y1[,width,depth]"
         ) from None
+    except csv.Error as exc:
+        raise ConfigError(f"{file}: line 1: not CSV ({exc})") from None
     missing = [c for c in REQUIRED_COLUMNS if c not in header]
     unknown = [c for c in header if c not in REQUIRED_COLUMNS + OPTIONAL_COLUMNS]
     if missing or unknown:
@@ -127,7 +130,8 @@ def load_scratches(
         )
     col = {name: header.index(name) for name in header}
     rows: list[list[float]] = []
-    for line_no, row in enumerate(reader, start=2):
+    side = None if board is None else min(board.width_mm, board.height_mm)
+    for line_no, row in enumerate(_rows(reader, file), start=2):
         if not row or all(not cell.strip() for cell in row):
             continue
         if len(row) != len(header):
@@ -150,11 +154,15 @@ def load_scratches(
                 raise ConfigError(
                     f"{file}: line {line_no}: column {name}: expected a finite number, got {cell}"
                 )
-            if name in OPTIONAL_COLUMNS and v <= 0:
+            if name in OPTIONAL_COLUMNS and (v <= 0 or (side is not None and v > side)):
+                bound = "" if side is None else f" at most the board's {side:g} mm side"
                 raise ConfigError(
-                    f"{file}: line {line_no}: column {name}: expected a positive size, got {v}"
+                    f"{file}: line {line_no}: column {name}: expected a positive size{bound}, "
+                    f"got {v}"
                 )
             values.append(v)
+        if (why := dent_problem(values[4], values[5])) is not None:
+            raise ConfigError(f"{file}: line {line_no}: columns width and depth: {why}")
         x0, y0, x1, y1 = values[:4]
         if x0 == x1 and y0 == y1:
             raise ConfigError(f"{file}: line {line_no}: scratch has zero length")
@@ -171,3 +179,15 @@ def load_scratches(
     return ScratchSet(
         data[:, 0:2].copy(), data[:, 2:4].copy(), data[:, 4].copy(), data[:, 5].copy()
     )
+
+
+def _rows(reader: Iterator[list[str]], file: Path) -> Iterator[list[str]]:
+    """The CSV rows after the header; a cell Python's csv cannot read is named by its line."""
+    while True:
+        try:
+            yield next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            line = getattr(reader, "line_num", "?")
+            raise ConfigError(f"{file}: line {line}: not CSV ({exc})") from None
