@@ -9,6 +9,7 @@ import math
 import os
 import shutil
 import tempfile
+import tokenize
 import zipfile
 import zlib
 from collections.abc import Iterator
@@ -210,11 +211,38 @@ def try_lock(handle: IO[Any]) -> bool:
     return True
 
 
+def _check_npy_header(stream: IO[bytes], available: int) -> None:
+    """Refuse an ``.npy`` stream whose header promises more data than the ``available`` bytes.
+
+    numpy allocates the array the header describes before it reads, so a damaged shape
+    (a flipped digit) would ask for terabytes instead of failing on the short read.
+
+    Raises:
+        ValueError: Not an ``.npy`` header, or a shape larger than what follows it.
+    """
+    begin = stream.tell()
+    version = np.lib.format.read_magic(stream)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(stream)
+    elif version == (2, 0):
+        shape, _, dtype = np.lib.format.read_array_header_2_0(stream)
+    else:  # 3.0 only holds field names outside Latin-1, which no array of ours has
+        raise ValueError(f"format version {version[0]}.{version[1]}, expected 1.0 or 2.0")
+    need = math.prod(shape) * dtype.itemsize
+    left = available - (stream.tell() - begin)
+    if need > left:
+        raise ValueError(
+            f"Failed to read its data: the header says shape {shape} of {dtype} ({need} "
+            f"bytes) but {left} bytes follow"
+        )
+
+
 def load_numpy(path: str | os.PathLike[str]) -> Any:
     """A ``.npy`` file's array, or a ``.npz`` file's arrays (name -> array); never a pickle.
 
     The suffix says which the file must be. numpy's own error for a file that is neither
-    advises loading it with pickles enabled, which no user should do with our files.
+    advises loading it with pickles enabled, which no user should do with our files. Each
+    array's header is checked against the bytes that follow before numpy allocates it.
 
     Raises:
         ConfigError: One line naming the file: missing, unreadable, not a NumPy file of
@@ -231,12 +259,40 @@ def load_numpy(path: str | os.PathLike[str]) -> Any:
                 raise ConfigError(f"{file}: not a NumPy {kind} file ({seen})")
             handle.seek(0)
             if kind == ".npy":
+                _check_npy_header(handle, os.fstat(handle.fileno()).st_size)
+                handle.seek(0)
                 return np.load(handle, allow_pickle=False)
-            with np.load(handle, allow_pickle=False) as archive:
-                return {name: archive[name] for name in archive.files}
+            with zipfile.ZipFile(handle) as archive:
+                for info in archive.infolist():
+                    if not info.filename.endswith(".npy"):
+                        raise ValueError(f"member {info.filename!r} is not an .npy array")
+                    with archive.open(info) as member:
+                        try:
+                            _check_npy_header(member, info.file_size)
+                        except ValueError as exc:
+                            raise ValueError(f"member {info.filename!r}: {exc}") from None
+            handle.seek(0)
+            with np.load(handle, allow_pickle=False) as arrays:
+                return {name: arrays[name] for name in arrays.files}
     except FileNotFoundError:
         raise ConfigError(f"{file}: file not found") from None
     except OSError as exc:
         raise ConfigError(f"{file}: cannot read ({exc.strerror or exc})") from None
-    except (ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
-        raise ConfigError(f"{file}: unreadable NumPy {kind} file ({exc})") from None
+    except MemoryError:
+        raise ConfigError(f"{file}: NumPy {kind} file too large to load") from None
+    except (
+        ValueError,
+        EOFError,
+        SyntaxError,  # the header's Python literal
+        tokenize.TokenError,
+        RecursionError,
+        NotImplementedError,  # a zip feature Python lacks
+        zipfile.BadZipFile,
+        zlib.error,
+    ) as exc:
+        why = (
+            "a damaged header"
+            if isinstance(exc, SyntaxError | tokenize.TokenError | RecursionError)
+            else " ".join(str(exc).split())[:200]
+        )
+        raise ConfigError(f"{file}: unreadable NumPy {kind} file ({why})") from None

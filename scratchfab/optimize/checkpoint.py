@@ -60,8 +60,13 @@ def load_checkpoint(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any], 
     try:
         meta = json.loads(arrays.pop("meta").tobytes().decode("utf-8"))
         log_rows = arrays.pop("log_rows")
-    except (KeyError, ValueError) as exc:
+    except (KeyError, ValueError, RecursionError) as exc:
         raise ConfigError(f"{path}: not a scratchfab checkpoint ({exc})") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("fingerprint", {}), dict):
+        raise ConfigError(
+            f"{path}: not a scratchfab checkpoint (its meta and meta.fingerprint must be "
+            "JSON objects)"
+        )
     if meta.get("format") != FORMAT:
         raise ConfigError(f"{path}: checkpoint format {meta.get('format')} is not {FORMAT}")
     return arrays, meta, log_rows
