@@ -39,7 +39,9 @@ def _open(path: Path) -> Image.Image:
         raise ConfigError(f"{path}: empty file, expected an image")
     try:
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            # Pillow warns of what it skips (a corrupt EXIF block, a tag past the end) and
+            # of large images; the pixels decode or the file is refused below, in one line.
+            warnings.simplefilter("ignore")
             image = Image.open(io.BytesIO(data))
             image.load()
             return ImageOps.exif_transpose(image)
@@ -58,7 +60,7 @@ _LUT16 = srgb_to_linear(np.arange(65536) / 65535.0)
 _CHUNK_ROWS = 256
 
 
-def _high_bit_gray(image: Image.Image) -> np.ndarray | None:
+def _high_bit_gray(image: Image.Image, file: Path) -> np.ndarray | None:
     """Linear gray values of 16-bit / 32-bit integer and float images, else None."""
     if image.mode.startswith("I;16"):
         return _LUT16[np.asarray(image).astype(np.uint16)]
@@ -69,7 +71,16 @@ def _high_bit_gray(image: Image.Image) -> np.ndarray | None:
             return _LUT16[arr]
         return srgb_to_linear(np.clip(arr / float(max(arr.max(), 1)), 0.0, 1.0))
     if image.mode == "F":
-        return srgb_to_linear(np.clip(np.asarray(image, dtype=np.float64), 0.0, 1.0))
+        values = np.asarray(image, dtype=np.float64)
+        bad = np.argwhere(~np.isfinite(values))
+        if len(bad):
+            row, col = (int(v) for v in bad[0])
+            raise ConfigError(
+                f"{file}: pixel (row {row}, column {col}) is "
+                f"{values[row, col]}; expected finite brightness values ({len(bad)} pixels "
+                "are NaN or infinite)"
+            )
+        return srgb_to_linear(np.clip(values, 0.0, 1.0))
     return None
 
 
@@ -88,7 +99,7 @@ def load_image(path: str | Path) -> np.ndarray:
     """
     file = Path(path)
     image = _open(file)
-    lin = _high_bit_gray(image)
+    lin = _high_bit_gray(image, file)
     if lin is None:
         has_alpha = image.mode in ("RGBA", "LA", "PA", "RGBa", "La") or (
             "transparency" in image.info
