@@ -69,6 +69,14 @@ def fingerprint(
     return {"files": record, "options": json.loads(json.dumps(options or {}, default=str))}
 
 
+def _entry_ok(entry: Any) -> bool:
+    """Whether a stage's manifest entry has the shape :class:`Manifest` writes."""
+    if not isinstance(entry, dict) or not isinstance(entry.get("status", ""), str):
+        return False
+    outputs = entry.get("outputs", [])
+    return isinstance(outputs, list) and all(isinstance(out, str) for out in outputs)
+
+
 @dataclass
 class Manifest:
     """The manifest of one job folder."""
@@ -83,9 +91,13 @@ class Manifest:
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
             stages = data.get("stages", {}) if isinstance(data, dict) else {}
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):
             stages = {}
-        return cls(job, stages if isinstance(stages, dict) else {})
+        if not isinstance(stages, dict):
+            stages = {}
+        # An entry not as :meth:`record` and its siblings write it is dropped: that stage
+        # is then not done and reruns, as when the whole file is unreadable.
+        return cls(job, {k: v for k, v in stages.items() if _entry_ok(v)})
 
     def save(self) -> None:
         """Write the manifest atomically."""
@@ -99,7 +111,10 @@ class Manifest:
         entry = self.stages.get(stage)
         if not entry or entry.get("status") != "done" or entry.get("inputs") != inputs:
             return False
-        return all((self.job / out).exists() for out in entry.get("outputs", []))
+        try:
+            return all((self.job / out).exists() for out in entry.get("outputs", []))
+        except OSError:  # a name too long for the file system: not an output of ours
+            return False
 
     def record(
         self, stage: str, inputs: Mapping[str, Any], outputs: Iterable[str], seconds: float
