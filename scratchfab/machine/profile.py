@@ -291,11 +291,15 @@ class Serial:
     rx_buffer_bytes: int = field(default=128, metadata=spec(ge=16))
 
 
+#: Digits after the point G-code coordinates may have.
+MAX_DECIMALS = 6
+
+
 @dataclass(frozen=True)
 class GcodeFormat:
     """How G-code lines are written."""
 
-    decimals: int = field(default=3, metadata=spec(ge=0, le=6))
+    decimals: int = field(default=3, metadata=spec(ge=0, le=MAX_DECIMALS))
     max_line_length: int = field(default=79, metadata=spec(ge=20))
 
 
@@ -327,11 +331,19 @@ class MachineProfile:
             )
         rounding = 0.5 * 10.0**-self.gcode.decimals
         if rounding > self.tool.tolerance_mm * (1 + 1e-9):
-            need = math.ceil(math.log10(0.5 / self.tool.tolerance_mm) - 1e-9)
+            finest = 0.5 * 10.0**-MAX_DECIMALS
+            if finest > self.tool.tolerance_mm * (1 + 1e-9):
+                advice = (
+                    f"no gcode.decimals (at most {MAX_DECIMALS}) meets it: raise "
+                    f"tool.tolerance_mm to {finest:g} or more"
+                )
+            else:
+                need = math.ceil(math.log10(0.5 / self.tool.tolerance_mm) - 1e-9)
+                advice = f"use gcode.decimals = {need} or more"
             raise ValueError(
                 f"gcode.decimals = {self.gcode.decimals} moves a coordinate by up to "
                 f"{rounding:g} mm, more than tool.tolerance_mm ({self.tool.tolerance_mm:g}): "
-                f"use gcode.decimals = {need} or more"
+                + advice
             )
         if self.tool_control.mode != "servo":
             self._check_z_heights()
@@ -438,6 +450,14 @@ def names_a_file(ref: str) -> bool:
     return ref.endswith(".toml") or "/" in ref or "\\" in ref
 
 
+def _is_file(path: Path) -> bool:
+    """``path.is_file()``, False also for a name the file system refuses (too long)."""
+    try:
+        return path.is_file()
+    except OSError:
+        return False
+
+
 def load_profile(name_or_path: str | Path | MachineProfile) -> MachineProfile:
     """Load a bundled profile by name, or any profile file by path.
 
@@ -452,9 +472,9 @@ def load_profile(name_or_path: str | Path | MachineProfile) -> MachineProfile:
     path = Path(text)
     if not names_a_file(text):
         bundled = bundled_dir() / f"{text}.toml"
-        if bundled.is_file():
+        if _is_file(bundled):
             path = bundled
-        elif not path.is_file():
+        elif not _is_file(path):
             names = ", ".join(bundled_profiles()) or "none"
             raise ConfigError(
                 f"machine '{text}': not a bundled profile (bundled: {names}) nor a file"
