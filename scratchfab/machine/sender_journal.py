@@ -293,7 +293,7 @@ def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     lines = text.splitlines()
     for k, line in enumerate(lines, start=1):
         try:
-            event = json.loads(line)
+            event = _decode(line)
         except json.JSONDecodeError:
             if k == len(lines) and not text.endswith("\n"):
                 break  # cut off by a crash while it was written
@@ -318,9 +318,23 @@ def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     return events
 
 
+def _decode(line: str) -> Any:
+    """One journal line's JSON value; what no :class:`Journal` writes is a JSONDecodeError.
+
+    Python refuses integers of over 4300 digits (ValueError) and deeply nested arrays
+    (RecursionError); either is a damaged line like any other.
+    """
+    try:
+        return json.loads(line)
+    except json.JSONDecodeError:
+        raise
+    except (ValueError, RecursionError) as exc:
+        raise json.JSONDecodeError(str(exc).split(";")[0], line, 0) from None
+
+
 def _is_start(line: str) -> bool:
     try:
-        event = json.loads(line)
+        event = _decode(line)
     except json.JSONDecodeError:
         return False
     return isinstance(event, dict) and event.get("ev") == "start"
@@ -356,7 +370,7 @@ def check_journal_file(
     if not first:
         return
     try:
-        event = json.loads(first.decode("utf-8"))
+        event = _decode(first.decode("utf-8"))
     except ValueError:  # not UTF-8, not JSON
         event = None
     if not isinstance(event, dict) or event.get("ev") != "start":
