@@ -477,6 +477,32 @@ def load_program(
     )
 
 
+def check_tool_up_at_end(program: Program) -> None:
+    """Refuse a program whose last stroke leaves the tool down: a file cut short.
+
+    Streamed as it is, its end would leave the bit in the board (or the pen down), the
+    spindle running.
+
+    Raises:
+        ConfigError: Naming the file's last line and the tool state there.
+    """
+    if not program.strokes or program.strokes[-1][1] != len(program.blocks) - 1:
+        return
+    last = program.blocks[-1]
+    threshold = program.z_threshold or 0.0
+    if not _tool_down(last.modal, threshold, program.pen_mode):
+        return
+    state = (
+        f"spindle output {last.modal.spindle}"
+        if program.pen_mode
+        else f"Z {last.modal.z:g} mm, below the cutting threshold {threshold:g}"
+    )
+    raise ConfigError(
+        f"{program.path}:{last.lineno}: the program ends with the tool down ({state}); the "
+        "file may be cut short: expected its last stroke to lift the tool (Z up or M5)"
+    )
+
+
 def resume_point(program: Program, done: set[int]) -> int:
     """The block to restart at: the first block of the first stroke not completely done.
 

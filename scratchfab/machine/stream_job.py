@@ -29,6 +29,7 @@ from scratchfab.machine.sender_journal import (
 )
 from scratchfab.machine.sender_program import (
     Program,
+    check_tool_up_at_end,
     load_program,
     resume_point,
     resume_preamble,
@@ -119,6 +120,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     program = load_program(req.gcode, z_threshold=z_threshold)
     if not program.blocks:
         raise ScratchfabError(f"{req.gcode}: no G-code lines to send")
+    check_tool_up_at_end(program)
     journal = Journal(journal_file).open()  # locked: a second stream of this job refuses
     try:
         _stream_locked(req, cb, journal, program, profile)
