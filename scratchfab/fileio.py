@@ -21,6 +21,20 @@ import numpy as np
 from scratchfab.errors import ConfigError, ScratchfabError
 
 
+def decode_json(text: str) -> Any:
+    """``json.loads`` whose every failure on bad text is a :class:`json.JSONDecodeError`.
+
+    Python refuses integers of over 4300 digits (a plain ValueError) and arrays nested
+    too deeply (RecursionError); in a file of ours either is damage like any other.
+    """
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        raise
+    except (ValueError, RecursionError) as exc:
+        raise json.JSONDecodeError(str(exc).split(";")[0], text, 0) from None
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)

@@ -695,3 +695,63 @@ def test_os_errors_are_one_line(tmp_path):
     path.chmod(0)
     with pytest.raises(ConfigError, match="cannot read"):
         load_toml(path)
+
+
+def _toolpath_text(**edits: Any) -> bytes:
+    """A planned toolpath's JSON with top-level keys replaced (values as JSON text)."""
+    from scratchfab.model.design import Board
+    from scratchfab.model.scratches import ScratchSet
+    from scratchfab.toolpath import plan_toolpath
+
+    n = 3
+    p0 = np.array([[-10.0, -10.0], [0.0, 5.0], [8.0, -3.0]])
+    scratches = ScratchSet(p0, p0 + [4.0, 1.0], np.full(n, 0.1), np.full(n, 0.01))
+    plan = plan_toolpath(
+        scratches, Board(width_mm=60.0, height_mm=60.0), load_profile("grbl-plotter-scribe")
+    )
+    data = json.loads(plan.to_json())
+    text = json.dumps({**data, **{k: "@" + k for k in edits}})
+    for key, value in edits.items():
+        text = text.replace(f'"@{key}"', value)
+    return text.encode()
+
+
+@pytest.mark.parametrize(
+    "edits, message",
+    [
+        ({"source_rows": "[" + "9" * 5000 + ", 1, 2]"}, "not a toolpath JSON file"),
+        ({"statistics": "[" * 100_000}, "not a toolpath JSON file"),
+        ({"source_rows": f"[{2**70}, 1, 2]"}, "malformed toolpath"),
+        ({"outline_mm": "[[NaN, 0], [1, 0], [1, 1], [0, 1]]"}, "outline_mm must be finite"),
+        ({"board_mm": "[Infinity, 60]"}, "board_mm must be finite"),
+        ({"board_mm": "[-60, 60]"}, "board_mm must be positive"),
+    ],
+)
+def test_a_damaged_toolpath_json_is_one_line_and_exports_nothing(tmp_path, edits, message):
+    """Toolpath.load (what export reads): tracebacks before, or NaN written into SVG/DXF."""
+    from scratchfab.toolpath import Toolpath
+
+    path = tmp_path / "toolpath.json"
+    path.write_bytes(_toolpath_text(**edits))
+    with pytest.raises(ScratchfabError) as info:
+        Toolpath.load(path)
+    text = str(info.value)
+    assert message in text and str(path) in text and "\n" not in text
+    out = tmp_path / "board.svg"
+    code, said = _cli(["export", "--toolpath", str(path), "-o", str(out)])
+    assert code == 2 and message in said and not out.exists()
+
+
+@pytest.mark.parametrize("name", ["manifest.json", "verify/metrics.json", "optimize/summary.json"])
+def test_deeply_nested_job_json_does_not_break_the_report(tmp_path, name):
+    """The report and the stale-layout check read these; RecursionError was not caught."""
+    from scratchfab.model.job import stale_layout_warning
+    from scratchfab.pipeline.report import _read_json
+
+    path = tmp_path / name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(b"[" * 100_000)
+    assert _read_json(path) is None
+    (tmp_path / "optimize").mkdir(exist_ok=True)
+    (tmp_path / "optimize" / "scratches.csv").write_text("x0,y0,x1,y1\n")
+    assert stale_layout_warning(tmp_path) is None

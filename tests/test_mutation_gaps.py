@@ -5,9 +5,6 @@ moving; the positions derived from status reports (MPos/WPos, WCO, inch reports)
 planner/sync rule of :func:`last_surely_run`; the per-axis feed limits of a profile; stroke
 detection on odd jobs; :func:`merge_collinear` against a brute-force duplicate relation.
 Each test compares with a reference written here, not with the code under test.
-
-``xfail(strict=True)`` marks findings reported to the lead, not fixed here: each fails on
-the current code for the reason it gives, and passes (turning the run red) once fixed.
 """
 
 from __future__ import annotations
@@ -304,9 +301,8 @@ _session = st.lists(st.sampled_from("mmmmso"), max_size=40).flatmap(
 @given(_session)
 def test_last_surely_run_matches_a_block_by_block_reference(session):
     """Contiguous acked runs (a session from its start block) of motion, sync and other
-    blocks, small planners. The sender's rule as it stands: ``planner + 2`` motion blocks
-    may be unrun, and the last acked block counts as unsure even when it is a sync block
-    (one more than the docstring says, in the safe direction: see the xfail below)."""
+    blocks, small planners. The sender's rule: ``planner + 2`` motion blocks may be unrun,
+    and the last acked block counts as unsure even when it is a sync block."""
     kinds, a, b, planner = session
     lo, hi = min(a, b), max(a, b)
     acked = list(range(lo, hi))
@@ -323,22 +319,6 @@ def test_last_surely_run_never_trusts_more_than_its_docstring_allows(session):
     acked = list(range(min(a, b), max(a, b)))
     got = last_surely_run(_blocks(kinds), acked, planner)
     assert got <= _surely_run_reference(kinds, acked, planner + 1, trust_last_sync=True)
-
-
-@pytest.mark.xfail(
-    strict=True,
-    reason="FINDING (conservative): last_surely_run lets planner+2 motion blocks be unrun "
-    "(docstring and done_blocks' fallback session[-planner-2]: planner+1), and does not "
-    "trust a sync block acked last; a killed session re-cuts one more block than needed",
-)
-@pytest.mark.parametrize(
-    ("kinds", "planner"),
-    [("m" * 8, 2), ("m" * 20, 15), ("mmmms", 15), ("omomms", 2)],
-)
-def test_last_surely_run_is_its_docstrings_rule(kinds, planner):
-    acked = list(range(len(kinds)))
-    want = _surely_run_reference(list(kinds), acked, planner + 1, trust_last_sync=True)
-    assert last_surely_run(_blocks(list(kinds)), acked, planner) == want
 
 
 # --------------------------------------------------------------------------- 4. feed limits

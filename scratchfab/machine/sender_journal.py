@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any
 
 from scratchfab.errors import ConfigError, ScratchfabError
-from scratchfab.fileio import read_input, try_lock
+from scratchfab.fileio import decode_json, read_input, try_lock
 from scratchfab.model.job import JobLayout
 
 if TYPE_CHECKING:
@@ -293,7 +293,7 @@ def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     lines = text.splitlines()
     for k, line in enumerate(lines, start=1):
         try:
-            event = _decode(line)
+            event = decode_json(line)
         except json.JSONDecodeError:
             if k == len(lines) and not text.endswith("\n"):
                 break  # cut off by a crash while it was written
@@ -318,23 +318,9 @@ def read_journal(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     return events
 
 
-def _decode(line: str) -> Any:
-    """One journal line's JSON value; what no :class:`Journal` writes is a JSONDecodeError.
-
-    Python refuses integers of over 4300 digits (ValueError) and deeply nested arrays
-    (RecursionError); either is a damaged line like any other.
-    """
-    try:
-        return json.loads(line)
-    except json.JSONDecodeError:
-        raise
-    except (ValueError, RecursionError) as exc:
-        raise json.JSONDecodeError(str(exc).split(";")[0], line, 0) from None
-
-
 def _is_start(line: str) -> bool:
     try:
-        event = _decode(line)
+        event = decode_json(line)
     except json.JSONDecodeError:
         return False
     return isinstance(event, dict) and event.get("ev") == "start"
@@ -370,7 +356,7 @@ def check_journal_file(
     if not first:
         return
     try:
-        event = _decode(first.decode("utf-8"))
+        event = decode_json(first.decode("utf-8"))
     except ValueError:  # not UTF-8, not JSON
         event = None
     if not isinstance(event, dict) or event.get("ev") != "start":
@@ -391,9 +377,13 @@ def _same_file(a: Path, b: Path) -> bool:
 def last_surely_run(blocks: Sequence[Block], acked: Sequence[int], planner_blocks: int) -> int:
     """The last of the ``acked`` blocks (in order) that surely ran, without a position.
 
-    After its last acknowledgement the controller may still hold up to ``planner_blocks``
-    motion blocks plus one being parsed; an acknowledged sync block (M3/M5, G4, ...) means
-    everything before it ran. Returns -1 when none surely ran.
+    After its last acknowledgement the controller may still hold ``planner_blocks``
+    motion blocks, and GRBL's stepper keeps running the last segments of a block after
+    the planner has let it go; counting one more for that and one more as a margin, up to
+    ``planner_blocks + 2`` acknowledged motion blocks count as unsure. An acknowledged sync
+    block (M3/M5, G4, ...) followed by later acknowledgements means everything before it
+    ran; the last acknowledged block is unsure even when it is a sync block (a margin
+    too). Returns -1 when none surely ran.
     """
     if not acked:
         return -1

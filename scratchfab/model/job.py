@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from scratchfab.console import command_line
 from scratchfab.errors import ConfigError
-from scratchfab.fileio import file_sha256
+from scratchfab.fileio import decode_json, file_sha256
 from scratchfab.model.design import Design, load_design
 
 _EXPORT_STEM = "board"  # JOB/export/board.<format>
@@ -264,7 +263,7 @@ def stale_layout_warning(job: str | Path) -> str | None:
     if not layout.optimized_scratches.is_file():
         return None
     try:
-        summary = json.loads(layout.optimize_summary.read_text(encoding="utf-8"))
+        summary = decode_json(layout.optimize_summary.read_text(encoding="utf-8"))
         recorded = summary["design_sha256"]
     except (OSError, ValueError, TypeError, KeyError):
         return None

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from scratchfab.errors import ConfigError
-from scratchfab.fileio import atomic_open, load_numpy
+from scratchfab.fileio import atomic_open, decode_json, load_numpy
 
 FORMAT = 1
 
@@ -58,9 +58,9 @@ def load_checkpoint(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any], 
         raise ConfigError(f"{path}: no checkpoint to resume from (run without --resume)")
     arrays: dict[str, np.ndarray] = load_numpy(path)
     try:
-        meta = json.loads(arrays.pop("meta").tobytes().decode("utf-8"))
+        meta = decode_json(arrays.pop("meta").tobytes().decode("utf-8"))
         log_rows = arrays.pop("log_rows")
-    except (KeyError, ValueError, RecursionError) as exc:
+    except (KeyError, ValueError) as exc:
         raise ConfigError(f"{path}: not a scratchfab checkpoint ({exc})") from None
     if not isinstance(meta, dict) or not isinstance(meta.get("fingerprint", {}), dict):
         raise ConfigError(

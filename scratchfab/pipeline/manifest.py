@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from scratchfab.fileio import file_sha256, write_text
+from scratchfab.fileio import decode_json, file_sha256, write_text
 
 MANIFEST_NAME = "manifest.json"
 
@@ -89,9 +89,9 @@ class Manifest:
         """Read ``JOB/manifest.json`` (an empty manifest when absent or unreadable)."""
         path = job / MANIFEST_NAME
         try:
-            data = json.loads(path.read_text(encoding="utf-8"))
+            data = decode_json(path.read_text(encoding="utf-8"))
             stages = data.get("stages", {}) if isinstance(data, dict) else {}
-        except (OSError, ValueError, RecursionError):
+        except (OSError, ValueError):
             stages = {}
         if not isinstance(stages, dict):
             stages = {}

@@ -13,7 +13,6 @@ from __future__ import annotations
 import base64
 import csv
 import html
-import json
 import math
 import os
 from dataclasses import dataclass
@@ -22,7 +21,7 @@ from typing import Any, Literal
 
 from scratchfab.console import command_line, duration_text
 from scratchfab.errors import ConfigError
-from scratchfab.fileio import write_text
+from scratchfab.fileio import decode_json, write_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
 from scratchfab.model.job import JobLayout
 
@@ -113,7 +112,7 @@ def _fmt(value: Any, digits: int = 3) -> str:
 
 def _read_json(path: Path) -> Any:
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        return decode_json(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
 

@@ -24,7 +24,7 @@ from PIL import Image, ImageDraw
 from scratchfab import figures
 from scratchfab.console import duration_text
 from scratchfab.errors import ConfigError, ScratchfabError
-from scratchfab.fileio import save_png, write_text
+from scratchfab.fileio import decode_json, save_png, write_text
 from scratchfab.machine.profile import MachineProfile, profile_from_mapping
 from scratchfab.model.design import Board, ScratchTool
 from scratchfab.model.scratches import ScratchSet
@@ -95,7 +95,7 @@ class Toolpath:
         """
         file = Path(path)
         try:
-            data = json.loads(file.read_text(encoding="utf-8"))
+            data = decode_json(file.read_text(encoding="utf-8"))
         except FileNotFoundError:
             raise ConfigError(f"{file}: file not found (run `scratchfab toolpath` first)") from None
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -110,10 +110,15 @@ class Toolpath:
             outline = np.asarray(data["outline_mm"], dtype=np.float64).reshape(4, 2)
             board = (float(data["board_mm"][0]), float(data["board_mm"][1]))
             stats = dict(data["statistics"])
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError) as exc:
             raise ConfigError(f"{file}: malformed toolpath ({exc!r})") from None
-        if len(rows) != len(strokes) or not np.all(np.isfinite(strokes)):
+        if len(rows) != len(strokes):
             raise ConfigError(f"{file}: malformed toolpath (strokes and source_rows differ)")
+        for key, values in (("strokes", strokes), ("outline_mm", outline), ("board_mm", board)):
+            if not np.all(np.isfinite(values)):
+                raise ConfigError(f"{file}: malformed toolpath ({key} must be finite numbers)")
+        if min(board) <= 0:
+            raise ConfigError(f"{file}: malformed toolpath (board_mm must be positive)")
         profile = profile_from_mapping(data.get("machine"), f"{file}: machine")
         return cls(strokes, rows, board, outline, profile, stats)
 
