@@ -19,7 +19,6 @@ import pytest
 from gcode_interp import interpret
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_stream import _executed_in_emulator, _stream, write_job
 
 from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim import GrblSim, SimOptions
@@ -27,11 +26,10 @@ from scratchfab.machine.profile import load_profile, profile_from_mapping
 from scratchfab.machine.sender import (
     Streamer,
     StreamOptions,
-    StreamStopped,
     open_port,
     parse_status,
 )
-from scratchfab.machine.sender_journal import last_surely_run, read_journal
+from scratchfab.machine.sender_journal import last_surely_run
 from scratchfab.machine.sender_program import load_program, strip_block
 from scratchfab.toolpath.geometry import merge_collinear
 
@@ -212,34 +210,6 @@ def test_the_senders_work_position_is_the_emulators(mpos, inches, wco_field):
     assert status.wpos is not None
     # inch reports carry 4 decimals of an inch: 1.3 um per number, twice with WCO
     assert status.wpos == pytest.approx([12.345, -6.789, 3.21], abs=3e-3)
-
-
-@pytest.mark.parametrize("wco_field", [1, 0])
-def test_a_stop_journals_the_block_the_emulator_reached(tmp_path, wco_field):
-    """Ctrl-C and stop under a G54 offset: executed_through is the emulator's last finished
-    block (a re-cut of finished strokes otherwise), with or without the WCO field."""
-    job = tmp_path / "job.gcode"
-    write_job(job, 40)
-    prog = load_program(job)
-    journal = tmp_path / "j.jsonl"
-    fired: list[int] = []
-
-    def progress(p):
-        if p.acked > 60 and not fired:
-            fired.append(1)
-            raise KeyboardInterrupt
-
-    port = open_port(f"grblsim://?time_scale=0.02&wco=5,7,1&wco_field={wco_field}", 115200)
-    try:
-        with pytest.raises(StreamStopped):
-            _stream(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
-    finally:
-        port.close()
-    events = read_journal(journal)
-    truth = _executed_in_emulator(port.sim.record, prog)
-    acked = [e["i"] for e in events if e["ev"] == "ack" and "i" in e]
-    assert last_surely_run(prog.blocks, acked, 15) < truth  # only the position tells
-    assert events[-1]["ev"] == "stop" and events[-1]["executed_through"] == truth
 
 
 @pytest.mark.parametrize("inches", [0, 1])

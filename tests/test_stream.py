@@ -1991,10 +1991,19 @@ def _executed_in_emulator(record, prog) -> int:
     return last
 
 
-@pytest.mark.parametrize("inches", [0, 1])
-def test_stop_position_matches_in_inch_reports(tmp_path, inches):
-    """Under $13=1 GRBL reports inches; the hold position still finds the interrupted block,
-    so the journal's executed-through is what the emulator ran (not the planner bound)."""
+@pytest.mark.parametrize(
+    "query",
+    [
+        "$13=0",
+        "$13=1",  # GRBL reports inches
+        "wco=5,7,1&wco_field=1",  # under a G54 offset, with status reports' WCO: field
+        "wco=5,7,1&wco_field=0",  # a build without it: the $# offset read at connect
+    ],
+)
+def test_stop_position_matches_the_emulator(tmp_path, query):
+    """The hold position finds the interrupted block whatever the reports say, so the
+    journal's executed-through is what the emulator ran (not the planner bound, which
+    re-cuts finished strokes)."""
     from scratchfab.machine.sender_journal import last_surely_run
 
     job = tmp_path / "job.gcode"
@@ -2008,7 +2017,7 @@ def test_stop_position_matches_in_inch_reports(tmp_path, inches):
             fired.append(1)
             raise KeyboardInterrupt
 
-    port = open_port(f"grblsim://?time_scale=0.02&$13={inches}", 115200)
+    port = open_port(f"grblsim://?time_scale=0.02&{query}", 115200)
     try:
         with pytest.raises(StreamStopped):
             _stream(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
