@@ -37,6 +37,8 @@ import drjit as dr
 import numpy as np
 from scipy.spatial import cKDTree
 
+from scratchfab.segments import sample_along
+
 Space = Literal["linear", "perceptual"]
 SPACES: tuple[str, ...] = ("linear", "perceptual")
 
@@ -175,11 +177,7 @@ def neighbour_pairs(
     length = np.linalg.norm(d, axis=1)
     step = max(spacing, reach)
     radius = reach + step
-    counts = np.maximum(2, np.ceil(length / step).astype(np.int64) + 1)
-    owner = np.repeat(np.arange(n), counts)
-    starts = np.cumsum(counts) - counts
-    t = (np.arange(int(counts.sum())) - starts[owner]) / (counts[owner] - 1)
-    pts = p0[owner] + t[:, None] * d[owner]
+    pts, owner = sample_along(p0, p1, step)
     by_x = np.argsort(pts[:, 0], kind="stable")
     xs = pts[by_x, 0]
     limit = math.cos(min(math.pi / 2, PARALLEL_LIMIT + angle_slack))

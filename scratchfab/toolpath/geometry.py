@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
+from scratchfab.segments import sample_along
+
 # scipy (~0.2 s to import) is imported in merge_collinear, the one function that uses it:
 # importing the toolpath package (the CLI's help, the exporters) does not need it.
 
@@ -114,16 +116,12 @@ def _candidate_pairs(
     from scipy.spatial import cKDTree
 
     n = len(p0)
-    d = p1 - p0
-    length = np.hypot(*d.T)
-    count = np.ceil(length / step).astype(np.int64) + 1
-    seg = np.repeat(np.arange(n), count)
-    first = np.cumsum(count) - count
-    frac = (np.arange(len(seg)) - first[seg]) / (count[seg] - 1)
+    length = np.hypot(*(p1 - p0).T)
+    at, seg = sample_along(p0, p1, step)
     r = float(np.hypot(tolerance, max(0.5 * step, tolerance)))
     chord = 2.0 * min(1.0, 2.0 * tolerance / max(float(length.min()), 1e-12))
     turn = (r / chord) * np.stack([u[:, 0] ** 2 - u[:, 1] ** 2, 2.0 * u[:, 0] * u[:, 1]], 1)
-    samples = np.hstack([p0[seg] + frac[:, None] * d[seg], turn[seg]])
+    samples = np.hstack([at, turn[seg]])
     ends = np.vstack([np.hstack([p0, turn]), np.hstack([p1, turn])])
     near = cKDTree(samples).sparse_distance_matrix(
         cKDTree(ends), np.sqrt(2.0) * r * (1.0 + 1e-9), output_type="ndarray"
