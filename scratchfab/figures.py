@@ -41,6 +41,8 @@ TEXT_PX = 15
 FRAME: RGB = (90, 90, 90)
 #: Pixels off the board (a target's NaN) in grey previews.
 OFF_BOARD_RGB: RGB = (128, 128, 128)
+#: Hatch lines: cells a map marks as not usable (unreachable, off the board) and their keys.
+HATCH_RGB: RGB = (40, 40, 40)
 
 LegendKind = Literal["line", "box", "ring", "hatch", "dots", "arrow"]
 
@@ -116,7 +118,7 @@ def _swatch(draw: ImageDraw.ImageDraw, box: Box, item: LegendItem) -> None:
         draw.ellipse([cx - r, cy - r, cx + r, cy + r], outline=item.color, width=2)
     elif item.kind == "hatch":
         draw.rectangle(box, fill=item.fill or item.color)
-        hatch(draw, box, (40, 40, 40), step=5)
+        hatch(draw, box, HATCH_RGB, step=5)
         draw.rectangle(box, outline=FRAME)
     elif item.kind == "dots":
         draw.rectangle(box, fill=item.fill or (255, 255, 255))
@@ -137,6 +139,19 @@ def hatch(draw: ImageDraw.ImageDraw, box: Box, color: RGB, step: int = 6) -> Non
         a = (x0 + max(0, k - h), y1 - min(k, h))
         b = (x0 + min(k, w), y1 - max(0, k - w))
         draw.line([a, b], fill=color, width=1)
+
+
+def hatch_cells(rgb: np.ndarray, mask: np.ndarray, color: RGB = HATCH_RGB, step: int = 6) -> None:
+    """Draw :func:`hatch` lines over the pixels of ``rgb`` (H, W, 3) where ``mask`` holds, in place.
+
+    The lines run across the whole picture, so neighbouring marked cells join up.
+    """
+    if not mask.any():
+        return
+    h, w = mask.shape
+    lines = Image.new("RGB", (w, h), (255, 255, 255))
+    hatch(ImageDraw.Draw(lines), (0, 0, w - 1, h - 1), color, step)
+    rgb[mask & np.all(np.asarray(lines) == color, axis=-1)] = color
 
 
 def legend_size(items: list[LegendItem], size: int = TEXT_PX, title: str = "") -> tuple[int, int]:

@@ -37,7 +37,7 @@ REACH_LIGHT = (166, 206, 227)
 REACH_DARK = (31, 90, 160)
 LOBE_ONLY = figures.OKABE_ITO["yellow"]
 UNREACHABLE = figures.OKABE_ITO["vermillion"]
-HATCH = (40, 40, 40)
+HATCH = figures.HATCH_RGB
 #: The map is drawn at least this wide (pixels), each grid cell a square block.
 MAP_MIN_PX = 384
 
@@ -381,18 +381,9 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
     mw, mh = cols * cell, rows * cell
     cells = tilt_colours(tilt, reach, limit)
     big = figures.enlarge(cells, cell)
+    figures.hatch_cells(big, figures.enlarge(tilt > limit, cell), HATCH)
     img = Image.fromarray(big)
     draw = ImageDraw.Draw(img)
-    bad = tilt > limit
-    if bad.any():
-        mask = Image.new("RGB", img.size, (255, 255, 255))
-        figures.hatch(ImageDraw.Draw(mask), (0, 0, mw - 1, mh - 1), HATCH, step=6)
-        lines = np.all(np.asarray(mask) == HATCH, axis=-1)
-        lines &= figures.enlarge(bad, cell)
-        arr = np.asarray(img).copy()
-        arr[lines] = HATCH
-        img = Image.fromarray(arr)
-        draw = ImageDraw.Draw(img)
     cross = np.zeros(tilt.shape)
     for p in report.pairs:
         if name in (p.lit, p.other):

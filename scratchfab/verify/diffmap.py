@@ -37,7 +37,7 @@ DARKER_RGB: figures.RGB = figures.OKABE_ITO["blue"]
 #: No difference.
 EQUAL_RGB: figures.RGB = (255, 255, 255)
 #: The hatch lines over pixels off the board (as in a ``hatch`` legend swatch).
-HATCH_RGB: figures.RGB = (40, 40, 40)
+HATCH_RGB: figures.RGB = figures.HATCH_RGB
 #: The map is enlarged (nearest neighbour) to at least this width.
 MAP_MIN_PX = 256
 _BAR_H = 14
@@ -98,11 +98,7 @@ def diff_figure(
     factor = max(1, -(-MAP_MIN_PX // cols))
     mw, mh = cols * factor, rows * factor
     big = figures.enlarge(diff_colours(diff, scale), factor)
-    off = figures.enlarge(~np.isfinite(diff), factor)
-    if off.any():
-        lines = Image.new("RGB", (mw, mh), (255, 255, 255))
-        figures.hatch(ImageDraw.Draw(lines), (0, 0, mw - 1, mh - 1), HATCH_RGB, step=6)
-        big[off & np.all(np.asarray(lines) == HATCH_RGB, axis=-1)] = HATCH_RGB
+    figures.hatch_cells(big, figures.enlarge(~np.isfinite(diff), factor), HATCH_RGB)
 
     size = figures.TEXT_PX
     m = 12
