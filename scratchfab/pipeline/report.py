@@ -218,9 +218,8 @@ def _stage_checks(job: Path) -> list[_Check]:
     return checks
 
 
-def _feasibility_checks(job: Path) -> list[_Check]:
-    path = JobLayout(job).design.feasibility_json
-    data = _read_json(path)
+def _feasibility_checks(data: Any) -> list[_Check]:
+    """The verdict's lines from ``design/feasibility.json`` (``data``, None if unreadable)."""
     if not isinstance(data, dict):
         return [_Check("fail", "feasibility: design has not run", "design has not run")]
     errors = [str(e) for e in data.get("errors", [])]
@@ -300,8 +299,8 @@ def _crosstalk_check(names: list[str], metrics: dict[str, Any] | None) -> list[_
     ]
 
 
-def _toolpath_checks(job: Path) -> list[_Check]:
-    data = _read_json(JobLayout(job).toolpath_json)
+def _toolpath_checks(data: Any) -> list[_Check]:
+    """The verdict's lines from ``toolpath/toolpath.json`` (``data``, None if unreadable)."""
     stats = data.get("statistics") if isinstance(data, dict) else None
     if not isinstance(stats, dict):
         return [_Check("fail", "machine travel: toolpath has not run", "toolpath has not run")]
@@ -381,12 +380,16 @@ def _verdict(checks: list[_Check]) -> str:
 
 
 def _views_section(
-    job: Path, names: list[str], metrics: dict[str, Any] | None, min_rho: float | None
+    job: Path,
+    names: list[str],
+    metrics: dict[str, Any] | None,
+    min_rho: float | None,
+    maps: Any,
 ) -> str:
+    """Each view's pictures, then the measurements; ``maps`` is feasibility.json's data."""
     layout = JobLayout(job)
     if not names:
         return "<p class='muted'>design has not run.</p>"
-    maps = _read_json(layout.design.feasibility_json)
     maps_text = (
         str(maps.get("maps", "")).split(": ", 1)[-1]
         if isinstance(maps, dict)
@@ -647,9 +650,9 @@ _TOOLPATH_ROWS = (
 )
 
 
-def _toolpath_section(job: Path) -> str:
+def _toolpath_section(job: Path, data: Any) -> str:
+    """The preview and the figures of ``toolpath.json`` (``data``, None if unreadable)."""
     layout = JobLayout(job)
-    data = _read_json(layout.toolpath_json)
     parts = []
     if layout.toolpath_preview.is_file():
         parts.append(
@@ -922,8 +925,11 @@ def write_report(
             ``metrics.json``, if any).
         pipeline_file: The pipeline file, for the commands the next steps give.
     """
-    metrics = _read_json(JobLayout(job).verify_metrics)
+    layout = JobLayout(job)
+    metrics = _read_json(layout.verify_metrics)
     metrics = metrics if isinstance(metrics, dict) else None
+    feasibility = _read_json(layout.design.feasibility_json)
+    toolpath = _read_json(layout.toolpath_json)
     if min_rho is None and metrics and isinstance(metrics.get("gate"), dict):
         min_rho = metrics["gate"].get("min_rho")
     design = _read_design(job)
@@ -931,10 +937,10 @@ def write_report(
     state, stream_text = _stream_state(job, port)
     checks = (
         _stage_checks(job)
-        + _feasibility_checks(job)
+        + _feasibility_checks(feasibility)
         + _rho_checks(names, metrics, min_rho)
         + _crosstalk_check(names, metrics)
-        + _toolpath_checks(job)
+        + _toolpath_checks(toolpath)
         + _gcode_check(job)
         + _stream_check(state)
     )
@@ -948,14 +954,14 @@ def write_report(
         "<h2>Where to stand</h2>",
         _stand_section(design),
         "<h2>Views</h2>",
-        _views_section(job, names, metrics, min_rho),
+        _views_section(job, names, metrics, min_rho, feasibility),
         "<h2>Optimization</h2>",
         _optimize_section(job, names),
         "<h2>Walking past the board</h2>",
         _walk_section(job, metrics),
         _sky_section(job, names, metrics),
         "<h2>Toolpath</h2>",
-        _toolpath_section(job),
+        _toolpath_section(job, toolpath),
         "<h2>Files</h2>",
         _files_section(job),
         "<h2>Stream</h2>",
