@@ -6,7 +6,7 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	.venv/bin/scratchfab run pipelines/demo.toml --out job-demo
+	.venv/bin/scratchfab run demo
 
 test: setup
 	.venv/bin/python -m pytest -q

@@ -1,7 +1,7 @@
 """Benchmark of the optimize stage; prints JSON.
 
 Cases:
-- ``demo``: ``pipelines/demo.toml`` through ``design`` then ``optimize``: seconds per
+- ``demo``: the bundled ``demo`` pipeline through ``design`` then ``optimize``: seconds per
   iteration, time and iterations to the quality bar (every rho_kk >= 0.8 and
   x_kj <= 0.2, from ``log.csv``), final quality by the optimizer's own render and by the
   brute-force reference renderer of the tests.
@@ -33,6 +33,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+from scratchfab.bundled import bundled_dir  # noqa: E402
 from scratchfab.metrics import quality_report  # noqa: E402
 from scratchfab.model.job import JobLayout  # noqa: E402
 from scratchfab.optimize.loss import Space  # noqa: E402
@@ -118,7 +119,7 @@ def _design(job: Path) -> None:
 
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout carries the JSON alone
-            main(["design", str(ROOT / "pipelines" / "demo.toml"), "--out", str(job)])
+            main(["design", str(bundled_dir("pipelines") / "demo.toml"), "--out", str(job)])
     except SystemExit as exc:
         if exc.code:
             raise

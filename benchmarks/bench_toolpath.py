@@ -8,7 +8,7 @@ cap) runs on the same strokes when it is installed (``pip install vpype``; bench
 only). The goal: travel <= 0.9x vpype's, 100k strokes ordered in under 10 s.
 
 Stroke sets: random uniform and clustered sets, and real layouts made by the design
-stage (``pipelines/demo.toml``; ``pipelines/full-size.toml`` with 10k scratches at a
+stage (the bundled ``demo`` pipeline; ``pipelines/full-size.toml`` with 10k scratches at a
 reduced resolution, and its own 40k without ``--quick``), planned for the pipeline's
 machine by :func:`plan_toolpath` (the CLI's clipping, short-stroke and duplicate rules);
 vpype gets the planned strokes in their input order.
@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from scratchfab.bundled import find_bundled
 from scratchfab.design.stage import run_design
 from scratchfab.fileio import json_safe
 from scratchfab.machine.profile import load_profile
@@ -141,7 +142,9 @@ def design_layout(
         Stroke starts and ends in the input order (machine mm), our planned result and
         the machine's start position.
     """
-    file = PIPELINES / pipeline
+    file = find_bundled(
+        "pipelines", pipeline if pipeline == "demo" else str(PIPELINES / pipeline), "pipeline"
+    )
     machine = load_toml(file)["toolpath"]["machine"]
     with tempfile.TemporaryDirectory() as tmp:
         made = run_design(file, tmp, count=count, resolution=resolution, progress=lambda _: None)
@@ -308,7 +311,7 @@ def main() -> None:
         for n in sizes:
             p0, p1 = make(n, 1)
             report["versus_vpype"].append(compare(name, p0, p1, None, reference))
-    real = [("demo.toml", None, None), ("full-size.toml", 10_000, (128, 128))]
+    real = [("demo", None, None), ("full-size.toml", 10_000, (128, 128))]
     if not quick:
         real.append(("full-size.toml", None, (128, 128)))
     for pipeline, count, resolution in real:

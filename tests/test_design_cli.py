@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from scratchfab.bundled import bundled_dir
 from scratchfab.cli import main
 from scratchfab.design.feasibility import check_feasibility
 from scratchfab.design.quick import quick_design
@@ -105,7 +106,7 @@ def test_quick_form_places_views_that_see_the_whole_board_and_are_feasible(n):
 
 def test_demo_pipeline_designs(tmp_path, capsys):
     job = tmp_path / "demo"
-    out = _run(["design", str(ROOT / "pipelines" / "demo.toml"), "--out", str(job)], capsys)
+    out = _run(["design", str(bundled_dir("pipelines") / "demo.toml"), "--out", str(job)], capsys)
     assert "initial layout: 2000 scratches" in out
     design = load_design(job / "design" / "design.toml")
     assert [v.name for v in design.views] == ["sun", "house"]

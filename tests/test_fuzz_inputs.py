@@ -38,6 +38,7 @@ from conftest import FULL
 from PIL import Image
 
 import scratchfab.cli
+from scratchfab.bundled import bundled_dir
 from scratchfab.design.images import load_image
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import load_numpy
@@ -260,7 +261,7 @@ def seeds(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("seeds")
     out = {
         "design": ROOT / "pipelines" / "example" / "design.toml",
-        "pipeline": ROOT / "pipelines" / "demo.toml",
+        "pipeline": bundled_dir("pipelines") / "demo.toml",
         "profile": ROOT / "machine_profiles" / "grbl-3018-diamond.toml",
         "servo": ROOT / "machine_profiles" / "grbl-plotter-scribe.toml",
     }

@@ -19,6 +19,7 @@ import pytest
 from conftest import FULL, make_design, pasted_words
 from test_optimize_helpers import cross_of, make_job, make_layout
 
+from scratchfab.bundled import bundled_dir
 from scratchfab.cli import main
 from scratchfab.errors import ScratchfabError
 from scratchfab.metrics import exposure, quality_report
@@ -572,9 +573,8 @@ def test_acceptance_demo_checked_with_reference_renderer(tmp_path: Path) -> None
     from scratchfab.design.targets import cross_targets
     from scratchfab.model.design import load_design
 
-    root = Path(__file__).resolve().parents[1]
     job = tmp_path / "demo"
-    main(["design", str(root / "pipelines" / "demo.toml"), "--out", str(job)])
+    main(["design", str(bundled_dir("pipelines") / "demo.toml"), "--out", str(job)])
     result = run_optimize(job, OptimizeOptions(iterations=150 if FULL else 20, threads=0))
     design = load_design(job / "design" / "design.toml")
     targets = {v.name: np.load(job / "design" / "targets" / f"{v.name}.npy") for v in design.views}

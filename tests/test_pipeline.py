@@ -452,6 +452,30 @@ def test_pipeline_out_is_relative_to_the_pipeline_file(tmp_path, monkeypatch):
     assert load_pipeline(path).job_dir() == Path(f"job-{path.stem}")  # in the current folder
 
 
+def test_bundled_demo_runs_by_name_into_the_current_folder(tmp_path, monkeypatch, capsys):
+    """`scratchfab run demo` finds the pipeline inside the package, as an installed one would."""
+    from scratchfab.bundled import bundled_dir
+
+    monkeypatch.chdir(tmp_path)
+    pipe = load_pipeline("demo")
+    assert pipe.path == (bundled_dir("pipelines") / "demo.toml").resolve()
+    job = tmp_path / pipe.job_dir()
+    assert pipe.job_dir() == Path(f"job-{pipe.path.stem}")  # here, not in the package
+    main(["run", "demo", "--until", "design"])
+    assert (job / "design" / "design.toml").is_file()
+    assert {p.stem for p in (job / "design" / "targets").glob("*.npy")} == {
+        "sun",
+        "house",
+    }
+    # A wrong name lists the bundled ones, without a traceback.
+    with pytest.raises(SystemExit) as exit_info:
+        main(["run", "dmeo"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "pipeline 'dmeo': not a bundled pipeline (bundled: demo) nor a file" in err
+    assert "Traceback" not in err
+
+
 def test_recut_unsure_does_not_stream_a_finished_board_again(finished_job):
     path, job, _ = finished_job
     run_pipeline(load_pipeline(path), job, say=lambda s: None)  # up to date after other tests

@@ -475,9 +475,10 @@ def frame_correlations(frames, path, nearest, boards, board):
 @pytest.mark.slow
 def test_demo_job_verifies_within_two_percent_and_its_sweep_shows_each_image(tmp_path):
     """The bundled demo end to end (design's initial layout): acceptance on a real design."""
-    repo = Path(__file__).resolve().parents[1]
+    from scratchfab.bundled import bundled_dir
+
     job = tmp_path / "job"
-    main(["design", str(repo / "pipelines" / "demo.toml"), "--out", str(job)])
+    main(["design", str(bundled_dir("pipelines") / "demo.toml"), "--out", str(job)])
     spp = DEFAULT_SPP if FULL else 4096
     frames_n = 8
     main(["verify-render", str(job), "--spp", str(spp), "--sweep", str(frames_n)])

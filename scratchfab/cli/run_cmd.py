@@ -29,7 +29,7 @@ def _confirm(question: str) -> bool:
 
 
 @click.command("run")
-@click.argument("pipeline", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("pipeline", metavar="PIPELINE")
 @click.option(
     "--out",
     type=click.Path(file_okay=False, path_type=Path),
@@ -50,7 +50,7 @@ def _confirm(question: str) -> bool:
     "--yes", is_flag=True, help="Do not ask for confirmation before streaming to a machine."
 )
 def run(
-    pipeline: Path,
+    pipeline: str,
     out: Path | None,
     start: str | None,
     until: str | None,
@@ -59,6 +59,8 @@ def run(
 ) -> None:
     """Run design -> optimize -> verify-render -> toolpath -> export (-> stream) into a job.
 
+    PIPELINE is a pipeline TOML, or a bundled pipeline's name: `scratchfab run demo` runs
+    the bundled demo into ./job-demo.
     Stages whose inputs did not change since the last run are skipped (JOB/manifest.json);
     a failed stage leaves earlier outputs intact and the next run resumes there. The G-code
     is streamed again only when it or the [stream] options changed, or with --from stream

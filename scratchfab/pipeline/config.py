@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+from scratchfab.bundled import find_bundled, names_a_file
 from scratchfab.errors import ConfigError
 from scratchfab.model.design import Design, design_from_mapping
 from scratchfab.model.schema import load_toml, parse_table, spec
@@ -208,8 +209,6 @@ class Pipeline:
 
 def _machine_ref(ref: str, pipeline_file: Path) -> str:
     """``[toolpath] machine``: a bundled name, or a path resolved against ``pipeline_file``."""
-    from scratchfab.machine.profile import names_a_file
-
     if names_a_file(ref):
         candidate = Path(ref)
         return str(candidate if candidate.is_absolute() else (pipeline_file.parent / candidate))
@@ -219,10 +218,13 @@ def _machine_ref(ref: str, pipeline_file: Path) -> str:
 def load_pipeline(path: str | Path) -> Pipeline:
     """Load and validate a pipeline file (design tables + stage tables).
 
+    Args:
+        path: A pipeline TOML, or the name of a bundled one (``demo``).
+
     Raises:
         ConfigError: Naming the file and the key on any mistake.
     """
-    file = Path(path)
+    file = find_bundled("pipelines", path, "pipeline")
     data = load_toml(file)
     design = design_from_mapping(data, str(file), file.resolve().parent)
     tables = parse_stage_tables(data, str(file))
