@@ -432,6 +432,59 @@ def test_real_port_asks_before_streaming(
         assert after.startswith(journal) and len(after) > len(journal)
 
 
+@pytest.mark.parametrize(
+    ("flags", "answers", "refusal"),
+    [
+        (["--yes"], "", "refusing to cut a partial board with --yes: "),
+        ([], "n\n", "not confirmed; nothing was sent"),
+        ([], "y\ny\n", None),  # the partial board, then the usual question
+    ],
+)
+def test_real_port_cuts_a_board_the_envelope_cuts_short_only_when_asked(
+    tmp_path, monkeypatch, capsys, flags, answers, refusal
+):
+    """A board overhanging the envelope: --yes refuses it, a person is asked about it."""
+    import io
+    import json
+
+    import scratchfab.cli.run_cmd as run_cmd
+    import scratchfab.pipeline.runner as runner
+    from scratchfab.bundled import bundled_dir
+
+    profile = (bundled_dir("machine_profiles") / "grbl-3018-diamond.toml").read_text()
+    old = "offset_mm = [-220.0, -150.0]"
+    assert old in profile
+    (tmp_path / "overhang.toml").write_text(profile.replace(old, "offset_mm = [-15.0, -150.0]"))
+    path = write_pipeline(
+        tmp_path, edits={'machine = "grbl-3018-diamond"': 'machine = "overhang.toml"'}
+    )
+    job = tmp_path / "job"
+    main(["run", str(path), "--out", str(job), "--until", "export"])
+    stats = json.loads((job / "toolpath" / "toolpath.json").read_text())["statistics"]
+    assert stats["outside_count"] > 0 and stats["clipped_count"] > 0  # the x <= 0 half
+    record = tmp_path / "received.jsonl"
+    real = _real_port_pipeline(path, record, monkeypatch)
+    monkeypatch.setattr(runner, "is_emulator", lambda port: False)  # as a real machine
+    monkeypatch.setattr(run_cmd, "_interactive", lambda: True)
+    monkeypatch.setattr("sys.stdin", io.StringIO(answers))
+    capsys.readouterr()
+    code = 0
+    try:
+        main(["run", str(real), "--out", str(job), *flags])
+    except SystemExit as exc:
+        code = exc.code
+    got = capsys.readouterr()
+    assert "Traceback" not in got.err
+    received = record.read_text() if record.is_file() else ""
+    if refusal is not None:
+        assert code == 2 and refusal in got.err
+        assert f"{stats['outside_count']} of {stats['input_count']} scratches" in got.err
+        assert '"rx"' not in received and not (job / "stream" / "journal.jsonl").exists()
+    else:
+        assert code == 0 and "Cut a partial board?" in got.err
+        assert '"rx"' in received and (job / "stream" / "journal.jsonl").is_file()
+
+
 def test_pipeline_out_is_relative_to_the_pipeline_file(tmp_path, monkeypatch):
     folder = tmp_path / "boards"
     path = write_pipeline(folder)

@@ -47,7 +47,10 @@ def _confirm(question: str) -> bool:
 @click.option("--until", type=click.Choice(STAGES), help="Stop after this stage.")
 @click.option("--force", is_flag=True, help="Rerun every stage (streaming included).")
 @click.option(
-    "--yes", is_flag=True, help="Do not ask for confirmation before streaming to a machine."
+    "--yes",
+    is_flag=True,
+    help="Do not ask for confirmation before streaming to a machine (a board the envelope "
+    "cuts short is then refused).",
 )
 def run(
     pipeline: str,

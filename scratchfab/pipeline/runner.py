@@ -227,6 +227,8 @@ class _Stages:
 
         s = self.pipe.stream
         assert s.port is not None
+        if not is_emulator(s.port):
+            self._ask_before_a_partial_board()
         run_stream_job(
             self.job,
             port=s.port,
@@ -241,6 +243,35 @@ class _Stages:
             else lambda _: True,
         )
         return self._relative(self.layout.journal)
+
+
+    def _ask_before_a_partial_board(self) -> None:
+        """A board the envelope cuts short goes to a real machine only when a person says so.
+
+        The toolpath stage only warns (its preview shows what is lost); under ``--yes``
+        nobody reads that, and the machine would cut a board that cannot be finished.
+
+        Raises:
+            ScratchfabError: Under ``--yes``, or when the person says no; nothing is sent.
+        """
+        from scratchfab.toolpath import Toolpath
+
+        stats = Toolpath.load(self.layout.toolpath_json).stats
+        outside, clipped = int(stats["outside_count"]), int(stats["clipped_count"])
+        if not outside and not clipped:
+            return
+        lost = (
+            f"{outside} of {stats['input_count']} scratches lie outside the machine's envelope "
+            f"and {clipped} are clipped to it ({self.layout.toolpath_preview})"
+        )
+        if self.confirm is None:
+            raise ScratchfabError(
+                f"[stream] refusing to cut a partial board with --yes: {lost}; fix the "
+                "profile's [board] offset_mm or [envelope], or run without --yes to be "
+                "asked; nothing was sent"
+            )
+        if not self.confirm(f"Cut a partial board? {lost}"):
+            raise ScratchfabError("not confirmed; nothing was sent")
 
 
 def run_pipeline(
