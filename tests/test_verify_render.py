@@ -20,6 +20,7 @@ from scratchfab.model.scratches import ScratchSet
 from scratchfab.render.layout import write_render_layout
 from scratchfab.render.renderer import render_scratches
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
+from scratchfab.verify.scene import render_view, samples_per_pass, scene_dict, use_variant
 from scratchfab.verify.sweep import sweep_path
 from scratchfab.verify.verify import (
     DEFAULT_SPP,
@@ -575,3 +576,84 @@ def test_one_view_sweep_turns_the_azimuth_across_that_view():
     for f in frames:
         assert f.view.fov == pytest.approx(view.fov)
         np.testing.assert_allclose(design.light_for(f.view), design.light_for(view))
+
+
+@pytest.fixture
+def thread_count():
+    """Set Dr.Jit's CPU thread count inside a test; the old count comes back afterwards."""
+    import drjit as dr
+
+    before = dr.thread_count()
+    yield dr.set_thread_count
+    dr.set_thread_count(before)
+
+
+@pytest.mark.parametrize("passes", [1, 3])
+def test_render_view_is_mitsubas_render_without_its_thread_dependent_rounding(
+    half_job, thread_count, passes
+):
+    """Mitsuba's own samples, summed in a fixed order: equal to ``mi.render`` up to float32
+    rounding, and bit for bit the same whatever the thread count.
+
+    132 samples per pixel (an 11 x 12 multi-jitter grid) put some pixels' samples in two
+    work blocks of Dr.Jit's thread pool, where the film's atomic adds race.
+    """
+    _, design, scratches, _, _ = half_job
+    mi = use_variant("llvm")
+    view = design.views[0]
+    spp = 132
+    tables = scene_dict(design, scratches, view, spp)
+    if passes > 1:
+        tables["integrator"]["samples_per_pass"] = spp // passes
+    scene = mi.load_dict(tables)
+    thread_count(1)
+    single = render_view(scene, spp, seed=5, max_wavefront=view.width * view.height * spp // passes)
+    reference = np.array(mi.render(scene, spp=spp, seed=5), np.float64).reshape(single.shape)
+    thread_count(2)
+    for _ in range(3):
+        again = render_view(
+            scene, spp, seed=5, max_wavefront=view.width * view.height * spp // passes
+        )
+        assert again.tobytes() == single.tobytes()
+    assert single.shape == (view.height, view.width) and single.max() > 0
+    assert np.abs(single - reference).max() <= 1e-5 * reference.max()
+    other_seed = render_view(scene, spp, seed=6)
+    assert np.abs(other_seed - reference).max() > 1e-3 * reference.max()
+
+
+def test_samples_per_pass_is_the_largest_divisor_that_fits():
+    for pixels, spp, limit in [(6400, 2048, 1 << 24), (6400, 132, 6400 * 40), (7, 97, 100)]:
+        per_pass = samples_per_pass(pixels, spp, limit)
+        fits = [d for d in range(1, spp + 1) if spp % d == 0 and pixels * d <= limit]
+        assert per_pass == max(fits, default=1)
+
+
+def test_verify_outputs_are_byte_identical_across_runs_and_thread_counts(
+    half_job, tmp_path, thread_count
+):
+    """SPEC's determinism: the same board and seed give the same files (bar timings)."""
+    _, design, scratches, _, _ = half_job
+    targets, cross = design_targets(design)
+    settings = VerifySettings(spp=264, seed=4)
+    outs = []
+    for i, threads in enumerate((2, 1, 2)):
+        thread_count(threads)
+        out = tmp_path / f"run{i}"
+        run_verify(design, scratches, out, settings, targets=targets, cross=cross)
+        outs.append(out)
+    names = sorted(str(p.relative_to(outs[0])) for p in outs[0].rglob("*") if p.is_file())
+    assert {"left.npy", "left.png", "diff/left.png", "metrics.json"} <= set(names)
+
+    def without_timings(value):
+        if isinstance(value, dict):
+            return {k: without_timings(v) for k, v in value.items() if k != "seconds"}
+        return value
+
+    for out in outs[1:]:
+        assert sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()) == names
+        for name in names:
+            if name == "metrics.json":
+                first = without_timings(json.loads((outs[0] / name).read_text()))
+                assert without_timings(json.loads((out / name).read_text())) == first
+            else:
+                assert (out / name).read_bytes() == (outs[0] / name).read_bytes(), name

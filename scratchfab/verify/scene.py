@@ -6,10 +6,16 @@ tx = ty W / H), film row 0 at the top and column 0 at the left (Mitsuba's camera
 has +x to the left, which puts the image's left edge on the SPEC's -r side), and a box
 reconstruction filter of radius 1/2 so every sample lands in exactly its own pixel and a
 pixel is the plain average of the radiance over its own square.
+
+Renders are bit-reproducible: :func:`render_view` evaluates each sample's radiance in
+Dr.Jit (lanes are independent, so the thread count does not matter) and sums a pixel's
+samples in float64 in a fixed order, where ``mi.render`` adds them into the film with
+atomic float32 additions whose order depends on the thread schedule.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -22,6 +28,10 @@ from scratchfab.model.scratches import ScratchSet
 
 #: The sampler: multi-jittered stratification of the pixel (best of Mitsuba's at thin bands).
 SAMPLER = "multijitter"
+#: Most samples one kernel launch of :func:`render_view` evaluates (4 bytes each are kept
+#: until summed); more samples per pixel are taken in passes, as Mitsuba's
+#: ``samples_per_pass`` does.
+MAX_WAVEFRONT = 1 << 24
 
 
 def bad_sun_direction(direction: tuple[float, ...]) -> str | None:
@@ -136,6 +146,84 @@ def sensor(view: View, spp: int, sampler: str | None = None) -> dict:
         },
         "sampler": {"type": sampler or SAMPLER, "sample_count": spp},
     }
+
+
+def samples_per_pass(pixels: int, spp: int, limit: int = MAX_WAVEFRONT) -> int:
+    """The largest divisor of ``spp`` whose pass of ``pixels`` samples each fits ``limit``."""
+    best = 1
+    for d in range(1, math.isqrt(spp) + 1):
+        if spp % d == 0:
+            for c in (d, spp // d):
+                if pixels * c <= limit:
+                    best = max(best, c)
+    return best
+
+
+def render_view(scene: Any, spp: int, seed: int, max_wavefront: int = MAX_WAVEFRONT) -> np.ndarray:
+    """Render the scene's sensor like ``mi.render(scene, spp=spp, seed=seed)``, reproducibly.
+
+    The samples (positions, rays, sampler state) are Mitsuba's own, so the image is
+    ``mi.render``'s up to rounding: each pixel is the float64 mean of its samples'
+    luminance, summed in a fixed order. Passes of ``samples_per_pass`` samples per pixel
+    keep a launch within ``max_wavefront`` samples (the sampler's stratification spans
+    all passes).
+
+    Args:
+        scene: A loaded Mitsuba scene with a sampling integrator and a box-filtered film.
+        spp: Samples per pixel (rounded up as the sampler asks, as ``mi.render`` does).
+        seed: The sampler's seed.
+        max_wavefront: Most samples per kernel launch.
+
+    Returns:
+        (H, W) float64 image.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    sensor = scene.sensors()[0]
+    film = sensor.film()
+    if not film.rfilter().is_box_filter() or film.sample_border():
+        raise ValueError("render_view needs a box filter and sample_border = false")
+    width, height = (int(v) for v in film.crop_size())
+    pixels = width * height
+    sampler = sensor.sampler().clone()
+    sampler.set_sample_count(spp)
+    spp = sampler.sample_count()  # the multi-jitter sampler rounds up to its grid
+    per_pass = samples_per_pass(pixels, spp, max_wavefront)
+    sampler.set_samples_per_wavefront(per_pass)
+    sampler.seed(seed, pixels * per_pass)
+    integrator = scene.integrator()
+
+    idx = dr.arange(mi.UInt32, pixels * per_pass) // dr.opaque(mi.UInt32, per_pass)
+    row = idx // width
+    ox, oy = (int(v) for v in film.crop_offset())
+    pos = mi.Vector2f(mi.Float(idx - row * width + ox), mi.Float(row + oy))
+    scale = mi.ScalarVector2f(1.0 / width, 1.0 / height)
+    shift = mi.ScalarVector2f(-ox / width, -oy / height)
+    total = np.zeros(pixels, dtype=np.float64)
+    passes = spp // per_pass
+    with dr.suspend_grad():
+        for k in range(passes):
+            sample_pos = dr.fma(pos + sampler.next_2d(), scale, shift)
+            aperture = mi.Point2f(0.5)
+            if sensor.needs_aperture_sample():
+                aperture = sampler.next_2d()
+            time = mi.Float(sensor.shutter_open())
+            if sensor.shutter_open_time() > 0:
+                time += sampler.next_1d() * sensor.shutter_open_time()
+            wavelength = sampler.next_1d() if mi.is_spectral else mi.Float(0.0)
+            ray, weight = sensor.sample_ray_differential(time, wavelength, sample_pos, aperture)
+            ray.scale_differential(1.0 / math.sqrt(spp))
+            value, _, _ = integrator.sample(scene, sampler, ray, sensor.get_medium())
+            value = weight * value
+            lum = mi.luminance(value) if mi.is_rgb else value[0]
+            if k + 1 < passes:
+                sampler.advance()
+                sampler.schedule_state()
+            dr.eval(lum)
+            samples = np.asarray(lum, dtype=np.float32).reshape(pixels, per_pass)
+            total += samples.sum(axis=1, dtype=np.float64)
+    return (total / spp).reshape(height, width)
 
 
 def sky_emitter(design: Design, sky: Sky) -> dict:

@@ -37,7 +37,7 @@ from scratchfab.model.job import (
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.verify.diffmap import write_diff_map
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
-from scratchfab.verify.scene import Sky, board_bsdf, scene_dict, use_variant
+from scratchfab.verify.scene import Sky, board_bsdf, render_view, scene_dict, use_variant
 from scratchfab.verify.sweep import nearest_frames, sweep_gif, sweep_path
 
 #: Samples per pixel by default: about 1 % noise where a pixel's footprint spans up to
@@ -255,8 +255,7 @@ class BoardRenderer:
         batches: list[np.ndarray] = []
         limit = max(2, (MAX_SPP_FACTOR * spp) // half)
         while True:
-            img = mi.render(scene, spp=half, seed=(seed + len(batches)) % (1 << 32))
-            batches.append(np.array(img, dtype=np.float64).reshape(view.height, view.width))
+            batches.append(render_view(scene, half, (seed + len(batches)) % (1 << 32)))
             if len(batches) < 2:
                 continue
             mean, var = _batch_stats(batches)
