@@ -195,18 +195,27 @@ P3_COLORANTS = (
 P3_LUMA = (0.2289746, 0.6917385, 0.0792869)
 
 
+def opened(path: Path) -> Image.Image:
+    """The decoded image, its file closed (Pillow's own reading, for references)."""
+    with Image.open(path) as im:
+        im.load()
+        return im
+
+
 def _s15(v: float) -> bytes:
     return struct.pack(">i", round(v * 65536))
 
 
-def icc(space: bytes, tags: dict[bytes, bytes], device_class: bytes = b"mntr") -> bytes:
+def icc(
+    space: bytes, tags: dict[bytes, bytes], device_class: bytes = b"mntr", pcs: bytes = b"XYZ "
+) -> bytes:
     """A hand-built ICC v2.1 profile (ICC.1:2001-04 header and tag table, no description)."""
     start = 128 + 4 + 12 * len(tags)
     table, body = b"", b""
     for sig, data in tags.items():
         table += sig + struct.pack(">II", start + len(body), len(data))
         body += data + bytes(-len(data) % 4)
-    head = struct.pack(">I4xI", start + len(body), 0x02100000) + device_class + space + b"XYZ "
+    head = struct.pack(">I4xI", start + len(body), 0x02100000) + device_class + space + pcs
     head += bytes(12) + b"acsp" + bytes(28) + b"".join(_s15(c) for c in D50)
     return head + bytes(128 - len(head)) + struct.pack(">I", len(tags)) + table + body
 
@@ -262,7 +271,7 @@ def test_gray_gamma_profiles_decode_by_their_curve(tmp_path, gamma, ext):
     path = tmp_path / f"g.{ext}"
     extra = {"quality": 100, "subsampling": 0} if ext == "jpg" else {}
     Image.fromarray(codes).save(path, icc_profile=gray_icc(curv_gamma(gamma)), **extra)
-    stored = np.asarray(Image.open(path), dtype=np.float64) / 255.0  # JPEG: what it decodes to
+    stored = np.asarray(opened(path), dtype=np.float64) / 255.0  # JPEG: what it decodes to
     got = load_image(path)
     np.testing.assert_allclose(got, stored ** gamma_of(gamma), rtol=0, atol=3e-5)
     if gamma != 2.2:  # and not what sRGB decoding would give
@@ -283,7 +292,7 @@ def test_float_tiff_with_gray_profile(tmp_path):
     values = np.linspace(0.0, 1.0, 1001, dtype=np.float32)[None, :]
     path = tmp_path / "f.tif"
     Image.fromarray(values, mode="F").save(path, icc_profile=gray_icc(curv_gamma(1.8)))
-    assert Image.open(path).mode == "F" and "icc_profile" in Image.open(path).info
+    assert opened(path).mode == "F" and "icc_profile" in opened(path).info
     got = load_image(path)
     np.testing.assert_allclose(got[0], values[0].astype(float) ** gamma_of(1.8), atol=3e-5)
 
@@ -334,7 +343,7 @@ def test_rgb_gamma_profile_with_srgb_primaries(tmp_path):
     Image.fromarray(arr).save(
         path, quality=100, subsampling=0, icc_profile=rgb_icc(curv_gamma(1.8), srgb_colorants())
     )
-    stored = np.asarray(Image.open(path).convert("RGB"), dtype=np.float64) / 255.0
+    stored = np.asarray(opened(path).convert("RGB"), dtype=np.float64) / 255.0
     expected = (stored ** gamma_of(1.8)) @ LUMA
     got = load_image(path)
     # littleCMS writes 8-bit sRGB: half a code is at most 0.0045 of linear full scale.
@@ -374,7 +383,7 @@ def test_png_gama_decodes_with_its_exponent(tmp_path, bits):
     for gama, exponent in ((100000, 1.0), (45455, 100000 / 45455), (55556, 100000 / 55556)):
         path = tmp_path / f"g{gama}_{bits}.png"
         png_with_chunks(path, Image.fromarray(codes), gAMA=struct.pack(">I", gama))
-        assert Image.open(path).info["gamma"] == gama / 100000
+        assert opened(path).info["gamma"] == gama / 100000
         got = load_image(path)
         np.testing.assert_allclose(got[0], (codes[0] / top) ** exponent, rtol=0, atol=1e-12)
 
@@ -415,6 +424,47 @@ def test_png_chrm_primaries_set_the_luminance_weights(tmp_path):
     np.testing.assert_allclose(load_image(tmp_path / "d.png")[0], 200 / 255, atol=1e-9)
 
 
+def cmyk_k_only_icc() -> bytes:
+    """A CMYK printer profile whose lut8 A2B0 makes L* = 100 (1 - K), a* = b* = 0.
+
+    2-point grid per ink (C slowest, K fastest), identity input and output tables.
+    """
+    grid = np.zeros((2, 2, 2, 2, 3), np.uint8)
+    grid[..., 0, 0] = 255  # no black ink: L* = 100
+    grid[..., 1:] = 128  # a* = b* = 0
+    identity = np.arange(256, dtype=np.uint8).tobytes()
+    matrix = b"".join(_s15(float(i == j)) for i in range(3) for j in range(3))
+    a2b0 = b"mft1" + bytes(4) + bytes([4, 3, 2, 0]) + matrix
+    a2b0 += identity * 4 + grid.tobytes() + identity * 3
+    return icc(b"CMYK", {b"wtpt": xyz_tag(D50), b"A2B0": a2b0}, b"prtr", pcs=b"Lab ")
+
+
+@needs_lcms
+def test_cmyk_jpeg_with_profile_goes_through_its_table(tmp_path):
+    k = np.arange(0, 256, 17, dtype=np.uint8)
+    cmyk = np.zeros((4, len(k), 4), np.uint8)
+    cmyk[..., 3] = k
+    path = tmp_path / "swop.tif"
+    Image.fromarray(cmyk, mode="CMYK").save(path, icc_profile=cmyk_k_only_icc())
+    lstar = 100.0 * (1.0 - k / 255.0)
+    # CIE 1976 L* back to relative luminance Y.
+    expected = np.where(lstar > 8.0, ((lstar + 16.0) / 116.0) ** 3, lstar / 903.3)
+    got = load_image(path)
+    np.testing.assert_allclose(got, np.repeat(expected[None], 4, 0), atol=0.005)
+    naive = srgb_to_linear(1.0 - k / 255.0)  # what Pillow's own CMYK conversion gives
+    assert np.abs(got[0] - naive).max() > 0.02
+
+
+@needs_lcms
+def test_gray_with_alpha_and_profile(tmp_path):
+    la = np.zeros((1, 3, 2), np.uint8)
+    la[0, :, 0] = (255, 128, 128)
+    la[0, :, 1] = (255, 255, 51)
+    Image.fromarray(la, mode="LA").save(tmp_path / "la.png", icc_profile=gray_icc(curv_gamma(1.0)))
+    got = load_image(tmp_path / "la.png")[0]
+    np.testing.assert_allclose(got, [1.0, 128 / 255, 128 / 255 * 51 / 255], atol=3e-5)
+
+
 def _corrupt_iccp(path: Path) -> None:
     # Pillow does not write an iCCP chunk from pnginfo: splice one in after IHDR by hand.
     buf = io.BytesIO()
@@ -423,7 +473,7 @@ def _corrupt_iccp(path: Path) -> None:
     body = b"iCCP" + b"bad\x00\x00this is not zlib data"
     chunk = struct.pack(">I", len(body) - 4) + body + struct.pack(">I", zlib.crc32(body))
     path.write_bytes(png[:33] + chunk + png[33:])  # 8-byte signature + 25-byte IHDR
-    assert "icc_profile" in Image.open(path).info
+    assert "icc_profile" in opened(path).info
 
 
 def _jpeg_with_icc(data: bytes, mode: str = "L"):
