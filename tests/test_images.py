@@ -507,6 +507,11 @@ BAD_COLOUR = [
         _jpeg_with_icc(icc(b"RGB ", {b"wtpt": xyz_tag(D50)}), "RGB"),
         "littleCMS cannot use",
     ),
+    (
+        "lab.tif",
+        lambda p: Image.new("LAB", (4, 4)).save(p, icc_profile=icc(b"Lab ", {}, b"spac")),
+        "its pixels are LAB",
+    ),
     ("bad_iccp.png", _corrupt_iccp, "iCCP chunk (embedded ICC profile) is corrupt"),
     (
         "gamma0.png",
@@ -525,7 +530,7 @@ BAD_COLOUR = [
 
 @pytest.mark.parametrize(("name", "make", "message"), BAD_COLOUR)
 def test_bad_colour_declarations_fail_with_one_line(tmp_path, name, make, message):
-    if name.endswith(".jpg") and not features.check("littlecms2"):
+    if name.endswith((".jpg", ".tif")) and not features.check("littlecms2"):
         pytest.skip("Pillow lacks littleCMS")
     path = tmp_path / name
     make(path)

@@ -107,7 +107,7 @@ def _kind(image: Image.Image) -> str:
         return "grayscale"
     if image.mode == "CMYK":
         return "CMYK"
-    return "RGB"
+    return "RGB" if image.mode in _RGB_MODES else image.mode
 
 
 # -- ICC profiles -----------------------------------------------------------------------
@@ -174,7 +174,12 @@ def _embedded_profile(image: Image.Image, file: Path) -> ImageCmsProfile | None:
         ) from None
     space = profile.profile.xcolor_space.strip()
     kind = _kind(image)
-    expected = _SPACE_OF_KIND[kind]
+    expected = _SPACE_OF_KIND.get(kind)
+    if expected is None:
+        raise ConfigError(
+            f"{file}: has an embedded ICC profile but its pixels are {kind}; expected an RGB, "
+            "CMYK or grayscale image with a profile (re-save it as one)"
+        )
     device_class = profile.profile.device_class.strip()
     if device_class in ("link", "abst", "nmcl"):
         raise ConfigError(
