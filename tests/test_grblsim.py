@@ -362,3 +362,29 @@ def test_wco_field_after_reset_and_after_a_change():
         assert "[G54:0.000,0.000,0.000]" in _cmd(port, b"$#\n")
     finally:
         port.close()
+
+
+@pytest.mark.parametrize("laser", [0, 1])
+def test_which_spindle_lines_wait_for_the_planner(laser):
+    """Grbl 1.1 ``gc_execute_line``: a spindle state change waits for the planner to empty
+    even in laser mode; an S change with motion waits only with ``$32=0``; a repeated M5
+    and M1 (ignored by Grbl 1.1) never wait."""
+    sim = GrblSim(SimOptions(time_scale=0.2, settings={32: laser}))
+    sim.start()
+    lines = ["G21G90G1F600", "M3S100", "G1X5", "G1X10S200", "M5", "G1X0", "M5", "M1", "G1X1"]
+    sim.host_write("".join(f"{ln}\n" for ln in lines).encode())
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and sum(e["ev"] == "exec" for e in sim.record) < 4:
+        time.sleep(0.01)
+    sim.close()
+    n_of = {e["text"]: e["n"] for e in reversed(sim.record) if e["ev"] == "rx"}  # first of each
+    resp = {e["n"]: e["t"] for e in sim.record if e["ev"] == "resp"}
+    done = {e["n"]: e["t"] for e in sim.record if e["ev"] == "exec"}
+    assert len(done) == 4 and all(e["r"] == "ok" for e in sim.record if e["ev"] == "resp")
+    # the S change with motion: waits for X5 to finish only outside laser mode
+    assert (resp[n_of["G1X10S200"]] >= done[n_of["G1X5"]]) == (laser == 0)
+    assert resp[n_of["M5"]] >= done[n_of["G1X10S200"]]  # a state change: always waits
+    second_m5 = max(e["n"] for e in sim.record if e["ev"] == "rx" and e["text"] == "M5")
+    assert resp[second_m5] < done[n_of["G1X0"]]  # M5 again: no change, no wait
+    assert resp[n_of["M1"]] < done[n_of["G1X0"]]  # M1 ignored: no wait, no pause
+    assert not any(e["ev"] == "state" and e["state"].startswith("Hold") for e in sim.record)

@@ -860,7 +860,7 @@ def test_executed_guess_distances(tmp_path):
     job.write_text("G21G90\nG1X1F100\nG1X2\nG1X3\nG1X4\n")
     prog = load_program(job)
     s = Streamer.__new__(Streamer)
-    s.info = SimpleNamespace(planner_blocks=15)
+    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None)
     s._program = prog
     s._acked_blocks = [0, 1, 2, 3, 4]
     s._acks_at_status = 5
@@ -877,7 +877,7 @@ def test_executed_guess_ignores_blocks_acknowledged_after_the_report(tmp_path):
     job.write_text("G21G90\n" + "".join(f"G1X{k}F100\n" for k in range(1, 31)) + "G1X0\n")
     prog = load_program(job)
     s = Streamer.__new__(Streamer)
-    s.info = SimpleNamespace(planner_blocks=15)
+    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None)
     s._program = prog
     s._acked_blocks = list(range(len(prog.blocks)))
     s._acks_at_status = 2
@@ -2424,3 +2424,95 @@ def test_a_brown_out_flushes_the_lines_already_on_the_way(tmp_path):
     flush = next(e["t"] for e in record[brown_out:] if e["ev"] == "reset" and e["command"])
     assert all(e["t"] == flush for e in record[brown_out:] if e["ev"] == "partial")
     assert read_journal(tmp_path / "j.jsonl")[-1]["ev"] == "stop"
+
+
+def _laser_job(path: Path, strokes: int, seed: int = 5) -> None:
+    """A laser job that powers each cut with its own S (no M3/M5 between cuts)."""
+    rng = np.random.default_rng(seed)
+    lines = ["G21 G90 G94", "M4 S0", "G1 F3000"]
+    for k in range(strokes):
+        x, y = np.round(rng.uniform(-30, 30, 2), 3)
+        lines += [f"G0 X{x:.3f} Y{y:.3f}", f"G1 X{x + 4:.3f} S{700 + 100 * (k % 2)}"]
+    lines += ["M5", "M2"]
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _executed_blocks(record) -> set[int]:
+    """Program blocks (in received order) whose motion the emulator finished."""
+    block_of = {}
+    for e in record:
+        if e["ev"] == "rx" and e["g"]:
+            block_of[e["n"]] = len(block_of)
+    return {block_of[e["n"]] for e in record if e["ev"] == "exec"}
+
+
+@pytest.mark.parametrize("laser", [1, 0])
+def test_laser_mode_s_changes_are_not_taken_as_sync_points(tmp_path, laser):
+    """GRBL in laser mode ($32=1) moves on through an S change in a motion block, so a
+    killed sender's journal may count as run only what surely ran: every motion block
+    counted done was executed by the emulator, which models $32."""
+    job = tmp_path / "laser.gcode"
+    _laser_job(job, 40)
+    prog = load_program(job)
+    journal = tmp_path / "j.jsonl"
+    port = open_port(
+        f"grblsim://?time_scale=0.05&usb_powered=1&$32={laser}&$110=5000&$111=5000", 115200
+    )
+    streamer = Streamer(port, FAST)
+    streamer.connect()
+    assert streamer.info.laser_mode is bool(laser)
+    j = Journal(journal).open()
+
+    def die(p):
+        if p.acked > 45:
+            port.sim.drop_link()  # the board loses power with the cable
+            raise SystemExit(137)
+
+    streamer.on_progress = die
+    streamer._stop_on_escape = lambda exc: None  # type: ignore[method-assign]  # SIGKILL
+    with pytest.raises(SystemExit):
+        streamer.stream(prog, j)
+    j.close()
+    port.close()
+    events = read_journal(journal)
+    assert events[0]["laser"] is bool(laser)
+    done = done_blocks(events, prog.sha256, journal, program=prog)
+    ran = _executed_blocks(port.sim.record)
+    assert {i for i in done if prog.blocks[i].motion} <= ran
+    acked = [e["i"] for e in events if e["ev"] == "ack"]
+    if not laser:  # every cut syncs: at most the block after the last acked cut is unsure
+        assert len(set(acked) - done) <= 3
+
+
+@pytest.mark.parametrize("laser", [0, 1])
+def test_sync_blocks_are_the_ones_the_emulator_waits_at(tmp_path, laser):
+    """A block counted as a sync point must make GRBL wait for the moves before it: its
+    ``ok`` comes after the previous move ran. With ``$32=0`` the two agree exactly; in
+    laser mode the sender counts no S change (GRBL moves through those in moving blocks)."""
+    tests = ["M3 S100", "M3", "S200", "G1 X3 S300", "M8", "M8", "M9", "M9", "M1", "G4 P0",
+             "M4", "M5", "M5", "S50", "M7", "M9"]  # fmt: skip
+    lines = ["G21 G90 G1 F600"]
+    for k, text in enumerate(tests):
+        lines += [f"G1 X{10 * (k % 2) + 5}", text]
+    job = tmp_path / "sync.gcode"
+    job.write_text("\n".join(lines) + "\n")
+    prog = load_program(job)
+    from scratchfab.machine.grblsim import GrblSim
+
+    sim = GrblSim(SimOptions(time_scale=0.05, settings={32: laser}))
+    sim.start()
+    deadline = time.monotonic() + 20
+    for b in prog.blocks:  # send-response: the RX buffer never overflows
+        sim.host_write(b.text.encode() + b"\n")
+        while time.monotonic() < deadline and sum(e["ev"] == "resp" for e in sim.record) <= b.index:
+            time.sleep(0.002)
+    sim.close()
+    resp = [e["t"] for e in sim.record if e["ev"] == "resp"]
+    done = {e["n"]: e["t"] for e in sim.record if e["ev"] == "exec"}
+    assert len(resp) == len(prog.blocks) and len(done) == len(tests) + 1
+    for b in prog.blocks[2::2]:
+        waited = resp[b.index] >= done[b.index]  # rx n is 1-based: n == index of the move
+        counted = b.sync or (laser == 0 and b.speed_sync)
+        assert not counted or waited, b.text
+        if laser == 0:
+            assert counted == waited, b.text

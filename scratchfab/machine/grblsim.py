@@ -12,7 +12,8 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   gets two ``ok``), and answers ``error:11`` for lines over 79 characters;
 - a 15-block planner: ``ok`` means "queued", so it lags while the planner is full; motion
   takes distance / feed (G0 at the ``$110``-``$112`` rates) times ``time_scale``; spindle
-  changes, dwells, M0/M2/M30 and G10 wait for the planner to empty;
+  and coolant changes, dwells, M0/M2/M30 and G10 wait for the planner to empty, except an
+  S change in a block that moves under laser mode (``$32=1``);
 - ``$`` commands with their state rules (``error:8``/``error:9``), check mode ``$C`` with the
   soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset,
   feed hold ``Hold:1`` -> ``Hold:0`` and resume.
@@ -590,7 +591,7 @@ class GrblSim:
             self._plan(t, act, p.line)
             p.index += 1
             return True
-        laser_free = act.kind == "spindle" and bool(self.settings[32])
+        laser_free = act.kind == "spindle" and act.free
         if not laser_free and (self._planner or self.state in ("Run", "Jog")):
             return False
         if act.kind == "spindle":

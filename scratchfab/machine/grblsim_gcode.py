@@ -59,7 +59,8 @@ class Action:
 
     ``kind`` is ``motion`` (``target`` machine mm, ``rate`` mm/min, ``rapid``), ``dwell``
     (``seconds``), ``spindle``, ``coolant``, ``sync`` (wait for the planner to empty),
-    ``pause`` (M0/M1) or ``end`` (M2/M30).
+    ``pause`` (M0) or ``end`` (M2/M30). Spindle and coolant actions wait for the planner
+    to empty, except a spindle one marked ``free``.
     """
 
     kind: str
@@ -69,6 +70,7 @@ class Action:
     seconds: float = 0.0
     spindle: str = "M5"
     speed: float = 0.0
+    free: bool = False  # a spindle speed change that does not wait for the planner
 
 
 @dataclass
@@ -376,13 +378,24 @@ def interpret(line: str, state: ModalState, settings: Settings) -> Outcome:
             soft = True
         actions.append(Action("motion", target=target, rapid=rapid, rate=rate))
 
+    # gc_execute_line steps 4, 7 and 8: only a change acts (and syncs). An S change with
+    # the spindle on syncs too, except in laser mode ($32=1) in a block that moves
+    # (GC_PARSER_LASER_ISMOTION); a spindle state change syncs even in laser mode.
     if spindle is not None:
         new.spindle = spindle
-    if spindle is not None or ("S" in values and new.spindle != "M5"):
-        actions.append(Action("spindle", spindle=new.spindle, speed=new.spindle_speed))
+    speed_change = "S" in values and values["S"] != state.spindle_speed and state.spindle != "M5"
+    if new.spindle != state.spindle or speed_change:
+        free = (
+            new.spindle == state.spindle
+            and settings.laser_mode
+            and axis_command == "motion"
+            and bool(axis_words)
+        )
+        actions.append(Action("spindle", spindle=new.spindle, speed=new.spindle_speed, free=free))
     if coolant or coolant_off:
         new.coolant = frozenset() if coolant_off else frozenset(coolant | set(state.coolant))
-        actions.append(Action("coolant"))
+        if new.coolant != state.coolant:
+            actions.append(Action("coolant"))
     if nonmodal == "G4":
         actions.append(Action("dwell", seconds=values["P"]))
     if nonmodal == "G10":
@@ -424,7 +437,7 @@ def interpret(line: str, state: ModalState, settings: Settings) -> Outcome:
     if unused:
         raise GcodeError(36)
 
-    if stop in ("M0", "M1"):
+    if stop == "M0":  # Grbl 1.1 parses M1 (optional stop) and ignores it
         actions.append(Action("pause"))
     elif stop in ("M2", "M30"):
         actions.append(Action("end"))

@@ -199,6 +199,12 @@ class ControllerInfo:
     wco: tuple[float, float, float] | None = None  # work offset in mm (None: unknown)
     wco_source: str = ""  # how it was read: "$#" or "status"
 
+    @property
+    def laser_mode(self) -> bool | None:
+        """GRBL's laser mode ``$32``; None when ``$$`` did not tell (taken as maybe on)."""
+        value = self.settings.get(32)
+        return None if value is None else bool(value)
+
 
 @dataclass
 class StreamOptions:
@@ -618,6 +624,7 @@ class Streamer:
             preamble,
             self.info.planner_blocks,
             name if isinstance(name, str) else None,
+            self.info.laser_mode,
         )
         self._journal = journal
         self._program = program
@@ -980,8 +987,9 @@ class Streamer:
         """The last acknowledged block that surely ran, judged from the position at the stop.
 
         The controller may still hold up to ``planner_blocks`` motion blocks (plus one line
-        being parsed) after the last acknowledgement; an acknowledged sync block (M3/M5, G4,
-        ...) means everything before it ran. The first candidate block whose segment contains
+        being parsed) after the last acknowledgement; an acknowledged sync block (a spindle
+        change, G4, ...; an S change only with laser mode ``$32`` known off) means
+        everything before it ran. The first candidate block whose segment contains
         the hold position is the interrupted one; without a match the earliest candidate is
         taken as interrupted (a stroke is cut again rather than skipped). Only blocks
         acknowledged before the position report can match it: a later block passing
@@ -991,7 +999,7 @@ class Streamer:
         if not acked:
             return -1
         blocks = self._program.blocks
-        surely = last_surely_run(blocks, acked, self.info.planner_blocks)
+        surely = last_surely_run(blocks, acked, self.info.planner_blocks, self.info.laser_mode)
         window = [i for i in acked if i > surely]
         if wpos is None or self._acks_at_status == 0:
             return surely

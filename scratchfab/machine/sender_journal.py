@@ -140,11 +140,13 @@ class Journal:
         preamble: Sequence[str] = (),
         planner_blocks: int = PLANNER_BLOCKS,
         port: str | None = None,
+        laser_mode: bool | None = None,
     ) -> None:
         """Begin a run of ``program`` at block ``start`` (a fresh one, or a resume).
 
         ``port`` (the device or URL streamed to) lets a reader tell the emulator from a
-        machine.
+        machine; ``laser_mode`` is GRBL's ``$32`` (None: not read), which decides whether an
+        S change is a sync point (:func:`last_surely_run`).
         """
         self.write(
             "start",
@@ -157,6 +159,7 @@ class Journal:
             preamble=list(preamble),
             planner=planner_blocks,
             port=port,
+            laser=laser_mode,
         )
 
     def close(self, remove_if_empty: bool = False) -> None:
@@ -241,6 +244,8 @@ def check_event(ev: dict[str, Any], blocks: int | None, where: str) -> int | Non
         _integer(ev, "blocks", 0, None, where)
         if "planner" in ev:
             _integer(ev, "planner", 1, None, where)
+        if ev.get("laser") not in (True, False, None):
+            raise _expected(where, "laser", "true, false or null (GRBL's $32)", ev.get("laser"))
         return int(ev["blocks"])
     last = None if blocks is None else blocks - 1
     if kind == "ack":
@@ -374,16 +379,23 @@ def _same_file(a: Path, b: Path) -> bool:
         return a.resolve() == b.resolve()
 
 
-def last_surely_run(blocks: Sequence[Block], acked: Sequence[int], planner_blocks: int) -> int:
+def last_surely_run(
+    blocks: Sequence[Block],
+    acked: Sequence[int],
+    planner_blocks: int,
+    laser_mode: bool | None = None,
+) -> int:
     """The last of the ``acked`` blocks (in order) that surely ran, without a position.
 
     After its last acknowledgement the controller may still hold ``planner_blocks``
     motion blocks, and GRBL's stepper keeps running the last segments of a block after
     the planner has let it go; counting one more for that and one more as a margin, up to
     ``planner_blocks + 2`` acknowledged motion blocks count as unsure. An acknowledged sync
-    block (M3/M5, G4, ...) followed by later acknowledgements means everything before it
-    ran; the last acknowledged block is unsure even when it is a sync block (a margin
-    too). Returns -1 when none surely ran.
+    block (a spindle change, G4, ...: ``Block.sync``) followed by later acknowledgements
+    means everything before it ran; the last acknowledged block is unsure even when it is
+    a sync block (a margin too). An S change (``Block.speed_sync``) counts only when
+    ``laser_mode`` is known to be off (``$32=0``): in laser mode GRBL moves on through it.
+    Returns -1 when none surely ran.
     """
     if not acked:
         return -1
@@ -391,7 +403,8 @@ def last_surely_run(blocks: Sequence[Block], acked: Sequence[int], planner_block
     motions = 0
     for i in reversed(acked):
         b = blocks[i]
-        if b.sync and i != acked[-1]:
+        synced = b.sync or (laser_mode is False and b.speed_sync)
+        if synced and i != acked[-1]:
             break
         earliest = i
         if b.motion:
@@ -439,12 +452,13 @@ def done_blocks(
     session: list[int] = []
     closed = True
     planner = PLANNER_BLOCKS
+    laser: bool | None = None
 
     def settled() -> set[int]:
         if closed or not recut_unclosed or not session:
             return set(session)
         if program is not None:
-            through = last_surely_run(program.blocks, session, planner)
+            through = last_surely_run(program.blocks, session, planner, laser)
         else:
             through = session[-planner - 2] if len(session) > planner + 1 else -1
         return {i for i in session if i <= through}
@@ -456,6 +470,7 @@ def done_blocks(
             session = []
             closed = False
             planner = int(ev.get("planner", PLANNER_BLOCKS))
+            laser = ev.get("laser")  # absent (older journals) or null: unknown
             if ev.get("sha256") != sha256:
                 raise ConfigError(
                     f"{path}: the journal was written for a different version of "

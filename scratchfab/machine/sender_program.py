@@ -97,11 +97,12 @@ class Block:
     modal: Modal  # state after the block
     seconds: float  # estimated run time
     motion: bool  # creates planner blocks
-    sync: bool  # GRBL empties the planner before it (spindle, dwell, M0/M2/M30, G10)
+    sync: bool  # GRBL empties the planner before it, whatever $32 says (see _advance)
     system: bool  # a ``$`` command (sent with send-response)
     unfollowed: str = ""  # why the sender cannot follow the position past it ("" if it can)
     arc_box: tuple[float, float, float, float] | None = None  # X lo, X hi, Y lo, Y hi swept
     rapid_mm: tuple[float, float, float] | None = None  # a G0's distance per axis
+    speed_sync: bool = False  # an S change that syncs only with laser mode off ($32=0)
 
 
 @dataclass
@@ -158,6 +159,7 @@ class _Step(NamedTuple):
     unfollowed: str = ""
     arc_box: tuple[float, float, float, float] | None = None
     rapid_mm: tuple[float, float, float] | None = None
+    speed_sync: bool = False
 
 
 def _rapid_seconds(axis_mm: Sequence[float], rapid_mm_min: Sequence[float]) -> float:
@@ -232,6 +234,13 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
 
     Also what the sender cannot follow past it (frame changes, machine-coordinate moves)
     and what it adds to the job's extent (the box an arc sweeps).
+
+    Sync as Grbl 1.1's ``gc_execute_line`` does it (``protocol_buffer_synchronize``): a
+    spindle state *change* (M3/M4/M5; even in laser mode), a coolant change, G4, M0, M2/M30
+    and the EEPROM writes G10 and G28.1/G30.1. A repeated M3 or M5, M9 with coolant off and
+    M1 (ignored by Grbl 1.1) do not sync. An S change with the spindle on syncs with laser
+    mode off, and in laser mode ($32=1) not in a block that moves (``laser_mode.md``: not
+    under M4 at all): ``speed_sync`` marks every such change, to count only with ``$32=0``.
     """
     if text.startswith("$"):
         return _Step(state, 0.0, False, False)
@@ -241,6 +250,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     arc: dict[str, float] = {}
     nonmodal = ""
     sync = False
+    speed_changed = False
     dwell = 0.0
     for letter, value in words:
         if letter == "G":
@@ -263,11 +273,12 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
             code = f"M{value:g}"
             if code in ("M3", "M4", "M5"):
                 s = replace(s, spindle=code)
-                sync = True
+                sync = sync or code != state.spindle
             elif code in ("M7", "M8", "M9"):
+                # Grbl keeps M7 and M8 as two bits: only a change from all off surely syncs
                 s = replace(s, coolant=code)
-                sync = True
-            elif code in ("M0", "M1"):
+                sync = sync or (code == "M9") != (state.coolant == "M9")
+            elif code == "M0":
                 sync = True
             elif code in ("M2", "M30"):
                 sync = True
@@ -278,8 +289,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
         elif letter == "F":
             s = replace(s, feed=value)
         elif letter == "S":
-            if s.spindle != "M5" and value != s.speed:
-                sync = True
+            speed_changed = state.spindle != "M5" and value != state.speed
             s = replace(s, speed=value)
         elif letter == "P" and nonmodal == "G4":
             dwell = value
@@ -289,6 +299,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
             arc[letter] = value
     if nonmodal in ("G4", "G10", "G28.1", "G30.1"):
         sync = True
+    speed_sync = speed_changed and not sync
     scale = s.mm_per_unit
     motion = False
     seconds = dwell
@@ -315,7 +326,9 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
         motion = True
     elif axes and nonmodal in ("G28", "G30", "G53"):
         motion = True  # position unknown to the sender; keep the old one
-    return _Step(s, seconds, motion, sync, _unfollowed(nonmodal, axes, state, s), box, rapid)
+    return _Step(
+        s, seconds, motion, sync, _unfollowed(nonmodal, axes, state, s), box, rapid, speed_sync
+    )
 
 
 def _tool_down(modal: Modal, z_threshold: float, pen_mode: bool) -> bool:
@@ -453,6 +466,7 @@ def load_program(
                 unfollowed=step.unfollowed,
                 arc_box=step.arc_box,
                 rapid_mm=step.rapid_mm,
+                speed_sync=step.speed_sync,
             )
         )
     uses_spindle = any(b.modal.spindle in ("M3", "M4") for b in blocks)
