@@ -2516,3 +2516,51 @@ def test_sync_blocks_are_the_ones_the_emulator_waits_at(tmp_path, laser):
         assert not counted or waited, b.text
         if laser == 0:
             assert counted == waited, b.text
+
+
+_PLUNGE = "G21 G90\nG0 Z5\nG0 X10 Y10\nG1 Z-0.1 F100\n"
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "where"),
+    [
+        (_PLUNGE, 4, "Z -0.1 mm, below its travel height 5"),  # cut at its first plunge
+        (_PLUNGE + "M5\nM2\n", 6, "Z -0.1 mm (line 4), below its travel height 5"),
+        ("G21 G90\nG1 Z5 F500\nG1 X10 Y10\nG1 Z-0.1\n", 4, "below its travel height 5"),
+        ("G21 G91\nG0 Z3\nG0 X10\nG1 Z-3.1 F100\n", 4, "Z -0.1 mm, below its travel"),
+        ("G21 G90\nM5\nG0 X1 Y1\nM3 S1000\n", 4, "tool down (spindle output M3)"),  # a servo
+    ],
+)
+def test_a_file_cut_off_at_a_plunge_is_refused_before_connecting(
+    tmp_path, capsys, text, line, where
+):
+    """Without --machine such a file shows no cutting height (no stroke); it is refused all
+    the same, naming the file's last line, and nothing is sent."""
+    job = tmp_path / "job.gcode"
+    job.write_text(text)
+    rec = tmp_path / "rec.jsonl"
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", f"grblsim://?record={rec}", "--yes"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {job}:{line}: the program ends ") and len(err.splitlines()) == 1
+    assert where in err
+    assert not rec.exists() and not default_journal_path(job).exists()
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        _PLUNGE + "G0 Z5\n",  # lifted
+        _PLUNGE + "G1 Z1\n",  # lifted, though below the travel height
+        _PLUNGE + "G1 X20 Y10\nG0 Z5\n",  # cut, then lifted
+        "G21 G90\nG0 Z5\nG0 X10 Y10\nG1 Z6 F100\n",  # a feed move up
+        "G21 G90\nG1 X10 Y10 F100\nG1 Z-1\n",  # no travel height known: nothing to judge by
+        "G21 G90\nM5\nG0 X1 Y1\nM3 S1000\nG1 X5 F600\nM5\n",  # a servo job, pen lifted
+    ],
+)
+def test_a_file_that_ends_lifted_is_streamed(tmp_path, text):
+    job = tmp_path / "job.gcode"
+    job.write_text(text)
+    main(["stream", str(job), "--port", "grblsim://?time_scale=0", "--yes"])
+    assert read_journal(default_journal_path(job))[-1]["ev"] == "end"

@@ -495,11 +495,24 @@ def check_tool_up_at_end(program: Program) -> None:
     """Refuse a program whose last stroke leaves the tool down: a file cut short.
 
     Streamed as it is, its end would leave the bit in the board (or the pen down), the
-    spindle running.
+    spindle running. A program that does not show its cutting height (no stroke: e.g.
+    cut off right after its first plunge) is refused when it ends by feeding the tool
+    down below its travel height (:func:`_final_plunge`).
 
     Raises:
         ConfigError: Naming the file's last line and the tool state there.
     """
+    if program.z_threshold is None and not program.pen_mode and program.blocks:
+        plunge = _final_plunge(program.blocks)
+        if plunge is not None:
+            block, travel = plunge
+            last = program.blocks[-1]
+            at = "" if block is last else f" (line {block.lineno})"
+            raise ConfigError(
+                f"{program.path}:{last.lineno}: the program ends by feeding the tool down to "
+                f"Z {block.modal.z:g} mm{at}, below its travel height {travel:g}, and never "
+                "lifts it; the file may be cut short: expected a lift after the plunge"
+            )
     if not program.strokes or program.strokes[-1][1] != len(program.blocks) - 1:
         return
     last = program.blocks[-1]
@@ -515,6 +528,30 @@ def check_tool_up_at_end(program: Program) -> None:
         f"{program.path}:{last.lineno}: the program ends with the tool down ({state}); the "
         "file may be cut short: expected its last stroke to lift the tool (Z up or M5)"
     )
+
+
+def _final_plunge(blocks: Sequence[Block]) -> tuple[Block, float] | None:
+    """The program's last move and its travel height, if that move feeds the tool down.
+
+    The travel height is the lowest Z a rapid reaches, else (a job without rapids at a
+    known Z) the highest Z reached before. A complete job never ends by lowering the tool
+    with a feed move to below it: that is a plunge whose cut and lift are missing. A last
+    move that lifts, even to below the travel height, is not refused.
+    """
+    moves = [b for b in blocks if b.motion]
+    if not moves or any(b.unfollowed for b in moves):
+        return None
+    last = moves[-1]
+    z = last.modal.z
+    if last.modal.motion == "G0" or z is None:
+        return None
+    before = moves[-2].modal.z if len(moves) > 1 else None
+    rapid_z = [b.modal.z for b in moves if b.modal.motion == "G0" and b.modal.z is not None]
+    earlier = [b.modal.z for b in moves[:-1] if b.modal.z is not None]
+    travel = min(rapid_z) if rapid_z else max(earlier, default=None)
+    if travel is None or (before is not None and z >= before - 1e-9) or z >= travel - 1e-9:
+        return None
+    return last, travel
 
 
 def resume_point(program: Program, done: set[int]) -> int:
