@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from gcode_interp import interpret
 from test_export import random_scratches
-from test_stream import _arc_samples, _bench_profile
+from test_stream import _arc_samples, _bench_profile, read_record
 
 from scratchfab.errors import ScratchfabError
 from scratchfab.export.gcode import _Grid, gcode_lines
@@ -75,7 +75,7 @@ def test_compare_refuses_a_one_offset_arc_that_bulges_out(tmp_path, start, arc, 
     else:
         (refusal,) = refusals
         axis = "X" if "J" in arc else "Y"
-        assert refusal.startswith(f"the job's {axis} range [")
+        assert refusal.startswith(f"{job}:4: the job's {axis} range [")
         assert "leaves the envelope" in refusal
 
 
@@ -94,7 +94,7 @@ def test_profile_envelope_tolerance(tmp_path, over, accepted, side):
         assert refusals == []
     else:
         assert refusals == [
-            f"the job's X range [{min(0, x):g}, {max(0, x):g}] mm leaves the envelope "
+            f"{job}:3: the job's X range [{min(0, x):g}, {max(0, x):g}] mm leaves the envelope "
             "[-10, 10] of machine 'bench'"
         ]
 
@@ -110,8 +110,8 @@ def test_grbl_travel_span_tolerance(tmp_path, over, accepted):
         assert refusals == []
     else:
         assert refusals == [
-            f"the job spans {20.0 + over:g} mm in X but GRBL's travel is $130=20 mm: it "
-            "cannot fit on this machine"
+            f"{job}:3: the job spans {20.0 + over:g} mm in X but GRBL's travel is $130=20 mm: "
+            "it cannot fit on this machine"
         ]
 
 
@@ -130,8 +130,8 @@ def test_soft_limit_tolerance(tmp_path, over, accepted, side):
     else:
         m = x - 150.0
         assert refusals == [
-            f"the job's X range is {m:g}..{m:g} mm in machine coordinates (work offset -150); "
-            "GRBL soft limits allow -300..0 (ALARM:2)"
+            f"{job}:2: the job's X range is {m:g}..{m:g} mm in machine coordinates (work offset "
+            "-150); GRBL soft limits allow -300..0 (ALARM:2)"
         ]
 
 
@@ -241,3 +241,48 @@ def test_atomic_folder_puts_the_old_folder_back_when_the_swap_fails(tmp_path, mo
         write_text(new / "a.txt", "new")
     assert (target / "a.txt").read_text() == "new"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["stage"]
+
+
+# --------------------------------------------------------------------------- refusals name the file
+
+
+_OUT_AT_5 = "G21 G90\nG0 Z1\nG0 X0 Y0\nG1 X5 F100\nG1 X30 Y-5\nG1 X40\nG0 Z2\n"  # X 30: line 5
+
+
+@pytest.mark.parametrize(
+    ("settings", "wco", "profile", "prefix", "says"),
+    [
+        ({}, None, True, ":5: ", "X range [0, 40] mm leaves the envelope [-10, 10]"),
+        ({130: 20.0}, None, False, ":5: ", "spans 40 mm in X but GRBL's travel is $130=20"),
+        ({20: 1, 22: 1, 130: 200.0, 131: 200.0, 132: 200.0}, (-25.0, -50.0, -5.0), False,
+         ":5: ", "X range is -25..15 mm in machine coordinates"),
+        ({20: 1, 22: 1}, None, False, ": ", "GRBL soft limits are on ($20=1) but the work"),
+    ],
+)  # fmt: skip
+def test_every_refusal_starts_with_the_file_and_the_first_line_too_far(
+    tmp_path, settings, wco, profile, prefix, says
+):
+    """The first line that goes out (line 5), not the extreme one (line 6), is named."""
+    job = tmp_path / "j.gcode"
+    job.write_text(_OUT_AT_5)
+    found = compare(settings, wco, load_program(job), _bench_profile() if profile else None)
+    (refusal,) = [r for r in found.refusals if says in r]
+    assert refusal.startswith(f"{job}{prefix}")
+    assert all(r.startswith(f"{job}:") for r in found.refusals)
+
+
+def test_a_refusal_on_the_command_line_names_the_file_and_line(tmp_path, capsys):
+    """Soft limits on, work X 0 at machine X -25: work X 30 (line 5) is machine X 5."""
+    from scratchfab.cli import main
+
+    job = tmp_path / "j.gcode"
+    job.write_text(_OUT_AT_5)
+    rec = tmp_path / "rec.jsonl"
+    port = f"grblsim://?time_scale=0&soft_limits=1&homed=1&wco=-25,-100,-10&record={rec}"
+    with pytest.raises(SystemExit) as exc:
+        main(["stream", str(job), "--port", port, "--yes"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert err.startswith(f"error: {job}:5: the job's X range is -25..15 mm in machine ")
+    assert "(nothing was sent)" in err
+    assert not [e for e in read_record(rec) if e["ev"] == "rx" and e["g"]]  # no G-code sent

@@ -409,7 +409,7 @@ def test_profile_without_z_range_asks_no_z_travel(tmp_path):
     assert compare(settings, wco, load_program(job), unlimited).refusals == []
     # a profile that does give Z still has it compared with $132
     settings[132] = 20
-    travel = f"machine '{profile.name}' expects 45 mm of Z travel but GRBL has $132=20"
+    travel = f"{job}: machine '{profile.name}' expects 45 mm of Z travel but GRBL has $132=20"
     assert travel in compare(settings, wco, load_program(job), profile).refusals
     assert travel not in compare(settings, wco, load_program(job), unlimited).refusals
 
@@ -445,7 +445,7 @@ def test_compare_refuses_an_arc_that_bulges_out_of_the_envelope(tmp_path):
     assert compare({}, None, load_program(job), _bench_profile()).refusals == []
     job.write_text("G21G90G17\nG0Z1\nG0X5Y-5\nG3X5Y5I1J5F100\n")  # centre (6, 0)
     (refusal,) = compare({}, None, load_program(job), _bench_profile()).refusals
-    assert refusal.startswith("the job's X range [")
+    assert refusal.startswith(f"{job}:4: the job's X range [")
     assert "leaves the envelope [-10, 10]" in refusal
 
 

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from scratchfab.machine.sender_program import Modal, Program
+from scratchfab.machine.sender_program import Block, Modal, Program
 
 _AXES = "XYZ"
 
@@ -76,6 +77,37 @@ def job_extent(program: Program) -> tuple[list[float], list[float]]:
     return lo, hi
 
 
+def _axis_values(program: Program, k: int) -> Iterator[tuple[Block, list[float]]]:
+    """Per motion block, the values axis ``k`` reaches there (its end, an arc's sweep)."""
+    for b in program.blocks:
+        if not b.motion:
+            continue
+        v = (b.modal.x, b.modal.y, b.modal.z)[k]
+        values = [] if v is None else [v]
+        if b.arc_box is not None and k < 2:
+            values += list(b.arc_box[2 * k : 2 * k + 2])
+        if values:
+            yield b, values
+
+
+def _first_outside(program: Program, k: int, lo: float, hi: float) -> str:
+    """``file:line`` of the first block whose axis ``k`` leaves ``lo..hi`` (mm), else ``file``."""
+    for b, values in _axis_values(program, k):
+        if min(values) < lo or max(values) > hi:
+            return f"{program.path}:{b.lineno}"
+    return str(program.path)
+
+
+def _first_spanning(program: Program, k: int, span: float) -> str:
+    """``file:line`` of the block at which axis ``k`` has spanned more than ``span`` mm."""
+    lo, hi = math.inf, -math.inf
+    for b, values in _axis_values(program, k):
+        lo, hi = min(lo, *values), max(hi, *values)
+        if hi - lo > span:
+            return f"{program.path}:{b.lineno}"
+    return str(program.path)
+
+
 def axis_feeds(program: Program) -> list[float]:
     """The highest speed (mm/min) the job's feed moves ask of each axis, X, Y and Z.
 
@@ -119,9 +151,11 @@ def compare(
     block whose position the sender cannot follow (G92, G10, another work coordinate
     system, G53, G28/G30, arcs outside G17): past it every check would be wrong. Warns
     about slower GRBL max rates than the profile or the job's feeds, and about soft limits
-    or homing being off.
+    or homing being off. Every refusal starts with the G-code file (``file:line:`` at the
+    first line that goes too far, where one does).
     """
     out = Findings()
+    path = program.path
     travel = [settings.get(130 + k) for k in range(3)]
     rates = [settings.get(110 + k) for k in range(3)]
     soft = bool(settings.get(20, 0))
@@ -141,7 +175,7 @@ def compare(
                 "sender cannot follow the position past it, so the envelope cannot be checked"
             )
         if len(unfollowed) > 3:
-            out.refusals.append(f"... and {len(unfollowed) - 3} more such lines")
+            out.refusals.append(f"{path}: ... and {len(unfollowed) - 3} more such lines")
     if profile is not None:
         env = profile.envelope
         ranges = (env.x_mm, env.y_mm, env.z_mm)
@@ -150,9 +184,10 @@ def compare(
                 continue
             a, b = ranges[k]
             if lo[k] < a - tolerance or hi[k] > b + tolerance:
+                where = _first_outside(program, k, a - tolerance, b + tolerance)
                 out.refusals.append(
-                    f"the job's {axis} range [{lo[k]:g}, {hi[k]:g}] mm leaves the envelope "
-                    f"[{a:g}, {b:g}] of machine '{profile.name}'"
+                    f"{where}: the job's {axis} range [{lo[k]:g}, {hi[k]:g}] mm leaves the "
+                    f"envelope [{a:g}, {b:g}] of machine '{profile.name}'"
                 )
         for k, axis in enumerate(_AXES):
             need = env.max_travel_mm[k]
@@ -164,7 +199,10 @@ def compare(
                     f"machine '{profile.name}' expects {need:g} mm of {axis} travel but GRBL has "
                     f"${130 + k}={have:g}"
                 )
-                (out.refusals if soft else out.warnings).append(text)
+                if soft:
+                    out.refusals.append(f"{path}: {text}")
+                else:
+                    out.warnings.append(text)
             elif have > need + 1.0:
                 out.warnings.append(
                     f"GRBL ${130 + k}={have:g} allows more {axis} travel than machine "
@@ -182,12 +220,13 @@ def compare(
         t = travel[k]
         if t is not None and lo[k] <= hi[k] and hi[k] - lo[k] > t + tolerance:
             out.refusals.append(
-                f"the job spans {hi[k] - lo[k]:g} mm in {axis} but GRBL's travel is "
-                f"${130 + k}={t:g} mm: it cannot fit on this machine"
+                f"{_first_spanning(program, k, t + tolerance)}: the job spans "
+                f"{hi[k] - lo[k]:g} mm in {axis} but GRBL's travel is ${130 + k}={t:g} mm: it "
+                "cannot fit on this machine"
             )
     if soft and wco is None and any(a <= b for a, b in zip(lo, hi, strict=True)):
         out.refusals.append(
-            "GRBL soft limits are on ($20=1) but the work offset could not be read ($# and "
+            f"{path}: GRBL soft limits are on ($20=1) but the work offset could not be read ($# and "
             "the status reports' WCO gave none), so the job cannot be checked against "
             "the travel under the current offset"
         )
@@ -209,12 +248,15 @@ def compare(
             m_lo, m_hi = lo[k] + wco[k], hi[k] + wco[k]
             t = travel[k] or 0.0
             if m_lo < -t - tolerance or m_hi > tolerance:
+                where = _first_outside(program, k, -t - tolerance - wco[k], tolerance - wco[k])
                 out.refusals.append(
-                    f"the job's {axis} range is {m_lo:g}..{m_hi:g} mm in machine coordinates "
-                    f"(work offset {wco[k]:g}); " + limit.format(t=t)
+                    f"{where}: the job's {axis} range is {m_lo:g}..{m_hi:g} mm in machine "
+                    f"coordinates (work offset {wco[k]:g}); " + limit.format(t=t)
                 )
     if profile is not None and profile.envelope.coordinates == "machine":
-        out.refusals.extend(_machine_frame_refusals(profile.name, wco, tolerance))
+        out.refusals.extend(
+            f"{path}: {text}" for text in _machine_frame_refusals(profile.name, wco, tolerance)
+        )
     for k, (asked, rate) in enumerate(zip(axis_feeds(program), rates, strict=True)):
         if rate is not None and asked > rate + tolerance:
             out.warnings.append(
