@@ -2564,3 +2564,69 @@ def test_a_file_that_ends_lifted_is_streamed(tmp_path, text):
     job.write_text(text)
     main(["stream", str(job), "--port", "grblsim://?time_scale=0", "--yes"])
     assert read_journal(default_journal_path(job))[-1]["ev"] == "end"
+
+
+@pytest.mark.parametrize(("zero", "kept"), [("G92X5Y-3", False), ("G10L20P1X5Y-3", True)])
+def test_check_mode_refuses_when_its_reset_clears_the_work_zero(tmp_path, zero, kept):
+    """Leaving check mode soft-resets GRBL, which clears G92 (not G54): a zero set with
+    G92 would be gone and the job would run elsewhere."""
+    job = tmp_path / "job.gcode"
+    write_job(job, 2)
+    prog = load_program(job)
+    port = open_port("grblsim://?time_scale=0", 115200)
+    try:
+        streamer = Streamer(port, FAST)
+        streamer.connect()
+        streamer._command(zero)
+        streamer._read_work_offset()
+        assert streamer.info.wco == pytest.approx((-5.0, 3.0, 0.0))  # MPos 0 is work X5 Y-3
+        if kept:
+            assert streamer.check(prog).errors == []
+        else:
+            with pytest.raises(StreamFault, match=r"job\.gcode: leaving check mode .* G92"):
+                streamer.check(prog)
+        with port.sim._cond:
+            wco = port.sim._wco()
+        assert (wco == pytest.approx((-5.0, 3.0, 0.0))) is kept  # what the emulator runs at
+    finally:
+        port.close()
+
+
+@pytest.mark.parametrize(("zero", "resumed"), [("G92X5Y-3", False), ("G10L20P1X5Y-3", True)])
+def test_resume_refuses_when_a_reset_cleared_the_g92_zero(tmp_path, monkeypatch, capsys, zero,
+                                                          resumed):  # fmt: skip
+    """The stop's soft reset clears G92 (not G54): resuming a run zeroed with G92 would cut
+    the rest of the strokes elsewhere, so it is refused until the zero is set again."""
+    job = tmp_path / "job.gcode"
+    write_job(job, 12)
+    prog = load_program(job)
+    journal = default_journal_path(job)
+    port = open_port("grblsim://?time_scale=0.02", 115200)
+    streamer = Streamer(port, FAST, ask_interrupt=lambda: "stop")
+    streamer.connect()
+    streamer._command(zero)
+    streamer._read_work_offset()
+
+    def stop(p):
+        if p.acked > 20:
+            raise KeyboardInterrupt
+
+    streamer.on_progress = stop
+    j = Journal(journal).open()
+    with pytest.raises(StreamStopped):
+        streamer.stream(prog, j)
+    j.close()
+    assert read_journal(journal)[0]["wco"] == [-5.0, 3.0, 0.0]
+    sent = len(_received_gcode(port.sim.record))
+    monkeypatch.setattr("scratchfab.machine.stream_job.open_port", lambda name, baud: port)
+    args = ["stream", str(job), "--port", "grblsim://", "--resume", "--yes"]
+    if resumed:
+        main([*args, "--banner-timeout", "0.3"])
+        assert read_journal(journal)[-1]["ev"] == "end"
+        return
+    with pytest.raises(SystemExit) as exc:
+        main([*args, "--banner-timeout", "0.3"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert err.startswith(f"error: {journal}: the interrupted run's work zero included a G92")
+    assert len(_received_gcode(port.sim.record)) == sent  # nothing was sent

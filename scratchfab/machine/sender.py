@@ -198,6 +198,7 @@ class ControllerInfo:
     status: Status = field(default_factory=Status)
     wco: tuple[float, float, float] | None = None  # work offset in mm (None: unknown)
     wco_source: str = ""  # how it was read: "$#" or "status"
+    g92: tuple[float, float, float] | None = None  # the G92 part of it in mm (None: unknown)
 
     @property
     def laser_mode(self) -> bool | None:
@@ -513,6 +514,7 @@ class Streamer:
                 xyz = [base[k] + g92[k] for k in range(3)]
                 xyz[2] += tlo[0]
                 self.info.wco = (xyz[0] * scale, xyz[1] * scale, xyz[2] * scale)
+                self.info.g92 = (g92[0] * scale, g92[1] * scale, g92[2] * scale)
                 self.info.wco_source = "$#"
                 # Status reports without WCO: (most of them) derive positions from it too.
                 self._wco = self.info.wco
@@ -593,7 +595,28 @@ class Streamer:
         self._write(b"$C\n")
         if self._wait_banner(self.options.banner_timeout) is None:
             raise StreamFault("check mode: no reset after leaving check mode")
+        self._check_offset_kept(program)
         return report
+
+    def _check_offset_kept(self, program: Program) -> None:
+        """After the reset that ends check mode: refuse if the work offset changed.
+
+        GRBL's soft reset clears G92 and G43.1 (the tool length offset), so a zero set with
+        G92 is gone and the job would run that far off. G54-G59 (G10 L2/L20) survive.
+        """
+        before = self.info.wco
+        self.info.wco, self.info.g92, self._wco = None, None, None
+        self._read_work_offset()
+        after = self.info.wco
+        if before is None or (after is not None and math.dist(before, after) <= 0.001):
+            return
+        now = "unknown" if after is None else _xyz_text(after)
+        raise StreamFault(
+            f"{program.path}: leaving check mode soft-resets GRBL, which cleared its G92 or "
+            f"tool length offset: the work offset was {_xyz_text(before)}, now {now} mm, so "
+            "the job would run elsewhere; set the work zero again (G10 L20 P1 keeps it over "
+            "a reset) and stream again; nothing moved"
+        )
 
     # ------------------------------------------------------------------ streaming
 
@@ -625,6 +648,8 @@ class Streamer:
             self.info.planner_blocks,
             name if isinstance(name, str) else None,
             self.info.laser_mode,
+            self.info.wco,
+            self.info.g92,
         )
         self._journal = journal
         self._program = program
@@ -1040,6 +1065,11 @@ def _on_segment(
         return False
     closest = [a[k] + t * ab[k] for k in range(3)]
     return math.dist(p, closest) <= tol
+
+
+def _xyz_text(xyz: Sequence[float]) -> str:
+    """``X1 Y-2.5 Z0``: a position or offset in mm for messages."""
+    return " ".join(f"{axis}{v:g}" for axis, v in zip("XYZ", xyz, strict=True))
 
 
 def _interrupt_name(exc: KeyboardInterrupt) -> str:

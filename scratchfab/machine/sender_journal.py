@@ -141,12 +141,15 @@ class Journal:
         planner_blocks: int = PLANNER_BLOCKS,
         port: str | None = None,
         laser_mode: bool | None = None,
+        wco: Sequence[float] | None = None,
+        g92: Sequence[float] | None = None,
     ) -> None:
         """Begin a run of ``program`` at block ``start`` (a fresh one, or a resume).
 
         ``port`` (the device or URL streamed to) lets a reader tell the emulator from a
         machine; ``laser_mode`` is GRBL's ``$32`` (None: not read), which decides whether an
-        S change is a sync point (:func:`last_surely_run`).
+        S change is a sync point (:func:`last_surely_run`). ``wco`` and its ``g92`` part
+        (mm, None: unknown) let a resume see that the work zero moved (:func:`run_zero`).
         """
         self.write(
             "start",
@@ -160,6 +163,8 @@ class Journal:
             planner=planner_blocks,
             port=port,
             laser=laser_mode,
+            wco=None if wco is None else [round(float(v), 4) for v in wco],
+            g92=None if g92 is None else [round(float(v), 4) for v in g92],
         )
 
     def close(self, remove_if_empty: bool = False) -> None:
@@ -246,6 +251,9 @@ def check_event(ev: dict[str, Any], blocks: int | None, where: str) -> int | Non
             _integer(ev, "planner", 1, None, where)
         if ev.get("laser") not in (True, False, None):
             raise _expected(where, "laser", "true, false or null (GRBL's $32)", ev.get("laser"))
+        for key in ("wco", "g92"):
+            if ev.get(key) is not None and _xyz_of(ev[key]) is None:
+                raise _expected(where, key, "null or [x, y, z] in mm", ev[key])
         return int(ev["blocks"])
     last = None if blocks is None else blocks - 1
     if kind == "ack":
@@ -262,6 +270,28 @@ def check_event(ev: dict[str, Any], blocks: int | None, where: str) -> int | Non
     elif kind in ("stop", "lost") and ev.get("executed_through", 0) is not None:
         _integer(ev, "executed_through", -1, last, where)
     return blocks
+
+
+def run_zero(
+    events: Sequence[dict[str, Any]],
+) -> tuple[tuple[float, float, float] | None, tuple[float, float, float] | None]:
+    """The work offset and its G92 part (mm) the journal's last run streamed at.
+
+    ``(None, None)`` where the journal did not record them (older journals, unread).
+    """
+    starts = [ev for ev in events if ev.get("ev") == "start"]
+    if not starts:
+        return None, None
+    last = starts[-1]
+    return _xyz_of(last.get("wco")), _xyz_of(last.get("g92"))
+
+
+def _xyz_of(value: Any) -> tuple[float, float, float] | None:
+    if not isinstance(value, list) or len(value) != 3:
+        return None
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        return None
+    return (float(value[0]), float(value[1]), float(value[2]))
 
 
 def last_fresh_start(events: Sequence[dict[str, Any]]) -> int:

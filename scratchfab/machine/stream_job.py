@@ -9,6 +9,7 @@ callbacks they pass.
 from __future__ import annotations
 
 import contextlib
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +27,7 @@ from scratchfab.machine.sender_journal import (
     done_blocks,
     interrupted,
     read_journal,
+    run_zero,
 )
 from scratchfab.machine.sender_program import (
     Program,
@@ -205,6 +207,8 @@ def _stream_locked(
             f"connected: Grbl {info.version}, RX buffer {info.rx_buffer} bytes, "
             f"state {info.status.state}"
         )
+        if resume and events is not None:
+            _check_same_zero(events, info.wco, info.g92, journal_file, cb.say)
         rates = [info.settings.get(110 + k) for k in range(3)]
         if all(r is not None and r > 0 for r in rates):  # the time estimate at GRBL's G0 rates
             program = program.at_rapid_rates([float(r or 0) for r in rates])
@@ -229,6 +233,46 @@ def _stream_locked(
         )
     finally:
         ser.close()
+
+
+def _check_same_zero(
+    events: list[dict[str, Any]],
+    wco: tuple[float, float, float] | None,
+    g92: tuple[float, float, float] | None,
+    journal_file: Path,
+    say: Say,
+) -> None:
+    """Before a resume: the work zero must be where the interrupted run had it.
+
+    A soft reset (every stop, check mode, a reconnect) clears GRBL's G92 offset, so a
+    zero set with G92 is gone and the resumed strokes would land that far off: refused.
+    Any other change of the work offset is told (a re-zero after a lost position changes
+    it legitimately).
+
+    Raises:
+        ScratchfabError: The earlier run had a G92 offset and it is now cleared.
+    """
+    before, g92_before = run_zero(events)
+    if before is None or wco is None or math.dist(before, wco) <= 0.01:
+        return
+    was, now = _xyz_text(before), _xyz_text(wco)
+    if g92_before is not None and any(abs(v) > 0.001 for v in g92_before):
+        if g92 is None or all(abs(v) <= 0.001 for v in g92):
+            raise ScratchfabError(
+                f"{journal_file}: the interrupted run's work zero included a G92 offset "
+                f"({_xyz_text(g92_before)} mm) that a reset since then cleared (work offset "
+                f"was {was}, now {now} mm): the resumed strokes would land elsewhere; set the "
+                "same zero again (G10 L20 P1 keeps it over a reset), then --resume; nothing "
+                "was sent"
+            )
+    say(
+        f"warning: the work offset changed since the interrupted run (was {was}, now {now} "
+        "mm): the work zero must be the same point on the board as before"
+    )
+
+
+def _xyz_text(xyz: tuple[float, float, float]) -> str:
+    return " ".join(f"{axis}{v:g}" for axis, v in zip("XYZ", xyz, strict=True))
 
 
 def _check_strokes(program: Program, gcode: Path) -> None:
