@@ -11,9 +11,15 @@ Cases:
   ``--large-until-bar N`` steps it until the quality bar (measured, up to N steps);
   otherwise a few steps are timed and the time to the bar is extrapolated from the
   demo's iteration count, labelled so.
+- ``refresh``: one pair refresh (``LayoutOptimizer._refresh``) on the full-size pipeline
+  (150 mm, 3 views) laid out by the design stage at several scratch counts: seconds of
+  each part (pixel pairs per view, merge-candidate neighbour pairs, the whole refresh;
+  best of ``--refresh-repeats``), the pair counts, and each one's growth exponent
+  (log-log slope over the counts). ``--quick`` runs only this case, small (seconds).
 
 Usage: python benchmarks/bench_optimize.py [--demo-iterations N] [--large-steps N]
-       [--large-until-bar N] [--skip-large]
+       [--large-until-bar N] [--skip-large] [--refresh-counts N,N,..] [--skip-refresh]
+       [--quick]
 """
 
 from __future__ import annotations
@@ -114,15 +120,82 @@ def bench_demo(iterations: int, threads: int, space: Space) -> dict:
         }
 
 
-def _design(job: Path) -> None:
+def _design(job: Path, pipeline: Path | None = None, *extra: str) -> None:
     from scratchfab.cli import main
 
+    source = pipeline or bundled_dir("pipelines") / "demo.toml"
     try:
         with contextlib.redirect_stdout(sys.stderr):  # stdout carries the JSON alone
-            main(["design", str(bundled_dir("pipelines") / "demo.toml"), "--out", str(job)])
+            main(["design", str(source), "--out", str(job), *extra])
     except SystemExit as exc:
         if exc.code:
             raise
+
+
+def _slope(x: list[int], y: list[float]) -> float | None:
+    """Least-squares slope of log y against log x (None with fewer than two points)."""
+    if len(x) < 2 or min(y) <= 0:
+        return None
+    return round(float(np.polyfit(np.log(x), np.log(y), 1)[0]), 2)
+
+
+def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int) -> dict:
+    import drjit as dr
+
+    from scratchfab.backend import array_module
+    from scratchfab.optimize.loss import neighbour_pairs
+    from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
+    from scratchfab.optimize.stage import load_job_inputs
+
+    m = array_module("llvm")
+    dr.set_thread_count(threads if threads > 0 else 2)
+    rows: list[dict[str, float]] = []
+    for count in counts:
+        with tempfile.TemporaryDirectory() as tmp:
+            job = Path(tmp) / "job"
+            pipeline = ROOT / "pipelines" / "full-size.toml"
+            _design(job, pipeline, "--count", str(count), "--resolution", str(resolution))
+            design, targets, initial = load_job_inputs(job)
+        lr = OptimizeOptions().learning_rates()
+        opt = LayoutOptimizer(design, targets, initial, Settings(lr=lr), m)
+        ends = opt.ends.astype(np.float64)
+        p0, p1, half = ends[:, 0:2], ends[:, 2:4], opt.width / 2
+        # the reach and angle slack of LayoutOptimizer._refresh
+        reach = opt.tool_width + 2 * (opt.margin - float(np.max(half)))
+        slack = 2 * opt.settings.refresh_every * float(lr["theta"])
+        best: dict[str, float] = {}
+        for _ in range(repeats):
+            times = {}
+            for r in opt.renderers:
+                t0 = time.perf_counter()
+                r.find_pairs(p0, p1, half, opt.margin)
+                times[f"find_pairs_{r.view.name}_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            neighbour_pairs(p0, p1, reach, slack)
+            times["neighbour_pairs_s"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            opt._refresh(opt.ends)
+            times["refresh_s"] = time.perf_counter() - t0
+            best = {k: min(v, best.get(k, math.inf)) for k, v in times.items()}
+        row: dict[str, float] = {"scratches": count}
+        row.update({k: round(v, 3) for k, v in best.items()})
+        for v, n in zip(opt.views, opt.pair_counts(), strict=True):
+            row[f"pixel_pairs_{v.name}"] = n
+        row["neighbour_pairs"] = opt._neighbour_count
+        rows.append(row)
+        print(f"refresh: {rows[-1]}", file=sys.stderr, flush=True)
+    growth = {
+        key: _slope(counts, [row[key] for row in rows]) for key in rows[0] if key != "scratches"
+    }
+    return {
+        "board": f"pipelines/full-size.toml: 150 mm, 3 views {resolution}x{resolution} px, "
+        "layouts of the design stage",
+        "threads": threads,
+        "pair_margin_mm": round(opt.margin, 3),
+        "repeats (best kept)": repeats,
+        "rows": rows,
+        "growth_exponent (d log / d log scratches)": growth,
+    }
 
 
 def bench_large(
@@ -247,10 +320,29 @@ def main() -> None:
         help="Run the large board up to N iterations until it reaches the bar (measured).",
     )
     parser.add_argument("--spaces", default="linear")
+    parser.add_argument("--refresh-counts", default="5000,10000,20000,40000")
+    parser.add_argument("--refresh-resolution", type=int, default=512)
+    parser.add_argument("--refresh-repeats", type=int, default=3)
+    parser.add_argument("--skip-refresh", action="store_true")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="Only the refresh case, at 1000 and 2000 scratches and 128 x 128 px (seconds).",
+    )
     args = parser.parse_args()
-    report: dict = {"machine": "2-core CPU, Dr.Jit LLVM", "demo": []}
+    report: dict = {"machine": "2-core CPU, Dr.Jit LLVM"}
+    if args.quick:
+        report["refresh"] = bench_refresh([1000, 2000], 128, 1, args.threads)
+        print(json.dumps(report, indent=2))
+        return
+    report["demo"] = []
     for space in args.spaces.split(","):
         report["demo"].append(bench_demo(args.demo_iterations, args.threads, space))
+    if not args.skip_refresh:
+        counts = [int(c) for c in args.refresh_counts.split(",")]
+        report["refresh"] = bench_refresh(
+            counts, args.refresh_resolution, args.refresh_repeats, args.threads
+        )
     if not args.skip_large:
         report["large"] = bench_large(
             args.large_steps,

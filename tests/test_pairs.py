@@ -126,3 +126,66 @@ def test_pairs_skip_pixels_off_the_board_and_behind_the_camera(rng):
     want = brute_pairs(np.where(valid[..., None, None], quads, 0.0), ok, rects)
     assert want <= got
     assert np.all(ok[pixel])
+
+
+def brute_neighbours(p0, p1, reach, angle_slack):
+    """Every pair (i < j) closer than reach and within the parallel limit, over all pairs."""
+    from scratchfab.optimize.loss import PARALLEL_LIMIT, segment_distance_np
+
+    n = len(p0)
+    i, j = np.triu_indices(n, 1)
+    d = p1 - p0
+    length = np.linalg.norm(d, axis=1)
+    cos = np.abs(np.sum(d[i] * d[j], axis=1)) / np.maximum(length[i] * length[j], 1e-300)
+    limit = np.cos(min(np.pi / 2, PARALLEL_LIMIT + angle_slack))
+    keep = (cos >= limit) & (segment_distance_np(p0, p1, i, j) < reach)
+    return set(zip(i[keep].tolist(), j[keep].tolist(), strict=True))
+
+
+@pytest.mark.parametrize(("spacing", "strip_points"), [(16.0, 512), (2.0, 7), (0.0, 60)])
+def test_neighbour_pairs_match_brute_force_at_the_edges(rng, spacing, strip_points):
+    """Random and grazing layouts: pairs just inside and just outside the reach, all angles.
+
+    Besides random scratches (lengths up to 30x the reach, so long ones are cut into
+    pieces), each grazing pair puts a second scratch a distance of reach (1 +- 1e-7) from
+    a first one, side by side, end to end or at an angle near the parallel limit, which
+    is where the bounds that thin the candidates are tight.
+    """
+    from scratchfab.optimize.loss import PARALLEL_LIMIT, neighbour_pairs
+
+    reach, slack = 0.5, 0.05
+    n = 300
+    c = rng.uniform(-12, 12, (n, 2))
+    ang = rng.uniform(0, np.pi, n)
+    half = rng.uniform(0.0, 7.5, n)[:, None] * np.stack([np.cos(ang), np.sin(ang)], 1)
+    half[:5] = 0.0  # points
+    p0, p1 = [c - half], [c + half]
+    g = 200
+    base = rng.uniform(-12, 12, (g, 2))
+    a = rng.uniform(0, np.pi, g)
+    u = np.stack([np.cos(a), np.sin(a)], 1)
+    normal = np.stack([-u[:, 1], u[:, 0]], 1)
+    length = rng.uniform(0.2, 8.0, g)[:, None]
+    gap = reach * (1 + rng.choice([-1e-7, 1e-7], g))[:, None]
+    kind = rng.integers(0, 3, g)[:, None]
+    turn = (PARALLEL_LIMIT + slack) * rng.uniform(0.9, 1.1, g)
+    v = np.stack([np.cos(a + turn), np.sin(a + turn)], 1)
+    end = base + length * u
+    # side by side: shifted along by up to the length; end to end: beyond p1; angled:
+    # starting `gap` to the side of the first one's middle, leaving away from it
+    start = np.where(
+        kind == 0,
+        base + gap * normal + rng.uniform(-1, 1, (g, 1)) * length * u,
+        np.where(kind == 1, end + gap * u, base + 0.5 * length * u + gap * normal),
+    )
+    p0 += [base, start]
+    p1 += [end, start + rng.uniform(0.2, 8.0, (g, 1)) * np.where(kind == 2, v, u)]
+    p0, p1 = np.concatenate(p0), np.concatenate(p1)
+    order = rng.permutation(len(p0))
+    p0, p1 = p0[order], p1[order]
+    i, j = neighbour_pairs(p0, p1, reach, slack, spacing=spacing, strip_points=strip_points)
+    n = len(p0)
+    assert np.all(np.diff(i * n + j) > 0)  # sorted by (i, j), no repeats
+    want = brute_neighbours(p0, p1, reach, slack)
+    assert set(zip(i.tolist(), j.tolist(), strict=True)) == want
+    assert len(want) > 150

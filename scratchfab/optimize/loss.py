@@ -31,23 +31,27 @@ do not cross).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import drjit as dr
 import numpy as np
 from scipy.spatial import cKDTree
 
-from scratchfab.segments import sample_along
-
 Space = Literal["linear", "perceptual"]
 SPACES: tuple[str, ...] = ("linear", "perceptual")
 
 #: Pairs more than this far from parallel are never merge candidates (radians).
 PARALLEL_LIMIT = math.radians(35.0)
-#: Longest gap between the points :func:`neighbour_pairs` samples along a scratch.
-NEIGHBOUR_SPACING_MM = 1.0
-#: Sample points per strip of :func:`neighbour_pairs`' KD-tree queries (bounds its memory).
-NEIGHBOUR_STRIP_POINTS = 5_000
+#: Longest piece :func:`neighbour_pairs` cuts a scratch into (longer than the 12 mm default
+#: maximum length, so scratches stay whole, while a few long ones cannot widen every query).
+NEIGHBOUR_SPACING_MM = 16.0
+#: Pieces per strip of :func:`neighbour_pairs`' KD-tree queries (bounds its memory).
+NEIGHBOUR_STRIP_POINTS = 512
+#: Piece pairs :func:`neighbour_pairs` tests at once (temporaries stay in cache).
+NEIGHBOUR_CHUNK = 1 << 16
+#: Slack (mm) of :func:`neighbour_pairs`' bounds, far above float64 rounding.
+NEIGHBOUR_SLACK_MM = 1e-6
 
 
 def srgb_encode(x: Any) -> Any:
@@ -157,50 +161,106 @@ def neighbour_pairs(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (i < j) of scratches closer than ``reach`` and within the parallel limit.
 
-    Points sampled along each segment at most ``step = max(spacing, reach)`` apart (ends
-    included) find every pair of segments closer than ``reach``: each segment point is
-    within step / 2 of a sample, so a KD-tree query at radius reach + step is complete;
-    the exact segment distance then filters. Pairs further from parallel than
-    PARALLEL_LIMIT + ``angle_slack`` are dropped (their penalty weight is below 0.05
-    there). The query runs strip by strip across x (about ``strip_points`` samples
-    each, a point pair belonging to the strip of its left point), filtered as it goes,
-    so memory follows the pairs kept rather than the point pairs found (tens of times
-    more on a dense board).
+    Each scratch is cut into equal pieces at most ``max(spacing, reach)`` long (most
+    scratches stay whole). Two scratches closer than ``reach`` have two pieces, one of
+    each, whose centres are closer than their half lengths plus ``reach``, so a KD-tree
+    query over the piece centres at that radius is complete. The piece pairs it finds
+    are first thinned by bounds that never drop a close pair: the angle between them,
+    and the separating-axis bound (projections onto either piece's direction and
+    normal are no longer than the distance). The pairs left then meet the exact tests:
+    the parallel limit PARALLEL_LIMIT + ``angle_slack`` (weights below 0.05 past it)
+    and the segment distance. The query runs strip by strip across x, ``strip_points``
+    pieces each against those up to the query radius to their right, and the bounds
+    run on chunks of the pairs found, so memory follows the strip, not the board.
 
     Returns:
         (i, j), sorted by (i, j).
     """
     n = len(p0)
-    if n < 2:
+    if n < 2 or reach <= 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     d = p1 - p0
     length = np.linalg.norm(d, axis=1)
-    step = max(spacing, reach)
-    radius = reach + step
-    pts, owner = sample_along(p0, p1, step)
-    by_x = np.argsort(pts[:, 0], kind="stable")
-    xs = pts[by_x, 0]
+    count = np.maximum(1, np.ceil(length / max(spacing, reach))).astype(np.int64)
+    owner = np.repeat(np.arange(n), count)
+    first = np.cumsum(count) - count
+    t = (np.arange(len(owner)) - first[owner] + 0.5) / count[owner]
+    centre = p0[owner] + t[:, None] * d[owner]
+    by_x = np.argsort(centre[:, 0], kind="stable")
+    owner, centre = owner[by_x], centre[by_x]
+    unit = d / np.maximum(length, 1e-300)[:, None]
+    pieces = _Pieces(
+        centre[:, 0].copy(),
+        centre[:, 1].copy(),
+        unit[owner, 0].copy(),
+        unit[owner, 1].copy(),
+        (length / (2 * count))[owner],
+    )
+    # the bounds get a little slack, the exact tests below none
+    near = reach + NEIGHBOUR_SLACK_MM
+    radius = 2 * float(pieces.half.max()) + near
     limit = math.cos(min(math.pi / 2, PARALLEL_LIMIT + angle_slack))
     found = [np.zeros(0, np.int64)]
-    for first in range(0, len(pts), strip_points):
-        core_end = min(first + strip_points, len(pts))
-        # the strip's own points, and those up to the query radius to their right
-        last = int(np.searchsorted(xs, xs[core_end - 1] + radius, side="right"))
-        rows = by_x[first:last]
-        near = cKDTree(pts[rows]).query_pairs(radius, output_type="ndarray")
-        near = near[np.minimum(near[:, 0], near[:, 1]) < core_end - first]
-        i, j = owner[rows[near[:, 0]]], owner[rows[near[:, 1]]]
-        keep = i != j
-        i, j = np.minimum(i[keep], j[keep]), np.maximum(i[keep], j[keep])
-        keys = _sorted_unique(i * n + j)
-        i, j = keys // n, keys % n
-        cos = np.abs(np.sum(d[i] * d[j], axis=1)) / np.maximum(length[i] * length[j], 1e-300)
-        keep = cos >= limit
-        i, j = i[keep], j[keep]
-        keep = segment_distance_np(p0, p1, i, j) < reach
-        found.append(i[keep] * n + j[keep])
+    x = pieces.x
+    for start in range(0, len(owner), strip_points):
+        end = min(start + strip_points, len(owner))
+        last = int(np.searchsorted(x, x[end - 1] + radius, side="right"))
+        tree = cKDTree(centre[start:end])
+        inner = tree.query_pairs(radius, output_type="ndarray") + start
+        candidates = [(inner[:, 0], inner[:, 1])]
+        if last > end:
+            outer = tree.sparse_distance_matrix(
+                cKDTree(centre[end:last]), radius, output_type="ndarray"
+            )
+            candidates.append((outer["i"] + start, outer["j"] + end))
+        for a_all, b_all in candidates:
+            for c in range(0, len(a_all), NEIGHBOUR_CHUNK):
+                a, b = a_all[c : c + NEIGHBOUR_CHUNK], b_all[c : c + NEIGHBOUR_CHUNK]
+                sel = _may_touch(pieces, a, b, near, limit - 1e-9)
+                i, j = owner[a[sel]], owner[b[sel]]
+                keep = i != j
+                i, j = np.minimum(i[keep], j[keep]), np.maximum(i[keep], j[keep])
+                cos = np.abs(np.sum(d[i] * d[j], axis=1)) / np.maximum(
+                    length[i] * length[j], 1e-300
+                )
+                keep = cos >= limit
+                i, j = i[keep], j[keep]
+                keep = segment_distance_np(p0, p1, i, j) < reach
+                found.append(i[keep] * n + j[keep])
     keys = _sorted_unique(np.concatenate(found))
     return keys // n, keys % n
+
+
+@dataclass(frozen=True)
+class _Pieces:
+    """Pieces of scratches for :func:`neighbour_pairs`: centres, unit directions, half lengths."""
+
+    x: np.ndarray
+    y: np.ndarray
+    ux: np.ndarray
+    uy: np.ndarray
+    half: np.ndarray
+
+
+def _may_touch(p: _Pieces, a: np.ndarray, b: np.ndarray, near: float, limit: float) -> np.ndarray:
+    """Indices k of the piece pairs (a[k], b[k]) that no bound shows apart.
+
+    Kept: |cos| of their angle at least ``limit``, and no separating-axis lower bound
+    on their distance (along or across either piece) at ``near`` or more.
+    """
+    cos = np.abs(p.ux[a] * p.ux[b] + p.uy[a] * p.uy[b])
+    keep = np.flatnonzero(cos >= limit)
+    a, b, cos = a[keep], b[keep], cos[keep]
+    uxa, uya, uxb, uyb = p.ux[a], p.uy[a], p.ux[b], p.uy[b]
+    dx = p.x[b] - p.x[a]
+    dy = p.y[b] - p.y[a]
+    ha, hb = p.half[a], p.half[b]
+    sin = np.abs(uxa * uyb - uya * uxb)
+    ok = np.abs(uxa * dy - uya * dx) - hb * sin < near
+    ok &= np.abs(uxb * dy - uyb * dx) - ha * sin < near
+    ok &= np.abs(uxa * dx + uya * dy) - ha - hb * cos < near
+    ok &= np.abs(uxb * dx + uyb * dy) - hb - ha * cos < near
+    return keep[ok]
 
 
 def _sorted_unique(keys: np.ndarray) -> np.ndarray:
