@@ -2630,3 +2630,24 @@ def test_resume_refuses_when_a_reset_cleared_the_g92_zero(tmp_path, monkeypatch,
     err = capsys.readouterr().err.splitlines()[-1]
     assert err.startswith(f"error: {journal}: the interrupted run's work zero included a G92")
     assert len(_received_gcode(port.sim.record)) == sent  # nothing was sent
+
+
+def test_a_dwell_longer_than_the_stall_timeout_is_not_a_stall(tmp_path):
+    """GRBL answers G4 only when the dwell ends and reports Idle meanwhile: a spin-up
+    dwell longer than the stall timeout must not stop the job (a lost ok still does)."""
+    job = tmp_path / "job.gcode"
+    job.write_text("G21 G90\nG0 Z2\nM3 S1000\nG4 P1.5\nG0 X1\nG1 Z-0.1 F600\nG1 X2 F600\n"
+                   "G0 Z2\nM5\nM2\n")  # fmt: skip
+    prog = load_program(job)
+    options = StreamOptions(banner_timeout=0.3, stall_timeout=0.5)
+    for query, fault in (("", None), ("&lose_ok_at=4", "stalled: no answer to line 10")):
+        port = open_port(f"grblsim://?time_scale=1{query}", 115200)
+        try:
+            if fault is None:
+                _stream(port, prog, tmp_path / "j.jsonl", options)
+                assert [e["n"] for e in port.sim.record if e["ev"] == "exec"]
+            else:
+                with pytest.raises(StreamFault, match=fault):
+                    _stream(port, prog, tmp_path / "k.jsonl", options)
+        finally:
+            port.close()

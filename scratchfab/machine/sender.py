@@ -16,7 +16,7 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
 - Faults: ``error:N`` stops feeding at once and sends feed hold; ``ALARM:N``; an unexpected
   banner (controller reset: soft-reset at once so that lines already on the way do not run
   from a lost position); a stall (lines in flight, controller Idle, no answer for
-  ``stall_timeout``); silence; a lost connection. Ctrl-C holds, then asks resume or stop.
+  ``stall_timeout``, plus the dwell of a ``G4`` being answered); silence; a lost connection. Ctrl-C holds, then asks resume or stop.
   Stopping safely is: feed hold, wait for ``Hold:0`` (or Idle), soft reset (spindle off,
   queue flushed, no alarm), banner.
 - Journal: every ``ok`` of a file block is appended and flushed; after a reset the journal
@@ -44,7 +44,7 @@ import serial
 from scratchfab.errors import Interrupted, ScratchfabError
 from scratchfab.machine.grbl_codes import MM_PER_INCH, alarm_meaning, error_meaning
 from scratchfab.machine.sender_journal import Journal, last_surely_run
-from scratchfab.machine.sender_program import Block, Modal, Program
+from scratchfab.machine.sender_program import Block, Modal, Program, dwell_seconds
 
 if "scratchfab.machine" not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append("scratchfab.machine")
@@ -777,7 +777,13 @@ class Streamer:
                         self.on_message(f"controller: {line}")
                 # ---- watchdogs
                 now = time.monotonic()
-                if idle_since is not None and now - idle_since > self.options.stall_timeout:
+                # GRBL answers a dwell (G4) only when it ends, Idle all the while
+                if (
+                    idle_since is not None
+                    and now - idle_since > self.options.stall_timeout
+                    and now - idle_since
+                    > self.options.stall_timeout + dwell_seconds(self._inflight[0][0].text)
+                ):
                     item = self._inflight[0][0]
                     where = f"line {item.block.lineno}" if item.block else f"preamble {item.text}"
                     raise _Fault(

@@ -592,6 +592,14 @@ def travel_move(program: Program, start: int) -> tuple[str, float]:
     return "G0", 0.0
 
 
+def dwell_seconds(text: str) -> float:
+    """The seconds a stripped block dwells (``G4 P``; GRBL 1.1 takes P in seconds), else 0."""
+    words = _words(text)
+    if ("G", 4.0) not in words:
+        return 0.0
+    return next((v for letter, v in words if letter == "P"), 0.0)
+
+
 def spin_up_dwell(program: Program, start: int) -> float:
     """Seconds the file dwelt (``G4 P``) after its last spindle start before block ``start``.
 
@@ -608,9 +616,8 @@ def spin_up_dwell(program: Program, start: int) -> float:
     if on < 0 or blocks[-1].modal.spindle == "M5":
         return 0.0
     for b in blocks[on:]:
-        words = _words(b.text)
-        if ("G", 4.0) in words:
-            return next((v for letter, v in words if letter == "P"), 0.0)
+        if ("G", 4.0) in _words(b.text):
+            return dwell_seconds(b.text)
         if b.motion:
             break
     return 0.0
