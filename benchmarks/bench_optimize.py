@@ -18,8 +18,8 @@ Cases:
   (log-log slope over the counts). ``--quick`` runs only this case, small (seconds).
 
 Usage: python benchmarks/bench_optimize.py [--demo-iterations N] [--large-steps N]
-       [--large-until-bar N] [--skip-large] [--refresh-counts N,N,..] [--skip-refresh]
-       [--quick]
+       [--large-until-bar N] [--skip-large] [--skip-demo] [--refresh-counts N,N,..]
+       [--skip-refresh] [--quick]
 """
 
 from __future__ import annotations
@@ -324,6 +324,7 @@ def main() -> None:
     parser.add_argument("--refresh-resolution", type=int, default=512)
     parser.add_argument("--refresh-repeats", type=int, default=3)
     parser.add_argument("--skip-refresh", action="store_true")
+    parser.add_argument("--skip-demo", action="store_true")
     parser.add_argument(
         "--quick",
         action="store_true",
@@ -335,9 +336,11 @@ def main() -> None:
         report["refresh"] = bench_refresh([1000, 2000], 128, 1, args.threads)
         print(json.dumps(report, indent=2))
         return
-    report["demo"] = []
-    for space in args.spaces.split(","):
-        report["demo"].append(bench_demo(args.demo_iterations, args.threads, space))
+    if not args.skip_demo:
+        report["demo"] = [
+            bench_demo(args.demo_iterations, args.threads, space)
+            for space in args.spaces.split(",")
+        ]
     if not args.skip_refresh:
         counts = [int(c) for c in args.refresh_counts.split(",")]
         report["refresh"] = bench_refresh(
