@@ -2651,3 +2651,58 @@ def test_a_dwell_longer_than_the_stall_timeout_is_not_a_stall(tmp_path):
                     _stream(port, prog, tmp_path / "k.jsonl", options)
         finally:
             port.close()
+
+
+class _Deaf:
+    """A port whose controller's banner and ``[MSG:...]`` lines are lost on the line."""
+
+    def __init__(self, port):
+        self._port = port
+        self._held = b""
+        self._ready = b""
+
+    def read(self, size=1):
+        if not self._ready:
+            self._held += self._port.read(max(size, self._port.in_waiting))
+            done, _, self._held = self._held.rpartition(b"\n")
+            lines = [
+                ln for ln in done.split(b"\n") if not ln.strip().startswith((b"Grbl", b"[MSG"))
+            ]
+            self._ready = b"".join(ln + b"\n" for ln in lines if ln.strip())
+        out, self._ready = self._ready[:size], self._ready[size:]
+        return out
+
+    @property
+    def in_waiting(self):
+        return len(self._ready) + self._port.in_waiting
+
+    def __getattr__(self, name):
+        return getattr(self._port, name)
+
+
+def test_an_alarm_whose_message_was_lost_stops_the_job_instead_of_waiting(tmp_path):
+    """A brown-out with homing on ($22=1) leaves GRBL locked in Alarm; if its banner is
+    lost on the line, the status reports still say Alarm: the job stops (no hang) and no
+    block counts as run on the strength of the position after the reset."""
+    job = tmp_path / "job.gcode"
+    write_job(job, 30)
+    prog = load_program(job)
+    url = "grblsim://?time_scale=0.02&soft_limits=1&homed=1&wco=-100,-100,-10&reset_after=60"
+    port = open_port(url, 115200)
+    streamer = Streamer(port, FAST)
+    streamer.connect()
+    streamer.port = _Deaf(port)
+    journal = tmp_path / "j.jsonl"
+    j = Journal(journal).open()
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(StreamFault, match="reports Alarm after line"):
+            streamer.stream(prog, j)
+    finally:
+        j.close()
+        port.close()
+    assert time.monotonic() - t0 < 20
+    stop = read_journal(journal)[-1]
+    assert stop["ev"] == "stop"
+    ran = _executed_blocks(port.sim.record)
+    assert all(i in ran for i in range(stop["executed_through"] + 1) if prog.blocks[i].motion)

@@ -257,7 +257,8 @@ class _Fault(Exception):
     """A fault while talking to the controller; ``kind`` picks the safe reaction.
 
     Kinds: ``error`` and ``stall`` (hold, wait, reset), ``silent`` (hold, short wait, reset),
-    ``alarm`` (reset), ``reset`` (the controller reset itself), ``link`` (connection lost).
+    ``alarm`` (reset), ``lock`` (Alarm reported without its message: reset, position not
+    trusted), ``reset`` (the controller reset itself), ``link`` (connection lost).
     """
 
     def __init__(self, message: str, kind: str = "link") -> None:
@@ -747,6 +748,16 @@ class Streamer:
                         idle_since = None
                     elif line.startswith("<"):
                         self._note_status(line)
+                        if self.status.state.startswith("Alarm"):
+                            # its ALARM:N or reset banner was lost on the line: the lines
+                            # in flight will never be answered, and the position may be lost
+                            raise _Fault(
+                                "the controller reports Alarm after line "
+                                f"{self._last_acked_line()} (its ALARM or reset message was "
+                                "lost on the line); it stopped the job: home it or check the "
+                                "zero, then --resume",
+                                kind="lock",
+                            )
                         if self._inflight and self.status.state == "Idle":
                             idle_since = idle_since or time.monotonic()
                         else:
@@ -969,6 +980,8 @@ class Streamer:
                 # the alarm already stopped motion and flushed the queue; a critical alarm
                 # answers nothing until reset
                 self._reset(str(fault), self.status.wpos)
+            elif fault.kind == "lock":
+                self._reset(str(fault), None)  # a reset may have lost the position
             elif fault.kind == "reset":
                 self._wait_banner(self.options.banner_timeout)  # the reset sent on the banner
                 self._journal.write(
