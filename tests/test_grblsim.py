@@ -388,3 +388,20 @@ def test_which_spindle_lines_wait_for_the_planner(laser):
     assert resp[second_m5] < done[n_of["G1X0"]]  # M5 again: no change, no wait
     assert resp[n_of["M1"]] < done[n_of["G1X0"]]  # M1 ignored: no wait, no pause
     assert not any(e["ev"] == "state" and e["state"].startswith("Hold") for e in sim.record)
+
+
+def test_program_end_keeps_g92_and_a_reset_clears_it():
+    """Grbl 1.1's M2/M30 resets G1 G17 G90 G94 G54 M5 M9 only; a soft reset clears G92."""
+    port = _open("time_scale=0")
+    try:
+        _banner(port)
+        _cmd(port, b"G92X5Y-3\n")
+        assert _answers(_cmd(port, b"G91G55M2\n")) == ["ok"]
+        lines = _cmd(port, b"$#\n")
+        assert "[G92:-5.000,3.000,0.000]" in lines
+        assert any(x.startswith("[GC:G1 G54 G17 G21 G90 G94 M5 M9") for x in _cmd(port, b"$G\n"))
+        port.write(b"\x18")
+        _banner(port)
+        assert "[G92:0.000,0.000,0.000]" in _cmd(port, b"$#\n")
+    finally:
+        port.close()

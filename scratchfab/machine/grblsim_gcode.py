@@ -447,8 +447,7 @@ def interpret(line: str, state: ModalState, settings: Settings) -> Outcome:
         new.inverse_time = False
         new.coord_index = 0
         new.spindle = "M5"
-        new.coolant = frozenset()
-        new.g92 = (0.0, 0.0, 0.0)
+        new.coolant = frozenset()  # G92, F, S and the units are kept (gcode.c, step 21)
     return Outcome(new, actions, soft, offsets)
 
 
