@@ -2706,3 +2706,25 @@ def test_an_alarm_whose_message_was_lost_stops_the_job_instead_of_waiting(tmp_pa
     assert stop["ev"] == "stop"
     ran = _executed_blocks(port.sim.record)
     assert all(i in ran for i in range(stop["executed_through"] + 1) if prog.blocks[i].motion)
+
+
+def test_a_reset_during_check_mode_stops_before_anything_moves(tmp_path):
+    """A controller that resets itself in check mode has left it: the lines that follow
+    would run for real (the whole job did). The banner stops the check with a soft reset:
+    no move runs to its end; one sent before the banner arrived may start and is cut."""
+    job = tmp_path / "job.gcode"
+    write_job(job, 10)
+    prog = load_program(job)
+    port = open_port("grblsim://?time_scale=0.01&reset_after=8", 115200)
+    try:
+        streamer = Streamer(port, FAST)
+        streamer.connect()
+        with pytest.raises(StreamFault, match="reset itself during check mode"):
+            streamer.check(prog)
+    finally:
+        port.close()
+    record = port.sim.record
+    assert not [e for e in record if e["ev"] == "exec"]
+    cut = [e for e in record if e["ev"] == "partial"]
+    ours = [e["t"] for e in record if e["ev"] == "reset" and e["command"]]
+    assert len(cut) <= 1 and all(e["t"] in ours for e in cut)

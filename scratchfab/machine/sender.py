@@ -580,7 +580,17 @@ class Streamer:
             while not answered:
                 if time.monotonic() > deadline:
                     raise StreamFault(f"check mode: no answer to line {block.lineno}")
-                for line in self._read_lines(0.05):
+                lines = self._read_lines(0.05)
+                if any(line.startswith("Grbl ") for line in lines):
+                    # a reset ends check mode: what is sent from now on would run for real
+                    with contextlib.suppress(_Fault):
+                        self._write(REALTIME_RESET)
+                    raise StreamFault(
+                        f"{program.path}:{block.lineno}: the controller reset itself during "
+                        "check mode (banner received), which ends check mode; soft-reset it "
+                        "so that no line sent meanwhile runs; nothing more was sent"
+                    )
+                for line in lines:
                     if line == "ok":
                         answered = True
                     elif line.startswith("error:"):
