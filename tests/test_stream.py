@@ -2728,3 +2728,21 @@ def test_a_reset_during_check_mode_stops_before_anything_moves(tmp_path):
     cut = [e for e in record if e["ev"] == "partial"]
     ours = [e["t"] for e in record if e["ev"] == "reset" and e["command"]]
     assert len(cut) <= 1 and all(e["t"] in ours for e in cut)
+
+
+def test_check_mode_is_entered_or_nothing_is_sent(tmp_path):
+    """``$C`` toggles: on a controller already in check mode it leaves it, and the job
+    would then run for real. Only ``[MSG:Enabled]`` lets the check send lines."""
+    job = tmp_path / "job.gcode"
+    write_job(job, 5)
+    prog = load_program(job)
+    port = open_port("grblsim://?time_scale=0.01", 115200)
+    try:
+        streamer = Streamer(port, FAST)
+        streamer.connect()
+        streamer._command("$C")  # left in check mode by someone else
+        with pytest.raises(StreamFault, match="did not enter check mode"):
+            streamer.check(prog)
+    finally:
+        port.close()
+    assert not _received_gcode(port.sim.record)

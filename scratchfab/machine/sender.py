@@ -570,7 +570,14 @@ class Streamer:
 
     def _check(self, program: Program, report: CheckReport) -> CheckReport:
         """Check mode proper: ``$C``, every line, ``$C`` again (reset and banner)."""
-        self._command("$C")
+        if "[MSG:Enabled]" not in self._command("$C"):
+            # $C toggles: one that did not say Enabled left check mode (or never entered it)
+            self._write(REALTIME_RESET)
+            self._wait_banner(self.options.banner_timeout)
+            raise StreamFault(
+                f"{program.path}: the controller did not enter check mode ($C answered "
+                "without [MSG:Enabled]); nothing was checked or sent"
+            )
         for block in program.blocks:
             if block.system:
                 continue
