@@ -2746,3 +2746,17 @@ def test_check_mode_is_entered_or_nothing_is_sent(tmp_path):
     finally:
         port.close()
     assert not _received_gcode(port.sim.record)
+
+
+def test_a_lost_link_warns_that_the_machine_may_still_move(tmp_path):
+    job = tmp_path / "job.gcode"
+    write_job(job, 20)
+    port = open_port("grblsim://?time_scale=0.02&disconnect_after=40", 115200)
+    try:
+        with pytest.raises(StreamFault, match="connection lost.*goes on running the lines"):
+            _stream(port, load_program(job), tmp_path / "j.jsonl")
+    finally:
+        port.close()
+    record = port.sim.record
+    lost = next(e["t"] for e in record if e["ev"] == "disconnect")
+    assert [e for e in record if e["ev"] == "exec" and e["t"] > lost]  # it did go on

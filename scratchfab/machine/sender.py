@@ -1012,6 +1012,11 @@ class Streamer:
                     reason=str(fault),
                     executed_through=self._executed_guess(self.status.wpos),
                 )
+                fault.args = (
+                    f"{fault}; a controller that kept power goes on running the lines it had "
+                    "received (up to a planner full of moves, spindle on): wait until it stops "
+                    "or press its reset before going near it",
+                )
         except _Fault:
             self._journal.write(
                 "stop", reason=str(fault), executed_through=self._executed_guess(None)
