@@ -2760,3 +2760,17 @@ def test_a_lost_link_warns_that_the_machine_may_still_move(tmp_path):
     record = port.sim.record
     lost = next(e["t"] for e in record if e["ev"] == "disconnect")
     assert [e for e in record if e["ev"] == "exec" and e["t"] > lost]  # it did go on
+
+
+def test_report_lines_that_need_idle_wait_for_it(tmp_path):
+    """GRBL answers $#, $$, $I and $N with error:8 while moving: a job holding one (they
+    are allowed: they move nothing) must not stop there."""
+    job = tmp_path / "job.gcode"
+    job.write_text("G21 G90\nG0 Z2\nG0 X5 Y5\n$#\nG0 X0\n$G\n$$\nG0 Y0\n$I\n$N\nG0 Z3\n")
+    port = open_port("grblsim://?time_scale=0.05", 115200)
+    try:
+        _stream(port, load_program(job), tmp_path / "j.jsonl")
+    finally:
+        port.close()
+    assert [e["r"] for e in port.sim.record if e["ev"] == "resp"].count("ok") > 11
+    assert not [e for e in port.sim.record if e["ev"] == "resp" and e["r"] != "ok"]

@@ -9,7 +9,8 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
   bytes of unanswered lines within ``rx_buffer - margin``; every non-realtime byte counts,
   ``?`` is realtime and does not. **Simple** sends one line and waits for its answer. Only
   ``ok`` and ``error:N`` answer a line (oldest first); ``<...>``, ``[...]``, ``ALARM:N`` and
-  banners do not. ``$`` lines are always sent one at a time.
+  banners do not. ``$`` lines are always sent one at a time, and ``$$``, ``$#``, ``$I``
+  and ``$N`` only once the controller is Idle (else GRBL answers error:8).
 - Stroke barrier: the first block of a stroke is sent only when every block of the previous
   stroke is acknowledged, so after a disconnect at most one stroke can have run unacknowledged.
 - Status ``?`` at most ``poll_hz`` (5 Hz) for the progress report and the watchdogs.
@@ -53,6 +54,8 @@ REALTIME_STATUS = b"?"
 REALTIME_HOLD = b"!"
 REALTIME_RESUME = b"~"
 REALTIME_RESET = b"\x18"
+#: ``$`` reports GRBL refuses (error:8) while the machine moves: sent once it is Idle.
+_IDLE_ONLY = frozenset({"$$", "$#", "$I", "$N"})
 
 
 class StreamFault(ScratchfabError):
@@ -749,6 +752,8 @@ class Streamer:
                         break
                     if item.barrier >= 0 and self._acked_through < item.barrier:
                         break
+                    if item.text in _IDLE_ONLY and (self._inflight or not self._finished()):
+                        break  # GRBL answers error:8 to these unless Idle
                     self._write(item.text.encode("ascii") + b"\n")
                     self.sent_log.append(item.text)
                     self._inflight.append((item, size))
