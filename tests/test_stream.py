@@ -2774,3 +2774,18 @@ def test_report_lines_that_need_idle_wait_for_it(tmp_path):
         port.close()
     assert [e["r"] for e in port.sim.record if e["ev"] == "resp"].count("ok") > 11
     assert not [e for e in port.sim.record if e["ev"] == "resp" and e["r"] != "ok"]
+
+
+def test_a_grbl_0_9_controller_is_refused(monkeypatch):
+    """Grbl 0.9 reports ``<Idle,MPos:...>``: Idle and Hold:0 would never be recognised, so
+    a job would never be seen to end and a stop would wait out its timeout."""
+    import scratchfab.machine.grblsim as grblsim
+
+    monkeypatch.setattr(grblsim, "BANNER", "\r\nGrbl 0.9j ['$' for help]\r\n")
+    port = open_port("grblsim://?time_scale=0", 115200)
+    try:
+        with pytest.raises(StreamFault, match=r"Grbl 0\.9j, whose status reports"):
+            Streamer(port, FAST).connect()
+    finally:
+        port.close()
+    assert not _received_gcode(port.sim.record)

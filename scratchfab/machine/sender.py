@@ -415,6 +415,12 @@ class Streamer:
                 raise StreamFault(
                     "no GRBL banner: is this a GRBL 1.1 controller, and is the baud rate right?"
                 )
+            if self.info.version.startswith("0."):
+                # <Idle,MPos:...> reports: Idle, Hold and the positions would never be read
+                raise StreamFault(
+                    f"controller reports Grbl {self.info.version}, whose status reports and "
+                    "messages predate Grbl 1.1; flash Grbl 1.1 (nothing was sent)"
+                )
             if not self.info.version.startswith("1.1"):
                 self.on_message(f"controller reports Grbl {self.info.version}; written for 1.1")
             for line in after:
