@@ -2789,3 +2789,36 @@ def test_a_grbl_0_9_controller_is_refused(monkeypatch):
     finally:
         port.close()
     assert not _received_gcode(port.sim.record)
+
+
+def test_a_reset_while_held_at_the_prompt_is_not_resumed(tmp_path):
+    """The controller resets itself while the user decides after Ctrl-C: its Idle is not
+    a completed hold, so "resume" must not go on streaming into the lost position; the
+    journal trusts no position from after the reset."""
+    job = tmp_path / "job.gcode"
+    write_job(job, 30)
+    prog = load_program(job)
+    port = open_port("grblsim://?time_scale=0.02", 115200)
+    sim = port.sim
+
+    def brown_out_then_resume():
+        with sim._cond:
+            sim._reset_at = sim._clock()
+            sim._cond.notify_all()
+        time.sleep(0.2)
+        return "resume"
+
+    journal = tmp_path / "j.jsonl"
+    try:
+        with pytest.raises(StreamFault, match="reset itself while held"):
+            _stream(port, prog, journal, on_progress=_fire_after(40),
+                    ask_interrupt=brown_out_then_resume)  # fmt: skip
+    finally:
+        port.close()
+    brown_out = next(e["t"] for e in sim.record if e["ev"] == "reset" and not e["command"])
+    assert not [e for e in sim.record if e["ev"] == "rt" and e["ch"] == ord("~")]
+    assert not [e for e in sim.record if e["ev"] == "exec" and e["t"] > brown_out]
+    stop = read_journal(journal)[-1]
+    ran = _executed_blocks(sim.record)
+    assert stop["ev"] == "stop"
+    assert all(i in ran for i in range(stop["executed_through"] + 1) if prog.blocks[i].motion)

@@ -1047,6 +1047,17 @@ class Streamer:
                         return self.status
                 elif line.startswith("ALARM:"):
                     return None
+                elif line.startswith("Grbl "):
+                    # reset while held: its Idle and position are not the hold's; flush what
+                    # is on the way, as _run does
+                    with contextlib.suppress(_Fault):
+                        self._write(REALTIME_RESET)
+                    raise _Fault(
+                        "the controller reset itself while held (banner received after line "
+                        f"{self._last_acked_line()}); its position may be lost: re-home or "
+                        "re-zero, then --resume",
+                        kind="reset",
+                    )
         return None
 
     def _safe_stop(self, reason: str, wait: float) -> None:
