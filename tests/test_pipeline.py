@@ -772,13 +772,16 @@ def test_stage_table_bounds_accept_the_valid_forms(tmp_path, edit, check):
 
 
 def test_machine_ref_is_the_bundled_name_or_the_resolved_path(tmp_path):
-    from scratchfab.machine.profile import bundled_dir, load_profile
+    from scratchfab.bundled import bundled_dir
+    from scratchfab.machine.profile import load_profile
 
     path = write_pipeline(tmp_path / "p")
     assert load_pipeline(path).machine_ref() == "grbl-3018-diamond"
     machines = tmp_path / "machines"
     machines.mkdir()
-    (machines / "mine.toml").write_text((bundled_dir() / "grbl-3018-diamond.toml").read_text())
+    (machines / "mine.toml").write_text(
+        (bundled_dir("machine_profiles") / "grbl-3018-diamond.toml").read_text()
+    )
     text = path.read_text().replace('"grbl-3018-diamond"', '"../machines/mine.toml"')
     path.write_text(text)
     pipe = load_pipeline(path)

@@ -8,10 +8,9 @@ import pytest
 import shapely
 from shapely import affinity
 
+from scratchfab.bundled import bundled_dir, bundled_names
 from scratchfab.errors import ConfigError
 from scratchfab.machine.profile import (
-    bundled_dir,
-    bundled_profiles,
     gcode_number,
     load_profile,
     profile_from_mapping,
@@ -26,22 +25,22 @@ def base_table() -> dict:
 
 
 def test_bundled_profiles_load_and_round_trip():
-    names = bundled_profiles()
+    names = bundled_names("machine_profiles")
     assert {"grbl-3018-diamond", "grbl-plotter-scribe"} <= set(names)
     for name in names:
         profile = load_profile(name)
         assert profile.dialect == "grbl-1.1"
         assert profile_from_mapping(profile.to_table(), "<again>") == profile
-        assert load_profile(bundled_dir() / f"{name}.toml") == profile
+        assert load_profile(bundled_dir("machine_profiles") / f"{name}.toml") == profile
     assert load_profile("grbl-plotter-scribe").tool_control.mode == "servo"
     assert load_profile("grbl-3018-diamond").tool_control.mode == "z"
 
 
 def test_repo_root_copies_match_the_bundled_files():
     root = sorted((ROOT / "machine_profiles").glob("*.toml"))
-    assert [p.stem for p in root] == bundled_profiles()
+    assert [p.stem for p in root] == bundled_names("machine_profiles")
     for path in root:
-        assert path.read_bytes() == (bundled_dir() / path.name).read_bytes()
+        assert path.read_bytes() == (bundled_dir("machine_profiles") / path.name).read_bytes()
     assert (ROOT / "machine_profiles" / "README.md").is_file()
 
 
@@ -160,7 +159,7 @@ def test_unknown_name_lists_bundled(tmp_path):
     bad.write_text("name = 'x'\n[envelope]\nx_mm = [0, 1]\ny_mm = [0, 1]\n")
     with pytest.raises(ConfigError, match="tool: missing required key"):
         load_profile(bad)
-    table = load_toml(bundled_dir() / "grbl-plotter-scribe.toml")
+    table = load_toml(bundled_dir("machine_profiles") / "grbl-plotter-scribe.toml")
     assert profile_from_mapping(table, "x").feeds.travel_mm_min == 4000.0
 
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
+from scratchfab.bundled import bundled_names
 from scratchfab.errors import ScratchfabError
-from scratchfab.machine.profile import bundled_profiles
 from scratchfab.model.job import JobLayout
 from scratchfab.toolpath import OrderOptions
 
@@ -51,7 +51,7 @@ def _inputs(
     "--machine",
     "-m",
     required=True,
-    help=f"Bundled profile ({', '.join(bundled_profiles())}) or a profile TOML file.",
+    help=f"Bundled profile ({', '.join(bundled_names('machine_profiles'))}) or a profile TOML file.",
 )
 @click.option(
     "--scratches",

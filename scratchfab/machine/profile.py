@@ -71,13 +71,12 @@ import math
 import re
 import string
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
-from scratchfab.errors import ConfigError
+from scratchfab.bundled import find_bundled
 from scratchfab.model.schema import load_toml, parse_table, spec, to_table
 
 Range = tuple[float, float]
@@ -432,32 +431,6 @@ def profile_from_mapping(data: Any, source: str) -> MachineProfile:
     return profile
 
 
-def bundled_dir() -> Path:
-    """The folder of the bundled profiles."""
-    return Path(str(resources.files("scratchfab") / "data" / "machine_profiles"))
-
-
-def bundled_profiles() -> list[str]:
-    """Names of the bundled profiles (usable as ``--machine NAME``)."""
-    folder = bundled_dir()
-    if not folder.is_dir():
-        return []
-    return sorted(p.stem for p in folder.glob("*.toml"))
-
-
-def names_a_file(ref: str) -> bool:
-    """Whether a ``--machine`` value names a profile file (else a bundled profile's name)."""
-    return ref.endswith(".toml") or "/" in ref or "\\" in ref
-
-
-def _is_file(path: Path) -> bool:
-    """``path.is_file()``, False also for a name the file system refuses (too long)."""
-    try:
-        return path.is_file()
-    except OSError:
-        return False
-
-
 def load_profile(name_or_path: str | Path | MachineProfile) -> MachineProfile:
     """Load a bundled profile by name, or any profile file by path.
 
@@ -468,15 +441,5 @@ def load_profile(name_or_path: str | Path | MachineProfile) -> MachineProfile:
     """
     if isinstance(name_or_path, MachineProfile):
         return name_or_path
-    text = str(name_or_path)
-    path = Path(text)
-    if not names_a_file(text):
-        bundled = bundled_dir() / f"{text}.toml"
-        if _is_file(bundled):
-            path = bundled
-        elif not _is_file(path):
-            names = ", ".join(bundled_profiles()) or "none"
-            raise ConfigError(
-                f"machine '{text}': not a bundled profile (bundled: {names}) nor a file"
-            )
+    path = find_bundled("machine_profiles", name_or_path, "machine")
     return profile_from_mapping(load_toml(path), str(path))
