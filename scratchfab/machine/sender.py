@@ -803,15 +803,7 @@ class Streamer:
                             kind="alarm",
                         )
                     elif line.startswith("Grbl "):
-                        # lines already on the way would run from a lost position: flush them
-                        with contextlib.suppress(_Fault):
-                            self._write(REALTIME_RESET)
-                        raise _Fault(
-                            "the controller reset itself mid-job (banner received after line "
-                            f"{self._last_acked_line()}); its position may be lost: re-home or "
-                            "re-zero, then --resume",
-                            kind="reset",
-                        )
+                        raise self._reset_fault("mid-job")
                     elif line.startswith("[MSG:"):
                         self.on_message(f"controller: {line}")
                 # ---- watchdogs
@@ -893,6 +885,20 @@ class Streamer:
                 wpos=self.status.wpos,
                 final=final,
             )
+        )
+
+    def _reset_fault(self, when: str) -> _Fault:
+        """The fault of a controller that reset itself (its banner came) ``when``.
+
+        Lines already on the way would run from a lost position: a soft reset flushes them.
+        """
+        with contextlib.suppress(_Fault):
+            self._write(REALTIME_RESET)
+        return _Fault(
+            f"the controller reset itself {when} (banner received after line "
+            f"{self._last_acked_line()}); its position may be lost: re-home or re-zero, then "
+            "--resume",
+            kind="reset",
         )
 
     def _last_acked_line(self) -> str:
@@ -1048,16 +1054,8 @@ class Streamer:
                 elif line.startswith("ALARM:"):
                     return None
                 elif line.startswith("Grbl "):
-                    # reset while held: its Idle and position are not the hold's; flush what
-                    # is on the way, as _run does
-                    with contextlib.suppress(_Fault):
-                        self._write(REALTIME_RESET)
-                    raise _Fault(
-                        "the controller reset itself while held (banner received after line "
-                        f"{self._last_acked_line()}); its position may be lost: re-home or "
-                        "re-zero, then --resume",
-                        kind="reset",
-                    )
+                    # a reset while held: its Idle and position are not the hold's
+                    raise self._reset_fault("while held")
         return None
 
     def _safe_stop(self, reason: str, wait: float) -> None:
