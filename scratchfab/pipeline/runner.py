@@ -244,7 +244,6 @@ class _Stages:
         )
         return self._relative(self.layout.journal)
 
-
     def _ask_before_a_partial_board(self) -> None:
         """A board the envelope cuts short goes to a real machine only when a person says so.
 
