@@ -64,6 +64,7 @@ def run(
 
     PIPELINE is a pipeline TOML, or a bundled pipeline's name: `scratchfab run demo` runs
     the bundled demo into ./job-demo.
+
     Stages whose inputs did not change since the last run are skipped (JOB/manifest.json);
     a failed stage leaves earlier outputs intact and the next run resumes there. The G-code
     is streamed again only when it or the [stream] options changed, or with --from stream
