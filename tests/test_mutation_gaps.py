@@ -230,7 +230,7 @@ def test_the_work_offset_read_with_dollar_hash_is_in_mm(inches):
 
 def _blocks(kinds: list[str]) -> list[SimpleNamespace]:
     return [
-        SimpleNamespace(index=k, motion=c == "m", sync=c == "s", text=c)
+        SimpleNamespace(index=k, motion=c in "mx", sync=c in "sx", text=c)
         for k, c in enumerate(kinds)
     ]
 
@@ -240,15 +240,20 @@ def _surely_run_reference(
 ) -> int:
     """Block by block: an acked block surely ran when a sync block acked at or after it
     (the controller empties its planner before answering one) or when at least
-    ``pending`` motion blocks were acked after it (no more can wait unrun). The answer
-    is the block before the first one not sure to have run (the last acked if all are)."""
+    ``pending`` motion blocks were acked after it (no more can wait unrun). A sync block
+    that moves ("x": ``G1 X5 M3``) waits only for the moves before it, so it does not
+    vouch for its own move. The answer is the block before the first one not sure to
+    have run (the last acked if all are)."""
     n = len(acked)
     sure = []
     for p in range(n):
         later_sync = any(
-            kinds[acked[q]] == "s" and (q < n - 1 or trust_last_sync) for q in range(p, n)
+            kinds[acked[q]] in "sx"
+            and (q < n - 1 or trust_last_sync)
+            and (q > p or kinds[acked[p]] == "s")
+            for q in range(p, n)
         )
-        motions_after = sum(kinds[acked[q]] == "m" for q in range(p + 1, n))
+        motions_after = sum(kinds[acked[q]] in "mx" for q in range(p + 1, n))
         sure.append(later_sync or motions_after >= pending)
     unsure = [p for p in range(n) if not sure[p]]
     assert unsure == list(range(n - len(unsure), n))  # a suffix: the rule is monotone
@@ -257,7 +262,7 @@ def _surely_run_reference(
     return acked[unsure[0]] - 1 if unsure else acked[-1]
 
 
-_session = st.lists(st.sampled_from("mmmmso"), max_size=40).flatmap(
+_session = st.lists(st.sampled_from("mmmmsox"), max_size=40).flatmap(
     lambda kinds: st.tuples(
         st.just(kinds),
         st.integers(0, len(kinds)),

@@ -425,7 +425,8 @@ def last_surely_run(
     means everything before it ran; the last acknowledged block is unsure even when it is
     a sync block (a margin too). An S change (``Block.speed_sync``) counts only when
     ``laser_mode`` is known to be off (``$32=0``): in laser mode GRBL moves on through it.
-    Returns -1 when none surely ran.
+    A sync block that also moves (``G1 X5 S700``, ``G1 X5 M3``) waited only for the moves
+    before it: its own move was queued, not surely run. Returns -1 when none surely ran.
     """
     if not acked:
         return -1
@@ -435,7 +436,7 @@ def last_surely_run(
         b = blocks[i]
         synced = b.sync or (laser_mode is False and b.speed_sync)
         if synced and i != acked[-1]:
-            break
+            return i - 1 if b.motion else earliest - 1
         earliest = i
         if b.motion:
             motions += 1
