@@ -2593,9 +2593,17 @@ def test_check_mode_refuses_when_its_reset_clears_the_work_zero(tmp_path, zero, 
         port.close()
 
 
-@pytest.mark.parametrize(("zero", "resumed"), [("G92X5Y-3", False), ("G10L20P1X5Y-3", True)])
+@pytest.mark.parametrize(
+    ("zero", "rezero", "resumed"),
+    [
+        ("G92X5Y-3", "", False),
+        ("G10L20P1X5Y-3", "", True),
+        # zeroed again by hand after the stop, as the refusal asks: never to the hundredth
+        ("G92X5Y-3", "G10L20P1X5.02Y-3", True),
+    ],
+)
 def test_resume_refuses_when_a_reset_cleared_the_g92_zero(tmp_path, monkeypatch, capsys, zero,
-                                                          resumed):  # fmt: skip
+                                                          rezero, resumed):  # fmt: skip
     """The stop's soft reset clears G92 (not G54): resuming a run zeroed with G92 would cut
     the rest of the strokes elsewhere, so it is refused until the zero is set again."""
     job = tmp_path / "job.gcode"
@@ -2618,12 +2626,17 @@ def test_resume_refuses_when_a_reset_cleared_the_g92_zero(tmp_path, monkeypatch,
         streamer.stream(prog, j)
     j.close()
     assert read_journal(journal)[0]["wco"] == [-5.0, 3.0, 0.0]
+    if rezero:
+        streamer._command(rezero)
     sent = len(_received_gcode(port.sim.record))
     monkeypatch.setattr("scratchfab.machine.stream_job.open_port", lambda name, baud: port)
     args = ["stream", str(job), "--port", "grblsim://", "--resume", "--yes"]
     if resumed:
         main([*args, "--banner-timeout", "0.3"])
         assert read_journal(journal)[-1]["ev"] == "end"
+        changed = "warning: the work offset changed since the interrupted run"
+        said = capsys.readouterr()
+        assert (changed in said.out + said.err) is bool(rezero)
         return
     with pytest.raises(SystemExit) as exc:
         main([*args, "--banner-timeout", "0.3"])

@@ -245,19 +245,22 @@ def _check_same_zero(
     """Before a resume: the work zero must be where the interrupted run had it.
 
     A soft reset (every stop, check mode, a reconnect) clears GRBL's G92 offset, so a
-    zero set with G92 is gone and the resumed strokes would land that far off: refused.
-    Any other change of the work offset is told (a re-zero after a lost position changes
-    it legitimately).
+    zero set with G92 is gone and the resumed strokes would land that far off: refused
+    when the work offset is now exactly the old one less that G92 part (nobody zeroed
+    again). Any other change of the work offset is told (a re-zero after a lost position
+    changes it legitimately, and by hand never to the hundredth).
 
     Raises:
-        ScratchfabError: The earlier run had a G92 offset and it is now cleared.
+        ScratchfabError: The earlier run had a G92 offset, it is now cleared, and the work
+            zero was not set again.
     """
     before, g92_before = run_zero(events)
     if before is None or wco is None or math.dist(before, wco) <= 0.01:
         return
     was, now = _xyz_text(before), _xyz_text(wco)
     if g92_before is not None and any(abs(v) > 0.001 for v in g92_before):
-        if g92 is None or all(abs(v) <= 0.001 for v in g92):
+        cleared = tuple(b - g for b, g in zip(before, g92_before, strict=True))
+        if (g92 is None or all(abs(v) <= 0.001 for v in g92)) and math.dist(cleared, wco) <= 0.01:
             raise ScratchfabError(
                 f"{journal_file}: the interrupted run's work zero included a G92 offset "
                 f"({_xyz_text(g92_before)} mm) that a reset since then cleared (work offset "
