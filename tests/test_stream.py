@@ -2558,6 +2558,10 @@ def test_a_file_cut_off_at_a_plunge_is_refused_before_connecting(
         "G21 G90\nG0 Z5\nG0 X10 Y10\nG1 Z6 F100\n",  # a feed move up
         "G21 G90\nG1 X10 Y10 F100\nG1 Z-1\n",  # no travel height known: nothing to judge by
         "G21 G90\nM5\nG0 X1 Y1\nM3 S1000\nG1 X5 F600\nM5\n",  # a servo job, pen lifted
+        # three feed levels, no rapid: no cutting height shown, and the last move goes in
+        # XY too, so it is no plunge
+        "G21 G90\nG1 Z5 F500\nG1 X10 Y10\nG1 X20 Z3\nG1 X0 Y0 Z0\n",
+        "G21 G90\nG0 Z10\nM3 S500\nG1 X5 F600\nM5\nG1 Z2 F100\n",  # laser off, refocused
     ],
 )
 def test_a_file_that_ends_lifted_is_streamed(tmp_path, text):

@@ -511,7 +511,8 @@ def check_tool_up_at_end(program: Program) -> None:
             raise ConfigError(
                 f"{program.path}:{last.lineno}: the program ends by feeding the tool down to "
                 f"Z {block.modal.z:g} mm{at}, below its travel height {travel:g}, and never "
-                "lifts it; the file may be cut short: expected a lift after the plunge"
+                "lifts it; the file may be cut short: expected a lift after the plunge (if "
+                "the file is whole, give --machine or a --z-threshold below that Z)"
             )
     if not program.strokes or program.strokes[-1][1] != len(program.blocks) - 1:
         return
@@ -535,8 +536,9 @@ def _final_plunge(blocks: Sequence[Block]) -> tuple[Block, float] | None:
 
     The travel height is the lowest Z a rapid reaches, else (a job without rapids at a
     known Z) the highest Z reached before. A complete job never ends by lowering the tool
-    with a feed move to below it: that is a plunge whose cut and lift are missing. A last
-    move that lifts, even to below the travel height, is not refused.
+    with a Z-only feed move to below it: that is a plunge whose cut and lift are missing.
+    Not taken for one: a last move that lifts (even to below the travel height) or also
+    moves in X or Y, and a lowering after the spindle or laser was switched off (M5).
     """
     moves = [b for b in blocks if b.motion]
     if not moves or any(b.unfollowed for b in moves):
@@ -544,6 +546,10 @@ def _final_plunge(blocks: Sequence[Block]) -> tuple[Block, float] | None:
     last = moves[-1]
     z = last.modal.z
     if last.modal.motion == "G0" or z is None:
+        return None
+    if last.modal.spindle == "M5" and any(b.modal.spindle in ("M3", "M4") for b in blocks):
+        return None
+    if len(moves) > 1 and (moves[-2].modal.x, moves[-2].modal.y) != (last.modal.x, last.modal.y):
         return None
     before = moves[-2].modal.z if len(moves) > 1 else None
     rapid_z = [b.modal.z for b in moves if b.modal.motion == "G0" and b.modal.z is not None]
