@@ -637,10 +637,10 @@ class Streamer:
         after = self.info.wco
         if before is None or (after is not None and math.dist(before, after) <= 0.001):
             return
-        now = "unknown" if after is None else _xyz_text(after)
+        now = "unknown" if after is None else xyz_text(after)
         raise StreamFault(
             f"{program.path}: leaving check mode soft-resets GRBL, which cleared its G92 or "
-            f"tool length offset: the work offset was {_xyz_text(before)}, now {now} mm, so "
+            f"tool length offset: the work offset was {xyz_text(before)}, now {now} mm, so "
             "the job would run elsewhere; set the work zero again (G10 L20 P1 keeps it over "
             "a reset) and stream again; nothing moved"
         )
@@ -1128,7 +1128,7 @@ def _on_segment(
     return math.dist(p, closest) <= tol
 
 
-def _xyz_text(xyz: Sequence[float]) -> str:
+def xyz_text(xyz: Sequence[float]) -> str:
     """``X1 Y-2.5 Z0``: a position or offset in mm for messages."""
     return " ".join(f"{axis}{v:g}" for axis, v in zip("XYZ", xyz, strict=True))
 

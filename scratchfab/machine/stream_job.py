@@ -18,7 +18,13 @@ from typing import TYPE_CHECKING, Any
 from scratchfab.console import Confirm, Say
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
-from scratchfab.machine.sender import Streamer, StreamOptions, StreamProgress, open_port
+from scratchfab.machine.sender import (
+    Streamer,
+    StreamOptions,
+    StreamProgress,
+    open_port,
+    xyz_text,
+)
 from scratchfab.machine.sender_checks import compare
 from scratchfab.machine.sender_journal import (
     Journal,
@@ -257,13 +263,13 @@ def _check_same_zero(
     before, g92_before = run_zero(events)
     if before is None or wco is None or math.dist(before, wco) <= 0.01:
         return
-    was, now = _xyz_text(before), _xyz_text(wco)
+    was, now = xyz_text(before), xyz_text(wco)
     if g92_before is not None and any(abs(v) > 0.001 for v in g92_before):
         cleared = tuple(b - g for b, g in zip(before, g92_before, strict=True))
         if (g92 is None or all(abs(v) <= 0.001 for v in g92)) and math.dist(cleared, wco) <= 0.01:
             raise ScratchfabError(
                 f"{journal_file}: the interrupted run's work zero included a G92 offset "
-                f"({_xyz_text(g92_before)} mm) that a reset since then cleared (work offset "
+                f"({xyz_text(g92_before)} mm) that a reset since then cleared (work offset "
                 f"was {was}, now {now} mm): the resumed strokes would land elsewhere; set the "
                 "same zero again (G10 L20 P1 keeps it over a reset), then --resume; nothing "
                 "was sent"
@@ -272,10 +278,6 @@ def _check_same_zero(
         f"warning: the work offset changed since the interrupted run (was {was}, now {now} "
         "mm): the work zero must be the same point on the board as before"
     )
-
-
-def _xyz_text(xyz: tuple[float, float, float]) -> str:
-    return " ".join(f"{axis}{v:g}" for axis, v in zip("XYZ", xyz, strict=True))
 
 
 def _check_strokes(program: Program, gcode: Path) -> None:
