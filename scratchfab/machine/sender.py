@@ -17,7 +17,8 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
 - Faults: ``error:N`` stops feeding at once and sends feed hold; ``ALARM:N``; an unexpected
   banner (controller reset: soft-reset at once so that lines already on the way do not run
   from a lost position); a stall (lines in flight, controller Idle, no answer for
-  ``stall_timeout``, plus the dwell of a ``G4`` being answered); silence; a lost connection. Ctrl-C holds, then asks resume or stop.
+  ``stall_timeout``, plus the dwell of a ``G4`` being answered); silence; a lost
+  connection. Ctrl-C holds, then asks resume or stop.
   Stopping safely is: feed hold, wait for ``Hold:0`` (or Idle), soft reset (spindle off,
   queue flushed, no alarm), banner.
 - Journal: every ``ok`` of a file block is appended and flushed; after a reset the journal
@@ -579,10 +580,9 @@ class Streamer:
 
     def _check(self, program: Program, report: CheckReport) -> CheckReport:
         """Check mode proper: ``$C``, every line, ``$C`` again (reset and banner)."""
+        # A StreamFault raised here is soft-reset by check() (out of check mode, if in it).
         if "[MSG:Enabled]" not in self._command("$C"):
             # $C toggles: one that did not say Enabled left check mode (or never entered it)
-            self._write(REALTIME_RESET)
-            self._wait_banner(self.options.banner_timeout)
             raise StreamFault(
                 f"{program.path}: the controller did not enter check mode ($C answered "
                 "without [MSG:Enabled]); nothing was checked or sent"
@@ -599,8 +599,6 @@ class Streamer:
                 lines = self._read_lines(0.05)
                 if any(line.startswith("Grbl ") for line in lines):
                     # a reset ends check mode: what is sent from now on would run for real
-                    with contextlib.suppress(_Fault):
-                        self._write(REALTIME_RESET)
                     raise StreamFault(
                         f"{program.path}:{block.lineno}: the controller reset itself during "
                         "check mode (banner received), which ends check mode; soft-reset it "
@@ -809,11 +807,8 @@ class Streamer:
                 # ---- watchdogs
                 now = time.monotonic()
                 # GRBL answers a dwell (G4) only when it ends, Idle all the while
-                if (
-                    idle_since is not None
-                    and now - idle_since > self.options.stall_timeout
-                    and now - idle_since
-                    > self.options.stall_timeout + dwell_seconds(self._inflight[0][0].text)
+                if idle_since is not None and now - idle_since > self.options.stall_timeout + max(
+                    0.0, dwell_seconds(self._inflight[0][0].text)
                 ):
                     item = self._inflight[0][0]
                     where = f"line {item.block.lineno}" if item.block else f"preamble {item.text}"
