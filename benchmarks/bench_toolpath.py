@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from scratchfab.bundled import find_bundled
+from scratchfab.bundled import bundled_dir
 from scratchfab.design.stage import run_design
 from scratchfab.fileio import json_safe
 from scratchfab.machine.profile import load_profile
@@ -134,7 +134,7 @@ def vpype_linesort(p0: np.ndarray, p1: np.ndarray, start: tuple[float, float]) -
 
 
 def design_layout(
-    pipeline: str, count: int | None, resolution: tuple[int, int] | None
+    file: Path, count: int | None, resolution: tuple[int, int] | None
 ) -> tuple[np.ndarray, np.ndarray, dict, tuple[float, float]]:
     """A design-stage layout planned like ``scratchfab toolpath`` for the pipeline's machine.
 
@@ -142,9 +142,6 @@ def design_layout(
         Stroke starts and ends in the input order (machine mm), our planned result and
         the machine's start position.
     """
-    file = find_bundled(
-        "pipelines", pipeline if pipeline == "demo" else str(PIPELINES / pipeline), "pipeline"
-    )
     machine = load_toml(file)["toolpath"]["machine"]
     with tempfile.TemporaryDirectory() as tmp:
         made = run_design(file, tmp, count=count, resolution=resolution, progress=lambda _: None)
@@ -311,12 +308,13 @@ def main() -> None:
         for n in sizes:
             p0, p1 = make(n, 1)
             report["versus_vpype"].append(compare(name, p0, p1, None, reference))
-    real = [("demo", None, None), ("full-size.toml", 10_000, (128, 128))]
+    demo, full = bundled_dir("pipelines") / "demo.toml", PIPELINES / "full-size.toml"
+    real = [(demo, None, None), (full, 10_000, (128, 128))]
     if not quick:
-        real.append(("full-size.toml", None, (128, 128)))
+        real.append((full, None, (128, 128)))
     for pipeline, count, resolution in real:
         p0, p1, ours_row, start = design_layout(pipeline, count, resolution)
-        label = f"design {pipeline}" + (f" --count {count}" if count else "")
+        label = f"design {pipeline.name}" + (f" --count {count}" if count else "")
         report["versus_vpype"].append(compare(label, p0, p1, ours_row, reference, start))
     for n in [10_000] if quick else [10_000, 100_000]:
         p0, p1 = uniform(n, 2)
