@@ -405,3 +405,18 @@ def test_program_end_keeps_g92_and_a_reset_clears_it():
         assert "[G92:0.000,0.000,0.000]" in _cmd(port, b"$#\n")
     finally:
         port.close()
+
+
+def test_status_asked_while_planning_comes_after_the_ok_and_says_idle():
+    """Grbl serves a ``?`` that came while it planned a block after the line's ``ok`` and
+    before the cycle start: Idle at the old position, then the move runs."""
+    port = _open("plan_time=0.2")
+    try:
+        _banner(port)
+        port.write(b"G0Z5\n?")
+        lines = _read_until(port, lambda ls: any(x.startswith("<") for x in ls))
+        assert lines[-2] == "ok"
+        assert lines[-1].startswith("<Idle|MPos:0.000,0.000,0.000|")
+        assert _status(port).startswith("<Run|")
+    finally:
+        port.close()

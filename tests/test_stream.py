@@ -490,7 +490,8 @@ def test_1000_lines_arrive_once_in_order(tmp_path, protocol, link):
             finally:
                 port.close()
             sim = pty.sim
-    assert _received_gcode(sim.record) == [b.text for b in prog.blocks]
+    # then the dwell whose ok says the motion has ended
+    assert _received_gcode(sim.record) == [b.text for b in prog.blocks] + ["G4P0"]
     assert sim.overruns == 0
     assert not [e for e in sim.record if e["ev"] == "resp" and e["r"] != "ok"]
     if protocol == "counting":
@@ -730,7 +731,7 @@ def test_ctrl_c_resume_continues(tmp_path):
     finally:
         port.close()
     assert fired
-    assert _received_gcode(port.sim.record) == [b.text for b in prog.blocks]
+    assert _received_gcode(port.sim.record) == [b.text for b in prog.blocks] + ["G4P0"]
     chars = [e["ch"] for e in port.sim.record if e["ev"] == "rt" and e["ch"] != ord("?")]
     assert chars == [ord("!"), ord("~")]
 
@@ -741,7 +742,8 @@ def test_stall_watchdog(tmp_path):
     prog = load_program(job)
     port = open_port("grblsim://?time_scale=0.001&lose_ok_at=50", 115200)
     try:
-        with pytest.raises(StreamFault, match="stalled: no answer to line"):
+        # answers pair with lines in order: the lost one leaves the last line unanswered
+        with pytest.raises(StreamFault, match="stalled: no answer to the end-of-job G4P0"):
             _stream(
                 port,
                 prog,
@@ -2658,7 +2660,10 @@ def test_a_dwell_longer_than_the_stall_timeout_is_not_a_stall(tmp_path):
                    "G0 Z2\nM5\nM2\n")  # fmt: skip
     prog = load_program(job)
     options = StreamOptions(banner_timeout=0.3, stall_timeout=0.5)
-    for query, fault in (("", None), ("&lose_ok_at=4", "stalled: no answer to line 10")):
+    for query, fault in (
+        ("", None),
+        ("&lose_ok_at=4", "stalled: no answer to the end-of-job G4P0"),
+    ):
         port = open_port(f"grblsim://?time_scale=1{query}", 115200)
         try:
             if fault is None:

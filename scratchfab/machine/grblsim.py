@@ -93,6 +93,11 @@ class SimOptions:
         lose_ok_at: The ``ok`` of the N-th G-code block is never sent (a garbled answer).
         reset_after: The controller resets itself (brown-out) after the N-th G-code block.
         slow: Extra seconds before every ``ok``/``error`` answer.
+        plan_time: Seconds Grbl spends planning each motion block (not scaled by
+            ``time_scale``). A ``?`` arriving meanwhile is served after the line's ``ok``
+            and before the cycle start, as Grbl's main loop does: an ``Idle`` report with a
+            block queued but not started (the premature Idle a sender must not take for
+            the end of the job). 0: planning takes no time.
         boot: Seconds between power-up and the banner.
         soft_limits: Start with ``$20=1`` and ``$22=1`` (so also in ALARM until homed/unlocked).
         homed: With ``soft_limits``: start homed (Idle at ``MPos = -$27`` on every axis).
@@ -113,6 +118,7 @@ class SimOptions:
     lose_ok_at: int = field(default=0, metadata=spec(ge=0))
     reset_after: int = field(default=0, metadata=spec(ge=0))
     slow: float = field(default=0.0, metadata=spec(ge=0))
+    plan_time: float = field(default=0.0, metadata=spec(ge=0))
     boot: float = field(default=0.0, metadata=spec(ge=0))
     soft_limits: bool = False
     homed: bool = False
@@ -211,7 +217,8 @@ class _Pending:
     actions: list[Action]
     index: int = 0
     response: str = "ok"
-    until: float = 0.0  # dwell/homing end time
+    until: float = 0.0  # dwell/homing/planning end time
+    planning: bool = False  # ``until`` is the end of planning a motion (plan_time)
 
 
 class GrblSim:
@@ -272,6 +279,7 @@ class GrblSim:
         self._ovr_counter = 0
         self._overrides = [100, 100, 100]
         self._jogging = False
+        self._report_due = False  # a ``?`` that came while planning, served after it
         self._last_state_logged = ""
         self._thread: threading.Thread | None = None
         self._stop = False
@@ -430,13 +438,16 @@ class GrblSim:
                 self._finish_head(t)
             elif self._pending is not None and t == self._pending.until:
                 self._pending.until = 0.0
+                self._pending.planning = False
             self._main(t)
 
     # ------------------------------------------------------------------ receive side
 
     def _receive(self, t: float, byte: int) -> None:
         if byte == CMD_STATUS:
-            if not self._critical and self.state != "Home":
+            if self._pending is not None and self._pending.planning:
+                self._report_due = True  # Grbl is inside plan_buffer_line()
+            elif not self._critical and self.state != "Home":
                 self._emit(t, self._status_report(t))
             return
         if byte in (CMD_HOLD, CMD_START, CMD_RESET) or byte >= 0x80:
@@ -481,7 +492,32 @@ class GrblSim:
         # other extended bytes (door, jog cancel, toggles) are accepted and ignored
 
     def _main(self, t: float) -> None:
-        """Grbl's ``protocol_main_loop``: move characters into the line buffer, run lines."""
+        """Grbl's ``protocol_main_loop``, then its realtime point when it runs dry or waits.
+
+        Grbl starts a cycle only when its serial input runs dry, the planner is full or a
+        line waits for the planner to empty (``protocol_auto_cycle_start``); a status
+        request pending at that point is served first, so it still says Idle.
+        """
+        self._main_loop(t)
+        if self._pending is not None and self._pending.planning:
+            return
+        self._serve_due_report(t)
+        self._auto_cycle_start(t)
+
+    def _serve_due_report(self, t: float) -> None:
+        if self._report_due:
+            self._report_due = False
+            if not self._critical and self.state != "Home":
+                self._emit(t, self._status_report(t))
+
+    def _auto_cycle_start(self, t: float) -> None:
+        if self.state == "Idle" and self._planner and not self._critical:
+            self._head_start = t
+            self._head_done = 0.0
+            self._set_state(t, "Jog" if self._jogging else "Run")
+
+    def _main_loop(self, t: float) -> None:
+        """Move characters into the line buffer and run lines until input or Grbl waits."""
         while not self._critical and self._reset_at == math.inf and self._boot_at == math.inf:
             if self._pending is not None:
                 if not self._step_pending(t):
@@ -583,6 +619,7 @@ class GrblSim:
             self._pending = None
             if p.response:
                 self._respond(t, p.line, p.gcode, p.response)
+            self._serve_due_report(t)  # the next realtime point: after the ok
             return True
         act = p.actions[p.index]
         if act.kind == "motion":
@@ -590,6 +627,10 @@ class GrblSim:
                 return False
             self._plan(t, act, p.line)
             p.index += 1
+            if self.options.plan_time > 0.0:
+                p.until = t + self.options.plan_time
+                p.planning = True
+                return False
             return True
         laser_free = act.kind == "spindle" and act.free
         if not laser_free and (self._planner or self.state in ("Run", "Jog")):
@@ -653,10 +694,11 @@ class GrblSim:
                 spindle=self._spindle,
             )
         )
-        if self.state == "Idle":
+        if self.state == "Idle" and self._jogging:
+            # a jog starts at once (jog_execute); other motion waits for the auto cycle start
             self._head_start = t
             self._head_done = 0.0
-            self._set_state(t, "Jog" if self._jogging else "Run")
+            self._set_state(t, "Jog")
 
     def _finish_head(self, t: float) -> None:
         block = self._planner.popleft()
@@ -768,6 +810,7 @@ class GrblSim:
         self._comment = ""
         self._overflow = False
         self._pending = None
+        self._report_due = False
         self._hold_until = math.inf
         self._hold_complete = False
         self._jogging = False

@@ -14,6 +14,15 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
 - Stroke barrier: the first block of a stroke is sent only when every block of the previous
   stroke is acknowledged, so after a disconnect at most one stroke can have run unacknowledged.
 - Status ``?`` at most ``poll_hz`` (5 Hz) for the progress report and the watchdogs.
+- End of job: after the file's last line the sender sends ``G4P0`` (:data:`END_WAIT`) and
+  the job is done when it is acknowledged and a later report says Idle. An ``ok`` means
+  "queued", and GRBL serves a ``?`` that came while it planned the last block after that
+  block's ``ok`` but before its cycle start, so an Idle report right after the last ``ok``
+  is no proof that the motion ran. GRBL answers a dwell only after the planner has
+  emptied and the cycle stopped (``mc_dwell`` -> ``protocol_buffer_synchronize``); this
+  holds with or without ``Bf:`` in the reports (``$10``), and on grblHAL. The dwell is
+  not a file line: it is not journaled, and its ``ok`` tells that every acknowledged
+  block ran.
 - Faults: ``error:N`` stops feeding at once and sends feed hold; ``ALARM:N``; an unexpected
   banner (controller reset: soft-reset at once so that lines already on the way do not run
   from a lost position); a stall (lines in flight, controller Idle, no answer for
@@ -57,6 +66,8 @@ REALTIME_RESUME = b"~"
 REALTIME_RESET = b"\x18"
 #: ``$`` reports GRBL refuses (error:8) while the machine moves: sent once it is Idle.
 _IDLE_ONLY = frozenset({"$$", "$#", "$I", "$N"})
+#: Sent after the file's last line: GRBL answers a dwell once every move before it ran.
+END_WAIT = "G4P0"
 
 
 class StreamFault(ScratchfabError):
@@ -255,6 +266,7 @@ class _Item:
     block: Block | None  # None for preamble/system lines of the sender
     pre: int = -1
     barrier: int = -1  # send only when blocks up to this index are acknowledged
+    end_wait: bool = False  # the END_WAIT dwell after the file's last line
 
 
 class _Fault(Exception):
@@ -680,6 +692,7 @@ class Streamer:
         self._program = program
         self._acked_blocks = []
         self._acks_at_status = 0
+        self._all_ran = False  # END_WAIT acknowledged: every acknowledged block ran
         cum = [0.0]
         for b in program.blocks:
             cum.append(cum[-1] + b.seconds)
@@ -726,6 +739,7 @@ class Streamer:
             if s >= 0:
                 prev_last = program.strokes[s][1]
             items.append(_Item(block.text, block, barrier=barrier))
+        items.append(_Item(END_WAIT, None, end_wait=True))
         return items
 
     def _run(self, items: list[_Item], program: Program, journal: Journal) -> None:
@@ -811,7 +825,13 @@ class Streamer:
                     0.0, dwell_seconds(self._inflight[0][0].text)
                 ):
                     item = self._inflight[0][0]
-                    where = f"line {item.block.lineno}" if item.block else f"preamble {item.text}"
+                    where = (
+                        f"line {item.block.lineno}"
+                        if item.block
+                        else f"the end-of-job {item.text}"
+                        if item.end_wait
+                        else f"preamble {item.text}"
+                    )
                     raise _Fault(
                         f"stalled: no answer to {where} for {now - self._last_answer:.1f} s "
                         "while the controller is Idle (answer lost?)",
@@ -859,14 +879,21 @@ class Streamer:
             self._acked_through = item.block.index
             self._acked_blocks.append(item.block.index)
             self._journal.write("ack", i=item.block.index, line=item.block.lineno)
+        elif item.end_wait:
+            self._all_ran = True
         else:
             self._journal.write("ack", pre=item.pre)
         return True
 
     _stopping = False
+    _all_ran = False
 
     def _finished(self) -> bool:
-        """After the last ack: done once a status report after it says Idle."""
+        """After the last ack: done once a status report after it says Idle.
+
+        The last ack of a job is END_WAIT's, which GRBL sends once the motion has ended;
+        an Idle report after an earlier ``ok`` may predate the cycle start of its block.
+        """
         return self.status.state == "Idle" and self.status.time > self._last_ack_time
 
     def _report(self, acked_through: int, total: int, final: bool = False) -> None:
@@ -907,6 +934,12 @@ class Streamer:
             return (
                 f"{self._program.path}:{item.block.lineno}: error:{code} ({error_meaning(code)}) "
                 f"on {item.block.text!r}"
+            )
+        if item.end_wait:
+            self._journal.write("error", code=code)
+            return (
+                f"{self._program.path}: after the last line, the wait for the end of motion "
+                f"({END_WAIT}) got error:{code} ({error_meaning(code)})"
             )
         self._journal.write("error", pre=item.pre, code=code)
         return f"resume preamble {item.text!r}: error:{code} ({error_meaning(code)})"
@@ -1074,11 +1107,14 @@ class Streamer:
         the hold position is the interrupted one; without a match the earliest candidate is
         taken as interrupted (a stroke is cut again rather than skipped). Only blocks
         acknowledged before the position report can match it: a later block passing
-        through the same point (an old report) had not run.
+        through the same point (an old report) had not run. Once END_WAIT is acknowledged
+        every acknowledged block ran.
         """
         acked = self._acked_blocks
         if not acked:
             return -1
+        if self._all_ran:
+            return acked[-1]
         blocks = self._program.blocks
         surely = last_surely_run(blocks, acked, self.info.planner_blocks, self.info.laser_mode)
         window = [i for i in acked if i > surely]
