@@ -15,11 +15,22 @@ Cases:
   (150 mm, 3 views) laid out by the design stage at several scratch counts: seconds of
   each part (pixel pairs per view, merge-candidate neighbour pairs, the whole refresh;
   best of ``--refresh-repeats``), the pair counts, and each one's growth exponent
-  (log-log slope over the counts). ``--quick`` runs only this case, small (seconds).
+  (log-log slope over the counts).
+- ``steps``: where one step's time goes, on the demo (``--steps-pipeline full-size`` for
+  ``pipelines/full-size.toml``, sized by ``--steps-count`` and ``--steps-resolution``):
+  mean wall seconds of ``LayoutOptimizer.step`` after the first (which compiles), split
+  into Dr.Jit kernel execution (the renderer's pair kernels, forward and backward, apart
+  from the rest; from ``dr.kernel_history``), the pair refresh (amortised) and host time
+  (tracing, AD bookkeeping, Adam, numpy copies); beside it the stage's per-step extras
+  outside ``step``: ``quality_report`` for log.csv and one checkpoint write (every
+  ``checkpoint_every`` steps).
+
+``--quick`` runs only the refresh case, small, and the steps case on the demo (seconds).
 
 Usage: python benchmarks/bench_optimize.py [--demo-iterations N] [--large-steps N]
        [--large-until-bar N] [--skip-large] [--skip-demo] [--refresh-counts N,N,..]
-       [--skip-refresh] [--quick]
+       [--skip-refresh] [--steps N] [--steps-pipeline demo|full-size]
+       [--steps-count N] [--steps-resolution N] [--quick]
 """
 
 from __future__ import annotations
@@ -42,6 +53,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from scratchfab.bundled import bundled_dir  # noqa: E402
 from scratchfab.metrics import quality_report  # noqa: E402
 from scratchfab.model.job import JobLayout  # noqa: E402
+from scratchfab.optimize.checkpoint import save_checkpoint  # noqa: E402
 from scratchfab.optimize.loss import Space  # noqa: E402
 from scratchfab.optimize.stage import OptimizeOptions, run_optimize  # noqa: E402
 
@@ -198,6 +210,110 @@ def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int
     }
 
 
+#: Renderer pair kernels have thousands of IR operations; every other kernel of a step
+#: (projection, Adam, exposure sums, merge penalty) has a few hundred at most.
+PAIR_KERNEL_OPS = 2000
+
+
+def bench_steps(pipeline: str, steps: int, threads: int, count: int, resolution: int) -> dict:
+    import drjit as dr
+
+    from scratchfab.backend import array_module
+    from scratchfab.design.targets import job_cross_targets
+    from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
+    from scratchfab.optimize.stage import load_job_inputs, log_columns
+
+    m = array_module("llvm")
+    dr.set_thread_count(threads if threads > 0 else 2)
+    options = OptimizeOptions()
+    with tempfile.TemporaryDirectory() as tmp:
+        job = Path(tmp) / "job"
+        if pipeline == "demo":
+            _design(job)
+        else:
+            source = ROOT / "pipelines" / "full-size.toml"
+            _design(job, source, "--count", str(count), "--resolution", str(resolution))
+        design, targets, initial = load_job_inputs(job)
+        cross = job_cross_targets(design) or {(k, k): t for k, t in targets.items()}
+        settings = Settings(lr=options.learning_rates(), refresh_every=options.refresh_every)
+        opt = LayoutOptimizer(design, targets, initial, settings, m)
+        refresh_s: list[float] = []
+        refresh = opt._refresh
+
+        def timed_refresh(ends: np.ndarray) -> None:
+            t0 = time.perf_counter()
+            refresh(ends)
+            refresh_s.append(time.perf_counter() - t0)
+
+        opt._refresh = timed_refresh  # type: ignore[method-assign]
+        names = [v.name for v in opt.views]
+        rows: list[list[float]] = []
+        rec: dict[str, list[float]] = {
+            k: [] for k in ("wall", "refresh", "pair", "other", "codegen", "quality", "ckpt")
+        }
+        pair_counts: list[int] = []
+        kernels_per_step = 0
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            for i in range(steps + 1):
+                dr.kernel_history()  # clears it
+                before = len(refresh_s)
+                t0 = time.perf_counter()
+                result = opt.step()
+                wall = time.perf_counter() - t0
+                hist = [k for k in dr.kernel_history() if str(k["type"]).endswith("JIT")]
+                t1 = time.perf_counter()
+                quality_report(result.renders, targets, cross)
+                t2 = time.perf_counter()
+                rows.append([float(i), result.loss, 0.0] + [0.0] * (len(log_columns(names)) - 3))
+                save_checkpoint(Path(tmp) / "checkpoint.npz", opt.state(), {"bench": 1}, rows)
+                t3 = time.perf_counter()
+                if i == 0:  # compiles (or loads) the kernels
+                    continue
+                pair = [k for k in hist if k.get("operation_count", 0) >= PAIR_KERNEL_OPS]
+                rec["wall"].append(wall)
+                rec["refresh"].append(refresh_s[-1] if len(refresh_s) > before else 0.0)
+                rec["pair"].append(sum(k["execution_time"] for k in pair) / 1e3)
+                rec["other"].append(sum(k["execution_time"] for k in hist) / 1e3 - rec["pair"][-1])
+                rec["codegen"].append(sum(k.get("codegen_time", 0.0) for k in hist) / 1e3)
+                rec["quality"].append(t2 - t1)
+                rec["ckpt"].append(t3 - t2)
+                kernels_per_step = max(kernels_per_step, len(hist))
+                pair_counts.append(sum(opt.pair_counts()))
+    mean = {k: float(np.mean(v)) for k, v in rec.items()}
+    every = options.checkpoint_every
+    # every refresh seen (the first step's too), once per refresh_every steps
+    refresh_each = float(np.mean(refresh_s))
+    step_s = mean["wall"] - mean["refresh"] + refresh_each / options.refresh_every
+    per_step = step_s + mean["quality"] + mean["ckpt"] / every
+    host = mean["wall"] - mean["refresh"] - mean["pair"] - mean["other"]
+    parts = {
+        "renderer pair kernels (forward + backward)": mean["pair"],
+        "other Dr.Jit kernels": mean["other"],
+        "pair refresh (amortised)": refresh_each / options.refresh_every,
+        "host: tracing, AD, Adam, numpy copies": host,
+        "quality_report for log.csv": mean["quality"],
+        f"checkpoint write / {every}": mean["ckpt"] / every,
+    }
+    return {
+        "board": (
+            "demo: 60 mm, 2 views 80x80 px, 2000 scratches"
+            if pipeline == "demo"
+            else f"pipelines/full-size.toml: {count} scratches, 3 views {resolution}x{resolution} px"
+        ),
+        "threads": threads,
+        "measured_steps": steps,
+        "pairs_in_use (all views, mean)": round(float(np.mean(pair_counts))),
+        "jit_kernels_per_step (most)": kernels_per_step,
+        "step_s (LayoutOptimizer.step, refresh amortised)": round(step_s, 4),
+        "pair_refresh_s": round(refresh_each, 4),
+        "stage_s_per_step (step + log + checkpoint)": round(per_step, 4),
+        "codegen_s_per_step (inside the kernels' host time)": round(mean["codegen"], 4),
+        "checkpoint_write_s": round(mean["ckpt"], 4),
+        "breakdown_s": {k: round(v, 4) for k, v in parts.items()},
+        "breakdown_percent": {k: round(100 * v / per_step, 1) for k, v in parts.items()},
+    }
+
+
 def bench_large(
     steps: int,
     threads: int,
@@ -325,15 +441,22 @@ def main() -> None:
     parser.add_argument("--refresh-repeats", type=int, default=3)
     parser.add_argument("--skip-refresh", action="store_true")
     parser.add_argument("--skip-demo", action="store_true")
+    parser.add_argument("--steps", type=int, default=20, help="Steps of the steps case.")
+    parser.add_argument("--steps-pipeline", choices=("demo", "full-size"), default="demo")
+    parser.add_argument("--steps-count", type=int, default=40000)
+    parser.add_argument("--steps-resolution", type=int, default=512)
+    parser.add_argument("--skip-steps", action="store_true")
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="Only the refresh case, at 1000 and 2000 scratches and 128 x 128 px (seconds).",
+        help="Only the refresh case, at 1000 and 2000 scratches and 128 x 128 px, and the "
+        "steps case on the demo, 10 steps (seconds).",
     )
     args = parser.parse_args()
     report: dict = {"machine": "2-core CPU, Dr.Jit LLVM"}
     if args.quick:
         report["refresh"] = bench_refresh([1000, 2000], 128, 1, args.threads)
+        report["steps"] = bench_steps("demo", 10, args.threads, 0, 0)
         print(json.dumps(report, indent=2))
         return
     if not args.skip_demo:
@@ -345,6 +468,10 @@ def main() -> None:
         counts = [int(c) for c in args.refresh_counts.split(",")]
         report["refresh"] = bench_refresh(
             counts, args.refresh_resolution, args.refresh_repeats, args.threads
+        )
+    if not args.skip_steps:
+        report["steps"] = bench_steps(
+            args.steps_pipeline, args.steps, args.threads, args.steps_count, args.steps_resolution
         )
     if not args.skip_large:
         report["large"] = bench_large(
