@@ -266,6 +266,9 @@ BAD_URL_OPTIONS = [
     ("$999=1", "$999: not a Grbl 1.1 setting (settings: $0, $1,"),
     ("settings=1", "settings: set GRBL settings as $N=value"),
     ("error_at=1&error_at=2", "error_at: given more than once"),
+    ("banner=", "banner: expected one line of 1 to 100 printable ASCII characters"),
+    ("banner=Grbl%0D%0Aok", "banner: expected one line of 1 to 100 printable ASCII"),
+    ("plan_time=-1", "plan_time: expected a value at least 0, got -1"),
 ]
 
 
@@ -295,6 +298,8 @@ def test_bad_url_option_is_one_line_error(tmp_path, capsys, query, expected):
         ("wco=-1.5,2,3e1", {"wco": (-1.5, 2.0, 30.0)}),
         ("$110=900&$20=1", {"settings": {110: 900.0, 20: 1.0}}),
         ("record=", {"record": ""}),
+        ("banner=GrblHAL+1.1f+%5B%27%24%27%5D&plan_time=0.5",
+         {"banner": "GrblHAL 1.1f ['$']", "plan_time": 0.5}),
     ],
 )  # fmt: skip
 def test_url_options_parse_to_typed_values(query, expected):
@@ -418,5 +423,19 @@ def test_status_asked_while_planning_comes_after_the_ok_and_says_idle():
         assert lines[-2] == "ok"
         assert lines[-1].startswith("<Idle|MPos:0.000,0.000,0.000|")
         assert _status(port).startswith("<Run|")
+    finally:
+        port.close()
+
+
+def test_grblhal_banner_and_its_answers():
+    """``banner=GrblHAL ...``: grblHAL's banner after every reset and its ``$I``/``$#``."""
+    port = _open("banner=" + "GrblHAL 1.1f ['$' or '$HELP' for help]".replace(" ", "%20"))
+    try:
+        assert _banner(port)[-1] == "GrblHAL 1.1f ['$' or '$HELP' for help]"
+        lines = _cmd(port, b"$I\n")
+        assert "[OPT:V,15,128,3,0]" in lines and "[FIRMWARE:grblHAL]" in lines
+        assert "[TLO:0.000,0.000,0.000]" in _cmd(port, b"$#\n")
+        port.write(b"\x18")
+        assert _banner(port)[-1].startswith("GrblHAL 1.1f")
     finally:
         port.close()

@@ -104,6 +104,11 @@ class SimOptions:
         wco: The G54 offset at power-up in mm; ``x,y,z`` in a URL.
         wco_field: Status reports carry ``WCO:`` (Grbl's compile option
             ``REPORT_FIELD_WORK_COORD_OFFSET``, on by default); off, only ``$#`` tells it.
+        banner: The start-up banner line ("": ``Grbl 1.1h ['$' for help]``). One starting
+            ``GrblHAL `` (grblHAL's, e.g. ``GrblHAL 1.1f ['$' or '$HELP' for help]``) also
+            makes ``$I`` and ``$#`` answer as grblHAL's defaults do: ``[OPT:V,15,128,3,0]``
+            and ``[FIRMWARE:grblHAL]``, and ``[TLO:x,y,z]`` (its ``TOOL_LENGTH_OFFSET_AXIS``
+            is -1, every axis). Everything else stays Grbl 1.1h.
         record: Write the event record here (JSONL) when the emulator closes ("": none).
         settings: ``$`` settings overrides, ``{number: value}``; ``$N=value`` in a URL.
     """
@@ -124,6 +129,7 @@ class SimOptions:
     homed: bool = False
     wco: tuple[float, float, float] = (0.0, 0.0, 0.0)
     wco_field: bool = True
+    banner: str = ""
     record: str = ""
     settings: dict[int, float] = field(default_factory=dict)
 
@@ -151,6 +157,13 @@ class SimOptions:
                 overrides[number] = value
             elif key == "settings":
                 raise ConfigError(f"{where}: set GRBL settings as $N=value (e.g. $110=900)")
+            elif key == "banner" and not (
+                0 < len(raw) <= 100 and raw.isascii() and raw.isprintable()
+            ):
+                raise ConfigError(
+                    f"{where}: expected one line of 1 to 100 printable ASCII characters "
+                    f"(e.g. GrblHAL 1.1f ['$' or '$HELP' for help]), got {raw!r}"
+                )
             elif key in hints:
                 data[key] = _value_from_text(raw, hints[key], where)
             else:
@@ -242,6 +255,7 @@ class GrblSim:
             self.settings[22] = 1
         self.settings.update(self.options.settings)
         self.startup_lines = ["", ""]
+        self._grblhal = self.options.banner.startswith("GrblHAL ")
         self._offsets: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * 6
         self._offsets[0] = self.options.wco
         self.g28 = (0.0, 0.0, 0.0)
@@ -754,7 +768,7 @@ class GrblSim:
         self._gc = ModalState(position=self.mpos)
         self._wco_counter = 0
         self._ovr_counter = 0
-        self._emit(t, BANNER)
+        self._emit(t, f"\r\n{self.options.banner}\r\n" if self.options.banner else BANNER)
         if self.state == "Alarm":
             self._emit(t, "[MSG:'$H'|'$X' to unlock]\r\n")
         else:
@@ -963,13 +977,14 @@ class GrblSim:
             for k in range(6):
                 self._emit(t, f"[G{54 + k}:{_fmt(self._offsets[k], inches)}]\r\n")
             self._emit(t, f"[G28:{_fmt(self.g28, inches)}]\r\n[G30:{_fmt(self.g30, inches)}]\r\n")
-            tlo = _fmt((self._gc.tlo,), inches)
+            tlo = _fmt((0.0, 0.0, self._gc.tlo) if self._grblhal else (self._gc.tlo,), inches)
             self._emit(t, f"[G92:{_fmt(self._gc.g92, inches)}]\r\n[TLO:{tlo}]\r\n")
             self._emit(t, f"[PRB:{_fmt((0.0, 0.0, 0.0), inches)}:0]\r\n")
         elif cmd == "I":
-            self._emit(
-                t, f"[VER:{VERSION}.{BUILD}:]\r\n[OPT:V,{PLANNER_BLOCKS},{RX_BUFFER_SIZE}]\r\n"
-            )
+            opt = f"V,{PLANNER_BLOCKS},{RX_BUFFER_SIZE}" + (",3,0" if self._grblhal else "")
+            self._emit(t, f"[VER:{VERSION}.{BUILD}:]\r\n[OPT:{opt}]\r\n")
+            if self._grblhal:
+                self._emit(t, "[FIRMWARE:grblHAL]\r\n")
         elif cmd == "N":
             for k, text in enumerate(self.startup_lines):
                 self._emit(t, f"$N{k}={text}\r\n")

@@ -5,6 +5,13 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
 - Start: wait for the banner (an Arduino reboots when the port opens); if none comes, soft
   reset (``0x18``) and wait again. Then ``$I`` (RX buffer size from ``[OPT:...]``), ``$$``
   and a status report. A controller in ALARM is refused.
+- grblHAL (banner ``GrblHAL 1.1f ['$' or '$HELP' for help]``, or ``Grbl 1.1f`` at its
+  compatibility levels above 0) speaks the Grbl 1.1 protocol: the same answers, banner
+  after every reset, ``[OPT:opts,blocks,rx,...]``, ``$C``/``[MSG:Enabled]``, ``?``/``!``/
+  ``~``/``0x18``. What differs and is handled: states with a substate (``Run:1``,
+  ``Alarm:N``), ``Door:N`` numbered by its parking state, a ``[TLO:]`` per axis; its
+  ``Tool`` state (a manual tool change, ``M6``) wants a sender that stops feeding and
+  acknowledges it, so a program with ``M6`` is refused for grblHAL before anything is sent.
 - Lines are sent stripped and ``\n``-terminated. **Character counting** (default) keeps the
   bytes of unanswered lines within ``rx_buffer - margin``; every non-realtime byte counts,
   ``?`` is realtime and does not. **Simple** sends one line and waits for its answer. Only
@@ -43,6 +50,7 @@ import collections
 import contextlib
 import math
 import os
+import re
 import signal
 import threading
 import time
@@ -64,6 +72,9 @@ REALTIME_STATUS = b"?"
 REALTIME_HOLD = b"!"
 REALTIME_RESUME = b"~"
 REALTIME_RESET = b"\x18"
+#: Start-up banners: Grbl 1.1, and grblHAL at its default compatibility level 0.
+BANNERS = {"Grbl ": "Grbl", "GrblHAL ": "grblHAL"}
+_TOOL_CHANGE = re.compile(r"M0*6(?![0-9.])")
 #: ``$`` reports GRBL refuses (error:8) while the machine moves: sent once it is Idle.
 _IDLE_ONLY = frozenset({"$$", "$#", "$I", "$N"})
 #: Sent after the file's last line: GRBL answers a dwell once every move before it ran.
@@ -207,6 +218,7 @@ class ControllerInfo:
     """What the controller said about itself."""
 
     version: str = ""
+    firmware: str = "Grbl"  # "Grbl" or "grblHAL" (banner, or $I's [FIRMWARE:grblHAL])
     rx_buffer: int = 128
     planner_blocks: int = 15
     settings: dict[int, float] = field(default_factory=dict)
@@ -402,7 +414,9 @@ class Streamer:
         while time.monotonic() < deadline:
             lines = self._read_lines(0.05)
             for k, line in enumerate(lines):
-                if line.startswith("Grbl "):
+                firmware = banner_firmware(line)
+                if firmware is not None:
+                    self.info.firmware = firmware
                     self.info.version = line.split()[1]
                     after = lines[k + 1 :]
                     after += self._read_lines(0.1)
@@ -426,7 +440,8 @@ class Streamer:
                 after = self._wait_banner(self.options.banner_timeout)
             if after is None:
                 raise StreamFault(
-                    "no GRBL banner: is this a GRBL 1.1 controller, and is the baud rate right?"
+                    "no GRBL banner ('Grbl 1.1...' or 'GrblHAL 1.1...'): is this a Grbl 1.1 or "
+                    "grblHAL controller, and is the baud rate right?"
                 )
             if self.info.version.startswith("0."):
                 # <Idle,MPos:...> reports: Idle, Hold and the positions would never be read
@@ -435,11 +450,16 @@ class Streamer:
                     "messages predate Grbl 1.1; flash Grbl 1.1 (nothing was sent)"
                 )
             if not self.info.version.startswith("1.1"):
-                self.on_message(f"controller reports Grbl {self.info.version}; written for 1.1")
+                self.on_message(
+                    f"controller reports {self.info.firmware} {self.info.version}; written for "
+                    "the Grbl 1.1 protocol"
+                )
             for line in after:
                 if line.startswith("[MSG:"):
                     self.on_message(f"controller: {line}")
             for line in self._command("$I"):
+                if line == "[FIRMWARE:grblHAL]":
+                    self.info.firmware = "grblHAL"
                 if line.startswith("[OPT:"):
                     parts = line[5:-1].split(",")
                     if len(parts) >= 3 and parts[1].isdigit() and parts[2].isdigit():
@@ -533,9 +553,12 @@ class Streamer:
             words = next((ln[4:-1].split() for ln in modal if ln.startswith("[GC:")), [])
             wcs = next((w for w in words if w in ("G54", "G55", "G56", "G57", "G58", "G59")), "")
             base, g92, tlo = found.get(wcs), found.get("G92"), found.get("TLO", [0.0])
-            if base is not None and g92 is not None and len(base) == len(g92) == 3:
+            if base is not None and g92 is not None and min(len(base), len(g92)) >= 3:
                 xyz = [base[k] + g92[k] for k in range(3)]
-                xyz[2] += tlo[0]
+                if len(tlo) >= 3:  # grblHAL built with a tool offset on every axis
+                    xyz = [xyz[k] + tlo[k] for k in range(3)]
+                else:
+                    xyz[2] += tlo[0]
                 self.info.wco = (xyz[0] * scale, xyz[1] * scale, xyz[2] * scale)
                 self.info.g92 = (g92[0] * scale, g92[1] * scale, g92[2] * scale)
                 self.info.wco_source = "$#"
@@ -609,7 +632,7 @@ class Streamer:
                 if time.monotonic() > deadline:
                     raise StreamFault(f"check mode: no answer to line {block.lineno}")
                 lines = self._read_lines(0.05)
-                if any(line.startswith("Grbl ") for line in lines):
+                if any(banner_firmware(line) for line in lines):
                     # a reset ends check mode: what is sent from now on would run for real
                     raise StreamFault(
                         f"{program.path}:{block.lineno}: the controller reset itself during "
@@ -674,6 +697,8 @@ class Streamer:
                 message names the file line and the code's meaning).
             StreamStopped: The user chose to stop after Ctrl-C.
         """
+        if self.info.firmware == "grblHAL":
+            self._refuse_tool_change(program, start)
         items = self._items(program, start, preamble)
         name = getattr(self.port, "port", None)  # a pyserial port's device or URL
         journal.start(
@@ -726,6 +751,16 @@ class Streamer:
                 ) from None
             raise
         journal.write("end", complete=True)
+
+    def _refuse_tool_change(self, program: Program, start: int) -> None:
+        """Refuse M6: grblHAL stops in its ``Tool`` state for a sender that stops feeding."""
+        for block in program.blocks[start:]:
+            if _TOOL_CHANGE.search(block.text):
+                raise StreamFault(
+                    f"{program.path}:{block.lineno}: M6 (tool change): grblHAL would stop in "
+                    "its Tool state for a manual tool change, which this sender does not "
+                    "handle; remove the line (change tools between files); nothing was sent"
+                )
 
     def _items(self, program: Program, start: int, preamble: Sequence[str]) -> list[_Item]:
         items = [_Item(text, None, pre=k) for k, text in enumerate(preamble)]
@@ -814,7 +849,7 @@ class Streamer:
                             f"{self._last_acked_line()}; the controller stopped the job",
                             kind="alarm",
                         )
-                    elif line.startswith("Grbl "):
+                    elif banner_firmware(line):
                         raise self._reset_fault("mid-job")
                     elif line.startswith("[MSG:"):
                         self.on_message(f"controller: {line}")
@@ -1081,7 +1116,7 @@ class Streamer:
                         return self.status
                 elif line.startswith("ALARM:"):
                     return None
-                elif line.startswith("Grbl "):
+                elif banner_firmware(line):
                     # a reset while held: its Idle and position are not the hold's
                     raise self._reset_fault("while held")
         return None
@@ -1157,6 +1192,14 @@ def _on_segment(
         return False
     closest = [a[k] + t * ab[k] for k in range(3)]
     return math.dist(p, closest) <= tol
+
+
+def banner_firmware(line: str) -> str | None:
+    """``"Grbl"`` or ``"grblHAL"`` if ``line`` is a start-up banner, else None."""
+    for prefix, firmware in BANNERS.items():
+        if line.startswith(prefix):
+            return firmware
+    return None
 
 
 def xyz_text(xyz: Sequence[float]) -> str:

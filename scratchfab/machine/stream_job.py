@@ -210,7 +210,7 @@ def _stream_locked(
         streamer = Streamer(ser, options, cb.progress, cb.say, cb.ask_interrupt)
         info = streamer.connect()
         cb.say(
-            f"connected: Grbl {info.version}, RX buffer {info.rx_buffer} bytes, "
+            f"connected: {info.firmware} {info.version}, RX buffer {info.rx_buffer} bytes, "
             f"state {info.status.state}"
         )
         if resume and events is not None:
