@@ -120,20 +120,33 @@ def test_report_of_a_real_run_loads_in_chromium(finished_job, tmp_path):
             assert float(shown[f"{name}.crosstalk.{other}"]) == pytest.approx(x, abs=5e-4)
 
 
-def test_rerun_skips_everything_then_touch_reruns_downstream(finished_job):
+def test_rerun_skips_everything_then_a_changed_target_reruns_downstream(finished_job):
+    from PIL import Image
+
     path, job, _ = finished_job
     again = run_pipeline(load_pipeline(path), job, say=lambda s: None)
     assert again.ran == [] and again.skipped == list(STAGES)  # no timing: skipped stages
     gcode = (job / "export" / "board.gcode").read_bytes()
     journal = (job / "stream" / "journal.jsonl").read_bytes()
-    st = (path.parent / "bar.png").stat()
-    os.utime(path.parent / "bar.png", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    bar = path.parent / "bar.png"
+    st = bar.stat()
+    os.utime(bar, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # a copy's new time: no change
+    touched = run_pipeline(load_pipeline(path), job, say=lambda s: None)
+    assert touched.ran == [] and touched.skipped == list(STAGES)
+    before = bar.read_bytes()
+    with Image.open(bar) as image:  # other bytes (a text chunk), the same picture
+        from PIL.PngImagePlugin import PngInfo
+
+        info = PngInfo()
+        info.add_text("Comment", "saved again")
+        image.save(bar, pnginfo=info)
+    assert bar.read_bytes() != before
     said = []
-    touched = run_pipeline(load_pipeline(path), job, say=said.append)
-    assert touched.ran == ["design", "optimize", "verify", "toolpath", "export"]
+    changed = run_pipeline(load_pipeline(path), job, say=said.append)  # up to date after it
+    assert changed.ran == ["design", "optimize", "verify", "toolpath", "export"]
     # The same board again, byte for byte, streamed to the end before: not cut twice.
     assert (job / "export" / "board.gcode").read_bytes() == gcode
-    assert touched.skipped == ["stream"]
+    assert changed.skipped == ["stream"]
     assert (job / "stream" / "journal.jsonl").read_bytes() == journal
     (line,) = [s for s in said if s.startswith("[stream]")]
     assert str(job / "export" / "board.gcode") in line and "--from stream" in line

@@ -409,27 +409,29 @@ def test_report_images_decode_in_headless_chromium(tmp_path):
         assert float(shown[f"{view}.psnr"]) == pytest.approx(entry["psnr"], abs=5e-3)
 
 
-def test_manifest_detects_changes_and_touches(tmp_path):
+def test_manifest_detects_changes_not_touches(tmp_path):
     src = tmp_path / "cat.png"
     _png(src, 1)
     made = tmp_path / "job" / "design" / "scratches.csv"
     made.parent.mkdir(parents=True)
     made.write_text("x0,y0,x1,y1\n")
     manifest = Manifest.load(tmp_path / "job")
-    inputs = fingerprint([made], [src], {"seed": 1})
+    inputs = fingerprint([made], {"target:cat": src}, {"seed": 1})
     assert not manifest.is_current("design", inputs)
     manifest.record("design", inputs, ["design/scratches.csv"], 0.1)
     again = Manifest.load(tmp_path / "job")
-    assert again.is_current("design", fingerprint([made], [src], {"seed": 1}))
-    assert not again.is_current("design", fingerprint([made], [src], {"seed": 2}))
+    assert again.is_current("design", fingerprint([made], {"target:cat": src}, {"seed": 1}))
+    assert not again.is_current("design", fingerprint([made], {"target:cat": src}, {"seed": 2}))
     made.write_text("x0,y0,x1,y1\n0,0,1,1\n")
-    assert not again.is_current("design", fingerprint([made], [src], {"seed": 1}))
+    assert not again.is_current("design", fingerprint([made], {"target:cat": src}, {"seed": 1}))
     made.write_text("x0,y0,x1,y1\n")
     import os
 
     st = src.stat()
     os.utime(src, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # touched, same bytes
-    assert not again.is_current("design", fingerprint([made], [src], {"seed": 1}))
+    assert again.is_current("design", fingerprint([made], {"target:cat": src}, {"seed": 1}))
+    _png(src, 2)  # other bytes
+    assert not again.is_current("design", fingerprint([made], {"target:cat": src}, {"seed": 1}))
 
 
 def test_verdict_names_a_failed_stage_from_the_manifest(tmp_path):

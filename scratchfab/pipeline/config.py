@@ -169,6 +169,27 @@ def parse_stage_tables(data: Mapping[str, Any], source: str) -> StageTables:
     return parse_table(StageTables, stage_data, source)
 
 
+_NOT_DESIGN = ("name", "out")  # [pipeline] keys that change nothing the design stage makes
+
+
+def design_options(tables: Mapping[str, Any]) -> dict[str, Any]:
+    """The design stage's options in a pipeline's design tables, for its fingerprint.
+
+    Left out: ``[pipeline]`` ``name`` (the report's title) and ``out`` (where the job
+    lies), so renaming either keeps the job's stages; and each view's ``target`` path,
+    which the fingerprint takes as the image's bytes, wherever the image lies.
+    """
+    options = dict(tables)
+    if isinstance(options.get("pipeline"), dict):
+        options["pipeline"] = {k: v for k, v in options["pipeline"].items() if k not in _NOT_DESIGN}
+    if isinstance(options.get("views"), list):
+        options["views"] = [
+            {k: v for k, v in view.items() if k != "target"} if isinstance(view, dict) else view
+            for view in options["views"]
+        ]
+    return options
+
+
 @dataclass(frozen=True)
 class Pipeline:
     """A parsed pipeline file.

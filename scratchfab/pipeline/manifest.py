@@ -1,17 +1,22 @@
 """The job manifest: which stage ran on which inputs, so unchanged stages are skipped.
 
-``JOB/manifest.json`` records, per stage, a fingerprint of its inputs (file contents,
-plus modification times for the user's own source files such as target images) and
-options, and the outputs it wrote. A stage is up to date when its fingerprint matches
-and its outputs exist; the runner (:mod:`scratchfab.pipeline.runner`) decides what else
-reruns.
+``JOB/manifest.json`` records, per stage, a fingerprint of its inputs (the contents of
+the files it reads, and its options) and the outputs it wrote. A stage is up to date
+when its fingerprint matches and its outputs exist; the runner
+(:mod:`scratchfab.pipeline.runner`) decides what else reruns.
+
+Nothing in a fingerprint names where a file lies on this computer: files of the job are
+keyed by their path inside the job, the user's own files (target images, the machine
+profile) by the role the pipeline gives them. A job, its project folder or scratchfab
+itself can be moved, copied or renamed without losing a finished stage, and a file
+whose bytes change is still seen.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,9 +25,20 @@ from scratchfab.fileio import decode_json, file_sha256, write_text
 
 MANIFEST_NAME = "manifest.json"
 
+FINGERPRINT_FORMAT = 2
+"""Recorded in every fingerprint. Format 1 (no ``format`` key) keyed the user's files by
+absolute path and mixed their modification times into the digests."""
+
+Legacy = Callable[[Any], bool]
+"""Whether a stage's inputs as recorded in format 1 describe its inputs now."""
+
 
 def file_digest(path: Path, with_mtime: bool = False) -> str:
-    """SHA-256 of a file's bytes (and its mtime when ``with_mtime``); "missing" if absent."""
+    """SHA-256 of a file's bytes (and its mtime when ``with_mtime``); "missing" if absent.
+
+    ``with_mtime`` is how format 1 digested the user's own files; only
+    :func:`matches_format_1` still asks for it.
+    """
     stamp = str(path.stat().st_mtime_ns).encode() if with_mtime and path.is_file() else b""
     return file_sha256(path, stamp)
 
@@ -34,39 +50,76 @@ def _files_under(path: Path) -> list[Path]:
 
 
 def _key(path: Path, root: Path | None) -> str:
-    """A path as recorded: relative to the job folder when inside it, else absolute."""
+    """A job file as recorded: relative to the job folder when inside it, else absolute."""
     if root is not None:
-        try:
-            return path.resolve().relative_to(root.resolve()).as_posix()
-        except ValueError:
-            pass
+        for inner, outer in ((path, root), (path.resolve(), root.resolve())):
+            try:
+                return inner.relative_to(outer).as_posix()
+            except ValueError:
+                pass
     return str(path.resolve())
+
+
+def _jsonable(options: Mapping[str, Any] | None) -> Any:
+    return json.loads(json.dumps(options or {}, default=str))
 
 
 def fingerprint(
     files: Iterable[Path],
-    sources: Iterable[Path] = (),
+    sources: Mapping[str, Path] | None = None,
     options: Mapping[str, Any] | None = None,
     root: Path | None = None,
 ) -> dict[str, Any]:
     """The inputs of a stage as a JSON-able record.
 
     Args:
-        files: Files (or folders, taken whole) written by earlier stages: content only.
-        sources: The user's own files (targets, profiles): content and modification time,
-            so that touching one counts as a change.
+        files: Files (or folders, taken whole) written by earlier stages, keyed by their
+            path in the job folder ``root``, so a job that is moved or named by another
+            path is still recognised.
+        sources: The user's own files (targets, the machine profile) by their role in
+            the pipeline (``target:<view>``, ``machine``): where they lie does not count,
+            their bytes do.
         options: The stage's options.
-        root: The job folder: files inside it are recorded relative to it, so a job that
-            is moved or named by another path is still recognised.
+        root: The job folder.
     """
     record: dict[str, str] = {}
     for item in files:
         for f in _files_under(Path(item)):
             record[_key(f, root)] = file_digest(f)
-    for item in sources:
-        for f in _files_under(Path(item)):
-            record[_key(f, root)] = file_digest(f, with_mtime=True)
-    return {"files": record, "options": json.loads(json.dumps(options or {}, default=str))}
+    for role, path in (sources or {}).items():
+        record[role] = file_digest(Path(path))
+    return {"format": FINGERPRINT_FORMAT, "files": record, "options": _jsonable(options)}
+
+
+def is_format_1(inputs: Any) -> bool:
+    """Whether a recorded fingerprint predates :data:`FINGERPRINT_FORMAT` 2."""
+    return isinstance(inputs, dict) and "format" not in inputs
+
+
+def matches_format_1(
+    recorded: Any,
+    files: Iterable[Path],
+    sources: Mapping[str, Path],
+    options: Mapping[str, Any] | None,
+    root: Path,
+) -> bool:
+    """Whether ``recorded``, a format-1 fingerprint, describes these inputs now.
+
+    Format 1 recorded the job's files as :func:`fingerprint` does, and the user's files
+    under their absolute paths with digests of bytes and modification time. Those are
+    compared by digest, whatever path they were recorded under, so a project folder
+    moved with its files' times kept still matches; ``options`` are the stage's options
+    as format 1 recorded them.
+    """
+    if not is_format_1(recorded) or not isinstance(recorded.get("files"), dict):
+        return False
+    old: dict[str, Any] = recorded["files"]
+    now = fingerprint(files, None, None, root)["files"]
+    if any(old.get(key) != digest for key, digest in now.items()):
+        return False
+    rest = {digest for key, digest in old.items() if key not in now}
+    stamped = {file_digest(Path(p), with_mtime=True) for p in sources.values()}
+    return rest == stamped and recorded.get("options") == _jsonable(options)
 
 
 def _entry_ok(entry: Any) -> bool:
@@ -106,15 +159,40 @@ class Manifest:
             json.dumps({"stages": self.stages}, indent=2, sort_keys=True) + "\n",
         )
 
-    def is_current(self, stage: str, inputs: Mapping[str, Any]) -> bool:
-        """True when ``stage`` last succeeded on exactly ``inputs`` and its outputs exist."""
+    def _same_inputs(
+        self, entry: Mapping[str, Any], inputs: Mapping[str, Any], legacy: Legacy | None
+    ) -> bool:
+        recorded = entry.get("inputs")
+        if recorded == inputs:
+            return True
+        return legacy is not None and is_format_1(recorded) and legacy(recorded)
+
+    def is_current(
+        self, stage: str, inputs: Mapping[str, Any], legacy: Legacy | None = None
+    ) -> bool:
+        """True when ``stage`` last succeeded on exactly ``inputs`` and its outputs exist.
+
+        An entry recorded in format 1 counts when ``legacy`` says it describes the same
+        inputs; it is then recorded again as ``inputs`` (the manifest is saved).
+        """
         entry = self.stages.get(stage)
-        if not entry or entry.get("status") != "done" or entry.get("inputs") != inputs:
+        if not entry or entry.get("status") != "done":
+            return False
+        if not self._same_inputs(entry, inputs, legacy):
             return False
         try:
-            return all((self.job / out).exists() for out in entry.get("outputs", []))
+            if not all((self.job / out).exists() for out in entry.get("outputs", [])):
+                return False
         except OSError:  # a name too long for the file system: not an output of ours
             return False
+        if entry.get("inputs") != inputs:
+            entry["inputs"] = dict(inputs)
+            self.save()
+        return True
+
+    def recorded_in_format_1(self, stage: str) -> bool:
+        """Whether ``stage``'s entry holds a fingerprint in format 1 (an earlier scratchfab)."""
+        return is_format_1((self.stages.get(stage) or {}).get("inputs"))
 
     def record(
         self, stage: str, inputs: Mapping[str, Any], outputs: Iterable[str], seconds: float
@@ -139,10 +217,16 @@ class Manifest:
         self.stages[stage] = {"status": "interrupted", "inputs": dict(inputs), "reason": reason}
         self.save()
 
-    def unfinished(self, stage: str, inputs: Mapping[str, Any]) -> bool:
-        """True when ``stage`` last started on exactly ``inputs`` and did not finish."""
+    def unfinished(
+        self, stage: str, inputs: Mapping[str, Any], legacy: Legacy | None = None
+    ) -> bool:
+        """True when ``stage`` last started on exactly ``inputs`` and did not finish.
+
+        ``legacy`` as for :meth:`is_current`.
+        """
         entry = self.stages.get(stage) or {}
-        return entry.get("status") in ("running", "interrupted") and entry.get("inputs") == inputs
+        unfinished = entry.get("status") in ("running", "interrupted")
+        return unfinished and self._same_inputs(entry, inputs, legacy)
 
     def invalidate(self, stage: str, reason: str) -> None:
         """Mark ``stage`` as not done (it failed or its inputs changed)."""

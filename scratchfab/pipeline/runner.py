@@ -23,8 +23,14 @@ from scratchfab.console import Confirm, Say
 from scratchfab.errors import ConfigError, Interrupted, ScratchfabError
 from scratchfab.fileio import try_lock
 from scratchfab.model.job import JobLayout
-from scratchfab.pipeline.config import STAGES, Pipeline
-from scratchfab.pipeline.manifest import Manifest, file_digest, fingerprint
+from scratchfab.pipeline.config import STAGES, Pipeline, design_options
+from scratchfab.pipeline.manifest import (
+    Legacy,
+    Manifest,
+    file_digest,
+    fingerprint,
+    matches_format_1,
+)
 from scratchfab.pipeline.report import write_report
 
 
@@ -64,33 +70,54 @@ class _Stages:
         self.resume = False  # continue the stage's interrupted work (optimize's checkpoint)
 
     # -- inputs -----------------------------------------------------------------------
-    def inputs(self, stage: str) -> dict[str, Any]:
-        """The fingerprint of ``stage``'s inputs as they are now."""
-        job, pipe, layout = self.job, self.pipe, self.layout
+    def _spec(self, stage: str) -> tuple[list[Path], dict[str, Path], dict[str, Any]]:
+        """What ``stage`` reads: job files, the user's files by role, and its options."""
+        pipe, layout = self.pipe, self.layout
         design_dir = layout.design.path
         if stage == "design":
-            targets = [
-                p for v in pipe.design.views if (p := pipe.design.target_path(v)) is not None
-            ]
-            return fingerprint([], targets, {"tables": pipe.design_tables}, job)
+            return [], self._targets(), {"tables": design_options(pipe.design_tables)}
         if stage == "optimize":
-            return fingerprint([design_dir], [], asdict(self.pipe.optimize), job)
+            return [design_dir], {}, asdict(pipe.optimize)
         if stage == "verify":
             files = [design_dir, layout.optimized_scratches, layout.optimize_renders]
-            return fingerprint(files, [], asdict(pipe.verify), job)
+            return files, {}, asdict(pipe.verify)
         if stage == "toolpath":
             files = [layout.design.design_toml, layout.optimized_scratches]
-            profile = [Path(pipe.profile.source)]
-            return fingerprint(files, profile, asdict(pipe.toolpath), job)
+            # the profile by its bytes: a bundled name and a copy of its file are one machine
+            options = {k: v for k, v in asdict(pipe.toolpath).items() if k != "machine"}
+            return files, {"machine": Path(pipe.profile.source)}, options
         if stage == "export":
-            return fingerprint([layout.toolpath_json], [], asdict(pipe.export), job)
+            return [layout.toolpath_json], {}, asdict(pipe.export)
         if stage == "stream":
             # recut_unsure only steers a resume: turning it on must not cut a finished board
             # again; the baud is the one used (leaving out the profile's own changes nothing)
             options = {k: v for k, v in asdict(pipe.stream).items() if k != "recut_unsure"}
             options["baud"] = pipe.stream.baud or pipe.profile.serial.baud
-            return fingerprint([self.gcode()], [], options, job)
+            return [self.gcode()], {}, options
         raise KeyError(stage)
+
+    def _targets(self) -> dict[str, Path]:
+        """Each view's target image, by view."""
+        design = self.pipe.design
+        return {
+            f"target:{v.name}": path
+            for v in design.views
+            if (path := design.target_path(v)) is not None
+        }
+
+    def inputs(self, stage: str) -> dict[str, Any]:
+        """The fingerprint of ``stage``'s inputs as they are now."""
+        files, sources, options = self._spec(stage)
+        return fingerprint(files, sources, options, self.job)
+
+    def legacy(self, stage: str) -> Legacy:
+        """Whether a format-1 fingerprint (an earlier scratchfab's) matches ``stage`` now."""
+        files, sources, options = self._spec(stage)
+        if stage == "design":  # format 1 took the tables whole
+            options = {"tables": self.pipe.design_tables}
+        elif stage == "toolpath":  # ... and the machine as named
+            options = asdict(self.pipe.toolpath)
+        return lambda recorded: matches_format_1(recorded, files, sources, options, self.job)
 
     def gcode(self) -> Path:
         """The G-code file the stream stage sends."""
@@ -353,10 +380,13 @@ def _run_stages(
         for index, stage in enumerate(STAGES[: last + 1]):
             if not stages.wanted(stage):
                 continue
-            inputs = stages.inputs(stage)
+            inputs, legacy = stages.inputs(stage), stages.legacy(stage)
+            checked = False  # the manifest was asked whether the stage is up to date
             if stage == "stream":
                 asked = force or start == "stream"
-                if not asked and manifest.is_current(stage, inputs) and stages.streamed_to_end():
+                checked = not asked
+                current = manifest.is_current(stage, inputs, legacy)
+                if not asked and current and stages.streamed_to_end():
                     result.skipped.append(stage)
                     say(
                         f"[stream] {stages.gcode()} is unchanged and was streamed to the end; "
@@ -366,13 +396,20 @@ def _run_stages(
             else:
                 asked = force or (start is not None and STAGES.index(start) <= index)
                 rerun = rerun or asked
-                if not rerun and manifest.is_current(stage, inputs):
+                checked = not rerun
+                if checked and manifest.is_current(stage, inputs, legacy):
                     result.skipped.append(stage)
                     say(f"[{stage}] up to date, skipped")
                     continue
+            if checked and manifest.recorded_in_format_1(stage):
+                say(
+                    f"[{stage}] {job / 'manifest.json'} holds this stage's inputs as an earlier "
+                    "scratchfab recorded them (by absolute path and file time); they do not "
+                    "match the files now: running it again"
+                )
             say(f"[{stage}] running")
             began = time.perf_counter()
-            stages.resume = not asked and manifest.unfinished(stage, inputs)
+            stages.resume = not asked and manifest.unfinished(stage, inputs, legacy)
             manifest.start(stage, inputs)
             try:
                 outputs = stages.run(stage)
