@@ -17,6 +17,7 @@ import pytest
 from conftest import write_pipeline
 
 from scratchfab.cli import main
+from scratchfab.machine.sender_program import load_program
 from scratchfab.pipeline.config import STAGES, load_pipeline
 from scratchfab.pipeline.manifest import Manifest
 from scratchfab.pipeline.runner import run_pipeline
@@ -218,4 +219,27 @@ def test_stream_resumes_in_a_job_moved_after_a_dropped_cable(project, tmp_path, 
     events = [json.loads(line) for line in (pi / "stream" / "journal.jsonl").open()]
     starts = [e for e in events if e["ev"] == "start"]
     assert [s["resume"] for s in starts] == [False, True]
-    assert 0 < starts[1]["resume_from"] <= 120 and events[-1]["ev"] == "end"
+    second = events.index(starts[1])
+    before = {e["i"] for e in events[:second] if e["ev"] == "ack" and "i" in e}
+    after = {e["i"] for e in events[second:] if e["ev"] == "ack" and "i" in e}
+    assert before and after and min(after) > 0 and events[-1]["ev"] == "end"
+    # every cut of the board acknowledged in one session or the other: nothing skipped
+    cuts = {i for i, b in enumerate(load_program(moved).blocks) if b.text.startswith("G1")}
+    assert cuts <= before | after
+
+
+def test_a_file_browser_looking_at_the_job_reruns_nothing(project, tmp_path):
+    copy = tmp_path / "usb stick"
+    shutil.copytree(project, copy, symlinks=True)
+    board = copy / "jobs" / "board"
+    for folder in (board / "design" / "board", board / "design" / "targets"):
+        (folder / "Thumbs.db").write_bytes(b"\xd0\xcf\x11\xe0")  # Windows Explorer
+        (folder / "desktop.ini").write_text("[.ShellClassInfo]\n")
+        (folder / "._sun.png").write_bytes(b"\0\5\26\7")  # macOS on a FAT stick
+        (folder / ".Trashes").mkdir()
+        (folder / ".Trashes" / "501").write_bytes(b"x")
+    assert _run(copy).ran == []
+    # a file of the job's own under a new name still counts
+    targets = board / "design" / "targets"
+    shutil.copyfile(targets / "disc.npy", targets / "x.npy")
+    assert _run(copy).ran == COMPUTING[1:]

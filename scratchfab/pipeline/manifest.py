@@ -43,10 +43,31 @@ def file_digest(path: Path, with_mtime: bool = False) -> str:
     return file_sha256(path, stamp)
 
 
+# What file browsers leave in folders of pictures (Windows Explorer, macOS Finder on
+# a USB stick): no stage reads them; hidden names are listed by their dot.
+_BROWSER_FILES = frozenset({"thumbs.db", "ehthumbs.db", "desktop.ini", "icon\r"})
+
+
+def _read_by_a_stage(relative: Path) -> bool:
+    """False for hidden names, hidden folders and file browsers' files (see ``_files_under``)."""
+    if any(part.startswith(".") for part in relative.parts):
+        return False
+    return relative.name.lower() not in _BROWSER_FILES
+
+
 def _files_under(path: Path) -> list[Path]:
-    if path.is_dir():
-        return sorted(p for p in path.rglob("*") if p.is_file() and not p.name.startswith("."))
-    return [path]
+    """``path``, or the files under it that a stage may read.
+
+    Left out: hidden names and folders (scratch space such as ``atomic_open``'s
+    ``.<name>.*.tmp``, a copy may drop them) and the files a file browser adds when the
+    job is looked at on a USB stick (``Thumbs.db``, ``desktop.ini``), so that looking at
+    a job does not rerun it.
+    """
+    if not path.is_dir():
+        return [path]
+    return sorted(
+        p for p in path.rglob("*") if p.is_file() and _read_by_a_stage(p.relative_to(path))
+    )
 
 
 def _key(path: Path, root: Path | None) -> str:
