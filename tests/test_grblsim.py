@@ -439,3 +439,37 @@ def test_grblhal_banner_and_its_answers():
         assert _banner(port)[-1].startswith("GrblHAL 1.1f")
     finally:
         port.close()
+
+
+def test_safety_door_stops_cuts_the_spindle_and_resumes_once_closed():
+    """0x84: stop, spindle off, ``Door:1`` while open (``~`` ignored, no line parsed),
+    ``Door:0`` once closed, then ``~``: ``Door:3`` while the spindle spins up, and Run."""
+    port = _open("time_scale=0.1")  # G1 X10 F60: 1 s; the spindle delay 0.4 s
+    try:
+        _banner(port)
+        _cmd(port, b"M3S1000\nG1X10F60\n", 2)
+        time.sleep(0.2)
+        port.write(b"\x84")
+        time.sleep(0.05)
+        assert _status(port).startswith("<Door:1|")
+        port.write(b"~G1X0\n")
+        time.sleep(0.1)
+        assert _status(port).startswith("<Door:1|")  # ~ is ignored while the door is open
+        port.sim.close_door()
+        lines = [_status(port)]
+        assert lines[0].startswith("<Door:0|")
+        port.write(b"~")
+        time.sleep(0.05)
+        lines.append(_status(port))
+        assert lines[-1].startswith("<Door:3|")
+        lines += _read_until(port, lambda ls: "ok" in ls)  # G1X0 parsed only now
+        assert _status(port).startswith("<Run|")
+    finally:
+        port.close()
+    assert not any(line == "ok" for line in lines[:2])
+    spindle = [e["spindle"] for e in port.sim.record if e["ev"] == "spindle"]
+    assert spindle == ["M3", "M5", "M3"]
+    states = [e["state"] for e in port.sim.record if e["ev"] == "state"]
+    door = states.index("Door:2")
+    assert states[door - 1 : door + 5] == ["Run", "Door:2", "Door:1", "Door:0", "Door:3", "Run"]
+    assert not any(e["ev"] == "alarm" for e in port.sim.record)

@@ -3,12 +3,21 @@
 from __future__ import annotations
 
 import json
+import threading
+import time
 import urllib.parse
+from pathlib import Path
 
 import pytest
 
 from scratchfab.cli import main
-from scratchfab.machine.sender import Streamer, StreamFault, StreamOptions, open_port
+from scratchfab.machine.sender import (
+    Streamer,
+    StreamFault,
+    StreamOptions,
+    StreamStopped,
+    open_port,
+)
 from scratchfab.machine.sender_journal import Journal, read_journal
 from scratchfab.machine.sender_program import load_program
 
@@ -108,3 +117,92 @@ def test_an_unknown_banner_is_refused(tmp_path):
             Streamer(port, StreamOptions(banner_timeout=0.2)).connect()
     finally:
         port.close()
+
+
+def _door_job(tmp_path) -> Path:
+    job = tmp_path / "door.gcode"
+    moves = "".join(f"G1 X{k % 5} Y{k % 3} F600\n" for k in range(40))
+    job.write_text("G21 G90\nM3 S1000\n" + moves + "M5\n")
+    return job
+
+
+def test_safety_door_pauses_without_a_stall_and_the_job_goes_on(tmp_path):
+    """The door stays open longer than the stall timeout: a pause the user is told about,
+    no fault; the job goes on after the door is closed and cycle start is pressed."""
+    prog = load_program(_door_job(tmp_path))
+    journal = tmp_path / "j.jsonl"
+    port = open_port("grblsim://?time_scale=0.1", 115200)
+    sim = port.sim
+    messages: list[str] = []
+    states: list[str] = []
+    helper: list[threading.Thread] = []
+
+    def close_and_start():
+        time.sleep(1.5)  # three stall timeouts
+        sim.close_door()
+        time.sleep(0.3)
+        sim.cycle_start()
+
+    def progress(p):
+        states.append(p.state)
+        if p.acked > 10 and not helper:
+            sim.open_door()
+            helper.append(threading.Thread(target=close_and_start))
+            helper[0].start()
+
+    options = StreamOptions(banner_timeout=0.5, stall_timeout=0.5)
+    try:
+        _stream(port, prog, journal, options, on_progress=progress, on_message=messages.append)
+    finally:
+        port.close()
+        for thread in helper:
+            thread.join()
+    assert helper and "Door:1" in states
+    told = " | ".join(messages)
+    assert "safety door open (Door:1)" in told and "safety door closed (Door:0)" in told
+    assert "controller resumed after the safety door" in told
+    acks = [e["i"] for e in read_journal(journal) if e["ev"] == "ack"]
+    assert acks == list(range(len(prog.blocks)))
+    assert not [
+        e for e in sim.record if e["ev"] == "alarm" or (e["ev"] == "rt" and e["ch"] == 0x18)
+    ]
+
+
+def test_stop_with_the_door_open_resets_at_once(tmp_path):
+    """Door:1 stands still: a stop resets it without waiting for a Hold:0 that never comes."""
+    prog = load_program(_door_job(tmp_path))
+    journal = tmp_path / "j.jsonl"
+    port = open_port("grblsim://?time_scale=0.1", 115200)
+    sim = port.sim
+    fired: list[float] = []
+
+    def progress(p):
+        if p.acked > 10 and not fired and p.state == "Run":
+            sim.open_door()
+        if p.state == "Door:1" and not fired:
+            fired.append(time.monotonic())
+            raise KeyboardInterrupt
+
+    options = StreamOptions(banner_timeout=0.5, stall_timeout=0.5, hold_timeout=10.0)
+    try:
+        with pytest.raises(StreamStopped):
+            _stream(
+                port, prog, journal, options, on_progress=progress, ask_interrupt=lambda: "stop"
+            )
+        stopped = time.monotonic()
+    finally:
+        port.close()
+    assert fired and stopped - fired[0] < 5.0  # not the 10 s hold timeout
+    assert not [e for e in sim.record if e["ev"] == "alarm"]
+    assert [e["ev"] for e in read_journal(journal)][-1] == "stop"
+
+
+def test_a_door_open_at_connect_is_refused():
+    port = open_port("grblsim://?time_scale=0.1", 115200)
+    try:
+        port.sim.open_door()
+        with pytest.raises(StreamFault, match=r"reports Door:1: its safety door is open"):
+            Streamer(port, FAST).connect()
+    finally:
+        port.close()
+    assert not [e for e in port.sim.record if e["ev"] == "rx"]

@@ -16,7 +16,14 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   S change in a block that moves under laser mode (``$32=1``);
 - ``$`` commands with their state rules (``error:8``/``error:9``), check mode ``$C`` with the
   soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset,
-  feed hold ``Hold:1`` -> ``Hold:0`` and resume.
+  feed hold ``Hold:1`` -> ``Hold:0`` and resume;
+- the safety door (``0x84``, or :meth:`GrblSim.open_door` for the switch): the machine
+  stops (``Door:2``), spindle and coolant go off, ``Door:1`` while the door is open and
+  ``Door:0`` once it is closed (:meth:`GrblSim.close_door`); no line is parsed meanwhile
+  (Grbl's suspend loop). Cycle start (``~`` or :meth:`GrblSim.cycle_start`) in ``Door:0``
+  restores spindle and coolant (``Door:3``, Grbl's 4 s spindle and 1 s coolant delays times
+  ``time_scale``) and resumes; in ``Door:1`` it is ignored. A reset with the door open
+  comes back in ``Door:1``. No parking motion (Grbl's default build).
 
 Fault injection (see :class:`SimOptions`): an error at the N-th G-code block, a disconnect
 after N blocks (the host vanishes; the controller still runs what it had received), lost
@@ -58,6 +65,10 @@ CMD_STATUS = 0x3F  # ?
 CMD_HOLD = 0x21  # !
 CMD_START = 0x7E  # ~
 CMD_RESET = 0x18
+CMD_DOOR = 0x84
+#: Grbl 1.1's ``SAFETY_DOOR_SPINDLE_DELAY`` and ``SAFETY_DOOR_COOLANT_DELAY`` (seconds).
+DOOR_SPINDLE_DELAY = 4.0
+DOOR_COOLANT_DELAY = 1.0
 
 #: Grbl 1.1h defaults (``defaults.h``, generic machine).
 DEFAULT_SETTINGS: dict[int, float] = {
@@ -277,6 +288,9 @@ class GrblSim:
         self._head_done = 0.0  # seconds of the head block done before a hold
         self._hold_complete = False
         self._hold_until = math.inf
+        self._door_ajar = False  # the door switch
+        self._restore_until = math.inf  # Door:3: spindle/coolant restoring before resuming
+        self._door_saved: tuple[str, float, frozenset[str]] = ("M5", 0.0, frozenset())
         self._critical = False
         self._reset_at = math.inf
         self._boot_at = math.inf
@@ -381,8 +395,29 @@ class GrblSim:
                 "".join(json.dumps(e, separators=(",", ":")) + "\n" for e in self.record),
             )
 
+    def open_door(self) -> None:
+        """The safety door switch opens (as the ``0x84`` realtime command does)."""
+        with self._cond:
+            self._door_event(self._clock())
+            self._cond.notify_all()
+
+    def close_door(self) -> None:
+        """The safety door switch closes: ``Door:1`` becomes ``Door:0`` (resumable)."""
+        with self._cond:
+            t = self._clock()
+            self._door_ajar = False
+            if self.state == "Door":
+                self._set_state(t, "Door")
+            self._cond.notify_all()
+
+    def cycle_start(self) -> None:
+        """The controller's cycle start button (as ``~``)."""
+        with self._cond:
+            self._realtime(self._clock(), CMD_START)
+            self._cond.notify_all()
+
     def _busy(self) -> bool:
-        if self._critical or (self.state == "Hold" and self._hold_complete):
+        if self._critical or (self.state in ("Hold", "Door") and self._hold_complete):
             return False
         return bool(self._wire or self._rx or self._pending or self._planner)
 
@@ -420,7 +455,9 @@ class GrblSim:
         return self._head_start + self._planner[0].duration - self._head_done
 
     def _next_event(self) -> float:
-        t = min(self._head_end(), self._hold_until, self._reset_at, self._boot_at)
+        t = min(
+            self._head_end(), self._hold_until, self._reset_at, self._boot_at, self._restore_until
+        )
         if self._wire:
             t = min(t, self._wire[0][0])
         if self._pending is not None and self._pending.until > 0.0:
@@ -447,7 +484,13 @@ class GrblSim:
             elif t == self._hold_until:
                 self._hold_until = math.inf
                 self._hold_complete = True
-                self._set_state(t, "Hold")
+                if self.state == "Door":
+                    self._door_stopped(t)
+                else:
+                    self._set_state(t, "Hold")
+            elif t == self._restore_until:
+                self._restore_until = math.inf
+                self._door_resume(t)
             elif t == self._head_end():
                 self._finish_head(t)
             elif self._pending is not None and t == self._pending.until:
@@ -486,8 +529,12 @@ class GrblSim:
             elif self.state == "Idle":
                 self._hold_complete = True
                 self._set_state(t, "Hold")
+        elif byte == CMD_DOOR:
+            self._door_event(t)
         elif byte == CMD_START:
-            if self.state == "Hold" and self._hold_complete:
+            if self.state == "Door":
+                self._door_restore(t)
+            elif self.state == "Hold" and self._hold_complete:
                 self._hold_complete = False
                 if self._planner:
                     self._head_start = t
@@ -503,7 +550,63 @@ class GrblSim:
         elif 0x99 <= byte <= 0x9D:
             self._overrides[2] = _override(self._overrides[2], byte - 0x99)
             self._ovr_counter = 0
-        # other extended bytes (door, jog cancel, toggles) are accepted and ignored
+        # other extended bytes (jog cancel, toggles) are accepted and ignored
+
+    def _door_event(self, t: float) -> None:
+        """The door opened: stop like a feed hold, then cut spindle and coolant."""
+        self._door_ajar = True
+        if self.state in ("Alarm", "Check", "Sleep", "Home"):
+            return
+        if self.state == "Door":
+            if self._restore_until < math.inf:  # reopened while restoring: stop again
+                self._restore_until = math.inf
+                self._door_stopped(t)
+            else:
+                self._set_state(t, "Door")
+            return
+        if self.state in ("Run", "Jog"):
+            self._pause_head(t)
+            self._hold_complete = False
+            self._hold_until = t + 0.05 * self.options.time_scale
+            self._set_state(t, "Door")
+        elif self._hold_complete or self.state == "Idle":
+            self._hold_complete = True
+            self.state = "Door"
+            self._door_stopped(t)
+        else:  # Hold:1: the hold under way finishes as the door's stop
+            self._set_state(t, "Door")
+
+    def _door_stopped(self, t: float) -> None:
+        """Motion stopped behind an open door: spindle and coolant off (restored on resume)."""
+        if self._spindle != "M5" or self._coolant:
+            self._door_saved = (self._spindle, self._spindle_speed, self._coolant)
+            self._spindle, self._spindle_speed, self._coolant = "M5", 0.0, frozenset()
+            self._log(t, "spindle", spindle="M5", s=0.0)
+        self._set_state(t, "Door", force=True)
+
+    def _door_restore(self, t: float) -> None:
+        """Cycle start in ``Door:0``: spin up (``Door:3``), then resume."""
+        if not self._hold_complete or self._door_ajar or self._restore_until < math.inf:
+            return  # Door:1, Door:2 or already restoring: Grbl ignores it
+        spindle, _, coolant = self._door_saved
+        delay = (DOOR_SPINDLE_DELAY if spindle != "M5" else 0.0) + (
+            DOOR_COOLANT_DELAY if coolant else 0.0
+        )
+        self._restore_until = t + delay * self.options.time_scale
+        self._set_state(t, "Door")
+
+    def _door_resume(self, t: float) -> None:
+        spindle, speed, coolant = self._door_saved
+        self._door_saved = ("M5", 0.0, frozenset())
+        if spindle != "M5" or coolant:
+            self._spindle, self._spindle_speed, self._coolant = spindle, speed, coolant
+            self._log(t, "spindle", spindle=spindle, s=speed)
+        self._hold_complete = False
+        if self._planner:
+            self._head_start = t
+            self._set_state(t, "Jog" if self._jogging else "Run")
+        else:
+            self._set_state(t, "Idle")
 
     def _main(self, t: float) -> None:
         """Grbl's ``protocol_main_loop``, then its realtime point when it runs dry or waits.
@@ -532,6 +635,8 @@ class GrblSim:
 
     def _main_loop(self, t: float) -> None:
         """Move characters into the line buffer and run lines until input or Grbl waits."""
+        if self.state == "Door":
+            return  # Grbl's suspend loop: no line is parsed behind an open door
         while not self._critical and self._reset_at == math.inf and self._boot_at == math.inf:
             if self._pending is not None:
                 if not self._step_pending(t):
@@ -782,6 +887,9 @@ class GrblSim:
                     except GcodeError as exc:
                         self._emit(t, f">{text}:error:{exc.code}\r\n")
         self._set_state(t, self.state, force=True)
+        if self._door_ajar and self.state == "Idle":  # Grbl checks the door switch at init
+            self._hold_complete = True
+            self._set_state(t, "Door")
 
     def _power_off(self, t: float) -> None:
         """Lose power: the head block stops part-way and nothing else runs."""
@@ -790,7 +898,7 @@ class GrblSim:
         self._rx.clear()
         self._wire.clear()
         self._pending = None
-        self._boot_at = self._reset_at = self._hold_until = math.inf
+        self._boot_at = self._reset_at = self._hold_until = self._restore_until = math.inf
         self._spindle = "M5"
         self._set_state(t, "Idle")
         self._log(t, "power_off")
@@ -815,7 +923,7 @@ class GrblSim:
 
     def _soft_reset(self, t: float, from_command: bool) -> None:
         moving = self.state in ("Run", "Jog", "Home") or (
-            self.state == "Hold" and not self._hold_complete
+            self.state in ("Hold", "Door") and not self._hold_complete
         )
         self._stop_head(t)
         self._planner.clear()
@@ -827,6 +935,8 @@ class GrblSim:
         self._report_due = False
         self._hold_until = math.inf
         self._hold_complete = False
+        self._restore_until = math.inf
+        self._door_saved = ("M5", 0.0, frozenset())
         self._jogging = False
         self._spindle = "M5"
         self._spindle_speed = 0.0
@@ -867,6 +977,12 @@ class GrblSim:
     def _state_name(self) -> str:
         if self.state == "Hold":
             return "Hold:0" if self._hold_complete else "Hold:1"
+        if self.state == "Door":
+            if self._restore_until < math.inf:
+                return "Door:3"
+            if not self._hold_complete:
+                return "Door:2"
+            return "Door:1" if self._door_ajar else "Door:0"
         return self.state
 
     # ------------------------------------------------------------------ output
@@ -909,7 +1025,7 @@ class GrblSim:
             fields_.append(f"FS:{rate / MM_PER_INCH:.1f},{self._spindle_speed:.0f}")
         else:
             fields_.append(f"FS:{rate:.0f},{self._spindle_speed:.0f}")
-        busy = self.state in ("Run", "Jog", "Hold", "Home")
+        busy = self.state in ("Run", "Jog", "Hold", "Home", "Door")
         if self._wco_counter > 0:
             self._wco_counter -= 1
         else:

@@ -35,6 +35,12 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
   from a lost position); a stall (lines in flight, controller Idle, no answer for
   ``stall_timeout``, plus the dwell of a ``G4`` being answered); silence; a lost
   connection. Ctrl-C holds, then asks resume or stop.
+- Safety door: ``Door:N`` is a pause the controller made, not a fault: the sender says
+  so (door open, spindle off; closed, waiting for cycle start) and waits, with the stall
+  watchdog off (it only runs while Idle); the job goes on when the controller resumes
+  (its cycle start; the sender never resumes a door by itself). ``Door:0`` (closed) and
+  ``Door:1`` (open) are stopped; ``Door:2`` and up are still stopping or restoring.
+  A controller with its door open at connect is refused (it parses no line until closed).
   Stopping safely is: feed hold, wait for ``Hold:0`` (or Idle), soft reset (spindle off,
   queue flushed, no alarm), banner.
 - Journal: every ``ok`` of a file block is appended and flushed; after a reset the journal
@@ -72,6 +78,8 @@ REALTIME_STATUS = b"?"
 REALTIME_HOLD = b"!"
 REALTIME_RESUME = b"~"
 REALTIME_RESET = b"\x18"
+#: Door states with the machine standing still (Grbl 1.1 and grblHAL): closed, open.
+DOOR_STOPPED = ("Door:0", "Door:1")
 #: Start-up banners: Grbl 1.1, and grblHAL at its default compatibility level 0.
 BANNERS = {"Grbl ": "Grbl", "GrblHAL ": "grblHAL"}
 _TOOL_CHANGE = re.compile(r"M0*6(?![0-9.])")
@@ -457,6 +465,13 @@ class Streamer:
             for line in after:
                 if line.startswith("[MSG:"):
                     self.on_message(f"controller: {line}")
+            door = self._status_now().state
+            if door.startswith("Door"):
+                raise StreamFault(
+                    f"controller reports {door}: its safety door is open (or was, and it "
+                    "waits for cycle start); it reads no line meanwhile. Close the door, press "
+                    "cycle start if it asks, then stream again; nothing was sent"
+                )
             for line in self._command("$I"):
                 if line == "[FIRMWARE:grblHAL]":
                     self.info.firmware = "grblHAL"
@@ -498,7 +513,7 @@ class Streamer:
             state = self._status_now().state
         except _Fault:
             return  # no status: nothing is known to be moving; reset as before
-        moving = ("Run", "Jog", "Hold:1", "Home")
+        moving = ("Run", "Jog", "Hold:1", "Home", "Door:2", "Door:3", "Door:4")
         if not state.startswith(moving):
             return
         timeout = self.options.busy_timeout
@@ -789,6 +804,7 @@ class Streamer:
         nxt = 0
         idle_since: float | None = None
         paused_since: float | None = None
+        door = ""  # the last Door:N reported, "" when not in a door state
         last_report = 0.0
         self._last_rx = time.monotonic()
         total = len(items)
@@ -841,6 +857,7 @@ class Streamer:
                             paused_since = paused_since or time.monotonic()
                         else:
                             paused_since = None
+                        door = self._tell_door(door, self.status.state)
                     elif line.startswith("ALARM:"):
                         code = _code(line)
                         journal.write("alarm", code=code)
@@ -891,6 +908,28 @@ class Streamer:
                 self._last_rx = time.monotonic()
                 idle_since = None
         self._report(len(program.blocks) - 1, len(program.blocks), final=True)
+
+    def _tell_door(self, door: str, state: str) -> str:
+        """Say what a change of the safety door state means; returns the new door state."""
+        now = state if state.startswith("Door") else ""
+        if now == door:
+            return door
+        if now == "Door:1":
+            self.on_message(
+                "safety door open (Door:1): the controller paused the job and turned the "
+                "spindle off; close the door, then press cycle start on the controller (or "
+                "Ctrl-C here to stop)"
+            )
+        elif now == "Door:0":
+            self.on_message(
+                "safety door closed (Door:0): the job goes on when you press cycle start on "
+                "the controller (or Ctrl-C here to resume or stop)"
+            )
+        elif now:
+            self.on_message(f"safety door: controller in {now} (stopping or restoring)")
+        else:
+            self.on_message(f"controller resumed after the safety door ({state})")
+        return now
 
     def _answer(self, line: str) -> bool:
         """Handle ``ok``/``error:N`` for the oldest line in flight; False for other lines."""
@@ -996,7 +1035,13 @@ class Streamer:
                 choice = "stop"
         if choice == "resume":
             # GRBL ignores ~ until the hold is complete (Hold:0)
-            self._wait_held(self.options.hold_timeout)
+            held = self._wait_held(self.options.hold_timeout)
+            if held is not None and held.state == "Door:1":
+                self.on_message(
+                    "the safety door is open: close it, then press cycle start on the "
+                    "controller (it ignores a resume while the door is open)"
+                )
+                return
             self._write(REALTIME_RESUME)
             self.on_message("resumed")
             return
@@ -1103,7 +1148,7 @@ class Streamer:
             )
 
     def _wait_held(self, wait: float) -> Status | None:
-        """Poll until the controller reports Hold:0 (or Idle); answers keep being handled."""
+        """Poll until the controller stands still: Hold:0, Idle, or a stopped door state."""
         deadline = time.monotonic() + wait
         while time.monotonic() < deadline:
             self._poll()
@@ -1112,7 +1157,7 @@ class Streamer:
                     continue
                 if line.startswith("<"):
                     self._note_status(line)
-                    if self.status.state in ("Hold:0", "Idle", "Check"):
+                    if self.status.state in ("Hold:0", "Idle", "Check", *DOOR_STOPPED):
                         return self.status
                 elif line.startswith("ALARM:"):
                     return None
