@@ -243,3 +243,25 @@ def test_a_file_browser_looking_at_the_job_reruns_nothing(project, tmp_path):
     targets = board / "design" / "targets"
     shutil.copyfile(targets / "disc.npy", targets / "x.npy")
     assert _run(copy).ran == COMPUTING[1:]
+
+
+def test_verify_with_jitter_reruns_when_the_machines_tolerance_changes(tmp_path):
+    from scratchfab.bundled import find_bundled
+
+    path = write_pipeline(
+        tmp_path,
+        edits={
+            'machine = "grbl-3018-diamond"': 'machine = "3018.toml"',
+            "[verify]\n": "[verify]\njitter = true\n",
+        },
+    )
+    profile = tmp_path / "3018.toml"
+    shutil.copyfile(find_bundled("machine_profiles", "grbl-3018-diamond", "machine"), profile)
+    job = tmp_path / "job"
+    first = run_pipeline(load_pipeline(path), job, until="toolpath")
+    assert first.ran == COMPUTING[:4]
+    _edit(profile, "tolerance_mm = 0.01", "tolerance_mm = 0.2")
+    again = run_pipeline(load_pipeline(path), job, until="toolpath")
+    assert again.ran == ["verify", "toolpath"]
+    metrics = json.loads((job / "verify" / "metrics.json").read_text(encoding="utf-8"))
+    assert "0.2" in json.dumps(metrics["jitter"])

@@ -80,7 +80,9 @@ class _Stages:
             return [design_dir], {}, asdict(pipe.optimize)
         if stage == "verify":
             files = [design_dir, layout.optimized_scratches, layout.optimize_renders]
-            return files, {}, asdict(pipe.verify)
+            # jitter moves the scratches by the machine's [tool] tolerance_mm
+            machine = {"machine": Path(pipe.profile.source)} if pipe.verify.jitter else {}
+            return files, machine, asdict(pipe.verify)
         if stage == "toolpath":
             files = [layout.design.design_toml, layout.optimized_scratches]
             # the profile by its bytes: a bundled name and a copy of its file are one machine
@@ -117,6 +119,8 @@ class _Stages:
             options = {"tables": self.pipe.design_tables}
         elif stage == "toolpath":  # ... and the machine as named
             options = asdict(self.pipe.toolpath)
+        elif stage == "verify":  # ... and no machine
+            sources = {}
         return lambda recorded: matches_format_1(recorded, files, sources, options, self.job)
 
     def gcode(self) -> Path:
