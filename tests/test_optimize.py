@@ -37,6 +37,7 @@ from scratchfab.optimize.params import (
     project_np,
 )
 from scratchfab.optimize.stage import OptimizeOptions, run_optimize
+from scratchfab.render.ndf import scratch_footprint_ndf
 
 LR = {"cx": 0.03, "cy": 0.03, "theta": math.radians(0.25), "length": 0.03}
 
@@ -229,6 +230,86 @@ def test_merge_penalty_pushes_close_parallel_scratches_apart(m, board) -> None:
     assert merged > image_only + 0.02  # and farther than the image term alone takes them
 
 
+def test_pairs_the_step_skips_add_exact_zeros(m, board) -> None:
+    """Every pair that the touch test drops contributes 0.0, with 0.0 derivatives.
+
+    Checked against the renderer's own closed form evaluated on the dropped pairs alone,
+    part way through a refresh period (the masks of the step's own evaluation).
+    """
+    design, targets, _ = board
+    layout = make_layout(design, 300, seed=3)
+    opt = LayoutOptimizer(design, targets, layout, Settings(lr=LR, refresh_every=8), m)
+    for _ in range(3):
+        opt.step()
+    assert opt.active is not None
+    F, U = m.Float64, m.UInt32
+    ends = [F(opt.ends[:, k]) for k in range(4)]
+    for e in ends:
+        dr.enable_grad(e)
+    masks = opt._touching(tuple(ends))
+    dropped_total = kept_total = 0
+    for r, pairs, mask, (pixel, scratch) in zip(
+        opt.renderers, opt.pairs, masks, opt.active, strict=True
+    ):
+        keep = np.asarray(mask, dtype=bool)
+        # the step renders exactly the pairs that the mask keeps, in order
+        assert np.array_equal(np.asarray(pixel), pairs.pixel_np[keep])
+        assert np.array_equal(np.asarray(scratch), pairs.scratch_np[keep])
+        drop = np.flatnonzero(~keep)
+        dropped_total += len(drop)
+        kept_total += int(keep.sum())
+        pix, sc = U(pairs.pixel_np[drop]), U(pairs.scratch_np[drop])
+        state = r.state
+        ndf, covered = scratch_footprint_ndf(
+            [dr.gather(F, q, pix) for q in state["qx"]],
+            [dr.gather(F, q, pix) for q in state["qy"]],
+            *(dr.gather(F, e, sc) for e in ends),
+            dr.gather(F, opt._half_width, sc),
+            dr.gather(F, opt._wbar, sc),
+            *(dr.gather(F, h, pix) for h in state["h"]),
+            r.alpha,
+        )
+        assert not np.any(np.asarray(ndf)) and not np.any(np.asarray(covered))
+        dr.backward(dr.sum(ndf) + dr.sum(covered))
+        for e in ends:
+            assert not np.any(np.asarray(dr.grad(e)))
+    # the margin makes most pairs idle: the test drops a real share of them
+    assert dropped_total > 0.3 * (dropped_total + kept_total)
+
+
+def test_touching_pairs_give_the_loss_and_gradient_of_all_pairs(m, board) -> None:
+    """Rendering only touching pairs changes the sums' grouping, nothing more."""
+    design, targets, _ = board
+    layout = make_layout(design, 300, seed=4)
+    opt = LayoutOptimizer(design, targets, layout, Settings(lr=LR, merge_weight=1.0), m)
+    for _ in range(5):
+        opt.step()
+    assert opt.active is not None
+    assert sum(opt.active_counts()) < 0.7 * sum(opt.pair_counts())
+
+    def run(active):  # type: ignore[no-untyped-def]
+        raw = [m.Float64(np.array(opt.opt[k], dtype=np.float64)) for k in KEYS]
+        for a in raw:
+            dr.enable_grad(a)
+        loss, _errors, renders, _ = opt._forward(raw, active=active)
+        dr.backward(loss)
+        grad = np.stack([np.asarray(dr.grad(a)) for a in raw])
+        return float(loss[0]), [np.asarray(x) for x in renders], grad
+
+    loss_a, renders_a, grad_a = run(opt.active)
+    loss_b, renders_b, grad_b = run(None)
+    assert loss_a == pytest.approx(loss_b, rel=1e-13)
+    for a, b in zip(renders_a, renders_b, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-13 * float(np.abs(b).max()))
+    np.testing.assert_allclose(grad_a, grad_b, rtol=0, atol=1e-11 * float(np.abs(grad_b).max()))
+    # a view that no scratch touches shows the flat board
+    _loss, flat, _grad = run([(m.UInt32(), m.UInt32()) for _ in opt.views])
+    for r, img in zip(opt.renderers, flat, strict=True):
+        # SPEC section 4 with no scratch: L = factor |P ∩ B| D(h_z) (factor holds 1/|P|)
+        expected = (r.factor * r.area_on_board * r.d_flat).ravel()
+        np.testing.assert_allclose(img, expected, rtol=1e-12, atol=0)
+
+
 @pytest.mark.parametrize("space", ["linear", "perceptual"])
 def test_objective_gradient_matches_finite_differences(m, space) -> None:
     """Adam follows d(loss)/d(raw parameters): image terms, merge and bound penalties."""
@@ -253,7 +334,12 @@ def test_objective_gradient_matches_finite_differences(m, space) -> None:
     raw = [m.Float64(b) for b in base]
     for a in raw:
         dr.enable_grad(a)
-    loss, *_ = opt._forward(raw)
+    # the step's path: only the pairs that touch at these parameters (the differences
+    # below use every pair)
+    with dr.suspend_grad():
+        masks = opt._touching(endpoints(*project(*(m.Float64(b) for b in base), opt.bounds)))
+    dr.eval(masks)
+    loss, *_ = opt._forward(raw, active=opt._compress(masks))
     dr.backward(loss)
     grad = [np.array(dr.grad(a), dtype=np.float64) for a in raw]
 
@@ -429,17 +515,17 @@ def test_ctrl_c_stops_after_the_step_with_outputs(job: Path) -> None:
 def test_non_finite_loss_stops_with_message_and_keeps_checkpoint(
     job: Path, monkeypatch, capsys
 ) -> None:
-    from scratchfab.render import renderer
+    from scratchfab.optimize import optimizer
 
-    original = renderer.ViewRenderer.render
+    original = optimizer.view_error
     calls = {"n": 0}
 
-    def poisoned(self, *args):  # type: ignore[no-untyped-def]
+    def poisoned(*args):  # type: ignore[no-untyped-def]
         calls["n"] += 1
-        img = original(self, *args)
-        return img * (math.nan if calls["n"] > 2 * 8 else 1.0)
+        err, s = original(*args)
+        return err * (math.nan if calls["n"] > 2 * 8 else 1.0), s
 
-    monkeypatch.setattr(renderer.ViewRenderer, "render", poisoned)
+    monkeypatch.setattr(optimizer, "view_error", poisoned)
     with pytest.raises(SystemExit) as exc:
         main(["optimize", str(job), "--iterations", "20", "--checkpoint-every", "5"])
     assert exc.value.code == 2

@@ -36,7 +36,15 @@ from scratchfab.optimize.params import (
 )
 from scratchfab.render.pairs import Pairs
 from scratchfab.render.profile import solve_wbar
-from scratchfab.render.renderer import ViewRenderer
+from scratchfab.render.renderer import ViewRenderer, render_pairs
+
+#: Slack (mm) of :meth:`LayoutOptimizer._touching`: a pair is dropped only when its
+#: footprint lies this far beyond its scratch's rectangle, a million times the float64
+#: rounding of board coordinates (about 1e-14 mm on a 100 mm board).
+TOUCH_SLACK_MM = 1e-8
+
+#: Pixel and scratch indices of the pairs a step renders, per view (Dr.Jit UInt32).
+Active = list[tuple[Any, Any]]
 
 
 class NonFiniteError(ScratchfabError):
@@ -141,6 +149,10 @@ class LayoutOptimizer:
         self.ends = self._ends_np()
         self.refresh_ends: np.ndarray | None = None
         self.pairs: list[Pairs] = []
+        #: The touching subset of ``pairs`` at the current parameters (None: not known).
+        self.active: Active | None = None
+        empty = np.zeros(0, np.uint32)
+        self._no_pairs = Pairs(m.UInt32(), m.UInt32(), empty, empty)
         self.neighbours: tuple[Any, Any] | None = None
         self._neighbour_count = 0
 
@@ -192,6 +204,7 @@ class LayoutOptimizer:
             self.opt.state[key] = (value, promoted, lr, (t, m1, v1, None))
         self.iteration = int(state["iteration"])
         self.ends = self._ends_np()
+        self.active = None
         if "refresh_ends" in state:
             self._refresh(np.asarray(state["refresh_ends"], dtype=self.dtype))
         else:
@@ -206,6 +219,7 @@ class LayoutOptimizer:
         p0, p1 = e[:, 0:2], e[:, 2:4]
         half = self.width / 2
         self.pairs = [r.find_pairs(p0, p1, half, self.margin) for r in self.renderers]
+        self.active = None
         reach = self.tool_width + 2 * (self.margin - float(np.max(half)))
         slack = 2 * self.settings.refresh_every * float(self.settings.lr["theta"])
         i, j = neighbour_pairs(p0, p1, reach, slack)
@@ -217,21 +231,99 @@ class LayoutOptimizer:
         """Number of pairs per view in use."""
         return [len(p) for p in self.pairs]
 
+    def _touching(self, ends: tuple[Any, Any, Any, Any]) -> list[Any]:
+        """Per view, the mask of the pairs in use that may touch at endpoints ``ends``.
+
+        A pair is dropped when its footprint's four corners, in its scratch's frame (x
+        across, y along from p0, as :mod:`scratchfab.render.ndf` sets it up), all lie
+        more than TOUCH_SLACK_MM beyond one side, |x| = w, or before its start, y = 0.
+        Every edge piece of that footprint is then empty or has weight clamp(y, 0, L) = 0,
+        so the pair adds exactly 0 to its pixel's NDF and covered area, with exactly zero
+        derivatives. (Past the far end, y = L, the pieces cancel only to rounding, so
+        those pairs stay.) Not evaluated; detached.
+        """
+        F = self.Float
+        masks = []
+        with dr.suspend_grad():
+            p0x, p0y, p1x, p1y = (dr.detach(e) for e in ends)
+            for r, pairs in zip(self.renderers, self.pairs, strict=True):
+                s, pix = pairs.scratch, pairs.pixel
+                ax, ay = dr.gather(F, p0x, s), dr.gather(F, p0y, s)
+                ex, ey = dr.gather(F, p1x, s) - ax, dr.gather(F, p1y, s) - ay
+                length = dr.sqrt(ex * ex + ey * ey)
+                inv = dr.rcp(dr.select(length > 0, length, 1.0))
+                ux = dr.select(length > 0, ex * inv, 0.0)
+                uy = dr.select(length > 0, ey * inv, 1.0)
+                state = r.state
+                across: list[Any] = []
+                along: list[Any] = []
+                for qx, qy in zip(state["qx"], state["qy"], strict=True):
+                    rx, ry = dr.gather(F, qx, pix) - ax, dr.gather(F, qy, pix) - ay
+                    across.append(rx * uy - ry * ux)
+                    along.append(rx * ux + ry * uy)
+                w = dr.gather(F, self._half_width, s) + TOUCH_SLACK_MM
+                lo = dr.minimum(dr.minimum(across[0], across[1]), dr.minimum(across[2], across[3]))
+                hi = dr.maximum(dr.maximum(across[0], across[1]), dr.maximum(across[2], across[3]))
+                top = dr.maximum(dr.maximum(along[0], along[1]), dr.maximum(along[2], along[3]))
+                masks.append((lo <= w) & (hi >= -w) & (top >= -TOUCH_SLACK_MM))
+        return masks
+
+    def _compress(self, masks: list[Any]) -> Active:
+        """The pairs that ``masks`` (evaluated) keep, as lazy gathers of the pairs in use."""
+        U = self.m.UInt32
+        active = []
+        for pairs, mask in zip(self.pairs, masks, strict=True):
+            keep: Any = dr.compress(mask)
+            active.append((dr.gather(U, pairs.pixel, keep), dr.gather(U, pairs.scratch, keep)))
+        return active
+
+    def active_counts(self) -> list[int]:
+        """Number of pairs per view that the next step renders (after a refresh: all)."""
+        if self.active is None:
+            return self.pair_counts()
+        return [dr.width(p) for p, _s in self.active]
+
     # ------------------------------------------------------------------ step
     def _forward(
-        self, raw: list[Any], half_width: Any = None, wbar: Any = None
+        self,
+        raw: list[Any],
+        half_width: Any = None,
+        wbar: Any = None,
+        active: Active | None = None,
     ) -> tuple[Any, list[Any], list[Any], Any]:
-        """Loss, per-view errors and renders of raw parameters (not evaluated)."""
+        """Loss, per-view errors and renders of raw parameters (not evaluated).
+
+        ``active`` renders only those pairs (:meth:`_compress`); by default all in use.
+        """
         half_width = self._half_width if half_width is None else half_width
         wbar = self._wbar if wbar is None else wbar
         count = dr.width(raw[0])
         s = self.settings
         cx, cy, theta, length = project(raw[0], raw[1], raw[2], raw[3], self.bounds)
         p0x, p0y, p1x, p1y = endpoints(cx, cy, theta, length)
+        if active is None:
+            active = [(p.pixel, p.scratch) for p in self.pairs]
         renders = []
         errors = []
-        for r, pairs, (target, mask) in zip(self.renderers, self.pairs, self._targets, strict=True):
-            img = r.render(p0x, p0y, p1x, p1y, half_width, wbar, pairs)
+        for r, (pixel, scratch), (target, mask) in zip(
+            self.renderers, active, self._targets, strict=True
+        ):
+            if dr.width(pixel) == 0:
+                img = r.render(p0x, p0y, p1x, p1y, half_width, wbar, self._no_pairs)
+            else:
+                img = render_pairs(
+                    r.state,
+                    r.alpha,
+                    r.pixel_count,
+                    p0x,
+                    p0y,
+                    p1x,
+                    p1y,
+                    half_width,
+                    wbar,
+                    pixel,
+                    scratch,
+                )
             err, _s = view_error(img, target, mask, s.space)
             renders.append(img)
             errors.append(err)
@@ -257,14 +349,21 @@ class LayoutOptimizer:
         """
         if not self.pairs or self.iteration % self.settings.refresh_every == 0:
             self._refresh(self.ends)
+        if self.active is None:
+            with dr.suspend_grad():
+                masks = self._touching(endpoints(*self._projected()))
+            dr.eval(masks)  # fresh pairs: the one step with a second evaluation
+            self.active = self._compress(masks)
         raw = [self.opt[k] for k in KEYS]
-        loss, errors, renders, _ends = self._forward(raw)
+        loss, errors, renders, _ends = self._forward(raw, active=self.active)
         dr.backward(loss)
         saved = {k: self.opt.state[k] for k in KEYS}
         self.opt.step(eval=False)
         with dr.suspend_grad():
             new_ends = endpoints(*self._projected())
-        dr.schedule(loss, errors, renders, new_ends)
+        refresh_next = (self.iteration + 1) % self.settings.refresh_every == 0
+        next_masks = [] if refresh_next else self._touching(new_ends)
+        dr.schedule(loss, errors, renders, new_ends, next_masks)
         dr.eval()
         loss_value = float(loss[0])
         images = {
@@ -281,12 +380,14 @@ class LayoutOptimizer:
         if not (finite_loss and finite_grad):
             for k in KEYS:
                 self.opt.state[k] = saved[k]
+            self.active = None
             what = "gradient" if finite_loss else "loss"
             raise NonFiniteError(
                 f"non-finite {what} at iteration {self.iteration}; the run stopped and the "
                 "last good checkpoint is kept (try smaller learning rates)"
             )
         self.ends = np.stack([np.asarray(e, dtype=self.dtype) for e in new_ends], axis=1)
+        self.active = self._compress(next_masks) if next_masks else None
         self.iteration += 1
         return StepResult(
             loss_value,
