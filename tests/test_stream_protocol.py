@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from scratchfab.cli import main
+from scratchfab.errors import ScratchfabError
 from scratchfab.machine.sender import (
     Streamer,
     StreamFault,
@@ -18,8 +19,10 @@ from scratchfab.machine.sender import (
     StreamStopped,
     open_port,
 )
+from scratchfab.machine.sender_checks import _machine_frame_refusals
 from scratchfab.machine.sender_journal import Journal, read_journal
 from scratchfab.machine.sender_program import load_program
+from scratchfab.machine.stream_job import _check_same_zero
 
 FAST = StreamOptions(banner_timeout=0.5, stall_timeout=1.0)
 
@@ -206,3 +209,55 @@ def test_a_door_open_at_connect_is_refused():
     finally:
         port.close()
     assert not [e for e in port.sim.record if e["ev"] == "rx"]
+
+
+def _zero_events(wco, g92) -> list[dict]:
+    return [{"ev": "start", "sha256": "x", "resume": False, "blocks": 1, "wco": wco, "g92": g92}]
+
+
+@pytest.mark.parametrize("shift", [0.004, 0.006])
+def test_one_offset_tolerance_for_check_mode_and_resume(tmp_path, shift):
+    """A G92 of ``shift`` mm that a reset cleared: check mode's reset and --resume judge it
+    alike, with GRBL's reporting resolution (under 0.005 mm: the same zero)."""
+    same = shift < 0.005
+    # --resume: the journal's zero had the G92 part, now the reset cleared it
+    said: list[str] = []
+    before = [10.0 + shift, 20.0, -5.0]
+    call = (_zero_events(before, [shift, 0.0, 0.0]), (10.0, 20.0, -5.0), (0.0, 0.0, 0.0))
+    if same:
+        _check_same_zero(*call, tmp_path / "j.jsonl", said.append)
+        assert said == []
+    else:
+        with pytest.raises(ScratchfabError, match="included a G92 offset"):
+            _check_same_zero(*call, tmp_path / "j.jsonl", said.append)
+    # check mode: a G92 set before $C is cleared by the reset that ends it
+    job = tmp_path / "job.gcode"
+    job.write_text("G21 G90\nG0 Z1\nG1 X2 F600\n")
+    port = open_port("grblsim://?time_scale=0.01", 115200)
+    try:
+        port.write(f"G92 X{-shift}\n".encode())  # at X0: the work offset becomes +shift
+        streamer = Streamer(port, FAST)
+        info = streamer.connect()
+        assert info.g92 == pytest.approx((shift, 0.0, 0.0), abs=1e-9)
+        if same:
+            assert streamer.check(load_program(job)).errors == []
+        else:
+            with pytest.raises(StreamFault, match="cleared its G92 or tool length offset"):
+                streamer.check(load_program(job))
+    finally:
+        port.close()
+
+
+def test_a_changed_zero_is_told_from_the_reporting_resolution_up(tmp_path):
+    said: list[str] = []
+    events = _zero_events([1.0, 2.0, 3.0], [0.0, 0.0, 0.0])
+    _check_same_zero(events, (1.004, 2.0, 3.0), None, tmp_path / "j.jsonl", said.append)
+    assert said == []
+    _check_same_zero(events, (1.0, 2.0, 3.008), None, tmp_path / "j.jsonl", said.append)
+    assert len(said) == 1 and "the work offset changed" in said[0]
+
+
+def test_a_machine_frame_profile_takes_the_same_offset_tolerance():
+    assert _machine_frame_refusals("m", (0.004, 0.0, -0.004)) == []
+    (refusal,) = _machine_frame_refusals("m", (0.0, 0.006, 0.0))
+    assert "GRBL's work offset is X0 Y0.006 Z0 mm" in refusal

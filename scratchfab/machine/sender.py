@@ -68,6 +68,7 @@ import serial
 
 from scratchfab.errors import Interrupted, ScratchfabError
 from scratchfab.machine.grbl_codes import MM_PER_INCH, alarm_meaning, error_meaning
+from scratchfab.machine.sender_checks import same_offset
 from scratchfab.machine.sender_journal import Journal, last_surely_run
 from scratchfab.machine.sender_program import Block, Modal, Program, dwell_seconds
 
@@ -683,7 +684,7 @@ class Streamer:
         self.info.wco, self.info.g92, self._wco = None, None, None
         self._read_work_offset()
         after = self.info.wco
-        if before is None or (after is not None and math.dist(before, after) <= 0.001):
+        if before is None or (after is not None and same_offset(before, after)):
             return
         now = "unknown" if after is None else xyz_text(after)
         raise StreamFault(

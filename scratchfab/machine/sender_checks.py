@@ -3,13 +3,23 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
 from scratchfab.machine.sender_program import Block, Modal, Program
 
 _AXES = "XYZ"
+#: Two readings of one work offset agree within this, per axis (mm). GRBL reports offsets
+#: rounded to 3 decimals in mm (+-0.0005) or 4 in inches (+-0.00127 mm), and the offset read
+#: with ``$#`` is a sum of three rounded terms (G5x + G92 + TLO): honest readings of the
+#: same zero differ by at most 3 x 0.00127 = 0.0038 mm, a zero set again by hand by more.
+OFFSET_TOLERANCE_MM = 0.005
+
+
+def same_offset(a: Sequence[float], b: Sequence[float]) -> bool:
+    """Whether two work offsets in mm are one zero as GRBL reports it, axis by axis."""
+    return max(abs(x - y) for x, y in zip(a, b, strict=True)) <= OFFSET_TOLERANCE_MM
 
 
 class _Envelope(Protocol):
@@ -255,7 +265,7 @@ def compare(
                 )
     if profile is not None and profile.envelope.coordinates == "machine":
         out.refusals.extend(
-            f"{path}: {text}" for text in _machine_frame_refusals(profile.name, wco, tolerance)
+            f"{path}: {text}" for text in _machine_frame_refusals(profile.name, wco)
         )
     for k, (asked, rate) in enumerate(zip(axis_feeds(program), rates, strict=True)):
         if rate is not None and asked > rate + tolerance:
@@ -266,9 +276,7 @@ def compare(
     return out
 
 
-def _machine_frame_refusals(
-    name: str, wco: tuple[float, float, float] | None, tolerance: float
-) -> list[str]:
+def _machine_frame_refusals(name: str, wco: tuple[float, float, float] | None) -> list[str]:
     """Refuse a profile in machine coordinates unless GRBL's work offset is known to be zero.
 
     Its G-code moves in the work coordinates, which equal the machine's only with the
@@ -280,7 +288,7 @@ def _machine_frame_refusals(
             f"machine '{name}' is written in GRBL machine coordinates, but the work offset "
             f"could not be read ($# and the status reports' WCO gave none); {fix}"
         ]
-    if all(abs(w) <= tolerance for w in wco):
+    if same_offset(wco, (0.0, 0.0, 0.0)):
         return []
     offset = " ".join(f"{axis}{w:g}" for axis, w in zip(_AXES, wco, strict=True))
     return [

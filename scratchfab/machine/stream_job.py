@@ -9,7 +9,6 @@ callbacks they pass.
 from __future__ import annotations
 
 import contextlib
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +24,7 @@ from scratchfab.machine.sender import (
     open_port,
     xyz_text,
 )
-from scratchfab.machine.sender_checks import compare
+from scratchfab.machine.sender_checks import compare, same_offset
 from scratchfab.machine.sender_journal import (
     Journal,
     check_journal_file,
@@ -254,19 +253,20 @@ def _check_same_zero(
     zero set with G92 is gone and the resumed strokes would land that far off: refused
     when the work offset is now exactly the old one less that G92 part (nobody zeroed
     again). Any other change of the work offset is told (a re-zero after a lost position
-    changes it legitimately, and by hand never to the hundredth).
+    changes it legitimately). Offsets compare with :func:`same_offset`, as check mode's.
 
     Raises:
         ScratchfabError: The earlier run had a G92 offset, it is now cleared, and the work
             zero was not set again.
     """
     before, g92_before = run_zero(events)
-    if before is None or wco is None or math.dist(before, wco) <= 0.01:
+    if before is None or wco is None or same_offset(before, wco):
         return
     was, now = xyz_text(before), xyz_text(wco)
-    if g92_before is not None and any(abs(v) > 0.001 for v in g92_before):
+    zero = (0.0, 0.0, 0.0)
+    if g92_before is not None and not same_offset(g92_before, zero):
         cleared = tuple(b - g for b, g in zip(before, g92_before, strict=True))
-        if (g92 is None or all(abs(v) <= 0.001 for v in g92)) and math.dist(cleared, wco) <= 0.01:
+        if (g92 is None or same_offset(g92, zero)) and same_offset(cleared, wco):
             raise ScratchfabError(
                 f"{journal_file}: the interrupted run's work zero included a G92 offset "
                 f"({xyz_text(g92_before)} mm) that a reset since then cleared (work offset "
