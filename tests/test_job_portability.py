@@ -265,3 +265,21 @@ def test_verify_with_jitter_reruns_when_the_machines_tolerance_changes(tmp_path)
     assert again.ran == ["verify", "toolpath"]
     metrics = json.loads((job / "verify" / "metrics.json").read_text(encoding="utf-8"))
     assert "0.2" in json.dumps(metrics["jitter"])
+
+
+def test_a_stage_folder_linked_elsewhere_is_keyed_inside_the_job(project, tmp_path):
+    copy = tmp_path / "project"
+    shutil.copytree(project, copy, symlinks=True)
+    board = copy / "jobs" / "board"
+    big = tmp_path / "big disk" / "optimize"
+    big.parent.mkdir()
+    shutil.move(board / "optimize", big)
+    (board / "optimize").symlink_to(big, target_is_directory=True)
+    assert _run(copy).ran == []
+    verify = Manifest.load(board).stages["verify"]["inputs"]["files"]
+    assert "optimize/scratches.csv" in verify and not any(k.startswith("/") for k in verify)
+    moved = tmp_path / "other disk"
+    big.parent.rename(moved)  # the disk mounted elsewhere; the link follows
+    (board / "optimize").unlink()
+    (board / "optimize").symlink_to(moved / "optimize", target_is_directory=True)
+    assert _run(copy).ran == []
