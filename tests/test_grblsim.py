@@ -473,3 +473,36 @@ def test_safety_door_stops_cuts_the_spindle_and_resumes_once_closed():
     door = states.index("Door:2")
     assert states[door - 1 : door + 5] == ["Run", "Door:2", "Door:1", "Door:0", "Door:3", "Run"]
     assert not any(e["ev"] == "alarm" for e in port.sim.record)
+
+
+def _mpos_x(report: str) -> float:
+    return float(report.split("MPos:")[1].split(",")[0])
+
+
+def test_feed_hold_or_jog_cancel_during_a_jog_cancels_it():
+    """Grbl 1.1: ``!`` in Jog does not hold, it cancels the jog: decelerate, flush the jog
+    blocks, Idle where it stopped (``~`` resumes nothing); ``0x85`` does the same."""
+    port = _open("time_scale=0.1")  # a 10 mm jog at F60: 1 s
+    try:
+        _banner(port)
+        for cancel in (b"!", b"\x85"):
+            assert _answers(_cmd(port, b"$J=G91X10F60\n")) == ["ok"]
+            time.sleep(0.3)
+            assert _status(port).startswith("<Jog|")
+            port.write(cancel)
+            time.sleep(0.1)
+            report = _status(port)
+            assert report.startswith("<Idle|"), report
+            x = _mpos_x(report)
+            port.write(b"~")
+            time.sleep(0.3)
+            report = _status(port)
+            assert report.startswith("<Idle|") and _mpos_x(report) == x
+            assert _answers(_cmd(port, b"G90G0X0\n")) == ["ok"]  # G-code is accepted again
+            time.sleep(0.3)
+    finally:
+        port.close()
+    states = [e["state"] for e in port.sim.record if e["ev"] == "state"]
+    assert "Hold:0" not in states and "Hold:1" not in states
+    partial = [e for e in port.sim.record if e["ev"] == "partial"]
+    assert len(partial) == 2 and all(0 < e["to"][0] < 10 for e in partial)

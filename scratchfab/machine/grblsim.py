@@ -16,7 +16,8 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   S change in a block that moves under laser mode (``$32=1``);
 - ``$`` commands with their state rules (``error:8``/``error:9``), check mode ``$C`` with the
   soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset,
-  feed hold ``Hold:1`` -> ``Hold:0`` and resume;
+  feed hold ``Hold:1`` -> ``Hold:0`` and resume; a feed hold or jog cancel (``0x85``)
+  during a jog cancels it instead: the machine stops, the jog blocks are flushed, Idle;
 - the safety door (``0x84``, or :meth:`GrblSim.open_door` for the switch): the machine
   stops (``Door:2``), spindle and coolant go off, ``Door:1`` while the door is open and
   ``Door:0`` once it is closed (:meth:`GrblSim.close_door`); no line is parsed meanwhile
@@ -66,6 +67,7 @@ CMD_HOLD = 0x21  # !
 CMD_START = 0x7E  # ~
 CMD_RESET = 0x18
 CMD_DOOR = 0x84
+CMD_JOG_CANCEL = 0x85
 #: Grbl 1.1's ``SAFETY_DOOR_SPINDLE_DELAY`` and ``SAFETY_DOOR_COOLANT_DELAY`` (seconds).
 DOOR_SPINDLE_DELAY = 4.0
 DOOR_COOLANT_DELAY = 1.0
@@ -307,6 +309,7 @@ class GrblSim:
         self._ovr_counter = 0
         self._overrides = [100, 100, 100]
         self._jogging = False
+        self._jog_cancel = False  # stopping a jog that is then flushed (``!`` or 0x85)
         self._report_due = False  # a ``?`` that came while planning, served after it
         self._last_state_logged = ""
         self._thread: threading.Thread | None = None
@@ -450,7 +453,7 @@ class GrblSim:
                 self._cond.wait(min(max(nxt - now, 0.0), 0.05) if nxt < math.inf else 0.05)
 
     def _head_end(self) -> float:
-        if self.state not in ("Run", "Jog") or not self._planner:
+        if self.state not in ("Run", "Jog") or not self._planner or self._jog_cancel:
             return math.inf
         return self._head_start + self._planner[0].duration - self._head_done
 
@@ -483,10 +486,12 @@ class GrblSim:
                 self._receive(t, self._wire.popleft()[1])
             elif t == self._hold_until:
                 self._hold_until = math.inf
+                if self._jog_cancel:
+                    self._end_jog(t)
                 self._hold_complete = True
                 if self.state == "Door":
                     self._door_stopped(t)
-                else:
+                elif self.state != "Idle":
                     self._set_state(t, "Hold")
             elif t == self._restore_until:
                 self._restore_until = math.inf
@@ -520,8 +525,12 @@ class GrblSim:
         self._log(t, "rt", ch=byte)
         if byte == CMD_RESET:
             self._soft_reset(t, from_command=True)
-        elif byte == CMD_HOLD:
-            if self.state in ("Run", "Jog"):
+        elif byte == CMD_HOLD or byte == CMD_JOG_CANCEL:
+            if self.state == "Jog":
+                self._cancel_jog(t)  # Grbl 1.1: any hold during a jog cancels the jog
+            elif byte == CMD_JOG_CANCEL:
+                pass  # only a jog can be cancelled
+            elif self.state == "Run":
                 self._pause_head(t)
                 self._hold_complete = False
                 self._hold_until = t + 0.05 * self.options.time_scale
@@ -550,7 +559,25 @@ class GrblSim:
         elif 0x99 <= byte <= 0x9D:
             self._overrides[2] = _override(self._overrides[2], byte - 0x99)
             self._ovr_counter = 0
-        # other extended bytes (jog cancel, toggles) are accepted and ignored
+        # other extended bytes (toggles) are accepted and ignored
+
+    def _cancel_jog(self, t: float) -> None:
+        """Decelerate the jog (state stays Jog), then flush it (:meth:`_end_jog`)."""
+        if self._jog_cancel:
+            return
+        self._pause_head(t)
+        self._jog_cancel = True
+        self._hold_until = t + 0.05 * self.options.time_scale
+
+    def _end_jog(self, t: float) -> None:
+        """The cancelled jog stopped: flush its blocks, sync the position, Idle."""
+        self._stop_head(t)
+        self._planner.clear()
+        self._jog_cancel = False
+        self._jogging = False
+        self._gc.position = self.mpos
+        if self.state == "Jog":
+            self._set_state(t, "Idle")
 
     def _door_event(self, t: float) -> None:
         """The door opened: stop like a feed hold, then cut spindle and coolant."""
@@ -564,7 +591,11 @@ class GrblSim:
             else:
                 self._set_state(t, "Door")
             return
-        if self.state in ("Run", "Jog"):
+        if self.state == "Jog":  # the jog is cancelled, then the door holds
+            self._cancel_jog(t)
+            self._hold_complete = False
+            self._set_state(t, "Door")
+        elif self.state == "Run":
             self._pause_head(t)
             self._hold_complete = False
             self._hold_until = t + 0.05 * self.options.time_scale
@@ -847,7 +878,7 @@ class GrblSim:
             return self.mpos
         head = self._planner[0]
         done = self._head_done
-        if self.state in ("Run", "Jog"):
+        if self.state in ("Run", "Jog") and not self._jog_cancel:
             done += t - self._head_start
         frac = 1.0 if head.duration <= 0 else min(1.0, max(0.0, done / head.duration))
         return tuple(a + (b - a) * frac for a, b in zip(head.start, head.end, strict=True))  # type: ignore[return-value]
@@ -937,6 +968,7 @@ class GrblSim:
         self._hold_complete = False
         self._restore_until = math.inf
         self._door_saved = ("M5", 0.0, frozenset())
+        self._jog_cancel = False
         self._jogging = False
         self._spindle = "M5"
         self._spindle_speed = 0.0
