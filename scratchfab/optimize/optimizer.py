@@ -5,6 +5,21 @@ per-view renderers and targets, and the pixel pairs. Pairs are re-found every
 ``refresh_every`` steps with the margin of :func:`scratchfab.optimize.params.pair_margin`,
 which bounds how far any scratch can move before the next refresh, so no (pixel,
 scratch) pair that the exact renderer would need is ever missing.
+
+At any one step, most of those pairs do not touch. The margin is about a millimetre
+around a scratch a tenth of a millimetre wide, so about 2/3 of the demo's pairs and 4/5
+of the full-size board's lie beside their scratch. There the footprint integral and its
+gradient are exactly zero. A step renders only the pairs that :meth:`_touching` keeps;
+their closed form is almost all of a step's time. Dropping exact zeros changes no term
+of any sum. Dr.Jit's SIMD scatter-add may group the remaining terms differently, which
+moves the last bits of the gradients (the tests bound this). The touch masks for the
+next step are evaluated together with the step itself. Only a refresh step evaluates
+the masks of its fresh pairs beforehand.
+
+The step itself (:meth:`_train`: loss, backward, Adam, next endpoints and masks) runs
+under ``dr.freeze``. After the first call of each shape, it replays the recorded
+kernels without tracing again: the same kernels, so the same bits, with the tracing and
+AD bookkeeping gone. Its outputs come back evaluated, which is the step's one evaluation.
 """
 
 from __future__ import annotations
@@ -43,8 +58,13 @@ from scratchfab.render.renderer import ViewRenderer, render_pairs
 #: rounding of board coordinates (about 1e-14 mm on a 100 mm board).
 TOUCH_SLACK_MM = 1e-8
 
-#: Pixel and scratch indices of the pairs a step renders, per view (Dr.Jit UInt32).
-Active = list[tuple[Any, Any]]
+#: Per view, the positions among the pairs in use of those a step renders (Dr.Jit UInt32).
+Active = list[Any]
+
+#: Per view, what :meth:`LayoutOptimizer._objective` renders: the (pixel, scratch) indices
+#: of the pairs in use and the positions among them to render (None: all), or None when
+#: the view renders no pair.
+ViewPairs = tuple[Any, Any, Any] | None
 
 
 class NonFiniteError(ScratchfabError):
@@ -95,6 +115,9 @@ class LayoutOptimizer:
         initial: The starting layout.
         settings: Numerical settings.
         m: Dr.Jit array namespace.
+        freeze: Replay each step's kernels with ``dr.freeze`` instead of tracing them
+            again (the same kernels, so the same results; it saves the tracing and AD
+            bookkeeping, about a fifth of a demo step).
     """
 
     def __init__(
@@ -104,6 +127,7 @@ class LayoutOptimizer:
         initial: ScratchSet,
         settings: Settings,
         m: ModuleType,
+        freeze: bool = True,
     ) -> None:
         if len(initial) == 0:
             raise ScratchfabError("the initial layout has no scratches")
@@ -151,8 +175,11 @@ class LayoutOptimizer:
         self.pairs: list[Pairs] = []
         #: The touching subset of ``pairs`` at the current parameters (None: not known).
         self.active: Active | None = None
-        empty = np.zeros(0, np.uint32)
-        self._no_pairs = Pairs(m.UInt32(), m.UInt32(), empty, empty)
+        # A step's shape (which views render pairs, whether merge candidates exist, whether
+        # the next step refreshes) keys its recording; a few recordings a run is normal.
+        self._train_step = (
+            dr.freeze(self._train, limit=16, warn_after=64) if freeze else self._train
+        )
         self.neighbours: tuple[Any, Any] | None = None
         self._neighbour_count = 0
 
@@ -231,7 +258,7 @@ class LayoutOptimizer:
         """Number of pairs per view in use."""
         return [len(p) for p in self.pairs]
 
-    def _touching(self, ends: tuple[Any, Any, Any, Any]) -> list[Any]:
+    def _touching(self, ends: tuple[Any, Any, Any, Any], ctx: dict[str, Any]) -> list[Any]:
         """Per view, the mask of the pairs in use that may touch at endpoints ``ends``.
 
         A pair is dropped when its footprint's four corners, in its scratch's frame (x
@@ -240,48 +267,66 @@ class LayoutOptimizer:
         Every edge piece of that footprint is then empty or has weight clamp(y, 0, L) = 0,
         so the pair adds exactly 0 to its pixel's NDF and covered area, with exactly zero
         derivatives. (Past the far end, y = L, the pieces cancel only to rounding, so
-        those pairs stay.) Not evaluated; detached.
+        those pairs stay.) Reads the pairs and the views from ``ctx``
+        (:meth:`_context`). Not evaluated; detached.
         """
         F = self.Float
         masks = []
         with dr.suspend_grad():
             p0x, p0y, p1x, p1y = (dr.detach(e) for e in ends)
-            for r, pairs in zip(self.renderers, self.pairs, strict=True):
-                s, pix = pairs.scratch, pairs.pixel
+            for state, (pix, s) in zip(ctx["views"], ctx["pairs"], strict=True):
                 ax, ay = dr.gather(F, p0x, s), dr.gather(F, p0y, s)
                 ex, ey = dr.gather(F, p1x, s) - ax, dr.gather(F, p1y, s) - ay
                 length = dr.sqrt(ex * ex + ey * ey)
                 inv = dr.rcp(dr.select(length > 0, length, 1.0))
                 ux = dr.select(length > 0, ex * inv, 0.0)
                 uy = dr.select(length > 0, ey * inv, 1.0)
-                state = r.state
                 across: list[Any] = []
                 along: list[Any] = []
                 for qx, qy in zip(state["qx"], state["qy"], strict=True):
                     rx, ry = dr.gather(F, qx, pix) - ax, dr.gather(F, qy, pix) - ay
                     across.append(rx * uy - ry * ux)
                     along.append(rx * ux + ry * uy)
-                w = dr.gather(F, self._half_width, s) + TOUCH_SLACK_MM
+                w = dr.gather(F, ctx["half_width"], s) + TOUCH_SLACK_MM
                 lo = dr.minimum(dr.minimum(across[0], across[1]), dr.minimum(across[2], across[3]))
                 hi = dr.maximum(dr.maximum(across[0], across[1]), dr.maximum(across[2], across[3]))
                 top = dr.maximum(dr.maximum(along[0], along[1]), dr.maximum(along[2], along[3]))
                 masks.append((lo <= w) & (hi >= -w) & (top >= -TOUCH_SLACK_MM))
         return masks
 
-    def _compress(self, masks: list[Any]) -> Active:
-        """The pairs that ``masks`` (evaluated) keep, as lazy gathers of the pairs in use."""
-        U = self.m.UInt32
-        active = []
-        for pairs, mask in zip(self.pairs, masks, strict=True):
-            keep: Any = dr.compress(mask)
-            active.append((dr.gather(U, pairs.pixel, keep), dr.gather(U, pairs.scratch, keep)))
-        return active
+    @staticmethod
+    def _compress(masks: list[Any]) -> Active:
+        """The positions of the pairs that ``masks`` (evaluated) keep, in order."""
+        return [dr.compress(mask) for mask in masks]
 
     def active_counts(self) -> list[int]:
         """Number of pairs per view that the next step renders (after a refresh: all)."""
         if self.active is None:
             return self.pair_counts()
-        return [dr.width(p) for p, _s in self.active]
+        return [dr.width(keep) for keep in self.active]
+
+    def _context(self, half_width: Any = None, wbar: Any = None) -> dict[str, Any]:
+        """Every Dr.Jit array a step reads besides the optimizer's, as one PyTree.
+
+        A frozen function must receive each array it reads as an argument.
+        """
+        return {
+            "views": [r.state for r in self.renderers],
+            "targets": self._targets,
+            "half_width": self._half_width if half_width is None else half_width,
+            "wbar": self._wbar if wbar is None else wbar,
+            "pairs": [(p.pixel, p.scratch) for p in self.pairs],
+            "neighbours": self.neighbours if self._neighbour_count > 0 else None,
+        }
+
+    def _view_pairs(self, active: Active | None) -> list[ViewPairs]:
+        """What each view renders: the pairs in use, those of ``active`` (None: all)."""
+        out: list[ViewPairs] = []
+        for i, p in enumerate(self.pairs):
+            keep = None if active is None else active[i]
+            n = len(p) if keep is None else dr.width(keep)
+            out.append((p.pixel, p.scratch, keep) if n > 0 else None)
+        return out
 
     # ------------------------------------------------------------------ step
     def _forward(
@@ -295,35 +340,33 @@ class LayoutOptimizer:
 
         ``active`` renders only those pairs (:meth:`_compress`); by default all in use.
         """
-        half_width = self._half_width if half_width is None else half_width
-        wbar = self._wbar if wbar is None else wbar
+        return self._objective(raw, self._context(half_width, wbar), self._view_pairs(active))
+
+    def _objective(
+        self, raw: list[Any], ctx: dict[str, Any], view_pairs: list[ViewPairs]
+    ) -> tuple[Any, list[Any], list[Any], Any]:
+        """:meth:`_forward` of the arrays in ``ctx`` (:meth:`_context`) alone."""
+        F, U = self.Float, self.m.UInt32
+        half_width, wbar = ctx["half_width"], ctx["wbar"]
         count = dr.width(raw[0])
         s = self.settings
         cx, cy, theta, length = project(raw[0], raw[1], raw[2], raw[3], self.bounds)
         p0x, p0y, p1x, p1y = endpoints(cx, cy, theta, length)
-        if active is None:
-            active = [(p.pixel, p.scratch) for p in self.pairs]
         renders = []
         errors = []
-        for r, (pixel, scratch), (target, mask) in zip(
-            self.renderers, active, self._targets, strict=True
+        for r, state, spec, (target, mask) in zip(
+            self.renderers, ctx["views"], view_pairs, ctx["targets"], strict=True
         ):
-            if dr.width(pixel) == 0:
-                img = r.render(p0x, p0y, p1x, p1y, half_width, wbar, self._no_pairs)
+            if spec is None:  # ViewRenderer.render's image without pairs: the flat board
+                img = state["factor"] * state["on_board"] * state["d_flat"]
             else:
+                pixel, scratch, keep = spec
+                if keep is not None:
+                    pixel, scratch = dr.gather(U, pixel, keep), dr.gather(U, scratch, keep)
                 img = render_pairs(
-                    r.state,
-                    r.alpha,
-                    r.pixel_count,
-                    p0x,
-                    p0y,
-                    p1x,
-                    p1y,
-                    half_width,
-                    wbar,
-                    pixel,
-                    scratch,
-                )
+                    state, r.alpha, r.pixel_count, p0x, p0y, p1x, p1y, half_width, wbar,
+                    pixel, scratch,
+                )  # fmt: skip
             err, _s = view_error(img, target, mask, s.space)
             renders.append(img)
             errors.append(err)
@@ -332,13 +375,31 @@ class LayoutOptimizer:
             loss = loss + e
         loss = loss / len(errors)
         n = float(count)
-        if s.merge_weight > 0 and self.neighbours is not None and self._neighbour_count > 0:
+        if s.merge_weight > 0 and ctx["neighbours"] is not None:
+            first, second = ctx["neighbours"]
             loss = loss + (s.merge_weight / n) * merge_penalty(
-                self.Float, p0x, p0y, p1x, p1y, *self.neighbours, self.tool_width
+                F, p0x, p0y, p1x, p1y, first, second, self.tool_width
             )
         stray = dr.square(raw[0] - cx) + dr.square(raw[1] - cy) + dr.square(raw[3] - length)
         loss = loss + (s.bound_weight / n) * dr.sum(stray, mode="symbolic")
         return loss, errors, renders, (p0x, p0y, p1x, p1y)
+
+    def _train(
+        self, opt: BoundedAdam, ctx: dict[str, Any], view_pairs: list[ViewPairs], touch: bool
+    ) -> tuple[Any, list[Any], list[Any], tuple[Any, ...], list[Any]]:
+        """One Adam step of ``opt``: loss, errors and renders before it, endpoints after it.
+
+        With ``touch``, also the touch masks of the pairs in use at the new endpoints.
+        Reads Dr.Jit arrays only from its arguments, so that it can be frozen.
+        """
+        loss, errors, renders, _ends = self._objective([opt[k] for k in KEYS], ctx, view_pairs)
+        dr.backward(loss)
+        opt.step(eval=False)
+        with dr.suspend_grad():
+            cx, cy, theta, length = (opt[k] for k in KEYS)
+            new_ends = endpoints(*project(cx, cy, theta, length, self.bounds))
+            masks = self._touching(new_ends, ctx) if touch else []
+        return loss, errors, renders, new_ends, masks
 
     def step(self) -> StepResult:
         """One Adam step; returns the loss of the parameters before it.
@@ -349,22 +410,19 @@ class LayoutOptimizer:
         """
         if not self.pairs or self.iteration % self.settings.refresh_every == 0:
             self._refresh(self.ends)
+        ctx = self._context()
         if self.active is None:
             with dr.suspend_grad():
-                masks = self._touching(endpoints(*self._projected()))
+                masks = self._touching(endpoints(*self._projected()), ctx)
             dr.eval(masks)  # fresh pairs: the one step with a second evaluation
             self.active = self._compress(masks)
-        raw = [self.opt[k] for k in KEYS]
-        loss, errors, renders, _ends = self._forward(raw, active=self.active)
-        dr.backward(loss)
         saved = {k: self.opt.state[k] for k in KEYS}
-        self.opt.step(eval=False)
-        with dr.suspend_grad():
-            new_ends = endpoints(*self._projected())
         refresh_next = (self.iteration + 1) % self.settings.refresh_every == 0
-        next_masks = [] if refresh_next else self._touching(new_ends)
+        loss, errors, renders, new_ends, next_masks = self._train_step(
+            self.opt, ctx, self._view_pairs(self.active), not refresh_next
+        )
         dr.schedule(loss, errors, renders, new_ends, next_masks)
-        dr.eval()
+        dr.eval()  # traced (freeze=False); a frozen step's outputs are evaluated already
         loss_value = float(loss[0])
         images = {
             v.name: np.asarray(img, dtype=np.float32).reshape(v.height, v.width)
