@@ -78,13 +78,14 @@ def _sim_lines(sim: GrblSim, until, timeout: float = 3.0) -> list[str]:
 
 
 @pytest.mark.parametrize(
-    ("queued", "state"),
-    [(b"G21G90\nG1X60F100\n", "Run"), (b"$J=G21G91X60F100\n", "Jog")],
+    ("queued", "state", "stopped"),
+    [(b"G21G90\nG1X60F100\n", "Run", "Hold:0"), (b"$J=G21G91X60F100\n", "Jog", "Idle")],
 )
-def test_a_controller_still_moving_at_connect_is_held_before_the_soft_reset(queued, state):
+def test_a_controller_still_moving_at_connect_is_held_before_the_soft_reset(queued, state, stopped):
     """A killed sender's queue still runs (360 s, scaled) past ``busy_timeout``: the
-    sender sends ``!``, waits for Hold:0, and only then 0x18; before the reset it writes
-    nothing but status requests and that one hold. A reset mid-move would be ALARM:3."""
+    sender sends ``!``, waits for the machine to stop (Hold:0; a hold cancels a jog, which
+    ends Idle), and only then 0x18; before the reset it writes nothing but status requests
+    and that one hold. A reset mid-move would be ALARM:3."""
     sim = GrblSim(SimOptions(baud=0, time_scale=10.0))  # the hold takes 0.5 s: 2 polls
     sim.start()
     try:
@@ -107,7 +108,9 @@ def test_a_controller_still_moving_at_connect_is_held_before_the_soft_reset(queu
     assert any(f"still {state} after 0.3 s: feed hold, then a soft reset" in s for s in said)
     rec = sim.record
     t_hold = next(e["t"] for e in rec if e["ev"] == "rt" and e["ch"] == ord("!"))
-    t_held = next(e["t"] for e in rec if e["ev"] == "state" and e["state"] == "Hold:0")
+    t_held = next(
+        e["t"] for e in rec if e["ev"] == "state" and e["state"] == stopped and e["t"] >= t_hold
+    )
     t_reset = next(e["t"] for e in rec if e["ev"] == "reset" and e["command"])
     assert t_hold <= t_held <= t_reset
     assert not [e for e in rec if e["ev"] == "alarm"]
