@@ -266,7 +266,9 @@ def bench_steps(pipeline: str, steps: int, threads: int, count: int, resolution:
                 quality_report(result.renders, targets, cross)
                 t2 = time.perf_counter()
                 rows.append([float(i), result.loss, 0.0] + [0.0] * (len(log_columns(names)) - 3))
-                save_checkpoint(Path(tmp) / "checkpoint.npz", opt.state(), {"bench": 1}, rows)
+                save_checkpoint(
+                    Path(tmp) / "checkpoint.npz", opt.state(), {"bench": 1}, np.asarray(rows)
+                )
                 t3 = time.perf_counter()
                 if i == 0:  # compiles (or loads) the kernels
                     continue
