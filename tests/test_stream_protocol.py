@@ -261,3 +261,43 @@ def test_a_machine_frame_profile_takes_the_same_offset_tolerance():
     assert _machine_frame_refusals("m", (0.004, 0.0, -0.004)) == []
     (refusal,) = _machine_frame_refusals("m", (0.0, 0.006, 0.0))
     assert "GRBL's work offset is X0 Y0.006 Z0 mm" in refusal
+
+
+def test_stop_while_the_door_restores_holds_before_the_cycle_resumes(tmp_path):
+    """Ctrl-C, stop in ``Door:3`` (spindle spinning up after cycle start): GRBL ignores a
+    feed hold in a door state and then resumes the cycle, so the sender holds again as
+    soon as it runs; the reset comes with the machine standing still (no ALARM:3)."""
+    job = tmp_path / "door.gcode"
+    moves = "".join(f"G1 X{10 * (k % 2)} Y{k} F600\n" for k in range(30))  # 1 s each
+    job.write_text("G21 G90\nM3 S1000\n" + moves + "M5\n")
+    prog = load_program(job)
+    port = open_port("grblsim://?time_scale=0.25", 115200)  # spindle spin-up: 1 s
+    sim = port.sim
+    fired: list[float] = []
+    opened: list[bool] = []
+
+    def progress(p):
+        if p.acked > 3 and not opened and p.state == "Run":
+            opened.append(True)
+            sim.open_door()
+            sim.close_door()  # Door:0 once stopped
+        elif p.state == "Door:0":
+            sim.cycle_start()
+        elif p.state == "Door:3" and not fired:
+            fired.append(time.monotonic())
+            raise KeyboardInterrupt
+
+    options = StreamOptions(banner_timeout=0.5, stall_timeout=0.5, hold_timeout=3.0)
+    try:
+        with pytest.raises(StreamStopped):
+            _stream(
+                port, prog, tmp_path / "j.jsonl", options, on_progress=progress,
+                ask_interrupt=lambda: "stop",
+            )  # fmt: skip
+    finally:
+        port.close()
+    assert fired
+    assert not [e for e in sim.record if e["ev"] == "alarm"]
+    reset = next(e["t"] for e in sim.record if e["ev"] == "reset")
+    ran = [e for e in sim.record if e["ev"] in ("exec", "partial") and e["t"] > fired[0]]
+    assert len(ran) <= 1 and reset - fired[0] < 2.0  # at most the move the hold cut short

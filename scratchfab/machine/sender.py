@@ -81,6 +81,10 @@ REALTIME_RESUME = b"~"
 REALTIME_RESET = b"\x18"
 #: Door states with the machine standing still (Grbl 1.1 and grblHAL): closed, open.
 DOOR_STOPPED = ("Door:0", "Door:1")
+#: States in which a feed hold sent to stop may not have taken: moving, or a door state
+#: that ignores it and may resume the cycle (stopping; Grbl's Door:3 and grblHAL's Door:4
+#: restore, grblHAL's Door:3 cancels).
+_HOLD_AGAIN = ("Run", "Jog", "Door:2", "Door:3", "Door:4")
 #: Start-up banners: Grbl 1.1, and grblHAL at its default compatibility level 0.
 BANNERS = {"Grbl ": "Grbl", "GrblHAL ": "grblHAL"}
 _TOOL_CHANGE = re.compile(r"M0*6(?![0-9.])")
@@ -1149,10 +1153,17 @@ class Streamer:
             )
 
     def _wait_held(self, wait: float) -> Status | None:
-        """Poll until the controller stands still: Hold:0, Idle, or a stopped door state."""
+        """Poll until the controller stands still: Hold:0, Idle, or a stopped door state.
+
+        Called after a feed hold was sent. GRBL drops a hold that comes in a door state, and
+        one that restores (``Door:3``, grblHAL ``Door:4``) resumes the cycle afterwards: the
+        hold is sent again while a report says the machine runs or is about to.
+        """
         deadline = time.monotonic() + wait
         while time.monotonic() < deadline:
             self._poll()
+            if self.status.state.startswith(_HOLD_AGAIN):
+                self._write(REALTIME_HOLD)
             for line in self._read_lines(0.02):
                 if self._answer(line):
                     continue
