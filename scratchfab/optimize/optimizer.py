@@ -105,6 +105,22 @@ class StepResult:
     renders: dict[str, np.ndarray]
 
 
+def _hold(entry: tuple[Any, ...]) -> tuple[Any, ...]:
+    """An Adam state entry whose arrays are new Python objects for the same Dr.Jit data.
+
+    A frozen function's replay writes the new values of an input's arrays into the very
+    objects it was given (traced code and recordings assign new objects), so a reference
+    kept across a frozen step would show the values after it.
+    """
+    value, promoted, lr, extra = entry
+    return (
+        type(value)(value),
+        promoted,
+        lr,
+        tuple(None if x is None else type(x)(x) for x in extra),
+    )
+
+
 class LayoutOptimizer:
     """Multi-view Adam optimization of a scratch layout.
 
@@ -203,12 +219,14 @@ class LayoutOptimizer:
     def state(self) -> dict[str, np.ndarray]:
         """Everything needed to continue on the same trajectory (numpy)."""
         out: dict[str, np.ndarray] = {"iteration": np.asarray(self.iteration)}
+        # Copies, not views of Dr.Jit memory: a frozen replay reassigns these arrays in
+        # place and frees their old memory (see :meth:`step`).
         for key in KEYS:
             value, _promoted, _lr, (t, m1, v1, _vmax) = self.opt.state[key]
-            out[f"raw_{key}"] = np.asarray(value, dtype=self.dtype)
-            out[f"adam_t_{key}"] = np.asarray(t, dtype=np.uint32)
-            out[f"adam_m_{key}"] = np.asarray(m1, dtype=self.dtype)
-            out[f"adam_v_{key}"] = np.asarray(v1, dtype=self.dtype)
+            out[f"raw_{key}"] = np.array(value, dtype=self.dtype, copy=True)
+            out[f"adam_t_{key}"] = np.array(t, dtype=np.uint32, copy=True)
+            out[f"adam_m_{key}"] = np.array(m1, dtype=self.dtype, copy=True)
+            out[f"adam_v_{key}"] = np.array(v1, dtype=self.dtype, copy=True)
         if self.refresh_ends is not None:
             out["refresh_ends"] = self.refresh_ends
         return out
@@ -416,7 +434,9 @@ class LayoutOptimizer:
                 masks = self._touching(endpoints(*self._projected()), ctx)
             dr.eval(masks)  # fresh pairs: the one step with a second evaluation
             self.active = self._compress(masks)
-        saved = {k: self.opt.state[k] for k in KEYS}
+        # A frozen replay updates the optimizer's arrays in place (the same Python objects
+        # get the new values), so the state to restore is held by new objects.
+        saved = {k: _hold(self.opt.state[k]) for k in KEYS}
         refresh_next = (self.iteration + 1) % self.settings.refresh_every == 0
         loss, errors, renders, new_ends, next_masks = self._train_step(
             self.opt, ctx, self._view_pairs(self.active), not refresh_next
@@ -438,6 +458,7 @@ class LayoutOptimizer:
         if not (finite_loss and finite_grad):
             for k in KEYS:
                 self.opt.state[k] = saved[k]
+                dr.enable_grad(saved[k][0])
             self.active = None
             what = "gradient" if finite_loss else "loss"
             raise NonFiniteError(
