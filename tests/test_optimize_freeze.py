@@ -8,6 +8,7 @@ must then agree bit for bit (one thread: atomics add in thread order).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from typing import Any
@@ -146,6 +147,16 @@ def _decay_lr(at: int, factor: float) -> Hook:
     return hook
 
 
+def _change_settings(at: int, **changes: Any) -> Hook:
+    """Settings (space, weights) replaced before step ``at``, as a schedule would."""
+
+    def hook(opt: LayoutOptimizer, i: int, saved: dict[int, dict[str, np.ndarray]]) -> None:
+        if i == at:
+            opt.settings = dataclasses.replace(opt.settings, **changes)
+
+    return hook
+
+
 CASES: dict[str, tuple[str, dict[str, Any], int, Hook | None]] = {
     # name: (layout, settings, steps, hook)
     "linear-merge-K3": ("random", {"refresh_every": 3, "merge_weight": 1.0}, 7, None),
@@ -157,6 +168,12 @@ CASES: dict[str, tuple[str, dict[str, Any], int, Hook | None]] = {
     "resume-mid-period": ("random", {"refresh_every": 4}, 7, _resume_into_new(2)),
     "rewind-same-optimizer": ("random", {"refresh_every": 3}, 7, _rewind(1, 5)),
     "lr-decay-mid-run": ("random", {"refresh_every": 4}, 10, _decay_lr(2, 0.5)),
+    "settings-change-mid-run": (
+        "random",
+        {"refresh_every": 4, "merge_weight": 1.0},
+        6,
+        _change_settings(2, merge_weight=3.0, bound_weight=5.0, space="perceptual"),
+    ),
 }
 
 

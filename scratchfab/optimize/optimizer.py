@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 from types import ModuleType
 from typing import Any
 
@@ -194,7 +194,9 @@ class LayoutOptimizer:
         # A step's shape (which views render pairs, whether merge candidates exist, whether
         # the next step refreshes) keys its recording; a few recordings a run is normal.
         self._train_step = (
-            dr.freeze(self._train, limit=16, warn_after=64) if freeze else self._train
+            dr.freeze(self._train, state_fn=self._recording_key, limit=16, warn_after=64)
+            if freeze
+            else self._train
         )
         self.neighbours: tuple[Any, Any] | None = None
         self._neighbour_count = 0
@@ -401,6 +403,25 @@ class LayoutOptimizer:
         stray = dr.square(raw[0] - cx) + dr.square(raw[1] - cy) + dr.square(raw[3] - length)
         loss = loss + (s.bound_weight / n) * dr.sum(stray, mode="symbolic")
         return loss, errors, renders, (p0x, p0y, p1x, p1y)
+
+    def _recording_key(self, *_args: Any) -> tuple[Any, ...]:
+        """The Python values :meth:`_train` reads through ``self``, as a recording key.
+
+        A frozen replay reuses the values it was recorded with; these are constant over a
+        run today, but a change (a schedule, a caller editing ``settings``) must record
+        again rather than replay stale constants.
+        """
+        s = self.settings
+        return (
+            tuple((k, float(s.lr[k])) for k in KEYS),
+            s.space,
+            float(s.merge_weight),
+            float(s.bound_weight),
+            astuple(self.bounds),
+            self.tool_width,
+            tuple((r.alpha, r.pixel_count) for r in self.renderers),
+            self.count,
+        )
 
     def _train(
         self, opt: BoundedAdam, ctx: dict[str, Any], view_pairs: list[ViewPairs], touch: bool
