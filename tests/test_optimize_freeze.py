@@ -20,7 +20,7 @@ from conftest import make_design
 from test_optimize_helpers import cross_of, make_layout
 
 from scratchfab.model.scratches import ScratchSet
-from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
+from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
 from scratchfab.optimize.params import KEYS, endpoints
 from scratchfab.render.ndf import scratch_footprint_ndf
 from scratchfab.render.renderer import render_pairs
@@ -372,3 +372,40 @@ def test_touch_mask_keeps_every_contributing_pair_of_odd_layouts(m, board, seed)
     assert scale > 0
     for a, b in zip(grads_k, grads_a, strict=True):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-11 * scale)
+
+
+def test_frozen_step_that_fails_leaves_the_state_before_it(m, board, one_thread) -> None:
+    """NonFiniteError restores the parameters and moments from before the step.
+
+    A frozen replay writes its new values into the optimizer's own array objects, so
+    the step must keep the old state in other objects; checked after the recordings
+    exist (the step that fails is a replay), against the state before the step and a
+    traced run.
+    """
+    design, targets = board
+    layout = make_layout(design, 60, seed=13)
+    settings = Settings(lr=LR, refresh_every=4)
+    states = []
+    for freeze in (True, False):
+        opt = LayoutOptimizer(design, targets, layout, settings, m, freeze=freeze)
+        for _ in range(5):
+            opt.step()
+        if freeze:
+            count = opt._train_step.n_recordings  # type: ignore[attr-defined]
+        before = opt.state()
+        keep = opt.renderers[0]._factor
+        opt.renderers[0]._factor = keep * math.nan  # data, so a replay sees it too
+        with pytest.raises(NonFiniteError, match="iteration 5"):
+            opt.step()
+        opt.renderers[0]._factor = keep
+        _same(opt.state(), before, "restored")
+        opt.step()  # and the run can go on from there
+        states.append(opt.state())
+        if freeze:
+            assert opt._train_step.n_recordings == count  # type: ignore[attr-defined]
+    # as a fresh optimizer that never saw the failed step (no gradient left over from it)
+    clean = LayoutOptimizer(design, targets, layout, settings, m)
+    clean.load_state(before)
+    clean.step()
+    _same(states[0], clean.state(), "frozen against clean")
+    _same(states[1], clean.state(), "traced against clean")

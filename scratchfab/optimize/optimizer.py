@@ -480,6 +480,7 @@ class LayoutOptimizer:
             for k in KEYS:
                 self.opt.state[k] = saved[k]
                 dr.enable_grad(saved[k][0])
+                dr.clear_grad(saved[k][0])  # the failed step's backward reached it
             self.active = None
             what = "gradient" if finite_loss else "loss"
             raise NonFiniteError(
