@@ -81,10 +81,6 @@ REALTIME_RESUME = b"~"
 REALTIME_RESET = b"\x18"
 #: Door states with the machine standing still (Grbl 1.1 and grblHAL): closed, open.
 DOOR_STOPPED = ("Door:0", "Door:1")
-#: States in which a feed hold sent to stop may not have taken: moving, or a door state
-#: that ignores it and may resume the cycle (stopping; Grbl's Door:3 and grblHAL's Door:4
-#: restore, grblHAL's Door:3 cancels).
-_HOLD_AGAIN = ("Run", "Jog", "Door:2", "Door:3", "Door:4")
 #: Start-up banners: Grbl 1.1, and grblHAL at its default compatibility level 0.
 BANNERS = {"Grbl ": "Grbl", "GrblHAL ": "grblHAL"}
 _TOOL_CHANGE = re.compile(r"M0*6(?![0-9.])")
@@ -1156,21 +1152,27 @@ class Streamer:
         """Poll until the controller stands still: Hold:0, Idle, or a stopped door state.
 
         Called after a feed hold was sent. GRBL drops a hold that comes in a door state, and
-        one that restores (``Door:3``, grblHAL ``Door:4``) resumes the cycle afterwards: the
-        hold is sent again while a report says the machine runs or is about to.
+        one that restores (``Door:3``, grblHAL ``Door:4``) then resumes the cycle: after a
+        door state the hold is sent again once a report says the machine runs, with reports
+        asked for at 20 Hz meanwhile so that it runs as briefly as can be.
         """
         deadline = time.monotonic() + wait
+        door = self.status.state.startswith("Door")
         while time.monotonic() < deadline:
-            self._poll()
-            if self.status.state.startswith(_HOLD_AGAIN):
-                self._write(REALTIME_HOLD)
+            self._poll(force=door and time.monotonic() - self._last_poll >= 0.05)
             for line in self._read_lines(0.02):
                 if self._answer(line):
                     continue
                 if line.startswith("<"):
                     self._note_status(line)
-                    if self.status.state in ("Hold:0", "Idle", "Check", *DOOR_STOPPED):
+                    state = self.status.state
+                    if state in ("Hold:0", "Idle", "Check", *DOOR_STOPPED):
                         return self.status
+                    if state.startswith("Door"):
+                        door = True
+                    elif door and state.startswith(("Run", "Jog")):
+                        self._write(REALTIME_HOLD)  # the door resumed the cycle: hold it
+                        door = False
                 elif line.startswith("ALARM:"):
                     return None
                 elif banner_firmware(line):
