@@ -301,3 +301,73 @@ def test_stop_while_the_door_restores_holds_before_the_cycle_resumes(tmp_path):
     reset = next(e["t"] for e in sim.record if e["ev"] == "reset")
     ran = [e for e in sim.record if e["ev"] in ("exec", "partial") and e["t"] > fired[0]]
     assert len(ran) <= 1 and reset - fired[0] < 2.0  # at most the move the hold cut short
+
+
+def _open_door_in(sim, state: str) -> threading.Thread:
+    def opener():
+        deadline = time.monotonic() + 5.0
+        while sim.state != state and time.monotonic() < deadline:
+            time.sleep(0.001)
+        sim.open_door()
+
+    thread = threading.Thread(target=opener)
+    thread.start()
+    return thread
+
+
+def test_a_door_opened_in_check_mode_is_refused_after_its_reset(tmp_path):
+    """GRBL ignores the door in check mode; the reset that ends it comes back in Door:1,
+    where no line is read: nothing may be left waiting there (a late answer would pair
+    with the wrong line of the job)."""
+    job = tmp_path / "job.gcode"
+    job.write_text("G21 G90\nG0 Z1\nG1 X2 F600\nG0 Z5\n")
+    port = open_port("grblsim://?time_scale=0.05", 115200)
+    sim = port.sim
+    try:
+        streamer = Streamer(port, FAST)
+        streamer.connect()
+        opener = _open_door_in(sim, "Check")
+        with pytest.raises(StreamFault, match=r"Door:1: its safety door is open"):
+            streamer.check(load_program(job))
+        opener.join()
+    finally:
+        port.close()
+    rx = [e["text"] for e in sim.record if e["ev"] == "rx"]
+    assert rx[-1] == "$C" and rx.count("$C") == 2  # nothing after leaving check mode
+
+
+def test_a_door_opened_before_the_stream_starts_is_refused(tmp_path):
+    """Opened after connect (say while the user clamps the board): nothing is sent."""
+    job = tmp_path / "job.gcode"
+    job.write_text("G21 G90\nG0 Z1\nG1 X2 F600\nG0 Z5\n")
+    port = open_port("grblsim://?time_scale=0.05", 115200)
+    sim = port.sim
+    journal = Journal(tmp_path / "j.jsonl").open()
+    try:
+        streamer = Streamer(port, FAST)
+        streamer.connect()
+        sim.open_door()
+        sim.close_door()  # Door:0: closed, waiting for cycle start
+        # were lines queued, cycle start would run them (and end an unguarded test)
+        threading.Timer(2.0, sim.cycle_start).start()
+        with pytest.raises(StreamFault, match=r"Door:0: its safety door is open \(or was"):
+            streamer.stream(load_program(job), journal)
+    finally:
+        journal.close()
+        port.close()
+    assert not [e for e in sim.record if e["ev"] == "rx" and e["g"]]
+    assert read_journal(tmp_path / "j.jsonl") == []
+
+
+def test_an_unanswered_offset_query_is_not_passed_over():
+    """``$#`` unanswered (here: the door opened just before it) stays in GRBL's buffer and
+    is answered later, pairing its ``ok`` with a job line: a fault, not a fallback."""
+    port = open_port("grblsim://?time_scale=0.05", 115200)
+    try:
+        streamer = Streamer(port, FAST)
+        streamer.connect()
+        port.sim.open_door()
+        with pytest.raises(StreamFault, match=r"no answer to '\$#'"):
+            streamer._read_work_offset()
+    finally:
+        port.close()

@@ -40,7 +40,9 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
   watchdog off (it only runs while Idle); the job goes on when the controller resumes
   (its cycle start; the sender never resumes a door by itself). ``Door:0`` (closed) and
   ``Door:1`` (open) are stopped; ``Door:2`` and up are still stopping or restoring.
-  A controller with its door open at connect is refused (it parses no line until closed).
+  A door state at connect, after check mode's reset or when the stream starts is refused
+  (GRBL parses no line until it is dealt with; a line left unanswered there would be
+  answered later, its ``ok`` taken for the next line's).
   Stopping safely is: feed hold, wait for ``Hold:0`` (or Idle), soft reset (spindle off,
   queue flushed, no alarm), banner.
 - Journal: every ``ok`` of a file block is appended and flushed; after a reset the journal
@@ -290,6 +292,10 @@ class _Item:
     end_wait: bool = False  # the END_WAIT dwell after the file's last line
 
 
+class _Unanswered(StreamFault):
+    """A line got no answer in time: it may still be in GRBL's buffer, answered later."""
+
+
 class _Fault(Exception):
     """A fault while talking to the controller; ``kind`` picks the safe reaction.
 
@@ -415,7 +421,7 @@ class Streamer:
                     self._note_status(line)
                 else:
                     got.append(line)
-        raise StreamFault(f"no answer to {text!r} within {timeout:g} s")
+        raise _Unanswered(f"no answer to {text!r} within {timeout:g} s")
 
     def _wait_banner(self, timeout: float) -> list[str] | None:
         """Lines after a banner, or None if no banner came within ``timeout``."""
@@ -466,13 +472,7 @@ class Streamer:
             for line in after:
                 if line.startswith("[MSG:"):
                     self.on_message(f"controller: {line}")
-            door = self._status_now().state
-            if door.startswith("Door"):
-                raise StreamFault(
-                    f"controller reports {door}: its safety door is open (or was, and it "
-                    "waits for cycle start); it reads no line meanwhile. Close the door, press "
-                    "cycle start if it asks, then stream again; nothing was sent"
-                )
+            self._refuse_door(self._status_now().state)
             for line in self._command("$I"):
                 if line == "[FIRMWARE:grblHAL]":
                     self.info.firmware = "grblHAL"
@@ -501,6 +501,16 @@ class Streamer:
         except _Fault as fault:
             raise StreamFault(str(fault)) from None
         return self.info
+
+    @staticmethod
+    def _refuse_door(state: str, done: str = "nothing was sent") -> None:
+        """Refuse a safety door state: GRBL reads no line until the door is dealt with."""
+        if state.startswith("Door"):
+            raise StreamFault(
+                f"controller reports {state}: its safety door is open (or was, and it "
+                "waits for cycle start); it reads no line meanwhile. Close the door, press "
+                f"cycle start if it asks, then stream again; {done}"
+            )
 
     def _wait_until_still(self) -> None:
         """Before a soft reset: let a controller that is still moving finish first.
@@ -556,6 +566,8 @@ class Streamer:
         try:
             params = self._command("$#")
             modal = self._command("$G")
+        except _Unanswered:
+            raise  # still queued: its late ok would pair with the next line sent
         except StreamFault as exc:
             self.on_message(f"cannot read the work offsets with $# ({exc}); polling status")
         else:
@@ -671,6 +683,8 @@ class Streamer:
         self._write(b"$C\n")
         if self._wait_banner(self.options.banner_timeout) is None:
             raise StreamFault("check mode: no reset after leaving check mode")
+        # GRBL ignores the door in check mode; the reset comes back in Door if it is open
+        self._refuse_door(self._status_now().state, "nothing moved")
         self._check_offset_kept(program)
         return report
 
@@ -715,6 +729,10 @@ class Streamer:
         """
         if self.info.firmware == "grblHAL":
             self._refuse_tool_change(program, start)
+        try:  # the door may have opened since connect (the user setting up the board)
+            self._refuse_door(self._status_now().state)
+        except _Fault as fault:
+            raise StreamFault(str(fault)) from None
         items = self._items(program, start, preamble)
         name = getattr(self.port, "port", None)  # a pyserial port's device or URL
         journal.start(
