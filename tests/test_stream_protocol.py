@@ -101,12 +101,19 @@ def test_grblhal_tool_offset_on_every_axis(tmp_path):
     assert info.wco == pytest.approx((0.0, 0.0, 2.0))
 
 
-def test_grblhal_refuses_a_tool_change_before_sending(tmp_path):
+@pytest.mark.parametrize(
+    "banner",
+    # grblHAL, as itself and at a compatibility level above 0 (no [FIRMWARE:] in $I), and
+    # Grbl 1.1, which would answer error:20 after the lines before it ran
+    [GRBLHAL, "Grbl 1.1f ['$' for help]", ""],
+)
+def test_a_tool_change_is_refused_before_sending(tmp_path, banner):
     job = tmp_path / "job.gcode"
     job.write_text("G21 G90\nG0 Z1\nT2 M06\nG1 X2 F600\n")
-    port = open_port(f"{HAL_URL}&time_scale=0.01", 115200)
+    url = f"grblsim://?banner={urllib.parse.quote(banner)}&" if banner else "grblsim://?"
+    port = open_port(f"{url}time_scale=0.01", 115200)
     try:
-        with pytest.raises(StreamFault, match=r"job\.gcode:3: M6 \(tool change\): grblHAL"):
+        with pytest.raises(StreamFault, match=r"job\.gcode:3: M6 \(tool change\): Grbl 1\.1"):
             _stream(port, load_program(job), tmp_path / "j.jsonl")
     finally:
         port.close()

@@ -11,7 +11,8 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
   ``~``/``0x18``. What differs and is handled: states with a substate (``Run:1``,
   ``Alarm:N``), ``Door:N`` numbered by its parking state, a ``[TLO:]`` per axis; its
   ``Tool`` state (a manual tool change, ``M6``) wants a sender that stops feeding and
-  acknowledges it, so a program with ``M6`` is refused for grblHAL before anything is sent.
+  acknowledges it, so a program with ``M6`` is refused before anything is sent (for any
+  firmware: grblHAL can present itself as ``Grbl 1.1f``, and Grbl 1.1 answers ``error:20``).
 - Lines are sent stripped and ``\n``-terminated. **Character counting** (default) keeps the
   bytes of unanswered lines within ``rx_buffer - margin``; every non-realtime byte counts,
   ``?`` is realtime and does not. **Simple** sends one line and waits for its answer. Only
@@ -727,8 +728,7 @@ class Streamer:
                 message names the file line and the code's meaning).
             StreamStopped: The user chose to stop after Ctrl-C.
         """
-        if self.info.firmware == "grblHAL":
-            self._refuse_tool_change(program, start)
+        self._refuse_tool_change(program, start)
         try:  # the door may have opened since connect (the user setting up the board)
             self._refuse_door(self._status_now().state)
         except _Fault as fault:
@@ -787,13 +787,19 @@ class Streamer:
         journal.write("end", complete=True)
 
     def _refuse_tool_change(self, program: Program, start: int) -> None:
-        """Refuse M6: grblHAL stops in its ``Tool`` state for a sender that stops feeding."""
+        """Refuse M6 before sending anything.
+
+        Grbl 1.1 answers ``error:20`` (the job stops part-way); grblHAL stops in its ``Tool``
+        state, also when it presents itself as ``Grbl 1.1f`` (its compatibility levels above
+        0, where ``$I`` does not name it).
+        """
         for block in program.blocks[start:]:
             if _TOOL_CHANGE.search(block.text):
                 raise StreamFault(
-                    f"{program.path}:{block.lineno}: M6 (tool change): grblHAL would stop in "
-                    "its Tool state for a manual tool change, which this sender does not "
-                    "handle; remove the line (change tools between files); nothing was sent"
+                    f"{program.path}:{block.lineno}: M6 (tool change): Grbl 1.1 refuses it "
+                    "(error:20, the job would stop there) and grblHAL would stop in its Tool "
+                    "state for a manual tool change, which this sender does not handle; remove "
+                    "the line (change tools between files); nothing was sent"
                 )
 
     def _items(self, program: Program, start: int, preamble: Sequence[str]) -> list[_Item]:
