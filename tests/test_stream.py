@@ -13,6 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import serial
+from stream_helpers import FAST, stream_program
 
 from scratchfab.cli import main
 from scratchfab.errors import ConfigError, ScratchfabError
@@ -41,8 +42,6 @@ from scratchfab.machine.sender_program import (
     strip_block,
 )
 from scratchfab.machine.stream_job import run_stream_job
-
-FAST = StreamOptions(banner_timeout=0.5, stall_timeout=1.0)
 
 
 def write_job(
@@ -452,17 +451,6 @@ def test_compare_refuses_an_arc_that_bulges_out_of_the_envelope(tmp_path):
 # --------------------------------------------------------------------------- streaming
 
 
-def _stream(port, prog, journal_path, options=FAST, **kwargs):
-    streamer = Streamer(port, options, **kwargs)
-    streamer.connect()
-    journal = Journal(journal_path).open()
-    try:
-        streamer.stream(prog, journal)
-    finally:
-        journal.close()
-    return streamer
-
-
 def _received_gcode(record) -> list[str]:
     return [e["text"] for e in record if e["ev"] == "rx" and e["g"]]
 
@@ -478,7 +466,7 @@ def test_1000_lines_arrive_once_in_order(tmp_path, protocol, link):
     if link == "grblsim":
         port = open_port("grblsim://?time_scale=0.0005", 115200)
         try:
-            streamer = _stream(port, prog, tmp_path / "j.jsonl", options)
+            streamer = stream_program(port, prog, tmp_path / "j.jsonl", options)
         finally:
             port.close()
         sim = port.sim
@@ -486,7 +474,7 @@ def test_1000_lines_arrive_once_in_order(tmp_path, protocol, link):
         with GrblPty(SimOptions(time_scale=0.0005)) as pty:
             port = serial.Serial(pty.path, 115200, timeout=0.01)
             try:
-                streamer = _stream(port, prog, tmp_path / "j.jsonl", options)
+                streamer = stream_program(port, prog, tmp_path / "j.jsonl", options)
             finally:
                 port.close()
             sim = pty.sim
@@ -538,7 +526,7 @@ def test_error_through_pty(tmp_path):
         port = serial.Serial(pty.path, 115200, timeout=0.01)
         try:
             with pytest.raises(StreamFault, match=rf"job.gcode:{prog.blocks[99].lineno}: error:20"):
-                _stream(port, prog, tmp_path / "j.jsonl")
+                stream_program(port, prog, tmp_path / "j.jsonl")
         finally:
             port.close()
         record = pty.sim.record
@@ -688,7 +676,7 @@ def test_ctrl_c_stop_is_safe_and_resume_completes(tmp_path):
     port = open_port("grblsim://?time_scale=0.02", 115200)
     try:
         with pytest.raises(StreamStopped):
-            _stream(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
+            stream_program(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
     finally:
         port.close()
     rec1 = port.sim.record
@@ -725,7 +713,7 @@ def test_ctrl_c_resume_continues(tmp_path):
 
     port = open_port("grblsim://?time_scale=0.01", 115200)
     try:
-        _stream(
+        stream_program(
             port, prog, tmp_path / "j.jsonl", on_progress=progress, ask_interrupt=lambda: "resume"
         )
     finally:
@@ -744,7 +732,7 @@ def test_stall_watchdog(tmp_path):
     try:
         # answers pair with lines in order: the lost one leaves the last line unanswered
         with pytest.raises(StreamFault, match="stalled: no answer to the end-of-job G4P0"):
-            _stream(
+            stream_program(
                 port,
                 prog,
                 tmp_path / "j.jsonl",
@@ -761,7 +749,7 @@ def test_unexpected_banner_aborts(tmp_path):
     port = open_port("grblsim://?time_scale=0.001&reset_after=60", 115200)
     try:
         with pytest.raises(StreamFault, match="reset itself mid-job"):
-            _stream(port, prog, tmp_path / "j.jsonl")
+            stream_program(port, prog, tmp_path / "j.jsonl")
     finally:
         port.close()
 
@@ -773,7 +761,7 @@ def test_alarm_mid_job_reports_meaning(tmp_path):
     port = open_port("grblsim://?time_scale=0.01&soft_limits=1&homed=1", 115200)
     try:
         with pytest.raises(StreamFault, match=r"ALARM:2 \(soft limit"):
-            _stream(port, prog, tmp_path / "j.jsonl")
+            stream_program(port, prog, tmp_path / "j.jsonl")
     finally:
         port.close()
     assert any(e["ev"] == "rt" and e["ch"] == 0x18 for e in port.sim.record)
@@ -1537,7 +1525,7 @@ def test_a_failed_prompt_after_ctrl_c_still_stops_safely(tmp_path, answer):
     port = open_port("grblsim://?time_scale=0.02", 115200)
     try:
         with pytest.raises(StreamStopped):
-            _stream(port, prog, journal, on_progress=_fire_after(60), ask_interrupt=ask)
+            stream_program(port, prog, journal, on_progress=_fire_after(60), ask_interrupt=ask)
     finally:
         port.close()
     _held_then_reset(port.sim.record)
@@ -1558,7 +1546,7 @@ def test_ctrl_c_while_waiting_for_the_hold_still_resets(tmp_path):
 
     try:
         with pytest.raises(KeyboardInterrupt):
-            _stream(trip, prog, journal, on_progress=_fire_after(60), ask_interrupt=ask)
+            stream_program(trip, prog, journal, on_progress=_fire_after(60), ask_interrupt=ask)
     finally:
         port.close()
     _held_then_reset(port.sim.record)
@@ -1651,7 +1639,7 @@ def test_sigterm_and_sighup_stop_the_stream_safely(tmp_path, signame):
         port = open_port("grblsim://?time_scale=0.02", 115200)
         try:
             with pytest.raises(StreamStopped, match=f"stopped by {signame} after line"):
-                _stream(
+                stream_program(
                     port,
                     prog,
                     journal,
@@ -1705,7 +1693,7 @@ def test_a_stream_in_a_thread_installs_no_signal_handler(tmp_path):
     def run():
         port = open_port("grblsim://?time_scale=0.001", 115200)
         try:
-            _stream(port, prog, tmp_path / "j.jsonl")
+            stream_program(port, prog, tmp_path / "j.jsonl")
         except BaseException as exc:  # noqa: BLE001
             errors.append(exc)
         finally:
@@ -2022,7 +2010,7 @@ def test_stop_position_matches_the_emulator(tmp_path, query):
     port = open_port(f"grblsim://?time_scale=0.02&{query}", 115200)
     try:
         with pytest.raises(StreamStopped):
-            _stream(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
+            stream_program(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
     finally:
         port.close()
     events = read_journal(journal)
@@ -2393,7 +2381,7 @@ def test_a_second_ctrl_c_while_stopping_after_an_error_still_resets(tmp_path, mo
     monkeypatch.setattr(Streamer, "_stop_after_fault", stop_after_fault)
     try:
         with pytest.raises(StreamStopped, match=r"error:20 .*Ctrl-C while stopping"):
-            _stream(trip, prog, journal)
+            stream_program(trip, prog, journal)
     except KeyboardInterrupt:
         pytest.fail("the Ctrl-C escaped the stop")
     finally:
@@ -2414,7 +2402,7 @@ def test_a_brown_out_flushes_the_lines_already_on_the_way(tmp_path):
     port = open_port(url, 115200)
     try:
         with pytest.raises(StreamFault, match="reset itself mid-job"):
-            _stream(port, prog, tmp_path / "j.jsonl")
+            stream_program(port, prog, tmp_path / "j.jsonl")
     finally:
         port.close()
     record = read_record(rec)
@@ -2667,11 +2655,11 @@ def test_a_dwell_longer_than_the_stall_timeout_is_not_a_stall(tmp_path):
         port = open_port(f"grblsim://?time_scale=1{query}", 115200)
         try:
             if fault is None:
-                _stream(port, prog, tmp_path / "j.jsonl", options)
+                stream_program(port, prog, tmp_path / "j.jsonl", options)
                 assert [e["n"] for e in port.sim.record if e["ev"] == "exec"]
             else:
                 with pytest.raises(StreamFault, match=fault):
-                    _stream(port, prog, tmp_path / "k.jsonl", options)
+                    stream_program(port, prog, tmp_path / "k.jsonl", options)
         finally:
             port.close()
 
@@ -2777,7 +2765,7 @@ def test_a_lost_link_warns_that_the_machine_may_still_move(tmp_path):
     port = open_port("grblsim://?time_scale=0.02&disconnect_after=40", 115200)
     try:
         with pytest.raises(StreamFault, match="connection lost.*goes on running the lines"):
-            _stream(port, load_program(job), tmp_path / "j.jsonl")
+            stream_program(port, load_program(job), tmp_path / "j.jsonl")
     finally:
         port.close()
     record = port.sim.record
@@ -2792,7 +2780,7 @@ def test_report_lines_that_need_idle_wait_for_it(tmp_path):
     job.write_text("G21 G90\nG0 Z2\nG0 X5 Y5\n$#\nG0 X0\n$G\n$$\nG0 Y0\n$I\n$N\nG0 Z3\n")
     port = open_port("grblsim://?time_scale=0.05", 115200)
     try:
-        _stream(port, load_program(job), tmp_path / "j.jsonl")
+        stream_program(port, load_program(job), tmp_path / "j.jsonl")
     finally:
         port.close()
     assert [e["r"] for e in port.sim.record if e["ev"] == "resp"].count("ok") > 11
@@ -2834,7 +2822,7 @@ def test_a_reset_while_held_at_the_prompt_is_not_resumed(tmp_path):
     journal = tmp_path / "j.jsonl"
     try:
         with pytest.raises(StreamFault, match="reset itself while held"):
-            _stream(port, prog, journal, on_progress=_fire_after(40),
+            stream_program(port, prog, journal, on_progress=_fire_after(40),
                     ask_interrupt=brown_out_then_resume)  # fmt: skip
     finally:
         port.close()

@@ -9,6 +9,7 @@ import urllib.parse
 from pathlib import Path
 
 import pytest
+from stream_helpers import FAST, stream_program
 
 from scratchfab.cli import main
 from scratchfab.errors import ScratchfabError
@@ -24,19 +25,6 @@ from scratchfab.machine.sender_journal import Journal, read_journal
 from scratchfab.machine.sender_program import load_program
 from scratchfab.machine.stream_job import _check_same_zero
 
-FAST = StreamOptions(banner_timeout=0.5, stall_timeout=1.0)
-
-
-def _stream(port, prog, journal_path, options=FAST, **kwargs):
-    streamer = Streamer(port, options, **kwargs)
-    streamer.connect()
-    journal = Journal(journal_path).open()
-    try:
-        streamer.stream(prog, journal)
-    finally:
-        journal.close()
-    return streamer
-
 
 def test_done_only_once_the_last_move_has_run(tmp_path):
     """GRBL serves a ``?`` that came while it planned the last block after that block's
@@ -47,7 +35,7 @@ def test_done_only_once_the_last_move_has_run(tmp_path):
     journal = tmp_path / "j.jsonl"
     port = open_port("grblsim://?plan_time=0.3", 115200)
     try:
-        _stream(port, prog, journal)
+        stream_program(port, prog, journal)
         record = list(port.sim.record)  # what had run when the sender said done
     finally:
         port.close()
@@ -84,7 +72,7 @@ def test_grblhal_reset_mid_job_is_seen(tmp_path):
     port = open_port(f"{HAL_URL}&time_scale=0.01&reset_after=20", 115200)
     try:
         with pytest.raises(StreamFault, match="reset itself mid-job"):
-            _stream(port, load_program(job), tmp_path / "j.jsonl")
+            stream_program(port, load_program(job), tmp_path / "j.jsonl")
     finally:
         port.close()
 
@@ -114,7 +102,7 @@ def test_a_tool_change_is_refused_before_sending(tmp_path, banner):
     port = open_port(f"{url}time_scale=0.01", 115200)
     try:
         with pytest.raises(StreamFault, match=r"job\.gcode:3: M6 \(tool change\): Grbl 1\.1"):
-            _stream(port, load_program(job), tmp_path / "j.jsonl")
+            stream_program(port, load_program(job), tmp_path / "j.jsonl")
     finally:
         port.close()
     assert not [e for e in port.sim.record if e["ev"] == "rx" and e["g"]]
@@ -162,7 +150,9 @@ def test_safety_door_pauses_without_a_stall_and_the_job_goes_on(tmp_path):
 
     options = StreamOptions(banner_timeout=0.5, stall_timeout=0.5)
     try:
-        _stream(port, prog, journal, options, on_progress=progress, on_message=messages.append)
+        stream_program(
+            port, prog, journal, options, on_progress=progress, on_message=messages.append
+        )
     finally:
         port.close()
         for thread in helper:
@@ -196,7 +186,7 @@ def test_stop_with_the_door_open_resets_at_once(tmp_path):
     options = StreamOptions(banner_timeout=0.5, stall_timeout=0.5, hold_timeout=10.0)
     try:
         with pytest.raises(StreamStopped):
-            _stream(
+            stream_program(
                 port, prog, journal, options, on_progress=progress, ask_interrupt=lambda: "stop"
             )
         stopped = time.monotonic()
@@ -297,7 +287,7 @@ def test_stop_while_the_door_restores_holds_before_the_cycle_resumes(tmp_path):
     options = StreamOptions(banner_timeout=0.5, stall_timeout=0.5, hold_timeout=3.0)
     try:
         with pytest.raises(StreamStopped):
-            _stream(
+            stream_program(
                 port, prog, tmp_path / "j.jsonl", options, on_progress=progress,
                 ask_interrupt=lambda: "stop",
             )  # fmt: skip
