@@ -59,7 +59,6 @@ import collections
 import contextlib
 import math
 import os
-import re
 import signal
 import threading
 import time
@@ -73,7 +72,7 @@ from scratchfab.errors import Interrupted, ScratchfabError
 from scratchfab.machine.grbl_codes import MM_PER_INCH, alarm_meaning, error_meaning
 from scratchfab.machine.sender_checks import same_offset
 from scratchfab.machine.sender_journal import Journal, last_surely_run
-from scratchfab.machine.sender_program import Block, Modal, Program, dwell_seconds
+from scratchfab.machine.sender_program import Block, Modal, Program, block_words, dwell_seconds
 
 if "scratchfab.machine" not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append("scratchfab.machine")
@@ -86,7 +85,6 @@ REALTIME_RESET = b"\x18"
 DOOR_STOPPED = ("Door:0", "Door:1")
 #: Start-up banners: Grbl 1.1, and grblHAL at its default compatibility level 0.
 BANNERS = {"Grbl ": "Grbl", "GrblHAL ": "grblHAL"}
-_TOOL_CHANGE = re.compile(r"M0*6(?![0-9.])")
 #: ``$`` reports GRBL refuses (error:8) while the machine moves: sent once it is Idle.
 _IDLE_ONLY = frozenset({"$$", "$#", "$I", "$N"})
 #: Sent after the file's last line: GRBL answers a dwell once every move before it ran.
@@ -794,7 +792,7 @@ class Streamer:
         0, where ``$I`` does not name it).
         """
         for block in program.blocks[start:]:
-            if _TOOL_CHANGE.search(block.text):
+            if ("M", 6.0) in block_words(block.text):
                 raise StreamFault(
                     f"{program.path}:{block.lineno}: M6 (tool change): Grbl 1.1 refuses it "
                     "(error:20, the job would stop there) and grblHAL would stop in its Tool "

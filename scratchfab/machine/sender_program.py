@@ -147,7 +147,8 @@ class Program:
         return out
 
 
-def _words(text: str) -> list[tuple[str, float]]:
+def block_words(text: str) -> list[tuple[str, float]]:
+    """The words of a block as :func:`strip_block` leaves it: (letter, value) pairs."""
     return [(m.group(1), float(m.group(2))) for m in _WORD.finditer(text)]
 
 
@@ -244,7 +245,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     """
     if text.startswith("$"):
         return _Step(state, 0.0, False, False)
-    words = _words(text)
+    words = block_words(text)
     s = state
     axes: dict[str, float] = {}
     arc: dict[str, float] = {}
@@ -600,7 +601,7 @@ def travel_move(program: Program, start: int) -> tuple[str, float]:
 
 def dwell_seconds(text: str) -> float:
     """The seconds a stripped block dwells (``G4 P``; GRBL 1.1 takes P in seconds), else 0."""
-    words = _words(text)
+    words = block_words(text)
     if ("G", 4.0) not in words:
         return 0.0
     return next((v for letter, v in words if letter == "P"), 0.0)
@@ -622,7 +623,7 @@ def spin_up_dwell(program: Program, start: int) -> float:
     if on < 0 or blocks[-1].modal.spindle == "M5":
         return 0.0
     for b in blocks[on:]:
-        if ("G", 4.0) in _words(b.text):
+        if ("G", 4.0) in block_words(b.text):
             return dwell_seconds(b.text)
         if b.motion:
             break
