@@ -37,7 +37,7 @@ from scratchfab.optimize.params import (
     project_np,
 )
 from scratchfab.optimize.stage import OptimizeOptions, run_optimize
-from scratchfab.render.ndf import scratch_footprint_ndf
+from scratchfab.render.renderer import pair_footprints
 
 LR = {"cx": 0.03, "cy": 0.03, "theta": math.radians(0.25), "length": 0.03}
 
@@ -256,16 +256,7 @@ def test_pairs_the_step_skips_add_exact_zeros(m, board) -> None:
         dropped_total += len(drop)
         kept_total += int(keep.sum())
         pix, sc = U(pairs.pixel_np[drop]), U(pairs.scratch_np[drop])
-        state = r.state
-        ndf, covered = scratch_footprint_ndf(
-            [dr.gather(F, q, pix) for q in state["qx"]],
-            [dr.gather(F, q, pix) for q in state["qy"]],
-            *(dr.gather(F, e, sc) for e in ends),
-            dr.gather(F, opt._half_width, sc),
-            dr.gather(F, opt._wbar, sc),
-            *(dr.gather(F, h, pix) for h in state["h"]),
-            r.alpha,
-        )
+        ndf, covered = pair_footprints(r.state, r.alpha, *ends, opt._half_width, opt._wbar, pix, sc)
         assert not np.any(np.asarray(ndf)) and not np.any(np.asarray(covered))
         dr.backward(dr.sum(ndf) + dr.sum(covered))
         for e in ends:

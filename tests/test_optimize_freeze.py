@@ -22,8 +22,7 @@ from test_optimize_helpers import cross_of, make_layout
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
 from scratchfab.optimize.params import KEYS, endpoints
-from scratchfab.render.ndf import scratch_footprint_ndf
-from scratchfab.render.renderer import render_pairs
+from scratchfab.render.renderer import pair_footprints, render_pairs
 
 LR = {"cx": 0.03, "cy": 0.03, "theta": math.radians(0.25), "length": 0.03}
 FAST = {"cx": 0.12, "cy": 0.12, "theta": math.radians(1.5), "length": 0.12}
@@ -227,19 +226,10 @@ def _brute_pairs(
         pix_np = np.repeat(ok, n)
         sc_np = np.tile(np.arange(n, dtype=np.uint32), len(ok))
         pix, sc = U(pix_np), U(sc_np)
-        state = r.state
         e = [F(x) for x in ends]
         for x in e:
             dr.enable_grad(x)
-        ndf, covered = scratch_footprint_ndf(
-            [dr.gather(F, q, pix) for q in state["qx"]],
-            [dr.gather(F, q, pix) for q in state["qy"]],
-            *(dr.gather(F, x, sc) for x in e),
-            dr.gather(F, opt._half_width, sc),
-            dr.gather(F, opt._wbar, sc),
-            *(dr.gather(F, h, pix) for h in state["h"]),
-            r.alpha,
-        )
+        ndf, covered = pair_footprints(r.state, r.alpha, *e, opt._half_width, opt._wbar, pix, sc)
         for x in e:
             dr.set_grad(x, F(rng.uniform(0.5, 1.5, n)))
         g_ndf, g_cov = dr.forward_to(ndf, covered)

@@ -241,6 +241,41 @@ class ViewRenderer:
         )
 
 
+def pair_footprints(
+    state: dict[str, Any],
+    alpha: float,
+    p0x: Any,
+    p0y: Any,
+    p1x: Any,
+    p1y: Any,
+    half_width: Any,
+    wbar: Any,
+    pixel: Any,
+    scratch: Any,
+) -> tuple[Any, Any]:
+    """Each (pixel, scratch) pair's footprint NDF integral and covered area, not yet summed.
+
+    Arguments as for :func:`render_pairs`; the closed form of
+    :func:`scratch_footprint_ndf` on the pair's pixel footprint and scratch.
+    """
+    F = type(state["factor"])
+    hx, hy, hz = (dr.gather(F, c, pixel) for c in state["h"])
+    return scratch_footprint_ndf(
+        [dr.gather(F, q, pixel) for q in state["qx"]],
+        [dr.gather(F, q, pixel) for q in state["qy"]],
+        dr.gather(F, p0x, scratch),
+        dr.gather(F, p0y, scratch),
+        dr.gather(F, p1x, scratch),
+        dr.gather(F, p1y, scratch),
+        dr.gather(F, half_width, scratch),
+        dr.gather(F, wbar, scratch),
+        hx,
+        hy,
+        hz,
+        alpha,
+    )
+
+
 def render_pairs(
     state: dict[str, Any],
     alpha: float,
@@ -265,20 +300,8 @@ def render_pairs(
         Dr.Jit Float64 (pixel_count,) linear radiance.
     """
     F = type(state["factor"])
-    hx, hy, hz = (dr.gather(F, c, pixel) for c in state["h"])
-    ndf, covered = scratch_footprint_ndf(
-        [dr.gather(F, q, pixel) for q in state["qx"]],
-        [dr.gather(F, q, pixel) for q in state["qy"]],
-        dr.gather(F, p0x, scratch),
-        dr.gather(F, p0y, scratch),
-        dr.gather(F, p1x, scratch),
-        dr.gather(F, p1y, scratch),
-        dr.gather(F, half_width, scratch),
-        dr.gather(F, wbar, scratch),
-        hx,
-        hy,
-        hz,
-        alpha,
+    ndf, covered = pair_footprints(
+        state, alpha, p0x, p0y, p1x, p1y, half_width, wbar, pixel, scratch
     )
     ndf_sum = dr.zeros(F, pixel_count)
     covered_sum = dr.zeros(F, pixel_count)
