@@ -55,6 +55,7 @@ from scratchfab.metrics import quality_report  # noqa: E402
 from scratchfab.model.job import JobLayout  # noqa: E402
 from scratchfab.optimize.checkpoint import save_checkpoint  # noqa: E402
 from scratchfab.optimize.loss import Space  # noqa: E402
+from scratchfab.optimize.optimizer import LayoutOptimizer  # noqa: E402
 from scratchfab.optimize.stage import OptimizeOptions, run_optimize  # noqa: E402
 
 
@@ -156,7 +157,7 @@ def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int
 
     from scratchfab.backend import array_module
     from scratchfab.optimize.loss import neighbour_pairs
-    from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
+    from scratchfab.optimize.optimizer import Settings
     from scratchfab.optimize.stage import load_job_inputs
 
     m = array_module("llvm")
@@ -215,12 +216,26 @@ def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int
 PAIR_KERNEL_OPS = 2000
 
 
+def _time_refreshes(opt: LayoutOptimizer) -> list[float]:
+    """Make ``opt`` time each pair refresh; returns the list the seconds are appended to."""
+    seconds: list[float] = []
+    refresh = opt._refresh
+
+    def timed_refresh(ends: np.ndarray) -> None:
+        t0 = time.perf_counter()
+        refresh(ends)
+        seconds.append(time.perf_counter() - t0)
+
+    opt._refresh = timed_refresh  # type: ignore[method-assign]
+    return seconds
+
+
 def bench_steps(pipeline: str, steps: int, threads: int, count: int, resolution: int) -> dict:
     import drjit as dr
 
     from scratchfab.backend import array_module
     from scratchfab.design.targets import job_cross_targets
-    from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
+    from scratchfab.optimize.optimizer import Settings
     from scratchfab.optimize.stage import load_job_inputs, log_columns
 
     m = array_module("llvm")
@@ -237,15 +252,7 @@ def bench_steps(pipeline: str, steps: int, threads: int, count: int, resolution:
         cross = job_cross_targets(design) or {(k, k): t for k, t in targets.items()}
         settings = Settings(lr=options.learning_rates(), refresh_every=options.refresh_every)
         opt = LayoutOptimizer(design, targets, initial, settings, m)
-        refresh_s: list[float] = []
-        refresh = opt._refresh
-
-        def timed_refresh(ends: np.ndarray) -> None:
-            t0 = time.perf_counter()
-            refresh(ends)
-            refresh_s.append(time.perf_counter() - t0)
-
-        opt._refresh = timed_refresh  # type: ignore[method-assign]
+        refresh_s = _time_refreshes(opt)
         names = [v.name for v in opt.views]
         rows: list[list[float]] = []
         rec: dict[str, list[float]] = {
@@ -334,7 +341,7 @@ def bench_large(
 
     from scratchfab.backend import array_module
     from scratchfab.model.design import design_from_mapping
-    from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
+    from scratchfab.optimize.optimizer import Settings
 
     m = array_module("llvm")
     dr.set_thread_count(threads if threads > 0 else 2)
@@ -371,16 +378,8 @@ def bench_large(
     opt = LayoutOptimizer(design, targets, layout, Settings(lr=lr, refresh_every=refresh_every), m)
     setup = time.perf_counter() - t0
     times = []
-    refresh: list[float] = []
-    plain_refresh = opt._refresh
-
-    def timed_refresh(ends: np.ndarray) -> None:
-        t0 = time.perf_counter()
-        plain_refresh(ends)
-        refresh.append(time.perf_counter() - t0)
-
     # step() refreshes by itself; timing it there keeps it out of the step times
-    opt._refresh = timed_refresh  # type: ignore[method-assign]
+    refresh = _time_refreshes(opt)
     bar: dict | None = None
     quality: dict | None = None
     started = time.perf_counter()
