@@ -397,6 +397,23 @@ def test_walk_past_and_sun_and_sky_headings(tmp_path):
         assert base64.b64decode(data) == (job / "verify" / "sky" / f"{name}.png").read_bytes()
 
 
+def test_walk_past_caption_names_its_ends_as_the_stand_list_does(tmp_path):
+    job = fake_job(tmp_path)
+    metrics_file = job / "verify" / "metrics.json"
+    metrics = json.loads(metrics_file.read_text())
+    ends = [(-40.0, 5.0, 500.0), (0.2, 5.0, 500.0)]  # azimuths -40° and (rounded) 0°
+    metrics["sweep"] = {"cameras": [{"position_mm": _cartesian(*end)} for end in ends]}
+    metrics_file.write_text(json.dumps(metrics))
+    page = write_report(job).read_text()
+    walk = re.search(r"<h2>Walking past the board</h2>(.*?)<h2>", page)
+    assert walk
+    assert (
+        "from 40° to the left to straight in front of the board's front" in _text(walk.group(1))
+    )
+    stands = dict(re.findall(r"<li data-stand='(\w+)'[^>]*>(.*?)</li>", page))
+    assert "stand 15° to the left of the board’s front" in _text(stands["left"])
+
+
 @pytest.mark.skipif(
     CHROMIUM is None, reason="Debian's chromium is not installed (.ci/run installs it)"
 )

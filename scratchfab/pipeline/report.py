@@ -144,12 +144,7 @@ def _vec3(values: Any) -> Vec3:
 def _place(position: Vec3, subject: str) -> str:
     """``22° to the left of the board's front, level with its centre, 50 cm away``."""
     azimuth, elevation, distance = polar_from_position(position)
-    parts = []
-    if round(abs(azimuth)) == 0:
-        parts.append(f"straight in front of {subject}")
-    else:
-        side = "left" if azimuth < 0 else "right"
-        parts.append(f"{abs(azimuth):.0f}° to the {side} of {subject}")
+    parts = [f"{_side(azimuth)} of {subject}"]
     if round(abs(elevation)) == 0:
         parts.append("level with its centre")
     else:
@@ -604,9 +599,10 @@ def _walk_section(job: Path, metrics: dict[str, Any] | None) -> str:
 
 
 def _side(azimuth: float) -> str:
+    """``straight in front`` or ``22° to the left``: where an azimuth lies, in the report's words."""
     if round(abs(azimuth)) == 0:
         return "straight in front"
-    return f"{abs(azimuth):.0f}° {'left' if azimuth < 0 else 'right'}"
+    return f"{abs(azimuth):.0f}° to the {'left' if azimuth < 0 else 'right'}"
 
 
 def _sky_section(job: Path, names: list[str], metrics: dict[str, Any] | None) -> str:
