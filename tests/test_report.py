@@ -407,9 +407,7 @@ def test_walk_past_caption_names_its_ends_as_the_stand_list_does(tmp_path):
     page = write_report(job).read_text()
     walk = re.search(r"<h2>Walking past the board</h2>(.*?)<h2>", page)
     assert walk
-    assert (
-        "from 40° to the left to straight in front of the board's front" in _text(walk.group(1))
-    )
+    assert "from 40° to the left to straight in front of the board's front" in _text(walk.group(1))
     stands = dict(re.findall(r"<li data-stand='(\w+)'[^>]*>(.*?)</li>", page))
     assert "stand 15° to the left of the board’s front" in _text(stands["left"])
 
