@@ -20,7 +20,7 @@ from scratchfab.machine.sender import (
     StreamStopped,
     open_port,
 )
-from scratchfab.machine.sender_checks import _machine_frame_refusals
+from scratchfab.machine.sender_checks import _machine_frame_refusals, same_offset
 from scratchfab.machine.sender_journal import Journal, read_journal
 from scratchfab.machine.sender_program import load_program
 from scratchfab.machine.stream_job import _check_same_zero
@@ -208,31 +208,43 @@ def test_a_door_open_at_connect_is_refused():
     assert not [e for e in port.sim.record if e["ev"] == "rx"]
 
 
-def _zero_events(wco, g92) -> list[dict]:
-    return [{"ev": "start", "sha256": "x", "resume": False, "blocks": 1, "wco": wco, "g92": g92}]
+def _zero_events(wco, g92, inches=False) -> list[dict]:
+    start = {"ev": "start", "sha256": "x", "resume": False, "blocks": 1, "wco": wco, "g92": g92}
+    return [{**start, "inches": inches}]
 
 
-@pytest.mark.parametrize("shift", [0.004, 0.006])
-def test_one_offset_tolerance_for_check_mode_and_resume(tmp_path, shift):
-    """A G92 of ``shift`` mm that a reset cleared: check mode's reset and --resume judge it
-    alike, with GRBL's reporting resolution (under 0.005 mm: the same zero)."""
-    same = shift < 0.005
+#: GRBL's report digit in mm (3 decimals of mm, 4 of an inch under $13=1), read off the
+#: emulator's printing rather than taken from the module under test.
+_DIGIT = {False: 0.001, True: 0.0001 * 25.4}
+
+
+@pytest.mark.parametrize("inches", [False, True], ids=["mm", "inch"])
+@pytest.mark.parametrize("digits", [2, 3])
+def test_one_offset_tolerance_for_check_mode_and_resume(tmp_path, digits, inches):
+    """A G92 of ``digits`` report digits that a reset cleared: check mode's reset and
+    --resume judge it alike. Two honest readings of one zero differ by up to 2 digits
+    (each reading sums up to 3 rounded numbers, and both are whole digits), so 2 digits
+    is the same zero and 3 is a moved one, in mm and in inch reports ($13=1: 2 digits is
+    0.00508 mm, which a fixed 0.005 mm tolerance refused)."""
+    shift = digits * _DIGIT[inches]
+    same = digits == 2
     # --resume: the journal's zero had the G92 part, now the reset cleared it
     said: list[str] = []
     before = [10.0 + shift, 20.0, -5.0]
-    call = (_zero_events(before, [shift, 0.0, 0.0]), (10.0, 20.0, -5.0), (0.0, 0.0, 0.0))
+    events = _zero_events(before, [shift, 0.0, 0.0], inches)
+    call = (events, (10.0, 20.0, -5.0), (0.0, 0.0, 0.0), tmp_path / "j.jsonl", said.append)
     if same:
-        _check_same_zero(*call, tmp_path / "j.jsonl", said.append)
+        _check_same_zero(*call)
         assert said == []
     else:
         with pytest.raises(ScratchfabError, match="included a G92 offset"):
-            _check_same_zero(*call, tmp_path / "j.jsonl", said.append)
+            _check_same_zero(*call)
     # check mode: a G92 set before $C is cleared by the reset that ends it
     job = tmp_path / "job.gcode"
     job.write_text("G21 G90\nG0 Z1\nG1 X2 F600\n")
-    port = open_port("grblsim://?time_scale=0.01", 115200)
+    port = open_port(f"grblsim://?time_scale=0.01&$13={int(inches)}", 115200)
     try:
-        port.write(f"G92 X{-shift}\n".encode())  # at X0: the work offset becomes +shift
+        port.write(f"G92 X{-shift:.6f}\n".encode())  # at X0: the work offset becomes +shift
         streamer = Streamer(port, FAST)
         info = streamer.connect()
         assert info.g92 == pytest.approx((shift, 0.0, 0.0), abs=1e-9)
@@ -245,19 +257,70 @@ def test_one_offset_tolerance_for_check_mode_and_resume(tmp_path, shift):
         port.close()
 
 
-def test_a_changed_zero_is_told_from_the_reporting_resolution_up(tmp_path):
+def _offset_readings(inches: bool, g54: float, g92: float, tlo: float):
+    """The work offset as the sender reads it with $# (at connect) and from a status
+    report's WCO, for a Z zero set as G54 + G92 + tool length offset (mm)."""
+    port = open_port(f"grblsim://?time_scale=0&$13={int(inches)}&wco=0,0,{g54:.6f}", 115200)
+    try:
+        # at MPos Z0, G92 Z-(G54 + v) makes the G92 offset +v (TLO still 0)
+        port.write(f"G21\nG92 Z{-g54 - g92:.6f}\nG43.1 Z{tlo:.6f}\n".encode())
+        streamer = Streamer(port, FAST)
+        by_hash = streamer.connect().wco
+        for _ in range(12):  # WCO: comes at least every 10th report while idle
+            port.write(b"?")
+            line = port.read_until(b">").decode()
+            if "WCO:" in line:
+                field = line.split("WCO:")[1].split("|")[0].rstrip(">")
+                wco = tuple(float(v) * (25.4 if inches else 1.0) for v in field.split(","))
+                return by_hash, wco
+        raise AssertionError("no WCO field in 12 reports")
+    finally:
+        port.close()
+
+
+@pytest.mark.parametrize("inches", [False, True], ids=["mm", "inch"])
+def test_readings_of_one_zero_at_the_worst_rounding_are_the_same_zero(inches):
+    """One Z zero of 1.8 digits, once as 0.6 + 0.6 + 0.6 digits of G54, G92 and tool
+    length offset ($# prints each one digit up: 3) and once as 0.4 + 0.4 + 1.0 digits
+    ($# prints 0 + 0 + 1); WCO prints the sum once (2). The two $# readings are 2 digits
+    apart, the worst case, and each is a digit from WCO: one zero in either unit; 3 digits
+    is not (GRBL reports 3 decimals in mm, 4 in inches: 2 digits is 0.002 or 0.00508 mm)."""
+    d = _DIGIT[inches]
+    up, up_wco = _offset_readings(inches, 0.6 * d, 0.6 * d, 0.6 * d)
+    down, down_wco = _offset_readings(inches, 0.4 * d, 0.4 * d, 1.0 * d)
+    assert up[2] == pytest.approx(3 * d, abs=1e-9) and down[2] == pytest.approx(d, abs=1e-9)
+    assert up_wco == down_wco == pytest.approx((0.0, 0.0, 2 * d), abs=1e-9)
+    for a, b in ((up, down), (up, up_wco), (down, down_wco)):
+        assert same_offset(a, b, inches)
+        moved = (b[0], b[1], a[2] + 3 * d)
+        assert not same_offset(a, moved, inches)
+
+
+@pytest.mark.parametrize("inches", [False, True], ids=["mm", "inch"])
+def test_a_changed_zero_is_told_from_the_reporting_resolution_up(tmp_path, inches):
+    """2 report digits off is one zero, 3 digits a changed one (told, not refused); the
+    journal's run in inch reports widens it as this run's would."""
+    d = _DIGIT[inches]
     said: list[str] = []
-    events = _zero_events([1.0, 2.0, 3.0], [0.0, 0.0, 0.0])
-    _check_same_zero(events, (1.004, 2.0, 3.0), None, tmp_path / "j.jsonl", said.append)
+    events = _zero_events([1.0, 2.0, 3.0], [0.0, 0.0, 0.0], inches)
+    _check_same_zero(events, (1.0 + 2 * d, 2.0, 3.0), None, tmp_path / "j.jsonl", said.append)
     assert said == []
-    _check_same_zero(events, (1.0, 2.0, 3.008), None, tmp_path / "j.jsonl", said.append)
+    _check_same_zero(events, (1.0, 2.0, 3.0 + 3 * d), None, tmp_path / "j.jsonl", said.append)
     assert len(said) == 1 and "the work offset changed" in said[0]
+    # this run in inch reports, the journal's in mm: the coarser digit again
+    said.clear()
+    mm_events = _zero_events([1.0, 2.0, 3.0], [0.0, 0.0, 0.0])
+    near = (1.0 + 2 * d, 2.0, 3.0)
+    _check_same_zero(mm_events, near, None, tmp_path / "j.jsonl", said.append, inches)
+    assert said == []
 
 
-def test_a_machine_frame_profile_takes_the_same_offset_tolerance():
-    assert _machine_frame_refusals("m", (0.004, 0.0, -0.004)) == []
-    (refusal,) = _machine_frame_refusals("m", (0.0, 0.006, 0.0))
-    assert "GRBL's work offset is X0 Y0.006 Z0 mm" in refusal
+@pytest.mark.parametrize("inches", [False, True], ids=["mm", "inch"])
+def test_a_machine_frame_profile_takes_the_same_offset_tolerance(inches):
+    d = _DIGIT[inches]
+    assert _machine_frame_refusals("m", (2 * d, 0.0, -2 * d), inches) == []
+    (refusal,) = _machine_frame_refusals("m", (0.0, 3 * d, 0.0), inches)
+    assert f"GRBL's work offset is X0 Y{3 * d:g} Z0 mm" in refusal
 
 
 def test_stop_while_the_door_restores_holds_before_the_cycle_resumes(tmp_path):

@@ -697,7 +697,8 @@ class Streamer:
         self.info.wco, self.info.g92, self._wco = None, None, None
         self._read_work_offset()
         after = self.info.wco
-        if before is None or (after is not None and same_offset(before, after)):
+        inches = bool(self.info.settings.get(13, 0))
+        if before is None or (after is not None and same_offset(before, after, inches)):
             return
         now = "unknown" if after is None else xyz_text(after)
         raise StreamFault(
@@ -744,6 +745,7 @@ class Streamer:
             self.info.laser_mode,
             self.info.wco,
             self.info.g92,
+            bool(self.info.settings.get(13, 0)),
         )
         self._journal = journal
         self._program = program

@@ -7,19 +7,39 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from scratchfab.machine.grbl_codes import MM_PER_INCH
 from scratchfab.machine.sender_program import Block, Modal, Program
 
 _AXES = "XYZ"
-#: Two readings of one work offset agree within this, per axis (mm). GRBL reports offsets
-#: rounded to 3 decimals in mm (+-0.0005) or 4 in inches (+-0.00127 mm), and the offset read
-#: with ``$#`` is a sum of three rounded terms (G5x + G92 + TLO): honest readings of the
-#: same zero differ by at most 3 x 0.00127 = 0.0038 mm, a zero set again by hand by more.
-OFFSET_TOLERANCE_MM = 0.005
+#: One digit of GRBL's coordinate reports in mm: 3 decimals in mm, 4 in inches under
+#: ``$13=1`` (``N_DECIMAL_COORDVALUE_MM`` / ``_INCH``), so 0.001 mm or 0.00254 mm.
+REPORT_DIGIT_MM = {False: 0.001, True: 0.0001 * MM_PER_INCH}
 
 
-def same_offset(a: Sequence[float], b: Sequence[float]) -> bool:
-    """Whether two work offsets in mm are one zero as GRBL reports it, axis by axis."""
-    return max(abs(x - y) for x, y in zip(a, b, strict=True)) <= OFFSET_TOLERANCE_MM
+def offset_tolerance_mm(inches: bool) -> float:
+    """How far apart two readings of one work offset can be, per axis (mm).
+
+    A reading is a sum of numbers GRBL printed, each rounded to a report digit ``d``:
+    ``$#`` prints G5x, G92 and the tool length offset (on Z) apiece, a status report's
+    ``WCO:`` prints their sum once. Two readings of one zero differ by their rounding
+    errors, under ``3 * d/2 + 3 * d/2 = 3 d``, and both are whole multiples of ``d``: at
+    most ``2 d`` apart. Half a digit more covers GRBL's float32 sums, its inch factor
+    (0.0393701 for 1/25.4), the journal's 4 decimals of mm and a reading in the other unit
+    (under ``1.5 d_mm + 1.5 d_inch``); a zero moved by 3 digits is told.
+
+    Args:
+        inches: Either reading came in inch reports (``$13=1``).
+    """
+    return 2.5 * REPORT_DIGIT_MM[inches]
+
+
+def same_offset(a: Sequence[float], b: Sequence[float], inches: bool = False) -> bool:
+    """Whether two work offsets in mm are one zero as GRBL reports it, axis by axis.
+
+    ``inches``: either was read in inch reports (``$13=1``), whose digit is coarser.
+    """
+    limit = offset_tolerance_mm(inches)
+    return max(abs(x - y) for x, y in zip(a, b, strict=True)) <= limit
 
 
 class _Envelope(Protocol):
@@ -265,7 +285,8 @@ def compare(
                 )
     if profile is not None and profile.envelope.coordinates == "machine":
         out.refusals.extend(
-            f"{path}: {text}" for text in _machine_frame_refusals(profile.name, wco)
+            f"{path}: {text}"
+            for text in _machine_frame_refusals(profile.name, wco, bool(settings.get(13, 0)))
         )
     for k, (asked, rate) in enumerate(zip(axis_feeds(program), rates, strict=True)):
         if rate is not None and asked > rate + tolerance:
@@ -276,7 +297,9 @@ def compare(
     return out
 
 
-def _machine_frame_refusals(name: str, wco: tuple[float, float, float] | None) -> list[str]:
+def _machine_frame_refusals(
+    name: str, wco: tuple[float, float, float] | None, inches: bool = False
+) -> list[str]:
     """Refuse a profile in machine coordinates unless GRBL's work offset is known to be zero.
 
     Its G-code moves in the work coordinates, which equal the machine's only with the
@@ -288,7 +311,7 @@ def _machine_frame_refusals(name: str, wco: tuple[float, float, float] | None) -
             f"machine '{name}' is written in GRBL machine coordinates, but the work offset "
             f"could not be read ($# and the status reports' WCO gave none); {fix}"
         ]
-    if same_offset(wco, (0.0, 0.0, 0.0)):
+    if same_offset(wco, (0.0, 0.0, 0.0), inches):
         return []
     offset = " ".join(f"{axis}{w:g}" for axis, w in zip(_AXES, wco, strict=True))
     return [

@@ -143,13 +143,15 @@ class Journal:
         laser_mode: bool | None = None,
         wco: Sequence[float] | None = None,
         g92: Sequence[float] | None = None,
+        inches: bool = False,
     ) -> None:
         """Begin a run of ``program`` at block ``start`` (a fresh one, or a resume).
 
         ``port`` (the device or URL streamed to) lets a reader tell the emulator from a
         machine; ``laser_mode`` is GRBL's ``$32`` (None: not read), which decides whether an
         S change is a sync point (:func:`last_surely_run`). ``wco`` and its ``g92`` part
-        (mm, None: unknown) let a resume see that the work zero moved (:func:`run_zero`).
+        (mm, None: unknown) let a resume see that the work zero moved (:func:`run_zero`);
+        ``inches``: they were read in GRBL's inch reports (``$13=1``), a coarser digit.
         """
         self.write(
             "start",
@@ -165,6 +167,7 @@ class Journal:
             laser=laser_mode,
             wco=None if wco is None else [round(float(v), 4) for v in wco],
             g92=None if g92 is None else [round(float(v), 4) for v in g92],
+            inches=inches,
         )
 
     def close(self, remove_if_empty: bool = False) -> None:
@@ -284,6 +287,12 @@ def run_zero(
         return None, None
     last = starts[-1]
     return _xyz_of(last.get("wco")), _xyz_of(last.get("g92"))
+
+
+def run_zero_in_inches(events: Sequence[dict[str, Any]]) -> bool:
+    """Whether the journal's last run read its work offset in inch reports (``$13=1``)."""
+    starts = [ev for ev in events if ev.get("ev") == "start"]
+    return bool(starts) and starts[-1].get("inches") is True
 
 
 def _xyz_of(value: Any) -> tuple[float, float, float] | None:

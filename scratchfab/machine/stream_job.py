@@ -33,6 +33,7 @@ from scratchfab.machine.sender_journal import (
     interrupted,
     read_journal,
     run_zero,
+    run_zero_in_inches,
 )
 from scratchfab.machine.sender_program import (
     Program,
@@ -213,7 +214,8 @@ def _stream_locked(
             f"state {info.status.state}"
         )
         if resume and events is not None:
-            _check_same_zero(events, info.wco, info.g92, journal_file, cb.say)
+            inches = bool(info.settings.get(13, 0))
+            _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
         rates = [info.settings.get(110 + k) for k in range(3)]
         if all(r is not None and r > 0 for r in rates):  # the time estimate at GRBL's G0 rates
             program = program.at_rapid_rates([float(r or 0) for r in rates])
@@ -246,6 +248,7 @@ def _check_same_zero(
     g92: tuple[float, float, float] | None,
     journal_file: Path,
     say: Say,
+    inches: bool = False,
 ) -> None:
     """Before a resume: the work zero must be where the interrupted run had it.
 
@@ -253,20 +256,22 @@ def _check_same_zero(
     zero set with G92 is gone and the resumed strokes would land that far off: refused
     when the work offset is now exactly the old one less that G92 part (nobody zeroed
     again). Any other change of the work offset is told (a re-zero after a lost position
-    changes it legitimately). Offsets compare with :func:`same_offset`, as check mode's.
+    changes it legitimately). Offsets compare with :func:`same_offset`, as check mode's,
+    at the inch reports' coarser digit if either run read them so (``inches``: this one).
 
     Raises:
         ScratchfabError: The earlier run had a G92 offset, it is now cleared, and the work
             zero was not set again.
     """
     before, g92_before = run_zero(events)
-    if before is None or wco is None or same_offset(before, wco):
+    inches = inches or run_zero_in_inches(events)
+    if before is None or wco is None or same_offset(before, wco, inches):
         return
     was, now = xyz_text(before), xyz_text(wco)
     zero = (0.0, 0.0, 0.0)
-    if g92_before is not None and not same_offset(g92_before, zero):
+    if g92_before is not None and not same_offset(g92_before, zero, inches):
         cleared = tuple(b - g for b, g in zip(before, g92_before, strict=True))
-        if (g92 is None or same_offset(g92, zero)) and same_offset(cleared, wco):
+        if (g92 is None or same_offset(g92, zero, inches)) and same_offset(cleared, wco, inches):
             raise ScratchfabError(
                 f"{journal_file}: the interrupted run's work zero included a G92 offset "
                 f"({xyz_text(g92_before)} mm) that a reset since then cleared (work offset "
