@@ -6,13 +6,17 @@ import json
 import threading
 import time
 import urllib.parse
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
+import serial
 from stream_helpers import FAST, stream_program
 
 from scratchfab.cli import main
 from scratchfab.errors import ScratchfabError
+from scratchfab.machine.grblsim import SimOptions
+from scratchfab.machine.grblsim_pty import GrblPty
 from scratchfab.machine.sender import (
     Streamer,
     StreamFault,
@@ -206,6 +210,74 @@ def test_a_door_open_at_connect_is_refused():
     finally:
         port.close()
     assert not [e for e in port.sim.record if e["ev"] == "rx"]
+
+
+def _busy_pty_controller(pty) -> None:
+    """An earlier sender queued a long move (3.6 s, scaled) on a port without DTR reset."""
+    first = serial.Serial(pty.path, 115200, timeout=2.0)
+    first.write(b"\x18")  # opening flushed the power-up banner: a reset sends another
+    assert b"Grbl" in first.read_until(b"help]\r\n")
+    first.write(b"G21G90\nG1X6F100\n")
+    time.sleep(0.2)
+    first.close()
+
+
+@pytest.mark.parametrize("closed", [False, True], ids=["Door:1", "Door:0"])
+def test_a_controller_its_door_stopped_is_reset_at_once_on_connect(closed):
+    """Door:0/Door:1 at connect: the machine stands still, so the soft reset comes at once
+    and the user is told why; an open door then refuses the stream as at any connect."""
+    with GrblPty(SimOptions(time_scale=0.5)) as pty:
+        _busy_pty_controller(pty)
+        pty.sim.open_door()
+        if closed:
+            pty.sim.close_door()
+        time.sleep(0.1)  # Door:2 (stopping) is over
+        said: list[str] = []
+        port = serial.Serial(pty.path, 115200, timeout=0.01)
+        try:
+            streamer = Streamer(port, FAST, on_message=said.append)
+            if closed:
+                assert streamer.connect().status.state == "Idle"
+            else:
+                with pytest.raises(StreamFault, match="reports Door:1"):
+                    streamer.connect()
+        finally:
+            port.close()
+        record = pty.sim.record
+    state = "Door:0" if closed else "Door:1"
+    assert any(s.startswith(f"controller is in {state}: its safety door") for s in said)
+    assert not [s for s in said if "still moving" in s]
+    assert not [e for e in record if e["ev"] == "alarm"]
+
+
+def test_a_door_that_stops_a_busy_controller_on_connect_resets_it_without_the_hold_wait():
+    """A controller still running at connect is held after busy_timeout; a safety door
+    that stops it meanwhile (Door:1: GRBL ignores the hold then) stands it still too: the
+    reset comes at once, not after hold_timeout waiting for a Hold:0 that never comes."""
+    options = replace(FAST, busy_timeout=0.3, hold_timeout=5.0)
+    with GrblPty(SimOptions(time_scale=0.5)) as pty:
+        _busy_pty_controller(pty)
+        said: list[str] = []
+
+        def on_message(text: str) -> None:
+            said.append(text)
+            if "feed hold, then a soft reset" in text:
+                pty.sim.open_door()  # the door opens as the sender gives up waiting
+
+        port = serial.Serial(pty.path, 115200, timeout=0.01)
+        began = time.monotonic()
+        try:
+            with pytest.raises(StreamFault, match="reports Door:1"):
+                Streamer(port, options, on_message=on_message).connect()
+        finally:
+            port.close()
+        took = time.monotonic() - began
+        record = pty.sim.record
+    assert any(s.startswith("controller is in Door:1: its safety door is open") for s in said)
+    assert took < options.hold_timeout
+    resets = [e["t"] for e in record if e["ev"] == "reset"]
+    assert len(resets) == 2  # the first sender's and the connect's
+    assert not [e for e in record if e["ev"] == "alarm"]
 
 
 def _zero_events(wco, g92, inches=False) -> list[dict]:

@@ -517,13 +517,18 @@ class Streamer:
         A port without DTR reset (a pty, some USB bridges) keeps the controller running
         what an earlier sender queued, e.g. one that was killed. A reset now would stop it
         mid-move (``ALARM:3``, position lost). Waits up to ``busy_timeout`` for Idle (or
-        Hold:0, where a reset is safe), then holds it and waits for Hold:0.
+        Hold:0, where a reset is safe), then holds it and waits for Hold:0. A safety door
+        that stopped it (``Door:0``/``Door:1``, at connect or meanwhile) stands it still as
+        well: it is told, and the reset comes at once.
         """
         try:
             state = self._status_now().state
         except _Fault:
             return  # no status: nothing is known to be moving; reset as before
         moving = ("Run", "Jog", "Hold:1", "Home", "Door:2", "Door:3", "Door:4")
+        if state in DOOR_STOPPED:
+            self._tell_door_stopped(state)
+            return
         if not state.startswith(moving):
             return
         timeout = self.options.busy_timeout
@@ -537,6 +542,9 @@ class Streamer:
             time.sleep(max(0.0, self._last_poll + period - time.monotonic()))
             with contextlib.suppress(_Fault):
                 state = self._status_now().state
+            if state in DOOR_STOPPED:
+                self._tell_door_stopped(state)
+                return
             if not state.startswith(moving):
                 self.on_message(f"controller is {state} now")
                 return
@@ -545,10 +553,21 @@ class Streamer:
         )
         self._write(REALTIME_HOLD)
         deadline = time.monotonic() + self.options.hold_timeout
-        while time.monotonic() < deadline and state not in ("Hold:0", "Idle"):
+        while time.monotonic() < deadline and state not in ("Hold:0", "Idle", *DOOR_STOPPED):
             time.sleep(max(0.0, self._last_poll + period - time.monotonic()))
             with contextlib.suppress(_Fault):
                 state = self._status_now().state
+        if state in DOOR_STOPPED:
+            self._tell_door_stopped(state)
+
+    def _tell_door_stopped(self, state: str) -> None:
+        """Say why a controller stopped by its safety door is reset at once."""
+        door = "is open" if state == "Door:1" else "was opened and is closed again"
+        self.on_message(
+            f"controller is in {state}: its safety door {door} and the machine stands "
+            "still, so the soft reset comes now (what an earlier sender had queued is "
+            "dropped; the spindle stays off)"
+        )
 
     def _read_work_offset(self, reports: int = 12) -> None:
         """Fill ``info.wco``: from ``$#`` and ``$G``, else from a status report's ``WCO:``.
