@@ -1389,7 +1389,7 @@ def test_a_machine_coordinate_profile_refuses_a_work_offset(tmp_path, capsys):
     soft limits and homing off, before any line of the job is sent."""
     path, _ = _profile_job(tmp_path, "grbl-3018-diamond", n=10)
     first = load_program(path).blocks[0].text
-    for wco, refused in (("-220,-150,-30", True), ("0,0,0.005", False)):
+    for wco, refused in (("-220,-150,-30", True), ("0,0,0.002", False)):
         rec = tmp_path / f"rec{refused}.jsonl"
         args = ["stream", str(path), "--machine", "grbl-3018-diamond", "--yes"]
         main_args = [*args, "--port", f"{SIM}&wco={wco}&record={rec}"]
@@ -1398,7 +1398,7 @@ def test_a_machine_coordinate_profile_refuses_a_work_offset(tmp_path, capsys):
                 main(main_args)
             assert exc.value.code == 2
         else:
-            main(main_args)  # within the 0.01 mm tolerance: streamed
+            main(main_args)  # 2 report digits: within the offset tolerance, streamed
         err = capsys.readouterr().err
         sent = [e["text"] for e in read_record(rec) if e["ev"] == "rx"]
         assert ("work offset is X-220 Y-150 Z-30 mm" in err) == refused
