@@ -34,6 +34,15 @@ def _read_until(port: serial.SerialBase, predicate, timeout: float = 3.0) -> lis
     raise AssertionError(f"timeout; got {lines!r}")
 
 
+def _lines_for(port: serial.SerialBase, seconds: float) -> list[str]:
+    """Every line the port gives within ``seconds``."""
+    buf = b""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        buf += port.read(4096)
+    return [d.decode().strip() for d in buf.split(b"\n") if d.strip()]
+
+
 def _banner(port: serial.SerialBase) -> list[str]:
     """Lines read until a start-up banner (``Grbl 1.1h ...``) has come."""
     return _read_until(port, lambda ls: any(x.startswith("Grbl") for x in ls))
@@ -137,8 +146,12 @@ def test_realtime_picked_off_inside_comments():
     port = _open()
     try:
         _banner(port)
-        _cmd(port, b"G21 (careful!)\n")
+        port.write(b"G21 (careful!)\n")  # the ! is a feed hold, from Idle complete at once
+        time.sleep(0.05)
         assert _status(port).startswith("<Hold:0|")
+        assert _answers(_lines_for(port, 0.2)) == []  # held: the line waits for the resume
+        port.write(b"~")
+        assert _answers(_read_until(port, lambda ls: "ok" in ls)) == ["ok"]
     finally:
         port.close()
 
@@ -192,13 +205,14 @@ def test_feed_hold_resume_and_state_rules():
     try:
         _banner(port)
         _cmd(port, b"G1X5F60\n")
-        port.write(b"!")
+        # read while the hold decelerates (Hold:1, 50 ms): not while holding
+        assert _answers(_cmd(port, b"!$$\n$C\n", n=2)) == ["error:8", "error:8"]
         time.sleep(0.2)
         assert _status(port).startswith("<Hold:0|")
-        assert _answers(_cmd(port, b"$$\n")) == ["error:8"]  # not while holding
-        assert _answers(_cmd(port, b"$C\n")) == ["error:8"]
+        port.write(b"$$\n")
+        assert _answers(_lines_for(port, 0.2)) == []  # Hold:0: no line is read
         port.write(b"~")
-        time.sleep(0.1)
+        assert _answers(_read_until(port, lambda ls: len(_answers(ls)) >= 1)) == ["error:8"]
         assert _status(port).startswith("<Run|")
         port.write(b"!")
         time.sleep(0.2)
@@ -506,3 +520,66 @@ def test_feed_hold_or_jog_cancel_during_a_jog_cancels_it():
     assert "Hold:0" not in states and "Hold:1" not in states
     partial = [e for e in port.sim.record if e["ev"] == "partial"]
     assert len(partial) == 2 and all(0 < e["to"][0] < 10 for e in partial)
+
+
+def test_a_door_during_a_jog_reports_jog_until_the_jog_stopped_then_door():
+    """Grbl 1.1 (protocol.c): a door during a jog only flags the jog cancel; the state
+    stays Jog while it decelerates, and once stopped the jog blocks are flushed and the
+    state becomes the door's, already stopped (no Door:2). A resume then runs nothing."""
+    port = _open("time_scale=2")  # a 10 mm jog at F60: 20 s; the stop takes 0.1 s
+    try:
+        _banner(port)
+        assert _answers(_cmd(port, b"$J=G91X10F60\n")) == ["ok"]
+        time.sleep(0.2)
+        port.sim.open_door()
+        assert _status(port).startswith("<Jog|")  # still stopping
+        time.sleep(0.2)
+        assert _status(port).startswith("<Door:1|")
+        port.sim.close_door()
+        x = _mpos_x(_status(port))
+        port.write(b"~")  # restore from Door:0: the flushed jog does not come back
+        time.sleep(0.2)
+        report = _status(port)
+        assert report.startswith("<Idle|") and _mpos_x(report) == x
+    finally:
+        port.close()
+    states = [e["state"] for e in port.sim.record if e["ev"] == "state"]
+    jog = states.index("Jog")
+    assert states[jog : jog + 5] == ["Jog", "Door:1", "Door:0", "Door:3", "Idle"]
+    partial = [e for e in port.sim.record if e["ev"] == "partial"]
+    assert len(partial) == 1 and 0 < partial[0]["to"][0] < 1
+
+
+def test_a_feed_hold_reads_lines_while_it_stops_and_none_once_held():
+    """Grbl 1.1: while a hold decelerates (Hold:1) the main loop still reads and plans
+    lines; once it is complete (Hold:0) the suspend loop reads none until the resume. A
+    hold from Idle is complete at once, and M0's ok comes after the resume too."""
+    port = _open("time_scale=2")  # the G1 takes 6 s; a hold's stop 0.1 s
+    try:
+        _banner(port)
+        port.write(b"!")  # from Idle: Hold:0 at once
+        time.sleep(0.05)
+        assert _status(port).startswith("<Hold:0|")
+        port.write(b"G4P0\n")
+        assert _answers(_lines_for(port, 0.3)) == []
+        port.write(b"~")
+        assert _answers(_read_until(port, lambda ls: "ok" in ls)) == ["ok"]
+        port.write(b"M0\n")  # a program pause: held, its ok after the resume
+        assert _answers(_lines_for(port, 0.3)) == []
+        assert _status(port).startswith("<Hold:0|")
+        port.write(b"~")
+        assert _answers(_read_until(port, lambda ls: "ok" in ls)) == ["ok"]
+        assert _answers(_cmd(port, b"G21G90G1X1F20\n")) == ["ok"]
+        time.sleep(0.1)
+        port.write(b"!G1X2\n")  # the line arrives while the hold is under way
+        assert _answers(_read_until(port, lambda ls: "ok" in ls, timeout=0.08)) == ["ok"]
+        time.sleep(0.2)
+        assert _status(port).startswith("<Hold:0|")
+        port.write(b"G1X3\n")
+        assert _answers(_lines_for(port, 0.3)) == []
+        port.write(b"~")
+        assert _answers(_read_until(port, lambda ls: "ok" in ls)) == ["ok"]  # G1X3 now
+        port.write(b"!")  # held, closing the port does not wait for the moves
+        time.sleep(0.15)
+    finally:
+        port.close()

@@ -16,10 +16,12 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   S change in a block that moves under laser mode (``$32=1``);
 - ``$`` commands with their state rules (``error:8``/``error:9``), check mode ``$C`` with the
   soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset,
-  feed hold ``Hold:1`` -> ``Hold:0`` and resume; a feed hold or jog cancel (``0x85``)
-  during a jog cancels it instead: the machine stops, the jog blocks are flushed, Idle;
+  feed hold ``Hold:1`` -> ``Hold:0`` and resume (lines are still read and planned while
+  it decelerates, none once it is complete, M0's ``ok`` comes after the resume); a feed
+  hold or jog cancel (``0x85``) during a jog cancels it instead: the machine stops, the
+  jog blocks are flushed, Idle;
 - the safety door (``0x84``, or :meth:`GrblSim.open_door` for the switch): the machine
-  stops (``Door:2``), spindle and coolant go off, ``Door:1`` while the door is open and
+  stops (``Door:2``; a jog is cancelled first and reports ``Jog`` until it stopped), spindle and coolant go off, ``Door:1`` while the door is open and
   ``Door:0`` once it is closed (:meth:`GrblSim.close_door`); no line is parsed meanwhile
   (Grbl's suspend loop). Cycle start (``~`` or :meth:`GrblSim.cycle_start`) in ``Door:0``
   restores spindle and coolant (``Door:3``, Grbl's 4 s spindle and 1 s coolant delays times
@@ -310,6 +312,7 @@ class GrblSim:
         self._overrides = [100, 100, 100]
         self._jogging = False
         self._jog_cancel = False  # stopping a jog that is then flushed (``!`` or 0x85)
+        self._door_after_jog = False  # the door opened during the jog: Door once it stopped
         self._report_due = False  # a ``?`` that came while planning, served after it
         self._last_state_logged = ""
         self._thread: threading.Thread | None = None
@@ -488,11 +491,12 @@ class GrblSim:
                 self._hold_until = math.inf
                 if self._jog_cancel:
                     self._end_jog(t)
-                self._hold_complete = True
-                if self.state == "Door":
-                    self._door_stopped(t)
-                elif self.state != "Idle":
-                    self._set_state(t, "Hold")
+                else:
+                    self._hold_complete = True
+                    if self.state == "Door":
+                        self._door_stopped(t)
+                    elif self.state != "Idle":
+                        self._set_state(t, "Hold")
             elif t == self._restore_until:
                 self._restore_until = math.inf
                 self._door_resume(t)
@@ -570,13 +574,20 @@ class GrblSim:
         self._hold_until = t + 0.05 * self.options.time_scale
 
     def _end_jog(self, t: float) -> None:
-        """The cancelled jog stopped: flush its blocks, sync the position, Idle."""
+        """The cancelled jog stopped: flush its blocks, sync the position, Idle.
+
+        A door that opened meanwhile takes it to the door state instead, already stopped.
+        """
         self._stop_head(t)
         self._planner.clear()
         self._jog_cancel = False
         self._jogging = False
         self._gc.position = self.mpos
-        if self.state == "Jog":
+        if self._door_after_jog:
+            self._door_after_jog = False
+            self._hold_complete = True
+            self._door_stopped(t)
+        elif self.state == "Jog":
             self._set_state(t, "Idle")
 
     def _door_event(self, t: float) -> None:
@@ -591,10 +602,9 @@ class GrblSim:
             else:
                 self._set_state(t, "Door")
             return
-        if self.state == "Jog":  # the jog is cancelled, then the door holds
+        if self.state == "Jog":  # Grbl cancels the jog (still Jog), then enters the door
             self._cancel_jog(t)
-            self._hold_complete = False
-            self._set_state(t, "Door")
+            self._door_after_jog = True
         elif self.state == "Run":
             self._pause_head(t)
             self._hold_complete = False
@@ -665,10 +675,16 @@ class GrblSim:
             self._set_state(t, "Jog" if self._jogging else "Run")
 
     def _main_loop(self, t: float) -> None:
-        """Move characters into the line buffer and run lines until input or Grbl waits."""
-        if self.state == "Door":
-            return  # Grbl's suspend loop: no line is parsed behind an open door
+        """Move characters into the line buffer and run lines until input or Grbl waits.
+
+        Grbl's suspend loop (``protocol_exec_rt_suspend``) runs while a door is handled or a
+        hold is complete (``Hold:0``, also M0's): no line is parsed or carried on meanwhile,
+        and M0's ``ok`` comes after the cycle start. While a hold decelerates (``Hold:1``)
+        lines are still read and planned, up to a full planner.
+        """
         while not self._critical and self._reset_at == math.inf and self._boot_at == math.inf:
+            if self.state == "Door" or (self.state == "Hold" and self._hold_complete):
+                return
             if self._pending is not None:
                 if not self._step_pending(t):
                     return
@@ -969,6 +985,7 @@ class GrblSim:
         self._restore_until = math.inf
         self._door_saved = ("M5", 0.0, frozenset())
         self._jog_cancel = False
+        self._door_after_jog = False
         self._jogging = False
         self._spindle = "M5"
         self._spindle_speed = 0.0
