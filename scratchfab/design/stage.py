@@ -22,6 +22,7 @@ from scratchfab.design.targets import (
     FITS,
     board_image,
     board_image_png,
+    board_pixels,
     preview_png,
     quantize_like_png,
     warp_to_view,
@@ -163,6 +164,14 @@ def run_design(
     for i, view in enumerate(design.views):
         if view.target is None:
             raise ConfigError(f"{design.source}: views[{i}] ('{view.name}'): missing target image")
+        # No board pixel: nothing to optimize for, the run would end with loss 0 and rho 0.
+        if not board_pixels(design.board, view).any():
+            raise ConfigError(
+                f"{design.source}: views[{i}] ('{view.name}'): no pixel of its "
+                f"{view.width}x{view.height} image has its centre on the board, so it has "
+                "nothing to show; raise resolution, narrow fov_deg, or aim the camera at the "
+                "board from less grazing a direction"
+            )
 
     boards: dict[str, np.ndarray] = {}
     cache: dict[Path, np.ndarray] = {}

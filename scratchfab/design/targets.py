@@ -232,10 +232,14 @@ def warp_to_view(board_img: np.ndarray, board: Board, view: View) -> np.ndarray:
         vals = np.where(ok, sample_board(board_img, board, pts), 0.0)
         norm = jac.sum(axis=(2, 3))
         out[r0:r1] = (vals * jac).sum(axis=(2, 3)) / np.where(norm > 0, norm, 1.0)
-    centres, ok = camera.center_grid()
+    return np.where(board_pixels(board, view), out, np.nan)
+
+
+def board_pixels(board: Board, view: View) -> np.ndarray:
+    """(H, W) bool: the pixels of ``view`` whose centre's ray meets the board (its targets)."""
+    centres, ok = Camera.from_view(view).center_grid()
     hw, hh = board.half_extent
-    on = ok & (np.abs(centres[..., 0]) <= hw) & (np.abs(centres[..., 1]) <= hh)
-    return np.where(on, out, np.nan)
+    return ok & (np.abs(centres[..., 0]) <= hw) & (np.abs(centres[..., 1]) <= hh)
 
 
 def _board_images(
