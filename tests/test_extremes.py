@@ -35,7 +35,7 @@ from PIL import Image, ImageDraw
 from reference_render import reference_render
 
 from scratchfab.errors import ConfigError
-from scratchfab.model.design import load_design
+from scratchfab.model.design import design_from_mapping, load_design
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.pipeline.config import load_pipeline
 from scratchfab.pipeline.runner import run_pipeline
@@ -402,3 +402,45 @@ def test_a_view_that_sees_no_board_pixel_is_refused(tmp_path: Path, mutate: Muta
     with pytest.raises(ConfigError, match=r"views\[0\] \('disc'\): no pixel .* on the board"):
         run_pipeline(pipe, tmp_path / "job", until="design")
     assert not (tmp_path / "job/design").exists()
+
+
+@pytest.mark.parametrize(
+    ("light", "key"),
+    [
+        ({"position_mm": [0.0, 187.3, 463.6], "intensity": 1e300}, "light"),
+        ({"position_mm": [0.0, 187.3, 463.6], "intensity": 1e-300}, "light"),
+        ({"position_mm": [0.0, 0.0, 1e-9]}, "light"),
+        ({"position_mm": [0.0, 187.3, 463.6], "intensity": 1e-6}, r"views\[1\].light_position_mm"),
+    ],
+    ids=["bright", "dim", "touching", "dim_view_light"],
+)
+def test_a_light_whose_renders_leave_float32_is_refused(light: dict[str, Any], key: str) -> None:
+    """Intensity is only bounded below by 0; renders are float32 (SPEC section 5).
+
+    1e300 overflowed every render to inf (the optimizer then stopped with 'non-finite loss
+    ... try smaller learning rates'); 1e-300 underflowed them to 0, and the whole pipeline
+    ran on black renders without a word.
+    """
+    data = copy.deepcopy({k: BASE[k] for k in ("board", "scratch", "views")})
+    data["light"] = light
+    data["views"][1]["light_position_mm"] = [0.0, 9e5, 9e5]
+    with pytest.raises(ConfigError, match=rf"<x>: {key}: intensity .* outside the"):
+        design_from_mapping(data, "<x>", Path("."))
+
+
+def test_the_light_scale_bounds_keep_renders_finite_and_nonzero(m: Any) -> None:
+    """At both ends of the accepted range the analytic render is finite and not all zero."""
+    from scratchfab.model.design import RADIANCE_SCALE
+
+    for scale in RADIANCE_SCALE:
+        data = copy.deepcopy({k: BASE[k] for k in ("board", "scratch", "views")})
+        position = np.array([0.0, 187.3, 463.6])
+        intensity = scale * 4 * float(position @ position)
+        inside = 1.001 if scale < 1 else 0.999
+        data["light"] = {"position_mm": position.tolist(), "intensity": intensity * inside}
+        design = design_from_mapping(data, "<x>", Path("."))
+        tool = design.scratch
+        few = ScratchSet.from_arrays([[-5.0, 0.0]], [[5.0, 1.0]], tool.width_mm, tool.depth_mm)
+        for name, image in render_scratches(design, few, "llvm").items():
+            image = np.asarray(image)
+            assert np.all(np.isfinite(image)) and image.max() > 0, (scale, name)

@@ -378,6 +378,27 @@ def resolve_view(view: View, board: Board) -> View:
     return view
 
 
+#: Range of intensity / (4 d^2), d the light's distance to the board's centre (mm): the
+#: scale of every render (SPEC section 4). Dimmer renders underflow float32 (and the
+#: optimizer's exposure sum R^2) to zero; brighter ones overflow it.
+RADIANCE_SCALE = (1e-14, 1e10)
+
+
+def light_problem(intensity: float, position: Vec3) -> str | None:
+    """Why a light of ``intensity`` at ``position`` cannot be rendered in float32, or None."""
+    dist2 = float(np.dot(position, position))
+    scale = intensity / (4 * dist2)
+    lo, hi = RADIANCE_SCALE
+    if lo <= scale <= hi:
+        return None
+    return (
+        f"intensity {intensity:g} at {math.sqrt(dist2):g} mm from the board's centre makes "
+        f"renders of about intensity / (4 distance^2) = {scale:.3g}, outside the {lo:g} to "
+        f"{hi:g} that float32 renders hold; use an intensity between {lo * 4 * dist2:.3g} "
+        f"and {hi * 4 * dist2:.3g}"
+    )
+
+
 def design_from_mapping(
     data: dict[str, Any], source: str, base_dir: Path, require_views: bool = True
 ) -> Design:
@@ -398,6 +419,14 @@ def design_from_mapping(
                 f"{source}: scratch.{key}: expected at most the board's {side:g} mm side, "
                 f"got {getattr(tables.scratch, key):g}"
             )
+    lights = [("light", tables.light.position_mm)] + [
+        (f"views[{i}].light_position_mm", v.light_position_mm)
+        for i, v in enumerate(tables.views)
+        if v.light_position_mm is not None
+    ]
+    for key, position in lights:
+        if (why := light_problem(tables.light.intensity, position)) is not None:
+            raise ConfigError(f"{source}: {key}: {why}")
     if require_views and not tables.views:
         raise ConfigError(f"{source}: views: at least one [[views]] table is required")
     names: set[str] = set()
