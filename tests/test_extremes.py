@@ -410,9 +410,10 @@ def test_a_view_that_sees_no_board_pixel_is_refused(tmp_path: Path, mutate: Muta
         ({"position_mm": [0.0, 187.3, 463.6], "intensity": 1e300}, "light"),
         ({"position_mm": [0.0, 187.3, 463.6], "intensity": 1e-300}, "light"),
         ({"position_mm": [0.0, 0.0, 1e-9]}, "light"),
+        ({"position_mm": [0.0, 0.0, 1e-200]}, "light"),
         ({"position_mm": [0.0, 187.3, 463.6], "intensity": 1e-6}, r"views\[1\].light_position_mm"),
     ],
-    ids=["bright", "dim", "touching", "dim_view_light"],
+    ids=["bright", "dim", "touching", "at_zero_distance", "dim_view_light"],
 )
 def test_a_light_whose_renders_leave_float32_is_refused(light: dict[str, Any], key: str) -> None:
     """Intensity is only bounded below by 0; renders are float32 (SPEC section 5).

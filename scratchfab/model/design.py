@@ -386,16 +386,24 @@ RADIANCE_SCALE = (1e-14, 1e10)
 
 def light_problem(intensity: float, position: Vec3) -> str | None:
     """Why a light of ``intensity`` at ``position`` cannot be rendered in float32, or None."""
-    dist2 = float(np.dot(position, position))
-    scale = intensity / (4 * dist2)
+    dist2 = math.fsum(c * c for c in position)
+    scale = intensity / (4 * dist2) if dist2 > 0 else math.inf
     lo, hi = RADIANCE_SCALE
     if lo <= scale <= hi:
         return None
+    fixes = []
+    if 0 < dist2 < math.inf:
+        fixes.append(
+            f"at this distance an intensity between {lo * 4 * dist2:.3g} and {hi * 4 * dist2:.3g}"
+        )
+    near, far = math.sqrt(intensity / (4 * hi)), math.sqrt(intensity / (4 * lo))
+    if 0 < near and far < math.inf:
+        fixes.append(f"for this intensity a distance between {near:.3g} and {far:.3g} mm")
     return (
         f"intensity {intensity:g} at {math.sqrt(dist2):g} mm from the board's centre makes "
         f"renders of about intensity / (4 distance^2) = {scale:.3g}, outside the {lo:g} to "
-        f"{hi:g} that float32 renders hold; use an intensity between {lo * 4 * dist2:.3g} "
-        f"and {hi * 4 * dist2:.3g}"
+        f"{hi:g} that float32 renders hold; use "
+        + (" or ".join(fixes) or "a finite intensity and light position")
     )
 
 
