@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import warnings
+
 import mpmath
 import numpy as np
 import pytest
@@ -65,6 +67,25 @@ def test_solve_wbar_is_monotone_and_scalar():
     assert np.all(np.diff(walls) > 0)
     assert 0 < walls[0] < 1 and 89 < walls[-1] < 90
     assert np.ndim(solve_wbar(0.1, 0.01)) == 0
+
+
+def test_solve_wbar_at_the_deepest_dent_the_schema_allows_is_silent_and_exact():
+    """depth/width = 30 (DENT_RATIO's top): the bisection's midpoint rounds to s = 1, where
+    phi = +inf is the right limit; it used to print numpy's 'divide by zero' warning."""
+    from scratchfab.model.design import DENT_RATIO
+
+    width, depth = 0.1, 0.1 * DENT_RATIO[1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        wbar = float(solve_wbar(width, depth))
+    # eq. 2 gives s = 2w/wbar with 1 - s^2 = exp(-d/w) ~ 1e-26: s is 1 to double precision
+    kappa = mpmath.mpf(depth) / (mpmath.mpf(width) / 2)
+    s_exact = mpmath.mpf(1)
+    with mpmath.workdps(60):
+        for _ in range(20):  # s = sqrt(1 - exp(-kappa s)): a contraction near s = 1
+            s_exact = mpmath.sqrt(1 - mpmath.exp(-kappa * s_exact))
+    assert 1 - s_exact < 1e-20
+    assert wbar == pytest.approx(width / float(s_exact), rel=2 * EPS)
 
 
 def test_solve_wbar_rejects_nonpositive():

@@ -13,8 +13,12 @@ from numpy.typing import ArrayLike
 
 
 def _phi(s: np.ndarray) -> np.ndarray:
-    """-ln(1 - s^2) / s: eq. 2 divided by w in the variable s = 2w/wbar (0 < s < 1)."""
-    return -np.log1p(-s * s) / s
+    """-ln(1 - s^2) / s: eq. 2 divided by w in the variable s = 2w/wbar (0 < s <= 1).
+
+    At s = 1 (a bisection midpoint next to 1 rounds there) this is +inf, the right limit.
+    """
+    with np.errstate(divide="ignore"):
+        return -np.log1p(-s * s) / s
 
 
 def solve_wbar(width_mm: ArrayLike, depth_mm: ArrayLike) -> np.ndarray:
