@@ -5,8 +5,8 @@ from __future__ import annotations
 from scratchfab.machine.sender import Streamer, StreamOptions
 from scratchfab.machine.sender_journal import Journal
 
-#: Short timeouts for emulator ports.
-FAST = StreamOptions(banner_timeout=0.5, stall_timeout=1.0)
+#: Short timeouts for emulator ports (which send a banner's messages with it, at once).
+FAST = StreamOptions(banner_timeout=0.5, banner_settle=0.02, stall_timeout=1.0)
 
 
 def stream_program(port, prog, journal_path, options=FAST, **kwargs):

@@ -95,7 +95,9 @@ def test_a_controller_still_moving_at_connect_is_held_before_the_soft_reset(queu
         sim.host_flush_input()
         port = _SimPort(sim)
         said: list[str] = []
-        options = StreamOptions(banner_timeout=0.3, busy_timeout=0.3, hold_timeout=3.0)
+        options = StreamOptions(
+            banner_timeout=0.3, banner_settle=0.02, busy_timeout=0.3, hold_timeout=3.0
+        )
         info = Streamer(port, options, on_message=said.append).connect()
     finally:
         sim.close(drain_timeout=0.0)
@@ -201,7 +203,7 @@ def test_the_senders_work_position_is_the_emulators(mpos, inches, wco_field):
         115200,
     )
     try:
-        s = Streamer(port, StreamOptions(banner_timeout=0.5))
+        s = Streamer(port, StreamOptions(banner_timeout=0.5, banner_settle=0.02))
         s.connect()
         s._command("G21G90G0X12.345Y-6.789Z3.21")
         deadline = time.monotonic() + 3.0
@@ -220,7 +222,7 @@ def test_the_work_offset_read_with_dollar_hash_is_in_mm(inches):
     """$# gives G54 + G92 (+ TLO on Z); under $13=1 GRBL prints it in inches."""
     port = open_port(f"grblsim://?time_scale=0.01&wco=5,7,1&$13={inches}", 115200)
     try:
-        s = Streamer(port, StreamOptions(banner_timeout=0.5))
+        s = Streamer(port, StreamOptions(banner_timeout=0.5, banner_settle=0.02))
         info = s.connect()
     finally:
         port.close()

@@ -462,7 +462,9 @@ def test_1000_lines_arrive_once_in_order(tmp_path, protocol, link):
     write_job(job, 200)  # 1003 G-code lines
     prog = load_program(job)
     assert len(prog.blocks) >= 1000
-    options = StreamOptions(protocol=protocol, banner_timeout=0.3, stall_timeout=2.0)
+    options = StreamOptions(
+        protocol=protocol, banner_timeout=0.3, banner_settle=0.02, stall_timeout=2.0
+    )
     if link == "grblsim":
         port = open_port("grblsim://?time_scale=0.0005", 115200)
         try:
@@ -736,7 +738,7 @@ def test_stall_watchdog(tmp_path):
                 port,
                 prog,
                 tmp_path / "j.jsonl",
-                StreamOptions(banner_timeout=0.3, stall_timeout=0.6),
+                StreamOptions(banner_timeout=0.3, banner_settle=0.02, stall_timeout=0.6),
             )
     finally:
         port.close()
@@ -2644,15 +2646,15 @@ def test_a_dwell_longer_than_the_stall_timeout_is_not_a_stall(tmp_path):
     """GRBL answers G4 only when the dwell ends and reports Idle meanwhile: a spin-up
     dwell longer than the stall timeout must not stop the job (a lost ok still does)."""
     job = tmp_path / "job.gcode"
-    job.write_text("G21 G90\nG0 Z2\nM3 S1000\nG4 P1.5\nG0 X1\nG1 Z-0.1 F600\nG1 X2 F600\n"
+    job.write_text("G21 G90\nG0 Z2\nM3 S1000\nG4 P4\nG0 X1\nG1 Z-0.1 F600\nG1 X2 F600\n"
                    "G0 Z2\nM5\nM2\n")  # fmt: skip
     prog = load_program(job)
-    options = StreamOptions(banner_timeout=0.3, stall_timeout=0.5)
+    options = StreamOptions(banner_timeout=0.3, banner_settle=0.02, stall_timeout=0.5)
     for query, fault in (
         ("", None),
         ("&lose_ok_at=4", "stalled: no answer to the end-of-job G4P0"),
     ):
-        port = open_port(f"grblsim://?time_scale=1{query}", 115200)
+        port = open_port(f"grblsim://?time_scale=0.25{query}", 115200)  # the dwell: 1 s
         try:
             if fault is None:
                 stream_program(port, prog, tmp_path / "j.jsonl", options)

@@ -116,7 +116,7 @@ def test_an_unknown_banner_is_refused(tmp_path):
     port = open_port("grblsim://?banner=Smoothie%20edge&boot=0", 115200)
     try:
         with pytest.raises(StreamFault, match=r"no GRBL banner \('Grbl 1\.1\.\.\.' or 'GrblHAL"):
-            Streamer(port, StreamOptions(banner_timeout=0.2)).connect()
+            Streamer(port, StreamOptions(banner_timeout=0.2, banner_settle=0.02)).connect()
     finally:
         port.close()
 
@@ -152,7 +152,7 @@ def test_safety_door_pauses_without_a_stall_and_the_job_goes_on(tmp_path):
             helper.append(threading.Thread(target=close_and_start))
             helper[0].start()
 
-    options = StreamOptions(banner_timeout=0.5, stall_timeout=0.5)
+    options = StreamOptions(banner_timeout=0.5, banner_settle=0.02, stall_timeout=0.5)
     try:
         stream_program(
             port, prog, journal, options, on_progress=progress, on_message=messages.append
@@ -187,7 +187,9 @@ def test_stop_with_the_door_open_resets_at_once(tmp_path):
             fired.append(time.monotonic())
             raise KeyboardInterrupt
 
-    options = StreamOptions(banner_timeout=0.5, stall_timeout=0.5, hold_timeout=10.0)
+    options = StreamOptions(
+        banner_timeout=0.5, banner_settle=0.02, stall_timeout=0.5, hold_timeout=10.0
+    )
     try:
         with pytest.raises(StreamStopped):
             stream_program(
@@ -419,7 +421,9 @@ def test_stop_while_the_door_restores_holds_before_the_cycle_resumes(tmp_path):
             fired.append(time.monotonic())
             raise KeyboardInterrupt
 
-    options = StreamOptions(banner_timeout=0.5, stall_timeout=0.5, hold_timeout=3.0)
+    options = StreamOptions(
+        banner_timeout=0.5, banner_settle=0.02, stall_timeout=0.5, hold_timeout=3.0
+    )
     try:
         with pytest.raises(StreamStopped):
             stream_program(

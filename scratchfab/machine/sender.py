@@ -254,6 +254,8 @@ class StreamOptions:
         rx_buffer: RX buffer size; ``None`` takes it from ``$I`` (128 on Grbl 1.1).
         poll_hz: Status polls per second (at most 5).
         banner_timeout: Seconds to wait for the banner before (and after) a soft reset.
+        banner_settle: Seconds to read on after the banner for its ``[MSG:...]`` and
+            startup-line results (shown to the user; later ones are skipped unshown).
         stall_timeout: Seconds with lines in flight, controller Idle and no answer.
         silence_timeout: Seconds without any byte from the controller while polling.
         hold_timeout: Seconds to wait for ``Hold:0`` when stopping.
@@ -267,6 +269,7 @@ class StreamOptions:
     rx_buffer: int | None = None
     poll_hz: float = 5.0
     banner_timeout: float = 2.5
+    banner_settle: float = 0.1
     stall_timeout: float = 10.0
     silence_timeout: float = 5.0
     hold_timeout: float = 30.0
@@ -433,7 +436,7 @@ class Streamer:
                     self.info.firmware = firmware
                     self.info.version = line.split()[1]
                     after = lines[k + 1 :]
-                    after += self._read_lines(0.1)
+                    after += self._read_lines(self.options.banner_settle)
                     return after
         return None
 
@@ -877,7 +880,10 @@ class Streamer:
                     if one_at_a_time:
                         break
                 # ---- answers
-                self._poll()
+                # all answered: ask for the report that ends the job now, not a period later
+                self._poll(
+                    force=self._acked_items >= total and self._last_poll < self._last_ack_time
+                )
                 for line in self._read_lines(0.005 if self._inflight else 0.02):
                     if self._answer(line):
                         idle_since = None
