@@ -205,7 +205,8 @@ class Tool:
 
 
 _TOOL_CODE = re.compile(r"(?:\s*[A-Z]\s*[-+]?(?:\d+\.?\d*|\.\d+))+\s*")
-_TOOL_WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+#: One G-code word, a letter and a number (GRBL allows spaces between them).
+GCODE_WORD = re.compile(r"([A-Z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 #: What a tool command may do: spindle/servo (M3 M4 M5 with S), coolant (M7 M8 M9), dwell (G4 P).
 _TOOL_CODES = {"M": (3.0, 4.0, 5.0, 7.0, 8.0, 9.0), "G": (4.0,)}
 
@@ -233,7 +234,7 @@ def _check_tool_command(name: str, template: str, power: float) -> None:
     if any(c in text for c in "!?~"):
         raise ValueError(f"{name}: '!', '?' and '~' are GRBL realtime commands")
     upper = text.upper()
-    for letter, value in _TOOL_WORD.findall(upper.replace(" ", "")):  # M06 too, not M60
+    for letter, value in GCODE_WORD.findall(upper.replace(" ", "")):  # M06 too, not M60
         if (letter, float(value)) in _FORBIDDEN_WORDS:
             raise ValueError(
                 f"{name}: {letter}{float(value):g} is not supported by GRBL 1.1 (error 20)"
@@ -244,7 +245,7 @@ def _check_tool_command(name: str, template: str, power: float) -> None:
             f"{name}: {text!r} is not a list of G-code words (a letter and a number each; "
             "no $ commands, ';' or unbalanced parentheses)"
         )
-    words = [(letter, float(value)) for letter, value in _TOOL_WORD.findall(code)]
+    words = [(letter, float(value)) for letter, value in GCODE_WORD.findall(code)]
     allowed = "M3, M4, M5, M7, M8, M9, S and G4 with P"
     for letter, value in words:
         if letter in _TOOL_CODES and value not in _TOOL_CODES[letter]:

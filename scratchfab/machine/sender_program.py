@@ -26,11 +26,10 @@ from typing import NamedTuple
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import read_input
 from scratchfab.machine.grbl_codes import MM_PER_INCH
-from scratchfab.machine.profile import gcode_number
+from scratchfab.machine.profile import GCODE_WORD, gcode_number
 
 MAX_BLOCK_CHARS = 79
 DEFAULT_RAPID_MM_MIN = (500.0, 500.0, 500.0)  # G0 rates for the estimate until $110-$112 are known
-_WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
 _REALTIME = set("?!~")
 _LINE_END = re.compile(r"\r\n|[\r\n]")
 #: ``$`` lines a job may hold: reports that move nothing and change no setting or state.
@@ -149,7 +148,7 @@ class Program:
 
 def block_words(text: str) -> list[tuple[str, float]]:
     """The words of a block as :func:`strip_block` leaves it: (letter, value) pairs."""
-    return [(m.group(1), float(m.group(2))) for m in _WORD.finditer(text)]
+    return [(m.group(1), float(m.group(2))) for m in GCODE_WORD.finditer(text)]
 
 
 class _Step(NamedTuple):
