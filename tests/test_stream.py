@@ -2115,7 +2115,7 @@ def test_on_a_terminal_the_bar_ends_before_each_message(tmp_path):
 
 def test_on_a_terminal_ctrl_c_asks_on_its_own_line_and_stops(tmp_path):
     job = tmp_path / "job.gcode"
-    write_job(job, 40)
+    write_job(job, 400)  # about 4 s at this time scale: a loaded machine still interrupts it
     rc, text = _stream_on_a_terminal(
         [str(job), "--port", "grblsim://?time_scale=0.02", "--yes", "--banner-timeout", "0.3"],
         interrupt_at=3,
