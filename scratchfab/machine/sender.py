@@ -243,6 +243,11 @@ class ControllerInfo:
         value = self.settings.get(32)
         return None if value is None else bool(value)
 
+    @property
+    def inch_reports(self) -> bool:
+        """GRBL reports positions and offsets in inches (``$13=1``): the one place read."""
+        return bool(self.settings.get(13, 0))
+
 
 @dataclass
 class StreamOptions:
@@ -394,8 +399,7 @@ class Streamer:
 
     @property
     def _mm_per_reported_unit(self) -> float:
-        """GRBL reports positions and offsets in inches under ``$13=1``: the one place read."""
-        return MM_PER_INCH if self.info.settings.get(13, 0) else 1.0
+        return MM_PER_INCH if self.info.inch_reports else 1.0
 
     def _note_status(self, line: str) -> None:
         self.status = parse_status(line, self._wco, self._mm_per_reported_unit)
@@ -719,7 +723,7 @@ class Streamer:
         self.info.wco, self.info.g92, self._wco = None, None, None
         self._read_work_offset()
         after = self.info.wco
-        inches = bool(self.info.settings.get(13, 0))
+        inches = self.info.inch_reports
         if before is None or (after is not None and same_offset(before, after, inches)):
             return
         now = "unknown" if after is None else xyz_text(after)
@@ -767,7 +771,7 @@ class Streamer:
             self.info.laser_mode,
             self.info.wco,
             self.info.g92,
-            bool(self.info.settings.get(13, 0)),
+            self.info.inch_reports,
         )
         self._journal = journal
         self._program = program

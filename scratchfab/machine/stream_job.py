@@ -214,7 +214,7 @@ def _stream_locked(
             f"state {info.status.state}"
         )
         if resume and events is not None:
-            inches = bool(info.settings.get(13, 0))
+            inches = info.inch_reports
             _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
         rates = [info.settings.get(110 + k) for k in range(3)]
         if all(r is not None and r > 0 for r in rates):  # the time estimate at GRBL's G0 rates
