@@ -205,6 +205,23 @@ def test_view_error_uses_the_closed_form_exposure(m, rng) -> None:
     assert float(perr[0]) == pytest.approx(p_ref, rel=1e-10)
 
 
+def test_view_error_of_a_dim_render_is_that_of_the_render_scaled_up(m, rng) -> None:
+    """The exposure (SPEC section 7) makes E scale-free: a float32 render of energy below 1e-30 (a
+    dim light the design accepts) must give the error of the same render at scale 1, and
+    an all-zero render E = 1 with exposure 0 (not 0/0)."""
+    n = 400
+    r = rng.uniform(0.5, 1, n)  # (1e-18 r)^2 stays a normal float32
+    t = rng.uniform(0, 1, n)
+    mask = np.ones(n)
+    F = m.Float
+    err_1, s_1 = view_error(F(r), F(t), F(mask), "linear")
+    err_dim, s_dim = view_error(F(r * 1e-18), F(t), F(mask), "linear")
+    assert float(err_dim[0]) == pytest.approx(float(err_1[0]), rel=1e-4)
+    assert float(s_dim[0]) == pytest.approx(float(s_1[0]) * 1e18, rel=1e-4)
+    err_0, s_0 = view_error(F(np.zeros(n)), F(t), F(mask), "linear")
+    assert float(s_0[0]) == 0.0 and float(err_0[0]) == pytest.approx(1.0, rel=1e-6)
+
+
 def test_merge_penalty_pushes_close_parallel_scratches_apart(m, board) -> None:
     design, targets, _ = board
     base = np.array([[-2.0, 0.0], [2.0, 0.0]])

@@ -73,7 +73,7 @@ def view_error(render: Any, target: Any, mask: Any, space: Space) -> tuple[Any, 
     r = render * mask
     rt = dr.sum(r * target, mode="symbolic")
     rr = dr.sum(r * r, mode="symbolic")
-    s = rt / dr.maximum(rr, 1e-30)
+    s = rt / dr.select(rr > 0, rr, 1.0)  # scale-free: a dim render's rr may be below 1e-30
     if space == "linear":
         s = dr.detach(s)
         diff = s * r - target
