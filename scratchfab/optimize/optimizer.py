@@ -16,10 +16,13 @@ moves the last bits of the gradients (the tests bound this). The touch masks for
 next step are evaluated together with the step itself. Only a refresh step evaluates
 the masks of its fresh pairs beforehand.
 
-The step itself (:meth:`_train`: loss, backward, Adam, next endpoints and masks) runs
-under ``dr.freeze``. After the first call of each shape, it replays the recorded
-kernels without tracing again: the same kernels, so the same bits, with the tracing and
-AD bookkeeping gone. Its outputs come back evaluated, which is the step's one evaluation.
+Within a touching pair, most of the closed form's terms are exact zeros too: Green's line
+integral is a sum over the footprint's 4 edges and the kinks y = 0 and y = L of eight
+terms, and only the edges that cross the scratch's narrow band, and only past the far
+end for y = L, add anything (2 for about 60 % of the pairs, 3 or 4 for most others).
+After the touch masks, :meth:`_classes` sorts the touching pairs by how many terms they
+need (:func:`piece_codes`), and the step renders each class with a kernel of that many
+terms (:func:`render_classes`); a pair with none is left out.
 """
 
 from __future__ import annotations
@@ -51,20 +54,38 @@ from scratchfab.optimize.params import (
 )
 from scratchfab.render.pairs import Pairs
 from scratchfab.render.profile import solve_wbar
-from scratchfab.render.renderer import ViewRenderer, render_pairs
+from scratchfab.render.renderer import (
+    CLASS_SIZES,
+    ViewRenderer,
+    piece_codes,
+    render_classes,
+    render_pairs,
+    sort_classes,
+)
 
 #: Slack (mm) of :meth:`LayoutOptimizer._touching`: a pair is dropped only when its
 #: footprint lies this far beyond its scratch's rectangle, a million times the float64
 #: rounding of board coordinates (about 1e-14 mm on a 100 mm board).
 TOUCH_SLACK_MM = 1e-8
 
+#: The class arrays of :meth:`LayoutOptimizer._classes` have sizes of distinct residues
+#: modulo this (at least 2 + the number of views x classes; more are rare, then it only
+#: records the frozen step again when sizes happen to match).
+CLASS_PAD = 64
+
 #: Per view, the positions among the pairs in use of those a step renders (Dr.Jit UInt32).
 Active = list[Any]
 
+#: Per view and class (:data:`CLASS_SIZES`, then the full kernel), the positions among the
+#: view's touching pairs (:data:`Active`) of those the step renders by that class and
+#: their :func:`piece_codes` codes (Dr.Jit UInt32), or None for none.
+Classes = list[list[tuple[Any, Any] | None]]
+
 #: Per view, what :meth:`LayoutOptimizer._objective` renders: the (pixel, scratch) indices
-#: of the pairs in use and the positions among them to render (None: all), or None when
-#: the view renders no pair.
-ViewPairs = tuple[Any, Any, Any] | None
+#: of the pairs in use, the positions among them to render (None: all) and, if not None,
+#: per class the positions and codes of the pairs it renders (:data:`Classes`); or None
+#: when the view renders no pair.
+ViewPairs = tuple[Any, Any, Any, list[tuple[Any, Any] | None] | None] | None
 
 
 class NonFiniteError(ScratchfabError):
@@ -191,6 +212,8 @@ class LayoutOptimizer:
         self.pairs: list[Pairs] = []
         #: The touching subset of ``pairs`` at the current parameters (None: not known).
         self.active: Active | None = None
+        #: Per view and class, the pairs the next step renders (:meth:`_classes`).
+        self.classes: Classes | None = None
         # A step's shape (which views render pairs, whether merge candidates exist, whether
         # the next step refreshes) keys its recording; a few recordings a run is normal.
         self._train_step = (
@@ -252,6 +275,7 @@ class LayoutOptimizer:
         self.iteration = int(state["iteration"])
         self.ends = self._ends_np()
         self.active = None
+        self.classes = None
         if "refresh_ends" in state:
             self._refresh(np.asarray(state["refresh_ends"], dtype=self.dtype))
         else:
@@ -267,6 +291,7 @@ class LayoutOptimizer:
         half = self.width / 2
         self.pairs = [r.find_pairs(p0, p1, half, self.margin) for r in self.renderers]
         self.active = None
+        self.classes = None
         reach = self.tool_width + 2 * (self.margin - float(np.max(half)))
         slack = 2 * self.settings.refresh_every * float(self.settings.lr["theta"])
         i, j = neighbour_pairs(p0, p1, reach, slack)
@@ -319,6 +344,46 @@ class LayoutOptimizer:
         """The positions of the pairs that ``masks`` (evaluated) keep, in order."""
         return [dr.compress(mask) for mask in masks]
 
+    def _classes(self, ends: tuple[Any, Any, Any, Any], active: Active) -> Classes:
+        """Per view and class, positions among the ``active`` pairs and :func:`piece_codes`.
+
+        A pair whose 8 terms are all exact zeros at endpoints ``ends`` (slack
+        TOUCH_SLACK_MM) is left out; the others go to the first class of
+        :data:`CLASS_SIZES` that holds their count of terms, or to the full kernel.
+        Evaluated (it compresses).
+        """
+        U = self.m.UInt32
+        with dr.suspend_grad():
+            p0x, p0y, p1x, p1y = (dr.detach(e) for e in ends)
+            codes: list[tuple[Any, Any] | None] = []
+            for r, p, keep in zip(self.renderers, self.pairs, active, strict=True):
+                if dr.width(keep) == 0:
+                    codes.append(None)
+                    continue
+                pix, sc = dr.gather(U, p.pixel, keep), dr.gather(U, p.scratch, keep)
+                codes.append(
+                    piece_codes(
+                        r.state, p0x, p0y, p1x, p1y, self._half_width, pix, sc, TOUCH_SLACK_MM
+                    )
+                )
+            dr.eval(codes)
+            # dr.freeze records again whenever two of its inputs' sizes start or stop
+            # being equal: each class of each view is padded to its own residue
+            per_view = len(CLASS_SIZES) + 1
+            out: Classes = [
+                [None] * per_view
+                if spec is None
+                else sort_classes(*spec, pad=CLASS_PAD, first_residue=2 + v * per_view)
+                for v, spec in enumerate(codes)
+            ]
+        return out
+
+    def class_counts(self) -> list[int]:
+        """Number of pairs per view that the next step renders (empty: not known yet)."""
+        if self.classes is None:
+            return []
+        return [sum(0 if c is None else dr.width(c[0]) for c in view) for view in self.classes]
+
     def active_counts(self) -> list[int]:
         """Number of pairs per view that the next step renders (after a refresh: all)."""
         if self.active is None:
@@ -339,13 +404,19 @@ class LayoutOptimizer:
             "neighbours": self.neighbours if self._neighbour_count > 0 else None,
         }
 
-    def _view_pairs(self, active: Active | None) -> list[ViewPairs]:
-        """What each view renders: the pairs in use, those of ``active`` (None: all)."""
+    def _view_pairs(self, active: Active | None, classes: Classes | None = None) -> list[ViewPairs]:
+        """What each view renders: the pairs in use, those of ``active`` (None: all).
+
+        With ``classes`` (:meth:`_classes` of ``active``), those by class.
+        """
         out: list[ViewPairs] = []
         for i, p in enumerate(self.pairs):
             keep = None if active is None else active[i]
             n = len(p) if keep is None else dr.width(keep)
-            out.append((p.pixel, p.scratch, keep) if n > 0 else None)
+            by_class = None if classes is None else classes[i]
+            if by_class is not None and all(c is None for c in by_class):
+                n = 0
+            out.append((p.pixel, p.scratch, keep, by_class) if n > 0 else None)
         return out
 
     # ------------------------------------------------------------------ step
@@ -380,13 +451,19 @@ class LayoutOptimizer:
             if spec is None:  # ViewRenderer.render's image without pairs: the flat board
                 img = state["factor"] * state["on_board"] * state["d_flat"]
             else:
-                pixel, scratch, keep = spec
+                pixel, scratch, keep, by_class = spec
                 if keep is not None:
                     pixel, scratch = dr.gather(U, pixel, keep), dr.gather(U, scratch, keep)
-                img = render_pairs(
-                    state, r.alpha, r.pixel_count, p0x, p0y, p1x, p1y, half_width, wbar,
-                    pixel, scratch,
-                )  # fmt: skip
+                if by_class is not None:
+                    img = render_classes(
+                        state, r.alpha, r.pixel_count, p0x, p0y, p1x, p1y, half_width, wbar,
+                        pixel, scratch, by_class,
+                    )  # fmt: skip
+                else:
+                    img = render_pairs(
+                        state, r.alpha, r.pixel_count, p0x, p0y, p1x, p1y, half_width, wbar,
+                        pixel, scratch,
+                    )  # fmt: skip
             err, _s = view_error(img, target, mask, s.space)
             renders.append(img)
             errors.append(err)
@@ -455,12 +532,15 @@ class LayoutOptimizer:
                 masks = self._touching(endpoints(*self._projected()), ctx)
             dr.eval(masks)  # fresh pairs: the one step with a second evaluation
             self.active = self._compress(masks)
+            self.classes = None
+        if self.classes is None:
+            self.classes = self._classes(endpoints(*self._projected()), self.active)
         # A frozen replay updates the optimizer's arrays in place (the same Python objects
         # get the new values), so the state to restore is held by new objects.
         saved = {k: _hold(self.opt.state[k]) for k in KEYS}
         refresh_next = (self.iteration + 1) % self.settings.refresh_every == 0
         loss, errors, renders, new_ends, next_masks = self._train_step(
-            self.opt, ctx, self._view_pairs(self.active), not refresh_next
+            self.opt, ctx, self._view_pairs(self.active, self.classes), not refresh_next
         )
         dr.schedule(loss, errors, renders, new_ends, next_masks)
         dr.eval()  # traced (freeze=False); a frozen step's outputs are evaluated already
@@ -482,6 +562,7 @@ class LayoutOptimizer:
                 dr.enable_grad(saved[k][0])
                 dr.clear_grad(saved[k][0])  # the failed step's backward reached it
             self.active = None
+            self.classes = None
             what = "gradient" if finite_loss else "loss"
             raise NonFiniteError(
                 f"non-finite {what} at iteration {self.iteration}; the run stopped and the "
@@ -489,6 +570,7 @@ class LayoutOptimizer:
             )
         self.ends = np.stack([np.asarray(e, dtype=self.dtype) for e in new_ends], axis=1)
         self.active = self._compress(next_masks) if next_masks else None
+        self.classes = None if self.active is None else self._classes(new_ends, self.active)
         self.iteration += 1
         return StepResult(
             loss_value,

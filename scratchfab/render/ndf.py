@@ -212,6 +212,50 @@ def _edge_piece(
 PieceFn = Callable[[Any, Any, Any, Any], Any]
 
 
+def _frame(p0x: Any, p0y: Any, p1x: Any, p1y: Any) -> tuple[Any, Any, Any]:
+    """(ux, uy, L): the scratch's unit direction and length (direction (0, 1) when L = 0)."""
+    ex, ey = p1x - p0x, p1y - p0y
+    length = dr.sqrt(dr.maximum(ex * ex + ey * ey, 1e-300))
+    inv_len = dr.rcp(dr.select(length > 0, length, 1.0))
+    ux = dr.select(length > 0, ex * inv_len, 0.0)
+    uy = dr.select(length > 0, ey * inv_len, 1.0)
+    return ux, uy, length
+
+
+def _local(qx: Any, qy: Any, p0x: Any, p0y: Any, ux: Any, uy: Any) -> tuple[Any, Any]:
+    """A board point in the right-handed scratch frame: x across (uy, -ux), y along (ux, uy)."""
+    rx, ry = qx - p0x, qy - p0y
+    return rx * uy - ry * ux, rx * ux + ry * uy
+
+
+def quad_orientation(quad_x: Sequence[Any], quad_y: Sequence[Any]) -> Any:
+    """+1 for a counter-clockwise quadrilateral, -1 for a clockwise one (shoelace sign)."""
+    n = len(quad_x)
+    signed = type(quad_x[0])(0.0)
+    for i in range(n):
+        j = (i + 1) % n
+        signed = signed + (quad_x[i] * quad_y[j] - quad_x[j] * quad_y[i])
+    return dr.select(signed < 0, -1.0, 1.0)
+
+
+def _edge(
+    xa: Any,
+    ya: Any,
+    xb: Any,
+    yb: Any,
+    k: Any,
+    half_width: Any,
+    x_lo: Any,
+    x_hi: Any,
+    piece: PieceFn,
+) -> tuple[Any, Any]:
+    """(line integral of S D, twice the area term) of edge a -> b's part with y > k (eq. 4)."""
+    dx, dy = xb - xa, yb - ya
+    a0, a1, av0, av1 = _edge_piece(xa, ya, dx, dy, -half_width, half_width, k)
+    x0, x1, v0, v1 = _edge_piece(xa, ya, dx, dy, x_lo, x_hi, k)
+    return piece(x0, x1, v0, v1), (a1 - a0) * (av0 + av1)
+
+
 def _footprint(
     quad_x: Sequence[Any],
     quad_y: Sequence[Any],
@@ -233,23 +277,14 @@ def _footprint(
     need it.
     """
     float_t = type(p0x)
-    ex, ey = p1x - p0x, p1y - p0y
-    length = dr.sqrt(dr.maximum(ex * ex + ey * ey, 1e-300))
-    inv_len = dr.rcp(dr.select(length > 0, length, 1.0))
-    ux = dr.select(length > 0, ex * inv_len, 0.0)
-    uy = dr.select(length > 0, ey * inv_len, 1.0)
-    # right-handed scratch frame: x across along (uy, -ux), y along (ux, uy)
+    ux, uy, length = _frame(p0x, p0y, p1x, p1y)
     lx, ly = [], []
     for qx, qy in zip(quad_x, quad_y, strict=True):
-        rx, ry = qx - p0x, qy - p0y
-        lx.append(rx * uy - ry * ux)
-        ly.append(rx * ux + ry * uy)
+        x, y = _local(qx, qy, p0x, p0y, ux, uy)
+        lx.append(x)
+        ly.append(y)
     n = len(lx)
-    signed = float_t(0.0)
-    for i in range(n):
-        j = (i + 1) % n
-        signed = signed + (quad_x[i] * quad_y[j] - quad_x[j] * quad_y[i])
-    orient = dr.select(signed < 0, -1.0, 1.0)
+    orient = quad_orientation(quad_x, quad_y)
     hxl = hx * uy - hy * ux
     x_lo, x_hi = _ndf_cutoff(hxl, hz, half_width, wbar)
     piece = make_piece(hxl)
@@ -258,13 +293,11 @@ def _footprint(
     magnitude = float_t(0.0)
     for i in range(n):
         j = (i + 1) % n
-        dx, dy = lx[j] - lx[i], ly[j] - ly[i]
         edge = float_t(0.0)
         for k, sign in ((0.0, 1.0), (length, -1.0)):
-            a0, a1, av0, av1 = _edge_piece(lx[i], ly[i], dx, dy, -half_width, half_width, k)
-            area = area + sign * (a1 - a0) * (av0 + av1)
-            x0, x1, v0, v1 = _edge_piece(lx[i], ly[i], dx, dy, x_lo, x_hi, k)
-            edge = edge + sign * piece(x0, x1, v0, v1)
+            value, twice_area = _edge(lx[i], ly[i], lx[j], ly[j], k, half_width, x_lo, x_hi, piece)
+            area = area + sign * twice_area
+            edge = edge + sign * value
         ndf = ndf + edge
         if with_magnitude:
             magnitude = magnitude + dr.abs(edge)
@@ -475,3 +508,104 @@ def scratch_footprint_ndf_magnitude(
     return _footprint(
         quad_x, quad_y, p0x, p0y, p1x, p1y, half_width, wbar, hx, hy, hz, make_piece, True
     )[2]
+
+
+#: Number of terms of a footprint in :func:`scratch_edges_ndf`; slot 2 i + far is edge i
+#: (corner i to corner i + 1) with far 0 (the kink y = 0) or 1 (y = L).
+EDGE_SLOTS = 8
+
+
+def scratch_edges_ndf(
+    edges: Sequence[tuple[Any, Any, Any, Any, Any]],
+    orient: Any,
+    p0x: Any,
+    p0y: Any,
+    p1x: Any,
+    p1y: Any,
+    half_width: Any,
+    wbar: Any,
+    hx: Any,
+    hy: Any,
+    hz: Any,
+    alpha: Any,
+) -> tuple[Any, Any]:
+    """The sum of some of the eight terms whose sum is :func:`scratch_footprint_ndf`.
+
+    Green's line integral (eq. 3) with clamp(y, 0, L) = y+ - (y - L)+ is a sum over the
+    footprint's 4 edges and the two kinks k = 0, L of eq. 4's pieces. Most of the eight
+    terms of a (pixel, scratch) pair are exactly 0 (:func:`edge_piece_masks`); passing
+    only the others gives the same integrals for a fraction of the work (the scratch's
+    frame and poles are shared by the terms, as in :func:`scratch_footprint_ndf`).
+
+    Args:
+        edges: per term (ax, ay, bx, by, far): the edge from corner a to the next corner
+            b of the footprint (mm), and far (Dr.Jit Bool): the term of the kink k = L
+            (True) or k = 0 (False).
+        orient: :func:`quad_orientation` of the whole footprint.
+        p0x: scratch start x (mm), and the other arguments as :func:`scratch_footprint_ndf`.
+        p0y: see p0x.
+        p1x: see p0x.
+        p1y: see p0x.
+        half_width: see p0x.
+        wbar: see p0x.
+        hx: see p0x.
+        hy: see p0x.
+        hz: see p0x.
+        alpha: see p0x.
+
+    Returns:
+        (ndf_integral, covered_area) of the terms passed, in mm^2.
+    """
+    float_t = type(p0x)
+    ux, uy, length = _frame(p0x, p0y, p1x, p1y)
+    hxl = hx * uy - hy * ux
+    x_lo, x_hi = _ndf_cutoff(hxl, hz, half_width, wbar)
+    piece = _closed_form_pieces(hz, wbar, alpha)(hxl)
+    ndf = float_t(0.0)
+    area = float_t(0.0)
+    for ax, ay, bx, by, far in edges:
+        xa, ya = _local(ax, ay, p0x, p0y, ux, uy)
+        xb, yb = _local(bx, by, p0x, p0y, ux, uy)
+        k = dr.select(far, length, 0.0)
+        value, twice_area = _edge(xa, ya, xb, yb, k, half_width, x_lo, x_hi, piece)
+        ndf = ndf + dr.select(far, -value, value)
+        area = area + dr.select(far, -twice_area, twice_area)
+    # Green: integral over the region = -(closed line integral), counter-clockwise
+    return -orient * ndf, -0.5 * orient * area
+
+
+def edge_piece_masks(
+    quad_x: Sequence[Any],
+    quad_y: Sequence[Any],
+    p0x: Any,
+    p0y: Any,
+    p1x: Any,
+    p1y: Any,
+    half_width: Any,
+    slack: float,
+) -> list[Any]:
+    """Per slot (:data:`EDGE_SLOTS`), False where that term of the footprint is exactly 0.
+
+    A term is dropped only when its edge, in the scratch's frame, lies more than ``slack``
+    (mm) beyond one side of the band |x| <= w, or more than ``slack`` below its kink
+    y = k. Its piece (:func:`_edge_piece`) then has equal ends, so the term is exactly 0
+    with exactly zero derivatives; ``slack`` covers the rounding of the frame between
+    this kernel and the one that evaluates the terms. Arguments as
+    :func:`scratch_footprint_ndf`.
+    """
+    ux, uy, length = _frame(p0x, p0y, p1x, p1y)
+    lx, ly = [], []
+    for qx, qy in zip(quad_x, quad_y, strict=True):
+        x, y = _local(qx, qy, p0x, p0y, ux, uy)
+        lx.append(x)
+        ly.append(y)
+    w = half_width + slack
+    masks = []
+    n = len(lx)
+    for i in range(n):
+        j = (i + 1) % n
+        across = (dr.minimum(lx[i], lx[j]) <= w) & (dr.maximum(lx[i], lx[j]) >= -w)
+        top = dr.maximum(ly[i], ly[j]) + slack
+        masks.append(across & (top >= 0.0))
+        masks.append(across & (top >= length))
+    return masks

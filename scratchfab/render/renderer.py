@@ -26,11 +26,26 @@ from scratchfab.backend import BackendName, array_module, jit_array
 from scratchfab.model.camera import Camera, polygon_area
 from scratchfab.model.design import Design, View
 from scratchfab.model.scratches import ScratchSet
-from scratchfab.render.ndf import scratch_footprint_ndf
+from scratchfab.render.ndf import (
+    EDGE_SLOTS,
+    edge_piece_masks,
+    quad_orientation,
+    scratch_edges_ndf,
+    scratch_footprint_ndf,
+)
 from scratchfab.render.pairs import Pairs, raster_pairs, scratch_rectangles
 from scratchfab.render.profile import solve_wbar
 
-__all__ = ["ViewRenderer", "render_pairs", "render_scratches", "onboard_area", "ggx_d"]
+__all__ = [
+    "ViewRenderer",
+    "render_pairs",
+    "render_classes",
+    "piece_codes",
+    "sort_classes",
+    "render_scratches",
+    "onboard_area",
+    "ggx_d",
+]
 
 
 def ggx_d(c: np.ndarray, alpha: float) -> np.ndarray:
@@ -131,6 +146,11 @@ class ViewRenderer:
         flat_quads = quads.reshape(-1, 4, 2)
         self._qx = [jit_array(F, flat_quads[:, k, 0]) for k in range(4)]
         self._qy = [jit_array(F, flat_quads[:, k, 1]) for k in range(4)]
+        self._orient = F(quad_orientation(self._qx, self._qy))
+        # the corners again, pixel-major (4 j + k): the class kernels gather them by edge
+        self._qx4 = jit_array(F, flat_quads[:, :, 0].ravel())
+        self._qy4 = jit_array(F, flat_quads[:, :, 1].ravel())
+        dr.eval(self._orient)
         flat_h = h.reshape(-1, 3)
         self._h = [jit_array(F, flat_h[:, k]) for k in range(3)]
         self._factor = jit_array(F, factor)
@@ -181,6 +201,9 @@ class ViewRenderer:
         return {
             "qx": self._qx,
             "qy": self._qy,
+            "orient": self._orient,
+            "qx4": self._qx4,
+            "qy4": self._qy4,
             "h": self._h,
             "factor": self._factor,
             "on_board": self._on_board,
@@ -307,8 +330,227 @@ def render_pairs(
     covered_sum = dr.zeros(F, pixel_count)
     dr.scatter_reduce(dr.ReduceOp.Add, ndf_sum, ndf, pixel)
     dr.scatter_reduce(dr.ReduceOp.Add, covered_sum, covered, pixel)
+    return _radiance(state, ndf_sum, covered_sum)
+
+
+def _radiance(state: dict[str, Any], ndf_sum: Any, covered_sum: Any) -> Any:
+    """SPEC section 4's radiance from the per-pixel sums of the pairs' NDF and covered area."""
     remainder = dr.maximum(0.0, state["on_board"] - covered_sum) * state["d_flat"]
     return state["factor"] * (ndf_sum + remainder)
+
+
+#: Term counts of the classes of :func:`render_classes`: a pair with at most 2, 3 or 4 terms
+#: that may not be 0 (:func:`piece_codes`) is rendered by the kernel of that many terms,
+#: any other by :func:`pair_footprints` (all 8).
+CLASS_SIZES = (2, 3, 4)
+
+#: A :func:`piece_codes` code that marks a padding entry of a class: it adds exactly 0.
+NULL_CODE = 0xFFFFFFFF
+
+#: Per class (:data:`CLASS_SIZES`, then the full kernel), the positions of its pairs among
+#: those of :func:`render_classes` and their codes (:func:`piece_codes` or
+#: :data:`NULL_CODE`), Dr.Jit UInt32; or None for an empty class.
+ClassPairs = list[tuple[Any, Any] | None]
+
+
+def piece_codes(
+    state: dict[str, Any],
+    p0x: Any,
+    p0y: Any,
+    p1x: Any,
+    p1y: Any,
+    half_width: Any,
+    pixel: Any,
+    scratch: Any,
+    slack: float,
+) -> tuple[Any, Any]:
+    """(count, code) of each (pixel, scratch) pair: which of its 8 terms to evaluate.
+
+    :func:`scratchfab.render.ndf.edge_piece_masks` marks the terms that may not be
+    exactly 0; ``count`` is their number and ``code`` lists every slot 0..7 in 3 bits each,
+    lowest first: those terms, then the others. The first ``n >= count`` slots of the code
+    therefore give the pair's footprint integrals (the others add exact zeros, with exactly
+    zero derivatives).
+    """
+    F = type(state["factor"])
+    U = type(pixel)
+    masks = edge_piece_masks(
+        [dr.gather(F, q, pixel) for q in state["qx"]],
+        [dr.gather(F, q, pixel) for q in state["qy"]],
+        dr.gather(F, p0x, scratch),
+        dr.gather(F, p0y, scratch),
+        dr.gather(F, p1x, scratch),
+        dr.gather(F, p1y, scratch),
+        dr.gather(F, half_width, scratch),
+        slack,
+    )
+    count = U(0)
+    code = U(0)
+    for slot, mask in enumerate(masks):
+        code = code | dr.select(mask, U(slot) << (3 * count), 0)
+        count = count + dr.select(mask, U(1), U(0))
+    at = U(count)
+    for slot, mask in enumerate(masks):
+        code = code | dr.select(mask, 0, U(slot) << (3 * at))
+        at = at + dr.select(mask, U(0), U(1))
+    return count, code
+
+
+def sort_classes(count: Any, code: Any, pad: int = 1, first_residue: int = 0) -> ClassPairs:
+    """:data:`ClassPairs` of pairs with :func:`piece_codes` ``(count, code)`` (evaluated).
+
+    Each pair goes to the first class of :data:`CLASS_SIZES` that holds its count, or to
+    the full kernel; pairs with count 0 (all terms exact zeros) to none. With ``pad`` > 1,
+    class ``c`` is padded with :data:`NULL_CODE` entries (which add nothing) to a size of
+    residue ``first_residue + c`` modulo ``pad`` (a dr.freeze replay needs the pattern of
+    equal input sizes to stay the same).
+    """
+    U = type(count)
+    classes: ClassPairs = []
+    low = 1
+    for c, size in enumerate([*CLASS_SIZES, EDGE_SLOTS]):
+        idx: Any = dr.compress((count >= low) & (count <= size))
+        low = size + 1
+        n = dr.width(idx)
+        if n == 0:
+            classes.append(None)
+            continue
+        padded = n + (first_residue + c - n) % pad
+        at = dr.arange(U, padded)
+        idx = dr.gather(U, idx, dr.minimum(at, n - 1))
+        classes.append((idx, dr.select(at >= n, NULL_CODE, dr.gather(U, code, idx))))
+    dr.eval(classes)
+    return classes
+
+
+def class_footprints(
+    state: dict[str, Any],
+    alpha: float,
+    p0x: Any,
+    p0y: Any,
+    p1x: Any,
+    p1y: Any,
+    half_width: Any,
+    wbar: Any,
+    pixel: Any,
+    scratch: Any,
+    code: Any,
+    terms: int,
+) -> tuple[Any, Any]:
+    """The first ``terms`` terms of each pair's :func:`piece_codes` code, not yet summed.
+
+    Arguments as :func:`pair_footprints`; equal to it (to rounding) where ``terms`` is at
+    least the pair's count.
+    """
+    F = type(state["factor"])
+    U = type(pixel)
+    hx, hy, hz = (dr.gather(F, c, pixel) for c in state["h"])
+    base = pixel * 4
+    edges = []
+    for n in range(terms):
+        slot = (code >> (3 * n)) & 7
+        first = base + (slot >> 1)
+        second = base + (((slot >> 1) + 1) & 3)
+        edges.append(
+            (
+                dr.gather(F, state["qx4"], first),
+                dr.gather(F, state["qy4"], first),
+                dr.gather(F, state["qx4"], second),
+                dr.gather(F, state["qy4"], second),
+                (slot & 1) == U(1),
+            )
+        )
+    return scratch_edges_ndf(
+        edges,
+        dr.gather(F, state["orient"], pixel),
+        dr.gather(F, p0x, scratch),
+        dr.gather(F, p0y, scratch),
+        dr.gather(F, p1x, scratch),
+        dr.gather(F, p1y, scratch),
+        dr.gather(F, half_width, scratch),
+        dr.gather(F, wbar, scratch),
+        hx,
+        hy,
+        hz,
+        alpha,
+    )
+
+
+def render_classes(
+    state: dict[str, Any],
+    alpha: float,
+    pixel_count: int,
+    p0x: Any,
+    p0y: Any,
+    p1x: Any,
+    p1y: Any,
+    half_width: Any,
+    wbar: Any,
+    pixel: Any,
+    scratch: Any,
+    classes: ClassPairs,
+) -> Any:
+    """:func:`render_pairs` of the pairs that ``classes`` lists, each class by its own kernel.
+
+    The pairs of class ``c`` (of :data:`CLASS_SIZES`) must have a :func:`piece_codes`
+    count of at most ``CLASS_SIZES[c]``; their kernel evaluates only that many of the 8
+    terms, which gives the image (and derivatives) of :func:`render_pairs` to rounding.
+    Entries with code :data:`NULL_CODE` add nothing (padding, see
+    :meth:`scratchfab.optimize.optimizer.LayoutOptimizer._classes`). Pairs that no
+    class lists are not rendered.
+
+    Each class adds its pairs into pixel buffers of its own, and reads the scratch
+    arrays through its own AD node (``x + 0.0``), so that the backward pass adds its
+    derivatives into a buffer of its own too; the sums over classes are then formed in
+    a fixed order. Scatter-adds of several kernels into one buffer would add in the order
+    the kernels run, which a dr.freeze replay takes from its recording and tracing from
+    the current sizes, so frozen and traced steps would differ in the last bits.
+
+    Args:
+        state: :attr:`ViewRenderer.state`.
+        alpha: GGX roughness.
+        pixel_count: H * W.
+        p0x: Scratch start x (Float64), and the other scratch arrays as :func:`render_pairs`.
+        p0y: see p0x.
+        p1x: see p0x.
+        p1y: see p0x.
+        half_width: see p0x.
+        wbar: see p0x.
+        pixel: (pixel, scratch) pairs: pixel indices (UInt32).
+        scratch: Their scratch indices.
+        classes: :data:`ClassPairs` into those pairs, one entry per class and one for the
+            full kernel.
+
+    Returns:
+        Dr.Jit Float64 (pixel_count,) linear radiance.
+    """
+    if len(classes) != len(CLASS_SIZES) + 1:
+        raise ValueError(f"render_classes takes {len(CLASS_SIZES) + 1} classes, got {len(classes)}")
+    F = type(state["factor"])
+    U = type(pixel)
+    ndf_sum = dr.zeros(F, pixel_count)
+    covered_sum = dr.zeros(F, pixel_count)
+    for c, spec in enumerate(classes):
+        if spec is None:
+            continue
+        at, code = spec
+        pix, sc = dr.gather(U, pixel, at), dr.gather(U, scratch, at)
+        x0, y0, x1, y1 = (e + 0.0 for e in (p0x, p0y, p1x, p1y))
+        if c < len(CLASS_SIZES):
+            ndf, covered = class_footprints(
+                state, alpha, x0, y0, x1, y1, half_width, wbar, pix, sc, code, CLASS_SIZES[c]
+            )
+        else:
+            ndf, covered = pair_footprints(state, alpha, x0, y0, x1, y1, half_width, wbar, pix, sc)
+        null = code == NULL_CODE
+        ndf, covered = dr.select(null, 0.0, ndf), dr.select(null, 0.0, covered)
+        ndf_class = dr.zeros(F, pixel_count)
+        covered_class = dr.zeros(F, pixel_count)
+        dr.scatter_reduce(dr.ReduceOp.Add, ndf_class, ndf, pix)
+        dr.scatter_reduce(dr.ReduceOp.Add, covered_class, covered, pix)
+        ndf_sum = ndf_sum + ndf_class
+        covered_sum = covered_sum + covered_class
+    return _radiance(state, ndf_sum, covered_sum)
 
 
 def render_scratches(
