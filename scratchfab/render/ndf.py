@@ -94,14 +94,15 @@ def _moments(eps: Complex) -> tuple[Complex, Complex, Complex, Complex]:
     n1_s = (inv2[0] - 2.0 * tail[0], inv2[1] - 2.0 * tail[1])
     ell_s = (1.0 - (es[0] * n1_s[0] - es[1] * n1_s[1]), -(es[0] * n1_s[1] + es[1] * n1_s[0]))
     n2_s = (inv1[0] - n1_s[0], inv1[1] - n1_s[1])
-    # logarithm (eps kept away from 0 elsewhere)
+    # logarithm (eps kept away from 0 elsewhere; where it is not, inv1 is not 1/(1 + ed),
+    # but those lanes take the series)
     ed = (dr.select(small, _SERIES_RADIUS, eps[0]), dr.select(small, 0.0, eps[1]))
     od = (1.0 + ed[0], ed[1])
-    inv_d = _cdiv((1.0, 0.0), od)
+    inv_ed = _cdiv((1.0, 0.0), ed)
     log1p = (0.5 * dr.log(od[0] * od[0] + od[1] * od[1]), dr.atan2(od[1], od[0]))
-    ell_d = _cdiv(log1p, ed)
-    n1_d = _cdiv((1.0 - ell_d[0], -ell_d[1]), ed)
-    n2_d = _cdiv((ell_d[0] - inv_d[0], ell_d[1] - inv_d[1]), ed)
+    ell_d = _cmul(log1p, inv_ed)
+    n1_d = _cmul((1.0 - ell_d[0], -ell_d[1]), inv_ed)
+    n2_d = _cmul((ell_d[0] - inv1[0], ell_d[1] - inv1[1]), inv_ed)
     return (
         _cselect(small, ell_s, ell_d),
         inv1,
