@@ -70,7 +70,7 @@ def _kept(m, cases):
     return np.stack([np.asarray(k, dtype=bool) for k in masks], axis=1)
 
 
-def _terms(m, cases, slots, rest=None):
+def _terms(m, cases, slots, rest=None, custom=False):
     """scratch_edges_ndf of the terms ``slots`` (N, S) of each case (slot 2 i + far)."""
     F = m.Float64
     quad, _qx, _qy, default = _columns(m, cases)
@@ -81,7 +81,7 @@ def _terms(m, cases, slots, rest=None):
         i, far = slots[:, n] // 2, slots[:, n] % 2
         a, b = quad[lanes, i], quad[lanes, (i + 1) % 4]
         edges.append((F(a[:, 0]), F(a[:, 1]), F(b[:, 0]), F(b[:, 1]), m.Bool(far == 1)))
-    return scratch_edges_ndf(edges, F(_orient(quad)), *rest)
+    return scratch_edges_ndf(edges, F(_orient(quad)), *rest, custom_derivative=custom)
 
 
 def _kept_first(kept):
@@ -172,11 +172,13 @@ def test_dropped_terms_are_exact_zeros_with_zero_derivatives(m):
     assert 0 < near.sum() < near.size
 
 
-def test_kept_term_gradients_match_central_differences(m):
-    """d/d(endpoints, h) of the kept terms alone against differences of the reference."""
+@pytest.mark.parametrize("custom", [False, True])
+def test_kept_term_gradients_match_central_differences(m, custom):
+    """d/d(endpoints, h) of the kept terms alone against differences of the reference;
+    with the written-out derivative (custom), d/dh_z is not provided: endpoints, h_x, h_y."""
     rng = np.random.default_rng(12)
     cases = []
-    while len(cases) < 24:
+    while len(cases) < 20:
         c = random_case(rng)
         if reference(c)[0] > 0:
             c["alpha"] = max(c["alpha"], 0.01)
@@ -186,9 +188,11 @@ def test_kept_term_gradients_match_central_differences(m):
     _quad, _qx, _qy, rest = _columns(m, cases)
     params = [("p0", 0), ("p0", 1), ("p1", 0), ("p1", 1), ("h", 0), ("h", 1), ("h", 2)]
     variables = [*rest[:4], *rest[6:9]]
+    if custom:
+        params, variables = params[:-1], variables[:-1]
     for v in variables:
         dr.enable_grad(v)
-    ndf, _area = _terms(m, cases, _kept_first(kept)[:, :size], rest)
+    ndf, _area = _terms(m, cases, _kept_first(kept)[:, :size], rest, custom)
     dr.backward(ndf)
     ad = np.stack([np.asarray(dr.grad(v), dtype=np.float64) for v in variables])
     fd = np.empty_like(ad)
@@ -203,7 +207,45 @@ def test_kept_term_gradients_match_central_differences(m):
     assert not bad.any(), [
         (params[i], j, ad[i, j], fd[i, j]) for i, j in zip(*np.nonzero(bad), strict=True)
     ][:5]
-    assert np.count_nonzero(np.abs(fd) > floor) > 60
+    assert np.count_nonzero(np.abs(fd) > floor) > 50
+
+
+@pytest.mark.parametrize("mode", ["backward", "forward"])
+def test_written_out_derivative_equals_the_traced_one(m, mode):
+    """custom_derivative: the same values, bit for bit, and the derivatives of tracing the
+    closed form, to its rounding (which grows as 1/alpha^4, module docstring of ndf)."""
+    rng = np.random.default_rng(31)
+    cases = [random_case(rng) for _ in range(1500 if FULL else 800)]
+    kept = _kept(m, cases)
+    slots = _kept_first(kept)[:, :4]  # the kept terms, and dropped ones past their count
+    F = m.Float64
+
+    def run(custom):
+        _quad, _qx, _qy, rest = _columns(m, cases)
+        variables = [*rest[:4], *rest[6:8]]  # endpoints, h_x, h_y
+        for v in variables:
+            dr.enable_grad(v)
+        ndf, area = _terms(m, cases, slots, rest, custom)
+        if mode == "backward":
+            dr.backward(ndf)
+            grads = np.stack([np.asarray(dr.grad(v)) for v in variables])
+        else:
+            for k, v in enumerate(variables):
+                dr.set_grad(v, F(np.linspace(0.2, 1.0, len(cases)) * (k + 1)))
+            grads = np.asarray(dr.forward_to(ndf))[None]
+        return np.asarray(dr.detach(ndf)), np.asarray(dr.detach(area)), grads
+
+    ndf_t, area_t, grad_t = run(False)
+    ndf_c, area_c, grad_c = run(True)
+    assert np.array_equal(ndf_t, ndf_c) and np.array_equal(area_t, area_c)
+    assert np.all(np.isfinite(grad_c))
+    size = np.abs(grad_t).max(axis=0)
+    floor = 1e-9 * size.max()
+    alpha = np.array([c["alpha"] for c in cases])
+    err = np.abs(grad_c - grad_t).max(axis=0) / np.maximum(size, floor)
+    assert err[alpha >= 0.01].max() <= 1e-8, err[alpha >= 0.01].max()
+    assert err.max() <= 1e-6, err.max()
+    assert np.count_nonzero(size > floor) > 0.5 * len(cases)
 
 
 # ---------------------------------------------------------------- renderer

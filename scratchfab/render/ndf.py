@@ -71,6 +71,10 @@ def _cdiv(a: Complex, b: Complex) -> Complex:
     return (a[0] * b[0] + a[1] * b[1]) * inv, (a[1] * b[0] - a[0] * b[1]) * inv
 
 
+def _cadd(a: Complex, b: Complex) -> Complex:
+    return a[0] + b[0], a[1] + b[1]
+
+
 def _cselect(mask: Any, a: Complex, b: Complex) -> Complex:
     return dr.select(mask, a[0], b[0]), dr.select(mask, a[1], b[1])
 
@@ -146,6 +150,12 @@ class _Poles:
         a2c = _cmul(a1, inv_z2)
         b1z3 = _cmul(b1, inv_z3)
         self.c0 = 1.0 / (q1 * q1 * q2 * q2)
+        self._parts = (q1, beta, z1, w1, w1sq, b1, t6, fac, a1, inv_z, inv_z2, b1z3, a2c)
+        a2 = alpha * alpha
+        beta2 = (1.0 - hz) * (1.0 + hz) - hx * hx + a2 * (hx * hx + hz * hz)
+        self._beta_on = beta2 > a2 * 1e-3  # as in _lobe_root
+        self._r = dr.sqrt(1.0 - alpha * alpha)
+        self._hx = hx
         self.roots = [
             (z1, a1, b1),
             (
@@ -155,10 +165,52 @@ class _Poles:
             ),
         ]
 
+    def d_hx(self) -> list[tuple[Complex, Complex, Complex]]:
+        """Per root (dz/dh_x, dA/dh_x, dB/dh_x): the derivatives of :attr:`roots` (c0 has none).
+
+        Forward-mode differentiation of the construction above, written out; where beta is
+        clamped at its floor, dbeta = 0 (as dr.maximum's derivative).
+        """
+        q1, beta, z1, w1, w1sq, b1, t6, fac, a1, inv_z, inv_z2, b1z3, a2c = self._parts
+        a2 = 1.0 - self._r * self._r
+        dbeta = dr.select(self._beta_on, -self._hx * (1.0 - a2) / beta, 0.0)
+        dz1 = (-self._r / q1, dbeta / q1)
+        dw1 = _cmul((2.0 * z1[0], 2.0 * z1[1]), dz1)
+        dw1sq = _cmul((2.0 * w1[0], 2.0 * w1[1]), dw1)
+        k = 1.0 / (16.0 * beta * beta)
+        dk = -2.0 * k * dbeta / beta
+        db1 = (-(dw1sq[0] * k + w1sq[0] * dk), -(dw1sq[1] * k + w1sq[1] * dk))
+        q6 = _cdiv((6.0 * dz1[0], 6.0 * dz1[1]), w1)
+        t6w = _cdiv(_cmul(t6, dw1), w1)
+        dt6 = (q6[0] - t6w[0], q6[1] - t6w[1])
+        dfac = (dt6[0] - q1 * dz1[0], dt6[1] + q1 * dz1[1] - q1 * dbeta / (beta * beta))
+        da1 = _cadd(_cmul(db1, fac), _cmul(b1, dfac))
+        dinv_z = _cmul(inv_z2, dz1)
+        dinv_z = (-dinv_z[0], -dinv_z[1])
+        dinv_z2 = _cmul((2.0 * inv_z[0], 2.0 * inv_z[1]), dinv_z)
+        dinv_z3 = _cmul((3.0 * inv_z2[0], 3.0 * inv_z2[1]), dinv_z)
+        inv_z3 = _cmul(inv_z2, inv_z)
+        da2c = _cadd(_cmul(da1, inv_z2), _cmul(a1, dinv_z2))
+        db1z3 = _cadd(_cmul(db1, inv_z3), _cmul(b1, dinv_z3))
+        return [
+            (dz1, da1, db1),
+            (
+                (-dinv_z[0], -dinv_z[1]),
+                (da2c[0] - 2.0 * db1z3[0], da2c[1] - 2.0 * db1z3[1]),
+                _cadd(_cmul(db1z3, inv_z), _cmul(b1z3, dinv_z)),
+            ),
+        ]
+
     def piece(self, ta: Any, delta: Any) -> tuple[Any, Any]:
         """(E0, E1): integrals of R and (t - t_a) R over [t_a, t_a + delta], over delta^(1, 2)."""
+        e0, e1, _ = self.piece_parts(ta, delta)
+        return e0, e1
+
+    def piece_parts(self, ta: Any, delta: Any) -> tuple[Any, Any, list[Any]]:
+        """:meth:`piece` and, per root, (1/c, eps, l, 1/(1 + eps), n1, n2) of the docstring."""
         e0 = self.c0
         e1 = 0.5 * self.c0
+        parts = []
         for z, a, b in self.roots:
             c = (ta - z[0], -z[1])
             inv_c = _cdiv((1.0, 0.0), c)
@@ -168,7 +220,109 @@ class _Poles:
             ell, inv1, n1, n2 = _moments(eps)
             e0 = e0 + 2.0 * (_cmul(pa, ell)[0] + _cmul(pb, inv1)[0])
             e1 = e1 + 2.0 * (_cmul(pa, n1)[0] + _cmul(pb, n2)[0])
-        return e0, e1
+            parts.append((inv_c, eps, ell, inv1, n1, n2))
+        return e0, e1, parts
+
+
+def _r_direct(t: Any, hx: Any, hz: Any, alpha: Any) -> Any:
+    """R(t) of eq. 7 from its rational form (SPEC section 8), for the derivative's ends."""
+    p = 1.0 + t * t
+    c = hz * (1.0 - t * t) - 2.0 * hx * t
+    den = p * p - (1.0 - alpha * alpha) * c * c
+    return dr.square(p * p / den)
+
+
+class _PieceSums(dr.CustomOp):
+    """The pieces of :func:`_closed_form_pieces` for several edges of one footprint.
+
+    The same values; the derivative is written out instead of traced. With
+    g = scale * integral over [x0, x1] of v(x) R(2 x / wbar) dx and v linear from v0 to
+    v1 (dv = v1 - v0, dx = x1 - x0; E0, E1 of :meth:`_Poles.piece`):
+
+        dg/dv0 = scale dx (E0 - E1),   dg/dv1 = scale dx E1,
+        dg/dx0 = -scale (v0 R(t0) + dv (E0 - E1)),   dg/dx1 = scale (v1 R(t1) - dv E1),
+
+    and dg/dh_x from each pole's dz, dA, dB (:meth:`_Poles.d_hx`): the moments of
+    1/(c + delta s)^2 and ^3 that it needs are 1/(1 + eps)^2 (1 + eps/2) and
+    1/(2 (1 + eps)^2) (with weight s), free of cancellation. Derivatives with respect to
+    h_z, wbar and alpha are not provided: use it only where those carry none.
+    """
+
+    def eval(self, x0: Any, x1: Any, v0: Any, v1: Any, hxl: Any, hz: Any, wbar: Any, alpha: Any):  # type: ignore[no-untyped-def]  # noqa: D102
+        self.args = (x0, x1, v0, v1, hxl, hz, wbar, alpha)
+        self.poles = _Poles(hxl, hz, alpha)
+        self.scale = alpha * alpha / math.pi
+        self.parts = []
+        out = []
+        for a, b, va, vb in zip(x0, x1, v0, v1, strict=True):
+            ta, delta = 2.0 * a / wbar, 2.0 * (b - a) / wbar
+            e0, e1, roots = self.poles.piece_parts(ta, delta)
+            self.parts.append((e0, e1, roots))
+            out.append(self.scale * (b - a) * (va * e0 + (vb - va) * e1))
+        return out
+
+    def _partials(self) -> list[tuple[Any, Any, Any, Any, Any]]:
+        """Per piece (dg/dx0, dg/dx1, dg/dv0, dg/dv1, dg/dh_x)."""
+        x0, x1, v0, v1, hxl, hz, wbar, alpha = self.args
+        d_roots = self.poles.d_hx()
+        out = []
+        for a, b, va, vb, (e0, e1, roots) in zip(x0, x1, v0, v1, self.parts, strict=True):
+            s, dv, dx = self.scale, vb - va, b - a
+            r0 = _r_direct(2.0 * a / wbar, hxl, hz, alpha)
+            r1 = _r_direct(2.0 * b / wbar, hxl, hz, alpha)
+            de0 = 0.0
+            de1 = 0.0
+            for (_z, big_a, big_b), (dz, da, db), (inv_c, eps, ell, inv1, n1, n2) in zip(
+                self.poles.roots, d_roots, roots, strict=True
+            ):
+                inv_c2 = _cmul(inv_c, inv_c)
+                inv_c3 = _cmul(inv_c2, inv_c)
+                inv1sq = _cmul(inv1, inv1)
+                m3 = _cmul(inv1sq, (1.0 + 0.5 * eps[0], 0.5 * eps[1]))
+                n3 = (0.5 * inv1sq[0], 0.5 * inv1sq[1])
+                a_c2 = _cmul(big_a, inv_c2)
+                b_c3 = _cmul(big_b, inv_c3)
+                t0 = _cadd(
+                    _cadd(_cmul(_cmul(da, inv_c), ell), _cmul(_cmul(db, inv_c2), inv1)),
+                    _cmul(dz, _cadd(_cmul(a_c2, inv1), _cmul((2.0 * b_c3[0], 2.0 * b_c3[1]), m3))),
+                )
+                t1 = _cadd(
+                    _cadd(_cmul(_cmul(da, inv_c), n1), _cmul(_cmul(db, inv_c2), n2)),
+                    _cmul(dz, _cadd(_cmul(a_c2, n2), _cmul((2.0 * b_c3[0], 2.0 * b_c3[1]), n3))),
+                )
+                de0 = de0 + 2.0 * t0[0]
+                de1 = de1 + 2.0 * t1[0]
+            out.append(
+                (
+                    -s * (va * r0 + dv * (e0 - e1)),
+                    s * (vb * r1 - dv * e1),
+                    s * dx * (e0 - e1),
+                    s * dx * e1,
+                    s * dx * (va * de0 + dv * de1),
+                )
+            )
+        return out
+
+    def forward(self) -> None:  # noqa: D102
+        g: list[Any] = [self.grad_in(k) for k in ("x0", "x1", "v0", "v1")]
+        gh = self.grad_in("hxl")
+        out = []
+        for n, (p0, p1, q0, q1, ph) in enumerate(self._partials()):
+            out.append(p0 * g[0][n] + p1 * g[1][n] + q0 * g[2][n] + q1 * g[3][n] + ph * gh)
+        self.set_grad_out(out)
+
+    def backward(self) -> None:  # noqa: D102
+        go: Any = self.grad_out()
+        partials = self._partials()
+        for k, name in enumerate(("x0", "x1", "v0", "v1")):
+            self.set_grad_in(name, [p[k] * g for p, g in zip(partials, go, strict=True)])
+        gh = 0.0
+        for p, g in zip(partials, go, strict=True):
+            gh = gh + p[4] * g
+        self.set_grad_in("hxl", gh)
+
+    def name(self) -> str:  # noqa: D102
+        return "footprint pieces"
 
 
 def _ndf_cutoff(hx: Any, hz: Any, half_width: Any, wbar: Any) -> tuple[Any, Any]:
@@ -529,6 +683,7 @@ def scratch_edges_ndf(
     hy: Any,
     hz: Any,
     alpha: Any,
+    custom_derivative: bool = False,
 ) -> tuple[Any, Any]:
     """The sum of some of the eight terms whose sum is :func:`scratch_footprint_ndf`.
 
@@ -553,6 +708,9 @@ def scratch_edges_ndf(
         hy: see p0x.
         hz: see p0x.
         alpha: see p0x.
+        custom_derivative: differentiate the closed form by its written-out derivative
+            (:class:`_PieceSums`, about half the work of tracing it) where h_z, wbar and
+            alpha carry no derivative; the values are the same.
 
     Returns:
         (ndf_integral, covered_area) of the terms passed, in mm^2.
@@ -561,16 +719,26 @@ def scratch_edges_ndf(
     ux, uy, length = _frame(p0x, p0y, p1x, p1y)
     hxl = hx * uy - hy * ux
     x_lo, x_hi = _ndf_cutoff(hxl, hz, half_width, wbar)
-    piece = _closed_form_pieces(hz, wbar, alpha)(hxl)
-    ndf = float_t(0.0)
     area = float_t(0.0)
+    ends: list[list[Any]] = [[], [], [], []]
     for ax, ay, bx, by, far in edges:
         xa, ya = _local(ax, ay, p0x, p0y, ux, uy)
         xb, yb = _local(bx, by, p0x, p0y, ux, uy)
         k = dr.select(far, length, 0.0)
-        value, twice_area = _edge(xa, ya, xb, yb, k, half_width, x_lo, x_hi, piece)
-        ndf = ndf + dr.select(far, -value, value)
+        dx, dy = xb - xa, yb - ya
+        a0, a1, av0, av1 = _edge_piece(xa, ya, dx, dy, -half_width, half_width, k)
+        twice_area = (a1 - a0) * (av0 + av1)
         area = area + dr.select(far, -twice_area, twice_area)
+        for out, value in zip(ends, _edge_piece(xa, ya, dx, dy, x_lo, x_hi, k), strict=True):
+            out.append(value)
+    if custom_derivative and not any(dr.grad_enabled(v) for v in (hz, wbar, alpha)):
+        values = dr.custom(_PieceSums, *ends, hxl, hz, wbar, alpha)  # type: ignore[call-arg]
+    else:
+        piece = _closed_form_pieces(hz, wbar, alpha)(hxl)
+        values = [piece(*term) for term in zip(*ends, strict=True)]
+    ndf = float_t(0.0)
+    for (*_corners, far), value in zip(edges, values, strict=True):
+        ndf = ndf + dr.select(far, -value, value)
     # Green: integral over the region = -(closed line integral), counter-clockwise
     return -orient * ndf, -0.5 * orient * area
 

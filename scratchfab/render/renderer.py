@@ -440,7 +440,9 @@ def class_footprints(
     """The first ``terms`` terms of each pair's :func:`piece_codes` code, not yet summed.
 
     Arguments as :func:`pair_footprints`; equal to it (to rounding) where ``terms`` is at
-    least the pair's count.
+    least the pair's count. Differentiable with respect to the scratch endpoints (the
+    closed form's written-out derivative, ``custom_derivative`` of
+    :func:`scratch_edges_ndf`); the widths, profiles and the view carry none.
     """
     F = type(state["factor"])
     U = type(pixel)
@@ -473,6 +475,7 @@ def class_footprints(
         hy,
         hz,
         alpha,
+        custom_derivative=True,
     )
 
 
