@@ -27,6 +27,7 @@ terms (:func:`render_classes`); a pair with none is left out.
 
 from __future__ import annotations
 
+import gc
 import math
 from collections.abc import Mapping
 from dataclasses import astuple, dataclass
@@ -539,9 +540,20 @@ class LayoutOptimizer:
         # get the new values), so the state to restore is held by new objects.
         saved = {k: _hold(self.opt.state[k]) for k in KEYS}
         refresh_next = (self.iteration + 1) % self.settings.refresh_every == 0
-        loss, errors, renders, new_ends, next_masks = self._train_step(
-            self.opt, ctx, self._view_pairs(self.active, self.classes), not refresh_next
-        )
+        view_pairs = self._view_pairs(self.active, self.classes)
+        # Python's cycle collector may free Dr.Jit arrays in the middle of a dr.freeze
+        # recording; one that borrows NumPy memory then releases it through a host
+        # callback, which a recording cannot hold ("enqueue_host_func(): this function
+        # cannot be recorded", and Dr.Jit aborts the process). It runs after the step.
+        collecting = gc.isenabled()
+        gc.disable()
+        try:
+            loss, errors, renders, new_ends, next_masks = self._train_step(
+                self.opt, ctx, view_pairs, not refresh_next
+            )
+        finally:
+            if collecting:
+                gc.enable()
         dr.schedule(loss, errors, renders, new_ends, next_masks)
         dr.eval()  # traced (freeze=False); a frozen step's outputs are evaluated already
         loss_value = float(loss[0])

@@ -341,7 +341,7 @@ def _radiance(state: dict[str, Any], ndf_sum: Any, covered_sum: Any) -> Any:
 
 #: Term counts of the classes of :func:`render_classes`: a pair with at most 2, 3 or 4 terms
 #: that may not be 0 (:func:`piece_codes`) is rendered by the kernel of that many terms,
-#: any other by :func:`pair_footprints` (all 8).
+#: any other by the kernel of all 8.
 CLASS_SIZES = (2, 3, 4)
 
 #: A :func:`piece_codes` code that marks a padding entry of a class: it adds exactly 0.
@@ -539,12 +539,10 @@ def render_classes(
         at, code = spec
         pix, sc = dr.gather(U, pixel, at), dr.gather(U, scratch, at)
         x0, y0, x1, y1 = (e + 0.0 for e in (p0x, p0y, p1x, p1y))
-        if c < len(CLASS_SIZES):
-            ndf, covered = class_footprints(
-                state, alpha, x0, y0, x1, y1, half_width, wbar, pix, sc, code, CLASS_SIZES[c]
-            )
-        else:
-            ndf, covered = pair_footprints(state, alpha, x0, y0, x1, y1, half_width, wbar, pix, sc)
+        terms = CLASS_SIZES[c] if c < len(CLASS_SIZES) else EDGE_SLOTS
+        ndf, covered = class_footprints(
+            state, alpha, x0, y0, x1, y1, half_width, wbar, pix, sc, code, terms
+        )
         null = code == NULL_CODE
         ndf, covered = dr.select(null, 0.0, ndf), dr.select(null, 0.0, covered)
         ndf_class = dr.zeros(F, pixel_count)
