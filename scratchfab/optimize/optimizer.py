@@ -22,7 +22,9 @@ terms, and only the edges that cross the scratch's narrow band, and only past th
 end for y = L, add anything (2 for about 60 % of the pairs, 3 or 4 for most others).
 After the touch masks, :meth:`_classes` sorts the touching pairs by how many terms they
 need (:func:`piece_codes`), and the step renders each class with a kernel of that many
-terms (:func:`render_classes`); a pair with none is left out.
+terms (:func:`render_classes`); a pair with none is left out. The codes are a second,
+small evaluation after the step's (with the compresses that sort the classes); their
+kernel reads only the touching pairs.
 """
 
 from __future__ import annotations
