@@ -162,6 +162,16 @@ port = "grblsim://?time_scale=0&$130=300&$131=180&$132=45"
 """
 
 
+def write_disc_and_bar(folder: Path) -> None:
+    """The two 64 x 64 targets of the tiny pipelines: a white disc and a white bar on black."""
+    disc = Image.new("L", (64, 64), 0)
+    ImageDraw.Draw(disc).ellipse((12, 12, 52, 52), fill=255)
+    disc.save(folder / "disc.png")
+    bar = Image.new("L", (64, 64), 0)
+    ImageDraw.Draw(bar).rectangle((8, 26, 56, 38), fill=255)
+    bar.save(folder / "bar.png")
+
+
 def write_pipeline(
     folder: Path,
     min_rho: float = -1.0,
@@ -173,12 +183,7 @@ def write_pipeline(
     ``edits`` replaces text of the file (old -> new) for a variant.
     """
     folder.mkdir(parents=True, exist_ok=True)
-    disc = Image.new("L", (64, 64), 0)
-    ImageDraw.Draw(disc).ellipse((12, 12, 52, 52), fill=255)
-    disc.save(folder / "disc.png")
-    bar = Image.new("L", (64, 64), 0)
-    ImageDraw.Draw(bar).rectangle((8, 26, 56, 38), fill=255)
-    bar.save(folder / "bar.png")
+    write_disc_and_bar(folder)
     text = PIPELINE.format(min_rho=min_rho, formats=formats)
     for old, new in (edits or {}).items():
         assert old in text, old

@@ -29,9 +29,9 @@ from typing import Any
 import numpy as np
 import pytest
 import tomli_w
-from conftest import FULL
+from conftest import FULL, write_disc_and_bar
 from gcode_interp import interpret
-from PIL import Image, ImageDraw
+from PIL import Image
 from reference_render import reference_render
 
 from scratchfab.errors import ConfigError
@@ -78,12 +78,7 @@ Mutate = Callable[[dict[str, Any]], object]
 
 def _targets(folder: Path) -> None:
     """The target pictures the cases name (64 x 64 unless said)."""
-    disc = Image.new("L", (64, 64), 0)
-    ImageDraw.Draw(disc).ellipse((12, 12, 52, 52), fill=255)
-    disc.save(folder / "disc.png")
-    bar = Image.new("L", (64, 64), 0)
-    ImageDraw.Draw(bar).rectangle((8, 26, 56, 38), fill=255)
-    bar.save(folder / "bar.png")
+    write_disc_and_bar(folder)
     Image.new("L", (64, 64), 0).save(folder / "black.png")
     Image.new("L", (64, 64), 255).save(folder / "white.png")
     dot = Image.new("L", (64, 64), 0)
