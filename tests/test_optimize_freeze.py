@@ -9,6 +9,7 @@ must then agree bit for bit (one thread: atomics add in thread order).
 from __future__ import annotations
 
 import dataclasses
+import gc
 import math
 from collections.abc import Callable
 from typing import Any
@@ -399,3 +400,45 @@ def test_frozen_step_that_fails_leaves_the_state_before_it(m, board, one_thread)
     clean.step()
     _same(states[0], clean.state(), "frozen against clean")
     _same(states[1], clean.state(), "traced against clean")
+
+
+@pytest.mark.parametrize("caller_collects", [True, False])
+def test_step_turns_the_cycle_collector_off_only_during_the_step(m, board, caller_collects) -> None:
+    """The frozen step runs without Python's cycle collector (a collection inside a
+    recording can abort Dr.Jit); the caller's setting comes back after a step, a
+    NonFiniteError and an interrupt inside the step, and one that was off stays off."""
+    design, targets = board
+    layout = make_layout(design, 40, seed=17)
+    opt = LayoutOptimizer(design, targets, layout, Settings(lr=LR, refresh_every=4), m)
+    frozen = opt._train_step
+    seen: list[bool] = []
+    interrupt = [False]
+
+    def watched(*args: Any) -> Any:
+        seen.append(gc.isenabled())
+        if interrupt[0]:
+            raise KeyboardInterrupt
+        return frozen(*args)
+
+    opt._train_step = watched
+    was = gc.isenabled()
+    (gc.enable if caller_collects else gc.disable)()
+    try:
+        opt.step()
+        assert gc.isenabled() == caller_collects
+        keep = opt.renderers[0]._factor
+        opt.renderers[0]._factor = keep * math.nan
+        with pytest.raises(NonFiniteError):
+            opt.step()
+        opt.renderers[0]._factor = keep
+        assert gc.isenabled() == caller_collects
+        interrupt[0] = True
+        with pytest.raises(KeyboardInterrupt):
+            opt.step()
+        assert gc.isenabled() == caller_collects
+        interrupt[0] = False
+        opt.step()  # and the run goes on
+        assert gc.isenabled() == caller_collects
+    finally:
+        (gc.enable if was else gc.disable)()
+    assert seen == [False] * 4
