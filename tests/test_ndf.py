@@ -408,6 +408,37 @@ def _perturbed(case, name, idx, step):
     return c
 
 
+def lit_cases(rng, count, alpha=None):
+    """Random cases whose footprint integral is positive, alpha raised to 0.01 or set."""
+    cases = []
+    while len(cases) < count:
+        c = random_case(rng)
+        c["alpha"] = max(c["alpha"], 0.01) if alpha is None else alpha
+        if reference(c)[0] > 0:
+            cases.append(c)
+    return cases
+
+
+def check_against_differences(ad, cases, params, h_step, tol):
+    """ad (len(params), len(cases)) against central differences of the reference.
+
+    Returns the differences' floor: ``tol`` of each case's largest difference.
+    """
+    fd = np.empty_like(ad)
+    for k, (name, idx) in enumerate(params):
+        for j, c in enumerate(cases):
+            step = h_step if name == "h" else 1e-6 * math.sqrt(abs(shapely.Polygon(c["quad"]).area))
+            plus = reference(_perturbed(c, name, idx, step))[0]
+            minus = reference(_perturbed(c, name, idx, -step))[0]
+            fd[k, j] = (plus - minus) / (2 * step)
+    floor = tol * np.max(np.abs(fd), axis=0, keepdims=True)
+    bad = np.abs(ad - fd) > tol * np.abs(fd) + floor
+    assert not bad.any(), [
+        (params[i], j, ad[i, j], fd[i, j]) for i, j in zip(*np.nonzero(bad), strict=True)
+    ][:5]
+    return np.count_nonzero(np.abs(fd) > floor)
+
+
 def test_gradients_match_central_differences(m):
     rng = np.random.default_rng(11)
     cases = []
@@ -540,3 +571,21 @@ def test_special_cases_are_finite_and_exact(m):
     assert ndf[list(cases).index("beside the scratch")] == 0
     assert ndf[list(cases).index("h on the peak of a wall")] > 0
     assert area[list(cases).index("zero-length scratch")] == 0
+
+
+@pytest.mark.parametrize("alpha", [1.0, 1.0 - 1e-9, 1.0 - 1e-5, 0.9])
+def test_roughness_up_to_one(m, alpha):
+    """The schema allows roughness 1, where r = 0 puts Q1's root at z1 = i (1 + z1^2 = 0)
+    and D = 1/pi: values, and gradients of corners, endpoints and h, against the reference
+    and its central differences."""
+    rng = np.random.default_rng(41)
+    cases = lit_cases(rng, 12, alpha)
+    refs = np.array([reference(c) for c in cases])
+    ndf, area = evaluate(m, cases)
+    assert np.all(np.abs(ndf - refs[:, 0]) <= 1e-10 * refs[:, 2])
+    np.testing.assert_allclose(area, refs[:, 1], rtol=0, atol=1e-12)
+    value, grads = _gradients(m, cases)
+    params = _PARAMS[:-1]  # d/dalpha: alpha = 1 is the end of its range
+    ad = np.stack([grads[p] for p in params])
+    assert np.all(np.isfinite(ad)) and np.all(np.isfinite(value))
+    assert check_against_differences(ad, cases, params, 1e-6, 1e-5) > 50

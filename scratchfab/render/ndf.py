@@ -139,18 +139,21 @@ class _Poles:
     def __init__(self, hx: Any, hz: Any, alpha: Any) -> None:
         q1, q2, beta, z1 = _lobe_root(hx, hz, alpha)
         w1 = (1.0 + z1[0] * z1[0] - z1[1] * z1[1], 2.0 * z1[0] * z1[1])  # 1 + z1^2
-        w1sq = _cmul(w1, w1)
-        b1 = (-w1sq[0] / (16.0 * beta * beta), -w1sq[1] / (16.0 * beta * beta))
-        t6 = _cdiv((6.0 * z1[0], 6.0 * z1[1]), w1)
-        fac = (t6[0] - q1 * z1[0], t6[1] + q1 * z1[1] + q1 / beta)
-        a1 = _cmul(b1, fac)
+        k = 1.0 / (16.0 * beta * beta)
+        mw1 = (-k * w1[0], -k * w1[1])  # B1 / (1 + z1^2)
+        b1 = _cmul(mw1, w1)
+        # A1 = B1/(1 + z1^2) (6 z1 + (1 + z1^2) f), f = -q1 conj(z1) + i q1/beta: no division
+        # by 1 + z1^2, which is 0 at alpha = 1 (r = 0, z1 = i), where A1 = B1 = 0 (R = 1)
+        f = (-q1 * z1[0], q1 * z1[1] + q1 / beta)
+        g = _cadd((6.0 * z1[0], 6.0 * z1[1]), _cmul(w1, f))
+        a1 = _cmul(mw1, g)
         inv_z = _cdiv((1.0, 0.0), z1)
         inv_z2 = _cmul(inv_z, inv_z)
         inv_z3 = _cmul(inv_z2, inv_z)
         a2c = _cmul(a1, inv_z2)
         b1z3 = _cmul(b1, inv_z3)
         self.c0 = 1.0 / (q1 * q1 * q2 * q2)
-        self._parts = (q1, beta, z1, w1, w1sq, b1, t6, fac, a1, inv_z, inv_z2, b1z3, a2c)
+        self._parts = (q1, beta, z1, w1, k, mw1, f, g, b1, a1, inv_z, inv_z2, b1z3, a2c)
         a2 = alpha * alpha
         beta2 = (1.0 - hz) * (1.0 + hz) - hx * hx + a2 * (hx * hx + hz * hz)
         self._beta_on = beta2 > a2 * 1e-3  # as in _lobe_root
@@ -171,20 +174,17 @@ class _Poles:
         Forward-mode differentiation of the construction above, written out; where beta is
         clamped at its floor, dbeta = 0 (as dr.maximum's derivative).
         """
-        q1, beta, z1, w1, w1sq, b1, t6, fac, a1, inv_z, inv_z2, b1z3, a2c = self._parts
+        q1, beta, z1, w1, k, mw1, f, g, b1, a1, inv_z, inv_z2, b1z3, a2c = self._parts
         a2 = 1.0 - self._r * self._r
         dbeta = dr.select(self._beta_on, -self._hx * (1.0 - a2) / beta, 0.0)
         dz1 = (-self._r / q1, dbeta / q1)
         dw1 = _cmul((2.0 * z1[0], 2.0 * z1[1]), dz1)
-        dw1sq = _cmul((2.0 * w1[0], 2.0 * w1[1]), dw1)
-        k = 1.0 / (16.0 * beta * beta)
         dk = -2.0 * k * dbeta / beta
-        db1 = (-(dw1sq[0] * k + w1sq[0] * dk), -(dw1sq[1] * k + w1sq[1] * dk))
-        q6 = _cdiv((6.0 * dz1[0], 6.0 * dz1[1]), w1)
-        t6w = _cdiv(_cmul(t6, dw1), w1)
-        dt6 = (q6[0] - t6w[0], q6[1] - t6w[1])
-        dfac = (dt6[0] - q1 * dz1[0], dt6[1] + q1 * dz1[1] - q1 * dbeta / (beta * beta))
-        da1 = _cadd(_cmul(db1, fac), _cmul(b1, dfac))
+        dmw1 = (-(dk * w1[0] + k * dw1[0]), -(dk * w1[1] + k * dw1[1]))
+        db1 = _cadd(_cmul(dmw1, w1), _cmul(mw1, dw1))
+        df = (-q1 * dz1[0], q1 * dz1[1] - q1 * dbeta / (beta * beta))
+        dg = _cadd((6.0 * dz1[0], 6.0 * dz1[1]), _cadd(_cmul(dw1, f), _cmul(w1, df)))
+        da1 = _cadd(_cmul(dmw1, g), _cmul(mw1, dg))
         dinv_z = _cmul(inv_z2, dz1)
         dinv_z = (-dinv_z[0], -dinv_z[1])
         dinv_z2 = _cmul((2.0 * inv_z[0], 2.0 * inv_z[1]), dinv_z)
