@@ -9,15 +9,13 @@ frozen against traced.
 
 from __future__ import annotations
 
-import math
-
 import drjit as dr
 import numpy as np
 import pytest
 import shapely
 from conftest import FULL, make_design
 from reference_render import reference_render
-from test_ndf import _perturbed, random_case, reference
+from test_ndf import _drjit_args, check_against_differences, lit_cases, random_case, reference
 from test_render import random_scratches, rel_l2
 
 from scratchfab.model.scratches import ScratchSet
@@ -42,18 +40,7 @@ SLACK = 1e-8
 
 def _columns(m, cases):
     """Dr.Jit arrays of the cases: corner lists, then the scalar arguments in order."""
-    F = m.Float64
-    quad = np.stack([c["quad"] for c in cases])
-    qx = [F(quad[:, i, 0]) for i in range(4)]
-    qy = [F(quad[:, i, 1]) for i in range(4)]
-    rest = [
-        *(F(np.array([c[k][j] for c in cases])) for k in ("p0", "p1") for j in (0, 1)),
-        F(np.array([c["w"] for c in cases])),
-        F(np.array([c["wbar"] for c in cases])),
-        *(F(np.array([c["h"][j] for c in cases])) for j in range(3)),
-        F(np.array([c["alpha"] for c in cases])),
-    ]
-    return quad, qx, qy, rest
+    return np.stack([c["quad"] for c in cases]), *_drjit_args(m, cases)
 
 
 def _orient(quad):
@@ -176,13 +163,7 @@ def test_dropped_terms_are_exact_zeros_with_zero_derivatives(m):
 def test_kept_term_gradients_match_central_differences(m, custom):
     """d/d(endpoints, h) of the kept terms alone against differences of the reference;
     with the written-out derivative (custom), d/dh_z is not provided: endpoints, h_x, h_y."""
-    rng = np.random.default_rng(12)
-    cases = []
-    while len(cases) < 20:
-        c = random_case(rng)
-        if reference(c)[0] > 0:
-            c["alpha"] = max(c["alpha"], 0.01)
-            cases.append(c)
+    cases = lit_cases(np.random.default_rng(12), 20)
     kept = _kept(m, cases)
     size = int(kept.sum(axis=1).max())
     _quad, _qx, _qy, rest = _columns(m, cases)
@@ -195,19 +176,7 @@ def test_kept_term_gradients_match_central_differences(m, custom):
     ndf, _area = _terms(m, cases, _kept_first(kept)[:, :size], rest, custom)
     dr.backward(ndf)
     ad = np.stack([np.asarray(dr.grad(v), dtype=np.float64) for v in variables])
-    fd = np.empty_like(ad)
-    for k, (name, idx) in enumerate(params):
-        for j, c in enumerate(cases):
-            step = 1e-8 if name == "h" else 1e-6 * math.sqrt(abs(shapely.Polygon(c["quad"]).area))
-            plus = reference(_perturbed(c, name, idx, step))[0]
-            minus = reference(_perturbed(c, name, idx, -step))[0]
-            fd[k, j] = (plus - minus) / (2 * step)
-    floor = 1e-3 * np.max(np.abs(fd), axis=0, keepdims=True)
-    bad = np.abs(ad - fd) > 1e-3 * np.abs(fd) + floor
-    assert not bad.any(), [
-        (params[i], j, ad[i, j], fd[i, j]) for i, j in zip(*np.nonzero(bad), strict=True)
-    ][:5]
-    assert np.count_nonzero(np.abs(fd) > floor) > 50
+    assert check_against_differences(ad, cases, params, 1e-8, 1e-3) > 50
 
 
 @pytest.mark.parametrize("mode", ["backward", "forward"])
@@ -246,6 +215,27 @@ def test_written_out_derivative_equals_the_traced_one(m, mode):
     assert err[alpha >= 0.01].max() <= 1e-8, err[alpha >= 0.01].max()
     assert err.max() <= 1e-6, err.max()
     assert np.count_nonzero(size > floor) > 0.5 * len(cases)
+
+
+def test_written_out_derivative_is_not_used_when_width_profile_or_roughness_move(m):
+    """custom_derivative gives no derivative for h_z, wbar, alpha: where any of them
+    carries one, scratch_edges_ndf traces instead, so none comes back silently zero (the
+    half-width enters through the pieces' ends only, which the written-out one covers)."""
+    cases = lit_cases(np.random.default_rng(44), 40)
+    slots = _kept_first(_kept(m, cases))[:, :EDGE_SLOTS]
+    for moving in (4, 5, 8, 9):  # half_width, wbar, h_z, alpha
+        grads = []
+        for custom in (False, True):
+            _quad, _qx, _qy, rest = _columns(m, cases)
+            dr.enable_grad(rest[moving])
+            ndf, _area = _terms(m, cases, slots, rest, custom)
+            dr.backward(ndf)
+            grads.append(np.asarray(dr.grad(rest[moving])))
+        assert np.count_nonzero(grads[0]) > len(cases) // 2, moving
+        if moving == 4:  # the written-out derivative, through the pieces' ends
+            np.testing.assert_allclose(grads[1], grads[0], rtol=1e-8, atol=0)
+        else:  # traced: the same computation
+            np.testing.assert_array_equal(grads[1], grads[0])
 
 
 # ---------------------------------------------------------------- renderer

@@ -383,6 +383,18 @@ def _local(qx: Any, qy: Any, p0x: Any, p0y: Any, ux: Any, uy: Any) -> tuple[Any,
     return rx * uy - ry * ux, rx * ux + ry * uy
 
 
+def _local_quad(
+    quad_x: Sequence[Any], quad_y: Sequence[Any], p0x: Any, p0y: Any, ux: Any, uy: Any
+) -> tuple[list[Any], list[Any]]:
+    """A footprint's corners in the scratch frame of :func:`_local`: (x list, y list)."""
+    lx, ly = [], []
+    for qx, qy in zip(quad_x, quad_y, strict=True):
+        x, y = _local(qx, qy, p0x, p0y, ux, uy)
+        lx.append(x)
+        ly.append(y)
+    return lx, ly
+
+
 def quad_orientation(quad_x: Sequence[Any], quad_y: Sequence[Any]) -> Any:
     """+1 for a counter-clockwise quadrilateral, -1 for a clockwise one (shoelace sign)."""
     n = len(quad_x)
@@ -433,11 +445,7 @@ def _footprint(
     """
     float_t = type(p0x)
     ux, uy, length = _frame(p0x, p0y, p1x, p1y)
-    lx, ly = [], []
-    for qx, qy in zip(quad_x, quad_y, strict=True):
-        x, y = _local(qx, qy, p0x, p0y, ux, uy)
-        lx.append(x)
-        ly.append(y)
+    lx, ly = _local_quad(quad_x, quad_y, p0x, p0y, ux, uy)
     n = len(lx)
     orient = quad_orientation(quad_x, quad_y)
     hxl = hx * uy - hy * ux
@@ -763,11 +771,7 @@ def edge_piece_masks(
     :func:`scratch_footprint_ndf`.
     """
     ux, uy, length = _frame(p0x, p0y, p1x, p1y)
-    lx, ly = [], []
-    for qx, qy in zip(quad_x, quad_y, strict=True):
-        x, y = _local(qx, qy, p0x, p0y, ux, uy)
-        lx.append(x)
-        ly.append(y)
+    lx, ly = _local_quad(quad_x, quad_y, p0x, p0y, ux, uy)
     w = half_width + slack
     masks = []
     n = len(lx)
