@@ -326,11 +326,16 @@ def render_pairs(
     ndf, covered = pair_footprints(
         state, alpha, p0x, p0y, p1x, p1y, half_width, wbar, pixel, scratch
     )
+    return _radiance(state, *_pixel_sums(F, pixel_count, pixel, ndf, covered))
+
+
+def _pixel_sums(F: Any, pixel_count: int, pixel: Any, ndf: Any, covered: Any) -> tuple[Any, Any]:
+    """Per-pixel sums of the pairs' NDF integrals and covered areas (scatter-add by pixel)."""
     ndf_sum = dr.zeros(F, pixel_count)
     covered_sum = dr.zeros(F, pixel_count)
     dr.scatter_reduce(dr.ReduceOp.Add, ndf_sum, ndf, pixel)
     dr.scatter_reduce(dr.ReduceOp.Add, covered_sum, covered, pixel)
-    return _radiance(state, ndf_sum, covered_sum)
+    return ndf_sum, covered_sum
 
 
 def _radiance(state: dict[str, Any], ndf_sum: Any, covered_sum: Any) -> Any:
@@ -545,10 +550,7 @@ def render_classes(
         )
         null = code == NULL_CODE
         ndf, covered = dr.select(null, 0.0, ndf), dr.select(null, 0.0, covered)
-        ndf_class = dr.zeros(F, pixel_count)
-        covered_class = dr.zeros(F, pixel_count)
-        dr.scatter_reduce(dr.ReduceOp.Add, ndf_class, ndf, pix)
-        dr.scatter_reduce(dr.ReduceOp.Add, covered_class, covered, pix)
+        ndf_class, covered_class = _pixel_sums(F, pixel_count, pix, ndf, covered)
         ndf_sum = ndf_sum + ndf_class
         covered_sum = covered_sum + covered_class
     return _radiance(state, ndf_sum, covered_sum)
