@@ -381,12 +381,6 @@ class LayoutOptimizer:
             ]
         return out
 
-    def class_counts(self) -> list[int]:
-        """Number of pairs per view that the next step renders (empty: not known yet)."""
-        if self.classes is None:
-            return []
-        return [sum(0 if c is None else dr.width(c[0]) for c in view) for view in self.classes]
-
     def active_counts(self) -> list[int]:
         """Number of pairs per view that the next step renders (after a refresh: all)."""
         if self.active is None:
