@@ -21,7 +21,8 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   hold or jog cancel (``0x85``) during a jog cancels it instead: the machine stops, the
   jog blocks are flushed, Idle;
 - the safety door (``0x84``, or :meth:`GrblSim.open_door` for the switch): the machine
-  stops (``Door:2``; a jog is cancelled first and reports ``Jog`` until it stopped), spindle and coolant go off, ``Door:1`` while the door is open and
+  stops (``Door:2``; a jog is cancelled first and reports ``Jog`` until it stopped),
+  spindle and coolant go off, ``Door:1`` while the door is open and
   ``Door:0`` once it is closed (:meth:`GrblSim.close_door`); no line is parsed meanwhile
   (Grbl's suspend loop). Cycle start (``~`` or :meth:`GrblSim.cycle_start`) in ``Door:0``
   restores spindle and coolant (``Door:3``, Grbl's 4 s spindle and 1 s coolant delays times
