@@ -559,3 +559,32 @@ def test_commands_for_windows_split_back_into_the_same_arguments(monkeypatch):
     posix = command_line(args)
     assert shlex.split(posix) == args  # and here, the POSIX form
     assert _windows_argv(posix) != args  # which Windows would read otherwise
+
+
+def test_log_keeps_a_perfect_psnr_and_an_undefined_rho_apart(tmp_path: Path) -> None:
+    """A black target's view: PSNR is +inf (no error at exposure 0), rho undefined (NaN).
+
+    log.csv wrote both as "nan"; read back by a second reader (csv + float) they must stay
+    what they were, and the report's last-iteration table must show them differently.
+    """
+    import csv
+    import math
+
+    from scratchfab.optimize.stage import _write_log, log_columns
+    from scratchfab.pipeline.report import _last_iteration
+
+    names = ["a", "b"]
+    columns = log_columns(names)
+    row = [3.0, 0.25, 1.5, math.inf, math.nan, 0.125, 21.5, 0.75, math.nan]
+    assert len(row) == len(columns)
+    path = tmp_path / "log.csv"
+    _write_log(path, columns, [row])
+    with path.open(encoding="utf-8") as handle:
+        back = list(csv.DictReader(handle))[-1]
+    for key, value in zip(columns[1:], row[1:], strict=True):
+        got = float(back[key])
+        assert got == value or (math.isnan(got) and math.isnan(value)), key
+    table = _last_iteration(back, names)
+    cells = re.findall(r"<th scope='row'>(\w)</th>(.*?)</tr>", table)
+    assert cells[0] == ("a", "<td>–</td><td>∞</td><td>0.125</td>")
+    assert cells[1] == ("b", "<td>0.750</td><td>21.50</td><td>–</td>")

@@ -203,10 +203,8 @@ def _write_log(path: Path, columns: list[str], rows: list[list[float]]) -> None:
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(columns)
-    for row in rows:
-        writer.writerow(
-            [str(int(row[0]))] + [f"{v:.6g}" if math.isfinite(v) else "nan" for v in row[1:]]
-        )
+    for row in rows:  # a perfect PSNR is written "inf", an undefined rho "nan"
+        writer.writerow([str(int(row[0]))] + [f"{v:.6g}" for v in row[1:]])
     write_text(path, buf.getvalue())
 
 

@@ -543,11 +543,13 @@ def _last_iteration(last: dict[str, str], names: list[str]) -> str:
     """The log's last row as one line per view, in words (not log.csv's column names)."""
 
     def cell(key: str, digits: int) -> str:
-        raw = last.get(key)
         try:
-            return f"<td>{float(raw):.{digits}f}</td>" if raw not in (None, "") else "<td>–</td>"
+            value = float(last.get(key) or "nan")
         except ValueError:
+            value = math.nan
+        if math.isnan(value):
             return "<td>–</td>"
+        return f"<td>{value:.{digits}f}</td>" if math.isfinite(value) else "<td>∞</td>"
 
     others = len(names) > 1
     head = (
