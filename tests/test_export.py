@@ -114,7 +114,13 @@ def test_gcode_estimate_matches_interpreted_moves(planned, tmp_path):
         )
     # The interpreter starts recording once X and Y are known: at the start position.
     assert np.allclose(run.moves[0].start[:2], profile.start_mm)
-    assert tp.stats["estimated_time_s"] == pytest.approx(total, rel=1e-4)  # G-code is rounded
+    # Rest to rest is exact where every move stops (servo: M3/M5 empty GRBL's planner); a Z
+    # job's 90-degree corners pass at speed, so there the estimate is less
+    # (tests/test_time_estimate.py times it against a model of GRBL's planner).
+    if profile.tool_control.mode == "servo":
+        assert tp.stats["estimated_time_s"] == pytest.approx(total, rel=1e-4)  # G-code is rounded
+    else:
+        assert 0.9 * total < tp.stats["estimated_time_s"] < total
 
 
 def test_gcode_refuses_stroke_outside_envelope_and_writes_nothing(planned, tmp_path):

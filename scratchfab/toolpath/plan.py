@@ -30,7 +30,7 @@ from scratchfab.model.design import Board, ScratchTool
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.toolpath.geometry import clip_strokes, merge_collinear
 from scratchfab.toolpath.order import OrderOptions, order_strokes, tour_travel
-from scratchfab.toolpath.timing import move_times
+from scratchfab.toolpath.timing import path_times
 
 FORMAT = "scratchfab-toolpath"
 VERSION = 1
@@ -159,39 +159,53 @@ def check_tool(
 
 
 def estimate_time(strokes: np.ndarray, profile: MachineProfile) -> float:
-    """Seconds to run the job as the G-code writer emits it (trapezoidal moves, dwells)."""
+    """Seconds to run the job as the G-code writer emits it and GRBL plans it.
+
+    Moves, in the writer's order, join at GRBL's corner speeds (``$11`` taken at GRBL's
+    default) except where a command empties the planner: the servo's ``M3`` and ``M5``
+    around every cut, the spindle's start and stop. Each servo lowering and lift waits
+    ``dwell_s`` (and so does the lift before the first travel); the travel back to the
+    start is included, the time to reach the start is not.
+    """
     n = len(strokes)
     start = np.asarray(profile.start_mm, dtype=np.float64)
     if n == 0:
         return 0.0
     motion = profile.motion
+    control = profile.tool_control
     stops = np.vstack([start[None, :], strokes[:, 1]])
     goes = np.vstack([strokes[:, 0], start[None, :]])
     travel = np.zeros((n + 1, 3))
     travel[:, :2] = goes - stops
+    cut = np.zeros((n, 3))
+    cut[:, :2] = strokes[:, 1] - strokes[:, 0]
     travel_feed = profile.feeds.travel_mm_min or math.inf
-    seconds = move_times(travel, travel_feed, motion.max_rate_mm_min, motion.acceleration_mm_s2)
-    cuts = np.zeros((n, 3))
-    cuts[:, :2] = strokes[:, 1] - strokes[:, 0]
-    seconds_cut = move_times(
-        cuts, profile.feeds.engrave_mm_min, motion.max_rate_mm_min, motion.acceleration_mm_s2
-    )
-    total = float(seconds.sum() + seconds_cut.sum())
-    control = profile.tool_control
     if control.mode == "servo":
-        total += (2 * n + 1) * control.dwell_s
+        # travel, M3, G4, cut, M5, G4 per stroke: every move starts and ends at rest.
+        moves = np.stack([travel[:-1], cut], axis=1).reshape(-1, 3)
+        feeds = np.tile([travel_feed, profile.feeds.engrave_mm_min], n)
+        rest = np.ones(2 * n + 1, dtype=bool)
+        dwells = (2 * n + 1) * control.dwell_s
     else:
+        # travel, plunge, cut, lift per stroke, joined at corners; the spindle's M5 before
+        # the travel back empties the planner (the Z mode's M5 changes nothing).
         dz = profile.z.safe_mm - profile.z.engrave_mm
-        plunge, lift = move_times(
-            np.array([[0.0, 0.0, -dz], [0.0, 0.0, dz]]),
-            np.array([profile.feeds.plunge_mm_min, math.inf]),
-            motion.max_rate_mm_min,
-            motion.acceleration_mm_s2,
+        plunge = np.broadcast_to([0.0, 0.0, -dz], (n, 3))
+        lift = np.broadcast_to([0.0, 0.0, dz], (n, 3))
+        moves = np.stack([travel[:-1], plunge, cut, lift], axis=1).reshape(-1, 3)
+        feeds = np.tile(
+            [travel_feed, profile.feeds.plunge_mm_min, profile.feeds.engrave_mm_min, math.inf], n
         )
-        total += n * float(plunge + lift)
-        if control.mode == "spindle":
-            total += control.dwell_s
-    return total
+        rest = np.zeros(4 * n + 1, dtype=bool)
+        rest[-1] = control.mode == "spindle"
+        dwells = control.dwell_s if control.mode == "spindle" else 0.0
+    moves = np.vstack([moves, travel[-1:]])
+    feeds = np.append(feeds, travel_feed)
+    rest[0] = True
+    seconds = path_times(
+        moves, feeds, motion.max_rate_mm_min, motion.acceleration_mm_s2, rest_before=rest
+    )
+    return float(seconds.sum() + dwells)
 
 
 def plan_toolpath(
