@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -9,6 +10,7 @@ import ezdxf
 import numpy as np
 import pytest
 from gcode_interp import GcodeError, cuts, interpret
+from grbl_planner_sim import Settings, simulate
 
 from scratchfab.errors import ScratchfabError
 from scratchfab.export import export, format_for
@@ -165,6 +167,18 @@ def test_export_for_another_profile_changes_feeds_and_heights_only(planned, tmp_
     export(tp, other, out)
     cutting, _ = cuts(interpret(out.read_text()), threshold(other))
     assert len(cutting) == len(tp) and all(m.feed == 123.0 for m in cutting)
+    # The header's time is for the profile written for (it was the toolpath's own), as an
+    # independent model of Grbl's planner times the written program.
+    motion = other.motion
+    run = simulate(
+        out.read_text().splitlines(),
+        Settings(motion.max_rate_mm_min, motion.acceleration_mm_s2),
+        start=(*other.start_mm, other.z.safe_mm),
+    )
+    said = re.search(r"about ([0-9.]+) min", out.read_text())
+    assert said is not None
+    assert abs(float(said.group(1)) - run.seconds / 60) <= 0.051 + 0.002 * run.seconds / 60
+    assert abs(tp.stats["estimated_time_s"] - run.seconds) > 0.2 * run.seconds  # slower feed
 
 
 @pytest.mark.parametrize(

@@ -25,7 +25,7 @@ import numpy as np
 from scratchfab.errors import ScratchfabError
 from scratchfab.fileio import write_bytes
 from scratchfab.machine.profile import MachineProfile, gcode_number
-from scratchfab.toolpath.plan import Toolpath
+from scratchfab.toolpath.plan import Toolpath, estimate_time
 
 _COMMENT_SAFE = re.compile(r"[^A-Za-z0-9 .,:_+=/-]")
 
@@ -119,7 +119,7 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
         f"scratchfab toolpath for {prof.name}",
         f"{len(toolpath)} strokes, cut {stats.get('cut_length_mm', 0.0):.1f} mm, "
         f"travel {stats.get('travel_length_mm', 0.0):.1f} mm, "
-        f"about {stats.get('estimated_time_s', 0.0) / 60:.1f} min",
+        f"about {estimate_time(toolpath.strokes, prof) / 60:.1f} min",
         f"board top edge, design +y, faces machine {prof.board_top()}",
     ]
     lines = ["G21 G90 G17 G94", *(comment(text, limit) for text in notes)]
