@@ -30,13 +30,13 @@ do not cross).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import drjit as dr
 import numpy as np
-from scipy.spatial import cKDTree
 
 Space = Literal["linear", "perceptual"]
 SPACES: tuple[str, ...] = ("linear", "perceptual")
@@ -46,10 +46,12 @@ PARALLEL_LIMIT = math.radians(35.0)
 #: Longest piece :func:`neighbour_pairs` cuts a scratch into (longer than the 12 mm default
 #: maximum length, so scratches stay whole, while a few long ones cannot widen every query).
 NEIGHBOUR_SPACING_MM = 16.0
-#: Pieces per strip of :func:`neighbour_pairs`' KD-tree queries (bounds its memory).
-NEIGHBOUR_STRIP_POINTS = 512
-#: Piece pairs :func:`neighbour_pairs` tests at once (temporaries stay in cache).
-NEIGHBOUR_CHUNK = 1 << 16
+#: Scratches per block of :func:`neighbour_pairs`' compiled scan (each block's pairs go
+#: to a buffer of their own).
+NEIGHBOUR_STRIP_POINTS = 4096
+#: Grid cells of :func:`neighbour_pairs`, relative to the longest half piece plus the
+#: reach (a piece looks this far and its own half length around itself).
+NEIGHBOUR_CELL = 0.5
 #: Slack (mm) of :func:`neighbour_pairs`' bounds, far above float64 rounding.
 NEIGHBOUR_SLACK_MM = 1e-6
 
@@ -163,15 +165,17 @@ def neighbour_pairs(
 
     Each scratch is cut into equal pieces at most ``max(spacing, reach)`` long (most
     scratches stay whole). Two scratches closer than ``reach`` have two pieces, one of
-    each, whose centres are closer than their half lengths plus ``reach``, so a KD-tree
-    query over the piece centres at that radius is complete. The piece pairs it finds
+    each, whose centres are closer than their half lengths plus ``reach``, so a look
+    around each piece of scratch i, over the cells of a uniform grid of the piece
+    centres, for the pieces of scratches j > i is complete. The piece pairs it finds
     are first thinned by bounds that never drop a close pair: the angle between them,
     and the separating-axis bound (projections onto either piece's direction and
-    normal are no longer than the distance). The pairs left then meet the exact tests:
-    the parallel limit PARALLEL_LIMIT + ``angle_slack`` (weights below 0.05 past it)
-    and the segment distance. The query runs strip by strip across x, ``strip_points``
-    pieces each against those up to the query radius to their right, and the bounds
-    run on chunks of the pairs found, so memory follows the strip, not the board.
+    normal are no longer than the distance). The scratch pairs left then meet the exact
+    tests, the float64 operations of the brute-force form (:func:`segment_distance_np`)
+    in the same order: the parallel limit PARALLEL_LIMIT + ``angle_slack`` (weights
+    below 0.05 past it) and the segment distance. The scan is compiled (numba, on first
+    use) and runs over blocks of ``strip_points`` scratches, each block's pairs found
+    in i order into a buffer of its own, so memory follows the pairs, not the board.
 
     Returns:
         (i, j), sorted by (i, j).
@@ -179,6 +183,8 @@ def neighbour_pairs(
     n = len(p0)
     if n < 2 or reach <= 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    p0 = np.asarray(p0, dtype=np.float64)
+    p1 = np.asarray(p1, dtype=np.float64)
     d = p1 - p0
     length = np.linalg.norm(d, axis=1)
     count = np.maximum(1, np.ceil(length / max(spacing, reach))).astype(np.int64)
@@ -186,84 +192,269 @@ def neighbour_pairs(
     first = np.cumsum(count) - count
     t = (np.arange(len(owner)) - first[owner] + 0.5) / count[owner]
     centre = p0[owner] + t[:, None] * d[owner]
-    by_x = np.argsort(centre[:, 0], kind="stable")
-    owner, centre = owner[by_x], centre[by_x]
     unit = d / np.maximum(length, 1e-300)[:, None]
-    pieces = _Pieces(
-        centre[:, 0].copy(),
-        centre[:, 1].copy(),
-        unit[owner, 0].copy(),
-        unit[owner, 1].copy(),
-        (length / (2 * count))[owner],
-    )
-    # the bounds get a little slack, the exact tests below none
+    half = (length / (2 * count))[owner]
+    # the bounds get a little slack, the exact tests none
     near = reach + NEIGHBOUR_SLACK_MM
-    radius = 2 * float(pieces.half.max()) + near
     limit = math.cos(min(math.pi / 2, PARALLEL_LIMIT + angle_slack))
-    found = [np.zeros(0, np.int64)]
-    x = pieces.x
-    for start in range(0, len(owner), strip_points):
-        end = min(start + strip_points, len(owner))
-        last = int(np.searchsorted(x, x[end - 1] + radius, side="right"))
-        tree = cKDTree(centre[start:end])
-        inner = tree.query_pairs(radius, output_type="ndarray") + start
-        candidates = [(inner[:, 0], inner[:, 1])]
-        if last > end:
-            outer = tree.sparse_distance_matrix(
-                cKDTree(centre[end:last]), radius, output_type="ndarray"
-            )
-            candidates.append((outer["i"] + start, outer["j"] + end))
-        for a_all, b_all in candidates:
-            for c in range(0, len(a_all), NEIGHBOUR_CHUNK):
-                a, b = a_all[c : c + NEIGHBOUR_CHUNK], b_all[c : c + NEIGHBOUR_CHUNK]
-                sel = _may_touch(pieces, a, b, near, limit - 1e-9)
-                i, j = owner[a[sel]], owner[b[sel]]
-                keep = i != j
-                i, j = np.minimum(i[keep], j[keep]), np.maximum(i[keep], j[keep])
-                cos = np.abs(np.sum(d[i] * d[j], axis=1)) / np.maximum(
-                    length[i] * length[j], 1e-300
-                )
-                keep = cos >= limit
-                i, j = i[keep], j[keep]
-                keep = segment_distance_np(p0, p1, i, j) < reach
-                found.append(i[keep] * n + j[keep])
-    keys = _sorted_unique(np.concatenate(found))
-    return keys // n, keys % n
+    longest = float(half.max())
+    grid = _grid(centre, NEIGHBOUR_CELL * (longest + near))
+    order = np.argsort(grid.cell, kind="stable")
+    where = np.empty_like(order)
+    where[order] = np.arange(len(order))
+    start = np.searchsorted(grid.cell[order], np.arange(grid.nx * grid.ny + 1)).astype(np.int64)
+    pieces = (
+        centre[order, 0].copy(),
+        centre[order, 1].copy(),
+        unit[owner[order], 0].copy(),
+        unit[owner[order], 1].copy(),
+        half[order],
+        owner[order],
+    )
+    ends = tuple(c.copy() for c in (p0[:, 0], p0[:, 1], p1[:, 0], p1[:, 1]))
+    scan = _compiled_scan()
+    found_i, found_j = [], []
+    step = max(1, int(strip_points))
+    for lo in range(0, n, step):
+        i, j = scan(
+            *pieces, start, grid.nx, grid.ny, grid.x0, grid.y0, grid.size, longest, where,
+            first, count, *ends, length, near, limit - 1e-9, limit, reach, lo, min(n, lo + step),
+        )  # fmt: skip
+        found_i.append(i)
+        found_j.append(j)
+    return np.concatenate(found_i), np.concatenate(found_j)
 
 
 @dataclass(frozen=True)
-class _Pieces:
-    """Pieces of scratches for :func:`neighbour_pairs`: centres, unit directions, half lengths."""
+class _Grid:
+    """Uniform square cells over points: each point's cell ``cx + nx * cy`` and the grid."""
 
-    x: np.ndarray
-    y: np.ndarray
-    ux: np.ndarray
-    uy: np.ndarray
-    half: np.ndarray
+    cell: np.ndarray
+    nx: int
+    ny: int
+    x0: float
+    y0: float
+    size: float
 
 
-def _may_touch(p: _Pieces, a: np.ndarray, b: np.ndarray, near: float, limit: float) -> np.ndarray:
-    """Indices k of the piece pairs (a[k], b[k]) that no bound shows apart.
+def _grid(points: np.ndarray, size: float) -> _Grid:
+    """Cells about ``size`` wide over ``points``, at most about 4 per point."""
+    x0, y0 = (float(v) for v in points.min(axis=0))
+    wx, wy = (float(v) for v in points.max(axis=0) - points.min(axis=0))
+    most = 4 * len(points) + 16
+    size = max(size, wx / most, wy / most, math.sqrt(wx * wy / most), 1e-300)
+    nx = min(int(wx / size), most) + 1
+    ny = min(int(wy / size), most) + 1
+    cx = np.minimum(((points[:, 0] - x0) / size).astype(np.int64), nx - 1)
+    cy = np.minimum(((points[:, 1] - y0) / size).astype(np.int64), ny - 1)
+    return _Grid(cx + nx * cy, nx, ny, x0, y0, size)
 
-    Kept: |cos| of their angle at least ``limit``, and no separating-axis lower bound
-    on their distance (along or across either piece) at ``near`` or more.
+
+@functools.cache
+def _compiled_scan() -> Any:
+    """:func:`_scan_pairs` compiled (numba is imported here: it takes a while to load)."""
+    import numba
+
+    # importing it points numba's cache to a folder this user may write
+    from scratchfab.toolpath.local_search import _CACHE
+
+    return numba.njit(cache=_CACHE, nogil=True)(_scan_pairs)
+
+
+def _scan_pairs(
+    px: np.ndarray,
+    py: np.ndarray,
+    ux: np.ndarray,
+    uy: np.ndarray,
+    half: np.ndarray,
+    owner: np.ndarray,
+    start: np.ndarray,
+    nx: int,
+    ny: int,
+    x0: float,
+    y0: float,
+    size: float,
+    longest: float,
+    where: np.ndarray,
+    first: np.ndarray,
+    count: np.ndarray,
+    ax: np.ndarray,
+    ay: np.ndarray,
+    bx: np.ndarray,
+    by: np.ndarray,
+    length: np.ndarray,
+    near: float,
+    bound_limit: float,
+    limit: float,
+    reach: float,
+    lo: int,
+    hi: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`neighbour_pairs` of scratches ``lo`` to ``hi`` - 1 (compiled by numba).
+
+    Pieces (``px`` .. ``owner``) are sorted by grid cell, ``start`` holds each cell's
+    first piece and ``where`` each piece's place in that order; ``ax`` .. ``by`` are the
+    scratches' endpoints. NaN fails every test, as in numpy.
     """
-    cos = np.abs(p.ux[a] * p.ux[b] + p.uy[a] * p.uy[b])
-    keep = np.flatnonzero(cos >= limit)
-    a, b, cos = a[keep], b[keep], cos[keep]
-    uxa, uya, uxb, uyb = p.ux[a], p.uy[a], p.ux[b], p.uy[b]
-    dx = p.x[b] - p.x[a]
-    dy = p.y[b] - p.y[a]
-    ha, hb = p.half[a], p.half[b]
-    sin = np.abs(uxa * uyb - uya * uxb)
-    ok = np.abs(uxa * dy - uya * dx) - hb * sin < near
-    ok &= np.abs(uxb * dy - uyb * dx) - ha * sin < near
-    ok &= np.abs(uxa * dx + uya * dy) - ha - hb * cos < near
-    ok &= np.abs(uxb * dx + uyb * dy) - hb - ha * cos < near
-    return keep[ok]
 
+    def cells(lo_x: float, hi_x: float, origin: float, total: int) -> tuple[int, int]:
+        # clamped before the conversion to int; NaN (inf - inf) takes every cell
+        a = (lo_x - origin) / size
+        b = (hi_x - origin) / size
+        first_cell = 0 if not a >= 0.0 else total - 1 if a >= total - 1 else int(a)
+        last_cell = total - 1 if not b < total - 1 else -1 if b < 0.0 else int(b)
+        return first_cell, last_cell
 
-def _sorted_unique(keys: np.ndarray) -> np.ndarray:
-    """The distinct values of ``keys``, sorted (sorting beats numpy's hash-based unique here)."""
-    keys = np.sort(keys)
-    return keys[np.concatenate(([True], keys[1:] != keys[:-1]))] if len(keys) else keys
+    def band_span(
+        cx: float, cy: float, ex: float, ey: float, fx: float, fy: float, y_lo: float, y_hi: float
+    ) -> tuple[float, float]:
+        # x extent of the parallelogram c +- e +- f within y_lo <= y <= y_hi
+        xs = (cx - ex - fx, cx + ex - fx, cx + ex + fx, cx - ex + fx)
+        ys = (cy - ey - fy, cy + ey - fy, cy + ey + fy, cy - ey + fy)
+        left = math.inf
+        right = -math.inf
+        for e in range(4):
+            sx, sy = xs[e], ys[e]
+            tx, ty = xs[(e + 1) % 4], ys[(e + 1) % 4]
+            if sy == ty:
+                if y_lo <= sy <= y_hi:
+                    left = min(left, sx, tx)
+                    right = max(right, sx, tx)
+                continue
+            u1 = (y_lo - sy) / (ty - sy)
+            u2 = (y_hi - sy) / (ty - sy)
+            u_lo = max(0.0, min(u1, u2))
+            u_hi = min(1.0, max(u1, u2))
+            if u_lo <= u_hi:
+                x1 = sx + u_lo * (tx - sx)
+                x2 = sx + u_hi * (tx - sx)
+                left = min(left, x1, x2)
+                right = max(right, x1, x2)
+        return left, right
+
+    def point_segment_squared(
+        qx: float, qy: float, sx: float, sy: float, ex: float, ey: float
+    ) -> float:
+        dx = ex - sx
+        dy = ey - sy
+        ll = dx * dx + dy * dy
+        if ll < 1e-300:
+            ll = 1e-300
+        wx = qx - sx
+        wy = qy - sy
+        t = (wx * dx + wy * dy) / ll
+        if t < 0.0:
+            t = 0.0
+        elif t > 1.0:
+            t = 1.0
+        rx = wx - t * dx
+        ry = wy - t * dy
+        return rx * rx + ry * ry
+
+    def lesser(a: float, b: float) -> float:
+        return a if (a != a or a < b) else b
+
+    def sides(qx: float, qy: float, rx: float, ry: float, sx: float, sy: float) -> float:
+        return (rx - qx) * (sy - qy) - (ry - qy) * (sx - qx)
+
+    def opposite(a: float, b: float) -> bool:
+        return (a > 0.0 and b < 0.0) or (a < 0.0 and b > 0.0)
+
+    n = len(first)
+    seen = np.full(n, -1, np.int64)
+    found = np.empty(n, np.int64)
+    out_i = np.empty(1024, np.int64)
+    out_j = np.empty(1024, np.int64)
+    m = 0
+    # the largest sine between pieces that pass the angle bound
+    sin_max = math.sqrt(1.0 - bound_limit * bound_limit) if 0.0 < bound_limit < 1.0 else 1.0
+    pad = near - reach
+    for i in range(lo, hi):
+        k = 0
+        for q in range(first[i], first[i] + count[i]):
+            a = where[q]
+            xa, ya, uxa, uya, ha = px[a], py[a], ux[a], uy[a], half[a]
+            if abs(uxa * uxa + uya * uya - 1.0) < 1e-9:
+                # the separating-axis bounds at their widest: along a, and across it
+                along = ha + longest + near + pad
+                across = near + longest * sin_max + pad
+                ex, ey, fx, fy = along * uxa, along * uya, -across * uya, across * uxa
+            else:  # a point: centres closer than the half lengths plus the reach
+                r = ha + longest + near + pad
+                ex, ey, fx, fy = r, 0.0, 0.0, r
+            extent = abs(ey) + abs(fy)
+            cy0, cy1 = cells(ya - extent, ya + extent, y0, ny)
+            for cy in range(cy0, cy1 + 1):
+                band_lo = y0 + cy * size - pad
+                band_hi = y0 + (cy + 1) * size + pad if cy < ny - 1 else math.inf
+                left, right = band_span(xa, ya, ex, ey, fx, fy, band_lo, band_hi)
+                if not left <= right:
+                    continue
+                cx0, cx1 = cells(left, right, x0, nx)
+                for c in range(cx0 + nx * cy, cx1 + 1 + nx * cy):
+                    # a cell's pieces come in scratch order: the last ones are of j > i
+                    for b in range(start[c + 1] - 1, start[c] - 1, -1):
+                        j = owner[b]
+                        if j <= i:
+                            break
+                        if seen[j] == i:
+                            continue
+                        uxb, uyb, hb = ux[b], uy[b], half[b]
+                        cos = abs(uxa * uxb + uya * uyb)
+                        if not cos >= bound_limit:
+                            continue
+                        dx = px[b] - xa
+                        dy = py[b] - ya
+                        sin = abs(uxa * uyb - uya * uxb)
+                        if (
+                            abs(uxa * dy - uya * dx) - hb * sin < near
+                            and abs(uxb * dy - uyb * dx) - ha * sin < near
+                            and abs(uxa * dx + uya * dy) - ha - hb * cos < near
+                            and abs(uxb * dx + uyb * dy) - hb - ha * cos < near
+                        ):
+                            seen[j] = i
+                            found[k] = j
+                            k += 1
+        if k == 0:
+            continue
+        js = np.sort(found[:k])
+        dxi = bx[i] - ax[i]
+        dyi = by[i] - ay[i]
+        for j in js:
+            dxj = bx[j] - ax[j]
+            dyj = by[j] - ay[j]
+            den = length[i] * length[j]
+            if den < 1e-300:
+                den = 1e-300
+            if not abs(dxi * dxj + dyi * dyj) / den >= limit:
+                continue
+            # squared distances: their least has the least root (sqrt is monotone and
+            # correctly rounded), so one root decides as the four of numpy's
+            close = lesser(
+                lesser(
+                    point_segment_squared(ax[i], ay[i], ax[j], ay[j], bx[j], by[j]),
+                    point_segment_squared(bx[i], by[i], ax[j], ay[j], bx[j], by[j]),
+                ),
+                lesser(
+                    point_segment_squared(ax[j], ay[j], ax[i], ay[i], bx[i], by[i]),
+                    point_segment_squared(bx[j], by[j], ax[i], ay[i], bx[i], by[i]),
+                ),
+            )
+            if not math.sqrt(close) < reach and not (
+                opposite(
+                    sides(ax[i], ay[i], bx[i], by[i], ax[j], ay[j]),
+                    sides(ax[i], ay[i], bx[i], by[i], bx[j], by[j]),
+                )
+                and opposite(
+                    sides(ax[j], ay[j], bx[j], by[j], ax[i], ay[i]),
+                    sides(ax[j], ay[j], bx[j], by[j], bx[i], by[i]),
+                )
+            ):
+                continue  # neither close nor crossing
+            if m == len(out_i):
+                out_i = np.concatenate((out_i, np.empty(m, np.int64)))
+                out_j = np.concatenate((out_j, np.empty(m, np.int64)))
+            out_i[m] = i
+            out_j[m] = j
+            m += 1
+    return out_i[:m].copy(), out_j[:m].copy()
