@@ -46,6 +46,7 @@ class Settings:
     acceleration_mm_s2: tuple[float, float, float]  # $120-$122
     junction_deviation_mm: float = GRBL_JUNCTION_DEVIATION_MM  # $11
     steps_per_mm: tuple[float, float, float] = GRBL_STEPS_PER_MM  # $100-$102
+    laser_mode: bool = False  # $32: an S change in a block with axis words does not stop
 
 
 @dataclass
@@ -123,6 +124,7 @@ class Planner:
         dwell = None
         spindle = None
         ending = False
+        speed_sync = False
         for letter, raw in words:
             value = float(raw)
             if letter == "G":
@@ -146,11 +148,12 @@ class Planner:
             elif letter == "P":
                 dwell = value
             elif letter == "S":
-                if value != self.speed and self.spindle != "M5":
-                    self.synchronize()
+                speed_sync = value != self.speed and self.spindle != "M5"
                 self.speed = value
             else:
                 raise ValueError(f"word {letter} not modelled ({text!r})")
+        if speed_sync and not (self.s.laser_mode and axes):
+            self.synchronize()
         if spindle is not None and spindle != self.spindle:
             self.synchronize()
             self.spindle = spindle

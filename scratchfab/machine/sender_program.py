@@ -18,21 +18,25 @@ from __future__ import annotations
 import hashlib
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
+
+import numpy as np
 
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import read_input
 from scratchfab.machine.grbl_codes import MM_PER_INCH
 from scratchfab.machine.profile import GCODE_WORD, gcode_number
+from scratchfab.toolpath.timing import GRBL_JUNCTION_DEVIATION_MM, path_times
 
 MAX_BLOCK_CHARS = 79
 DEFAULT_RAPID_MM_MIN = (500.0, 500.0, 500.0)  # G0 rates for the estimate until $110-$112 are known
 _REALTIME = set("?!~")
 _LINE_END = re.compile(r"\r\n|[\r\n]")
 #: ``$`` lines a job may hold: reports that move nothing and change no setting or state.
+_PROGRAM_STOPS = (("M", 0.0), ("M", 2.0), ("M", 30.0))  # run after a block's motion
 _QUERIES = frozenset({"$", "$$", "$#", "$G", "$I", "$N"})
 
 
@@ -136,6 +140,68 @@ class Program:
             for b in self.blocks
         ]
         return replace(self, blocks=blocks, rapid_mm_min=rates)
+
+    def timed_for(self, settings: Mapping[int, float]) -> Program:
+        """The program timed as GRBL plans it with these ``$$`` settings.
+
+        G0 runs at ``$110``-``$112`` (unknown: the estimate is kept). With ``$120``-``$122``
+        known too, straight moves accelerate and join at corners by ``$11`` (GRBL's default
+        when not given), as :func:`~scratchfab.toolpath.timing.path_times` plans them; the
+        machine stops where a block empties the planner (``sync``, an S change with
+        ``$32=0``), around an arc (timed alone, by its chord and feed) and where the sender
+        cannot follow the position.
+        """
+        rates = [settings.get(110 + k) for k in range(3)]
+        if not all(r is not None and r > 0 for r in rates):
+            return self
+        program = self.at_rapid_rates([float(r or 0) for r in rates])
+        accel = [settings.get(120 + k) for k in range(3)]
+        if not all(a is not None and a > 0 for a in accel):
+            return program
+        laser = bool(settings.get(32, 0))
+        moves: list[int] = []
+        delta: list[tuple[float, float, float]] = []
+        feed: list[float] = []
+        rest: list[bool] = []
+        stop = True  # the job starts at rest
+        before = Modal()
+        for b in program.blocks:
+            after = b.modal
+            empties = b.sync or (b.speed_sync and not laser)
+            straight = b.motion and not b.unfollowed and b.arc_box is None
+            straight = straight and after.motion in ("G0", "G1")
+            if straight:
+                d = (
+                    after.x - before.x,
+                    after.y - before.y,
+                    (after.z or 0.0) - (before.z or 0.0),
+                )
+                dist = math.hypot(*d)
+                moves.append(b.index)
+                delta.append(d)
+                if after.motion == "G0":
+                    feed.append(math.inf)
+                else:
+                    feed.append(after.feed_mm if after.feed_mode == "G94" else dist * after.feed)
+                rest.append(stop or empties)  # a spindle, coolant or S change acts first
+                stop = any(w in _PROGRAM_STOPS for w in block_words(b.text))  # M0 M2 M30: after
+            else:
+                stop = stop or empties or b.motion or bool(b.unfollowed)
+            before = after
+        if not moves:
+            return program
+        seconds = path_times(
+            np.asarray(delta),
+            np.asarray(feed),
+            program.rapid_mm_min,
+            (float(accel[0] or 0), float(accel[1] or 0), float(accel[2] or 0)),
+            rest_before=np.asarray(rest),
+            junction_deviation_mm=float(settings.get(11, GRBL_JUNCTION_DEVIATION_MM)),
+        )
+        blocks = list(program.blocks)
+        for k, t in zip(moves, seconds, strict=True):
+            blocks[k] = replace(blocks[k], seconds=float(t))
+        return replace(program, blocks=blocks)
 
     def stroke_of(self) -> list[int]:
         """Per block, the index of the stroke it belongs to, or -1."""

@@ -216,9 +216,7 @@ def _stream_locked(
         if resume and events is not None:
             inches = info.inch_reports
             _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
-        rates = [info.settings.get(110 + k) for k in range(3)]
-        if all(r is not None and r > 0 for r in rates):  # the time estimate at GRBL's G0 rates
-            program = program.at_rapid_rates([float(r or 0) for r in rates])
+        program = program.timed_for(info.settings)  # the time estimate for this machine
         findings = compare(info.settings, info.wco, program, profile)
         for text in findings.warnings:
             cb.say(f"warning: {text}")

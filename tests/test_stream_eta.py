@@ -1,0 +1,99 @@
+"""The sender's time estimate (its ETA) against a model of Grbl 1.1's planner.
+
+``Program.timed_for`` times a parsed G-code file with the controller's ``$$`` settings;
+``grbl_planner_sim`` runs the same lines with the same settings and shares no code with it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from grbl_planner_sim import Settings, simulate
+from test_export import random_scratches
+
+from scratchfab.export import export
+from scratchfab.machine.profile import load_profile
+from scratchfab.machine.sender_program import load_program
+from scratchfab.model.design import Board
+from scratchfab.toolpath import plan_toolpath
+
+ORIGIN = (0.0, 0.0, 0.0)  # where the sender's parse starts (it cannot know the machine's place)
+
+
+def grbl(settings: dict[int, float]) -> Settings:
+    return Settings(
+        tuple(settings[110 + k] for k in range(3)),  # type: ignore[arg-type]
+        tuple(settings[120 + k] for k in range(3)),  # type: ignore[arg-type]
+        settings.get(11, 0.01),
+        laser_mode=bool(settings.get(32, 0)),
+    )
+
+
+def write(tmp_path: Path, lines: list[str]) -> Path:
+    path = tmp_path / "job.gcode"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("name", ["grbl-3018-diamond", "grbl-plotter-scribe"])
+@pytest.mark.parametrize("junction_mm", [0.01, 0.05])
+def test_eta_of_an_exported_job_matches_the_planner(name, junction_mm, tmp_path):
+    profile = load_profile(name)
+    board = Board(width_mm=40.0, height_mm=40.0, margin_mm=1.0)
+    tp = plan_toolpath(random_scratches(np.random.default_rng(3), 150), board, profile)
+    out = tmp_path / "board.gcode"
+    export(tp, profile, out)
+    m = profile.motion
+    settings = {110 + k: m.max_rate_mm_min[k] for k in range(3)}
+    settings |= {120 + k: m.acceleration_mm_s2[k] for k in range(3)}
+    settings[11] = junction_mm
+    want = simulate(out.read_text().splitlines(), grbl(settings), ORIGIN).seconds
+    program = load_program(out)
+    got = program.timed_for(settings).total_seconds
+    assert got == pytest.approx(want, rel=2e-3)
+    # distance / feed alone (the former ETA) is far off: the check can tell
+    assert abs(
+        program.at_rapid_rates([settings[110 + k] for k in range(3)]).total_seconds - want
+    ) > (0.05 * want)
+
+
+def test_eta_stops_where_grbl_empties_its_planner(tmp_path):
+    settings = {110: 3000.0, 111: 3000.0, 112: 600.0, 120: 50.0, 121: 50.0, 122: 20.0, 32: 0}
+    lines = [
+        "G21 G90 G94",
+        "G1 X10 F1200",
+        "G1 X20 Y3",  # a corner GRBL passes without stopping
+        "G4 P0.25",  # a dwell empties the planner
+        "G0 X30",
+        "M3 S100",
+        "G1 X40 F900",
+        "S200 G1 X50",  # an S change with the spindle on: a stop with $32=0 only
+        "G1 X60 Y-4",
+        "M5",
+        "G0 Z5",
+        "G0 X0 Y0",
+    ]
+    path = write(tmp_path, lines)
+    program = load_program(path)
+    for laser in (0, 1):
+        settings[32] = laser
+        want = simulate(lines, grbl(settings), ORIGIN)
+        assert program.timed_for(settings).total_seconds == pytest.approx(want.seconds, rel=1e-6)
+    stopped = program.timed_for({**settings, 32: 0}).total_seconds
+    joined = program.timed_for({**settings, 32: 1}).total_seconds
+    assert stopped > joined + 0.05  # the S change's stop costs a deceleration and a start
+
+
+def test_eta_without_accelerations_keeps_distance_over_feed(tmp_path):
+    lines = ["G21 G90", "G0 X10 Y5", "G1 X20 F600", "G1 Y20", "G0 X0 Y0"]
+    program = load_program(write(tmp_path, lines))
+    rates = {110: 1000.0, 111: 800.0, 112: 300.0}
+    assert program.timed_for({}) is program
+    assert program.timed_for(rates).total_seconds == pytest.approx(
+        program.at_rapid_rates([1000.0, 800.0, 300.0]).total_seconds
+    )
+    # G1 distance / feed: 10 mm + 15 mm at 600 mm/min
+    g1 = sum(b.seconds for b in program.timed_for(rates).blocks if b.modal.motion == "G1")
+    assert g1 == pytest.approx(25.0 / 10.0)
