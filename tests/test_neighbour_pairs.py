@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import math
 
+import drjit as dr
 import numpy as np
 import pytest
+from conftest import make_design
 from scipy.spatial import cKDTree
+from test_optimize_helpers import cross_of, make_layout
 
 from scratchfab.optimize.loss import PARALLEL_LIMIT, neighbour_pairs, segment_distance_np
+from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
 
 
 def brute_force(p0: np.ndarray, p1: np.ndarray, reach: float, angle_slack: float = 0.0) -> set:
@@ -212,3 +216,37 @@ def test_blocks_far_points_and_repeats_change_nothing(rng):
     first = neighbour_pairs(p0, p1, 0.8, 0.07)
     for x, y in zip(first, again, strict=True):
         np.testing.assert_array_equal(x, y)
+
+
+def test_refresh_on_one_thread_or_two(m):
+    """A refresh finds brute force's merge candidates, on a second thread or not.
+
+    With more than one Dr.Jit thread they are found beside the pixel pairs, on a thread of
+    their own; the pixel pairs and the candidates must come out the same.
+    """
+    design = make_design(resolution=24, size_mm=30.0)
+    targets, _ = cross_of(design)
+    layout = make_layout(design, 400, seed=2)
+    lr = {"cx": 0.05, "cy": 0.05, "theta": math.radians(1.0), "length": 0.05}
+    before = dr.thread_count()
+    found = []
+    try:
+        for threads in (1, 2):
+            dr.set_thread_count(threads)
+            opt = LayoutOptimizer(design, targets, layout, Settings(lr=lr), m)
+            opt._refresh(opt.ends)
+            first, second = (np.asarray(a, dtype=np.int64) for a in opt.neighbours)
+            found.append(([(p.pixel_np, p.scratch_np) for p in opt.pairs], first, second))
+    finally:
+        dr.set_thread_count(before)
+    (pairs_1, i1, j1), (pairs_2, i2, j2) = found
+    for (pix_1, sc_1), (pix_2, sc_2) in zip(pairs_1, pairs_2, strict=True):
+        np.testing.assert_array_equal(pix_1, pix_2)
+        np.testing.assert_array_equal(sc_1, sc_2)
+    np.testing.assert_array_equal(i1, i2)
+    np.testing.assert_array_equal(j1, j2)
+    e = opt.ends.astype(np.float64)
+    reach = opt.tool_width + 2 * (opt.margin - float(np.max(opt.width)) / 2)
+    want = brute_force(e[:, :2], e[:, 2:], reach, 16 * lr["theta"])
+    assert set(zip(i1.tolist(), j1.tolist(), strict=True)) == want
+    assert len(want) > 50

@@ -32,6 +32,7 @@ from __future__ import annotations
 import gc
 import math
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import astuple, dataclass
 from types import ModuleType
 from typing import Any
@@ -288,19 +289,32 @@ class LayoutOptimizer:
     # ------------------------------------------------------------------ pairs
     def _refresh(self, ends: np.ndarray) -> None:
         """Re-find pixel pairs and merge candidates around the layout ``ends``."""
+        # The old pairs go first, or they would take memory beside the new ones.
+        self.pairs = []
+        self.neighbours = None
+        self._neighbour_count = 0
+        self.active = None
+        self.classes = None
         self.refresh_ends = ends.copy()
         e = ends.astype(np.float64)
         p0, p1 = e[:, 0:2], e[:, 2:4]
         half = self.width / 2
-        self.pairs = [r.find_pairs(p0, p1, half, self.margin) for r in self.renderers]
-        self.active = None
-        self.classes = None
         reach = self.tool_width + 2 * (self.margin - float(np.max(half)))
         slack = 2 * self.settings.refresh_every * float(self.settings.lr["theta"])
-        i, j = neighbour_pairs(p0, p1, reach, slack)
+        if dr.thread_count() > 1:
+            # the merge candidates (numpy and compiled code, no Dr.Jit, the GIL released)
+            # on a second core, beside the pixel pairs
+            with ThreadPoolExecutor(max_workers=1) as pool:
+                found = pool.submit(neighbour_pairs, p0, p1, reach, slack)
+                pairs = [r.find_pairs(p0, p1, half, self.margin) for r in self.renderers]
+                i, j = found.result()
+        else:
+            pairs = [r.find_pairs(p0, p1, half, self.margin) for r in self.renderers]
+            i, j = neighbour_pairs(p0, p1, reach, slack)
         U = self.m.UInt32
         self.neighbours = (jit_array(U, i, np.uint32), jit_array(U, j, np.uint32))
         self._neighbour_count = len(i)
+        self.pairs = pairs
 
     def pair_counts(self) -> list[int]:
         """Number of pairs per view in use."""
