@@ -26,7 +26,7 @@ def _read_until(port: serial.SerialBase, predicate, timeout: float = 3.0) -> lis
     buf = b""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        buf += port.read(4096)
+        buf += port.read(max(1, port.in_waiting))  # what has come, else wait for a byte
         *done, buf = buf.split(b"\n")
         lines += [d.decode().strip() for d in done if d.strip()]
         if predicate(lines):
@@ -163,7 +163,7 @@ def test_planner_holds_15_blocks_so_ok_lags():
         _cmd(port, b"G1F60\n")  # 60 mm/min: 1 mm takes one second
         port.write(b"".join(f"G1X{k + 1}\n".encode() for k in range(20)))
         time.sleep(0.5)
-        lines = _read_until(port, lambda ls: True, timeout=0.1)
+        lines = _lines_for(port, 0.05)
         assert _answers(lines) == ["ok"] * 15  # the 16th line waits in the parser
         port.write(b"\x18")  # reset while moving -> ALARM:3
         lines = _read_until(port, lambda ls: any(x.startswith("[MSG:'$H'") for x in ls))
@@ -583,3 +583,43 @@ def test_a_feed_hold_reads_lines_while_it_stops_and_none_once_held():
         time.sleep(0.15)
     finally:
         port.close()
+
+
+def test_a_feed_hold_suspends_a_dwell_which_goes_on_after_the_resume():
+    """Grbl 1.1's dwell (``mc_dwell`` -> ``delay_sec``) runs the realtime loop between its
+    steps: a hold during the dwell is complete at once (``Hold:0``; the machine stands
+    still), the suspend loop stops the dwell's count, and after ``~`` (Idle again) the dwell
+    runs the time it had left, so its ``ok`` comes that long after the resume."""
+    port = _open("time_scale=1")
+    try:
+        _banner(port)
+        port.write(b"G4P0.5\n")
+        time.sleep(0.1)
+        port.write(b"!")
+        time.sleep(0.05)
+        assert _status(port).startswith("<Hold:0|")
+        assert _answers(_lines_for(port, 0.45)) == []  # past the dwell's end: still held
+        port.write(b"~")
+        assert _answers(_lines_for(port, 0.2)) == []  # about 0.4 s of the dwell are left
+        assert _status(port).startswith("<Idle|")  # dwelling again, Idle as before the hold
+        assert _answers(_read_until(port, lambda ls: "ok" in ls)) == ["ok"]
+        port.write(b"G4P0.3\n")  # the safety door suspends a dwell the same way
+        time.sleep(0.1)
+        port.write(b"\x84")
+        assert _answers(_lines_for(port, 0.35)) == []
+        port.sim.close_door()
+        port.write(b"~")
+        assert _answers(_read_until(port, lambda ls: "ok" in ls)) == ["ok"]
+    finally:
+        port.close()
+    rec = port.sim.record
+    for text, stop, seconds in (("G4P0.5", "!", 0.5), ("G4P0.3", "\x84", 0.3)):
+        rx = next(e["t"] for e in rec if e["ev"] == "rx" and e["text"] == text)
+        held = next(e["t"] for e in rec if e["ev"] == "rt" and e["ch"] == ord(stop) and e["t"] > rx)
+        resume = next(
+            e["t"] for e in rec if e["ev"] == "rt" and e["ch"] == ord("~") and e["t"] > rx
+        )
+        ok = next(e["t"] for e in rec if e["ev"] == "resp" and e["t"] > rx)
+        assert resume - held > seconds  # the hold outlasted the whole dwell
+        # the dwell counted only while not held: ``seconds`` in all, its rest after the resume
+        assert ok - resume == pytest.approx(seconds - (held - rx), abs=1e-5)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
@@ -42,6 +43,16 @@ from scratchfab.machine.sender_program import (
     strip_block,
 )
 from scratchfab.machine.stream_job import run_stream_job
+
+
+@pytest.fixture(autouse=True)
+def _short_banner_settle(monkeypatch):
+    """The CLI reads on 0.1 s after each banner; the emulator sends a banner's messages
+    with it, so the CLI run in these tests reads on for 0.02 s (as ``FAST`` does)."""
+    monkeypatch.setattr(
+        "scratchfab.machine.stream_job.StreamOptions",
+        functools.partial(StreamOptions, banner_settle=FAST.banner_settle),
+    )
 
 
 def write_job(
@@ -259,7 +270,7 @@ def test_resume_with_nothing_left_closes_the_journal(tmp_path):
     j.write("lost", reason="connection lost", executed_through=len(prog.blocks) - 1)
     j.close()
     said: list[str] = []
-    run_stream_job(job, "grblsim://?time_scale=0.001", say=said.append)
+    run_stream_job(job, "grblsim://?baud=0&time_scale=0.001", say=said.append)
     assert any("nothing to do" in line for line in said)
     assert not interrupted(read_journal(journal), prog.sha256)  # a later run starts fresh
 
@@ -500,7 +511,7 @@ def test_error_stops_feed_holds_and_names_line_cli(tmp_path, capsys):
     write_job(job, 200)
     prog = load_program(job)
     rec = tmp_path / "rec.jsonl"
-    url = f"grblsim://?time_scale=0.002&error_at=500&record={rec}"
+    url = f"grblsim://?baud=0&time_scale=0.002&error_at=500&record={rec}"
     with pytest.raises(SystemExit) as exc:
         main(["stream", str(job), "--port", url, "--yes", "--banner-timeout", "0.5"])
     assert exc.value.code == 3
@@ -524,7 +535,7 @@ def test_error_through_pty(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 60)
     prog = load_program(job)
-    with GrblPty(SimOptions(time_scale=0.002, error_at=100)) as pty:
+    with GrblPty(SimOptions(baud=0, time_scale=0.002, error_at=100)) as pty:
         port = serial.Serial(pty.path, 115200, timeout=0.01)
         try:
             with pytest.raises(StreamFault, match=rf"job.gcode:{prog.blocks[99].lineno}: error:20"):
@@ -548,13 +559,15 @@ def test_disconnect_then_resume_cuts_every_stroke_at_most_one_twice(tmp_path, li
                     "stream",
                     str(job),
                     "--port",
-                    f"grblsim://?time_scale=0.002&disconnect_after=301&record={rec1}",
+                    f"grblsim://?baud=0&time_scale=0.002&disconnect_after=301&record={rec1}",
                     *common,
                 ]
             )
         assert exc.value.code == 3
     else:
-        pty = GrblPty(SimOptions(time_scale=0.002, disconnect_after=301, record=str(rec1))).start()
+        pty = GrblPty(
+            SimOptions(baud=0, time_scale=0.002, disconnect_after=301, record=str(rec1))
+        ).start()
         with pytest.raises(SystemExit) as exc:
             main(["stream", str(job), "--port", pty.path, *common])
         assert exc.value.code == 3
@@ -565,7 +578,7 @@ def test_disconnect_then_resume_cuts_every_stroke_at_most_one_twice(tmp_path, li
             "stream",
             str(job),
             "--port",
-            f"grblsim://?time_scale=0.002&record={rec2}",
+            f"grblsim://?baud=0&time_scale=0.002&record={rec2}",
             "--resume",
             *common,
         ]
@@ -588,7 +601,7 @@ def test_usb_powered_disconnect_needs_recut_unsure(tmp_path, capsys):
     journal = default_journal_path(job)
     recs = [tmp_path / f"r{k}.jsonl" for k in range(3)]
     common = ["--yes", "--banner-timeout", "0.3"]
-    url = "grblsim://?time_scale=0.02&disconnect_after=151&usb_powered=1&record="
+    url = "grblsim://?baud=0&time_scale=0.02&disconnect_after=151&usb_powered=1&record="
     with pytest.raises(SystemExit) as exc:
         main(["stream", str(job), "--port", f"{url}{recs[0]}", *common])
     assert exc.value.code == 3
@@ -598,7 +611,7 @@ def test_usb_powered_disconnect_needs_recut_unsure(tmp_path, capsys):
     capsys.readouterr()
 
     def resume(rec, *flags):
-        main(["stream", str(job), "--port", f"grblsim://?time_scale=0.002&record={rec}",
+        main(["stream", str(job), "--port", f"grblsim://?baud=0&time_scale=0.002&record={rec}",
               "--resume", *flags, *common])  # fmt: skip
         return capsys.readouterr().out
 
@@ -619,7 +632,7 @@ def test_recut_unsure_needs_resume(tmp_path, capsys):
     job = tmp_path / "job.gcode"
     write_job(job, 2)
     with pytest.raises(SystemExit) as exc:
-        main(["stream", str(job), "--port", "grblsim://", "--recut-unsure", "--yes"])
+        main(["stream", str(job), "--port", "grblsim://?baud=0", "--recut-unsure", "--yes"])
     assert exc.value.code == 2
     assert "--recut-unsure only applies with --resume" in capsys.readouterr().err
 
@@ -632,7 +645,7 @@ def test_fresh_stream_over_an_unfinished_journal_warns(tmp_path, capsys):
     j.start(load_program(job), resume=False)
     j.write("ack", i=0, line=2)
     j.close()
-    args = ["stream", str(job), "--port", "grblsim://?time_scale=0.001", "--yes"]
+    args = ["stream", str(job), "--port", "grblsim://?baud=0&time_scale=0.001", "--yes"]
     main(args)
     assert "shows an unfinished stream of this file" in capsys.readouterr().err
     main(args)  # the journal's last run finished: no warning
@@ -649,15 +662,15 @@ def test_pipeline_stream_stage_resumes_an_interrupted_stream(tmp_path):
     with pytest.raises(StreamFault, match="connection lost"):
         run_stream_job(
             job,
-            f"grblsim://?time_scale=0.002&disconnect_after=151&record={recs[0]}",
+            f"grblsim://?baud=0&time_scale=0.002&disconnect_after=151&record={recs[0]}",
             say=said.append,
         )
-    run_stream_job(job, f"grblsim://?time_scale=0.002&record={recs[1]}", say=said.append)
+    run_stream_job(job, f"grblsim://?baud=0&time_scale=0.002&record={recs[1]}", say=said.append)
     assert any(line.startswith("resuming at line") for line in said)
     counts = cut_counts([read_record(recs[0]), read_record(recs[1])], cuts)
     assert min(counts) == 1 and max(counts) <= 2 and counts.count(2) <= 1
     said.clear()  # a finished stream streamed again (run --force) starts from the top
-    run_stream_job(job, f"grblsim://?time_scale=0.002&record={recs[2]}", say=said.append)
+    run_stream_job(job, f"grblsim://?baud=0&time_scale=0.002&record={recs[2]}", say=said.append)
     assert not any(line.startswith("resuming") for line in said)
     assert min(cut_counts([read_record(recs[2])], cuts)) == 1
 
@@ -675,7 +688,7 @@ def test_ctrl_c_stop_is_safe_and_resume_completes(tmp_path):
             calls["fired"] = True
             raise KeyboardInterrupt
 
-    port = open_port("grblsim://?time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
     try:
         with pytest.raises(StreamStopped):
             stream_program(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
@@ -689,7 +702,7 @@ def test_ctrl_c_stop_is_safe_and_resume_completes(tmp_path):
     assert not any(e["ev"] == "alarm" for e in rec1)
     done = done_blocks(read_journal(journal), prog.sha256, journal)
     start = resume_point(prog, done)
-    port = open_port("grblsim://?time_scale=0.002", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.002", 115200)
     try:
         streamer = Streamer(port, FAST)
         streamer.connect()
@@ -713,7 +726,7 @@ def test_ctrl_c_resume_continues(tmp_path):
             fired.append(1)
             raise KeyboardInterrupt
 
-    port = open_port("grblsim://?time_scale=0.01", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
     try:
         stream_program(
             port, prog, tmp_path / "j.jsonl", on_progress=progress, ask_interrupt=lambda: "resume"
@@ -730,7 +743,7 @@ def test_stall_watchdog(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 30)
     prog = load_program(job)
-    port = open_port("grblsim://?time_scale=0.001&lose_ok_at=50", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.001&lose_ok_at=50", 115200)
     try:
         # answers pair with lines in order: the lost one leaves the last line unanswered
         with pytest.raises(StreamFault, match="stalled: no answer to the end-of-job G4P0"):
@@ -748,7 +761,7 @@ def test_unexpected_banner_aborts(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 30)
     prog = load_program(job)
-    port = open_port("grblsim://?time_scale=0.001&reset_after=60", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.001&reset_after=60", 115200)
     try:
         with pytest.raises(StreamFault, match="reset itself mid-job"):
             stream_program(port, prog, tmp_path / "j.jsonl")
@@ -760,7 +773,7 @@ def test_alarm_mid_job_reports_meaning(tmp_path):
     job = tmp_path / "job.gcode"
     job.write_text("G21G90\nG1X-5F1000\nG1X-10\nG1X5\nG1X-1\n")
     prog = load_program(job)
-    port = open_port("grblsim://?time_scale=0.01&soft_limits=1&homed=1", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.01&soft_limits=1&homed=1", 115200)
     try:
         with pytest.raises(StreamFault, match=r"ALARM:2 \(soft limit"):
             stream_program(port, prog, tmp_path / "j.jsonl")
@@ -772,7 +785,7 @@ def test_alarm_mid_job_reports_meaning(tmp_path):
 def test_alarm_state_is_refused_before_sending(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 2)
-    port = open_port("grblsim://?soft_limits=1", 115200)
+    port = open_port("grblsim://?baud=0&soft_limits=1", 115200)
     try:
         with pytest.raises(StreamFault, match="Alarm"):
             Streamer(port, FAST).connect()
@@ -791,7 +804,7 @@ def test_check_mode_reports_every_error_without_motion(tmp_path, capsys):
                 "stream",
                 str(job),
                 "--port",
-                f"grblsim://?record={rec}",
+                f"grblsim://?baud=0&record={rec}",
                 "--check",
                 "--yes",
                 "--banner-timeout",
@@ -819,7 +832,14 @@ def test_confirmation_required_without_yes(tmp_path):
     rec = tmp_path / "rec.jsonl"
     result = CliRunner().invoke(
         cli,
-        ["stream", str(job), "--port", f"grblsim://?record={rec}", "--banner-timeout", "0.3"],
+        [
+            "stream",
+            str(job),
+            "--port",
+            f"grblsim://?baud=0&record={rec}",
+            "--banner-timeout",
+            "0.3",
+        ],
         input="n\n",
     )
     assert result.exit_code != 0
@@ -836,7 +856,7 @@ def test_refuses_job_outside_soft_limits_cli(tmp_path, capsys):
                 "stream",
                 str(job),
                 "--port",
-                "grblsim://?soft_limits=1&homed=1",
+                "grblsim://?baud=0&soft_limits=1&homed=1",
                 "--yes",
                 "--banner-timeout",
                 "0.3",
@@ -896,7 +916,7 @@ def test_rapid_time_estimate_per_axis_and_retimed(tmp_path):
 
 # --------------------------------------------------------------------------- journal safety
 
-SIM = "grblsim://?time_scale=0&$130=300&$131=180&$132=45"
+SIM = "grblsim://?baud=0&time_scale=0&$130=300&$131=180&$132=45"
 
 
 def _no_connection(rec: Path) -> bool:
@@ -1239,7 +1259,7 @@ def test_soft_limit_check_reads_the_work_offset(tmp_path, wco_field):
     lo, hi = job_extent(prog)
     for offset, fits in (("-100,-100,-10", True), ("0,0,0", False)):
         query = f"soft_limits=1&homed=1&wco={offset}&wco_field={int(wco_field)}"
-        port = open_port(f"grblsim://?time_scale=0&{query}", 115200)
+        port = open_port(f"grblsim://?baud=0&time_scale=0&{query}", 115200)
         try:
             streamer = Streamer(port, FAST)
             info = streamer.connect()
@@ -1289,7 +1309,7 @@ def test_an_unknown_work_offset_is_refused_under_soft_limits(tmp_path):
     said: list[str] = []
     for wco_field, expect in ((1, (-100.0, -100.0, -10.0)), (0, None)):
         rec = tmp_path / f"rec{wco_field}.jsonl"
-        url = f"grblsim://?soft_limits=1&homed=1&wco=-100,-100,-10&wco_field={wco_field}"
+        url = f"grblsim://?baud=0&soft_limits=1&homed=1&wco=-100,-100,-10&wco_field={wco_field}"
         port = open_port(f"{url}&record={rec}", 115200)
         try:
             info = Streamer(_NoParams(port), FAST, on_message=said.append).connect()
@@ -1524,7 +1544,7 @@ def test_a_failed_prompt_after_ctrl_c_still_stops_safely(tmp_path, answer):
             "second_ctrl_c": (KeyboardInterrupt()),
         }[answer]
 
-    port = open_port("grblsim://?time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
     try:
         with pytest.raises(StreamStopped):
             stream_program(port, prog, journal, on_progress=_fire_after(60), ask_interrupt=ask)
@@ -1539,7 +1559,7 @@ def test_ctrl_c_while_waiting_for_the_hold_still_resets(tmp_path):
     write_job(job, 40)
     prog = load_program(job)
     journal = tmp_path / "j.jsonl"
-    port = open_port("grblsim://?time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
     trip = _Tripwire(port)
 
     def ask():
@@ -1573,7 +1593,7 @@ def test_a_journal_write_error_stops_the_machine(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 40)
     prog = load_program(job)
-    port = open_port("grblsim://?time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
     try:
         streamer = Streamer(port, FAST)
         streamer.connect()
@@ -1591,7 +1611,7 @@ def test_ctrl_c_in_check_mode_leaves_check_mode(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 40)
     prog = load_program(job)
-    port = open_port("grblsim://?time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
     trip = _Tripwire(port)
     try:
         streamer = Streamer(trip, FAST)
@@ -1638,7 +1658,7 @@ def test_sigterm_and_sighup_stop_the_stream_safely(tmp_path, signame):
     asked, fired = [], []
     previous = signal.signal(signum, outer)
     try:
-        port = open_port("grblsim://?time_scale=0.02", 115200)
+        port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
         try:
             with pytest.raises(StreamStopped, match=f"stopped by {signame} after line"):
                 stream_program(
@@ -1655,7 +1675,7 @@ def test_sigterm_and_sighup_stop_the_stream_safely(tmp_path, signame):
         first_record = port.sim.record
         assert signal.getsignal(signum) is outer  # restored after the stream
         # check mode too
-        port = open_port("grblsim://?time_scale=0.02", 115200)
+        port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
         try:
             streamer = Streamer(port, FAST)
             streamer.connect()
@@ -1693,7 +1713,7 @@ def test_a_stream_in_a_thread_installs_no_signal_handler(tmp_path):
     errors = []
 
     def run():
-        port = open_port("grblsim://?time_scale=0.001", 115200)
+        port = open_port("grblsim://?baud=0&time_scale=0.001", 115200)
         try:
             stream_program(port, prog, tmp_path / "j.jsonl")
         except BaseException as exc:  # noqa: BLE001
@@ -1716,7 +1736,7 @@ def test_a_killed_senders_unsure_acks_are_cut_again(tmp_path, capsys):
     prog = load_program(job)
     journal = default_journal_path(job)
     rec1, rec2 = tmp_path / "r1.jsonl", tmp_path / "r2.jsonl"
-    port = open_port(f"grblsim://?time_scale=0.02&usb_powered=1&record={rec1}", 115200)
+    port = open_port(f"grblsim://?baud=0&time_scale=0.02&usb_powered=1&record={rec1}", 115200)
     streamer = Streamer(port, FAST)
     streamer.connect()
     j = Journal(journal).open()
@@ -1741,7 +1761,7 @@ def test_a_killed_senders_unsure_acks_are_cut_again(tmp_path, capsys):
     assert done_blocks(events, prog.sha256, journal, program=prog, recut_unclosed=False) == set(
         acked
     )
-    main(["stream", str(job), "--port", f"grblsim://?time_scale=0.002&record={rec2}",
+    main(["stream", str(job), "--port", f"grblsim://?baud=0&time_scale=0.002&record={rec2}",
           "--resume", "--yes", "--banner-timeout", "0.3"])  # fmt: skip
     out = capsys.readouterr().out
     assert "ended without a stop" in out and "they are cut again" in out
@@ -1751,7 +1771,7 @@ def test_a_killed_senders_unsure_acks_are_cut_again(tmp_path, capsys):
 
 def test_connect_waits_for_a_controller_still_running_before_resetting(tmp_path):
     """Over a port without DTR reset a killed sender's queue keeps running: no reset mid-move."""
-    with GrblPty(SimOptions(time_scale=0.5)) as pty:
+    with GrblPty(SimOptions(baud=0, time_scale=0.5)) as pty:
         first = serial.Serial(pty.path, 115200, timeout=2.0)
         # opening flushes input: the power-up banner may be gone, a soft reset sends another
         first.write(b"\x18")
@@ -1829,7 +1849,7 @@ def test_a_full_disk_stops_safely_with_one_line_naming_the_journal(tmp_path, mon
 
     monkeypatch.setattr(Journal, "open", open_full)
     with pytest.raises(SystemExit) as exc:
-        main(["stream", str(job), "--port", f"grblsim://?time_scale=0.02&record={rec}", "--yes",
+        main(["stream", str(job), "--port", f"grblsim://?baud=0&time_scale=0.02&record={rec}", "--yes",
               "--banner-timeout", "0.3"])  # fmt: skip
     assert exc.value.code == 2
     err = capsys.readouterr().err
@@ -1838,7 +1858,7 @@ def test_a_full_disk_stops_safely_with_one_line_naming_the_journal(tmp_path, mon
     _held_then_reset(read_record(rec))
     monkeypatch.undo()
     read_journal(journal)  # the torn last line is skipped
-    main(["stream", str(job), "--port", "grblsim://?time_scale=0.001", "--yes", "--resume",
+    main(["stream", str(job), "--port", "grblsim://?baud=0&time_scale=0.001", "--yes", "--resume",
           "--banner-timeout", "0.3"])  # fmt: skip
     assert read_journal(journal)[-1]["ev"] == "end"
 
@@ -1850,7 +1870,7 @@ def test_a_second_stream_of_the_same_job_or_port_is_refused(tmp_path, capsys):
     held = Journal(default_journal_path(job)).open()
     try:
         with pytest.raises(SystemExit) as exc:
-            main(["stream", str(job), "--port", f"grblsim://?record={rec}", "--yes"])
+            main(["stream", str(job), "--port", f"grblsim://?baud=0&record={rec}", "--yes"])
         assert exc.value.code == 2
     finally:
         held.close()
@@ -1915,7 +1935,7 @@ def test_resumed_spindle_job_dwells_before_it_moves(tmp_path):
     moves = [k for k in moves if k != z_up]
     assert moves and z_up < spindle_on < dwell < min(moves)
 
-    port = open_port("grblsim://?time_scale=0.001", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.001", 115200)
     try:
         streamer = Streamer(port, FAST)
         streamer.connect()
@@ -2009,7 +2029,7 @@ def test_stop_position_matches_the_emulator(tmp_path, query):
             fired.append(1)
             raise KeyboardInterrupt
 
-    port = open_port(f"grblsim://?time_scale=0.02&{query}", 115200)
+    port = open_port(f"grblsim://?baud=0&time_scale=0.02&{query}", 115200)
     try:
         with pytest.raises(StreamStopped):
             stream_program(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
@@ -2104,7 +2124,14 @@ def test_on_a_terminal_the_bar_ends_before_each_message(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 3)
     rc, text = _stream_on_a_terminal(
-        [str(job), "--port", "grblsim://?time_scale=0.001", "--yes", "--banner-timeout", "0.3"]
+        [
+            str(job),
+            "--port",
+            "grblsim://?baud=0&time_scale=0.001",
+            "--yes",
+            "--banner-timeout",
+            "0.3",
+        ]
     )
     assert rc == 0, text
     shown = _shown_lines(text)
@@ -2117,7 +2144,14 @@ def test_on_a_terminal_ctrl_c_asks_on_its_own_line_and_stops(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 400)  # about 4 s at this time scale: a loaded machine still interrupts it
     rc, text = _stream_on_a_terminal(
-        [str(job), "--port", "grblsim://?time_scale=0.02", "--yes", "--banner-timeout", "0.3"],
+        [
+            str(job),
+            "--port",
+            "grblsim://?baud=0&time_scale=0.02",
+            "--yes",
+            "--banner-timeout",
+            "0.3",
+        ],
         interrupt_at=3,
     )
     assert rc == 130, text
@@ -2139,7 +2173,7 @@ def test_check_then_stream_ends_with_the_final_position(tmp_path, capsys):
             "stream",
             str(job),
             "--port",
-            "grblsim://?time_scale=0.01",
+            "grblsim://?baud=0&time_scale=0.01",
             "--yes",
             "--check",
             "--banner-timeout",
@@ -2167,7 +2201,7 @@ def test_declining_the_confirmation_sends_nothing(tmp_path):
                     "stream",
                     str(job),
                     "--port",
-                    f"grblsim://?record={rec}",
+                    f"grblsim://?baud=0&record={rec}",
                     "--banner-timeout",
                     "0.3",
                 ]
@@ -2194,7 +2228,7 @@ def test_sigterm_stops_the_cli_stream_and_resume_finishes(tmp_path, capsys):
     common = ["--yes", "--banner-timeout", "0.3"]
     proc = subprocess.Popen(
         [sys.executable, "-c", _CLI, "stream", str(job), "--port",
-         f"grblsim://?time_scale=0.02&record={recs[0]}", *common],
+         f"grblsim://?baud=0&time_scale=0.02&record={recs[0]}", *common],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -2215,7 +2249,7 @@ def test_sigterm_stops_the_cli_stream_and_resume_finishes(tmp_path, capsys):
     assert re.search(r"^stopped by SIGTERM after line \d+; machine held", err, re.M)
     events = read_journal(journal)
     assert events[-1]["ev"] == "stop" and "SIGTERM" in events[-1]["reason"]
-    main(["stream", str(job), "--port", f"grblsim://?time_scale=0.001&record={recs[1]}",
+    main(["stream", str(job), "--port", f"grblsim://?baud=0&time_scale=0.001&record={recs[1]}",
           "--resume", *common])  # fmt: skip
     out = capsys.readouterr().out
     assert "resuming at line" in out and "done:" in out
@@ -2242,7 +2276,7 @@ def test_refusals_before_connecting(tmp_path, capsys, content, args, message):
         job.write_bytes(content)
     rec = tmp_path / "rec.jsonl"
     with pytest.raises(SystemExit) as exc:
-        main(["stream", str(job), "--port", f"grblsim://?record={rec}", "--yes", *args])
+        main(["stream", str(job), "--port", f"grblsim://?baud=0&record={rec}", "--yes", *args])
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and message in err and len(err.splitlines()) == 1
@@ -2321,7 +2355,7 @@ def test_a_resumed_spindle_job_starts_the_spindle_only_above_the_board(tmp_path)
     stuck = tmp_path / "stuck.gcode"
     stuck.write_text(f"G21 G90\nG1 Z{profile.z.engrave_mm:g} F200\n")
     rec = tmp_path / "rec.jsonl"
-    port = open_port(f"grblsim://?time_scale=0.001&record={rec}", 115200)
+    port = open_port(f"grblsim://?baud=0&time_scale=0.001&record={rec}", 115200)
     try:
         streamer = Streamer(port, FAST)
         streamer.connect()
@@ -2372,7 +2406,7 @@ def test_a_second_ctrl_c_while_stopping_after_an_error_still_resets(tmp_path, mo
     write_job(job, 60)
     prog = load_program(job)
     journal = tmp_path / "j.jsonl"
-    port = open_port("grblsim://?time_scale=0.02&error_at=120", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.02&error_at=120", 115200)
     trip = _Tripwire(port)
     original = Streamer._stop_after_fault
 
@@ -2400,7 +2434,7 @@ def test_a_brown_out_flushes_the_lines_already_on_the_way(tmp_path):
     job, _ = _profile_job(tmp_path, "grbl-3018-diamond", n=40, seed=11)
     prog = load_program(job)
     rec = tmp_path / "rec.jsonl"
-    url = f"grblsim://?time_scale=0.02&{_3018_RATES}&reset_after=133&record={rec}"
+    url = f"grblsim://?baud=0&time_scale=0.02&{_3018_RATES}&reset_after=133&record={rec}"
     port = open_port(url, 115200)
     try:
         with pytest.raises(StreamFault, match="reset itself mid-job"):
@@ -2448,7 +2482,7 @@ def test_laser_mode_s_changes_are_not_taken_as_sync_points(tmp_path, laser):
     prog = load_program(job)
     journal = tmp_path / "j.jsonl"
     port = open_port(
-        f"grblsim://?time_scale=0.05&usb_powered=1&$32={laser}&$110=5000&$111=5000", 115200
+        f"grblsim://?baud=0&time_scale=0.05&usb_powered=1&$32={laser}&$110=5000&$111=5000", 115200
     )
     streamer = Streamer(port, FAST)
     streamer.connect()
@@ -2492,7 +2526,7 @@ def test_sync_blocks_are_the_ones_the_emulator_waits_at(tmp_path, laser):
     prog = load_program(job)
     from scratchfab.machine.grblsim import GrblSim
 
-    sim = GrblSim(SimOptions(time_scale=0.05, settings={32: laser}))
+    sim = GrblSim(SimOptions(baud=0, time_scale=0.05, settings={32: laser}))
     sim.start()
     deadline = time.monotonic() + 20
     for b in prog.blocks:  # send-response: the RX buffer never overflows
@@ -2533,7 +2567,7 @@ def test_a_file_cut_off_at_a_plunge_is_refused_before_connecting(
     job.write_text(text)
     rec = tmp_path / "rec.jsonl"
     with pytest.raises(SystemExit) as exc:
-        main(["stream", str(job), "--port", f"grblsim://?record={rec}", "--yes"])
+        main(["stream", str(job), "--port", f"grblsim://?baud=0&record={rec}", "--yes"])
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith(f"error: {job}:{line}: the program ends ") and len(err.splitlines()) == 1
@@ -2559,7 +2593,7 @@ def test_a_file_cut_off_at_a_plunge_is_refused_before_connecting(
 def test_a_file_that_ends_lifted_is_streamed(tmp_path, text):
     job = tmp_path / "job.gcode"
     job.write_text(text)
-    main(["stream", str(job), "--port", "grblsim://?time_scale=0", "--yes"])
+    main(["stream", str(job), "--port", "grblsim://?baud=0&time_scale=0", "--yes"])
     assert read_journal(default_journal_path(job))[-1]["ev"] == "end"
 
 
@@ -2570,7 +2604,7 @@ def test_check_mode_refuses_when_its_reset_clears_the_work_zero(tmp_path, zero, 
     job = tmp_path / "job.gcode"
     write_job(job, 2)
     prog = load_program(job)
-    port = open_port("grblsim://?time_scale=0", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0", 115200)
     try:
         streamer = Streamer(port, FAST)
         streamer.connect()
@@ -2606,7 +2640,7 @@ def test_resume_refuses_when_a_reset_cleared_the_g92_zero(tmp_path, monkeypatch,
     write_job(job, 12)
     prog = load_program(job)
     journal = default_journal_path(job)
-    port = open_port("grblsim://?time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
     streamer = Streamer(port, FAST, ask_interrupt=lambda: "stop")
     streamer.connect()
     streamer._command(zero)
@@ -2626,7 +2660,7 @@ def test_resume_refuses_when_a_reset_cleared_the_g92_zero(tmp_path, monkeypatch,
         streamer._command(rezero)
     sent = len(_received_gcode(port.sim.record))
     monkeypatch.setattr("scratchfab.machine.stream_job.open_port", lambda name, baud: port)
-    args = ["stream", str(job), "--port", "grblsim://", "--resume", "--yes"]
+    args = ["stream", str(job), "--port", "grblsim://?baud=0", "--resume", "--yes"]
     if resumed:
         main([*args, "--banner-timeout", "0.3"])
         assert read_journal(journal)[-1]["ev"] == "end"
@@ -2654,7 +2688,7 @@ def test_a_dwell_longer_than_the_stall_timeout_is_not_a_stall(tmp_path):
         ("", None),
         ("&lose_ok_at=4", "stalled: no answer to the end-of-job G4P0"),
     ):
-        port = open_port(f"grblsim://?time_scale=0.25{query}", 115200)  # the dwell: 1 s
+        port = open_port(f"grblsim://?baud=0&time_scale=0.25{query}", 115200)  # the dwell: 1 s
         try:
             if fault is None:
                 stream_program(port, prog, tmp_path / "j.jsonl", options)
@@ -2700,7 +2734,7 @@ def test_an_alarm_whose_message_was_lost_stops_the_job_instead_of_waiting(tmp_pa
     job = tmp_path / "job.gcode"
     write_job(job, 30)
     prog = load_program(job)
-    url = "grblsim://?time_scale=0.02&soft_limits=1&homed=1&wco=-100,-100,-10&reset_after=60"
+    url = "grblsim://?baud=0&time_scale=0.02&soft_limits=1&homed=1&wco=-100,-100,-10&reset_after=60"
     port = open_port(url, 115200)
     streamer = Streamer(port, FAST)
     streamer.connect()
@@ -2728,7 +2762,7 @@ def test_a_reset_during_check_mode_stops_before_anything_moves(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 10)
     prog = load_program(job)
-    port = open_port("grblsim://?time_scale=0.01&reset_after=8", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.01&reset_after=8", 115200)
     try:
         streamer = Streamer(port, FAST)
         streamer.connect()
@@ -2749,7 +2783,7 @@ def test_check_mode_is_entered_or_nothing_is_sent(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 5)
     prog = load_program(job)
-    port = open_port("grblsim://?time_scale=0.01", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
     try:
         streamer = Streamer(port, FAST)
         streamer.connect()
@@ -2764,7 +2798,7 @@ def test_check_mode_is_entered_or_nothing_is_sent(tmp_path):
 def test_a_lost_link_warns_that_the_machine_may_still_move(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 20)
-    port = open_port("grblsim://?time_scale=0.02&disconnect_after=40", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.02&disconnect_after=40", 115200)
     try:
         with pytest.raises(StreamFault, match="connection lost.*goes on running the lines"):
             stream_program(port, load_program(job), tmp_path / "j.jsonl")
@@ -2780,7 +2814,7 @@ def test_report_lines_that_need_idle_wait_for_it(tmp_path):
     are allowed: they move nothing) must not stop there."""
     job = tmp_path / "job.gcode"
     job.write_text("G21 G90\nG0 Z2\nG0 X5 Y5\n$#\nG0 X0\n$G\n$$\nG0 Y0\n$I\n$N\nG0 Z3\n")
-    port = open_port("grblsim://?time_scale=0.05", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.05", 115200)
     try:
         stream_program(port, load_program(job), tmp_path / "j.jsonl")
     finally:
@@ -2795,7 +2829,7 @@ def test_a_grbl_0_9_controller_is_refused(monkeypatch):
     import scratchfab.machine.grblsim as grblsim
 
     monkeypatch.setattr(grblsim, "BANNER", "\r\nGrbl 0.9j ['$' for help]\r\n")
-    port = open_port("grblsim://?time_scale=0", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0", 115200)
     try:
         with pytest.raises(StreamFault, match=r"Grbl 0\.9j, whose status reports"):
             Streamer(port, FAST).connect()
@@ -2811,7 +2845,7 @@ def test_a_reset_while_held_at_the_prompt_is_not_resumed(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 30)
     prog = load_program(job)
-    port = open_port("grblsim://?time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
     sim = port.sim
 
     def brown_out_then_resume():

@@ -37,7 +37,7 @@ def test_done_only_once_the_last_move_has_run(tmp_path):
     job.write_text("G21 G90\nG0 Z1\nG1 X2 F600\nM5\nG0 Z5\n")
     prog = load_program(job)
     journal = tmp_path / "j.jsonl"
-    port = open_port("grblsim://?plan_time=0.3", 115200)
+    port = open_port("grblsim://?baud=0&plan_time=0.3", 115200)
     try:
         stream_program(port, prog, journal)
         record = list(port.sim.record)  # what had run when the sender said done
@@ -53,7 +53,7 @@ def test_done_only_once_the_last_move_has_run(tmp_path):
 
 
 GRBLHAL = "GrblHAL 1.1f ['$' or '$HELP' for help]"
-HAL_URL = "grblsim://?banner=" + urllib.parse.quote(GRBLHAL)
+HAL_URL = "grblsim://?baud=0&banner=" + urllib.parse.quote(GRBLHAL)
 
 
 def test_grblhal_banner_is_recognised_and_named(tmp_path, capsys):
@@ -102,7 +102,11 @@ def test_grblhal_tool_offset_on_every_axis(tmp_path):
 def test_a_tool_change_is_refused_before_sending(tmp_path, banner):
     job = tmp_path / "job.gcode"
     job.write_text("G21 G90\nG0 Z1\nT2 M06\nG1 X2 F600\n")
-    url = f"grblsim://?banner={urllib.parse.quote(banner)}&" if banner else "grblsim://?"
+    url = (
+        f"grblsim://?baud=0&banner={urllib.parse.quote(banner)}&"
+        if banner
+        else "grblsim://?baud=0&"
+    )
     port = open_port(f"{url}time_scale=0.01", 115200)
     try:
         with pytest.raises(StreamFault, match=r"job\.gcode:3: M6 \(tool change\): Grbl 1\.1"):
@@ -113,7 +117,7 @@ def test_a_tool_change_is_refused_before_sending(tmp_path, banner):
 
 
 def test_an_unknown_banner_is_refused(tmp_path):
-    port = open_port("grblsim://?banner=Smoothie%20edge&boot=0", 115200)
+    port = open_port("grblsim://?baud=0&banner=Smoothie%20edge&boot=0", 115200)
     try:
         with pytest.raises(StreamFault, match=r"no GRBL banner \('Grbl 1\.1\.\.\.' or 'GrblHAL"):
             Streamer(port, StreamOptions(banner_timeout=0.2, banner_settle=0.02)).connect()
@@ -133,7 +137,7 @@ def test_safety_door_pauses_without_a_stall_and_the_job_goes_on(tmp_path):
     no fault; the job goes on after the door is closed and cycle start is pressed."""
     prog = load_program(_door_job(tmp_path))
     journal = tmp_path / "j.jsonl"
-    port = open_port("grblsim://?time_scale=0.1", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.1", 115200)
     sim = port.sim
     messages: list[str] = []
     states: list[str] = []
@@ -176,7 +180,7 @@ def test_stop_with_the_door_open_resets_at_once(tmp_path):
     """Door:1 stands still: a stop resets it without waiting for a Hold:0 that never comes."""
     prog = load_program(_door_job(tmp_path))
     journal = tmp_path / "j.jsonl"
-    port = open_port("grblsim://?time_scale=0.1", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.1", 115200)
     sim = port.sim
     fired: list[float] = []
 
@@ -204,7 +208,7 @@ def test_stop_with_the_door_open_resets_at_once(tmp_path):
 
 
 def test_a_door_open_at_connect_is_refused():
-    port = open_port("grblsim://?time_scale=0.1", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.1", 115200)
     try:
         port.sim.open_door()
         with pytest.raises(StreamFault, match=r"reports Door:1: its safety door is open"):
@@ -228,7 +232,7 @@ def _busy_pty_controller(pty) -> None:
 def test_a_controller_its_door_stopped_is_reset_at_once_on_connect(closed):
     """Door:0/Door:1 at connect: the machine stands still, so the soft reset comes at once
     and the user is told why; an open door then refuses the stream as at any connect."""
-    with GrblPty(SimOptions(time_scale=0.5)) as pty:
+    with GrblPty(SimOptions(baud=0, time_scale=0.5)) as pty:
         _busy_pty_controller(pty)
         pty.sim.open_door()
         if closed:
@@ -257,7 +261,7 @@ def test_a_door_that_stops_a_busy_controller_on_connect_resets_it_without_the_ho
     that stops it meanwhile (Door:1: GRBL ignores the hold then) stands it still too: the
     reset comes at once, not after hold_timeout waiting for a Hold:0 that never comes."""
     options = replace(FAST, busy_timeout=0.3, hold_timeout=5.0)
-    with GrblPty(SimOptions(time_scale=0.5)) as pty:
+    with GrblPty(SimOptions(baud=0, time_scale=0.5)) as pty:
         _busy_pty_controller(pty)
         said: list[str] = []
 
@@ -316,7 +320,7 @@ def test_one_offset_tolerance_for_check_mode_and_resume(tmp_path, digits, inches
     # check mode: a G92 set before $C is cleared by the reset that ends it
     job = tmp_path / "job.gcode"
     job.write_text("G21 G90\nG0 Z1\nG1 X2 F600\n")
-    port = open_port(f"grblsim://?time_scale=0.01&$13={int(inches)}", 115200)
+    port = open_port(f"grblsim://?baud=0&time_scale=0.01&$13={int(inches)}", 115200)
     try:
         port.write(f"G92 X{-shift:.6f}\n".encode())  # at X0: the work offset becomes +shift
         streamer = Streamer(port, FAST)
@@ -334,7 +338,7 @@ def test_one_offset_tolerance_for_check_mode_and_resume(tmp_path, digits, inches
 def _offset_readings(inches: bool, g54: float, g92: float, tlo: float):
     """The work offset as the sender reads it with $# (at connect) and from a status
     report's WCO, for a Z zero set as G54 + G92 + tool length offset (mm)."""
-    port = open_port(f"grblsim://?time_scale=0&$13={int(inches)}&wco=0,0,{g54:.6f}", 115200)
+    port = open_port(f"grblsim://?baud=0&time_scale=0&$13={int(inches)}&wco=0,0,{g54:.6f}", 115200)
     try:
         # at MPos Z0, G92 Z-(G54 + v) makes the G92 offset +v (TLO still 0)
         port.write(f"G21\nG92 Z{-g54 - g92:.6f}\nG43.1 Z{tlo:.6f}\n".encode())
@@ -405,7 +409,7 @@ def test_stop_while_the_door_restores_holds_before_the_cycle_resumes(tmp_path):
     moves = "".join(f"G1 X{10 * (k % 2)} Y{k} F600\n" for k in range(30))  # 1 s each
     job.write_text("G21 G90\nM3 S1000\n" + moves + "M5\n")
     prog = load_program(job)
-    port = open_port("grblsim://?time_scale=0.25", 115200)  # spindle spin-up: 1 s
+    port = open_port("grblsim://?baud=0&time_scale=0.25", 115200)  # spindle spin-up: 1 s
     sim = port.sim
     fired: list[float] = []
     opened: list[bool] = []
@@ -457,6 +461,7 @@ def test_a_door_opened_in_check_mode_is_refused_after_its_reset(tmp_path):
     with the wrong line of the job)."""
     job = tmp_path / "job.gcode"
     job.write_text("G21 G90\nG0 Z1\nG1 X2 F600\nG0 Z5\n")
+    # at the line's speed (not baud=0), so that the door opens while it is in check mode
     port = open_port("grblsim://?time_scale=0.05", 115200)
     sim = port.sim
     try:
@@ -476,7 +481,7 @@ def test_a_door_opened_before_the_stream_starts_is_refused(tmp_path):
     """Opened after connect (say while the user clamps the board): nothing is sent."""
     job = tmp_path / "job.gcode"
     job.write_text("G21 G90\nG0 Z1\nG1 X2 F600\nG0 Z5\n")
-    port = open_port("grblsim://?time_scale=0.05", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.05", 115200)
     sim = port.sim
     journal = Journal(tmp_path / "j.jsonl").open()
     try:
@@ -498,12 +503,12 @@ def test_a_door_opened_before_the_stream_starts_is_refused(tmp_path):
 def test_an_unanswered_offset_query_is_not_passed_over():
     """``$#`` unanswered (here: the door opened just before it) stays in GRBL's buffer and
     is answered later, pairing its ``ok`` with a job line: a fault, not a fallback."""
-    port = open_port("grblsim://?time_scale=0.05", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.05", 115200)
     try:
-        streamer = Streamer(port, FAST)
+        streamer = Streamer(port, replace(FAST, command_timeout=0.3))
         streamer.connect()
         port.sim.open_door()
-        with pytest.raises(StreamFault, match=r"no answer to '\$#'"):
+        with pytest.raises(StreamFault, match=r"no answer to '\$#' within 0.3 s"):
             streamer._read_work_offset()
     finally:
         port.close()

@@ -17,9 +17,10 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
 - ``$`` commands with their state rules (``error:8``/``error:9``), check mode ``$C`` with the
   soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset,
   feed hold ``Hold:1`` -> ``Hold:0`` and resume (lines are still read and planned while
-  it decelerates, none once it is complete, M0's ``ok`` comes after the resume); a feed
-  hold or jog cancel (``0x85``) during a jog cancels it instead: the machine stops, the
-  jog blocks are flushed, Idle;
+  it decelerates, none once it is complete, M0's ``ok`` comes after the resume; a hold
+  or door during a dwell is ``Hold:0``/``Door`` at once and the dwell's time stands still
+  until the resume, Idle again); a feed hold or jog cancel (``0x85``) during a jog
+  cancels it instead: the machine stops, the jog blocks are flushed, Idle;
 - the safety door (``0x84``, or :meth:`GrblSim.open_door` for the switch): the machine
   stops (``Door:2``; a jog is cancelled first and reports ``Jog`` until it stopped),
   spindle and coolant go off, ``Door:1`` while the door is open and
@@ -248,6 +249,7 @@ class _Pending:
     response: str = "ok"
     until: float = 0.0  # dwell/homing/planning end time
     planning: bool = False  # ``until`` is the end of planning a motion (plan_time)
+    dwell_left: float = -1.0  # seconds left of a dwell suspended by a hold or door, else -1
 
 
 class GrblSim:
@@ -543,6 +545,7 @@ class GrblSim:
             elif self.state == "Idle":
                 self._hold_complete = True
                 self._set_state(t, "Hold")
+                self._suspend_dwell(t)
         elif byte == CMD_DOOR:
             self._door_event(t)
         elif byte == CMD_START:
@@ -555,6 +558,7 @@ class GrblSim:
                     self._set_state(t, "Run")
                 else:
                     self._set_state(t, "Idle")
+                    self._resume_dwell(t)
         elif 0x90 <= byte <= 0x94:
             self._overrides[0] = _override(self._overrides[0], byte - 0x90)
             self._ovr_counter = 0
@@ -615,6 +619,7 @@ class GrblSim:
             self._hold_complete = True
             self.state = "Door"
             self._door_stopped(t)
+            self._suspend_dwell(t)
         else:  # Hold:1: the hold under way finishes as the door's stop
             self._set_state(t, "Door")
 
@@ -649,6 +654,26 @@ class GrblSim:
             self._set_state(t, "Jog" if self._jogging else "Run")
         else:
             self._set_state(t, "Idle")
+            self._resume_dwell(t)
+
+    def _suspend_dwell(self, t: float) -> None:
+        """A hold or door while Grbl dwells: the dwell's count stops (its suspend loop).
+
+        Grbl's ``delay_sec`` runs the realtime loop between its 50 ms steps, so a hold
+        suspends the dwell there; the emulator stops it at the hold's instant.
+        """
+        p = self._pending
+        if p is not None and p.dwell_left < 0.0 and p.until > t and not p.planning:
+            if p.actions[p.index - 1].kind == "dwell":
+                p.dwell_left = p.until - t
+                p.until = math.inf
+
+    def _resume_dwell(self, t: float) -> None:
+        """The cycle start after a hold or door: a suspended dwell runs what it had left."""
+        p = self._pending
+        if p is not None and p.dwell_left >= 0.0:
+            p.until = t + p.dwell_left
+            p.dwell_left = -1.0
 
     def _main(self, t: float) -> None:
         """Grbl's ``protocol_main_loop``, then its realtime point when it runs dry or waits.

@@ -262,6 +262,8 @@ class StreamOptions:
         banner_settle: Seconds to read on after the banner for its ``[MSG:...]`` and
             startup-line results (shown to the user; later ones are skipped unshown).
         stall_timeout: Seconds with lines in flight, controller Idle and no answer.
+        command_timeout: Seconds to wait for the answer to a line the sender sends alone
+            (``$I``, ``$$``, ``$#``, ``$G``, ``$C``) before giving up on it.
         silence_timeout: Seconds without any byte from the controller while polling.
         hold_timeout: Seconds to wait for ``Hold:0`` when stopping.
         busy_timeout: Seconds to wait on connecting for a controller still running (another
@@ -276,6 +278,7 @@ class StreamOptions:
     banner_timeout: float = 2.5
     banner_settle: float = 0.1
     stall_timeout: float = 10.0
+    command_timeout: float = 3.0
     silence_timeout: float = 5.0
     hold_timeout: float = 30.0
     busy_timeout: float = 120.0
@@ -408,10 +411,11 @@ class Streamer:
         if self.status.wco is not None:
             self._wco = self.status.wco
 
-    def _command(self, text: str, timeout: float = 3.0) -> list[str]:
+    def _command(self, text: str) -> list[str]:
         """Send a line alone and collect the lines before its ``ok``; error:N raises."""
         self._write(text.encode("ascii") + b"\n")
         got: list[str] = []
+        timeout = self.options.command_timeout
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             for line in self._read_lines(0.05):
