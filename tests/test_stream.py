@@ -511,19 +511,19 @@ def test_error_stops_feed_holds_and_names_line_cli(tmp_path, capsys):
     write_job(job, 200)
     prog = load_program(job)
     rec = tmp_path / "rec.jsonl"
-    url = f"grblsim://?baud=0&time_scale=0.002&error_at=500&record={rec}"
+    url = f"grblsim://?baud=0&time_scale=0.002&error_at=250&record={rec}"
     with pytest.raises(SystemExit) as exc:
         main(["stream", str(job), "--port", url, "--yes", "--banner-timeout", "0.5"])
     assert exc.value.code == 3
     err = capsys.readouterr().err
-    line = prog.blocks[499].lineno
+    line = prog.blocks[249].lineno
     assert f"job.gcode:{line}: error:20 (unsupported or invalid G-code command" in err
     record = read_record(rec)
     rx = [e for e in record if e["ev"] == "rx" and e["g"]]
-    bad = next(k for k, e in enumerate(rx) if e["g"] == 500)
+    bad = next(k for k, e in enumerate(rx) if e["g"] == 250)
     after = rx[bad + 1 :]
     assert sum(len(e["text"]) + 1 for e in after) <= 128  # within one RX buffer
-    t_err = next(e["t"] for e in record if e["ev"] == "resp" and e["g"] == 500)
+    t_err = next(e["t"] for e in record if e["ev"] == "resp" and e["g"] == 250)
     holds = [e for e in record if e["ev"] == "rt" and e["ch"] == ord("!")]
     assert holds and holds[0]["t"] >= t_err
     states = [e["state"] for e in record if e["ev"] == "state" and e["t"] >= holds[0]["t"]]
@@ -601,7 +601,7 @@ def test_usb_powered_disconnect_needs_recut_unsure(tmp_path, capsys):
     journal = default_journal_path(job)
     recs = [tmp_path / f"r{k}.jsonl" for k in range(3)]
     common = ["--yes", "--banner-timeout", "0.3"]
-    url = "grblsim://?baud=0&time_scale=0.02&disconnect_after=151&usb_powered=1&record="
+    url = "grblsim://?baud=0&time_scale=0.01&disconnect_after=151&usb_powered=1&record="
     with pytest.raises(SystemExit) as exc:
         main(["stream", str(job), "--port", f"{url}{recs[0]}", *common])
     assert exc.value.code == 3
@@ -688,7 +688,7 @@ def test_ctrl_c_stop_is_safe_and_resume_completes(tmp_path):
             calls["fired"] = True
             raise KeyboardInterrupt
 
-    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
     try:
         with pytest.raises(StreamStopped):
             stream_program(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
@@ -717,7 +717,7 @@ def test_ctrl_c_stop_is_safe_and_resume_completes(tmp_path):
 
 def test_ctrl_c_resume_continues(tmp_path):
     job = tmp_path / "job.gcode"
-    write_job(job, 30)
+    write_job(job, 20)
     prog = load_program(job)
     fired = []
 
@@ -1544,7 +1544,7 @@ def test_a_failed_prompt_after_ctrl_c_still_stops_safely(tmp_path, answer):
             "second_ctrl_c": (KeyboardInterrupt()),
         }[answer]
 
-    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
     try:
         with pytest.raises(StreamStopped):
             stream_program(port, prog, journal, on_progress=_fire_after(60), ask_interrupt=ask)
@@ -1559,7 +1559,7 @@ def test_ctrl_c_while_waiting_for_the_hold_still_resets(tmp_path):
     write_job(job, 40)
     prog = load_program(job)
     journal = tmp_path / "j.jsonl"
-    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
     trip = _Tripwire(port)
 
     def ask():
@@ -1593,7 +1593,7 @@ def test_a_journal_write_error_stops_the_machine(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 40)
     prog = load_program(job)
-    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
     try:
         streamer = Streamer(port, FAST)
         streamer.connect()
@@ -1658,7 +1658,7 @@ def test_sigterm_and_sighup_stop_the_stream_safely(tmp_path, signame):
     asked, fired = [], []
     previous = signal.signal(signum, outer)
     try:
-        port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
+        port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
         try:
             with pytest.raises(StreamStopped, match=f"stopped by {signame} after line"):
                 stream_program(
@@ -1736,7 +1736,7 @@ def test_a_killed_senders_unsure_acks_are_cut_again(tmp_path, capsys):
     prog = load_program(job)
     journal = default_journal_path(job)
     rec1, rec2 = tmp_path / "r1.jsonl", tmp_path / "r2.jsonl"
-    port = open_port(f"grblsim://?baud=0&time_scale=0.02&usb_powered=1&record={rec1}", 115200)
+    port = open_port(f"grblsim://?baud=0&time_scale=0.01&usb_powered=1&record={rec1}", 115200)
     streamer = Streamer(port, FAST)
     streamer.connect()
     j = Journal(journal).open()
@@ -1771,12 +1771,12 @@ def test_a_killed_senders_unsure_acks_are_cut_again(tmp_path, capsys):
 
 def test_connect_waits_for_a_controller_still_running_before_resetting(tmp_path):
     """Over a port without DTR reset a killed sender's queue keeps running: no reset mid-move."""
-    with GrblPty(SimOptions(baud=0, time_scale=0.5)) as pty:
+    with GrblPty(SimOptions(baud=0, time_scale=0.25)) as pty:
         first = serial.Serial(pty.path, 115200, timeout=2.0)
         # opening flushes input: the power-up banner may be gone, a soft reset sends another
         first.write(b"\x18")
         assert b"Grbl" in first.read_until(b"help]\r\n")
-        # 3.6 s at 100 mm/min, scaled to 1.8 s: still moving on a busy machine's connect
+        # 3.6 s at 100 mm/min, scaled to 0.9 s: still moving on a busy machine's connect
         first.write(b"G21G90\nG1X6F100\n")
         time.sleep(0.3)
         first.close()
@@ -1849,7 +1849,7 @@ def test_a_full_disk_stops_safely_with_one_line_naming_the_journal(tmp_path, mon
 
     monkeypatch.setattr(Journal, "open", open_full)
     with pytest.raises(SystemExit) as exc:
-        main(["stream", str(job), "--port", f"grblsim://?baud=0&time_scale=0.02&record={rec}", "--yes",
+        main(["stream", str(job), "--port", f"grblsim://?baud=0&time_scale=0.01&record={rec}", "--yes",
               "--banner-timeout", "0.3"])  # fmt: skip
     assert exc.value.code == 2
     err = capsys.readouterr().err
@@ -2029,7 +2029,7 @@ def test_stop_position_matches_the_emulator(tmp_path, query):
             fired.append(1)
             raise KeyboardInterrupt
 
-    port = open_port(f"grblsim://?baud=0&time_scale=0.02&{query}", 115200)
+    port = open_port(f"grblsim://?baud=0&time_scale=0.01&{query}", 115200)
     try:
         with pytest.raises(StreamStopped):
             stream_program(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
@@ -2228,7 +2228,7 @@ def test_sigterm_stops_the_cli_stream_and_resume_finishes(tmp_path, capsys):
     common = ["--yes", "--banner-timeout", "0.3"]
     proc = subprocess.Popen(
         [sys.executable, "-c", _CLI, "stream", str(job), "--port",
-         f"grblsim://?baud=0&time_scale=0.02&record={recs[0]}", *common],
+         f"grblsim://?baud=0&time_scale=0.01&record={recs[0]}", *common],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -2406,7 +2406,7 @@ def test_a_second_ctrl_c_while_stopping_after_an_error_still_resets(tmp_path, mo
     write_job(job, 60)
     prog = load_program(job)
     journal = tmp_path / "j.jsonl"
-    port = open_port("grblsim://?baud=0&time_scale=0.02&error_at=120", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.01&error_at=120", 115200)
     trip = _Tripwire(port)
     original = Streamer._stop_after_fault
 
@@ -2434,7 +2434,7 @@ def test_a_brown_out_flushes_the_lines_already_on_the_way(tmp_path):
     job, _ = _profile_job(tmp_path, "grbl-3018-diamond", n=40, seed=11)
     prog = load_program(job)
     rec = tmp_path / "rec.jsonl"
-    url = f"grblsim://?baud=0&time_scale=0.02&{_3018_RATES}&reset_after=133&record={rec}"
+    url = f"grblsim://?baud=0&time_scale=0.01&{_3018_RATES}&reset_after=133&record={rec}"
     port = open_port(url, 115200)
     try:
         with pytest.raises(StreamFault, match="reset itself mid-job"):
@@ -2640,7 +2640,7 @@ def test_resume_refuses_when_a_reset_cleared_the_g92_zero(tmp_path, monkeypatch,
     write_job(job, 12)
     prog = load_program(job)
     journal = default_journal_path(job)
-    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
     streamer = Streamer(port, FAST, ask_interrupt=lambda: "stop")
     streamer.connect()
     streamer._command(zero)
@@ -2734,7 +2734,7 @@ def test_an_alarm_whose_message_was_lost_stops_the_job_instead_of_waiting(tmp_pa
     job = tmp_path / "job.gcode"
     write_job(job, 30)
     prog = load_program(job)
-    url = "grblsim://?baud=0&time_scale=0.02&soft_limits=1&homed=1&wco=-100,-100,-10&reset_after=60"
+    url = "grblsim://?baud=0&time_scale=0.01&soft_limits=1&homed=1&wco=-100,-100,-10&reset_after=60"
     port = open_port(url, 115200)
     streamer = Streamer(port, FAST)
     streamer.connect()
@@ -2845,7 +2845,7 @@ def test_a_reset_while_held_at_the_prompt_is_not_resumed(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 30)
     prog = load_program(job)
-    port = open_port("grblsim://?baud=0&time_scale=0.02", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
     sim = port.sim
 
     def brown_out_then_resume():
