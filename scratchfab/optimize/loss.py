@@ -46,12 +46,13 @@ PARALLEL_LIMIT = math.radians(35.0)
 #: Longest piece :func:`neighbour_pairs` cuts a scratch into (longer than the 12 mm default
 #: maximum length, so scratches stay whole, while a few long ones cannot widen every query).
 NEIGHBOUR_SPACING_MM = 16.0
-#: Scratches per block of :func:`neighbour_pairs`' compiled scan (each block's pairs go
-#: to a buffer of their own).
+#: Scratches per call of :func:`neighbour_pairs`' compiled scan.
 NEIGHBOUR_STRIP_POINTS = 4096
 #: Grid cells of :func:`neighbour_pairs`, relative to the longest half piece plus the
 #: reach (a piece looks this far and its own half length around itself).
 NEIGHBOUR_CELL = 0.5
+#: Pairs :func:`neighbour_pairs` buffers before it copies them out (at least 2 per scratch).
+NEIGHBOUR_BUFFER_PAIRS = 1 << 20
 #: Slack (mm) of :func:`neighbour_pairs`' bounds, far above float64 rounding.
 NEIGHBOUR_SLACK_MM = 1e-6
 
@@ -173,9 +174,9 @@ def neighbour_pairs(
     normal are no longer than the distance). The scratch pairs left then meet the exact
     tests, the float64 operations of the brute-force form (:func:`segment_distance_np`)
     in the same order: the parallel limit PARALLEL_LIMIT + ``angle_slack`` (weights
-    below 0.05 past it) and the segment distance. The scan is compiled (numba, on first
-    use) and runs over blocks of ``strip_points`` scratches, each block's pairs found
-    in i order into a buffer of its own, so memory follows the pairs, not the board.
+    below 0.05 past it) and the segment distance. The scan is compiled (numba, loaded
+    on first use), ``strip_points`` scratches a call; it finds the pairs in (i, j)
+    order into a buffer of NEIGHBOUR_BUFFER_PAIRS, so memory follows the pairs found.
 
     Returns:
         (i, j), sorted by (i, j).
@@ -213,16 +214,25 @@ def neighbour_pairs(
     )
     ends = tuple(c.copy() for c in (p0[:, 0], p0[:, 1], p1[:, 0], p1[:, 1]))
     scan = _compiled_scan()
-    found_i, found_j = [], []
+    # pairs go to a buffer, copied out whenever it may not hold the next scratch's pairs
+    # (fewer than n); int32 while the indices fit
+    capacity = max(2 * n, NEIGHBOUR_BUFFER_PAIRS)
+    dtype = np.int32 if n < 2**31 else np.int64
+    buffer_i, buffer_j = np.empty(capacity, dtype), np.empty(capacity, dtype)
+    found_i, found_j = [np.zeros(0, dtype)], [np.zeros(0, dtype)]
     step = max(1, int(strip_points))
-    for lo in range(0, n, step):
-        i, j = scan(
+    lo = used = 0
+    while lo < n:
+        used, lo = scan(
             *pieces, start, grid.nx, grid.ny, grid.x0, grid.y0, grid.size, longest, where,
-            first, count, *ends, length, near, limit - 1e-9, limit, reach, lo, min(n, lo + step),
+            first, count, *ends, length, near, limit - 1e-9, limit, reach,
+            lo, min(n, lo + step), buffer_i, buffer_j, used,
         )  # fmt: skip
-        found_i.append(i)
-        found_j.append(j)
-    return np.concatenate(found_i), np.concatenate(found_j)
+        if used + n > capacity or lo == n:
+            found_i.append(buffer_i[:used].copy())
+            found_j.append(buffer_j[:used].copy())
+            used = 0
+    return np.concatenate(found_i, dtype=np.int64), np.concatenate(found_j, dtype=np.int64)
 
 
 @dataclass(frozen=True)
@@ -289,12 +299,20 @@ def _scan_pairs(
     reach: float,
     lo: int,
     hi: int,
-) -> tuple[np.ndarray, np.ndarray]:
+    out_i: np.ndarray,
+    out_j: np.ndarray,
+    used: int,
+) -> tuple[int, int]:
     """:func:`neighbour_pairs` of scratches ``lo`` to ``hi`` - 1 (compiled by numba).
 
     Pieces (``px`` .. ``owner``) are sorted by grid cell, ``start`` holds each cell's
     first piece and ``where`` each piece's place in that order; ``ax`` .. ``by`` are the
-    scratches' endpoints. NaN fails every test, as in numpy.
+    scratches' endpoints. NaN fails every test, as in numpy. The pairs go to ``out_i``
+    and ``out_j`` from ``used`` on, sorted; it stops before a scratch whose candidates
+    may not fit.
+
+    Returns:
+        The pairs in ``out_i`` and ``out_j`` now, and the scratch it stopped before.
     """
 
     def cells(lo_x: float, hi_x: float, origin: float, total: int) -> tuple[int, int]:
@@ -351,6 +369,33 @@ def _scan_pairs(
         ry = wy - t * dy
         return rx * rx + ry * ry
 
+    def sort_below_n(
+        a: np.ndarray, b: np.ndarray, counts: np.ndarray, k: int, digits: int
+    ) -> np.ndarray:
+        # a[:k] (0 <= a < n) sorted: insertion when short, else radix sort by bytes
+        if k <= 64:
+            for t in range(1, k):
+                v = a[t]
+                s = t
+                while s > 0 and a[s - 1] > v:
+                    a[s] = a[s - 1]
+                    s -= 1
+                a[s] = v
+            return a[:k]
+        for d in range(digits):
+            shift = 8 * d
+            counts[:] = 0
+            for t in range(k):
+                counts[((a[t] >> shift) & 255) + 1] += 1
+            for c in range(256):
+                counts[c + 1] += counts[c]
+            for t in range(k):
+                c = (a[t] >> shift) & 255
+                b[counts[c]] = a[t]
+                counts[c] += 1
+            a, b = b, a
+        return a[:k]
+
     def lesser(a: float, b: float) -> float:
         return a if (a != a or a < b) else b
 
@@ -363,9 +408,12 @@ def _scan_pairs(
     n = len(first)
     seen = np.full(n, -1, np.int64)
     found = np.empty(n, np.int64)
-    out_i = np.empty(1024, np.int64)
-    out_j = np.empty(1024, np.int64)
-    m = 0
+    spare = np.empty(n, np.int64)
+    counts = np.empty(257, np.int64)
+    digits = 1
+    while (n - 1) >> (8 * digits):
+        digits += 1
+    m = used
     # the largest sine between pieces that pass the angle bound
     sin_max = math.sqrt(1.0 - bound_limit * bound_limit) if 0.0 < bound_limit < 1.0 else 1.0
     pad = near - reach
@@ -417,7 +465,9 @@ def _scan_pairs(
                             k += 1
         if k == 0:
             continue
-        js = np.sort(found[:k])
+        if m + k > len(out_i):
+            return m, i  # the next call looks around scratch i again
+        js = sort_below_n(found, spare, counts, k, digits)
         dxi = bx[i] - ax[i]
         dyi = by[i] - ay[i]
         for j in js:
@@ -451,10 +501,7 @@ def _scan_pairs(
                 )
             ):
                 continue  # neither close nor crossing
-            if m == len(out_i):
-                out_i = np.concatenate((out_i, np.empty(m, np.int64)))
-                out_j = np.concatenate((out_j, np.empty(m, np.int64)))
             out_i[m] = i
             out_j[m] = j
             m += 1
-    return out_i[:m].copy(), out_j[:m].copy()
+    return m, hi
