@@ -13,9 +13,10 @@ Cases:
   demo's iteration count, labelled so.
 - ``refresh``: one pair refresh (``LayoutOptimizer._refresh``) on the full-size pipeline
   (150 mm, 3 views) laid out by the design stage at several scratch counts: seconds of
-  each part (pixel pairs per view, merge-candidate neighbour pairs, the whole refresh;
-  best of ``--refresh-repeats``), the pair counts, and each one's growth exponent
-  (log-log slope over the counts).
+  each part (pixel pairs per view, merge-candidate neighbour pairs, the whole refresh
+  with ``--threads`` Dr.Jit threads, which finds the merge candidates on a second
+  thread, and on one thread; best of ``--refresh-repeats``), the pair counts, and each
+  one's growth exponent (log-log slope over the counts).
 - ``steps``: where one step's time goes, on the demo (``--steps-pipeline full-size`` for
   ``pipelines/full-size.toml``, sized by ``--steps-count`` and ``--steps-resolution``):
   mean wall seconds of ``LayoutOptimizer.step`` after the first (which compiles), split
@@ -189,6 +190,13 @@ def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int
             t0 = time.perf_counter()
             opt._refresh(opt.ends)
             times["refresh_s"] = time.perf_counter() - t0
+            # on one thread: the merge candidates after the pixel pairs, not beside them
+            threads_now = dr.thread_count()
+            dr.set_thread_count(1)
+            t0 = time.perf_counter()
+            opt._refresh(opt.ends)
+            times["refresh_one_thread_s"] = time.perf_counter() - t0
+            dr.set_thread_count(threads_now)
             best = {k: min(v, best.get(k, math.inf)) for k, v in times.items()}
         row: dict[str, float] = {"scratches": count}
         row.update({k: round(v, 3) for k, v in best.items()})

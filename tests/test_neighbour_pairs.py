@@ -214,8 +214,13 @@ def test_blocks_far_points_and_repeats_change_nothing(rng):
     assert set(zip(i.tolist(), j.tolist(), strict=True)) == want
     again = neighbour_pairs(p0, p1, 0.8, 0.07)
     first = neighbour_pairs(p0, p1, 0.8, 0.07)
-    for x, y in zip(first, again, strict=True):
+    narrow = neighbour_pairs(p0, p1, 0.8, 0.07, dtype=np.uint32)
+    for x, y, z in zip(first, again, narrow, strict=True):
         np.testing.assert_array_equal(x, y)
+        assert z.dtype == np.uint32
+        np.testing.assert_array_equal(x, z)
+    with pytest.raises(ValueError, match="int8 cannot hold"):
+        neighbour_pairs(p0, p1, 0.8, 0.07, dtype=np.int8)
 
 
 def test_refresh_on_one_thread_or_two(m):

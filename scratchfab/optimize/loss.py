@@ -161,6 +161,7 @@ def neighbour_pairs(
     angle_slack: float = 0.0,
     spacing: float = NEIGHBOUR_SPACING_MM,
     strip_points: int = NEIGHBOUR_STRIP_POINTS,
+    dtype: Any = np.int64,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (i < j) of scratches closer than ``reach`` and within the parallel limit.
 
@@ -179,11 +180,11 @@ def neighbour_pairs(
     order into a buffer of NEIGHBOUR_BUFFER_PAIRS, so memory follows the pairs found.
 
     Returns:
-        (i, j), sorted by (i, j).
+        (i, j), sorted by (i, j), of integer type ``dtype`` (which must hold n - 1).
     """
     n = len(p0)
     if n < 2 or reach <= 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return np.zeros(0, dtype), np.zeros(0, dtype)
     p0 = np.asarray(p0, dtype=np.float64)
     p1 = np.asarray(p1, dtype=np.float64)
     d = p1 - p0
@@ -217,9 +218,9 @@ def neighbour_pairs(
     # pairs go to a buffer, copied out whenever it may not hold the next scratch's pairs
     # (fewer than n); int32 while the indices fit
     capacity = max(2 * n, NEIGHBOUR_BUFFER_PAIRS)
-    dtype = np.int32 if n < 2**31 else np.int64
-    buffer_i, buffer_j = np.empty(capacity, dtype), np.empty(capacity, dtype)
-    found_i, found_j = [np.zeros(0, dtype)], [np.zeros(0, dtype)]
+    index = np.int32 if n < 2**31 else np.int64
+    buffer_i, buffer_j = np.empty(capacity, index), np.empty(capacity, index)
+    found_i, found_j = [np.zeros(0, index)], [np.zeros(0, index)]
     step = max(1, int(strip_points))
     lo = used = 0
     while lo < n:
@@ -232,7 +233,12 @@ def neighbour_pairs(
             found_i.append(buffer_i[:used].copy())
             found_j.append(buffer_j[:used].copy())
             used = 0
-    return np.concatenate(found_i, dtype=np.int64), np.concatenate(found_j, dtype=np.int64)
+    if n - 1 > np.iinfo(dtype).max:
+        raise ValueError(f"{np.dtype(dtype)} cannot hold the indices of {n} scratches")
+    return (
+        np.concatenate(found_i, dtype=dtype, casting="unsafe"),
+        np.concatenate(found_j, dtype=dtype, casting="unsafe"),
+    )
 
 
 @dataclass(frozen=True)

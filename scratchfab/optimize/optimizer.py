@@ -305,12 +305,12 @@ class LayoutOptimizer:
             # the merge candidates (numpy and compiled code, no Dr.Jit, the GIL released)
             # on a second core, beside the pixel pairs
             with ThreadPoolExecutor(max_workers=1) as pool:
-                found = pool.submit(neighbour_pairs, p0, p1, reach, slack)
+                found = pool.submit(neighbour_pairs, p0, p1, reach, slack, dtype=np.uint32)
                 pairs = [r.find_pairs(p0, p1, half, self.margin) for r in self.renderers]
                 i, j = found.result()
         else:
             pairs = [r.find_pairs(p0, p1, half, self.margin) for r in self.renderers]
-            i, j = neighbour_pairs(p0, p1, reach, slack)
+            i, j = neighbour_pairs(p0, p1, reach, slack, dtype=np.uint32)
         U = self.m.UInt32
         self.neighbours = (jit_array(U, i, np.uint32), jit_array(U, j, np.uint32))
         self._neighbour_count = len(i)
@@ -612,7 +612,7 @@ class LayoutOptimizer:
             try:
                 half = layout.width / 2
                 self.pairs = [r.find_pairs(layout.p0, layout.p1, half, 0.0) for r in self.renderers]
-                i, j = neighbour_pairs(layout.p0, layout.p1, self.tool_width)
+                i, j = neighbour_pairs(layout.p0, layout.p1, self.tool_width, dtype=np.uint32)
                 U = m.UInt32
                 self.neighbours = (jit_array(U, i, np.uint32), jit_array(U, j, np.uint32))
                 self._neighbour_count = len(i)
