@@ -142,7 +142,7 @@ def test_degenerate_layouts(rng):
     # mixed with a few real scratches, every reach from tiny to all-encompassing
     q0, q1 = random_layout(rng, 120, 10.0, 4.0)
     q1[::7] = q0[::7]
-    for reach in (1e-12, 0.05, 0.5, 3.0, 1e6):
+    for reach in (1e-12, 0.05, 0.5, 3.0, 1e6, 1e300, np.inf):
         for slack in (0.0, 0.3, 10.0):
             check(q0, q1, reach, slack)
     assert len(check(q0, q1, 1e6, 10.0)) > len(check(q0, q1, 1e6)) > 1000

@@ -258,6 +258,8 @@ def _grid(points: np.ndarray, size: float) -> _Grid:
     x0, y0 = (float(v) for v in points.min(axis=0))
     wx, wy = (float(v) for v in points.max(axis=0) - points.min(axis=0))
     most = 4 * len(points) + 16
+    if not size < 1e100:  # an infinite reach: one cell
+        size = max(wx, wy, 1.0)
     size = max(size, wx / most, wy / most, math.sqrt(wx * wy / most), 1e-300)
     nx = min(int(wx / size), most) + 1
     ny = min(int(wy / size), most) + 1
@@ -437,14 +439,19 @@ def _scan_pairs(
                 r = ha + longest + near + pad
                 ex, ey, fx, fy = r, 0.0, 0.0, r
             extent = abs(ey) + abs(fy)
-            cy0, cy1 = cells(ya - extent, ya + extent, y0, ny)
+            # a reach beyond any board (even infinite): every cell, no overflowing corners
+            everywhere = not abs(ex) + abs(fx) + extent < 1e100
+            cy0, cy1 = (0, ny - 1) if everywhere else cells(ya - extent, ya + extent, y0, ny)
             for cy in range(cy0, cy1 + 1):
-                band_lo = y0 + cy * size - pad
-                band_hi = y0 + (cy + 1) * size + pad if cy < ny - 1 else math.inf
-                left, right = band_span(xa, ya, ex, ey, fx, fy, band_lo, band_hi)
-                if not left <= right:
-                    continue
-                cx0, cx1 = cells(left, right, x0, nx)
+                if everywhere:
+                    cx0, cx1 = 0, nx - 1
+                else:
+                    band_lo = y0 + cy * size - pad
+                    band_hi = y0 + (cy + 1) * size + pad if cy < ny - 1 else math.inf
+                    left, right = band_span(xa, ya, ex, ey, fx, fy, band_lo, band_hi)
+                    if not left <= right:
+                        continue
+                    cx0, cx1 = cells(left, right, x0, nx)
                 for c in range(cx0 + nx * cy, cx1 + 1 + nx * cy):
                     # a cell's pieces come in scratch order: the last ones are of j > i
                     for b in range(start[c + 1] - 1, start[c] - 1, -1):
