@@ -8,6 +8,8 @@ pairs a rounding away from the reach or the parallel limit included.
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import drjit as dr
 import numpy as np
@@ -255,3 +257,13 @@ def test_refresh_on_one_thread_or_two(m):
     want = brute_force(e[:, :2], e[:, 2:], reach, 16 * lr["theta"])
     assert set(zip(i1.tolist(), j1.tolist(), strict=True)) == want
     assert len(want) > 50
+
+
+def test_numba_loads_on_first_use_only():
+    """Importing the optimize stage loads neither numba nor scipy's KD-tree."""
+    code = (
+        "import sys, scratchfab.optimize.stage\n"
+        "print(sorted(m for m in ('numba', 'scipy.spatial') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
