@@ -163,6 +163,9 @@ def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int
 
     m = array_module("llvm")
     dr.set_thread_count(threads if threads > 0 else 2)
+    t0 = time.perf_counter()
+    neighbour_pairs(np.zeros((2, 2)), np.ones((2, 2)), 1.0)  # loads numba and its scan
+    first_call = time.perf_counter() - t0
     rows: list[dict[str, float]] = []
     for count in counts:
         with tempfile.TemporaryDirectory() as tmp:
@@ -213,6 +216,9 @@ def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int
         "layouts of the design stage",
         "threads": threads,
         "pair_margin_mm": round(opt.margin, 3),
+        "neighbour_pairs_first_call_s (loads numba and the compiled scan, once a process)": round(
+            first_call, 3
+        ),
         "repeats (best kept)": repeats,
         "rows": rows,
         "growth_exponent (d log / d log scratches)": growth,
