@@ -203,13 +203,20 @@ def test_same_pairs_as_the_kd_tree_version(rng, n, size, longest, reach, slack, 
     np.testing.assert_array_equal(j, oj)
 
 
-def test_blocks_far_points_and_repeats_change_nothing(rng):
-    """Block sizes, a far outlier (a coarse grid) and a second call give the same pairs."""
+def test_blocks_buffers_far_points_and_repeats_change_nothing(rng, monkeypatch):
+    """Block sizes, a small pair buffer (copied out often, scans stopped early), a far
+    outlier (a coarse grid) and a second call give the same pairs."""
+    import scratchfab.optimize.loss as loss
+
     p0, p1 = random_layout(rng, 700, 25.0, 8.0)
     want = check(p0, p1, 0.8, 0.07)
+    assert len(want) > 3 * len(p0)  # more than a buffer of 2 n pairs
     for strip_points in (1, 37, 100000):
-        i, j = neighbour_pairs(p0, p1, 0.8, 0.07, strip_points=strip_points)
-        assert set(zip(i.tolist(), j.tolist(), strict=True)) == want
+        for buffer_pairs in (1, 1 << 20):
+            monkeypatch.setattr(loss, "NEIGHBOUR_BUFFER_PAIRS", buffer_pairs)
+            i, j = neighbour_pairs(p0, p1, 0.8, 0.07, strip_points=strip_points)
+            assert np.all(np.diff(i * len(p0) + j) > 0)
+            assert set(zip(i.tolist(), j.tolist(), strict=True)) == want
     far0 = np.concatenate([p0, [[1e7, -1e7]]])
     far1 = np.concatenate([p1, [[1e7 + 1.0, -1e7]]])
     i, j = neighbour_pairs(far0, far1, 0.8, 0.07)
