@@ -300,6 +300,7 @@ def test_compare_with_profile_and_soft_limits(tmp_path):
     write_job(job, 5)
     prog = load_program(job)
     settings = {20: 1, 22: 1, 110: 500, 111: 500, 112: 500, 130: 200, 131: 200, 132: 200}
+    settings |= {120: 10, 121: 10, 122: 10}
     profile = _bench_profile()
     found = compare(settings, (0.0, 0.0, 0.0), prog, profile)
     assert any("X range" in r and "envelope" in r for r in found.refusals)  # job wider than 10 mm
@@ -308,6 +309,13 @@ def test_compare_with_profile_and_soft_limits(tmp_path):
         "GRBL $110=500 mm/min is below the X max rate 1000 of machine 'bench': feeds are "
         "clamped, the estimate is optimistic" in found.warnings
     )
+    slow = [w for w in found.warnings if "mm/s^2" in w]  # GRBL's defaults: 10 mm/s^2
+    assert slow == [
+        "GRBL $120=10 mm/s^2 is below the X acceleration 200 of machine 'bench': the job "
+        "takes longer than the toolpath's estimate (the ETA here uses GRBL's)",
+        "GRBL $122=10 mm/s^2 is below the Z acceleration 50 of machine 'bench': the job "
+        "takes longer than the toolpath's estimate (the ETA here uses GRBL's)",
+    ]
     ok = compare(settings, (-100.0, -100.0, -10.0), prog, None)
     assert ok.refusals == []
 
@@ -402,7 +410,9 @@ def _bench_profile(x=(-10.0, 10.0)):
             max_travel_mm=(20.0, 80.0, 10.0),
             coordinates="work",
         ),
-        motion=SimpleNamespace(max_rate_mm_min=(1000.0, 500.0, 500.0)),
+        motion=SimpleNamespace(
+            max_rate_mm_min=(1000.0, 500.0, 500.0), acceleration_mm_s2=(200.0, 10.0, 50.0)
+        ),
     )
 
 

@@ -63,6 +63,9 @@ class _Motion(Protocol):
     @property
     def max_rate_mm_min(self) -> tuple[float, float, float]: ...
 
+    @property
+    def acceleration_mm_s2(self) -> tuple[float, float, float]: ...
+
 
 class MachineLike(Protocol):
     """What the comparison reads from a machine profile (:class:`MachineProfile` fits)."""
@@ -180,9 +183,10 @@ def compare(
     unless the work offset is known to be zero. With any of those checks to make, refuses a job holding a
     block whose position the sender cannot follow (G92, G10, another work coordinate
     system, G53, G28/G30, arcs outside G17): past it every check would be wrong. Warns
-    about slower GRBL max rates than the profile or the job's feeds, and about soft limits
-    or homing being off. Every refusal starts with the G-code file (``file:line:`` at the
-    first line that goes too far, where one does).
+    about GRBL max rates slower than the profile's or the job's feeds, accelerations
+    lower than the profile's, and soft limits or homing being off. Every refusal starts
+    with the G-code file (``file:line:`` at the first line that goes too far, where one
+    does).
     """
     out = Findings()
     path = program.path
@@ -245,6 +249,14 @@ def compare(
                     f"GRBL ${110 + k}={rate:g} mm/min is below the {axis} max rate "
                     f"{want:g} of machine '{profile.name}': feeds are clamped, the estimate "
                     "is optimistic"
+                )
+            accel = settings.get(120 + k)
+            want = profile.motion.acceleration_mm_s2[k]
+            if accel is not None and accel + tolerance < want:
+                out.warnings.append(
+                    f"GRBL ${120 + k}={accel:g} mm/s^2 is below the {axis} acceleration "
+                    f"{want:g} of machine '{profile.name}': the job takes longer than the "
+                    "toolpath's estimate (the ETA here uses GRBL's)"
                 )
     for k, axis in enumerate(_AXES):
         t = travel[k]
