@@ -185,6 +185,8 @@ def neighbour_pairs(
     n = len(p0)
     if n < 2 or reach <= 0:
         return np.zeros(0, dtype), np.zeros(0, dtype)
+    if n - 1 > np.iinfo(dtype).max:
+        raise ValueError(f"{np.dtype(dtype)} cannot hold the indices of {n} scratches")
     p0 = np.asarray(p0, dtype=np.float64)
     p1 = np.asarray(p1, dtype=np.float64)
     d = p1 - p0
@@ -233,8 +235,6 @@ def neighbour_pairs(
             found_i.append(buffer_i[:used].copy())
             found_j.append(buffer_j[:used].copy())
             used = 0
-    if n - 1 > np.iinfo(dtype).max:
-        raise ValueError(f"{np.dtype(dtype)} cannot hold the indices of {n} scratches")
     return (
         np.concatenate(found_i, dtype=dtype, casting="unsafe"),
         np.concatenate(found_j, dtype=dtype, casting="unsafe"),
