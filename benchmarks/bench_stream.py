@@ -17,8 +17,8 @@ timer up to 16 ms): over an ideal zero-latency link send-response costs only the
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -79,7 +79,11 @@ SCENARIOS = {
 
 
 def main() -> None:
-    strokes = int(sys.argv[1]) if len(sys.argv) > 1 else 200
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "strokes", nargs="?", type=int, default=200, help="strokes of the short job (200)"
+    )
+    strokes = parser.parse_args().strokes
     results: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name, (length, hop, feed, rate) in SCENARIOS.items():

@@ -36,6 +36,7 @@ Usage: ``python benchmarks/bench_toolpath.py [--quick] [--reference [RUNS]]``.
 
 from __future__ import annotations
 
+import argparse
 import json
 import platform
 import sys
@@ -287,12 +288,21 @@ def lower_bound(p0: np.ndarray, p1: np.ndarray) -> float:
 
 
 def main() -> None:
-    quick = "--quick" in sys.argv
-    reference = 0
-    if "--reference" in sys.argv:
-        at = sys.argv.index("--reference")
-        given = sys.argv[at + 1] if at + 1 < len(sys.argv) else ""
-        reference = int(given) if given.isdigit() and int(given) > 0 else 1
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="smaller sets, no 40k/100k")
+    parser.add_argument(
+        "--reference",
+        nargs="?",
+        type=int,
+        const=1,
+        default=0,
+        metavar="RUNS",
+        help="also solve sets of <= 3000 strokes by LKH-3, RUNS runs each (needs elkai)",
+    )
+    args = parser.parse_args()
+    if args.reference < 0:
+        parser.error("--reference RUNS must be at least 1")
+    quick, reference = args.quick, args.reference
     t = time.perf_counter()
     order_strokes(*uniform(50, 0), START)  # compiles (or loads) the numba kernels
     report: dict = {
