@@ -557,7 +557,8 @@ def test_non_finite_loss_stops_with_message_and_keeps_checkpoint(
         main(["optimize", str(job), "--iterations", "20", "--checkpoint-every", "5"])
     assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert "error: non-finite loss at iteration 8" in err and "checkpoint" in err
+    assert "error: non-finite render of view '" in err and "at iteration 8" in err
+    assert "checkpoint" in err and "learning rates" not in err  # the render, not the step size
     state, _, _ = load_checkpoint(job / "optimize" / "checkpoint.npz")
     assert int(state["iteration"]) == 5
     for k in KEYS:
@@ -824,3 +825,22 @@ def test_interrupted_resume_command_pastes_as_the_job_folder(tmp_path, monkeypat
     assert words == ["scratchfab", "optimize", str(job), "--resume"]
     assert pasted_words(found.group(1), tmp_path) == words  # and the shell agrees
     assert not list(tmp_path.rglob("PWNED*"))  # nothing ran
+
+
+def test_non_finite_names_the_render_then_the_loss_then_the_gradient() -> None:
+    """What a non-finite step is blamed on, and the advice, follow the first bad quantity."""
+    from scratchfab.optimize.optimizer import _non_finite
+
+    ok = np.ones((4, 5), np.float32)
+    bad = ok.copy()
+    bad[1, 2:4] = (math.inf, math.nan)
+    grads = {k: np.zeros(6) for k in KEYS}
+    assert _non_finite(0.5, {"a": ok, "b": ok}, grads) is None
+    what, advice = _non_finite(math.nan, {"a": ok, "b": bad}, grads)  # type: ignore[misc]
+    assert what == "non-finite render of view 'b' (2 of 20 pixels)" and "light" in advice
+    what, advice = _non_finite(math.inf, {"a": ok}, grads)  # type: ignore[misc]
+    assert what == "non-finite loss" and "learning rates" in advice
+    grads["theta"][[3, 5]] = (math.nan, -math.inf)
+    what, advice = _non_finite(0.5, {"a": ok}, grads)  # type: ignore[misc]
+    assert what == "non-finite gradient of theta for 2 scratches (first: row 4)"
+    assert "learning rates" in advice

@@ -96,6 +96,36 @@ class NonFiniteError(ScratchfabError):
     """The loss or a gradient became NaN or infinite."""
 
 
+def _non_finite(
+    loss: float, images: Mapping[str, np.ndarray], grads: Mapping[str, np.ndarray]
+) -> tuple[str, str] | None:
+    """What of a step is NaN or infinite, in words, and what to try; None if nothing.
+
+    A render comes first (the loss and gradients follow from it; learning rates do not
+    make a render of valid scratches non-finite), then the loss, then the gradients.
+    Checked in numpy: Dr.Jit compiles with fast-math, where NaN tests may fold away.
+    """
+    for name, image in images.items():
+        bad = int(np.count_nonzero(~np.isfinite(image)))
+        if bad:
+            return (
+                f"non-finite render of view '{name}' ({bad} of {image.size} pixels)",
+                "check the design's light and tool; if they are ordinary, this is a "
+                "defect: please report it with design/design.toml",
+            )
+    if not math.isfinite(loss):
+        return "non-finite loss", "try smaller learning rates"
+    for key, grad in grads.items():
+        rows = np.flatnonzero(~np.isfinite(grad))
+        if len(rows):
+            return (
+                f"non-finite gradient of {key} for {len(rows)} scratches (first: row "
+                f"{int(rows[0]) + 1})",
+                "try smaller learning rates",
+            )
+    return None
+
+
 @dataclass(frozen=True)
 class Settings:
     """Numerical settings of the loop (a subset of the stage's options).
@@ -571,24 +601,18 @@ class LayoutOptimizer:
             v.name: np.asarray(img, dtype=np.float32).reshape(v.height, v.width)
             for v, img in zip(self.views, renders, strict=True)
         }
-        # Checked in numpy: Dr.Jit compiles with fast-math, where NaN tests may fold away.
-        finite_grad = all(
-            bool(np.all(np.isfinite(np.asarray(self.opt.state[k][3][1])))) for k in KEYS
-        )
-        finite_loss = math.isfinite(loss_value) and all(
-            bool(np.all(np.isfinite(img))) for img in images.values()
-        )
-        if not (finite_loss and finite_grad):
+        grads = {k: np.asarray(self.opt.state[k][3][1]) for k in KEYS}
+        problem = _non_finite(loss_value, images, grads)
+        if problem is not None:
             for k in KEYS:
                 self.opt.state[k] = saved[k]
                 dr.enable_grad(saved[k][0])
                 dr.clear_grad(saved[k][0])  # the failed step's backward reached it
             self.active = None
             self.classes = None
-            what = "gradient" if finite_loss else "loss"
             raise NonFiniteError(
-                f"non-finite {what} at iteration {self.iteration}; the run stopped and the "
-                "last good checkpoint is kept (try smaller learning rates)"
+                f"{problem[0]} at iteration {self.iteration}; the run stopped and the last "
+                f"good checkpoint is kept ({problem[1]})"
             )
         self.ends = np.stack([np.asarray(e, dtype=self.dtype) for e in new_ends], axis=1)
         self.active = self._compress(next_masks) if next_masks else None
