@@ -352,7 +352,7 @@ def test_numba_search_imports_where_numba_cannot_cache_in_its_own_places(tmp_pat
     env.update(HOME=str(tmp_path / "home"), TMPDIR=str(tmp), PYTHONDONTWRITEBYTECODE="1")
     code = (
         "import os, sys; import numpy as np; sys.path.insert(0, sys.argv[1]); import local_search;"
-        "print(local_search._CACHE, os.environ.get('NUMBA_CACHE_DIR'));"
+        "print(local_search.NUMBA_CACHE, os.environ.get('NUMBA_CACHE_DIR'));"
         "print(local_search.cut_region(np.array([True, False, True])))"
     )
     run = subprocess.run(

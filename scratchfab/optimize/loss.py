@@ -274,9 +274,9 @@ def _compiled_scan() -> Any:
     import numba
 
     # importing it points numba's cache to a folder this user may write
-    from scratchfab.toolpath.local_search import _CACHE
+    from scratchfab.toolpath.local_search import NUMBA_CACHE
 
-    return numba.njit(cache=_CACHE, nogil=True)(_scan_pairs)
+    return numba.njit(cache=NUMBA_CACHE, nogil=True)(_scan_pairs)
 
 
 def _scan_pairs(

@@ -80,17 +80,18 @@ def _numba_cache() -> bool:
     return _numba_can_cache()
 
 
-_CACHE = _numba_cache()
+#: Whether numba caches compiled functions of this package (``cache=NUMBA_CACHE``).
+NUMBA_CACHE = _numba_cache()
 
 
-@numba.njit(cache=_CACHE, inline="always")
+@numba.njit(cache=NUMBA_CACHE, inline="always")
 def _d(pts: np.ndarray, a: int, b: int) -> float:
     dx = pts[a, 0] - pts[b, 0]
     dy = pts[a, 1] - pts[b, 1]
     return math.sqrt(dx * dx + dy * dy)
 
 
-@numba.njit(cache=_CACHE, inline="always")
+@numba.njit(cache=NUMBA_CACHE, inline="always")
 def _note(log: np.ndarray, first: int, count: int) -> None:
     """Record that ``count`` positions from ``first`` on (cyclic) are about to change.
 
@@ -106,7 +107,7 @@ def _note(log: np.ndarray, first: int, count: int) -> None:
     log[0] = n + count
 
 
-@numba.njit(cache=_CACHE)
+@numba.njit(cache=NUMBA_CACHE)
 def _reverse(ent: np.ndarray, pos: np.ndarray, first: int, last: int, log: np.ndarray) -> None:
     """Reverse the cyclic arc first..last (or its complement, whichever is shorter)."""
     m = ent.shape[0]
@@ -126,7 +127,7 @@ def _reverse(ent: np.ndarray, pos: np.ndarray, first: int, last: int, log: np.nd
         pos[ea >> 1] = b
 
 
-@numba.njit(cache=_CACHE)
+@numba.njit(cache=NUMBA_CACHE)
 def _move_chain(
     ent: np.ndarray,
     pos: np.ndarray,
@@ -173,7 +174,7 @@ def _move_chain(
         pos[buf[k] >> 1] = p
 
 
-@numba.njit(cache=_CACHE, inline="always")
+@numba.njit(cache=NUMBA_CACHE, inline="always")
 def _partner(ent: np.ndarray, pos: np.ndarray, e: int) -> int:
     """The endpoint joined to ``e`` by its travel edge."""
     m = ent.shape[0]
@@ -183,7 +184,7 @@ def _partner(ent: np.ndarray, pos: np.ndarray, e: int) -> int:
     return ent[(q + 1) % m]
 
 
-@numba.njit(cache=_CACHE, inline="always")
+@numba.njit(cache=NUMBA_CACHE, inline="always")
 def _place(
     ent: np.ndarray, pos: np.ndarray, e: int, first: np.ndarray, length: np.ndarray, n: int
 ) -> tuple[int, bool]:
@@ -199,7 +200,7 @@ def _place(
     return q, entry
 
 
-@numba.njit(cache=_CACHE)
+@numba.njit(cache=NUMBA_CACHE)
 def _flip(ent: np.ndarray, pos: np.ndarray, x: int, f: int, log: np.ndarray) -> None:
     """Join x to f (both entries or both exits) and their old partners to each other."""
     m = ent.shape[0]
@@ -209,7 +210,7 @@ def _flip(ent: np.ndarray, pos: np.ndarray, x: int, f: int, log: np.ndarray) -> 
     _reverse(ent, pos, first, (first + (qf - qx) % m - 1) % m, log)
 
 
-@numba.njit(cache=_CACHE)
+@numba.njit(cache=NUMBA_CACHE)
 def _chain(
     pts: np.ndarray,
     ent: np.ndarray,
@@ -299,7 +300,7 @@ def _chain(
     return best, best_n
 
 
-@numba.njit(cache=_CACHE)
+@numba.njit(cache=NUMBA_CACHE)
 def _search(
     pts: np.ndarray,
     ent: np.ndarray,
@@ -446,7 +447,7 @@ def _search(
     return moves, total_gain, budget
 
 
-@numba.njit(cache=_CACHE)
+@numba.njit(cache=NUMBA_CACHE)
 def improve(
     pts: np.ndarray,
     ent: np.ndarray,
@@ -570,7 +571,7 @@ def improve(
     return moves
 
 
-@numba.njit(cache=_CACHE)
+@numba.njit(cache=NUMBA_CACHE)
 def cut_region(inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The items of a region's small tour, as tour position ranges [starts, ends].
 
@@ -600,7 +601,7 @@ def cut_region(inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return starts[:w], ends[:w]
 
 
-@numba.njit(cache=_CACHE)
+@numba.njit(cache=NUMBA_CACHE)
 def expand_region(
     ent: np.ndarray, starts: np.ndarray, ends: np.ndarray, sub_ent: np.ndarray
 ) -> np.ndarray:
@@ -625,7 +626,7 @@ def expand_region(
     return out
 
 
-@numba.njit(cache=_CACHE)
+@numba.njit(cache=NUMBA_CACHE)
 def greedy_steps(
     near: np.ndarray, used: np.ndarray, entries: np.ndarray, step: int, cur: int
 ) -> tuple[int, int]:
