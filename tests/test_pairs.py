@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import shapely
 from conftest import make_design
+from test_neighbour_pairs import brute_force
 
 from scratchfab.model.camera import Camera
 from scratchfab.model.design import design_from_mapping
@@ -128,20 +129,6 @@ def test_pairs_skip_pixels_off_the_board_and_behind_the_camera(rng):
     assert np.all(ok[pixel])
 
 
-def brute_neighbours(p0, p1, reach, angle_slack):
-    """Every pair (i < j) closer than reach and within the parallel limit, over all pairs."""
-    from scratchfab.optimize.loss import PARALLEL_LIMIT, segment_distance_np
-
-    n = len(p0)
-    i, j = np.triu_indices(n, 1)
-    d = p1 - p0
-    length = np.linalg.norm(d, axis=1)
-    cos = np.abs(np.sum(d[i] * d[j], axis=1)) / np.maximum(length[i] * length[j], 1e-300)
-    limit = np.cos(min(np.pi / 2, PARALLEL_LIMIT + angle_slack))
-    keep = (cos >= limit) & (segment_distance_np(p0, p1, i, j) < reach)
-    return set(zip(i[keep].tolist(), j[keep].tolist(), strict=True))
-
-
 @pytest.mark.parametrize(("spacing", "strip_points"), [(16.0, 512), (2.0, 7), (0.0, 60)])
 def test_neighbour_pairs_match_brute_force_at_the_edges(rng, spacing, strip_points):
     """Random and grazing layouts: pairs just inside and just outside the reach, all angles.
@@ -186,6 +173,6 @@ def test_neighbour_pairs_match_brute_force_at_the_edges(rng, spacing, strip_poin
     i, j = neighbour_pairs(p0, p1, reach, slack, spacing=spacing, strip_points=strip_points)
     n = len(p0)
     assert np.all(np.diff(i * n + j) > 0)  # sorted by (i, j), no repeats
-    want = brute_neighbours(p0, p1, reach, slack)
+    want = brute_force(p0, p1, reach, slack)
     assert set(zip(i.tolist(), j.tolist(), strict=True)) == want
     assert len(want) > 150
