@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -97,3 +98,47 @@ def test_eta_without_accelerations_keeps_distance_over_feed(tmp_path):
     # G1 distance / feed: 10 mm + 15 mm at 600 mm/min
     g1 = sum(b.seconds for b in program.timed_for(rates).blocks if b.modal.motion == "G1")
     assert g1 == pytest.approx(25.0 / 10.0)
+
+
+def test_eta_of_a_laser_job_stops_at_an_s_change_without_motion(tmp_path):
+    """In laser mode an S change joins only in a block that moves; alone it empties the planner."""
+    settings = {110: 3000.0, 111: 3000.0, 112: 600.0, 120: 50.0, 121: 50.0, 122: 20.0, 32: 1}
+    lines = ["G21 G90 G94", "M3 S100", "G1 X10 F1200", "S300", "G1 X20 Y3", "G1 X30"]
+    program = load_program(write(tmp_path, lines))
+    want = simulate(lines, grbl(settings), ORIGIN)
+    assert want.syncs == 2  # the lone S300 and the end (M3 came with the planner empty)
+    assert program.timed_for(settings).total_seconds == pytest.approx(want.seconds, rel=1e-6)
+
+
+def test_eta_of_inch_and_inverse_time_programs_matches_their_mm_twin(tmp_path):
+    """G20 coordinates and feeds, G93 inverse-time feeds and M30 after a block's motion,
+    against the planner model running the same moves written in mm at G94 feeds."""
+    settings = {110: 2000.0, 111: 1500.0, 112: 500.0, 120: 80.0, 121: 60.0, 122: 30.0}
+    inch = ["G20 G90 G94", "G1 X0.5 F40", "G1 X1 Y0.2", "G0 Y1", "G1 X0 Y1.5 F20 M30"]
+    mm = ["G21 G90 G94", "G1 X12.7 F1016", "G1 X25.4 Y5.08", "G0 Y25.4", "G1 X0 Y38.1 F508"]
+    twin = simulate(mm, grbl(settings), ORIGIN).seconds
+    got = load_program(write(tmp_path, inch)).timed_for(settings).total_seconds
+    assert got == pytest.approx(twin, rel=1e-9)
+    # G93: F is 1 / minutes for the block; 10 mm in 1/6 min is 60 mm/min, 5 mm in 1/4 min 20
+    inverse = ["G21 G90 G93", "G1 X10 F6", "G1 X10 Y5 F4", "G94 G1 X20 Y5 F900"]
+    per_min = ["G21 G90 G94", "G1 X10 F60", "G1 X10 Y5 F20", "G1 X20 Y5 F900"]
+    twin = simulate(per_min, grbl(settings), ORIGIN).seconds
+    got = load_program(write(tmp_path, inverse)).timed_for(settings).total_seconds
+    assert got == pytest.approx(twin, rel=1e-9)
+    # M30 (after its block's motion) stops the machine before the next move
+    ended = ["G21 G90 G94", "G1 X10 F1200 M30", "G1 X20"]
+    twin = simulate(["G21 G90 G94", "G1 X10 F1200", "M30", "G1 X20 F1200"], grbl(settings))
+    got = load_program(write(tmp_path, ended)).timed_for(settings).total_seconds
+    assert got == pytest.approx(twin.seconds, rel=1e-9)
+    assert got > simulate(["G21 G90 G94", "G1 X20 F1200"], grbl(settings)).seconds + 0.1
+
+
+def test_eta_stays_finite_for_a_feed_move_without_a_feed(tmp_path):
+    """GRBL refuses a G1 without a feed (error:22, no motion): no infinite ETA from it."""
+    settings = {110: 3000.0, 111: 3000.0, 112: 600.0, 120: 50.0, 121: 50.0, 122: 20.0}
+    for first in ("G1 X10", "G93 G1 X10 F0"):
+        lines = ["G21 G90", first, "G94 G1 X20 F600"]
+        timed = load_program(write(tmp_path, lines)).timed_for(settings)
+        assert math.isfinite(timed.total_seconds)
+        # the move after it runs from rest: 10 mm at 10 mm/s with 50 mm/s^2 ramps
+        assert timed.total_seconds == pytest.approx(10 / 10 + 10 / 50)

@@ -35,8 +35,8 @@ MAX_BLOCK_CHARS = 79
 DEFAULT_RAPID_MM_MIN = (500.0, 500.0, 500.0)  # G0 rates for the estimate until $110-$112 are known
 _REALTIME = set("?!~")
 _LINE_END = re.compile(r"\r\n|[\r\n]")
-#: ``$`` lines a job may hold: reports that move nothing and change no setting or state.
 _PROGRAM_STOPS = (("M", 0.0), ("M", 2.0), ("M", 30.0))  # run after a block's motion
+#: ``$`` lines a job may hold: reports that move nothing and change no setting or state.
 _QUERIES = frozenset({"$", "$$", "$#", "$G", "$I", "$N"})
 
 
@@ -147,8 +147,10 @@ class Program:
         G0 runs at ``$110``-``$112`` (unknown: the estimate is kept). With ``$120``-``$122``
         known too, straight moves accelerate and join at corners by ``$11`` (GRBL's default
         when not given), as :func:`~scratchfab.toolpath.timing.path_times` plans them; the
-        machine stops where a block empties the planner (``sync``, an S change with
-        ``$32=0``), around an arc (timed alone, by its chord and feed) and where the sender
+        machine stops where a block empties the planner (``sync``; an S change with
+        ``$32=0``, or with ``$32=1`` in a block that does not move), before the block's
+        motion or, for M0, M2 and M30, after it; around an arc (timed alone, by its chord
+        and feed), a feed move without a feed (GRBL refuses it) and where the sender
         cannot follow the position.
         """
         rates = [settings.get(110 + k) for k in range(3)]
@@ -167,7 +169,16 @@ class Program:
         before = Modal()
         for b in program.blocks:
             after = b.modal
-            empties = b.sync or (b.speed_sync and not laser)
+            words = block_words(b.text)
+            ends = any(w in _PROGRAM_STOPS for w in words)  # M0 M2 M30: after the motion
+            sync, speed_sync = b.sync, b.speed_sync
+            if ends and b.motion:  # what else in the block empties the planner first
+                rest_of_block = [w for w in words if w not in _PROGRAM_STOPS]
+                text = "".join(f"{w}{np.format_float_positional(v)}" for w, v in rest_of_block)
+                step = _advance(before, text, program.rapid_mm_min)
+                sync, speed_sync = step.sync, step.speed_sync
+            # GRBL's laser mode passes an S change in a block that moves, not one alone
+            empties = sync or (speed_sync and not (laser and b.motion))
             straight = b.motion and not b.unfollowed and b.arc_box is None
             straight = straight and after.motion in ("G0", "G1")
             if straight:
@@ -177,14 +188,17 @@ class Program:
                     (after.z or 0.0) - (before.z or 0.0),
                 )
                 dist = math.hypot(*d)
+                if after.motion == "G0":
+                    rate = math.inf
+                else:
+                    rate = after.feed_mm if after.feed_mode == "G94" else dist * after.feed
+                straight = rate > 0 or dist == 0  # no feed: error:22, no motion
+            if straight:
                 moves.append(b.index)
                 delta.append(d)
-                if after.motion == "G0":
-                    feed.append(math.inf)
-                else:
-                    feed.append(after.feed_mm if after.feed_mode == "G94" else dist * after.feed)
+                feed.append(rate)
                 rest.append(stop or empties)  # a spindle, coolant or S change acts first
-                stop = any(w in _PROGRAM_STOPS for w in block_words(b.text))  # M0 M2 M30: after
+                stop = ends
             else:
                 stop = stop or empties or b.motion or bool(b.unfollowed)
             before = after
