@@ -285,3 +285,21 @@ def test_other_junction_deviations_bound_the_estimate(deviation):
         )
     else:
         assert 1.0 < ratio < 1.08
+
+
+def test_path_times_agree_with_the_simulator_on_a_straight_line_of_changing_feeds():
+    """Collinear moves join at the lower of their nominal speeds (no corner limits them),
+    and a short last piece makes stopping at the end bind."""
+    s = Settings((3000.0, 3000.0, 600.0), (100.0, 80.0, 50.0), 0.01, (1000.0, 1000.0, 1000.0))
+    xs = np.array([0.0, 10.0, 12.0, 30.0, 31.0, 50.0, 50.04])
+    feeds = np.array([600.0, 3000.0, np.inf, 300.0, 2400.0, np.inf])
+    lines = ["G21 G90"]
+    for x, f in zip(xs[1:], feeds, strict=True):
+        lines.append(("G0" if np.isinf(f) else f"G1 F{f:g}") + f" X{x:g} Y{x / 2:g}")
+    want = simulate(lines, s, buffer_blocks=None)
+    assert max(want.junction_speeds) > 10.0  # the pieces do join at speed
+    delta = np.zeros((len(feeds), 3))
+    delta[:, 0] = np.diff(xs)
+    delta[:, 1] = np.diff(xs) / 2
+    got = path_times(delta, feeds, s.max_rate_mm_min, s.acceleration_mm_s2, None, 0.01).sum()
+    assert got == pytest.approx(want.seconds, rel=1e-9)
