@@ -102,7 +102,7 @@ def test_gcode_round_trip_cuts_exactly_the_strokes(planned, tmp_path):
 
 
 def test_gcode_estimate_matches_interpreted_moves(planned, tmp_path):
-    from scratchfab.toolpath.timing import move_times
+    from scratchfab.toolpath.timing import path_times
 
     tp, profile = planned
     run = interpret("\n".join(gcode_lines(tp)) + "\n")
@@ -112,7 +112,7 @@ def test_gcode_estimate_matches_interpreted_moves(planned, tmp_path):
         delta = np.nan_to_num(np.subtract(m.end, m.start))
         feed = m.feed if m.feed is not None else np.inf
         total += float(
-            move_times(delta[None], feed, motion.max_rate_mm_min, motion.acceleration_mm_s2)[0]
+            path_times(delta[None], feed, motion.max_rate_mm_min, motion.acceleration_mm_s2)[0]
         )
     # The interpreter starts recording once X and Y are known: at the start position.
     assert np.allclose(run.moves[0].start[:2], profile.start_mm)

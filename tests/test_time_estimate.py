@@ -26,7 +26,7 @@ from scratchfab.machine.profile import MachineProfile, load_profile, profile_fro
 from scratchfab.model.design import load_design
 from scratchfab.model.scratches import load_scratches
 from scratchfab.toolpath import Toolpath, estimate_time, plan_toolpath
-from scratchfab.toolpath.timing import move_times, path_times
+from scratchfab.toolpath.timing import path_times
 
 DEMO = Path(scratchfab.__file__).parent / "data" / "pipelines" / "demo.toml"
 
@@ -80,6 +80,11 @@ def rest_to_rest(tp: Toolpath, profile: MachineProfile) -> float:
     cut[:, :2] = strokes[:, 1] - strokes[:, 0]
     m = profile.motion
     limits = (m.max_rate_mm_min, m.acceleration_mm_s2)
+
+    def move_times(moves: np.ndarray, feed: float | list[float], *limits: tuple) -> np.ndarray:
+        """Each move from rest to rest: a stop before every one."""
+        return path_times(moves, feed, *limits, rest_before=np.ones(len(moves), dtype=bool))
+
     total = move_times(travel, profile.feeds.travel_mm_min or math.inf, *limits).sum()
     total += move_times(cut, profile.feeds.engrave_mm_min, *limits).sum()
     if profile.tool_control.mode == "servo":
@@ -269,7 +274,7 @@ def test_dwells_count_once_per_lift_and_lowering_and_the_return_counts():
     back = np.zeros((1, 3))
     back[0, :2] = np.subtract(profile.start_mm, strokes[-1, 1])
     m = profile.motion
-    alone = move_times(back, profile.feeds.travel_mm_min, m.max_rate_mm_min, m.acceleration_mm_s2)
+    alone = path_times(back, profile.feeds.travel_mm_min, m.max_rate_mm_min, m.acceleration_mm_s2)
     assert run.seconds - short.seconds == pytest.approx(alone[0], rel=1e-3)
 
 

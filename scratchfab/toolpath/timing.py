@@ -46,29 +46,6 @@ def _limits(
     return length, unit, speed, accel
 
 
-def move_times(
-    delta: np.ndarray,
-    feed_mm_min: np.ndarray | float,
-    max_rate_mm_min: tuple[float, float, float],
-    acceleration_mm_s2: tuple[float, float, float],
-) -> np.ndarray:
-    """Seconds for each rest-to-rest move.
-
-    Args:
-        delta: (N, 3) move vectors in mm (X, Y, Z).
-        feed_mm_min: (N,) or scalar programmed feed; ``inf`` for a rapid (G0) move.
-        max_rate_mm_min: Per-axis maximum rates (GRBL $110-$112).
-        acceleration_mm_s2: Per-axis accelerations (GRBL $120-$122).
-    """
-    d = np.asarray(delta, dtype=np.float64).reshape(-1, 3)
-    length, _, speed, accel = _limits(d, feed_mm_min, max_rate_mm_min, acceleration_mm_s2)
-    moving = length > 0
-    zero = np.zeros(int(moving.sum()))
-    t = np.zeros_like(length)
-    t[moving] = _profile_times(length[moving], zero, zero, speed[moving], accel[moving])
-    return t
-
-
 def path_times(
     delta: np.ndarray,
     feed_mm_min: np.ndarray | float,
@@ -146,12 +123,3 @@ def _profile_times(
             (2.0 * vmax - v0 - v1) / accel + cruise / vmax,
             (2.0 * peak - v0 - v1) / accel,
         )
-
-
-def trapezoid_time(length: float, speed: float, accel: float) -> float:
-    """Seconds to move ``length`` mm from rest to rest at cruise ``speed`` mm/s, ``accel`` mm/s^2."""
-    if length <= 0:
-        return 0.0
-    if length >= speed * speed / accel:
-        return length / speed + speed / accel
-    return 2.0 * float(np.sqrt(length / accel))
