@@ -53,10 +53,27 @@ def test_envelope_fields_for_grbl_settings():
     assert len(p.motion.max_rate_mm_min) == 3 and len(p.motion.acceleration_mm_s2) == 3
 
 
+def test_junction_deviation_is_optional_and_may_be_zero():
+    """``[motion] junction_deviation_mm`` ($11) defaults to GRBL's 0.010; 0 (exact stops) is valid."""
+    table = copy.deepcopy(base_table())
+    del table["motion"]["junction_deviation_mm"]
+    assert profile_from_mapping(table, "my.toml").motion.junction_deviation_mm == 0.010
+    table["motion"]["junction_deviation_mm"] = 0
+    assert profile_from_mapping(table, "my.toml").motion.junction_deviation_mm == 0.0
+    for name in bundled_names("machine_profiles"):  # the bundled ones say it
+        raw = load_toml(bundled_dir("machine_profiles") / f"{name}.toml")
+        assert (
+            raw["motion"]["junction_deviation_mm"]
+            == load_profile(name).motion.junction_deviation_mm
+        )
+
+
 @pytest.mark.parametrize(
     ("path", "value", "message"),
     [
         ("tool.widht_mm", 0.1, "did you mean 'width_mm'"),
+        ("motion.junction_deviation", 0.02, "did you mean 'junction_deviation_mm'"),
+        ("motion.junction_deviation_mm", -0.01, "motion.junction_deviation_mm"),
         ("feeds.engrave_mm_min", -5.0, "feeds.engrave_mm_min"),
         ("board.rotation_deg", 45, "rotation_deg"),
         ("board.origin", "middle", "board.origin"),

@@ -308,3 +308,20 @@ def test_path_times_agree_with_the_simulator_on_a_straight_line_of_changing_feed
     delta[:, 1] = np.diff(xs) / 2
     got = path_times(delta, feeds, s.max_rate_mm_min, s.acceleration_mm_s2, None, 0.01).sum()
     assert got == pytest.approx(want.seconds, rel=1e-9)
+
+
+@pytest.mark.parametrize("deviation", [0.0, 0.05])
+def test_the_profiles_junction_deviation_sets_the_estimate_and_the_header(deviation):
+    """``[motion] junction_deviation_mm`` is the ``$11`` the estimate plans corners with."""
+    base = PROFILES["3018-z"]()
+    profile = _variant("grbl-3018-diamond", motion={"junction_deviation_mm": deviation})
+    strokes = worst_case("touching", profile)
+    tp = toolpath(strokes, profile)
+    run = simulated(tp, profile, deviation)
+    ratio = tp.stats["estimated_time_s"] / run.seconds
+    assert ratio == pytest.approx(1.0, abs=0.002), f"estimate / GRBL = {ratio:.4f}"
+    default = estimate_time(strokes, base)
+    assert abs(default - run.seconds) > 0.01 * run.seconds  # $11 = 0.010 would be off
+    header = next(line for line in gcode_lines(tp, profile) if " min" in line)
+    assert f"about {run.seconds / 60:.1f} min" in header
+    assert f"about {default / 60:.1f} min" not in header

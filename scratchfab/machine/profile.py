@@ -39,6 +39,8 @@ Schema (every table and key; defaults in brackets)::
     [motion]                # for the time estimate and for comparing with GRBL's $$
     max_rate_mm_min = [3000.0, 3000.0, 500.0]   # $110, $111, $112
     acceleration_mm_s2 = [200.0, 200.0, 50.0]   # $120, $121, $122
+    junction_deviation_mm = 0.01                # $11 [0.01, GRBL's default]; 0: stop at
+                                                # every corner
 
     [tool]                  # what the tool cuts (must agree with the design's [scratch])
     width_mm = 0.1
@@ -78,6 +80,7 @@ import numpy as np
 
 from scratchfab.bundled import find_bundled
 from scratchfab.model.schema import load_toml, parse_table, spec, to_table
+from scratchfab.toolpath.timing import GRBL_JUNCTION_DEVIATION_MM
 
 Range = tuple[float, float]
 Corner = Literal["lower-left", "lower-right", "upper-left", "upper-right", "center"]
@@ -184,7 +187,7 @@ class Feeds:
 
 @dataclass(frozen=True)
 class Motion:
-    """Per-axis limits as GRBL holds them ($110-$112 and $120-$122)."""
+    """Per-axis limits and the corner tolerance as GRBL holds them ($110-$112, $120-$122, $11)."""
 
     max_rate_mm_min: tuple[float, float, float] = field(
         default=(1000.0, 1000.0, 500.0), metadata=spec(gt=0)
@@ -192,6 +195,7 @@ class Motion:
     acceleration_mm_s2: tuple[float, float, float] = field(
         default=(10.0, 10.0, 10.0), metadata=spec(gt=0)
     )
+    junction_deviation_mm: float = field(default=GRBL_JUNCTION_DEVIATION_MM, metadata=spec(ge=0))
 
 
 @dataclass(frozen=True)

@@ -161,8 +161,8 @@ def check_tool(
 def estimate_time(strokes: np.ndarray, profile: MachineProfile) -> float:
     """Seconds to run the job as the G-code writer emits it and GRBL plans it.
 
-    Moves, in the writer's order, join at GRBL's corner speeds (``$11`` taken at GRBL's
-    default) except where a command empties the planner: the servo's ``M3`` and ``M5``
+    Moves, in the writer's order, join at GRBL's corner speeds (``$11`` taken from the
+    profile's ``junction_deviation_mm``) except where a command empties the planner: the servo's ``M3`` and ``M5``
     around every cut, the spindle's start and stop. Each servo lowering and lift waits
     ``dwell_s`` (and so does the lift before the first travel); the travel back to the
     start is included, the time to reach the start is not.
@@ -203,7 +203,12 @@ def estimate_time(strokes: np.ndarray, profile: MachineProfile) -> float:
     feeds = np.append(feeds, travel_feed)
     rest[0] = True
     seconds = path_times(
-        moves, feeds, motion.max_rate_mm_min, motion.acceleration_mm_s2, rest_before=rest
+        moves,
+        feeds,
+        motion.max_rate_mm_min,
+        motion.acceleration_mm_s2,
+        rest_before=rest,
+        junction_deviation_mm=motion.junction_deviation_mm,
     )
     return float(seconds.sum() + dwells)
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-#: GRBL's default junction deviation ``$11`` (mm); the profiles do not hold it.
+#: GRBL's default junction deviation ``$11`` (mm): a profile's ``[motion]`` default.
 GRBL_JUNCTION_DEVIATION_MM = 0.01
 #: Beyond this |cos| a corner counts as a straight line (no limit) or a reversal (a stop).
 _STRAIGHT_COS = 0.999999
