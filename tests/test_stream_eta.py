@@ -142,3 +142,79 @@ def test_eta_stays_finite_for_a_feed_move_without_a_feed(tmp_path):
         assert math.isfinite(timed.total_seconds)
         # the move after it runs from rest: 10 mm at 10 mm/s with 50 mm/s^2 ramps
         assert timed.total_seconds == pytest.approx(10 / 10 + 10 / 50)
+
+
+# Where Grbl 1.1h empties its planner (protocol_buffer_synchronize), read from gnea/grbl
+# grbl/gcode.c gc_execute_line, whose STEP 4 runs a block in this order: [4] S change
+# (spindle_sync while the spindle is on; in laser mode not when GC_PARSER_LASER_ISMOTION:
+# axis words driving a motion mode; under M3, LASER_FORCE_SYNC when a block without motion
+# switches between G1/G2/G3 and another motion mode), [7] spindle state change (synced
+# "even in laser mode"), [8] coolant change (coolant_sync), [10] G4 (mc_dwell), [14]-[15],
+# [19] work offset changes (system_flag_wco_change under the default
+# FORCE_BUFFER_SYNC_DURING_WCO_CHANGE: G54-G59, G92, G92.1, G10) and EEPROM writes
+# (settings_write_coord_data under FORCE_BUFFER_SYNC_DURING_EEPROM_WRITE: G10, G28.1,
+# G30.1; G28/G30 only read), [20] the motion, [21] M0/M2/M30 (after it). M1 is ignored.
+# ``$`` lines run at once in protocol_main_loop (system_execute_line), outside the planner.
+ON = ["M3 S1000"]  # spindle on (the state before the block)
+SYNC_TABLE = [
+    # (state, block, before with $32=0, before with $32=1, after)
+    ([], "M3 S1000", True, True, False),
+    (ON, "M3", False, False, False),  # not a change
+    (ON, "M5", True, True, False),
+    (ON, "M4", True, True, False),
+    (ON, "S500", True, True, False),  # an S change alone
+    (ON + ["G1 X1 F100"], "G1 X5 S500", True, False, False),  # moves: laser passes it
+    (ON, "G0 X5 S500", True, False, False),
+    (ON, "G28 X1 S500", True, True, False),  # G28's axis words drive no motion mode
+    (ON, "S1000", False, False, False),  # the same S
+    ([], "S500", False, False, False),  # spindle off
+    (ON + ["G1 X1 F100"], "G0", False, True, False),  # laser M3: leaves G1 without motion
+    (ON + ["G0 X1"], "G1", False, True, False),  # laser M3: enters G1 without motion
+    (ON + ["G0 X1"], "G1 X5 F100", False, False, False),  # ... with motion: no
+    (["M4 S1000", "G1 X1 F100"], "G0", False, False, False),  # M4: no forced sync
+    ([], "M8", True, True, False),
+    ([], "M7", True, True, False),  # (a build with ENABLE_M7; error:20 without)
+    (["M8"], "M9", True, True, False),
+    ([], "M9", False, False, False),  # coolant already off
+    ([], "G4 P0.5", True, True, False),
+    ([], "G1 X5 F100", False, False, False),
+    ([], "M1", False, False, False),
+    ([], "M0", False, False, True),
+    ([], "G1 X5 F100 M0", False, False, True),
+    ([], "M2", False, False, True),
+    ([], "M30", False, False, True),
+    (ON, "G1 X5 F100 S200 M30", True, False, True),  # the S change first, M30 after
+    ([], "G28", False, False, False),
+    ([], "G30 X1", False, False, False),
+    ([], "G28.1", True, True, False),
+    ([], "G30.1", True, True, False),
+    ([], "G10 L2 P1 X0", True, True, False),
+    ([], "G10 L20 P0 X0", True, True, False),
+    ([], "G92 X0", True, True, False),
+    ([], "G92.1", True, True, False),
+    ([], "G55", True, True, False),
+    ([], "G54", False, False, False),  # already G54
+    ([], "G90 G21 G17 G94", False, False, False),
+    ([], "$G", False, False, False),
+    ([], "$#", False, False, False),
+]
+
+
+@pytest.mark.parametrize(("state", "block", "plain", "laser", "after"), SYNC_TABLE)
+def test_each_block_records_where_grbl_empties_its_planner(
+    tmp_path, state, block, plain, laser, after
+):
+    program = load_program(write(tmp_path, ["G21 G90 G94", *state, block]))
+    b = program.blocks[-1]
+    assert (b.syncs_before(False), b.syncs_before(True), b.sync_after) == (plain, laser, after)
+    assert b.sync == (b.sync_before or after)
+    assert b.sync_before == (plain and laser)  # whatever $32 says
+
+
+def test_program_end_resets_the_modes_after_its_blocks_motion(tmp_path):
+    """``G91 G1 X5 M30`` moves 5 mm relative, then M30 restores G90 (and G54, M5, M9)."""
+    lines = ["G21 G90 G94", "G0 X10", "G91 G1 X5 F100 M30", "G1 X2 F100"]
+    blocks = load_program(write(tmp_path, lines)).blocks
+    assert blocks[2].modal.x == pytest.approx(15.0)
+    assert not blocks[2].modal.relative
+    assert blocks[3].modal.x == pytest.approx(2.0)

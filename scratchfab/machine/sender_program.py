@@ -35,7 +35,6 @@ MAX_BLOCK_CHARS = 79
 DEFAULT_RAPID_MM_MIN = (500.0, 500.0, 500.0)  # G0 rates for the estimate until $110-$112 are known
 _REALTIME = set("?!~")
 _LINE_END = re.compile(r"\r\n|[\r\n]")
-_PROGRAM_STOPS = (("M", 0.0), ("M", 2.0), ("M", 30.0))  # run after a block's motion
 #: ``$`` lines a job may hold: reports that move nothing and change no setting or state.
 _QUERIES = frozenset({"$", "$$", "$#", "$G", "$I", "$N"})
 
@@ -100,12 +99,23 @@ class Block:
     modal: Modal  # state after the block
     seconds: float  # estimated run time
     motion: bool  # creates planner blocks
-    sync: bool  # GRBL empties the planner before it, whatever $32 says (see _advance)
+    sync_before: bool  # GRBL empties the planner before the block's motion, whatever $32 says
+    sync_after: bool  # ... after its motion (M0, M2, M30); see _advance for both
     system: bool  # a ``$`` command (sent with send-response)
     unfollowed: str = ""  # why the sender cannot follow the position past it ("" if it can)
     arc_box: tuple[float, float, float, float] | None = None  # X lo, X hi, Y lo, Y hi swept
     rapid_mm: tuple[float, float, float] | None = None  # a G0's distance per axis
-    speed_sync: bool = False  # an S change that syncs only with laser mode off ($32=0)
+    speed_sync: bool = False  # empties it before the motion with laser mode off ($32=0) only
+    laser_sync: bool = False  # ... with laser mode on ($32=1) only
+
+    @property
+    def sync(self) -> bool:
+        """GRBL empties the planner at this block, before or after its motion, whatever $32 says."""
+        return self.sync_before or self.sync_after
+
+    def syncs_before(self, laser_mode: bool) -> bool:
+        """Whether GRBL empties the planner before the block's motion, given ``$32``."""
+        return self.sync_before or (self.laser_sync if laser_mode else self.speed_sync)
 
 
 @dataclass
@@ -147,11 +157,10 @@ class Program:
         G0 runs at ``$110``-``$112`` (unknown: the estimate is kept). With ``$120``-``$122``
         known too, straight moves accelerate and join at corners by ``$11`` (GRBL's default
         when not given), as :func:`~scratchfab.toolpath.timing.path_times` plans them; the
-        machine stops where a block empties the planner (``sync``; an S change with
-        ``$32=0``, or with ``$32=1`` in a block that does not move), before the block's
-        motion or, for M0, M2 and M30, after it; around an arc (timed alone, by its chord
-        and feed), a feed move without a feed (GRBL refuses it) and where the sender
-        cannot follow the position.
+        machine stops where a block empties the planner, before its motion
+        (:meth:`Block.syncs_before` for this ``$32``) or after it (``Block.sync_after``),
+        around an arc (timed alone, by its chord and feed), at a feed move without a feed
+        (GRBL refuses it) and where the sender cannot follow the position.
         """
         rates = [settings.get(110 + k) for k in range(3)]
         if not all(r is not None and r > 0 for r in rates):
@@ -169,16 +178,7 @@ class Program:
         before = Modal()
         for b in program.blocks:
             after = b.modal
-            words = block_words(b.text)
-            ends = any(w in _PROGRAM_STOPS for w in words)  # M0 M2 M30: after the motion
-            sync, speed_sync = b.sync, b.speed_sync
-            if ends and b.motion:  # what else in the block empties the planner first
-                rest_of_block = [w for w in words if w not in _PROGRAM_STOPS]
-                text = "".join(f"{w}{np.format_float_positional(v)}" for w, v in rest_of_block)
-                step = _advance(before, text, program.rapid_mm_min)
-                sync, speed_sync = step.sync, step.speed_sync
-            # GRBL's laser mode passes an S change in a block that moves, not one alone
-            empties = sync or (speed_sync and not (laser and b.motion))
+            empties = b.syncs_before(laser)
             straight = b.motion and not b.unfollowed and b.arc_box is None
             straight = straight and after.motion in ("G0", "G1")
             if straight:
@@ -198,9 +198,9 @@ class Program:
                 delta.append(d)
                 feed.append(rate)
                 rest.append(stop or empties)  # a spindle, coolant or S change acts first
-                stop = ends
+                stop = b.sync_after
             else:
-                stop = stop or empties or b.motion or bool(b.unfollowed)
+                stop = stop or empties or b.sync_after or b.motion or bool(b.unfollowed)
             before = after
         if not moves:
             return program
@@ -231,15 +231,23 @@ def block_words(text: str) -> list[tuple[str, float]]:
     return [(m.group(1), float(m.group(2))) for m in GCODE_WORD.finditer(text)]
 
 
+class _Sync(NamedTuple):
+    """Where a block empties GRBL's planner (see :class:`Block`)."""
+
+    before: bool = False
+    after: bool = False
+    speed: bool = False  # before, with $32=0 only
+    laser: bool = False  # before, with $32=1 only
+
+
 class _Step(NamedTuple):
     modal: Modal
     seconds: float
     motion: bool
-    sync: bool
+    sync: _Sync = _Sync()
     unfollowed: str = ""
     arc_box: tuple[float, float, float, float] | None = None
     rapid_mm: tuple[float, float, float] | None = None
-    speed_sync: bool = False
 
 
 def _rapid_seconds(axis_mm: Sequence[float], rapid_mm_min: Sequence[float]) -> float:
@@ -315,21 +323,32 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     Also what the sender cannot follow past it (frame changes, machine-coordinate moves)
     and what it adds to the job's extent (the box an arc sweeps).
 
-    Sync as Grbl 1.1's ``gc_execute_line`` does it (``protocol_buffer_synchronize``): a
-    spindle state *change* (M3/M4/M5; even in laser mode), a coolant change, G4, M0, M2/M30
-    and the EEPROM writes G10 and G28.1/G30.1. A repeated M3 or M5, M9 with coolant off and
-    M1 (ignored by Grbl 1.1) do not sync. An S change with the spindle on syncs with laser
-    mode off, and in laser mode ($32=1) not in a block that moves (``laser_mode.md``: not
-    under M4 at all): ``speed_sync`` marks every such change, to count only with ``$32=0``.
+    Sync as Grbl 1.1h's ``gc_execute_line`` (``grbl/gcode.c``) does it with its default
+    build options (``protocol_buffer_synchronize``), in its order of execution. Before the
+    block's motion: an S change while the spindle is on (step 4; ``$32=0`` only, or with
+    ``$32=1`` in a block that does not move, ``GC_PARSER_LASER_ISMOTION``: axis words of a
+    motion mode, so not G28/G30's; under M3 in laser mode a block without motion that
+    switches between G1/G2/G3 and another motion mode also syncs, ``LASER_FORCE_SYNC``), a
+    spindle state *change* (M3/M4/M5, step 7, even in laser mode), a coolant change (step
+    8), G4 (``mc_dwell``), a work offset change (``FORCE_BUFFER_SYNC_DURING_WCO_CHANGE``:
+    G54-G59 to another system, G92, G92.1, G10 L2/L20) and the EEPROM writes G10,
+    G28.1/G30.1 (``FORCE_BUFFER_SYNC_DURING_EEPROM_WRITE``). After it: M0, M2 and M30
+    (step 21, program flow). No sync: a repeated M3 or M5, M9 with coolant off, M1
+    (ignored by Grbl 1.1), G28/G30 (an EEPROM read), ``$`` lines (run at once, or refused
+    while moving). Not followed: G43.1/G49 (sync when the tool length offset changes,
+    which the sender does not track). The flags: ``before`` whatever ``$32`` says,
+    ``speed`` only with ``$32=0`` (an S change in a block that moves), ``laser`` only with
+    ``$32=1`` (the forced sync), ``after``.
     """
     if text.startswith("$"):
-        return _Step(state, 0.0, False, False)
+        return _Step(state, 0.0, False)
     words = block_words(text)
     s = state
     axes: dict[str, float] = {}
     arc: dict[str, float] = {}
     nonmodal = ""
     sync = False
+    ending = ""
     speed_changed = False
     dwell = 0.0
     for letter, value in words:
@@ -358,14 +377,8 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
                 # Grbl keeps M7 and M8 as two bits: only a change from all off surely syncs
                 s = replace(s, coolant=code)
                 sync = sync or (code == "M9") != (state.coolant == "M9")
-            elif code == "M0":
-                sync = True
-            elif code in ("M2", "M30"):
-                sync = True
-                s = replace(
-                    s, motion="G1", relative=False, plane="G17", feed_mode="G94", wcs="G54",
-                    spindle="M5", coolant="M9",
-                )  # fmt: skip
+            elif code in ("M0", "M2", "M30"):
+                ending = code
         elif letter == "F":
             s = replace(s, feed=value)
         elif letter == "S":
@@ -377,9 +390,20 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
             axes[letter] = value
         elif letter in "IJKR":
             arc[letter] = value
-    if nonmodal in ("G4", "G10", "G28.1", "G30.1"):
+    if nonmodal in ("G4", "G10", "G28.1", "G30.1", "G92.1") or (nonmodal == "G92" and axes):
         sync = True
-    speed_sync = speed_changed and not sync
+    sync = sync or s.wcs != state.wcs
+    # GRBL's laser mode passes an S change in a block whose axis words drive a motion mode
+    drives = bool(axes) and nonmodal not in ("G10", "G28", "G30", "G92")
+    feeding, was_feeding = (m.motion in ("G1", "G2", "G3") for m in (s, state))
+    forced = state.spindle == "M3" and feeding != was_feeding
+    sync = sync or (speed_changed and not drives)
+    flags = _Sync(
+        before=sync,
+        after=bool(ending),
+        speed=speed_changed and not sync,
+        laser=forced and not drives and not sync,
+    )
     scale = s.mm_per_unit
     motion = False
     seconds = dwell
@@ -406,9 +430,14 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
         motion = True
     elif axes and nonmodal in ("G28", "G30", "G53"):
         motion = True  # position unknown to the sender; keep the old one
-    return _Step(
-        s, seconds, motion, sync, _unfollowed(nonmodal, axes, state, s), box, rapid, speed_sync
-    )
+    unfollowed = _unfollowed(nonmodal, axes, state, s)
+    if ending in ("M2", "M30"):  # after the motion
+        s = replace(
+            s, motion="G1", relative=False, plane="G17", feed_mode="G94", wcs="G54",
+            spindle="M5", coolant="M9",
+        )  # fmt: skip
+        unfollowed = unfollowed or _unfollowed("", {}, state, s)  # back to G54
+    return _Step(s, seconds, motion, flags, unfollowed, box, rapid)
 
 
 def _tool_down(modal: Modal, z_threshold: float, pen_mode: bool) -> bool:
@@ -541,12 +570,14 @@ def load_program(
                 modal=state,
                 seconds=step.seconds,
                 motion=step.motion,
-                sync=step.sync,
+                sync_before=step.sync.before,
+                sync_after=step.sync.after,
                 system=block.startswith("$"),
                 unfollowed=step.unfollowed,
                 arc_box=step.arc_box,
                 rapid_mm=step.rapid_mm,
-                speed_sync=step.speed_sync,
+                speed_sync=step.sync.speed,
+                laser_sync=step.sync.laser,
             )
         )
     uses_spindle = any(b.modal.spindle in ("M3", "M4") for b in blocks)
