@@ -1,0 +1,356 @@
+"""Benchmark of the optimizer's result quality against its settings; prints JSON.
+
+Each case changes a few settings from the pipeline's own (``[optimize]`` and the design's
+scratch count) and runs ``design`` (once per layout seed and count) then ``optimize`` on
+every layout seed. Per case and seed it records the final loss (fresh pairs) and its
+image part (the mean of the views' E_k, without the merge and bound penalties), each
+view's PSNR and rho_kk, the largest crosstalk x_kj, the scratches closer than the tool
+and nearly parallel (which both renderers add as if each were alone, while the machine
+cuts one wider dent), the total cut length, the optimize stage's wall time and seconds
+per step, and the loss and mean PSNR along the way (from ``log.csv``: a loss still
+falling at the end asks for more iterations, a flat tail for fewer). Per case it gives
+the means over seeds and, against the first case, the paired differences (mean and
+sample standard deviation over seeds) in per cent or dB, among them the loss each case
+had reached when the first case's run ended (``loss_at_reference_time``: which setting
+is better in the same time). ``--verify SPP`` also renders each result in Mitsuba
+(``verify-render``, no sweep) and reports its PSNR and rho, to check that a gain is not
+the optimizer's own renderer's.
+
+The optimize stage with ``jitter_deg = 0`` (the default) draws nothing at random, so
+the seeds that vary a run are the design stage's layout seeds (``--seeds``).
+
+A case is a comma-separated list of ``key=value``: any field of
+:class:`~scratchfab.optimize.options.OptimizeOptions` (``iterations``,
+``lr_position_mm``, ``refresh_every``, ``prune_tolerance``, ...), ``count`` (the design's
+scratch count) or ``lr_scale`` (multiplies the three learning rates); ``default`` is
+the pipeline as it is. Cases are separated by ``;``.
+
+Usage: python benchmarks/bench_quality.py [--pipeline demo|FILE.toml] [--seeds 0,1,2]
+       [--iterations N] [--cases "default;lr_scale=2;refresh_every=16"]
+       [--count N] [--resolution N] [--verify SPP] [--threads N] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import dataclasses
+import json
+import math
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scratchfab.design.stage import run_design
+from scratchfab.model.job import JobLayout
+from scratchfab.optimize.loss import neighbour_pairs, segment_distance_np
+from scratchfab.optimize.options import OptimizeOptions
+from scratchfab.optimize.stage import run_optimize
+from scratchfab.pipeline.config import load_pipeline
+
+#: The cases the study runs by default: the pipeline's settings, then one change each.
+DEFAULT_CASES = (
+    "default",
+    "lr_scale=0.5",
+    "lr_scale=2",
+    "lr_scale=4",
+    "lr_position_mm=0.1",
+    "lr_angle_deg=1.0",
+    "lr_length_mm=0.1",
+    "refresh_every=4",
+    "refresh_every=16",
+    "merge_weight=0",
+    "merge_weight=0.2",
+    "jitter_deg=3",
+    "count=1000",
+    "count=3000",
+)
+
+QUICK_CASES = ("default", "lr_scale=2")
+
+#: Keys a case may set beyond OptimizeOptions' fields.
+EXTRA_KEYS = ("count", "lr_scale")
+
+
+def parse_case(text: str, base: OptimizeOptions) -> tuple[OptimizeOptions, int | None]:
+    """The options and design count (None: the design's) of one case's text."""
+    text = text.strip()
+    fields = {f.name: f for f in dataclasses.fields(OptimizeOptions)}
+    changes: dict[str, Any] = {}
+    count: int | None = None
+    scale = 1.0
+    if text != "default":
+        for item in text.split(","):
+            key, sep, raw = item.partition("=")
+            key = key.strip()
+            if not sep or (key not in fields and key not in EXTRA_KEYS):
+                raise SystemExit(f"bench_quality: case {text!r}: unknown setting {key!r}")
+            value: Any = json.loads(raw) if raw.strip() not in ("", "none") else None
+            if key == "count":
+                count = int(value)
+            elif key == "lr_scale":
+                scale = float(value)
+            else:
+                changes[key] = value
+    options = dataclasses.replace(base, **changes)
+    if scale != 1.0:
+        options = dataclasses.replace(
+            options,
+            lr_position_mm=options.lr_position_mm * scale,
+            lr_angle_deg=options.lr_angle_deg * scale,
+            lr_length_mm=options.lr_length_mm * scale,
+        )
+    return options, count
+
+
+def read_log(path: Path) -> list[dict[str, float]]:
+    """Rows of ``log.csv`` as floats."""
+    with open(path) as fh:
+        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(fh)]
+
+
+def mean_psnr(row: dict[str, Any], names: list[str]) -> float:
+    """Mean of the views' PSNR in a log row."""
+    return statistics.fmean(float(row[f"psnr_{k}"]) for k in names)
+
+
+def curve(rows: list[dict[str, float]], names: list[str], points: int = 8) -> list[list[float]]:
+    """[iteration, seconds, loss, mean PSNR] at about ``points`` evenly spaced log rows."""
+    if not rows:
+        return []
+    picks = sorted({round(i * (len(rows) - 1) / (points - 1)) for i in range(points)})
+    return [
+        [
+            int(rows[i]["iteration"]),
+            round(rows[i]["seconds"], 2),
+            round(rows[i]["loss"], 6),
+            round(mean_psnr(rows[i], names), 3),
+        ]
+        for i in picks
+    ]
+
+
+def tail_drop(rows: list[dict[str, float]], fraction: float = 0.25) -> float:
+    """Relative loss drop over the last ``fraction`` of the logged steps (0: flat)."""
+    if len(rows) < 4:
+        return math.nan
+    start = rows[int((1 - fraction) * (len(rows) - 1))]["loss"]
+    return (start - rows[-1]["loss"]) / start if start > 0 else math.nan
+
+
+def image_error(job: Path, names: list[str]) -> float:
+    """Mean over views of the loss's linear image error E_k (no merge or bound penalty)."""
+    layout = JobLayout(job)
+    errors = []
+    for k in names:
+        render = np.load(layout.optimize_renders / f"{k}.npy").astype(np.float64)
+        target = np.load(layout.design.target_npy(k))
+        ok = np.isfinite(target)
+        r, t = render[ok], target[ok]
+        s = float(r @ t) / max(float(r @ r), 1e-300)
+        errors.append(float(np.sum((s * r - t) ** 2)) / max(float(t @ t), 1e-300))
+    return statistics.fmean(errors)
+
+
+def merged_pairs(scratches: Any, angle_deg: float = 10.0) -> int:
+    """Pairs of scratches closer than the tool's width and within ``angle_deg`` of parallel.
+
+    Both renderers add such scratches as if each were alone; the machine cuts them into
+    one wider dent. The merge penalty exists to keep them apart.
+    """
+    tool = float(np.max(scratches.width))
+    i, j = neighbour_pairs(scratches.p0, scratches.p1, tool)
+    if len(i) == 0:
+        return 0
+    d = segment_distance_np(scratches.p0, scratches.p1, i, j)
+    u = scratches.p1 - scratches.p0
+    u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
+    cos = np.abs(np.sum(u[i] * u[j], axis=1))
+    return int(np.count_nonzero((d < tool) & (cos >= math.cos(math.radians(angle_deg)))))
+
+
+def run_one(
+    design_job: Path, work: Path, options: OptimizeOptions, verify_spp: int
+) -> dict[str, Any]:
+    """Optimize a copy of ``design_job`` with ``options``; the figures of the result."""
+    if work.exists():
+        shutil.rmtree(work)
+    work.mkdir(parents=True)
+    shutil.copytree(design_job / "design", work / "design")
+    t0 = time.perf_counter()
+    result = run_optimize(work, options)
+    wall = time.perf_counter() - t0
+    quality = result.quality
+    names = list(quality["names"])
+    rows = read_log(JobLayout(work).optimize_log)
+    crosstalk = [x for k in names for x in quality["views"][k]["crosstalk"].values()]
+    out: dict[str, Any] = {
+        "loss": result.loss,
+        "image_error": image_error(work, names),
+        "merged_pairs": merged_pairs(result.scratches),
+        "psnr": {k: quality["views"][k]["psnr"] for k in names},
+        "rho": {k: quality["views"][k]["rho"] for k in names},
+        "psnr_mean": statistics.fmean(quality["views"][k]["psnr"] for k in names),
+        "rho_min": min(quality["views"][k]["rho"] for k in names),
+        "crosstalk_max": max(crosstalk) if crosstalk else math.nan,
+        "scratches": len(result.scratches),
+        "cut_length_mm": float(np.hypot(*(result.scratches.p1 - result.scratches.p0).T).sum()),
+        "seconds": wall,
+        "seconds_per_iteration": result.seconds_per_iteration,
+        "tail_drop": tail_drop(rows),
+        "curve": curve(rows, names),
+        "_trace": [(r["seconds"], r["loss"]) for r in rows],
+    }
+    if result.prune is not None:
+        out["prune_removed"] = result.prune.removed
+        out["prune_time_saved_s"] = result.prune.time_saved_s
+    if verify_spp > 0:
+        from scratchfab.verify.verify import VerifySettings, run_verify_job
+
+        metrics = run_verify_job(work, VerifySettings(spp=verify_spp))
+        views = metrics["views"]
+        out["verify"] = {
+            "psnr": {k: views[k]["psnr"] for k in names},
+            "rho": {k: views[k]["rho"] for k in names},
+            "psnr_mean": statistics.fmean(views[k]["psnr"] for k in names),
+            "noise": {k: views[k]["noise"] for k in names},
+        }
+    return out
+
+
+def loss_at(trace: list[tuple[float, float]], seconds: float, final: float) -> float:
+    """The loss a run had reached after ``seconds`` of optimizing (its final if it ended)."""
+    if not trace or trace[-1][0] <= seconds:
+        return final
+    before = [loss for t, loss in trace if t <= seconds]
+    return before[-1] if before else trace[0][1]
+
+
+def paired(case: list[dict[str, Any]], ref: list[dict[str, Any]]) -> dict[str, Any]:
+    """Differences from the reference case, seed by seed: [mean, sample deviation]."""
+
+    def stats(key: str, ref_key: str | None = None, ratio: bool = True) -> list[float]:
+        values = [
+            100 * (c[key] / r[ref_key or key] - 1) if ratio else c[key] - r[ref_key or key]
+            for c, r in zip(case, ref, strict=True)
+        ]
+        sd = statistics.stdev(values) if len(values) > 1 else math.nan
+        return [round(statistics.fmean(values), 3), round(sd, 3)]
+
+    return {
+        "loss_pct": stats("loss"),
+        "image_error_pct": stats("image_error"),
+        "psnr_mean_db": stats("psnr_mean", ratio=False),
+        "seconds_pct": stats("seconds"),
+        "seconds_per_iteration_pct": stats("seconds_per_iteration"),
+        "loss_at_reference_time_pct": stats("loss_at_reference_time", "loss"),
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Run the cases and print the JSON report."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--pipeline", default="demo", help="bundled name or pipeline file")
+    parser.add_argument("--seeds", default="0,1,2", help="layout seeds, comma-separated")
+    parser.add_argument("--iterations", type=int, help="steps (default: the pipeline's)")
+    parser.add_argument("--cases", help="cases separated by ';' (see the module's help)")
+    parser.add_argument("--count", type=int, help="design scratch count (default: the file's)")
+    parser.add_argument("--resolution", type=int, help="every view's resolution, square")
+    parser.add_argument("--verify", type=int, default=0, metavar="SPP", help="Mitsuba check")
+    parser.add_argument("--threads", type=int, default=1, help="optimize threads (1: exact)")
+    parser.add_argument("--quick", action="store_true", help="one seed, 40 steps, 2 cases")
+    parser.add_argument("--keep", type=Path, help="keep the job folders under this folder")
+    args = parser.parse_args(argv)
+
+    pipe = load_pipeline(args.pipeline)
+    seeds = [0] if args.quick else [int(s) for s in args.seeds.split(",")]
+    iterations = 40 if args.quick else args.iterations
+    texts = (
+        [c for c in args.cases.split(";") if c.strip()]
+        if args.cases
+        else list(QUICK_CASES if args.quick else DEFAULT_CASES)
+    )
+    base = dataclasses.replace(
+        pipe.optimize,
+        threads=args.threads,
+        resume=False,
+        iterations=pipe.optimize.iterations if iterations is None else iterations,
+    )
+    cases = {t: parse_case(t, base) for t in texts}
+    resolution = (args.resolution, args.resolution) if args.resolution else None
+
+    with contextlib.ExitStack() as stack:
+        root = (
+            args.keep
+            if args.keep is not None
+            else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="bench_quality-")))
+        )
+        designs: dict[tuple[int, int | None], Path] = {}
+        results: dict[str, list[dict[str, Any]]] = {}
+        for text, (options, count) in cases.items():
+            count = count if count is not None else args.count
+            runs = []
+            for seed in seeds:
+                key = (seed, count)
+                if key not in designs:
+                    job = root / f"design-s{seed}-n{count or 'file'}"
+                    if job.exists():
+                        shutil.rmtree(job)
+                    run_design(pipe.path, job, count=count, resolution=resolution, seed=seed)
+                    designs[key] = job
+                slug = "".join(c if c.isalnum() or c in "._-" else "_" for c in text)
+                run = run_one(designs[key], root / f"{slug}-s{seed}", options, args.verify)
+                run["seed"] = seed
+                runs.append(run)
+                print(
+                    f"{text} seed {seed}: loss {run['loss']:.5f} psnr {run['psnr_mean']:.2f} "
+                    f"{run['seconds']:.1f} s",
+                    file=sys.stderr,
+                )
+            results[text] = runs
+
+    ref = results[texts[0]]
+    for runs in results.values():
+        for run, r in zip(runs, ref, strict=True):
+            run["loss_at_reference_time"] = loss_at(run["_trace"], r["_trace"][-1][0], run["loss"])
+    for runs in results.values():
+        for run in runs:
+            del run["_trace"]
+    report: dict[str, Any] = {
+        "pipeline": str(pipe.path),
+        "seeds": seeds,
+        "iterations": base.iterations,
+        "threads": args.threads,
+        "reference_case": texts[0],
+        "curve_columns": ["iteration", "seconds", "loss", "psnr_mean"],
+        "cases": {},
+    }
+    for text, runs in results.items():
+        entry: dict[str, Any] = {
+            "loss": statistics.fmean(r["loss"] for r in runs),
+            "image_error": statistics.fmean(r["image_error"] for r in runs),
+            "merged_pairs": statistics.fmean(r["merged_pairs"] for r in runs),
+            "psnr_mean": statistics.fmean(r["psnr_mean"] for r in runs),
+            "rho_min": statistics.fmean(r["rho_min"] for r in runs),
+            "crosstalk_max": statistics.fmean(r["crosstalk_max"] for r in runs),
+            "seconds": statistics.fmean(r["seconds"] for r in runs),
+            "cut_length_mm": statistics.fmean(r["cut_length_mm"] for r in runs),
+            "tail_drop": statistics.fmean(r["tail_drop"] for r in runs),
+            "vs_reference": paired(runs, ref),
+            "runs": runs,
+        }
+        if all("verify" in r for r in runs):
+            entry["verify_psnr_mean"] = statistics.fmean(r["verify"]["psnr_mean"] for r in runs)
+        report["cases"][text] = entry
+    print(json.dumps(report, indent=1, default=float))
+
+
+if __name__ == "__main__":
+    main()
