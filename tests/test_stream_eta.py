@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from test_export import random_scratches
 
 from scratchfab.export import export
 from scratchfab.machine.profile import load_profile
+from scratchfab.machine.sender_checks import compare
 from scratchfab.machine.sender_program import load_program
 from scratchfab.model.design import Board
 from scratchfab.toolpath import plan_toolpath
@@ -218,3 +220,58 @@ def test_program_end_resets_the_modes_after_its_blocks_motion(tmp_path):
     assert blocks[2].modal.x == pytest.approx(15.0)
     assert not blocks[2].modal.relative
     assert blocks[3].modal.x == pytest.approx(2.0)
+
+
+def _exported_job(name: str, tmp_path: Path) -> tuple[Path, dict[int, float]]:
+    """An exported job and the $$ of a machine set up as its profile says ($11 apart)."""
+    profile = load_profile(name)
+    board = Board(width_mm=40.0, height_mm=40.0, margin_mm=1.0)
+    tp = plan_toolpath(random_scratches(np.random.default_rng(3), 150), board, profile)
+    out = tmp_path / f"{name}.gcode"
+    export(tp, profile, out)
+    m = profile.motion
+    settings = {110 + k: m.max_rate_mm_min[k] for k in range(3)}
+    settings |= {120 + k: m.acceleration_mm_s2[k] for k in range(3)}
+    return out, settings
+
+
+@pytest.mark.parametrize("junction_mm", [0.002, 0.05])
+def test_stream_warns_when_grbls_junction_deviation_moves_the_time(junction_mm, tmp_path):
+    """The warning says by how much GRBL's $11 moves the job's time from the profile's; the
+    figure agrees with the planner model running the G-code at both."""
+    profile = load_profile("grbl-3018-diamond")
+    job, settings = _exported_job("grbl-3018-diamond", tmp_path)
+    program = load_program(job)
+    grbl_run = simulate(job.read_text().splitlines(), grbl({**settings, 11: junction_mm}))
+    profile_run = simulate(job.read_text().splitlines(), grbl({**settings, 11: 0.01}))
+    change = grbl_run.seconds - profile_run.seconds
+    assert abs(change) > 0.01 * profile_run.seconds
+    (warning,) = [
+        w
+        for w in compare({**settings, 11: junction_mm}, None, program, profile).warnings
+        if "$11" in w
+    ]
+    found = re.search(r"passed (slower|faster), the job takes ([\d.]+) s (longer|less) "
+                      r"\(([-+][\d.]+) %\)", warning)  # fmt: skip
+    assert found, warning
+    assert found.group(1) == ("slower" if change > 0 else "faster")
+    assert found.group(3) == ("longer" if change > 0 else "less")
+    assert float(found.group(2)) == pytest.approx(abs(change), abs=0.5)
+    assert float(found.group(4)) == pytest.approx(100 * change / profile_run.seconds, abs=0.15)
+    assert warning.startswith(f"GRBL $11={junction_mm:g} mm is not the junction deviation 0.01")
+
+
+def test_no_junction_warning_where_11_does_not_move_the_time(tmp_path):
+    """The same $11, one a hair off, no $11, no accelerations to time with, or a servo job
+    (which stops at every stroke): no warning."""
+    job, settings = _exported_job("grbl-3018-diamond", tmp_path)
+    program = load_program(job)
+    profile = load_profile("grbl-3018-diamond")
+    no_accel = {k: v for k, v in settings.items() if k < 120}
+    for s in ({**settings, 11: 0.01}, {**settings, 11: 0.0101}, settings, {**no_accel, 11: 0.0}):
+        assert not [w for w in compare(s, None, program, profile).warnings if "$11" in w], s
+    job, settings = _exported_job("grbl-plotter-scribe", tmp_path)
+    servo = compare(
+        {**settings, 11: 0.0}, None, load_program(job), load_profile("grbl-plotter-scribe")
+    )
+    assert not [w for w in servo.warnings if "$11" in w]

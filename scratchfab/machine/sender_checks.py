@@ -14,6 +14,9 @@ _AXES = "XYZ"
 #: One digit of GRBL's coordinate reports in mm: 3 decimals in mm, 4 in inches under
 #: ``$13=1`` (``N_DECIMAL_COORDVALUE_MM`` / ``_INCH``), so 0.001 mm or 0.00254 mm.
 REPORT_DIGIT_MM = {False: 0.001, True: 0.0001 * MM_PER_INCH}
+#: A change of GRBL's ``$11`` is told when it moves the job's time by more than this
+#: share (and more than a second).
+JUNCTION_TIME_SHARE = 0.01
 
 
 def offset_tolerance_mm(inches: bool) -> float:
@@ -65,6 +68,9 @@ class _Motion(Protocol):
 
     @property
     def acceleration_mm_s2(self) -> tuple[float, float, float]: ...
+
+    @property
+    def junction_deviation_mm(self) -> float: ...
 
 
 class MachineLike(Protocol):
@@ -184,7 +190,9 @@ def compare(
     block whose position the sender cannot follow (G92, G10, another work coordinate
     system, G53, G28/G30, arcs outside G17): past it every check would be wrong. Warns
     about GRBL max rates slower than the profile's or the job's feeds, accelerations
-    lower than the profile's, and soft limits or homing being off. Every refusal starts
+    lower than the profile's, a junction deviation ``$11`` other than the profile's
+    that moves the job's time (:func:`junction_time_change`), and soft limits or homing
+    being off. Every refusal starts
     with the G-code file (``file:line:`` at the first line that goes too far, where one
     does).
     """
@@ -258,6 +266,10 @@ def compare(
                     f"{want:g} of machine '{profile.name}': the job takes longer than the "
                     "toolpath's estimate (the ETA here uses GRBL's)"
                 )
+        if 11 in settings:
+            warning = _junction_warning(settings, program, profile)
+            if warning:
+                out.warnings.append(warning)
     for k, axis in enumerate(_AXES):
         t = travel[k]
         if t is not None and lo[k] <= hi[k] and hi[k] - lo[k] > t + tolerance:
@@ -307,6 +319,42 @@ def compare(
                 f"${110 + k}={rate:g} mm/min: GRBL clamps it, the job runs slower"
             )
     return out
+
+
+def junction_time_change(
+    settings: dict[int, float], program: Program, junction_deviation_mm: float
+) -> tuple[float, float]:
+    """The job's seconds with GRBL's settings, and how many more than at another ``$11``.
+
+    Both timed by :meth:`Program.timed_for` with GRBL's rates and accelerations (without
+    ``$110``-``$112`` and ``$120``-``$122`` corners cannot be timed: the change is 0).
+    """
+    grbl = program.timed_for(settings).total_seconds
+    other = program.timed_for({**settings, 11: junction_deviation_mm}).total_seconds
+    return grbl, grbl - other
+
+
+def _duration(seconds: float) -> str:
+    if seconds >= 120.0:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds:.0f} s" if seconds >= 10.0 else f"{seconds:.1f} s"
+
+
+def _junction_warning(settings: dict[int, float], program: Program, profile: MachineLike) -> str:
+    """A warning when GRBL's ``$11`` moves the job's time from the profile's by enough."""
+    want = profile.motion.junction_deviation_mm
+    total, change = junction_time_change(settings, program, want)
+    base = total - change
+    if abs(change) <= max(JUNCTION_TIME_SHARE * base, 1.0):
+        return ""
+    pace, more = ("slower", "longer") if change > 0 else ("faster", "less")
+    return (
+        f"GRBL $11={settings[11]:g} mm is not the junction deviation {want:g} mm of machine "
+        f"'{profile.name}': corners are passed {pace}, the job takes "
+        f"{_duration(abs(change))} {more} ({100 * change / base:+.1f} %) than with the "
+        "profile's (the ETA here uses GRBL's $11, the toolpath's estimate the profile's "
+        "junction_deviation_mm)"
+    )
 
 
 def _machine_frame_refusals(
