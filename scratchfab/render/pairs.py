@@ -5,13 +5,14 @@ bijection between each pixel's square and its footprint (SPEC section 2). So a p
 footprint meets a scratch's rectangle exactly when the pixel square meets the rectangle's
 projection, a convex quadrilateral in the image. We rasterise that quadrilateral
 conservatively: for each image row it overlaps, the exact column range of the
-quadrilateral within the row's strip. The work is one small vectorised step per (scratch,
-row) plus one per pair, so it grows with the number of pairs, never with
-scratches x pixels.
+quadrilateral within the row's strip. The work is a few operations per (scratch, row)
+plus one per pair, so it grows with the number of pairs, never with scratches x pixels.
 """
 
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,9 +22,6 @@ from scratchfab.model.camera import Camera
 
 #: Image-plane slack (pixels) added on every side, so rounding never drops a pair.
 PIXEL_SLACK = 1e-3
-
-#: Scratches rasterised per vectorised step (bounds the temporary memory).
-CHUNK = 16384
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,49 +67,15 @@ def scratch_rectangles(
     return np.stack([start - a * across, end - a * across, end + a * across, start + a * across], 1)
 
 
-def _row_spans(q: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Column extent (s_min, s_max) of convex quads q (R, 4, 2) within strips [row, row + 1]."""
-    lo = rows - PIXEL_SLACK
-    hi = rows + 1 + PIXEL_SLACK
-    s_min = np.full(len(rows), np.inf)
-    s_max = np.full(len(rows), -np.inf)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for e in range(4):
-            sa, ta = q[:, e, 0], q[:, e, 1]
-            sb, tb = q[:, (e + 1) % 4, 0], q[:, (e + 1) % 4, 1]
-            dt = tb - ta
-            flat = np.abs(dt) < 1e-12
-            u1 = (lo - ta) / np.where(flat, 1.0, dt)
-            u2 = (hi - ta) / np.where(flat, 1.0, dt)
-            ulo = np.maximum(0.0, np.minimum(u1, u2))
-            uhi = np.minimum(1.0, np.maximum(u1, u2))
-            ulo = np.where(flat, 0.0, ulo)
-            uhi = np.where(flat, 1.0, uhi)
-            ok = np.where(flat, (ta >= lo) & (ta <= hi), ulo <= uhi)
-            s1 = sa + ulo * (sb - sa)
-            s2 = sa + uhi * (sb - sa)
-            s_min = np.where(ok, np.minimum(s_min, np.minimum(s1, s2)), s_min)
-            s_max = np.where(ok, np.maximum(s_max, np.maximum(s1, s2)), s_max)
-    return s_min, s_max
-
-
-def _runs(base: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """``base[k] + 0 .. base[k] + count[k] - 1`` for every k, laid end to end.
-
-    In int32 (half the memory traffic of int64) unless the offsets need more.
-    """
-    starts = np.cumsum(count) - count
-    offset = base - starts
-    total = int(count.sum())
-    small = total < 2**31 and (len(offset) == 0 or int(np.abs(offset).max()) < 2**31 - total)
-    dtype = np.int32 if small else np.int64
-    return np.repeat(offset.astype(dtype), count) + np.arange(total, dtype=dtype)
-
-
 def raster_pairs(
     camera: Camera, corners: np.ndarray, pixel_ok: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every (pixel, scratch) pair whose footprint may meet the quadrilateral of the scratch.
+
+    numpy projects the corners and finds each scratch's rows; compiled scans (numba,
+    loaded on first use) find each row's columns and count the pixels with ``pixel_ok``
+    among them (:func:`_count_pairs`), then write the pairs into arrays of that size
+    (:func:`_write_pairs`).
 
     Args:
         camera: The view's camera.
@@ -120,40 +84,152 @@ def raster_pairs(
             with some area on the board); others are dropped.
 
     Returns:
-        (pixel, scratch) uint32 arrays, scratch-major.
+        (pixel, scratch) uint32 arrays, scratch-major; in each scratch by row, then
+        column.
     """
     W, H = camera.width, camera.height
-    pix_out: list[np.ndarray] = []
-    sid_out: list[np.ndarray] = []
-    for start in range(0, len(corners), CHUNK):
-        quad = corners[start : start + CHUNK]
-        n = len(quad)
-        pts = np.concatenate([quad, np.zeros((n, 4, 1))], axis=2)
-        st, front = camera.project(pts)
-        # A corner behind the camera (never for a camera looking at the board): fall
-        # back to the whole image, which stays correct, only slower.
-        whole = ~np.all(front, axis=1) | ~np.all(np.isfinite(st), axis=(1, 2))
-        st = np.where(whole[:, None, None], 0.0, st)
-        t_min = np.where(whole, 0.0, st[:, :, 1].min(axis=1) - PIXEL_SLACK)
-        t_max = np.where(whole, H - 1.0, st[:, :, 1].max(axis=1) + PIXEL_SLACK)
-        j0 = np.clip(np.floor(t_min), 0, H).astype(np.int64)
-        j1 = np.clip(np.floor(t_max), -1, H - 1).astype(np.int64)
-        row_count = np.maximum(0, j1 - j0 + 1)
-        owner = np.repeat(np.arange(n, dtype=np.int32), row_count)
-        rows = _runs(j0, row_count)
-        s_min, s_max = _row_spans(st[owner], rows.astype(np.float64))
-        s_min = np.where(whole[owner], 0.0, s_min - PIXEL_SLACK)
-        s_max = np.where(whole[owner], W - 1.0, s_max + PIXEL_SLACK)
-        empty = ~(s_min <= s_max)
-        i0 = np.clip(np.floor(np.where(empty, 0.0, s_min)), 0, W).astype(np.int64)
-        i1 = np.clip(np.floor(np.where(empty, -1.0, s_max)), -1, W - 1).astype(np.int64)
-        col_count = np.maximum(0, i1 - i0 + 1)
-        # each (scratch, row) item's columns i0 .. i1 as flat pixels rows * W + i
-        pixel = _runs(rows.astype(np.int64) * W + i0, col_count)
-        keep = pixel_ok[pixel]
-        scratch = np.repeat((owner + start).astype(np.uint32), col_count)
-        pix_out.append(pixel[keep].astype(np.uint32))
-        sid_out.append(scratch[keep])
-    if not pix_out:
+    corners = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
+    n = len(corners)
+    if n == 0:
         return np.zeros(0, np.uint32), np.zeros(0, np.uint32)
-    return np.concatenate(pix_out), np.concatenate(sid_out)
+    if n - 1 > np.iinfo(np.uint32).max or H * W - 1 > np.iinfo(np.uint32).max:
+        raise ValueError(f"uint32 cannot index {n} scratches or {H} x {W} pixels")
+    pts = np.concatenate([corners, np.zeros((n, 4, 1))], axis=2)
+    st, front = camera.project(pts)
+    # A corner behind the camera (never for a camera looking at the board): the whole
+    # image, which stays correct, only slower.
+    whole = ~np.all(front, axis=1) | ~np.all(np.isfinite(st), axis=(1, 2))
+    t_min = np.where(whole, 0.0, st[:, :, 1].min(axis=1) - PIXEL_SLACK)
+    t_max = np.where(whole, H - 1.0, st[:, :, 1].max(axis=1) + PIXEL_SLACK)
+    j0 = np.clip(np.floor(t_min), 0, H).astype(np.int64)
+    j1 = np.clip(np.floor(t_max), -1, H - 1).astype(np.int64)
+    rows = np.zeros(n + 1, np.int64)
+    np.cumsum(np.maximum(0, j1 - j0 + 1), out=rows[1:])
+    ok = np.ascontiguousarray(pixel_ok, dtype=np.bool_).reshape(H * W)
+    # ok pixels of row j before column i: before[j * (W + 1) + i]
+    before = np.zeros((H, W + 1), np.int32)
+    np.cumsum(ok.reshape(H, W), axis=1, dtype=np.int32, out=before[:, 1:])
+    count_pairs, write_pairs = _compiled()
+    span = np.empty((int(rows[-1]), 2), np.int32)
+    first = np.zeros(n + 1, np.int64)
+    st = np.ascontiguousarray(st)  # one compiled signature
+    count_pairs(st, whole, j0, rows, W, before.reshape(-1), span, first[1:])
+    np.cumsum(first, out=first)
+    pixel = np.empty(int(first[-1]), np.uint32)
+    scratch = np.empty(int(first[-1]), np.uint32)
+    write_pairs(j0, rows, W, ok, span, first, pixel, scratch)
+    return pixel, scratch
+
+
+@functools.cache
+def _compiled() -> tuple[Any, Any]:
+    """:func:`_count_pairs` and :func:`_write_pairs` compiled (numba is loaded on first use)."""
+    import numba
+
+    # importing it points numba's cache to a folder this user may write
+    from scratchfab.toolpath.local_search import NUMBA_CACHE
+
+    compile_ = numba.njit(cache=NUMBA_CACHE, nogil=True)
+    return compile_(_count_pairs), compile_(_write_pairs)
+
+
+def _count_pairs(
+    st: np.ndarray,
+    whole: np.ndarray,
+    j0: np.ndarray,
+    rows: np.ndarray,
+    width: int,
+    before: np.ndarray,
+    span: np.ndarray,
+    kept: np.ndarray,
+) -> None:
+    """Each scratch's column span in each of its rows, and its pairs (compiled by numba).
+
+    Scratch k covers image rows ``j0[k]`` on, items ``rows[k]`` to ``rows[k + 1]`` - 1;
+    ``st`` (N, 4, 2) are its projected corners, ``whole`` whether it takes every pixel.
+    Writes each item's first and last column into ``span`` (last < first: none) and
+    the number of its pixels that ``before`` (per row, the ok pixels left of a column,
+    rows W + 1 long) counts into ``kept[k]``.
+
+    The span of a convex quadrilateral within the strip [row, row + 1] (grown by the
+    slack) is the extent of the parts of its edges in the strip; the float64 operations
+    are those of the numpy form this replaced, in the same order, its NaN-propagating
+    minimum and maximum included (tests/test_raster_pairs.py keeps it to compare).
+    """
+
+    def least(a: float, b: float) -> float:
+        return a if (a != a or a < b) else b
+
+    def most(a: float, b: float) -> float:
+        return a if (a != a or a > b) else b
+
+    slack = PIXEL_SLACK
+    for k in range(len(j0)):
+        total = 0
+        for r in range(rows[k], rows[k + 1]):
+            j = j0[k] + (r - rows[k])
+            i0 = 0
+            i1 = width - 1
+            if not whole[k]:
+                lo = float(j) - slack
+                hi = float(j) + 1.0 + slack
+                s_min = math.inf
+                s_max = -math.inf
+                for e in range(4):
+                    f = (e + 1) % 4
+                    sa, ta, sb, tb = st[k, e, 0], st[k, e, 1], st[k, f, 0], st[k, f, 1]
+                    dt = tb - ta
+                    if abs(dt) < 1e-12:  # along the strip: all of it or none
+                        if not (ta >= lo and ta <= hi):
+                            continue
+                        u_lo = 0.0
+                        u_hi = 1.0
+                    else:
+                        u1 = (lo - ta) / dt
+                        u2 = (hi - ta) / dt
+                        u_lo = most(0.0, least(u1, u2))
+                        u_hi = least(1.0, most(u1, u2))
+                        if not u_lo <= u_hi:
+                            continue
+                    s1 = sa + u_lo * (sb - sa)
+                    s2 = sa + u_hi * (sb - sa)
+                    s_min = least(s_min, least(s1, s2))
+                    s_max = most(s_max, most(s1, s2))
+                s_min = s_min - slack
+                s_max = s_max + slack
+                if s_min <= s_max:
+                    # clipped to whole columns first: floor keeps the integer bounds
+                    i0 = math.floor(min(max(s_min, 0.0), float(width)))
+                    i1 = math.floor(min(max(s_max, -1.0), width - 1.0))
+                else:
+                    i1 = -1
+            span[r, 0] = i0
+            span[r, 1] = i1
+            if i1 >= i0:
+                row = j * (width + 1)
+                total += before[row + i1 + 1] - before[row + i0]
+        kept[k] = total
+
+
+def _write_pairs(
+    j0: np.ndarray,
+    rows: np.ndarray,
+    width: int,
+    ok: np.ndarray,
+    span: np.ndarray,
+    first: np.ndarray,
+    pixel: np.ndarray,
+    scratch: np.ndarray,
+) -> None:
+    """The ok pixels of every span, from ``first[k]`` on for scratch k (compiled by numba)."""
+    for k in range(len(j0)):
+        m = first[k]
+        for r in range(rows[k], rows[k + 1]):
+            base = (j0[k] + (r - rows[k])) * width
+            for p in range(base + span[r, 0], base + span[r, 1] + 1):
+                if ok[p]:
+                    pixel[m] = p
+                    scratch[m] = k
+                    m += 1
+        if m != first[k + 1]:
+            raise RuntimeError("raster_pairs: a scratch's pairs differ from its count")
