@@ -275,3 +275,14 @@ def test_no_junction_warning_where_11_does_not_move_the_time(tmp_path):
         {**settings, 11: 0.0}, None, load_program(job), load_profile("grbl-plotter-scribe")
     )
     assert not [w for w in servo.warnings if "$11" in w]
+
+
+def test_a_tool_length_offset_is_not_a_move(tmp_path):
+    """G43.1's Z word is the offset (Grbl: AXIS_COMMAND_TOOL_LENGTH_OFFSET, no motion); the
+    work Z it shifts is not followed. G49, common in program headers, is taken as a reset."""
+    lines = ["G21 G90 G94", "G0 Z5", "G43.1 Z1.5", "G49", "G17 G21 G40 G49 G80 G90", "G0 Z4"]
+    blocks = load_program(write(tmp_path, lines)).blocks
+    assert not blocks[2].motion and blocks[2].modal.z == 5.0
+    assert blocks[2].unfollowed == "G43.1 changes the tool length offset (work Z)"
+    assert not any(b.motion or b.unfollowed for b in blocks[3:5])
+    assert blocks[5].motion and blocks[5].modal.z == 4.0

@@ -335,8 +335,9 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     G28.1/G30.1 (``FORCE_BUFFER_SYNC_DURING_EEPROM_WRITE``). After it: M0, M2 and M30
     (step 21, program flow). No sync: a repeated M3 or M5, M9 with coolant off, M1
     (ignored by Grbl 1.1), G28/G30 (an EEPROM read), ``$`` lines (run at once, or refused
-    while moving). Not followed: G43.1/G49 (sync when the tool length offset changes,
-    which the sender does not track). The flags: ``before`` whatever ``$32`` says,
+    while moving). Not known: whether G43.1/G49 sync (they do where the tool length offset
+    changes, which the sender does not track; a G43.1 is not followed, G49 is taken for a
+    header's reset). The flags: ``before`` whatever ``$32`` says,
     ``speed`` only with ``$32=0`` (an S change in a block that moves), ``laser`` only with
     ``$32=1`` (the forced sync), ``after``.
     """
@@ -347,6 +348,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     axes: dict[str, float] = {}
     arc: dict[str, float] = {}
     nonmodal = ""
+    offset = ""
     sync = False
     ending = ""
     speed_changed = False
@@ -368,6 +370,8 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
                 s = replace(s, wcs=code)
             elif code in ("G4", "G10", "G28", "G30", "G53", "G92", "G28.1", "G30.1", "G92.1"):
                 nonmodal = code
+            elif code in ("G43.1", "G49"):
+                offset = code  # its axis word is the offset, not a move
         elif letter == "M":
             code = f"M{value:g}"
             if code in ("M3", "M4", "M5"):
@@ -394,7 +398,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
         sync = True
     sync = sync or s.wcs != state.wcs
     # GRBL's laser mode passes an S change in a block whose axis words drive a motion mode
-    drives = bool(axes) and nonmodal not in ("G10", "G28", "G30", "G92")
+    drives = bool(axes) and not offset and nonmodal not in ("G10", "G28", "G30", "G92")
     feeding, was_feeding = (m.motion in ("G1", "G2", "G3") for m in (s, state))
     forced = state.spindle == "M3" and feeding != was_feeding
     sync = sync or (speed_changed and not drives)
@@ -409,7 +413,8 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     seconds = dwell
     box = None
     rapid = None
-    if axes and nonmodal not in ("G10", "G92", "G28", "G30", "G53") and s.motion != "G80":
+    moving = not offset and nonmodal not in ("G10", "G92", "G28", "G30", "G53")
+    if axes and moving and s.motion != "G80":
         start = (s.x, s.y, s.z if s.z is not None else 0.0)
         end = list(start)
         for k, a in enumerate("XYZ"):
@@ -431,6 +436,8 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     elif axes and nonmodal in ("G28", "G30", "G53"):
         motion = True  # position unknown to the sender; keep the old one
     unfollowed = _unfollowed(nonmodal, axes, state, s)
+    if offset == "G43.1":
+        unfollowed = unfollowed or "G43.1 changes the tool length offset (work Z)"
     if ending in ("M2", "M30"):  # after the motion
         s = replace(
             s, motion="G1", relative=False, plane="G17", feed_mode="G94", wcs="G54",
