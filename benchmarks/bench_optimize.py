@@ -13,10 +13,11 @@ Cases:
   demo's iteration count, labelled so.
 - ``refresh``: one pair refresh (``LayoutOptimizer._refresh``) on the full-size pipeline
   (150 mm, 3 views) laid out by the design stage at several scratch counts: seconds of
-  each part (pixel pairs per view, merge-candidate neighbour pairs, the whole refresh
-  with ``--threads`` Dr.Jit threads, which finds the merge candidates on a second
-  thread, and on one thread; best of ``--refresh-repeats``), the pair counts, and each
-  one's growth exponent (log-log slope over the counts).
+  each part (pixel pairs per view, ``find_pairs`` and the ``raster_pairs`` in it,
+  merge-candidate neighbour pairs, the whole refresh with ``--threads`` Dr.Jit threads,
+  which finds the merge candidates on a second thread, and on one thread; best of
+  ``--refresh-repeats``), the pair counts, and each one's growth exponent (log-log
+  slope over the counts).
 - ``steps``: where one step's time goes, on the demo (``--steps-pipeline full-size`` for
   ``pipelines/full-size.toml``, sized by ``--steps-count`` and ``--steps-resolution``):
   mean wall seconds of ``LayoutOptimizer.step`` after the first (which compiles), split
@@ -157,15 +158,21 @@ def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int
     import drjit as dr
 
     from scratchfab.backend import array_module
+    from scratchfab.model.camera import Camera
     from scratchfab.optimize.loss import neighbour_pairs
     from scratchfab.optimize.optimizer import Settings
     from scratchfab.optimize.stage import load_job_inputs
+    from scratchfab.render.pairs import raster_pairs, scratch_rectangles
 
     m = array_module("llvm")
     dr.set_thread_count(threads if threads > 0 else 2)
     t0 = time.perf_counter()
     neighbour_pairs(np.zeros((2, 2)), np.ones((2, 2)), 1.0)  # loads numba and its scan
     first_call = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    down = Camera(np.array([0.0, 0.0, 10.0]), -np.eye(3)[2], np.eye(3)[0], np.eye(3)[1], 1, 1, 4, 4)
+    raster_pairs(down, np.zeros((1, 4, 2)), np.ones(16, bool))  # loads its compiled scans
+    raster_first_call = time.perf_counter() - t0
     rows: list[dict[str, float]] = []
     for count in counts:
         with tempfile.TemporaryDirectory() as tmp:
@@ -187,6 +194,11 @@ def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int
                 t0 = time.perf_counter()
                 r.find_pairs(p0, p1, half, opt.margin)
                 times[f"find_pairs_{r.view.name}_s"] = time.perf_counter() - t0
+            corners = scratch_rectangles(p0, p1, half, opt.margin)
+            for r in opt.renderers:
+                t0 = time.perf_counter()
+                raster_pairs(r.camera, corners, r.pixel_ok)
+                times[f"raster_pairs_{r.view.name}_s"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             neighbour_pairs(p0, p1, reach, slack)
             times["neighbour_pairs_s"] = time.perf_counter() - t0
@@ -218,6 +230,9 @@ def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int
         "pair_margin_mm": round(opt.margin, 3),
         "neighbour_pairs_first_call_s (loads numba and the compiled scan, once a process)": round(
             first_call, 3
+        ),
+        "raster_pairs_first_call_s (after neighbour_pairs': loads its compiled scans)": round(
+            raster_first_call, 3
         ),
         "repeats (best kept)": repeats,
         "rows": rows,
