@@ -6,6 +6,13 @@ per-view renderers and targets, and the pixel pairs. Pairs are re-found every
 which bounds how far any scratch can move before the next refresh, so no (pixel,
 scratch) pair that the exact renderer would need is ever missing.
 
+With a step-size schedule (:class:`~scratchfab.optimize.options.StepSchedule`), step t
+moves each coordinate by at most scale(t) times its learning rate, so the margin is a
+budget of B = max(K, ceil(largest scale)) steps at the learning rates: pairs are
+re-found before the step that would take the sum of the scales since the last refresh
+past B (:meth:`LayoutOptimizer.refresh_due`). Large early steps refresh more often, small
+late ones less; without a schedule that is every K steps, as before.
+
 At any one step, most of those pairs do not touch. The margin is about a millimetre
 around a scratch a tenth of a millimetre wide, so about 2/3 of the demo's pairs and 4/5
 of the full-size board's lie beside their scratch. There the footprint integral and its
@@ -38,6 +45,7 @@ from types import ModuleType
 from typing import Any
 
 import drjit as dr
+import drjit.opt
 import numpy as np
 
 from scratchfab.backend import jit_array
@@ -45,6 +53,7 @@ from scratchfab.errors import ScratchfabError
 from scratchfab.model.design import Design
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.optimize.loss import Space, merge_penalty, neighbour_pairs, view_error
+from scratchfab.optimize.options import StepSchedule
 from scratchfab.optimize.params import (
     KEYS,
     BoundedAdam,
@@ -136,6 +145,7 @@ class Settings:
         space: Image error space, ``"linear"`` or ``"perceptual"``.
         merge_weight: Weight of the merge penalty (per scratch).
         bound_weight: Weight of the pull back onto the feasible set (per scratch, 1/mm^2).
+        schedule: Multiples of ``lr`` step by step (None: ``lr`` throughout).
     """
 
     lr: Mapping[str, float]
@@ -143,6 +153,31 @@ class Settings:
     space: Space = "linear"
     merge_weight: float = 0.05
     bound_weight: float = 1.0
+    schedule: StepSchedule | None = None
+
+    def pair_budget(self) -> int:
+        """Steps at ``lr`` that the pair margin covers: K, or more for a larger scale."""
+        if self.schedule is None:
+            return self.refresh_every
+        return max(self.refresh_every, math.ceil(self.schedule.largest()))
+
+
+class ScheduledAdam(BoundedAdam):  # type: ignore[misc]
+    """:class:`BoundedAdam` whose clipped steps are multiplied by ``scale``.
+
+    ``scale`` is a Dr.Jit Float64 of width 1 (opaque, so a frozen step replays it with
+    each step's value) or None (1: exactly BoundedAdam's step). A coordinate then moves
+    by at most ``scale`` times its learning rate.
+    """
+
+    scale: Any = None
+
+    def _step(self, cache: Any, value: Any, grad: Any, lr: Any, extra: Any, /) -> Any:
+        if self.scale is None:
+            return super()._step(cache, value, grad, lr, extra)
+        new_value, new_extra = drjit.opt.Adam._step(self, cache, value, grad, lr, extra)
+        step = dr.clip(new_value - value, -lr, lr) * self.scale
+        return value + step, new_extra
 
 
 @dataclass
@@ -229,18 +264,23 @@ class LayoutOptimizer:
         self._half_width = jit_array(F, initial.width / 2)
         self._wbar = jit_array(F, solve_wbar(initial.width, initial.depth))
         self.tool_width = float(np.max(initial.width))
-        self.opt = BoundedAdam(lr=1.0)
+        self.opt = ScheduledAdam(lr=1.0)
         raw = project_np(from_scratches(initial), self.bounds)
         for key, value in to_arrays(F, raw).items():
             self.opt[key] = value
         self.opt.set_learning_rate({k: float(settings.lr[k]) for k in KEYS})
         self.iteration = 0
+        #: Steps at the learning rates that the pair margin covers (module docstring).
+        self.budget = settings.pair_budget()
         self.margin = pair_margin(
             dict(settings.lr),
             self.bounds.max_length,
-            settings.refresh_every,
+            self.budget,
             float(np.max(initial.width)) / 2,
         )
+        # refresh_due's plan so far, and the sum of the scales since its last refresh
+        self._due: list[bool] = []
+        self._moved = 0.0
         self.ends = self._ends_np()
         self.refresh_ends: np.ndarray | None = None
         self.pairs: list[Pairs] = []
@@ -330,7 +370,7 @@ class LayoutOptimizer:
         p0, p1 = e[:, 0:2], e[:, 2:4]
         half = self.width / 2
         reach = self.tool_width + 2 * (self.margin - float(np.max(half)))
-        slack = 2 * self.settings.refresh_every * float(self.settings.lr["theta"])
+        slack = 2 * self.budget * float(self.settings.lr["theta"])
         if dr.thread_count() > 1:
             # the merge candidates (numpy and compiled code, no Dr.Jit, the GIL released)
             # on a second core, beside the pixel pairs
@@ -345,6 +385,29 @@ class LayoutOptimizer:
         self.neighbours = (jit_array(U, i, np.uint32), jit_array(U, j, np.uint32))
         self._neighbour_count = len(i)
         self.pairs = pairs
+
+    def scale(self, t: int) -> float:
+        """The multiple of the learning rates that step ``t`` takes (1 without a schedule)."""
+        schedule = self.settings.schedule
+        return 1.0 if schedule is None else schedule.scale(t)
+
+    def refresh_due(self, t: int) -> bool:
+        """Whether pairs are re-found before step ``t``.
+
+        Without a schedule every K steps. With one, before the step that would take the
+        sum of the scales since the last refresh past the budget: no scratch then moves
+        farther than the margin assumed. A function of ``t`` and the settings alone,
+        planned from step 0, so a resumed run refreshes where an uninterrupted one does.
+        """
+        if self.settings.schedule is None:
+            return t % self.settings.refresh_every == 0
+        while len(self._due) <= t:
+            i = len(self._due)
+            s = self.scale(i)
+            due = i == 0 or self._moved + s > self.budget
+            self._moved = (0.0 if due else self._moved) + s
+            self._due.append(due)
+        return self._due[t]
 
     def pair_counts(self) -> list[int]:
         """Number of pairs per view in use."""
@@ -443,6 +506,7 @@ class LayoutOptimizer:
             "wbar": self._wbar if wbar is None else wbar,
             "pairs": [(p.pixel, p.scratch) for p in self.pairs],
             "neighbours": self.neighbours if self._neighbour_count > 0 else None,
+            "step_scale": None,
         }
 
     def _view_pairs(self, active: Active | None, classes: Classes | None = None) -> list[ViewPairs]:
@@ -542,7 +606,7 @@ class LayoutOptimizer:
         )
 
     def _train(
-        self, opt: BoundedAdam, ctx: dict[str, Any], view_pairs: list[ViewPairs], touch: bool
+        self, opt: ScheduledAdam, ctx: dict[str, Any], view_pairs: list[ViewPairs], touch: bool
     ) -> tuple[Any, list[Any], list[Any], tuple[Any, ...], list[Any]]:
         """One Adam step of ``opt``: loss, errors and renders before it, endpoints after it.
 
@@ -551,7 +615,11 @@ class LayoutOptimizer:
         """
         loss, errors, renders, _ends = self._objective([opt[k] for k in KEYS], ctx, view_pairs)
         dr.backward(loss)
-        opt.step(eval=False)
+        opt.scale = ctx["step_scale"]
+        try:
+            opt.step(eval=False)
+        finally:
+            opt.scale = None
         with dr.suspend_grad():
             cx, cy, theta, length = (opt[k] for k in KEYS)
             new_ends = endpoints(*project(cx, cy, theta, length, self.bounds))
@@ -565,9 +633,11 @@ class LayoutOptimizer:
             NonFiniteError: When the loss or a gradient is not finite; the parameters
                 are then left as they were before the step.
         """
-        if not self.pairs or self.iteration % self.settings.refresh_every == 0:
+        if not self.pairs or self.refresh_due(self.iteration):
             self._refresh(self.ends)
         ctx = self._context()
+        if self.settings.schedule is not None:
+            ctx["step_scale"] = dr.opaque(self.Float, self.scale(self.iteration), 1)
         if self.active is None:
             with dr.suspend_grad():
                 masks = self._touching(endpoints(*self._projected()), ctx)
@@ -579,7 +649,7 @@ class LayoutOptimizer:
         # A frozen replay updates the optimizer's arrays in place (the same Python objects
         # get the new values), so the state to restore is held by new objects.
         saved = {k: _hold(self.opt.state[k]) for k in KEYS}
-        refresh_next = (self.iteration + 1) % self.settings.refresh_every == 0
+        refresh_next = self.refresh_due(self.iteration + 1)
         view_pairs = self._view_pairs(self.active, self.classes)
         # Python's cycle collector may free Dr.Jit arrays in the middle of a dr.freeze
         # recording; one that borrows NumPy memory then releases it through a host

@@ -14,6 +14,41 @@ from scratchfab.model.schema import spec
 
 
 @dataclass(frozen=True)
+class StepSchedule:
+    """Multiples of the Adam step sizes over a run: large early, smaller late.
+
+    Step t (0-based) of a run of n steps takes the step sizes times
+
+        scale(t) = end + (start - end) w(x),   x = min(t / max(n - 1, 1), 1),
+
+    with w(x) = 1 - x (``"linear"``) or (1 + cos(pi x)) / 2 (``"cosine"``), so step 0
+    takes ``start`` and step n - 1 ``end``. It depends on the step index and the run's
+    total only (not on time), so a resumed run follows the same schedule.
+
+    Attributes:
+        shape: ``"linear"`` or ``"cosine"``.
+        start: Scale of the first step.
+        end: Scale of the last step.
+        iterations: The run's total steps n.
+    """
+
+    shape: Literal["linear", "cosine"]
+    start: float
+    end: float
+    iterations: int
+
+    def scale(self, t: int) -> float:
+        """The multiple of the step sizes at step ``t``."""
+        x = min(t / max(self.iterations - 1, 1), 1.0)
+        w = 1.0 - x if self.shape == "linear" else 0.5 * (1.0 + math.cos(math.pi * x))
+        return self.end + (self.start - self.end) * w
+
+    def largest(self) -> float:
+        """The largest scale of any step (both shapes are monotonic)."""
+        return max(self.start, self.end)
+
+
+@dataclass(frozen=True)
 class OptimizeOptions:
     """Settings of the optimize stage (the ``[optimize]`` table of a pipeline file).
 
@@ -27,7 +62,14 @@ class OptimizeOptions:
         lr_position_mm: Adam step size of the centres.
         lr_angle_deg: Adam step size of the angles.
         lr_length_mm: Adam step size of the lengths.
-        refresh_every: Steps between pixel-pair refreshes.
+        lr_schedule: Shape of the step sizes' change over the run, ``"linear"`` or
+            ``"cosine"`` (:class:`StepSchedule`).
+        lr_start_scale: The step sizes of the first step, as multiples of the ``lr_*``.
+        lr_end_scale: The step sizes of the last step (step ``iterations - 1``), as
+            multiples of the ``lr_*``; equal start and end scales keep them constant.
+        refresh_every: Steps between pixel-pair refreshes at the ``lr_*`` step sizes (a
+            schedule above them refreshes more often, below them less: the pair
+            margin covers this many steps of the ``lr_*``).
         checkpoint_every: Steps between checkpoints.
         merge_weight: Weight of the penalty on parallel scratches closer than the tool.
         jitter_deg: Standard deviation of a random turn of each initial scratch.
@@ -47,6 +89,9 @@ class OptimizeOptions:
     lr_position_mm: float = field(default=0.03, metadata=spec(gt=0))
     lr_angle_deg: float = field(default=0.25, metadata=spec(gt=0))
     lr_length_mm: float = field(default=0.03, metadata=spec(gt=0))
+    lr_schedule: Literal["linear", "cosine"] = "cosine"
+    lr_start_scale: float = field(default=1.0, metadata=spec(gt=0))
+    lr_end_scale: float = field(default=1.0, metadata=spec(gt=0))
     refresh_every: int = field(default=8, metadata=spec(gt=0))
     checkpoint_every: int = field(default=25, metadata=spec(gt=0))
     merge_weight: float = field(default=0.05, metadata=spec(ge=0))
@@ -56,6 +101,14 @@ class OptimizeOptions:
     prune_tolerance: float | None = field(default=None, metadata=spec(ge=0))
     feed_mm_min: float = field(default=300.0, metadata=spec(gt=0))
     stroke_overhead_s: float = field(default=2.0, metadata=spec(ge=0))
+
+    def schedule(self) -> StepSchedule | None:
+        """The step-size schedule over ``iterations`` (None: the ``lr_*`` throughout)."""
+        if self.lr_start_scale == self.lr_end_scale == 1.0:
+            return None
+        return StepSchedule(
+            self.lr_schedule, self.lr_start_scale, self.lr_end_scale, self.iterations
+        )
 
     def learning_rates(self) -> dict[str, float]:
         """Per-variable learning rates in the optimizer's units (mm, rad)."""

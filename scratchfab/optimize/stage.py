@@ -177,6 +177,11 @@ def _fingerprint(
         digest.update(np.ascontiguousarray(targets[name], dtype=np.float64).tobytes())
     out: dict[str, Any] = {k: getattr(options, k) for k in TRAJECTORY_KEYS}
     out["inputs_sha256"] = digest.hexdigest()
+    schedule = options.schedule()
+    if schedule is not None:
+        # its scales depend on the run's total, so a resume needs the same iterations;
+        # only present with a schedule, so a constant run may still be extended
+        out["lr_schedule"] = asdict(schedule)
     return out
 
 
@@ -272,6 +277,7 @@ def _run(
         refresh_every=options.refresh_every,
         space=options.space,
         merge_weight=options.merge_weight,
+        schedule=options.schedule(),
     )
     report(Progress(0, options.iterations, math.nan, 0.0, math.nan, "compiling kernels"))
     opt = LayoutOptimizer(design, targets, start_layout, settings, m)
@@ -283,10 +289,12 @@ def _run(
     ckpt = paths.optimize_checkpoint
     if options.resume:
         state, meta, log_rows = load_checkpoint(ckpt)
+        made = meta.get("fingerprint", {})
         differ = [
             k
-            for k in fingerprint
-            if json.dumps(meta.get("fingerprint", {}).get(k)) != json.dumps(fingerprint[k])
+            for k in dict.fromkeys([*fingerprint, *made])
+            if json.dumps(made.get(k), sort_keys=True)
+            != json.dumps(fingerprint.get(k), sort_keys=True)
         ]
         if differ:
             raise ConfigError(

@@ -1,0 +1,214 @@
+"""Tests of the step-size schedule: its scales, the bounded steps, pairs, freeze and resume."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import drjit as dr
+import numpy as np
+import pytest
+from conftest import make_design
+from test_optimize_helpers import cross_of, make_job, make_layout
+
+from scratchfab.errors import ConfigError
+from scratchfab.model.schema import parse_table
+from scratchfab.optimize.optimizer import LayoutOptimizer, ScheduledAdam, Settings
+from scratchfab.optimize.options import OptimizeOptions, StepSchedule
+from scratchfab.optimize.params import KEYS, BoundedAdam, max_step_mm
+from scratchfab.optimize.stage import run_optimize
+
+LR = {"cx": 0.03, "cy": 0.03, "theta": math.radians(0.25), "length": 0.03}
+
+
+@pytest.fixture(scope="module")
+def board() -> tuple:  # type: ignore[type-arg]
+    design = make_design(resolution=24, size_mm=30.0)
+    targets, _ = cross_of(design)
+    return design, targets
+
+
+# ---------------------------------------------------------------- the scales
+
+
+def test_scales_follow_the_hand_formula() -> None:
+    lin = StepSchedule("linear", 4.0, 1.0, 7)  # x = t / 6
+    assert [lin.scale(t) for t in (0, 2, 3, 6)] == pytest.approx([4.0, 3.0, 2.5, 1.0], abs=1e-15)
+    cos = StepSchedule("cosine", 3.0, 1.0, 5)  # x = t / 4
+    expected = [3.0, 1 + 2 * (1 + math.sqrt(0.5)) / 2, 2.0, 1 + 2 * (1 - math.sqrt(0.5)) / 2, 1.0]
+    assert [cos.scale(t) for t in range(5)] == pytest.approx(expected, abs=1e-15)
+    assert cos.scale(9) == 1.0  # past the run: the end's scale
+    assert StepSchedule("cosine", 0.5, 2.0, 1).scale(0) == 0.5  # a one-step run: the start
+    assert StepSchedule("linear", 0.5, 2.0, 3).largest() == 2.0
+
+
+def test_options_give_a_schedule_only_when_the_scales_differ_from_one() -> None:
+    assert OptimizeOptions().schedule() is None
+    options = OptimizeOptions(iterations=50, lr_start_scale=2.0, lr_schedule="linear")
+    assert options.schedule() == StepSchedule("linear", 2.0, 1.0, 50)
+    assert OptimizeOptions(lr_start_scale=0.5, lr_end_scale=0.5).schedule() is not None
+
+
+@pytest.mark.parametrize(
+    ("table", "message"),
+    [
+        ({"lr_schedul": "linear"}, "lr_schedule"),
+        ({"lr_schedule": "step"}, "lr_schedule"),
+        ({"lr_start_scale": 0}, "lr_start_scale"),
+        ({"lr_end_scale": -1.0}, "lr_end_scale"),
+        ({"lr_start_scale": "2"}, "lr_start_scale"),
+    ],
+)
+def test_bad_schedule_keys_are_refused_naming_the_key(table: dict, message: str) -> None:  # type: ignore[type-arg]
+    with pytest.raises(ConfigError) as exc:
+        parse_table(OptimizeOptions, table, "p.toml", "optimize")
+    text = str(exc.value)
+    assert text.startswith("p.toml") and message in text and "\n" not in text
+
+
+# ---------------------------------------------------------------- steps
+
+
+def test_scheduled_adam_steps_at_most_scale_times_lr(m) -> None:
+    """A gradient burst after a quiet spell: each step stays within scale x lr; no scale
+    gives BoundedAdam's steps bit for bit."""
+    lr = 0.1
+    runs = {"bounded": BoundedAdam(lr=lr), "none": ScheduledAdam(lr=lr)}
+    scales = {"0.5": 0.5, "3": 3.0}
+    for name in scales:
+        runs[name] = ScheduledAdam(lr=lr)
+    steps: dict[str, list[np.ndarray]] = {k: [] for k in runs}
+    for it in range(60):
+        g = 1e-6 if it < 50 else 1e3
+        for name, opt in runs.items():
+            if it == 0:
+                opt["x"] = m.Float64([0.0, 0.0, 1.0])
+            x = opt["x"]
+            before = np.asarray(x).copy()
+            dr.backward(dr.sum(x * m.Float64([g, -g, 0.3 * g])))
+            if name in scales:
+                opt.scale = dr.opaque(m.Float64, scales[name], 1)
+            opt.step()
+            steps[name].append(np.asarray(opt["x"]) - before)
+    assert all(np.array_equal(a, b) for a, b in zip(steps["none"], steps["bounded"], strict=True))
+    for name, s in scales.items():
+        largest = max(float(np.abs(d).max()) for d in steps[name])
+        assert largest <= s * lr * (1 + 1e-12)
+        assert largest >= 0.99 * s * lr  # the burst reaches the clip
+        # below the clip a step is the unscaled one times the scale
+        np.testing.assert_allclose(steps[name][10], s * steps["bounded"][10], rtol=1e-12)
+
+
+def _raw(opt: LayoutOptimizer) -> dict[str, np.ndarray]:
+    return {k: np.array(opt.opt[k], dtype=np.float64) for k in KEYS}
+
+
+def test_no_step_moves_a_scratch_farther_than_the_pair_margin_assumed(m, board) -> None:
+    """Per step |d raw| <= scale(t) lr; since a refresh, endpoints move at most the margin's
+    reach and angles the merge slack; exact fresh pairs are always among those in use."""
+    design, targets = board
+    layout = make_layout(design, 120, seed=5)
+    lr = {"cx": 0.08, "cy": 0.08, "theta": math.radians(1.0), "length": 0.08}
+    schedule = StepSchedule("linear", 3.0, 0.2, 30)  # refreshes at 0-10, 12, ..., 21, 26
+    settings = Settings(lr=lr, refresh_every=4, schedule=schedule)
+    opt = LayoutOptimizer(design, targets, layout, settings, m)
+    assert opt.budget == 4
+    reach = opt.margin - float(np.max(layout.width)) / 2  # what pair_margin allowed for
+    assert reach >= 4 * max_step_mm(lr, opt.bounds.max_length)
+    refreshes: list[int] = []
+    raw_at_refresh = _raw(opt)
+    moved = 0.0
+    fullest = 0.0
+    for t in range(30):
+        before = _raw(opt)
+        opt.step()
+        if opt.refresh_due(t):
+            refreshes.append(t)
+            raw_at_refresh, moved = before, 0.0
+        after = _raw(opt)
+        s = schedule.scale(t)
+        for k in KEYS:
+            step = float(np.abs(after[k] - before[k]).max())
+            assert step <= s * lr[k] * (1 + 1e-9), (t, k)
+            fullest = max(fullest, step / (s * lr[k]))
+        moved += s
+        assert moved <= opt.budget * (1 + 1e-12)
+        current = opt.scratches()
+        stale = opt.refresh_ends.astype(np.float64)  # type: ignore[union-attr]
+        shift = np.maximum(
+            np.hypot(*(current.p0 - stale[:, 0:2]).T), np.hypot(*(current.p1 - stale[:, 2:4]).T)
+        )
+        assert shift.max() <= reach
+        turn = np.abs(after["theta"] - raw_at_refresh["theta"]).max()
+        assert turn <= opt.budget * lr["theta"] * (1 + 1e-9)
+        for r, used in zip(opt.renderers, opt.pairs, strict=True):
+            fresh = r.find_pairs(current.p0, current.p1, current.width / 2, 0.0)
+            fresh_set = set(zip(fresh.pixel_np.tolist(), fresh.scratch_np.tolist(), strict=True))
+            used_set = set(zip(used.pixel_np.tolist(), used.scratch_np.tolist(), strict=True))
+            assert fresh_set <= used_set
+    assert fullest > 0.9  # some step is clipped: the bound is reached, not vacuous
+    gaps = np.diff(refreshes)
+    # scale 3 early: a refresh every step; below 1 late: fewer than every K = 4
+    assert gaps[0] == 1 and gaps.max() > 4
+    assert refreshes[0] == 0
+
+
+def test_scheduled_frozen_steps_replay_the_traced_trajectory(m, board) -> None:
+    """The scale is a frozen step's input, not a recorded constant; it changes the run."""
+    design, targets = board
+    layout = make_layout(design, 200, seed=6)
+    scheduled = Settings(lr=LR, refresh_every=3, schedule=StepSchedule("linear", 3.0, 0.5, 8))
+    runs = [LayoutOptimizer(design, targets, layout, scheduled, m, freeze=f) for f in (True, False)]
+    plain = LayoutOptimizer(
+        design, targets, layout, dataclasses.replace(scheduled, schedule=None), m
+    )
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        for _ in range(8):
+            for opt in (*runs, plain):
+                opt.step()
+    finally:
+        dr.set_thread_count(threads)
+    a, b, c = (opt.state() for opt in (*runs, plain))
+    for key in a:
+        assert np.array_equal(a[key], b[key]), key
+    assert not np.array_equal(a["raw_cx"], c["raw_cx"])
+
+
+# ---------------------------------------------------------------- resume
+
+
+def test_scheduled_resume_matches_uninterrupted_and_needs_the_same_iterations(
+    tmp_path: Path,
+) -> None:
+    design = make_design(resolution=24, size_mm=30.0)
+    a = make_job(tmp_path / "a", design, count=150)
+    b = make_job(tmp_path / "b", design, count=150)
+    options = OptimizeOptions(
+        iterations=20, checkpoint_every=4, lr_start_scale=3.0, lr_end_scale=0.5, refresh_every=4
+    )
+    run_optimize(a, options)
+    done = [0]
+
+    def stop() -> bool:
+        done[0] += 1
+        return done[0] == 9  # after step 9, between checkpoints and refreshes
+
+    first = run_optimize(b, options, should_stop=stop)
+    assert first.stopped == "interrupted" and first.iterations == 9
+    run_optimize(b, dataclasses.replace(options, resume=True))
+    text = (a / "optimize" / "scratches.csv").read_bytes()
+    assert (b / "optimize" / "scratches.csv").read_bytes() == text
+    log_a = (a / "optimize" / "log.csv").read_text().splitlines()
+    log_b = (b / "optimize" / "log.csv").read_text().splitlines()
+    strip = [lambda line: line.split(",")[:2] + line.split(",")[3:]][0]
+    assert [strip(x) for x in log_a] == [strip(x) for x in log_b]
+    # the scales depend on the total: another total, or no schedule, is another run
+    for other in (
+        dataclasses.replace(options, iterations=30, resume=True),
+        dataclasses.replace(options, lr_start_scale=1.0, lr_end_scale=1.0, resume=True),
+    ):
+        with pytest.raises(ConfigError, match=r"different settings .*lr_schedule"):
+            run_optimize(b, other)
