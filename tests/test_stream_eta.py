@@ -135,6 +135,18 @@ def test_eta_of_inch_and_inverse_time_programs_matches_their_mm_twin(tmp_path):
     assert got > simulate(["G21 G90 G94", "G1 X20 F1200"], grbl(settings)).seconds + 0.1
 
 
+@pytest.mark.parametrize("end", ["M2", "M30"])
+def test_eta_stops_at_a_program_end_on_a_line_of_its_own(end, tmp_path):
+    """A bare M2/M30 between two moves in line empties the planner: the next starts from rest."""
+    settings = {110: 2000.0, 111: 1500.0, 112: 500.0, 120: 80.0, 121: 60.0, 122: 30.0}
+    lines = ["G21 G90 G94", "G1 X10 F1200", end, "G1 X20 F1200"]
+    want = simulate(lines, grbl(settings), ORIGIN)
+    assert want.syncs == 2  # at the end line and at the end of the file
+    got = load_program(write(tmp_path, lines)).timed_for(settings).total_seconds
+    assert got == pytest.approx(want.seconds, rel=1e-9)
+    assert got > simulate(["G21 G90 G94", "G1 X20 F1200"], grbl(settings)).seconds + 0.1
+
+
 def test_eta_stays_finite_for_a_feed_move_without_a_feed(tmp_path):
     """GRBL refuses a G1 without a feed (error:22, no motion): no infinite ETA from it."""
     settings = {110: 3000.0, 111: 3000.0, 112: 600.0, 120: 50.0, 121: 50.0, 122: 20.0}
