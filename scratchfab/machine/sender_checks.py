@@ -186,15 +186,14 @@ def compare(
     reference it; with ``wco`` None, an unknown work offset, and soft limits on, such a
     job is refused as unchecked. Refuses a profile whose travel exceeds GRBL's with soft
     limits on, and a profile written in machine coordinates (``coordinates = "machine"``)
-    unless the work offset is known to be zero. With any of those checks to make, refuses a job holding a
-    block whose position the sender cannot follow (G92, G10, another work coordinate
-    system, G53, G28/G30, arcs outside G17): past it every check would be wrong. Warns
-    about GRBL max rates slower than the profile's or the job's feeds, accelerations
-    lower than the profile's, a junction deviation ``$11`` other than the profile's
-    that moves the job's time (:func:`junction_time_change`), and soft limits or homing
-    being off. Every refusal starts
-    with the G-code file (``file:line:`` at the first line that goes too far, where one
-    does).
+    unless the work offset is known to be zero. With any of those checks to make, refuses
+    a job holding a block whose position the sender cannot follow (G92, G10, another work
+    coordinate system, G43.1, G53, G28/G30, arcs outside G17): past it every check would
+    be wrong. Warns about GRBL max rates slower than the profile's or the job's feeds,
+    accelerations lower than the profile's, a junction deviation ``$11`` other than the
+    profile's that moves the job's time (:func:`junction_time_change`), and soft limits
+    or homing being off. Every refusal starts with the G-code file (``file:line:`` at the
+    first line that goes too far, where one does).
     """
     out = Findings()
     path = program.path

@@ -162,10 +162,10 @@ def estimate_time(strokes: np.ndarray, profile: MachineProfile) -> float:
     """Seconds to run the job as the G-code writer emits it and GRBL plans it.
 
     Moves, in the writer's order, join at GRBL's corner speeds (``$11`` taken from the
-    profile's ``junction_deviation_mm``) except where a command empties the planner: the servo's ``M3`` and ``M5``
-    around every cut, the spindle's start and stop. Each servo lowering and lift waits
-    ``dwell_s`` (and so does the lift before the first travel); the travel back to the
-    start is included, the time to reach the start is not.
+    profile's ``junction_deviation_mm``) except where a command empties the planner: the
+    servo's ``M3`` and ``M5`` around every cut, the spindle's start and stop. Each servo
+    lowering and lift waits ``dwell_s`` (and so does the lift before the first travel);
+    the travel back to the start is included, the time to reach the start is not.
     """
     n = len(strokes)
     start = np.asarray(profile.start_mm, dtype=np.float64)
