@@ -432,8 +432,9 @@ def last_surely_run(
     ``planner_blocks + 2`` acknowledged motion blocks count as unsure. An acknowledged sync
     block (a spindle change, G4, ...: ``Block.sync``) followed by later acknowledgements
     means everything before it ran; the last acknowledged block is unsure even when it is
-    a sync block (a margin too). An S change (``Block.speed_sync``) counts only when
-    ``laser_mode`` is known to be off (``$32=0``): in laser mode GRBL moves on through it.
+    a sync block (a margin too). An S change in a block that moves (``Block.speed_sync``)
+    counts only when ``laser_mode`` is known to be off (``$32=0``): in laser mode GRBL
+    moves on through it.
     A sync block that also moves (``G1 X5 S700``, ``G1 X5 M3``) waited only for the moves
     before it: its own move was queued, not surely run. Returns -1 when none surely ran.
     """
