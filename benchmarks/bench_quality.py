@@ -21,9 +21,10 @@ the seeds that vary a run are the design stage's layout seeds (``--seeds``).
 
 A case is a comma-separated list of ``key=value``: any field of
 :class:`~scratchfab.optimize.options.OptimizeOptions` (``iterations``,
-``lr_position_mm``, ``refresh_every``, ``prune_tolerance``, ...), ``count`` (the design's
-scratch count) or ``lr_scale`` (multiplies the three learning rates); ``default`` is
-the pipeline as it is. Cases are separated by ``;``.
+``lr_position_mm``, ``refresh_every``, ``prune_tolerance``, ``lr_start_scale``, ...),
+``count`` (the design's scratch count) or ``lr_scale`` (multiplies the three learning
+rates); ``default`` is the pipeline as it is. A value is JSON, or else a word
+(``lr_schedule=linear``). Cases are separated by ``;``.
 
 Usage: python benchmarks/bench_quality.py [--pipeline demo|FILE.toml] [--seeds 0,1,2]
        [--iterations N] [--cases "default;lr_scale=2;refresh_every=16"]
@@ -61,6 +62,7 @@ DEFAULT_CASES = (
     "lr_scale=0.5",
     "lr_scale=2",
     "lr_scale=4",
+    "lr_start_scale=3,lr_end_scale=0.5",
     "lr_position_mm=0.1",
     "lr_angle_deg=1.0",
     "lr_length_mm=0.1",
@@ -92,7 +94,12 @@ def parse_case(text: str, base: OptimizeOptions) -> tuple[OptimizeOptions, int |
             key = key.strip()
             if not sep or (key not in fields and key not in EXTRA_KEYS):
                 raise SystemExit(f"bench_quality: case {text!r}: unknown setting {key!r}")
-            value: Any = json.loads(raw) if raw.strip() not in ("", "none") else None
+            value: Any = None
+            if raw.strip() not in ("", "none"):
+                try:
+                    value = json.loads(raw)
+                except json.JSONDecodeError:
+                    value = raw.strip()
             if key == "count":
                 count = int(value)
             elif key == "lr_scale":
