@@ -205,10 +205,17 @@ def test_scheduled_resume_matches_uninterrupted_and_needs_the_same_iterations(
     log_b = (b / "optimize" / "log.csv").read_text().splitlines()
     strip = [lambda line: line.split(",")[:2] + line.split(",")[3:]][0]
     assert [strip(x) for x in log_a] == [strip(x) for x in log_b]
-    # the scales depend on the total: another total, or no schedule, is another run
-    for other in (
-        dataclasses.replace(options, iterations=30, resume=True),
-        dataclasses.replace(options, lr_start_scale=1.0, lr_end_scale=1.0, resume=True),
+    # the scales depend on the total: another total, or no schedule, is another run; the
+    # refusal names the options that changed, not the fingerprint's "lr_schedule"
+    for other, named in (
+        (dataclasses.replace(options, iterations=30, resume=True), "(iterations; "),
+        (
+            dataclasses.replace(options, lr_start_scale=1.0, lr_end_scale=1.0, resume=True),
+            "(lr_start_scale, lr_end_scale)",
+        ),
+        (dataclasses.replace(options, lr_schedule="linear", resume=True), "(lr_schedule)"),
     ):
-        with pytest.raises(ConfigError, match=r"different settings .*lr_schedule"):
+        with pytest.raises(ConfigError) as exc:
             run_optimize(b, other)
+        text = str(exc.value)
+        assert "different settings" in text and named in text and "\n" not in text

@@ -185,6 +185,40 @@ def _fingerprint(
     return out
 
 
+# The fields of a fingerprint's "lr_schedule" (a StepSchedule) by option name.
+SCHEDULE_OPTIONS = {
+    "shape": "lr_schedule",
+    "start": "lr_start_scale",
+    "end": "lr_end_scale",
+    "iterations": "iterations",
+}
+
+
+def _changed_keys(made: dict[str, Any], now: dict[str, Any]) -> list[str]:
+    """Option names (or "inputs_sha256") whose fingerprint values differ.
+
+    A schedule's change is named by the options that changed (its total, ``iterations``,
+    rather than ``lr_schedule``); a constant run has no schedule: scales 1, no total.
+    """
+    out: list[str] = []
+    for k in dict.fromkeys([*now, *made]):
+        a, b = made.get(k), now.get(k)
+        if json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True):
+            continue
+        if k != "lr_schedule" or not isinstance(a or b, dict):
+            out.append(k)
+            continue
+        constant = {"start": 1.0, "end": 1.0}
+        a, b = a or constant, b or constant
+        named = [
+            option
+            for field, option in SCHEDULE_OPTIONS.items()
+            if field in a and field in b and json.dumps(a[field]) != json.dumps(b[field])
+        ]
+        out.extend(named or [k])
+    return out
+
+
 def log_columns(names: list[str]) -> list[str]:
     """Column names of ``log.csv``."""
     cols = ["iteration", "loss", "seconds"]
@@ -289,16 +323,11 @@ def _run(
     ckpt = paths.optimize_checkpoint
     if options.resume:
         state, meta, log_rows = load_checkpoint(ckpt)
-        made = meta.get("fingerprint", {})
-        differ = [
-            k
-            for k in dict.fromkeys([*fingerprint, *made])
-            if json.dumps(made.get(k), sort_keys=True)
-            != json.dumps(fingerprint.get(k), sort_keys=True)
-        ]
+        differ = _changed_keys(meta.get("fingerprint", {}), fingerprint)
         if differ:
+            total = "; a scheduled run's step sizes follow its total" * ("iterations" in differ)
             raise ConfigError(
-                f"{ckpt}: made with different settings or inputs ({', '.join(differ)}); "
+                f"{ckpt}: made with different settings or inputs ({', '.join(differ)}{total}); "
                 "run without --resume to start over"
             )
         opt.load_state(state)
