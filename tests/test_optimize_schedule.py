@@ -14,6 +14,7 @@ from test_optimize_helpers import cross_of, make_job, make_layout
 
 from scratchfab.errors import ConfigError
 from scratchfab.model.schema import parse_table
+from scratchfab.optimize import optimizer as optimizer_module
 from scratchfab.optimize.optimizer import LayoutOptimizer, ScheduledAdam, Settings
 from scratchfab.optimize.options import OptimizeOptions, StepSchedule
 from scratchfab.optimize.params import KEYS, BoundedAdam, max_step_mm
@@ -152,6 +153,42 @@ def test_no_step_moves_a_scratch_farther_than_the_pair_margin_assumed(m, board) 
     # scale 3 early: a refresh every step; below 1 late: fewer than every K = 4
     assert gaps[0] == 1 and gaps.max() > 4
     assert refreshes[0] == 0
+
+
+def test_a_scale_above_k_widens_margin_and_merge_slack_to_its_budget(
+    m, board, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """K = 2 but one step of scale 2.5 moves 2.5 lr: the budget is 3 steps (rounded up);
+    margin and merge slack cover it, and refreshes follow the greedy plan exactly."""
+    design, targets = board
+    layout = make_layout(design, 80, seed=7)
+    lr = {"cx": 0.08, "cy": 0.08, "theta": math.radians(1.0), "length": 0.08}
+    schedule = StepSchedule("linear", 2.5, 0.5, 5)  # 2.5, 2, 1.5, 1, 0.5
+    slacks: list[float] = []
+    real = optimizer_module.neighbour_pairs
+
+    def spy(*args: object, **kwargs: object) -> object:
+        slacks.append(float(args[3]))  # type: ignore[arg-type]
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(optimizer_module, "neighbour_pairs", spy)
+    opt = LayoutOptimizer(design, targets, layout, Settings(lr, 2, schedule=schedule), m)
+    budget = 3
+    assert opt.budget == budget
+    reach = opt.margin - float(np.max(layout.width)) / 2
+    assert reach >= budget * max_step_mm(lr, opt.bounds.max_length)
+    # the plan: refresh before a step that would take the scales' sum past the budget
+    expected, moved = [], math.inf
+    for t in range(5):
+        if moved + schedule.scale(t) > budget:
+            expected.append(t)
+            moved = 0.0
+        moved += schedule.scale(t)
+    assert expected == [0, 1, 2]  # steps 3 and 4 bring the sum to exactly 3: no refresh
+    for _ in range(5):
+        opt.step()
+    assert [t for t in range(5) if opt.refresh_due(t)] == expected
+    assert slacks == pytest.approx([2 * budget * lr["theta"]] * len(expected), rel=1e-15)
 
 
 def test_scheduled_frozen_steps_replay_the_traced_trajectory(m, board) -> None:
