@@ -45,7 +45,6 @@ from types import ModuleType
 from typing import Any
 
 import drjit as dr
-import drjit.opt
 import numpy as np
 
 from scratchfab.backend import jit_array
@@ -162,24 +161,6 @@ class Settings:
         return max(self.refresh_every, math.ceil(self.schedule.largest()))
 
 
-class ScheduledAdam(BoundedAdam):  # type: ignore[misc]
-    """:class:`BoundedAdam` whose clipped steps are multiplied by ``scale``.
-
-    ``scale`` is a Dr.Jit Float64 of width 1 (opaque, so a frozen step replays it with
-    each step's value) or None (1: exactly BoundedAdam's step). A coordinate then moves
-    by at most ``scale`` times its learning rate.
-    """
-
-    scale: Any = None
-
-    def _step(self, cache: Any, value: Any, grad: Any, lr: Any, extra: Any, /) -> Any:
-        if self.scale is None:
-            return super()._step(cache, value, grad, lr, extra)
-        new_value, new_extra = drjit.opt.Adam._step(self, cache, value, grad, lr, extra)
-        step = dr.clip(new_value - value, -lr, lr) * self.scale
-        return value + step, new_extra
-
-
 @dataclass
 class StepResult:
     """What one step measured (before its update).
@@ -264,7 +245,7 @@ class LayoutOptimizer:
         self._half_width = jit_array(F, initial.width / 2)
         self._wbar = jit_array(F, solve_wbar(initial.width, initial.depth))
         self.tool_width = float(np.max(initial.width))
-        self.opt = ScheduledAdam(lr=1.0)
+        self.opt = BoundedAdam(lr=1.0)
         raw = project_np(from_scratches(initial), self.bounds)
         for key, value in to_arrays(F, raw).items():
             self.opt[key] = value
@@ -606,7 +587,7 @@ class LayoutOptimizer:
         )
 
     def _train(
-        self, opt: ScheduledAdam, ctx: dict[str, Any], view_pairs: list[ViewPairs], touch: bool
+        self, opt: BoundedAdam, ctx: dict[str, Any], view_pairs: list[ViewPairs], touch: bool
     ) -> tuple[Any, list[Any], list[Any], tuple[Any, ...], list[Any]]:
         """One Adam step of ``opt``: loss, errors and renders before it, endpoints after it.
 

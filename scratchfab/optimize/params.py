@@ -150,9 +150,18 @@ class BoundedAdam(drjit.opt.Adam):  # type: ignore[misc]
     Kingma and Ba's rule of thumb |step| <= lr is not a bound: for the default betas a
     burst of gradient after a quiet spell gives up to about 7.3 lr. Clipping makes it one,
     which is what the pair margin relies on; in steady state the clip is rarely active.
+
+    ``scale`` (a step-size schedule's multiple for the coming step) multiplies the clipped
+    step: a Dr.Jit Float64 of width 1, opaque so that a frozen step replays it with each
+    step's value, or None for 1. A coordinate then moves by at most ``scale`` times its
+    learning rate.
     """
+
+    scale: Any = None
 
     def _step(self, cache: Any, value: Any, grad: Any, lr: Any, extra: Any, /) -> Any:
         new_value, new_extra = super()._step(cache, value, grad, lr, extra)
         step = dr.clip(new_value - value, -lr, lr)
+        if self.scale is not None:
+            step = step * self.scale
         return value + step, new_extra
