@@ -234,11 +234,12 @@ def test_program_end_resets_the_modes_after_its_blocks_motion(tmp_path):
     assert blocks[3].modal.x == pytest.approx(2.0)
 
 
-def _exported_job(name: str, tmp_path: Path) -> tuple[Path, dict[int, float]]:
-    """An exported job and the $$ of a machine set up as its profile says ($11 apart)."""
+def _exported_job(name: str, tmp_path: Path, n: int = 150) -> tuple[Path, dict[int, float]]:
+    """An exported job of ``n`` scratches and the $$ of a machine set up as its profile says
+    ($11 apart)."""
     profile = load_profile(name)
     board = Board(width_mm=40.0, height_mm=40.0, margin_mm=1.0)
-    tp = plan_toolpath(random_scratches(np.random.default_rng(3), 150), board, profile)
+    tp = plan_toolpath(random_scratches(np.random.default_rng(3), n), board, profile)
     out = tmp_path / f"{name}.gcode"
     export(tp, profile, out)
     m = profile.motion
@@ -247,12 +248,24 @@ def _exported_job(name: str, tmp_path: Path) -> tuple[Path, dict[int, float]]:
     return out, settings
 
 
-@pytest.mark.parametrize("junction_mm", [0.002, 0.05])
-def test_stream_warns_when_grbls_junction_deviation_moves_the_time(junction_mm, tmp_path):
+def _spoken_seconds(text: str) -> tuple[float, float]:
+    """``"11 s"``, ``"3 min"``, ``"1 h 2 min"`` as (seconds, the unit it was rounded to)."""
+    found = re.fullmatch(r"(?:(\d+) h )?(\d+) (s|min)", text)
+    assert found, text
+    hours, value, unit = found.groups()
+    if unit == "s":
+        assert hours is None, text
+        return float(value), 1.0
+    return 3600.0 * int(hours or 0) + 60.0 * int(value), 60.0
+
+
+@pytest.mark.parametrize(("junction_mm", "n"), [(0.002, 150), (0.05, 150), (0.05, 40)])
+def test_stream_warns_when_grbls_junction_deviation_moves_the_time(junction_mm, n, tmp_path):
     """The warning says by how much GRBL's $11 moves the job's time from the profile's; the
-    figure agrees with the planner model running the G-code at both."""
+    figure agrees with the planner model running the G-code at both. (40 scratches: about
+    5 s, which the warning once wrote with a tenth, unlike every other time it says.)"""
     profile = load_profile("grbl-3018-diamond")
-    job, settings = _exported_job("grbl-3018-diamond", tmp_path)
+    job, settings = _exported_job("grbl-3018-diamond", tmp_path, n)
     program = load_program(job)
     grbl_run = simulate(job.read_text().splitlines(), grbl({**settings, 11: junction_mm}))
     profile_run = simulate(job.read_text().splitlines(), grbl({**settings, 11: 0.01}))
@@ -263,12 +276,14 @@ def test_stream_warns_when_grbls_junction_deviation_moves_the_time(junction_mm, 
         for w in compare({**settings, 11: junction_mm}, None, program, profile).warnings
         if "$11" in w
     ]
-    found = re.search(r"passed (slower|faster), the job takes ([\d.]+) s (longer|less) "
+    found = re.search(r"passed (slower|faster), the job takes (.+?) (longer|less) "
                       r"\(([-+][\d.]+) %\)", warning)  # fmt: skip
     assert found, warning
     assert found.group(1) == ("slower" if change > 0 else "faster")
     assert found.group(3) == ("longer" if change > 0 else "less")
-    assert float(found.group(2)) == pytest.approx(abs(change), abs=0.5)
+    # as console.duration_text says a time: whole seconds, or whole minutes from a minute on
+    shown, unit = _spoken_seconds(found.group(2))
+    assert abs(shown - abs(change)) <= unit / 2 + 0.05, (found.group(2), change)
     assert float(found.group(4)) == pytest.approx(100 * change / profile_run.seconds, abs=0.15)
     assert warning.startswith(f"GRBL $11={junction_mm:g} mm is not the junction deviation 0.01")
 
@@ -298,3 +313,77 @@ def test_a_tool_length_offset_is_not_a_move(tmp_path):
     assert blocks[2].unfollowed == "G43.1 changes the tool length offset (work Z)"
     assert not any(b.motion or b.unfollowed for b in blocks[3:5])
     assert blocks[5].motion and blocks[5].modal.z == 4.0
+
+
+def _stream_timing(tmp_path, monkeypatch, grbl_11, profile_11, drop_11=False):
+    """Stream the exported 3018 job to the emulator with ``$11=grbl_11`` (the firmware not
+    reporting it with ``drop_11``) against the profile at ``profile_11``; returns the
+    ``$11`` of each timing of the job, and the progress reports."""
+    import dataclasses
+
+    from scratchfab.machine import sender_program
+    from scratchfab.machine.sender import Streamer
+    from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
+
+    base = load_profile("grbl-3018-diamond")
+    profile = dataclasses.replace(
+        base, motion=dataclasses.replace(base.motion, junction_deviation_mm=profile_11)
+    )
+    job, settings = _exported_job("grbl-3018-diamond", tmp_path)
+    travel = {130 + k: t for k, t in enumerate(base.envelope.max_travel_mm) if t is not None}
+    timed = []
+    time_it = sender_program.Program.timed_for
+
+    def counted(self, settings):
+        timed.append(settings.get(11))
+        return time_it(self, settings)
+
+    monkeypatch.setattr(sender_program.Program, "timed_for", counted)
+    if drop_11:
+        connect = Streamer.connect
+
+        def without_11(self):
+            info = connect(self)
+            del info.settings[11]
+            return info
+
+        monkeypatch.setattr(Streamer, "connect", without_11)
+    url = "grblsim://?baud=0&time_scale=0.0005&" + "&".join(
+        f"${k}={v:g}" for k, v in {**settings, **travel, 11: grbl_11}.items()
+    )
+    reports = []
+    said = []
+    req = StreamRequest(job, url, machine=profile, banner_timeout=0.3)
+    stream_file(req, StreamCallbacks(reports.append, said.append, lambda: "stop", lambda _: True))
+    return timed, reports, said, job, settings
+
+
+@pytest.mark.parametrize(("grbl_11", "want"), [(0.01, [0.01]), (0.05, [0.05, 0.01])])
+def test_connect_times_the_job_once_per_distinct_junction_deviation(
+    grbl_11, want, tmp_path, monkeypatch
+):
+    """The ETA's timing at GRBL's $11 is the $11 check's too; the profile's $11 is timed
+    only where it differs. (Before: three timings, GRBL's $11 twice.)"""
+    timed, _, said, _, _ = _stream_timing(tmp_path, monkeypatch, grbl_11, 0.01)
+    assert timed == want
+    assert bool([s for s in said if "$11" in s]) == (grbl_11 != 0.01)  # the check still runs
+
+
+def test_eta_takes_the_profiles_junction_deviation_where_grbl_does_not_report_it(
+    tmp_path, monkeypatch
+):
+    """Firmware without $11 in its $$: the ETA times corners at the profile's 0.05 mm, not
+    at GRBL's default 0.01; the first report's ETA is the rest of that timing."""
+    timed, reports, _, job, settings = _stream_timing(
+        tmp_path, monkeypatch, 0.01, 0.05, drop_11=True
+    )
+    assert timed == [0.05]
+    first = reports[0]
+    remaining = [
+        simulate(job.read_text().splitlines(), grbl({**settings, 11: j})).seconds
+        for j in (0.05, 0.01)
+    ]
+    program = load_program(job).timed_for({**settings, 11: 0.05})
+    done = sum(b.seconds for b in program.blocks[: first.acked])
+    assert first.eta_s + done == pytest.approx(remaining[0], rel=2e-3)
+    assert abs(first.eta_s + done - remaining[1]) > 0.02 * remaining[1]  # default $11: far off

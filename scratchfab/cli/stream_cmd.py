@@ -10,36 +10,39 @@ from pathlib import Path
 import click
 
 from scratchfab.cli.options import FiniteFloat, RedrawnLine
-from scratchfab.console import clock
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.sender import StreamProgress
-from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
+from scratchfab.machine.stream_job import (
+    ProgressLines,
+    StreamCallbacks,
+    StreamRequest,
+    stream_file,
+)
 
 
 class _ProgressLine:
-    """One status line on stderr, redrawn in place on a terminal, every 10 % otherwise.
+    """One status line on stderr: a bar redrawn in place on a terminal, else paced lines.
 
-    Off a terminal the 100 % line waits for the job's end, so that it shows the final
-    state and position (an earlier report's position can be seconds old).
+    The text is :func:`~scratchfab.machine.stream_job.progress_text`'s, as the pipeline's
+    stream stage prints it; off a terminal :class:`ProgressLines` paces it.
     """
 
     def __init__(self) -> None:
         self.tty = sys.stderr.isatty()
-        self._last_decile = -1
+        self._lines = ProgressLines()
         self._line = RedrawnLine()
         self._open = False  # a bar is drawn and its line not yet ended
 
     def __call__(self, p: StreamProgress) -> None:
-        pos = "" if p.wpos is None else " X{:.2f} Y{:.2f} Z{:.2f}".format(*p.wpos)
-        text = f"{p.fraction:6.1%} {p.acked}/{p.total} lines  ETA {clock(p.eta_s)}  {p.state}{pos}"
         if self.tty:
             width = 28
             fill = int(width * p.fraction)
-            self._line(f"[{'#' * fill}{'.' * (width - fill)}] {text}", newline=False)
+            self._line(f"[{'#' * fill}{'.' * (width - fill)}] {self._lines.text(p)}", newline=False)
             self._open = True
-        elif int(p.fraction * 10) != self._last_decile and (p.fraction < 1.0 or p.final):
-            self._last_decile = int(p.fraction * 10)
-            click.echo(text, err=True)
+        else:
+            text = self._lines.line(p)
+            if text is not None:
+                click.echo(text, err=True)
 
     def end(self) -> None:
         """End the bar's line (before any other output); nothing when none is drawn."""

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from scratchfab.console import duration_text
 from scratchfab.machine.grbl_codes import MM_PER_INCH
 from scratchfab.machine.sender_program import Block, Modal, Program
 
@@ -177,6 +178,7 @@ def compare(
     program: Program,
     profile: MachineLike | None = None,
     tolerance: float = 0.01,
+    grbl_seconds: float | None = None,
 ) -> Findings:
     """Compare GRBL's settings, the job and (optionally) the machine profile.
 
@@ -194,6 +196,10 @@ def compare(
     profile's that moves the job's time (:func:`junction_time_change`), and soft limits
     or homing being off. Every refusal starts with the G-code file (``file:line:`` at the
     first line that goes too far, where one does).
+
+    ``grbl_seconds``: the job's time with ``settings``, where already computed (the
+    ETA's, :func:`eta_settings`); the ``$11`` check then times the job only at the
+    profile's ``$11``, and not at all when both are the same.
     """
     out = Findings()
     path = program.path
@@ -266,7 +272,7 @@ def compare(
                     "toolpath's estimate (the ETA here uses GRBL's)"
                 )
         if 11 in settings:
-            warning = _junction_warning(settings, program, profile)
+            warning = _junction_warning(settings, program, profile, grbl_seconds)
             if warning:
                 out.warnings.append(warning)
     for k, axis in enumerate(_AXES):
@@ -320,29 +326,48 @@ def compare(
     return out
 
 
+def eta_settings(
+    settings: Mapping[int, float], profile: MachineLike | None = None
+) -> dict[int, float]:
+    """The settings the stream's ETA times the job with: GRBL's ``$$``.
+
+    Where the firmware did not report ``$11``, the profile's ``junction_deviation_mm``
+    stands in for it (rather than GRBL's default), when a profile is given.
+    """
+    out = dict(settings)
+    if 11 not in out and profile is not None:
+        out[11] = profile.motion.junction_deviation_mm
+    return out
+
+
 def junction_time_change(
-    settings: dict[int, float], program: Program, junction_deviation_mm: float
+    settings: Mapping[int, float],
+    program: Program,
+    junction_deviation_mm: float,
+    grbl_seconds: float | None = None,
 ) -> tuple[float, float]:
     """The job's seconds with GRBL's settings, and how many more than at another ``$11``.
 
     Both timed by :meth:`Program.timed_for` with GRBL's rates and accelerations (without
-    ``$110``-``$112`` and ``$120``-``$122`` corners cannot be timed: the change is 0).
+    ``$110``-``$112`` and ``$120``-``$122`` corners cannot be timed: the change is 0),
+    once per distinct ``$11``: ``grbl_seconds``, where given, is the first timing.
     """
-    grbl = program.timed_for(settings).total_seconds
+    grbl = program.timed_for(settings).total_seconds if grbl_seconds is None else grbl_seconds
+    if settings.get(11) == junction_deviation_mm:
+        return grbl, 0.0
     other = program.timed_for({**settings, 11: junction_deviation_mm}).total_seconds
     return grbl, grbl - other
 
 
-def _duration(seconds: float) -> str:
-    if seconds >= 120.0:
-        return f"{seconds / 60:.1f} min"
-    return f"{seconds:.0f} s" if seconds >= 10.0 else f"{seconds:.1f} s"
-
-
-def _junction_warning(settings: dict[int, float], program: Program, profile: MachineLike) -> str:
+def _junction_warning(
+    settings: Mapping[int, float],
+    program: Program,
+    profile: MachineLike,
+    grbl_seconds: float | None = None,
+) -> str:
     """A warning when GRBL's ``$11`` moves the job's time from the profile's by enough."""
     want = profile.motion.junction_deviation_mm
-    total, change = junction_time_change(settings, program, want)
+    total, change = junction_time_change(settings, program, want, grbl_seconds)
     base = total - change
     if abs(change) <= max(JUNCTION_TIME_SHARE * base, 1.0):
         return ""
@@ -350,7 +375,7 @@ def _junction_warning(settings: dict[int, float], program: Program, profile: Mac
     return (
         f"GRBL $11={settings[11]:g} mm is not the junction deviation {want:g} mm of machine "
         f"'{profile.name}': corners are passed {pace}, the job takes "
-        f"{_duration(abs(change))} {more} ({100 * change / base:+.1f} %) than with the "
+        f"{duration_text(abs(change))} {more} ({100 * change / base:+.1f} %) than with the "
         "profile's (the ETA here uses GRBL's $11, the toolpath's estimate the profile's "
         "junction_deviation_mm)"
     )

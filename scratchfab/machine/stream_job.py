@@ -9,12 +9,14 @@ callbacks they pass.
 from __future__ import annotations
 
 import contextlib
+import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from scratchfab.console import Confirm, Say
+from scratchfab.console import Confirm, Say, clock
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
 from scratchfab.machine.sender import (
@@ -24,7 +26,7 @@ from scratchfab.machine.sender import (
     open_port,
     xyz_text,
 )
-from scratchfab.machine.sender_checks import compare, same_offset
+from scratchfab.machine.sender_checks import compare, eta_settings, same_offset
 from scratchfab.machine.sender_journal import (
     Journal,
     check_journal_file,
@@ -110,6 +112,74 @@ class StreamCallbacks:
     def outcome(self, text: str) -> None:
         """Report an outcome line."""
         (self.result or self.say)(text)
+
+
+#: Off a terminal, a progress line at each tenth of the job and, between tenths, once
+#: this many seconds have passed since the last line (an hour's job: about one a minute).
+PROGRESS_EVERY_S = 60.0
+
+
+def progress_text(p: StreamProgress, elapsed_s: float) -> str:
+    """One progress line of a stream, for a terminal and a log alike.
+
+    Percent and count of lines acknowledged, the time since the stream started, the time
+    left (``--:--`` unknown), the controller's state and its work position (mm) where
+    reported: `` 42.0% 420/1000 lines  elapsed 01:05  ETA 03:04  Run X1.00 Y2.00 Z-0.10``.
+    """
+    pos = ""
+    if p.wpos is not None:
+        # rounded first, so that -0.001 shows as 0.00, not -0.00
+        x, y, z = (round(v, 2) + 0.0 for v in p.wpos)
+        pos = f" X{x:.2f} Y{y:.2f} Z{z:.2f}"
+    return (
+        f"{p.fraction:6.1%} {p.acked}/{p.total} lines  elapsed {clock(elapsed_s)}  "
+        f"ETA {clock(p.eta_s)}  {p.state}{pos}"
+    )
+
+
+class ProgressLines:
+    """A stream's progress reports as text: every report for a terminal, paced for a log.
+
+    Time counts from the first report (the stream's start, after any confirmation).
+    Off a terminal (:meth:`line`) a line comes at each new tenth of the job and between
+    tenths once ``every_s`` seconds have passed since the last line; the 100 % line waits
+    for the job's end, so that it shows the final state and position (an earlier report's
+    position can be seconds old).
+
+    Args:
+        every_s: Longest gap between two lines off a terminal (seconds).
+        now: The clock (seconds; tests pass their own).
+    """
+
+    def __init__(
+        self, every_s: float = PROGRESS_EVERY_S, now: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.every_s = every_s
+        self._now = now
+        self._start: float | None = None
+        self._last_tenth = -1
+        self._last_line = -math.inf
+
+    def text(self, p: StreamProgress) -> str:
+        """The report's line (:func:`progress_text`), whenever it comes."""
+        return self._text(p, self._now())
+
+    def line(self, p: StreamProgress) -> str | None:
+        """The report's line when one is due off a terminal, else None."""
+        now = self._now()
+        text = self._text(p, now)  # starts the clock at the first report, printed or not
+        if p.fraction >= 1.0 and not p.final:
+            return None
+        tenth = int(p.fraction * 10)
+        if tenth == self._last_tenth and now - self._last_line < self.every_s:
+            return None
+        self._last_tenth, self._last_line = tenth, now
+        return text
+
+    def _text(self, p: StreamProgress, now: float) -> str:
+        if self._start is None:
+            self._start = now
+        return progress_text(p, now - self._start)
 
 
 def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
@@ -216,8 +286,10 @@ def _stream_locked(
         if resume and events is not None:
             inches = info.inch_reports
             _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
-        program = program.timed_for(info.settings)  # the time estimate for this machine
-        findings = compare(info.settings, info.wco, program, profile)
+        program = program.timed_for(eta_settings(info.settings, profile))  # the ETA's times
+        findings = compare(
+            info.settings, info.wco, program, profile, grbl_seconds=program.total_seconds
+        )
         for text in findings.warnings:
             cb.say(f"warning: {text}")
         if findings.refusals:
@@ -390,13 +462,12 @@ def run_stream_job(
     the default answers yes (the caller has consent). A Ctrl-C stops safely. A run
     after an interrupted stream of the same G-code resumes it from the journal.
     """
-    last = [-1]
+    lines = ProgressLines()
 
     def progress(p: StreamProgress) -> None:
-        decile = int(p.fraction * 10)
-        if decile != last[0] and (decile < 10 or p.final):  # 100 %: once the job is done
-            last[0] = decile
-            say(f"  {p.fraction:6.1%} {p.acked}/{p.total} lines  {p.state}")
+        text = lines.line(p)
+        if text is not None:
+            say(f"  {text}")
 
     layout = JobLayout(job)
     req = StreamRequest(

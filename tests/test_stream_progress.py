@@ -1,0 +1,176 @@
+"""The stream's progress line: one formatter and one pacing, for ``stream`` and the pipeline."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import pytest
+from test_stream import write_job
+
+from scratchfab.cli import main
+from scratchfab.cli.stream_cmd import _ProgressLine
+from scratchfab.machine import stream_job
+from scratchfab.machine.sender import StreamProgress
+from scratchfab.machine.stream_job import ProgressLines, progress_text, run_stream_job
+from scratchfab.model.job import JobLayout
+
+# (acked, total, eta_s, state, wpos, final), elapsed_s, the line as a person should read it
+TABLE = [
+    (
+        (420, 1000, 184.4, "Run", (1.0, 2.0, -0.1), False),
+        65.2,
+        " 42.0% 420/1000 lines  elapsed 01:05  ETA 03:04  Run X1.00 Y2.00 Z-0.10",
+    ),
+    (
+        (0, 80000, math.inf, "Idle", None, False),
+        0.0,
+        "  0.0% 0/80000 lines  elapsed 00:00  ETA --:--  Idle",
+    ),
+    (
+        (80000, 80000, 0.0, "Idle", (-0.001, 0.004, 5.0), True),
+        3723.4,
+        "100.0% 80000/80000 lines  elapsed 1:02:03  ETA 00:00  Idle X0.00 Y0.00 Z5.00",
+    ),
+    ((0, 0, 0.0, "Idle", None, True), 0.2, "100.0% 0/0 lines  elapsed 00:00  ETA 00:00  Idle"),
+    (
+        (999, 1000, 0.4, "Hold:0", (-12.346, 100.0, -0.004), False),
+        59.6,
+        " 99.9% 999/1000 lines  elapsed 01:00  ETA 00:00  Hold:0 X-12.35 Y100.00 Z0.00",
+    ),
+    (
+        (5, 7, 7322.0, "Door:1", (0.0, 0.0, 2.0), False),
+        3599.6,
+        " 71.4% 5/7 lines  elapsed 1:00:00  ETA 2:02:02  Door:1 X0.00 Y0.00 Z2.00",
+    ),
+]
+
+
+@pytest.mark.parametrize(("report", "elapsed", "want"), TABLE)
+def test_progress_text(report, elapsed, want):
+    assert progress_text(StreamProgress(*report), elapsed) == want
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _paced(reports):
+    """The lines :meth:`ProgressLines.line` lets through for (time, report) pairs."""
+    clock = FakeClock()
+    lines = ProgressLines(now=clock)
+    out = []
+    for t, report in reports:
+        clock.t = t
+        text = lines.line(report)
+        if text is not None:
+            out.append((t, text))
+    return out
+
+
+def _linear_job(seconds: float, total: int, hz: int = 5):
+    """Reports at ``hz`` of a job acknowledging ``total`` lines evenly over ``seconds``."""
+    n = int(seconds * hz)
+    for k in range(n + 1):
+        acked = k * total // n
+        eta = seconds - k / hz
+        yield k / hz, StreamProgress(acked, total, eta, "Run", (0.0, 0.0, 0.0))
+    yield seconds + 0.3, StreamProgress(total, total, 0.0, "Idle", (0.0, 0.0, 2.0), final=True)
+
+
+def test_a_short_job_prints_a_line_at_each_tenth_and_the_end():
+    shown = _paced(_linear_job(10.0, 1000))
+    percents = [text.split("%")[0].strip() for _, text in shown]
+    assert percents == [f"{10 * k}.0" for k in range(10)] + ["100.0"]
+    # the 100 % line is the final report's: the controller Idle, not a report before it
+    assert shown[-1] == (10.3, "100.0% 1000/1000 lines  elapsed 00:10  ETA 00:00  Idle "
+                               "X0.00 Y0.00 Z2.00")  # fmt: skip
+
+
+def test_a_long_job_prints_a_line_a_minute_between_tenths():
+    """An hour's job: its tenths are 6 minutes apart, with a line each minute between them."""
+    shown = _paced(_linear_job(3600.0, 80000))
+    times = [t for t, _ in shown]
+    assert times == [60.0 * k for k in range(60)] + [3600.3]
+    assert "elapsed 12:00  ETA 48:00" in shown[12][1]
+
+
+def test_a_held_job_still_prints_a_line_a_minute():
+    """A hold, a door or a paused M0: nothing moves, and the log still says so each minute."""
+    reports = [(0.0, StreamProgress(1, 100, 50.0, "Run", None))]
+    reports += [(0.2 * k, StreamProgress(2, 100, 49.0, "Hold:0", None)) for k in range(1, 1600)]
+    shown = _paced(reports)
+    assert [t for t, _ in shown] == [0.0, 60.0, 120.0, 180.0, 240.0, 300.0]
+    assert all(text.endswith("Hold:0") for _, text in shown[1:])
+
+
+def test_the_clock_starts_at_the_first_report():
+    clock = FakeClock()
+    clock.t = 100.0  # the connection, check mode and the confirmation took this long
+    lines = ProgressLines(now=clock)
+    clock.t = 130.0
+    assert "elapsed 00:00" in lines.text(StreamProgress(0, 10, 5.0, "Idle", None))
+    clock.t = 142.0
+    assert "elapsed 00:12" in lines.text(StreamProgress(3, 10, 3.0, "Run", None))
+
+
+def test_the_terminal_bar_draws_the_formatters_text(capsys):
+    bar = _ProgressLine()
+    bar.tty = True
+    report = StreamProgress(7, 28, 12.0, "Run", (1.0, -2.0, -0.05))
+    bar(report)
+    bar.end()
+    err = capsys.readouterr().err
+    assert err == f"\r[#######.....................] {progress_text(report, 0.0)}\n"
+
+
+def _marked(monkeypatch):
+    """Replace the formatter by one that marks its lines: who prints them uses it."""
+    monkeypatch.setattr(
+        stream_job, "progress_text", lambda p, elapsed: f"MARK {p.acked}/{p.total} {p.final}"
+    )
+
+
+LINE = re.compile(
+    r" *\d+\.\d% \d+/\d+ lines  elapsed \d\d:\d\d  ETA (\d\d:\d\d|--:--)  \S+"
+    r"( X-?\d+\.\d\d Y-?\d+\.\d\d Z-?\d+\.\d\d)?"
+)
+
+
+def test_the_stream_command_prints_the_formatters_lines(tmp_path, capsys, monkeypatch):
+    job = tmp_path / "job.gcode"
+    write_job(job, 20)
+    args = ["stream", str(job), "--port", "grblsim://?baud=0&time_scale=0.01", "--yes"]
+    main([*args, "--banner-timeout", "0.3"])
+    err = capsys.readouterr().err.splitlines()
+    shown = [line for line in err if " lines  " in line]
+    assert shown and all(LINE.fullmatch(line) for line in shown), shown
+    assert shown[-1].startswith("100.0% 103/103 lines  elapsed ")
+    assert " ETA 00:00  Idle X" in shown[-1]
+    _marked(monkeypatch)
+    main([*args, "--banner-timeout", "0.3"])
+    err = capsys.readouterr().err.splitlines()
+    marks = [line for line in err if line.startswith("MARK ")]
+    assert marks and marks[-1] == "MARK 103/103 True"
+    assert not [line for line in err if " lines  " in line]
+
+
+def test_the_pipelines_stream_stage_prints_the_formatters_lines(tmp_path, monkeypatch):
+    layout = JobLayout(tmp_path / "job")
+    gcode = layout.export_file("gcode")
+    gcode.parent.mkdir(parents=True)
+    write_job(gcode, 20)
+    said: list[str] = []
+    run_stream_job(layout.root, "grblsim://?baud=0&time_scale=0.01", say=said.append)
+    shown = [line for line in said if " lines  " in line]
+    assert shown and all(line.startswith("  ") and LINE.fullmatch(line) for line in shown), said
+    assert shown[-1].startswith("  100.0% 103/103 lines  elapsed ")
+    _marked(monkeypatch)
+    said.clear()
+    run_stream_job(layout.root, "grblsim://?baud=0&time_scale=0.01", say=said.append)
+    marks = [line for line in said if "MARK" in line]
+    assert marks and marks[-1] == "  MARK 103/103 True", said
