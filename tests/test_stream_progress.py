@@ -8,7 +8,7 @@ import re
 import pytest
 from test_stream import write_job
 
-from scratchfab.cli import main
+from scratchfab.cli import main, stream_cmd
 from scratchfab.cli.stream_cmd import _ProgressLine
 from scratchfab.machine import stream_job
 from scratchfab.machine.sender import StreamProgress
@@ -118,7 +118,8 @@ def test_the_clock_starts_at_the_first_report():
     assert "elapsed 00:12" in lines.text(StreamProgress(3, 10, 3.0, "Run", None))
 
 
-def test_the_terminal_bar_draws_the_formatters_text(capsys):
+def test_the_terminal_bar_draws_the_formatters_text(capsys, monkeypatch):
+    monkeypatch.setattr(stream_cmd, "_columns", lambda: 0)  # a terminal that does not say
     bar = _ProgressLine()
     bar.tty = True
     report = StreamProgress(7, 28, 12.0, "Run", (1.0, -2.0, -0.05))
@@ -126,6 +127,33 @@ def test_the_terminal_bar_draws_the_formatters_text(capsys):
     bar.end()
     err = capsys.readouterr().err
     assert err == f"\r[#######.....................] {progress_text(report, 0.0)}\n"
+
+
+@pytest.mark.parametrize("columns", [200, 120, 100, 80, 60])
+def test_the_terminal_bar_stays_inside_the_terminals_width(columns, capsys, monkeypatch):
+    """A line as wide as the terminal wraps, and every redraw would then start a row lower."""
+    monkeypatch.setattr(stream_cmd, "_columns", lambda: columns)
+    report = StreamProgress(33600, 80000, 2880.0, "Run", (-123.45, -167.89, -0.05))
+    text = progress_text(report, 0.0)
+    assert len(text) == 80  # an 80k-line job's line, without the bar
+    bar = _ProgressLine()
+    bar.tty = True
+    bar(report)
+    bar.end()
+    line = capsys.readouterr().err.removeprefix("\r").removesuffix("\n")
+    assert len(line) <= columns - 1
+    if columns >= 80 + 4 + 8:  # the text, brackets and a space, and a bar of 8 at least
+        found = re.fullmatch(r"\[(#*)(\.*)\] (.*)", line)
+        assert found and found.group(3) == text, line
+        width = len(found.group(1)) + len(found.group(2))
+        assert width == min(28, columns - 1 - 80 - 3)
+        assert len(found.group(1)) == int(0.42 * width)
+    else:  # no bar; the words that fit, none cut (the 80: all but Z, not Z-0.0)
+        kept = " 42.0% 33600/80000 lines  elapsed 00:00  ETA 48:00  Run X-123.45 Y-167.89"
+        assert (
+            line
+            == {80: kept, 60: " 42.0% 33600/80000 lines  elapsed 00:00  ETA 48:00  Run"}[columns]
+        )
 
 
 def _marked(monkeypatch):

@@ -24,7 +24,9 @@ class _ProgressLine:
     """One status line on stderr: a bar redrawn in place on a terminal, else paced lines.
 
     The text is :func:`~scratchfab.machine.stream_job.progress_text`'s, as the pipeline's
-    stream stage prints it; off a terminal :class:`ProgressLines` paces it.
+    stream stage prints it; off a terminal :class:`ProgressLines` paces it. On a terminal
+    that tells its width the bar narrows (to 8 characters, then none) to keep the line
+    inside it: a full-width line wraps, and each redraw would start a row lower.
     """
 
     def __init__(self) -> None:
@@ -35,14 +37,21 @@ class _ProgressLine:
 
     def __call__(self, p: StreamProgress) -> None:
         if self.tty:
-            width = 28
-            fill = int(width * p.fraction)
-            self._line(f"[{'#' * fill}{'.' * (width - fill)}] {self._lines.text(p)}", newline=False)
+            text = self._lines.text(p)
+            columns = _columns()
+            # a line as wide as the terminal wraps, and the next redraw starts below it
+            width = min(28, columns - 1 - len(text) - 3) if columns else 28
+            if width >= 8:
+                fill = int(width * p.fraction)
+                text = f"[{'#' * fill}{'.' * (width - fill)}] {text}"
+            elif columns and len(text) > columns - 1:
+                text = text[:columns].rsplit(" ", 1)[0].rstrip()  # whole words only
+            self._line(text, newline=False)
             self._open = True
         else:
-            text = self._lines.line(p)
-            if text is not None:
-                click.echo(text, err=True)
+            due = self._lines.line(p)
+            if due is not None:
+                click.echo(due, err=True)
 
     def end(self) -> None:
         """End the bar's line (before any other output); nothing when none is drawn."""
@@ -50,6 +59,14 @@ class _ProgressLine:
             self._line.last_len = 0
             click.echo("", err=True)
             self._open = False
+
+
+def _columns() -> int:
+    """The width of the terminal on stderr in characters; 0 where it does not say."""
+    try:
+        return os.get_terminal_size(sys.stderr.fileno()).columns
+    except (OSError, ValueError):
+        return 0
 
 
 @click.command("stream")
