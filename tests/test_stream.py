@@ -2124,10 +2124,11 @@ def _assert_clean_lines(shown: list[str]) -> None:
         assert line, "an empty line"
         if line.startswith("["):  # a progress bar: nothing glued after its position
             assert re.fullmatch(
-                r"\[[#.]{28}\] .* lines  ETA \S+  \S+( X\S+ Y\S+ Z-?\d+\.\d\d)?", line
+                r"\[[#.]{28}\] .* lines  elapsed \S+  ETA \S+  \S+( X\S+ Y\S+ Z-?\d+\.\d\d)?",
+                line,
             )
         else:
-            assert "lines  ETA" not in line
+            assert "lines  elapsed" not in line
 
 
 def test_on_a_terminal_the_bar_ends_before_each_message(tmp_path):
@@ -2194,7 +2195,10 @@ def test_check_then_stream_ends_with_the_final_position(tmp_path, capsys):
     assert "check mode: 103 lines, no errors" in err
     full = [line for line in err if "100.0%" in line]
     end = load_program(job).blocks[-1].modal
-    assert full == [f"100.0% 103/103 lines  ETA 00:00  Idle X{end.x:.2f} Y{end.y:.2f} Z{end.z:.2f}"]
+    where = f"  ETA 00:00  Idle X{end.x:.2f} Y{end.y:.2f} Z{end.z:.2f}"
+    assert len(full) == 1 and re.fullmatch(
+        r"100\.0% 103/103 lines  elapsed \d\d:\d\d" + re.escape(where), full[0]
+    ), full
     assert err[-1] == full[0]
 
 
