@@ -46,6 +46,17 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
   answered later, its ``ok`` taken for the next line's).
   Stopping safely is: feed hold, wait for ``Hold:0`` (or Idle), soft reset (spindle off,
   queue flushed, no alarm), banner.
+- Lift (``StreamOptions.lift``): after that stop (an error, a stall, silence, the user's
+  stop), once the controller reports Idle after the reset, the tool goes up: a Z tool by
+  ``G21G53G0Z..`` to the travel height (the profile's ``z.safe_mm``, else the highest Z of
+  the file's own moves) placed in machine coordinates with the work offset the job ran
+  under (the reset clears G92; a startup line may select another system), only up, at
+  most the profile's envelope top and, with soft limits on, machine Z 0; then ``G4P0`` and
+  Idle. A servo scribe gets the profile's up command, unless that is M5, which the reset
+  just did. Never after an alarm (GRBL is locked; the sender never sends ``$X``), a reset
+  of the controller's own, a lost link, a machine that did not report standing still
+  before the reset, or with the safety door open: the stop's message says why instead.
+  A failed lift is told and not tried again.
 - Journal: every ``ok`` of a file block is appended and flushed; after a reset the journal
   records which acknowledged blocks actually ran (from the hold position), so ``--resume``
   never skips a stroke (:mod:`scratchfab.machine.sender_journal`). After a lost link it
@@ -64,15 +75,28 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import serial
 
 from scratchfab.errors import Interrupted, ScratchfabError
 from scratchfab.machine.grbl_codes import MM_PER_INCH, alarm_meaning, error_meaning
+from scratchfab.machine.profile import Z_UNLIMITED_MM, gcode_number
 from scratchfab.machine.sender_checks import same_offset
 from scratchfab.machine.sender_journal import Journal, last_surely_run
-from scratchfab.machine.sender_program import Block, Modal, Program, block_words, dwell_seconds
+from scratchfab.machine.sender_program import (
+    DEFAULT_RAPID_MM_MIN,
+    Block,
+    Modal,
+    Program,
+    block_words,
+    dwell_seconds,
+    strip_block,
+    travel_height,
+)
+
+if TYPE_CHECKING:
+    from scratchfab.machine.profile import MachineProfile
 
 if "scratchfab.machine" not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append("scratchfab.machine")
@@ -269,6 +293,14 @@ class StreamOptions:
         busy_timeout: Seconds to wait on connecting for a controller still running (another
             sender's queue, e.g. a killed one) to finish before it is held and reset.
         stroke_barrier: Send a stroke's first block only when the previous stroke is acked.
+        lift: Raise the tool after a stop (an error, a stall, silence, the user's stop)
+            that ended in a soft reset of a machine that stood still, once the controller
+            is Idle with its position known; never after an alarm, a lost link or with
+            the safety door open (see :meth:`Streamer._lift`). Off by default: a bare
+            Streamer only holds and resets; the stream command turns it on.
+        profile: The job's machine profile, for the lift: its travel height
+            ``z.safe_mm`` (else the highest Z of the file's own moves), the envelope's Z
+            top, and for a servo scribe the up command (``tool_control.off``).
     """
 
     protocol: str = "counting"
@@ -283,6 +315,8 @@ class StreamOptions:
     hold_timeout: float = 30.0
     busy_timeout: float = 120.0
     stroke_barrier: bool = True
+    lift: bool = False
+    profile: MachineProfile | None = None
 
 
 @dataclass
@@ -300,6 +334,14 @@ class _Item:
     pre: int = -1
     barrier: int = -1  # send only when blocks up to this index are acknowledged
     end_wait: bool = False  # the END_WAIT dwell after the file's last line
+
+
+@dataclass(frozen=True)
+class _Lifted:
+    """What became of the tool after a stop: a clause for the stop's message, the journal's."""
+
+    text: str
+    record: dict[str, Any]
 
 
 class _Unanswered(StreamFault):
@@ -1103,10 +1145,10 @@ class Streamer:
             self._write(REALTIME_RESUME)
             self.on_message("resumed")
             return
-        self._safe_stop(f"stopped by {by}", wait=self.options.hold_timeout)
+        tool = self._safe_stop(f"stopped by {by}", wait=self.options.hold_timeout)
         raise StreamStopped(
             f"stopped by {by} after line {self._last_acked_line()}; machine held, then "
-            "soft-reset (spindle off); continue later with --resume"
+            f"soft-reset (spindle off){tool}; continue later with --resume"
         )
 
     def _tell(self, text: str) -> None:
@@ -1171,34 +1213,56 @@ class Streamer:
         try:
             if fault.kind in ("error", "stall"):
                 self._write(REALTIME_HOLD)
-                self._safe_stop(str(fault), wait=self.options.hold_timeout)
-                fault.args = (str(fault) + "; feeding stopped, machine held, then soft-reset",)
+                tool = self._safe_stop(str(fault), wait=self.options.hold_timeout)
+                fault.args = (
+                    str(fault) + "; feeding stopped, machine held, then soft-reset" + tool,
+                )
             elif fault.kind == "silent":
                 self._write(REALTIME_HOLD)
-                self._safe_stop(str(fault), wait=2.0)
+                tool = self._safe_stop(str(fault), wait=2.0)
+                fault.args = (str(fault) + tool,)
             elif fault.kind == "alarm":
                 # the alarm already stopped motion and flushed the queue; a critical alarm
                 # answers nothing until reset
-                self._reset(str(fault), self.status.wpos)
+                lifted = self._no_lift(
+                    "after an alarm GRBL is locked and the sender never unlocks it; check the "
+                    "machine, home it ($H) or unlock it ($X) yourself, then jog Z up"
+                )
+                self._reset(str(fault), self.status.wpos, lifted)
+                fault.args = (str(fault) + _clause(lifted),)
             elif fault.kind == "lock":
-                self._reset(str(fault), None)  # a reset may have lost the position
+                lifted = self._no_lift(
+                    "the controller is in Alarm and its position may be lost; home it ($H) "
+                    "or unlock it ($X) yourself, then jog Z up"
+                )
+                self._reset(str(fault), None, lifted)  # a reset may have lost the position
+                fault.args = (str(fault) + _clause(lifted),)
             elif fault.kind == "reset":
                 self._wait_banner(self.options.banner_timeout)  # the reset sent on the banner
-                self._journal.write(
-                    "stop", reason=str(fault), executed_through=self._executed_guess(None)
+                lifted = self._no_lift(
+                    "the controller reset itself and its position may be lost; jog Z up"
                 )
+                self._journal.write(
+                    "stop",
+                    reason=str(fault),
+                    executed_through=self._executed_guess(None),
+                    **_journaled(lifted),
+                )
+                fault.args = (str(fault) + _clause(lifted),)
             elif fault.kind == "link":
                 # nothing can be sent. A powered controller runs what it acknowledged;
                 # journal what surely ran by the last position report, for --recut-unsure.
+                lifted = self._no_lift("the connection is lost, nothing can be sent")
                 self._journal.write(
                     "lost",
                     reason=str(fault),
                     executed_through=self._executed_guess(self.status.wpos),
+                    **_journaled(lifted),
                 )
                 fault.args = (
                     f"{fault}; a controller that kept power goes on running the lines it had "
                     "received (up to a planner full of moves, spindle on): wait until it stops "
-                    "or press its reset before going near it",
+                    "or press its reset before going near it" + _clause(lifted),
                 )
         except _Fault:
             self._journal.write(
@@ -1237,16 +1301,284 @@ class Streamer:
                     raise self._reset_fault("while held")
         return None
 
-    def _safe_stop(self, reason: str, wait: float) -> None:
-        """Wait for Hold:0 (or Idle) after a feed hold, then soft reset; journal it."""
+    def _safe_stop(self, reason: str, wait: float) -> str:
+        """Wait for Hold:0 (or Idle) after a feed hold, soft reset, raise the tool; journal it.
+
+        What surely ran is judged before the lift (its status reports would pass for the
+        hold's); the ``stop`` event follows the lift and says what became of the tool. A
+        sender killed during the lift leaves a session without a closing event, which a
+        resume reads more cautiously (a planner full of blocks cut again).
+
+        Returns:
+            A clause for the stop's message ("" with the lift off).
+        """
         self._stopping = True
         held = self._wait_held(wait)
-        self._reset(reason, held.wpos if held is not None else None)
+        frame = self._wco  # the work offset the job ran under (a reset may clear G92)
+        wpos = held.wpos if held is not None else None
+        self._write(REALTIME_RESET)
+        banner = self._wait_banner(self.options.banner_timeout) is not None
+        through = self._executed_guess(wpos)
+        lifted = self._lift(held, banner, frame)
+        self._journal.write("stop", reason=reason, executed_through=through, **_journaled(lifted))
+        return _clause(lifted)
 
-    def _reset(self, reason: str, wpos: tuple[float, float, float] | None) -> None:
+    # ------------------------------------------------------------------ lifting the tool
+
+    def _lift(
+        self, held: Status | None, banner: bool, frame: tuple[float, float, float] | None
+    ) -> _Lifted | None:
+        """Raise the tool after the safe stop's soft reset, when that is known to be safe.
+
+        Only with the controller Idle after the reset (GRBL keeps its position over a
+        reset from Hold:0 or Idle: ``mc_reset`` stops the steppers, raising ALARM:3, only
+        in a cycle, a jog, homing or a hold still decelerating), never in Alarm (the
+        sender never unlocks it), with the safety door open, or without a banner. A Z tool
+        goes up to the travel height by a rapid in machine coordinates (``G53``, placed
+        with the work offset the job ran under: the reset may have cleared G92 or a
+        startup line chosen another system), only up, never above the profile's
+        envelope nor, with soft limits on, machine Z 0. A servo scribe gets the profile's
+        up command, unless it is M5, which the reset has just done. The sender waits
+        for Idle after it; a failure is told and nothing is tried again. A Ctrl-C during
+        the lift holds and resets the machine where it is.
+
+        Returns:
+            What became of the tool, or None with the lift off.
+        """
+        if not self.options.lift:
+            return None
+        try:
+            return self._lift_now(held, banner, frame)
+        except KeyboardInterrupt:
+            self._halt_lift()
+            return self._not_raised(
+                "interrupted while raising it (feed hold, then soft reset: it stopped part-way)",
+                "interrupted",
+            )
+        except _Fault as fault:
+            return self._not_raised(f"{fault} while raising it", "failed")
+
+    def _no_lift(self, reason: str) -> _Lifted | None:
+        """A stop after which the tool is never raised: say why (None with the lift off)."""
+        return self._not_raised(reason) if self.options.lift else None
+
+    def _not_raised(self, reason: str, result: str = "skipped") -> _Lifted:
+        self._tell(f"the tool was NOT raised: {reason}")
+        return _Lifted(
+            f"; the tool was NOT raised ({reason})", {"result": result, "reason": reason}
+        )
+
+    def _lift_now(
+        self, held: Status | None, banner: bool, frame: tuple[float, float, float] | None
+    ) -> _Lifted:
+        if not banner:
+            return self._not_raised("no banner came after the soft reset; state unknown")
+        status = self._status_after_reset()
+        state = status.state
+        if state.startswith("Alarm"):
+            return self._not_raised(
+                f"the controller is in {state} after the reset (position lost); home it "
+                "($H), or unlock it ($X) yourself if the position is known, then jog Z up"
+            )
+        if state.startswith("Door"):
+            return self._not_raised(
+                f"the safety door is open ({state}) and GRBL moves nothing while it is; "
+                "close it, then jog Z up"
+            )
+        if state != "Idle":
+            return self._not_raised(f"the controller reports {state} after the reset, not Idle")
+        profile = self.options.profile
+        servo = self._program.pen_mode if profile is None else profile.tool_control.mode == "servo"
+        if servo:
+            return self._lift_servo(profile)
+        if held is None:
+            return self._not_raised(
+                "the machine did not report standing still (Hold:0 or Idle) before the "
+                "reset, so its position may be lost; jog Z up"
+            )
+        return self._lift_z(status, frame, profile)
+
+    def _status_after_reset(self) -> Status:
+        """A status report after the reset, with the machine position where reports give it.
+
+        A reset may clear G92 (Grbl 1.1's ``gc_init``), so the work offset from before
+        no longer turns a ``WPos`` into a machine position: only a report's own ``WCO``
+        does (Grbl sends one in the first report after a reset). ``MPos`` needs none.
+        """
+        self._wco = None
+        period = 1.0 / min(self.options.poll_hz, 5.0)
+        status = self._status_now()
+        for _ in range(11):  # Grbl adds WCO to every 10th report while Idle
+            if status.mpos is not None or status.state != "Idle":
+                break
+            time.sleep(max(0.0, self._last_poll + period - time.monotonic()))
+            status = self._status_now()
+        return status
+
+    def _lift_servo(self, profile: MachineProfile | None) -> _Lifted:
+        """The servo's up command after the reset (which switched the spindle output off)."""
+        up = "M5" if profile is None else profile.tool_control.command("off")
+        block = strip_block(up)
+        if block_words(block) == [("M", 5.0)]:
+            self._tell(
+                "the soft reset switched the spindle output off (M5), the up command of "
+                "this servo job: the scribe is up"
+            )
+            return _Lifted("; the reset's M5 lifted the scribe", {"result": "reset", "up": "M5"})
+        dwell = profile.tool_control.dwell_s if profile is not None else 0.0
+        self._tell(f"raising the scribe with the profile's up command {up!r}")
+        failure = self._send_lift(
+            [block, f"G4P{gcode_number(dwell, 3)}"], self.options.command_timeout + dwell
+        )
+        if failure:
+            return self._not_raised(failure, "failed")
+        self._tell(f"scribe raised ({up})")
+        return _Lifted(f"; scribe raised ({up})", {"result": "raised", "up": block})
+
+    def _lift_z(
+        self,
+        status: Status,
+        frame: tuple[float, float, float] | None,
+        profile: MachineProfile | None,
+    ) -> _Lifted:
+        """Z up to the travel height by a rapid in machine coordinates."""
+        program = self._program
+        moved = next((b for b in program.blocks if b.unfollowed), None)
+        if moved is not None:
+            return self._not_raised(
+                f"line {moved.lineno} ({moved.unfollowed}) leaves the job's coordinate frame "
+                "unknown; jog Z up"
+            )
+        if frame is None:
+            return self._not_raised(
+                "the work offset is unknown ($# and the status reports' WCO gave none), so "
+                "the travel height cannot be placed in machine coordinates; jog Z up"
+            )
+        if profile is not None:
+            z: float | None = profile.z.safe_mm
+        else:
+            z = travel_height(program)
+        if z is None:
+            return self._not_raised(
+                "the file shows no travel height (no Z above its cutting height) and no "
+                "machine profile was given; jog Z up"
+            )
+        capped = ""
+        if profile is not None and profile.envelope.z_mm != Z_UNLIMITED_MM:
+            top = profile.envelope.z_mm[1]
+            if z > top:
+                z, capped = top, f", capped at the envelope's top Z {top:.3f}"
+        # floor to the digits sent: never above the height asked for
+        mz = math.floor((z + frame[2]) * 1000.0 + 1e-6) / 1000.0
+        if self.info.settings.get(20) and mz > 0.0:
+            mz, capped = 0.0, ", capped at machine Z 0, the top of GRBL's soft-limit travel"
+            z = mz - frame[2]
+        now = status.mpos
+        if now is None:
+            return self._not_raised(
+                "the status reports after the reset gave no machine position (MPos, or "
+                "WPos with WCO); jog Z up"
+            )
+        record: dict[str, Any] = {
+            "z": round(z, 4),
+            "machine_z": mz,
+            "from_machine_z": round(now[2], 4),
+        }
+        if now[2] >= mz - 0.001:
+            self._tell(
+                f"the tool is at machine Z {now[2]:.3f}, already at or above the travel "
+                f"height Z {z:.3f} (machine Z {mz:.3f}): not moved"
+            )
+            return _Lifted("; the tool was already up", {"result": "up", **record})
+        self._tell(f"raising the tool to Z {z:.3f} (machine Z {mz:.3f}){capped}")
+        rate = self.info.settings.get(112) or DEFAULT_RAPID_MM_MIN[2]
+        timeout = self.options.command_timeout + 3.0 * 60.0 * (mz - now[2]) / rate
+        failure = self._send_lift([f"G21G53G0Z{gcode_number(mz, 3)}", END_WAIT], timeout)
+        if failure:
+            return self._not_raised(failure, "failed")
+        final = self.status.mpos
+        if final is None or abs(final[2] - mz) > 0.01:
+            where = "unknown" if final is None else f"{final[2]:.3f}"
+            return self._not_raised(
+                f"after the lift the controller reports machine Z {where}, not {mz:.3f}",
+                "failed",
+            )
+        self._tell(f"tool raised to Z {z:.3f} (machine Z {mz:.3f})")
+        return _Lifted(
+            f"; tool raised to Z {z:.3f} (machine Z {mz:.3f})", {"result": "raised", **record}
+        )
+
+    def _send_lift(self, lines: Sequence[str], timeout: float) -> str:
+        """Send the lift's lines one at a time, then wait for Idle; "" or why it failed.
+
+        The last line is a dwell, answered once the motion before it has run. A timeout
+        holds and resets the machine where it is; an alarm gets the reset GRBL asks for
+        (it stays locked); nothing is sent again.
+        """
+        deadline = time.monotonic() + timeout
+        answered_at = 0.0
+        for k, text in enumerate(lines):
+            self._write(text.encode("ascii") + b"\n")
+            self.sent_log.append(text)
+            answered = False
+            while not answered or (k == len(lines) - 1 and not self._idle_since(answered_at)):
+                if time.monotonic() > deadline:
+                    self._halt_lift()
+                    return (
+                        f"the lift ({' '.join(lines)}) did not finish within {timeout:.1f} s; "
+                        "feed hold and soft reset sent, the tool stopped where it was"
+                    )
+                self._poll(force=answered and self._last_poll < answered_at)
+                for line in self._read_lines(0.02):
+                    if line == "ok":
+                        answered, answered_at = True, time.monotonic()
+                    elif line.startswith("error:"):
+                        code = _code(line)
+                        return f"GRBL answered error:{code} ({error_meaning(code)}) to {text!r}"
+                    elif line.startswith("ALARM:"):
+                        code = _code(line)
+                        with contextlib.suppress(_Fault):
+                            self._write(REALTIME_RESET)
+                            self._wait_banner(self.options.banner_timeout)
+                        return (
+                            f"ALARM:{code} ({alarm_meaning(code)}) on {text!r}; soft reset "
+                            "sent, the controller stays locked: check the machine, then "
+                            "home it ($H) or unlock it ($X) yourself"
+                        )
+                    elif line.startswith("<"):
+                        self._note_status(line)
+                        if self.status.state.startswith("Door"):
+                            return (
+                                f"the safety door opened during the lift ({self.status.state}); "
+                                "close it and press cycle start to finish raising the tool"
+                            )
+                    elif banner_firmware(line):
+                        return "the controller reset itself during the lift"
+        return ""
+
+    def _idle_since(self, when: float) -> bool:
+        """The last status report says Idle and came after ``when``."""
+        return when > 0.0 and self.status.state == "Idle" and self.status.time > when
+
+    def _halt_lift(self) -> None:
+        """Stop a lift where it is: feed hold, a short wait for Hold:0, soft reset."""
+        with contextlib.suppress(Exception, KeyboardInterrupt):
+            self._write_surely(REALTIME_HOLD)
+            self._wait_held(min(self.options.hold_timeout, 5.0))
+        with contextlib.suppress(Exception, KeyboardInterrupt):
+            self._write_surely(REALTIME_RESET)
+            self._wait_banner(self.options.banner_timeout)
+
+    def _reset(
+        self,
+        reason: str,
+        wpos: tuple[float, float, float] | None,
+        lifted: _Lifted | None = None,
+    ) -> None:
         self._write(REALTIME_RESET)
         self._wait_banner(self.options.banner_timeout)
-        self._journal.write("stop", reason=reason, executed_through=self._executed_guess(wpos))
+        through = self._executed_guess(wpos)
+        self._journal.write("stop", reason=reason, executed_through=through, **_journaled(lifted))
 
     def _executed_guess(self, wpos: tuple[float, float, float] | None) -> int:
         """The last acknowledged block that surely ran, judged from the position at the stop.
@@ -1282,6 +1614,16 @@ class Streamer:
         if reported and math.dist(wpos, _xyz(blocks[reported[-1]].modal, wpos)) < 0.01:
             return reported[-1]
         return surely
+
+
+def _clause(lifted: _Lifted | None) -> str:
+    """The stop message's clause about the tool ("" with the lift off)."""
+    return "" if lifted is None else lifted.text
+
+
+def _journaled(lifted: _Lifted | None) -> dict[str, Any]:
+    """The stop event's ``lift`` field (none with the lift off)."""
+    return {} if lifted is None else {"lift": lifted.record}
 
 
 def _xyz(modal: Modal | None, fallback: tuple[float, float, float]) -> tuple[float, float, float]:

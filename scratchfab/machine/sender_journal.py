@@ -8,7 +8,13 @@ line, which the reader skips). Events:
   (``{"ev": "ack", "pre": k}`` for the k-th resume preamble block)
 - ``{"ev": "error", "i": block, "line": file_line, "code": N}`` / ``{"ev": "alarm", "code": N}``
 - ``{"ev": "stop", "reason": ..., "executed_through": i|null}``: the controller was reset and
-  its queue flushed; blocks after ``executed_through`` may not have run although acknowledged
+  its queue flushed; blocks after ``executed_through`` may not have run although acknowledged.
+  With the sender's lift on it also holds ``"lift"``: ``{"result": "raised"|"up", "z":
+  work mm, "machine_z": ..., "from_machine_z": ...}`` (raised, or already at the travel
+  height), ``{"result": "raised"|"reset", "up": command}`` for a servo scribe, or
+  ``{"result": "skipped"|"failed"|"interrupted", "reason": ...}``. It is written after the
+  lift, so a sender killed during it leaves an unclosed session (read cautiously, below);
+  resuming never reads it. A ``lost`` event may hold a skipped ``"lift"`` too.
 - ``{"ev": "lost", "reason": ..., "executed_through": i}``: the link dropped. A controller
   that keeps power runs every block it acknowledged; one powered over the USB cable stops
   with it, and the blocks after ``executed_through`` (judged from the last position report)

@@ -512,6 +512,24 @@ def z_levels(blocks: Sequence[Block]) -> list[float]:
     return sorted({round(b.modal.z, 6) for b in blocks if b.motion and b.modal.z is not None})
 
 
+def travel_height(program: Program) -> float | None:
+    """The Z (work mm) a stopped job's tool is raised to without a machine profile.
+
+    The highest Z the program's own moves reach: the file goes there itself, so it is
+    within the machine's travel (the settings check covers the whole job) and clears
+    whatever the file clears between strokes (our exports travel at ``z.safe_mm`` only).
+    None when the program sets no Z, or when that Z is not above its cutting threshold
+    (nothing in the file shows a height that clears the board).
+    """
+    zs = [b.modal.z for b in program.blocks if b.motion and b.modal.z is not None]
+    if not zs:
+        return None
+    top = max(zs)
+    if program.z_threshold is not None and top <= program.z_threshold:
+        return None
+    return top
+
+
 def load_program(
     path: str | Path,
     z_threshold: float | None = None,

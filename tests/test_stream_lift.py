@@ -1,0 +1,411 @@
+"""The sender raises the tool after it stops a job (``StreamOptions.lift``), on the emulator.
+
+The truth is the emulator's own record: what it received after the stop's soft reset, the
+moves it executed and where its machine position ended. Every stop here leaves the tool at
+depth (a cut of many short segments keeps GRBL's planner full, so the stop lands inside it)
+unless the test says otherwise.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from stream_helpers import FAST, stream_program
+
+from scratchfab.machine.profile import load_profile, profile_from_mapping
+from scratchfab.machine.sender import (
+    Streamer,
+    StreamFault,
+    StreamStopped,
+    open_port,
+)
+from scratchfab.machine.sender_journal import Journal, done_blocks, read_journal
+from scratchfab.machine.sender_program import load_program, resume_point, resume_preamble
+
+LIFT = replace(FAST, lift=True)
+SEGMENTS = 60
+
+
+def z_job(
+    path: Path,
+    strokes: int = 2,
+    travel: float = 2.0,
+    depth: float = -0.05,
+    clearance: float | None = None,
+    x0: float = 0.0,
+    y0: float = 0.0,
+) -> None:
+    """A Z job: each stroke plunges and cuts ``SEGMENTS`` 1 mm segments along X."""
+    lines = ["G21 G90 G17 G94"]
+    if clearance is not None:
+        lines.append(f"G0 Z{clearance:g}")
+    lines.append(f"G0 Z{travel:g}")
+    for s in range(strokes):
+        lines += [f"G0 X{x0:g} Y{y0 + 2 * s:g}", f"G1 Z{depth:g} F200"]
+        lines += [f"G1 X{x0 + k:g} F300" for k in range(1, SEGMENTS + 1)]
+        lines.append(f"G0 Z{travel:g}")
+    if clearance is not None:
+        lines.append(f"G0 Z{clearance:g}")
+    lines.append("M2")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def servo_job(path: Path, strokes: int = 2) -> None:
+    """A plotter job: M3 lowers the scribe, M5 lifts it; no Z."""
+    lines = ["G21 G90 G17 G94", "M5"]
+    for s in range(strokes):
+        lines += [f"G1 X10 Y{10 + 2 * s} F4000", "M3 S60", "G4 P0.15"]
+        lines += [f"G1 X{10 + k} F1200" for k in range(1, SEGMENTS + 1)]
+        lines += ["M5", "G4 P0.15"]
+    lines.append("M2")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def segment_index(prog, x: float) -> int:
+    """Index of the first stroke's cut segment ending at ``x``."""
+    return next(b.index for b in prog.blocks if b.text.startswith(f"G1X{x:g}F"))
+
+
+def run(tmp_path, prog, query, options=LIFT, stop_at=None, journal=None, **kwargs):
+    """Stream ``prog`` to ``grblsim://?<query>``; returns (exception, messages, emulator).
+
+    ``stop_at``: press Ctrl-C (answered with stop) once that many blocks are acknowledged.
+    """
+    messages: list[str] = []
+    if stop_at is not None:
+        fired: list[int] = []
+
+        def progress(p):
+            if p.acked > stop_at and not fired:
+                fired.append(1)
+                raise KeyboardInterrupt
+
+        kwargs.setdefault("on_progress", progress)
+        kwargs.setdefault("ask_interrupt", lambda: "stop")
+    port = open_port(f"grblsim://?baud=0&{query}", 115200)
+    exc = None
+    try:
+        stream_program(
+            port, prog, journal or tmp_path / "j.jsonl", options, on_message=messages.append,
+            **kwargs,
+        )  # fmt: skip
+    except (StreamFault, StreamStopped) as e:
+        exc = e
+    finally:
+        port.close()
+    return exc, messages, port.sim
+
+
+def after_reset(sim, kind):
+    """The emulator's ``kind`` events after the stop's (first) soft reset."""
+    reset = next(e["t"] for e in sim.record if e["ev"] == "reset")
+    return [e for e in sim.record if e["ev"] == kind and e["t"] > reset]
+
+
+def lift_record(journal: Path) -> dict:
+    stop = read_journal(journal)[-1]
+    assert stop["ev"] == "stop"
+    return stop["lift"]
+
+
+def assert_raised_z_only(sim, work_z: float, machine_z: float, depth: float) -> None:
+    """One rapid after the reset, from depth straight up to ``work_z``; ends at ``machine_z``."""
+    moves = after_reset(sim, "exec")
+    assert len(moves) == 1, moves
+    move = moves[0]
+    assert move["rapid"] and move["frm"][:2] == move["to"][:2]  # no other axis moved
+    assert move["frm"][2] == pytest.approx(depth, abs=1e-6)  # it was at depth
+    assert move["to"][2] == pytest.approx(work_z, abs=1e-6)
+    assert sim.mpos[2] == pytest.approx(machine_z, abs=1e-6)
+    assert not any(e["ev"] == "alarm" for e in sim.record)
+
+
+# --------------------------------------------------------------------------- Z tools
+
+
+@pytest.mark.parametrize("wco", [(0.0, 0.0, 0.0), (5.0, 7.0, -10.0)])
+def test_an_error_mid_stroke_raises_the_tool_to_the_travel_height(tmp_path, wco):
+    job = tmp_path / "job.gcode"
+    z_job(job)
+    prog = load_program(job)
+    bad = segment_index(prog, 30)  # parsed once the planner has room: the cut is running
+    query = f"time_scale=0.1&error_at={bad + 1}&wco={wco[0]:g},{wco[1]:g},{wco[2]:g}"
+    exc, messages, sim = run(tmp_path, prog, query)
+    assert isinstance(exc, StreamFault)
+    assert f"job.gcode:{prog.blocks[bad].lineno}: error:20" in str(exc)
+    assert str(exc).endswith(f"; tool raised to Z 2.000 (machine Z {2 + wco[2]:.3f})")
+    assert f"raising the tool to Z 2.000 (machine Z {2 + wco[2]:.3f})" in messages
+    received = [e["text"] for e in after_reset(sim, "rx")]
+    assert received == [f"G21G53G0Z{2 + wco[2]:g}", "G4P0"]
+    assert_raised_z_only(sim, 2.0, 2.0 + wco[2], -0.05)
+    assert lift_record(tmp_path / "j.jsonl") == {
+        "result": "raised",
+        "z": 2.0,
+        "machine_z": 2.0 + wco[2],
+        "from_machine_z": pytest.approx(-0.05 + wco[2]),
+    }
+
+
+def test_a_users_stop_mid_stroke_raises_the_tool(tmp_path):
+    job = tmp_path / "job.gcode"
+    z_job(job)
+    prog = load_program(job)
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1", stop_at=segment_index(prog, 20))
+    assert isinstance(exc, StreamStopped)
+    assert "soft-reset (spindle off); tool raised to Z 2.000 (machine Z 2.000); continue" in str(
+        exc
+    )
+    assert_raised_z_only(sim, 2.0, 2.0, -0.05)
+
+
+def test_the_lift_goes_to_the_jobs_height_when_the_reset_clears_g92(tmp_path):
+    """The job ran under G92 Z-3 (work zero 3 mm above the G54 one); GRBL's reset clears
+    G92, so a lift in work coordinates would stop 3 mm short. G53 places it in the job's."""
+    job = tmp_path / "job.gcode"
+    z_job(job)
+    prog = load_program(job)
+    port = open_port("grblsim://?baud=0&time_scale=0.1", 115200)
+    messages: list[str] = []
+    try:
+        streamer = Streamer(port, LIFT, on_message=messages.append, ask_interrupt=lambda: "stop")
+        streamer.on_progress = _stop_after(segment_index(prog, 20))
+        streamer.connect()
+        streamer._command("G92Z-3")  # at machine Z 0: work Z -3 there, the offset is +3
+        streamer._read_work_offset()
+        assert streamer.info.g92 == (0.0, 0.0, 3.0)
+        journal = Journal(tmp_path / "j.jsonl").open()
+        with pytest.raises(StreamStopped):
+            streamer.stream(prog, journal)
+        journal.close()
+        after = streamer._status_now()
+    finally:
+        port.close()
+    assert after.wco == (0.0, 0.0, 0.0)  # the reset cleared G92
+    sim = port.sim
+    assert sim.mpos[2] == pytest.approx(5.0)  # work Z 2 of the job's frame
+    moves = after_reset(sim, "exec")
+    assert len(moves) == 1 and moves[0]["frm"][:2] == moves[0]["to"][:2]
+    assert "raising the tool to Z 2.000 (machine Z 5.000)" in messages
+
+
+def _stop_after(n):
+    fired: list[int] = []
+
+    def progress(p):
+        if p.acked > n and not fired:
+            fired.append(1)
+            raise KeyboardInterrupt
+
+    return progress
+
+
+def test_a_tool_already_at_travel_height_is_not_moved(tmp_path):
+    job = tmp_path / "job.gcode"
+    # a dwell waits until Z2 is reached; the long rapid then runs at Z2 when the error comes
+    job.write_text("G21G90\nG0Z2\nG4P0.1\nG0X60\nG0Y1\nG1Z-0.05F200\nG1X61F300\nG0Z2\nM2\n")
+    prog = load_program(job)
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1&error_at=5")
+    assert isinstance(exc, StreamFault) and str(exc).endswith("; the tool was already up")
+    assert any(
+        re.match(r"the tool is at machine Z 2\.000, already at or above", m) for m in messages
+    )
+    assert after_reset(sim, "rx") == [] and after_reset(sim, "exec") == []
+    assert sim.mpos[2] == pytest.approx(2.0) and 0.0 < sim.mpos[0] < 60.0  # stopped mid-rapid
+    assert lift_record(tmp_path / "j.jsonl")["result"] == "up"
+
+
+def test_a_foreign_file_is_raised_to_its_own_highest_z(tmp_path):
+    """Without a profile the height is the highest Z of the file's moves: its clearance
+    Z5 here, above the Z2 it travels at between strokes."""
+    job = tmp_path / "job.gcode"
+    z_job(job, clearance=5.0)
+    prog = load_program(job)
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1", stop_at=segment_index(prog, 20))
+    assert isinstance(exc, StreamStopped)
+    assert_raised_z_only(sim, 5.0, 5.0, -0.05)
+
+
+def test_a_file_without_a_travel_height_is_not_raised_and_says_so(tmp_path):
+    """A file that never goes above where it cuts shows no height that clears the board."""
+    job = tmp_path / "job.gcode"
+    lines = ["G21G90", "G1Z-0.05F200"] + [f"G1X{k}F300" for k in range(1, SEGMENTS)]
+    job.write_text("\n".join([*lines, "M2"]) + "\n")
+    prog = load_program(job, z_threshold=0.5)
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1", stop_at=20)
+    assert isinstance(exc, StreamStopped)
+    assert "the tool was NOT raised (the file shows no travel height" in str(exc)
+    assert after_reset(sim, "rx") == []
+
+
+def _profile(name: str, **tables):
+    data = load_profile(name).to_table()
+    for table, values in tables.items():
+        data[table] = {**data[table], **values}
+    return profile_from_mapping(data, f"<{name} for the test>")
+
+
+def test_a_profile_sets_the_height_not_the_files_highest_z(tmp_path):
+    """grbl-3018-diamond (machine coordinates, soft limits, homed): its z.safe_mm -27,
+    though the file also rapids to -20."""
+    profile = load_profile("grbl-3018-diamond")
+    job = tmp_path / "job.gcode"
+    z_job(job, travel=-27.0, depth=-30.2, clearance=-20.0, x0=-150.0, y0=-100.0)
+    prog = load_program(job)
+    options = replace(LIFT, profile=profile)
+    exc, messages, sim = run(
+        tmp_path, prog, "time_scale=0.1&soft_limits=1&homed=1", options,
+        stop_at=segment_index(prog, -130),
+    )  # fmt: skip
+    assert isinstance(exc, StreamStopped)
+    assert_raised_z_only(sim, -27.0, -27.0, -30.2)
+
+
+def test_soft_limits_cap_the_lift_at_machine_z_0(tmp_path):
+    """A travel height above GRBL's travel (machine Z 0 with $20=1) would raise ALARM:2."""
+    profile = _profile(
+        "grbl-3018-diamond",
+        envelope={"coordinates": "work", "z_mm": [-40.0, 5.0]},
+        z={"safe_mm": 3.0, "engrave_mm": -2.0},
+    )
+    job = tmp_path / "job.gcode"
+    # work zero 1 mm below the machine's top: the file travels at machine -0.5
+    z_job(job, travel=0.5, depth=-2.0, x0=-150.0, y0=-100.0)
+    prog = load_program(job)
+    exc, messages, sim = run(
+        tmp_path, prog, "time_scale=0.1&soft_limits=1&homed=1&wco=0,0,-1",
+        replace(LIFT, profile=profile), stop_at=segment_index(prog, -130),
+    )  # fmt: skip
+    assert isinstance(exc, StreamStopped)
+    assert (
+        "raising the tool to Z 1.000 (machine Z 0.000), capped at machine Z 0, the top of "
+        "GRBL's soft-limit travel"
+    ) in messages
+    assert_raised_z_only(sim, 1.0, 0.0, -2.0)
+
+
+# --------------------------------------------------------------------------- never
+
+
+def test_nothing_is_sent_after_an_alarm(tmp_path):
+    job = tmp_path / "job.gcode"
+    lines = ["G21G90", "G0Z-2", "G1Z-3F200"] + [f"G1X{-40 + k}F300" for k in range(1, 60)]
+    job.write_text("\n".join(lines) + "\nG0Z-2\nM2\n")  # X reaches +19: past machine X 0
+    prog = load_program(job)
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1&soft_limits=1&homed=1")
+    assert isinstance(exc, StreamFault) and "ALARM:2" in str(exc)
+    assert "the tool was NOT raised (after an alarm GRBL is locked" in str(exc)
+    alarm = next(e["t"] for e in sim.record if e["ev"] == "alarm")
+    assert not [e for e in sim.record if e["ev"] in ("rx", "exec") and e["t"] > alarm]
+    assert lift_record(tmp_path / "j.jsonl")["result"] == "skipped"
+
+
+def test_an_open_safety_door_is_told_not_lifted(tmp_path):
+    job = tmp_path / "job.gcode"
+    z_job(job)
+    prog = load_program(job)
+    holder: dict = {}
+
+    def progress(p):
+        sim = holder["sim"]
+        if p.acked > segment_index(prog, 20) and not holder.get("opened"):
+            holder["opened"] = True
+            sim.open_door()
+        elif p.state == "Door:1":
+            raise KeyboardInterrupt
+
+    port = open_port("grblsim://?baud=0&time_scale=0.1", 115200)
+    holder["sim"] = port.sim
+    messages: list[str] = []
+    try:
+        with pytest.raises(StreamStopped) as exc:
+            stream_program(
+                port, prog, tmp_path / "j.jsonl", LIFT, on_progress=progress,
+                ask_interrupt=lambda: "stop", on_message=messages.append,
+            )  # fmt: skip
+    finally:
+        port.close()
+    assert "the tool was NOT raised (the safety door is open (Door:1)" in str(exc.value)
+    assert after_reset(port.sim, "rx") == [] and after_reset(port.sim, "exec") == []
+    assert port.sim.mpos[2] == pytest.approx(-0.05)
+
+
+def test_the_lift_can_be_turned_off(tmp_path):
+    job = tmp_path / "job.gcode"
+    z_job(job)
+    prog = load_program(job)
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1", FAST, segment_index(prog, 20))
+    assert isinstance(exc, StreamStopped) and "tool" not in str(exc)
+    assert after_reset(sim, "rx") == [] and sim.mpos[2] == pytest.approx(-0.05)
+    assert "lift" not in read_journal(tmp_path / "j.jsonl")[-1]
+
+
+# --------------------------------------------------------------------------- servo scribes
+
+
+def test_the_plotter_profiles_up_command_is_the_resets_m5(tmp_path):
+    job = tmp_path / "job.gcode"
+    servo_job(job)
+    prog = load_program(job)
+    assert prog.pen_mode
+    options = replace(LIFT, profile=load_profile("grbl-plotter-scribe"))
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1", options, segment_index(prog, 25))
+    assert isinstance(exc, StreamStopped) and "the reset's M5 lifted the scribe" in str(exc)
+    assert after_reset(sim, "rx") == []
+    spindle = [e for e in sim.record if e["ev"] == "spindle"]
+    assert spindle[-1]["spindle"] == "M3"  # down when stopped; the reset switched it off
+    assert lift_record(tmp_path / "j.jsonl") == {"result": "reset", "up": "M5"}
+
+
+def test_a_servo_whose_up_command_is_not_m5_gets_it_sent(tmp_path):
+    profile = _profile("grbl-plotter-scribe", tool_control={"off": "M3 S10"})
+    job = tmp_path / "job.gcode"
+    servo_job(job)
+    prog = load_program(job)
+    exc, messages, sim = run(
+        tmp_path, prog, "time_scale=0.1", replace(LIFT, profile=profile), segment_index(prog, 25)
+    )
+    assert isinstance(exc, StreamStopped) and "scribe raised (M3 S10)" in str(exc)
+    assert [e["text"] for e in after_reset(sim, "rx")] == ["M3S10", "G4P0.15"]
+    assert [(e["spindle"], e["s"]) for e in after_reset(sim, "spindle")] == [("M3", 10.0)]
+    assert after_reset(sim, "exec") == []
+
+
+# --------------------------------------------------------------------------- resume
+
+
+def test_resume_after_a_lifted_stop_cuts_every_segment(tmp_path):
+    """The journal's stop carries the lift and still says what ran: the resume cuts every
+    segment at least once and none more than twice."""
+    job = tmp_path / "job.gcode"
+    z_job(job, strokes=3)
+    prog = load_program(job)
+    journal = tmp_path / "j.jsonl"
+    exc, _, first = run(
+        tmp_path, prog, "time_scale=0.1", stop_at=segment_index(prog, 20) + SEGMENTS + 4
+    )
+    assert isinstance(exc, StreamStopped)
+    assert lift_record(journal)["result"] == "raised"
+    done = done_blocks(read_journal(journal), prog.sha256, journal, program=prog)
+    start = resume_point(prog, done)
+    port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
+    try:
+        streamer = Streamer(port, LIFT)
+        streamer.connect()
+        j = Journal(journal).open()
+        streamer.stream(prog, j, start=start, preamble=resume_preamble(prog, start), resume=True)
+        j.close()
+    finally:
+        port.close()
+    counts: dict[tuple, int] = {}
+    for record in (first.record, port.sim.record):
+        for e in record:
+            if e["ev"] == "exec" and not e["rapid"] and e["to"][2] < 0 and e["frm"][2] < 0:
+                key = (round(e["to"][0], 3), round(e["to"][1], 3))
+                counts[key] = counts.get(key, 0) + 1
+    segments = {(float(x), float(2 * s)) for s in range(3) for x in range(1, SEGMENTS + 1)}
+    assert set(counts) == segments
+    assert max(counts.values()) <= 2
+    assert read_journal(journal)[-1]["ev"] == "end"
