@@ -132,7 +132,7 @@ def test_an_error_mid_stroke_raises_the_tool_to_the_travel_height(tmp_path, wco)
     z_job(job)
     prog = load_program(job)
     bad = segment_index(prog, 30)  # parsed once the planner has room: the cut is running
-    query = f"time_scale=0.1&error_at={bad + 1}&wco={wco[0]:g},{wco[1]:g},{wco[2]:g}"
+    query = f"time_scale=0.2&error_at={bad + 1}&wco={wco[0]:g},{wco[1]:g},{wco[2]:g}"
     exc, messages, sim = run(tmp_path, prog, query)
     assert isinstance(exc, StreamFault)
     assert f"job.gcode:{prog.blocks[bad].lineno}: error:20" in str(exc)
@@ -153,7 +153,7 @@ def test_a_users_stop_mid_stroke_raises_the_tool(tmp_path):
     job = tmp_path / "job.gcode"
     z_job(job)
     prog = load_program(job)
-    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1", stop_at=segment_index(prog, 20))
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.2", stop_at=segment_index(prog, 20))
     assert isinstance(exc, StreamStopped)
     assert "soft-reset (spindle off); tool raised to Z 2.000 (machine Z 2.000); continue" in str(
         exc
@@ -167,7 +167,7 @@ def test_the_lift_goes_to_the_jobs_height_when_the_reset_clears_g92(tmp_path):
     job = tmp_path / "job.gcode"
     z_job(job)
     prog = load_program(job)
-    port = open_port("grblsim://?baud=0&time_scale=0.1", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.2", 115200)
     messages: list[str] = []
     try:
         streamer = Streamer(port, LIFT, on_message=messages.append, ask_interrupt=lambda: "stop")
@@ -207,7 +207,7 @@ def test_a_tool_already_at_travel_height_is_not_moved(tmp_path):
     # a dwell waits until Z2 is reached; the long rapid then runs at Z2 when the error comes
     job.write_text("G21G90\nG0Z2\nG4P0.1\nG0X60\nG0Y1\nG1Z-0.05F200\nG1X61F300\nG0Z2\nM2\n")
     prog = load_program(job)
-    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1&error_at=5")
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.2&error_at=5")
     assert isinstance(exc, StreamFault) and str(exc).endswith("; the tool was already up")
     assert any(
         re.match(r"the tool is at machine Z 2\.000, already at or above", m) for m in messages
@@ -223,7 +223,7 @@ def test_a_foreign_file_is_raised_to_its_own_highest_z(tmp_path):
     job = tmp_path / "job.gcode"
     z_job(job, clearance=5.0)
     prog = load_program(job)
-    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1", stop_at=segment_index(prog, 20))
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.2", stop_at=segment_index(prog, 20))
     assert isinstance(exc, StreamStopped)
     assert_raised_z_only(sim, 5.0, 5.0, -0.05)
 
@@ -234,7 +234,7 @@ def test_a_file_without_a_travel_height_is_not_raised_and_says_so(tmp_path):
     lines = ["G21G90", "G1Z-0.05F200"] + [f"G1X{k}F300" for k in range(1, SEGMENTS)]
     job.write_text("\n".join([*lines, "M2"]) + "\n")
     prog = load_program(job, z_threshold=0.5)
-    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1", stop_at=20)
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.2", stop_at=20)
     assert isinstance(exc, StreamStopped)
     assert "the tool was NOT raised (the file shows no travel height" in str(exc)
     assert after_reset(sim, "rx") == []
@@ -252,12 +252,12 @@ def test_a_profile_sets_the_height_not_the_files_highest_z(tmp_path):
     though the file also rapids to -20."""
     profile = load_profile("grbl-3018-diamond")
     job = tmp_path / "job.gcode"
-    z_job(job, travel=-27.0, depth=-30.2, clearance=-20.0, x0=-150.0, y0=-100.0)
+    z_job(job, travel=-27.0, depth=-30.2, clearance=-20.0, x0=-70.0, y0=-10.0)
     prog = load_program(job)
     options = replace(LIFT, profile=profile)
     exc, messages, sim = run(
-        tmp_path, prog, "time_scale=0.1&soft_limits=1&homed=1", options,
-        stop_at=segment_index(prog, -130),
+        tmp_path, prog, "time_scale=0.2&soft_limits=1&homed=1", options,
+        stop_at=segment_index(prog, -50),
     )  # fmt: skip
     assert isinstance(exc, StreamStopped)
     assert_raised_z_only(sim, -27.0, -27.0, -30.2)
@@ -272,11 +272,11 @@ def test_soft_limits_cap_the_lift_at_machine_z_0(tmp_path):
     )
     job = tmp_path / "job.gcode"
     # work zero 1 mm below the machine's top: the file travels at machine -0.5
-    z_job(job, travel=0.5, depth=-2.0, x0=-150.0, y0=-100.0)
+    z_job(job, travel=0.5, depth=-2.0, x0=-70.0, y0=-10.0)
     prog = load_program(job)
     exc, messages, sim = run(
-        tmp_path, prog, "time_scale=0.1&soft_limits=1&homed=1&wco=0,0,-1",
-        replace(LIFT, profile=profile), stop_at=segment_index(prog, -130),
+        tmp_path, prog, "time_scale=0.2&soft_limits=1&homed=1&wco=0,0,-1",
+        replace(LIFT, profile=profile), stop_at=segment_index(prog, -50),
     )  # fmt: skip
     assert isinstance(exc, StreamStopped)
     assert (
@@ -291,10 +291,10 @@ def test_soft_limits_cap_the_lift_at_machine_z_0(tmp_path):
 
 def test_nothing_is_sent_after_an_alarm(tmp_path):
     job = tmp_path / "job.gcode"
-    lines = ["G21G90", "G0Z-2", "G1Z-3F200"] + [f"G1X{-40 + k}F300" for k in range(1, 60)]
-    job.write_text("\n".join(lines) + "\nG0Z-2\nM2\n")  # X reaches +19: past machine X 0
+    lines = ["G21G90", "G0Z-2", "G0X-20", "G1Z-3F200"] + [f"G1X{k - 20}F300" for k in range(1, 60)]
+    job.write_text("\n".join(lines) + "\nG0Z-2\nM2\n")  # X reaches +39: past machine X 0
     prog = load_program(job)
-    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1&soft_limits=1&homed=1")
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.2&soft_limits=1&homed=1")
     assert isinstance(exc, StreamFault) and "ALARM:2" in str(exc)
     assert "the tool was NOT raised (after an alarm GRBL is locked" in str(exc)
     alarm = next(e["t"] for e in sim.record if e["ev"] == "alarm")
@@ -316,7 +316,7 @@ def test_an_open_safety_door_is_told_not_lifted(tmp_path):
         elif p.state == "Door:1":
             raise KeyboardInterrupt
 
-    port = open_port("grblsim://?baud=0&time_scale=0.1", 115200)
+    port = open_port("grblsim://?baud=0&time_scale=0.2", 115200)
     holder["sim"] = port.sim
     messages: list[str] = []
     try:
@@ -336,7 +336,7 @@ def test_the_lift_can_be_turned_off(tmp_path):
     job = tmp_path / "job.gcode"
     z_job(job)
     prog = load_program(job)
-    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1", FAST, segment_index(prog, 20))
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.2", FAST, segment_index(prog, 20))
     assert isinstance(exc, StreamStopped) and "tool" not in str(exc)
     assert after_reset(sim, "rx") == [] and sim.mpos[2] == pytest.approx(-0.05)
     assert "lift" not in read_journal(tmp_path / "j.jsonl")[-1]
@@ -351,7 +351,7 @@ def test_the_plotter_profiles_up_command_is_the_resets_m5(tmp_path):
     prog = load_program(job)
     assert prog.pen_mode
     options = replace(LIFT, profile=load_profile("grbl-plotter-scribe"))
-    exc, messages, sim = run(tmp_path, prog, "time_scale=0.1", options, segment_index(prog, 25))
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.2", options, segment_index(prog, 25))
     assert isinstance(exc, StreamStopped) and "the reset's M5 lifted the scribe" in str(exc)
     assert after_reset(sim, "rx") == []
     spindle = [e for e in sim.record if e["ev"] == "spindle"]
@@ -365,7 +365,7 @@ def test_a_servo_whose_up_command_is_not_m5_gets_it_sent(tmp_path):
     servo_job(job)
     prog = load_program(job)
     exc, messages, sim = run(
-        tmp_path, prog, "time_scale=0.1", replace(LIFT, profile=profile), segment_index(prog, 25)
+        tmp_path, prog, "time_scale=0.2", replace(LIFT, profile=profile), segment_index(prog, 25)
     )
     assert isinstance(exc, StreamStopped) and "scribe raised (M3 S10)" in str(exc)
     assert [e["text"] for e in after_reset(sim, "rx")] == ["M3S10", "G4P0.15"]
@@ -384,7 +384,7 @@ def test_resume_after_a_lifted_stop_cuts_every_segment(tmp_path):
     prog = load_program(job)
     journal = tmp_path / "j.jsonl"
     exc, _, first = run(
-        tmp_path, prog, "time_scale=0.1", stop_at=segment_index(prog, 20) + SEGMENTS + 4
+        tmp_path, prog, "time_scale=0.2", stop_at=segment_index(prog, 20) + SEGMENTS + 4
     )
     assert isinstance(exc, StreamStopped)
     assert lift_record(journal)["result"] == "raised"
@@ -409,3 +409,82 @@ def test_resume_after_a_lifted_stop_cuts_every_segment(tmp_path):
     assert set(counts) == segments
     assert max(counts.values()) <= 2
     assert read_journal(journal)[-1]["ev"] == "end"
+
+
+# --------------------------------------------------------------------------- failed lifts
+
+
+class _DuringLift:
+    """A port that calls ``act(sim)`` once the lift's move has been written."""
+
+    def __init__(self, port, act):
+        object.__setattr__(self, "_port", port)
+        object.__setattr__(self, "_act", act)
+
+    def write(self, data):
+        n = self._port.write(data)
+        if data.startswith(b"G21G53"):
+            self._act(self._port)
+        return n
+
+    def __getattr__(self, name):
+        return getattr(self._port, name)
+
+    def __setattr__(self, name, value):
+        setattr(self._port, name, value)
+
+
+def _lift_disturbed(tmp_path, act, options=LIFT):
+    job = tmp_path / "job.gcode"
+    z_job(job)
+    prog = load_program(job)
+    port = open_port("grblsim://?baud=0&time_scale=0.2", 115200)
+    messages: list[str] = []
+    try:
+        with pytest.raises(StreamStopped) as exc:
+            stream_program(
+                _DuringLift(port, act), prog, tmp_path / "j.jsonl", options,
+                on_progress=_stop_after(segment_index(prog, 20)),
+                ask_interrupt=lambda: "stop", on_message=messages.append,
+            )  # fmt: skip
+    finally:
+        port.close()
+    return str(exc.value), messages, port.sim
+
+
+def test_a_door_opened_during_the_lift_is_told_and_nothing_more_is_sent(tmp_path):
+    text, messages, sim = _lift_disturbed(tmp_path, lambda port: port.sim.open_door())
+    assert "the tool was NOT raised (the safety door opened during the lift (Door:" in text
+    # GRBL parses no line while the door is open: the move waits in its buffer for the
+    # cycle start, and the sender sent nothing after it
+    assert "G4P0" not in [e["text"] for e in after_reset(sim, "rx")]
+    assert after_reset(sim, "exec") == [] and sim.mpos[2] == pytest.approx(-0.05)
+    assert lift_record(tmp_path / "j.jsonl")["result"] == "failed"
+    assert not any(e["ev"] == "alarm" for e in sim.record)
+
+
+def test_a_lift_that_does_not_finish_in_time_is_held_and_reset_not_retried(tmp_path):
+    """The machine's own feed hold stops the lift; the sender gives up after its timeout
+    (command_timeout + 3 x the move's time at $112), holds and resets, sends nothing more."""
+    options = replace(LIFT, command_timeout=0.5)
+    text, messages, sim = _lift_disturbed(tmp_path, lambda port: port.write(b"!"), options)
+    assert re.search(r"the tool was NOT raised \(the lift \(G21G53G0Z2 G4P0\) did not finish "
+                     r"within \d\.\d s; feed hold and soft reset sent", text)  # fmt: skip
+    assert [e["text"] for e in after_reset(sim, "rx")] == ["G21G53G0Z2", "G4P0"]
+    resets = [e for e in sim.record if e["ev"] == "reset"]
+    assert len(resets) == 2  # the stop's and the one ending the lift
+    assert not any(e["ev"] == "alarm" for e in sim.record)  # reset from Hold:0
+    assert -0.05 < sim.mpos[2] < 2.0  # part-way up
+    assert lift_record(tmp_path / "j.jsonl")["result"] == "failed"
+
+
+def test_ctrl_c_during_the_lift_stops_it_where_it_is(tmp_path):
+    def interrupt(port):
+        raise KeyboardInterrupt
+
+    text, messages, sim = _lift_disturbed(tmp_path, interrupt)
+    assert "the tool was NOT raised (interrupted while raising it" in text
+    assert len([e for e in sim.record if e["ev"] == "reset"]) == 2
+    assert not any(e["ev"] == "alarm" for e in sim.record)
+    stop = read_journal(tmp_path / "j.jsonl")[-1]
+    assert stop["ev"] == "stop" and stop["lift"]["result"] == "interrupted"

@@ -1190,7 +1190,10 @@ class Streamer:
             self._wait_banner(self.options.banner_timeout)
         except (Exception, KeyboardInterrupt):
             pass
-        self._journal_quietly("stop", reason=reason, executed_through=self._executed_guess(wpos))
+        lifted = self._no_lift(f"{reason} cut the stop short; jog Z up")
+        self._journal_quietly(
+            "stop", reason=reason, executed_through=self._executed_guess(wpos), **_journaled(lifted)
+        )
         self._tell("machine held, then soft-reset (spindle off)")
 
     def _write_surely(self, data: bytes) -> None:
