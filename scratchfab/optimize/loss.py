@@ -50,7 +50,10 @@ NEIGHBOUR_SPACING_MM = 16.0
 NEIGHBOUR_STRIP_POINTS = 4096
 #: Grid cells of :func:`neighbour_pairs`, relative to the longest half piece plus the
 #: reach (a piece looks this far and its own half length around itself).
-NEIGHBOUR_CELL = 0.5
+NEIGHBOUR_CELL = 0.35
+#: Direction classes of :func:`neighbour_pairs` (equal slices of [0, pi)): a piece looks
+#: only at those the parallel limit lets it pair with.
+NEIGHBOUR_DIRECTIONS = 6
 #: Pairs :func:`neighbour_pairs` buffers before it copies them out (at least 2 per scratch).
 NEIGHBOUR_BUFFER_PAIRS = 1 << 20
 #: Slack (mm) of :func:`neighbour_pairs`' bounds, far above float64 rounding.
@@ -169,15 +172,18 @@ def neighbour_pairs(
     scratches stay whole). Two scratches closer than ``reach`` have two pieces, one of
     each, whose centres are closer than their half lengths plus ``reach``, so a look
     around each piece of scratch i, over the cells of a uniform grid of the piece
-    centres, for the pieces of scratches j > i is complete. The piece pairs it finds
-    are first thinned by bounds that never drop a close pair: the angle between them,
-    and the separating-axis bound (projections onto either piece's direction and
-    normal are no longer than the distance). The scratch pairs left then meet the exact
-    tests, the float64 operations of the brute-force form (:func:`segment_distance_np`)
-    in the same order: the parallel limit PARALLEL_LIMIT + ``angle_slack`` (weights
-    below 0.05 past it) and the segment distance. The scan is compiled (numba, loaded
-    on first use), ``strip_points`` scratches a call; it finds the pairs in (i, j)
-    order into a buffer of NEIGHBOUR_BUFFER_PAIRS, so memory follows the pairs found.
+    centres, for the pieces of scratches j > i is complete. Each cell is split by the
+    direction of the pieces (NEIGHBOUR_DIRECTIONS slices of [0, pi)), and a piece looks
+    only into the slices within the parallel limit of its own direction (widened by
+    1e-6 rad, far above the rounding of the angles). The piece pairs it finds are first
+    thinned by bounds that never drop a close pair: the angle between them, and the
+    separating-axis bound (projections onto either piece's direction and normal are
+    no longer than the distance). The scratch pairs left then meet the exact tests,
+    the float64 operations of the brute-force form (:func:`segment_distance_np`) in the
+    same order: the parallel limit PARALLEL_LIMIT + ``angle_slack`` (weights below 0.05
+    past it) and the segment distance. The scan is compiled (numba, loaded on first
+    use), ``strip_points`` scratches a call; it finds the pairs in (i, j) order into a
+    buffer of NEIGHBOUR_BUFFER_PAIRS, so memory follows the pairs found.
 
     Returns:
         (i, j), sorted by (i, j), of integer type ``dtype`` (which must hold n - 1).
@@ -203,19 +209,20 @@ def neighbour_pairs(
     limit = math.cos(min(math.pi / 2, PARALLEL_LIMIT + angle_slack))
     longest = float(half.max())
     grid = _grid(centre, NEIGHBOUR_CELL * (longest + near))
-    order = np.argsort(grid.cell, kind="stable")
+    cells = grid.nx * grid.ny
+    # no more direction slices than keep the cell table within 8 entries a piece
+    slices = max(1, min(NEIGHBOUR_DIRECTIONS, (8 * len(owner) + 64) // cells))
+    # direction in [0, pi] (NaN for no direction: slice 0, never a candidate)
+    angle = np.mod(np.arctan2(unit[:, 1], unit[:, 0]), math.pi)
+    direction = np.clip(np.nan_to_num(angle * (slices / math.pi)), 0, slices - 1).astype(np.int64)
+    key = direction[owner] * cells + grid.cell
+    order = np.argsort(key, kind="stable")
     where = np.empty_like(order)
     where[order] = np.arange(len(order))
-    start = np.searchsorted(grid.cell[order], np.arange(grid.nx * grid.ny + 1)).astype(np.int64)
-    pieces = (
-        centre[order, 0].copy(),
-        centre[order, 1].copy(),
-        unit[owner[order], 0].copy(),
-        unit[owner[order], 1].copy(),
-        half[order],
-        owner[order],
-    )
-    ends = tuple(c.copy() for c in (p0[:, 0], p0[:, 1], p1[:, 0], p1[:, 1]))
+    start = np.searchsorted(key[order], np.arange(slices * cells + 1)).astype(np.int64)
+    # one row a piece (centre, direction, half length) and a scratch (ends, length)
+    pieces = np.stack([*centre[order].T, *unit[owner[order]].T, half[order]], axis=1)
+    ends = np.stack([*p0.T, *p1.T, length], axis=1)
     scan = _compiled_scan()
     # pairs go to a buffer, copied out whenever it may not hold the next scratch's pairs
     # (fewer than n); int32 while the indices fit
@@ -227,8 +234,8 @@ def neighbour_pairs(
     lo = used = 0
     while lo < n:
         used, lo = scan(
-            *pieces, start, grid.nx, grid.ny, grid.x0, grid.y0, grid.size, longest, where,
-            first, count, *ends, length, near, limit - 1e-9, limit, reach,
+            pieces, owner[order], angle, start, grid.nx, grid.ny, slices, grid.x0, grid.y0,
+            grid.size, longest, where, first, count, ends, near, limit - 1e-9, limit, reach,
             lo, min(n, lo + step), buffer_i, buffer_j, used,
         )  # fmt: skip
         if used + n > capacity or lo == n:
@@ -280,15 +287,13 @@ def _compiled_scan() -> Any:
 
 
 def _scan_pairs(
-    px: np.ndarray,
-    py: np.ndarray,
-    ux: np.ndarray,
-    uy: np.ndarray,
-    half: np.ndarray,
+    pieces: np.ndarray,
     owner: np.ndarray,
+    angle: np.ndarray,
     start: np.ndarray,
     nx: int,
     ny: int,
+    slices: int,
     x0: float,
     y0: float,
     size: float,
@@ -296,11 +301,7 @@ def _scan_pairs(
     where: np.ndarray,
     first: np.ndarray,
     count: np.ndarray,
-    ax: np.ndarray,
-    ay: np.ndarray,
-    bx: np.ndarray,
-    by: np.ndarray,
-    length: np.ndarray,
+    ends: np.ndarray,
     near: float,
     bound_limit: float,
     limit: float,
@@ -313,11 +314,12 @@ def _scan_pairs(
 ) -> tuple[int, int]:
     """:func:`neighbour_pairs` of scratches ``lo`` to ``hi`` - 1 (compiled by numba).
 
-    Pieces (``px`` .. ``owner``) are sorted by grid cell, ``start`` holds each cell's
-    first piece and ``where`` each piece's place in that order; ``ax`` .. ``by`` are the
-    scratches' endpoints. NaN fails every test, as in numpy. The pairs go to ``out_i``
-    and ``out_j`` from ``used`` on, sorted; it stops before a scratch whose candidates
-    may not fit.
+    ``pieces`` rows (centre x, y, unit direction x, y, half length) and ``owner`` are
+    sorted by direction slice, then grid cell; ``start`` holds the first piece of each
+    (slice, cell) and ``where`` each piece's place in that order. ``angle`` is each
+    scratch's direction in [0, pi], ``ends`` rows its endpoints (x0, y0, x1, y1) and
+    length. NaN fails every test, as in numpy. The pairs go to ``out_i`` and ``out_j``
+    from ``used`` on, sorted; it stops before a scratch whose candidates may not fit.
 
     Returns:
         The pairs in ``out_i`` and ``out_j`` now, and the scratch it stopped before.
@@ -424,13 +426,27 @@ def _scan_pairs(
     m = used
     # the largest sine between pieces that pass the angle bound
     sin_max = math.sqrt(1.0 - bound_limit * bound_limit) if 0.0 < bound_limit < 1.0 else 1.0
+    # the angles (slices) a piece passing the angle bound can have, around a piece's own
+    reach_angle = (math.acos(bound_limit) + 1e-6) * (slices / math.pi)
+    some_slices = 0.0 < bound_limit < 1.0 and 2.0 * reach_angle + 1.0 < slices
+    cells_total = nx * ny
     pad = near - reach
     for i in range(lo, hi):
         k = 0
         for q in range(first[i], first[i] + count[i]):
             a = where[q]
-            xa, ya, uxa, uya, ha = px[a], py[a], ux[a], uy[a], half[a]
+            xa, ya, uxa, uya, ha = (
+                pieces[a, 0],
+                pieces[a, 1],
+                pieces[a, 2],
+                pieces[a, 3],
+                pieces[a, 4],
+            )
+            s0, s1 = 0, slices - 1
             if abs(uxa * uxa + uya * uya - 1.0) < 1e-9:
+                if some_slices:
+                    s0 = int(math.floor(angle[i] * (slices / math.pi) - reach_angle))
+                    s1 = int(math.floor(angle[i] * (slices / math.pi) + reach_angle))
                 # the separating-axis bounds at their widest: along a, and across it
                 along = ha + longest + near + pad
                 across = near + longest * sin_max + pad
@@ -452,41 +468,45 @@ def _scan_pairs(
                     if not left <= right:
                         continue
                     cx0, cx1 = cells(left, right, x0, nx)
-                for c in range(cx0 + nx * cy, cx1 + 1 + nx * cy):
-                    # a cell's pieces come in scratch order: the last ones are of j > i
-                    for b in range(start[c + 1] - 1, start[c] - 1, -1):
-                        j = owner[b]
-                        if j <= i:
-                            break
-                        if seen[j] == i:
-                            continue
-                        uxb, uyb, hb = ux[b], uy[b], half[b]
-                        cos = abs(uxa * uxb + uya * uyb)
-                        if not cos >= bound_limit:
-                            continue
-                        dx = px[b] - xa
-                        dy = py[b] - ya
-                        sin = abs(uxa * uyb - uya * uxb)
-                        if (
-                            abs(uxa * dy - uya * dx) - hb * sin < near
-                            and abs(uxb * dy - uyb * dx) - ha * sin < near
-                            and abs(uxa * dx + uya * dy) - ha - hb * cos < near
-                            and abs(uxb * dx + uyb * dy) - hb - ha * cos < near
-                        ):
-                            seen[j] = i
-                            found[k] = j
-                            k += 1
+                for sl in range(s0, s1 + 1):
+                    row = (sl + slices) % slices * cells_total + nx * cy
+                    for c in range(row + cx0, row + cx1 + 1):
+                        # a cell's pieces come in scratch order: the last ones are of j > i
+                        for b in range(start[c + 1] - 1, start[c] - 1, -1):
+                            j = owner[b]
+                            if j <= i:
+                                break
+                            if seen[j] == i:
+                                continue
+                            uxb, uyb, hb = pieces[b, 2], pieces[b, 3], pieces[b, 4]
+                            cos = abs(uxa * uxb + uya * uyb)
+                            if not cos >= bound_limit:
+                                continue
+                            dx = pieces[b, 0] - xa
+                            dy = pieces[b, 1] - ya
+                            sin = abs(uxa * uyb - uya * uxb)
+                            if (
+                                abs(uxa * dy - uya * dx) - hb * sin < near
+                                and abs(uxb * dy - uyb * dx) - ha * sin < near
+                                and abs(uxa * dx + uya * dy) - ha - hb * cos < near
+                                and abs(uxb * dx + uyb * dy) - hb - ha * cos < near
+                            ):
+                                seen[j] = i
+                                found[k] = j
+                                k += 1
         if k == 0:
             continue
         if m + k > len(out_i):
             return m, i  # the next call looks around scratch i again
         js = sort_below_n(found, spare, counts, k, digits)
-        dxi = bx[i] - ax[i]
-        dyi = by[i] - ay[i]
+        iax, iay, ibx, iby, ilen = ends[i, 0], ends[i, 1], ends[i, 2], ends[i, 3], ends[i, 4]
+        dxi = ibx - iax
+        dyi = iby - iay
         for j in js:
-            dxj = bx[j] - ax[j]
-            dyj = by[j] - ay[j]
-            den = length[i] * length[j]
+            jax, jay, jbx, jby, jlen = ends[j, 0], ends[j, 1], ends[j, 2], ends[j, 3], ends[j, 4]
+            dxj = jbx - jax
+            dyj = jby - jay
+            den = ilen * jlen
             if den < 1e-300:
                 den = 1e-300
             if not abs(dxi * dxj + dyi * dyj) / den >= limit:
@@ -495,22 +515,22 @@ def _scan_pairs(
             # correctly rounded), so one root decides as the four of numpy's
             close = lesser(
                 lesser(
-                    point_segment_squared(ax[i], ay[i], ax[j], ay[j], bx[j], by[j]),
-                    point_segment_squared(bx[i], by[i], ax[j], ay[j], bx[j], by[j]),
+                    point_segment_squared(iax, iay, jax, jay, jbx, jby),
+                    point_segment_squared(ibx, iby, jax, jay, jbx, jby),
                 ),
                 lesser(
-                    point_segment_squared(ax[j], ay[j], ax[i], ay[i], bx[i], by[i]),
-                    point_segment_squared(bx[j], by[j], ax[i], ay[i], bx[i], by[i]),
+                    point_segment_squared(jax, jay, iax, iay, ibx, iby),
+                    point_segment_squared(jbx, jby, iax, iay, ibx, iby),
                 ),
             )
             if not math.sqrt(close) < reach and not (
                 opposite(
-                    sides(ax[i], ay[i], bx[i], by[i], ax[j], ay[j]),
-                    sides(ax[i], ay[i], bx[i], by[i], bx[j], by[j]),
+                    sides(iax, iay, ibx, iby, jax, jay),
+                    sides(iax, iay, ibx, iby, jbx, jby),
                 )
                 and opposite(
-                    sides(ax[j], ay[j], bx[j], by[j], ax[i], ay[i]),
-                    sides(ax[j], ay[j], bx[j], by[j], bx[i], by[i]),
+                    sides(jax, jay, jbx, jby, iax, iay),
+                    sides(jax, jay, jbx, jby, ibx, iby),
                 )
             ):
                 continue  # neither close nor crossing
