@@ -488,3 +488,21 @@ def test_ctrl_c_during_the_lift_stops_it_where_it_is(tmp_path):
     assert not any(e["ev"] == "alarm" for e in sim.record)
     stop = read_journal(tmp_path / "j.jsonl")[-1]
     assert stop["ev"] == "stop" and stop["lift"]["result"] == "interrupted"
+
+
+def test_work_position_reports_are_placed_by_the_reports_own_offset(tmp_path):
+    """With $10=0 GRBL reports WPos; after the reset only a report's own WCO turns it into a
+    machine position (the offset from before may be gone with G92)."""
+    job = tmp_path / "job.gcode"
+    z_job(job)
+    prog = load_program(job)
+    stop = segment_index(prog, 20)
+    exc, _, sim = run(tmp_path, prog, "time_scale=0.2&$10=0&wco=5,7,-10", stop_at=stop)
+    assert isinstance(exc, StreamStopped)
+    assert_raised_z_only(sim, 2.0, -8.0, -0.05)
+    # a build without the WCO field: the machine position after the reset is unknown
+    exc, messages, sim = run(
+        tmp_path, prog, "time_scale=0.2&$10=0&wco=5,7,-10&wco_field=0", stop_at=stop
+    )
+    assert "the tool was NOT raised (the status reports after the reset gave no machine" in str(exc)
+    assert after_reset(sim, "rx") == [] and sim.mpos[2] == pytest.approx(-10.05)

@@ -297,7 +297,7 @@ class StreamOptions:
             that ended in a soft reset of a machine that stood still, once the controller
             is Idle with its position known; never after an alarm, a lost link or with
             the safety door open (see :meth:`Streamer._lift`). Off by default: a bare
-            Streamer only holds and resets; the stream command turns it on.
+            Streamer only holds and resets.
         profile: The job's machine profile, for the lift: its travel height
             ``z.safe_mm`` (else the highest Z of the file's own moves), the envelope's Z
             top, and for a servo scribe the up command (``tool_control.off``).
@@ -1338,8 +1338,8 @@ class Streamer:
         in a cycle, a jog, homing or a hold still decelerating), never in Alarm (the
         sender never unlocks it), with the safety door open, or without a banner. A Z tool
         goes up to the travel height by a rapid in machine coordinates (``G53``, placed
-        with the work offset the job ran under: the reset may have cleared G92 or a
-        startup line chosen another system), only up, never above the profile's
+        with the work offset the job ran under: the reset may have cleared G92, a
+        startup line may have chosen another system), only up, never above the profile's
         envelope nor, with soft limits on, machine Z 0. A servo scribe gets the profile's
         up command, unless it is M5, which the reset has just done. The sender waits
         for Idle after it; a failure is told and nothing is tried again. A Ctrl-C during
