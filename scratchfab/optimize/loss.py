@@ -220,9 +220,12 @@ def neighbour_pairs(
     where = np.empty_like(order)
     where[order] = np.arange(len(order))
     start = np.searchsorted(key[order], np.arange(slices * cells + 1)).astype(np.int64)
-    # one row a piece (centre, direction, half length) and a scratch (ends, length)
-    pieces = np.stack([*centre[order].T, *unit[owner[order]].T, half[order]], axis=1)
+    # one row a scratch (ends, length) and a piece (centre, direction, half length, and
+    # its scratch's row, for the exact tests beside the bounds)
     ends = np.stack([*p0.T, *p1.T, length], axis=1)
+    pieces = np.concatenate(
+        [centre[order], unit[owner[order]], half[order, None], ends[owner[order]]], axis=1
+    )
     scan = _compiled_scan()
     # pairs go to a buffer, copied out whenever it may not hold the next scratch's pairs
     # (fewer than n); int32 while the indices fit
@@ -415,8 +418,34 @@ def _scan_pairs(
     def opposite(a: float, b: float) -> bool:
         return (a > 0.0 and b < 0.0) or (a < 0.0 and b > 0.0)
 
+    def exact(e: np.ndarray, f: np.ndarray) -> bool:
+        # the parallel limit and the segment distance of scratches e and f (rows of ends)
+        iax, iay, ibx, iby, ilen = e[0], e[1], e[2], e[3], e[4]
+        jax, jay, jbx, jby, jlen = f[0], f[1], f[2], f[3], f[4]
+        den = ilen * jlen
+        if den < 1e-300:
+            den = 1e-300
+        if not abs((ibx - iax) * (jbx - jax) + (iby - iay) * (jby - jay)) / den >= limit:
+            return False
+        # squared distances: their least has the least root (sqrt is monotone and
+        # correctly rounded), so one root decides as the four of numpy's
+        close = lesser(
+            lesser(
+                point_segment_squared(iax, iay, jax, jay, jbx, jby),
+                point_segment_squared(ibx, iby, jax, jay, jbx, jby),
+            ),
+            lesser(
+                point_segment_squared(jax, jay, iax, iay, ibx, iby),
+                point_segment_squared(jbx, jby, iax, iay, ibx, iby),
+            ),
+        )
+        return math.sqrt(close) < reach or (
+            opposite(sides(iax, iay, ibx, iby, jax, jay), sides(iax, iay, ibx, iby, jbx, jby))
+            and opposite(sides(jax, jay, jbx, jby, iax, iay), sides(jax, jay, jbx, jby, ibx, iby))
+        )
+
     n = len(first)
-    seen = np.full(n, -1, np.int64)
+    seen = np.full(n, -1, out_i.dtype)
     found = np.empty(n, np.int64)
     spare = np.empty(n, np.int64)
     counts = np.empty(257, np.int64)
@@ -432,6 +461,7 @@ def _scan_pairs(
     cells_total = nx * ny
     pad = near - reach
     for i in range(lo, hi):
+        i_row = ends[i]
         k = 0
         for q in range(first[i], first[i] + count[i]):
             a = where[q]
@@ -492,48 +522,14 @@ def _scan_pairs(
                                 and abs(uxb * dx + uyb * dy) - hb - ha * cos < near
                             ):
                                 seen[j] = i
-                                found[k] = j
-                                k += 1
+                                if exact(i_row, pieces[b, 5:]):
+                                    found[k] = j
+                                    k += 1
         if k == 0:
             continue
         if m + k > len(out_i):
             return m, i  # the next call looks around scratch i again
-        js = sort_below_n(found, spare, counts, k, digits)
-        iax, iay, ibx, iby, ilen = ends[i, 0], ends[i, 1], ends[i, 2], ends[i, 3], ends[i, 4]
-        dxi = ibx - iax
-        dyi = iby - iay
-        for j in js:
-            jax, jay, jbx, jby, jlen = ends[j, 0], ends[j, 1], ends[j, 2], ends[j, 3], ends[j, 4]
-            dxj = jbx - jax
-            dyj = jby - jay
-            den = ilen * jlen
-            if den < 1e-300:
-                den = 1e-300
-            if not abs(dxi * dxj + dyi * dyj) / den >= limit:
-                continue
-            # squared distances: their least has the least root (sqrt is monotone and
-            # correctly rounded), so one root decides as the four of numpy's
-            close = lesser(
-                lesser(
-                    point_segment_squared(iax, iay, jax, jay, jbx, jby),
-                    point_segment_squared(ibx, iby, jax, jay, jbx, jby),
-                ),
-                lesser(
-                    point_segment_squared(jax, jay, iax, iay, ibx, iby),
-                    point_segment_squared(jbx, jby, iax, iay, ibx, iby),
-                ),
-            )
-            if not math.sqrt(close) < reach and not (
-                opposite(
-                    sides(iax, iay, ibx, iby, jax, jay),
-                    sides(iax, iay, ibx, iby, jbx, jby),
-                )
-                and opposite(
-                    sides(jax, jay, jbx, jby, iax, iay),
-                    sides(jax, jay, jbx, jby, ibx, iby),
-                )
-            ):
-                continue  # neither close nor crossing
+        for j in sort_below_n(found, spare, counts, k, digits):
             out_i[m] = i
             out_j[m] = j
             m += 1
