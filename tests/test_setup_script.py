@@ -328,17 +328,31 @@ def test_setup_installs_libllvm19_with_apt_or_prints_the_fix(tmp_path, uid, rc):
     assert [c for c in box.calls() if not c.startswith(("python3", "venv-python"))] == apt
 
 
-LOCAL_SEARCH = ROOT / "scratchfab" / "toolpath" / "local_search.py"
+COMPILED = ROOT / "scratchfab" / "compiled.py"
+# a module compiled through compiled.py, beside it
+USER = """
+from compiled import njit
+
+
+@njit()
+def twice(x):
+    return 2 * x
+"""
 
 
 @pytest.mark.parametrize("tmp_folder", ["private", "shared"])
-def test_numba_search_imports_where_numba_cannot_cache_in_its_own_places(tmp_path, tmp_folder):
-    """A read-only install run by a user without a home: no __pycache__, no ~/.cache."""
+def test_numba_compiles_where_it_cannot_cache_in_its_own_places(tmp_path, tmp_folder):
+    """A read-only install run by a user without a home: no __pycache__, no ~/.cache.
+
+    scratchfab.compiled falls back to a private temporary cache folder (or to none where
+    that folder is someone else's), so importing and compiling through it still works.
+    """
     import os
     import sys
 
     (tmp_path / "mod").mkdir()
-    (tmp_path / "mod" / "local_search.py").write_text(LOCAL_SEARCH.read_text())
+    (tmp_path / "mod" / "compiled.py").write_text(COMPILED.read_text())
+    (tmp_path / "mod" / "user.py").write_text(USER)
     # Files where numba wants folders: it can write neither beside the module nor in ~.
     (tmp_path / "mod" / "__pycache__").write_bytes(b"")
     (tmp_path / "home").write_bytes(b"")
@@ -351,9 +365,9 @@ def test_numba_search_imports_where_numba_cannot_cache_in_its_own_places(tmp_pat
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "XDG_"))}
     env.update(HOME=str(tmp_path / "home"), TMPDIR=str(tmp), PYTHONDONTWRITEBYTECODE="1")
     code = (
-        "import os, sys; import numpy as np; sys.path.insert(0, sys.argv[1]); import local_search;"
-        "print(local_search.NUMBA_CACHE, os.environ.get('NUMBA_CACHE_DIR'));"
-        "print(local_search.cut_region(np.array([True, False, True])))"
+        "import os, sys; sys.path.insert(0, sys.argv[1]); import compiled, user;"
+        "print(compiled.NUMBA_CACHE, os.environ.get('NUMBA_CACHE_DIR'));"
+        "print(user.twice(21), user.twice.stats.cache_path)"
     )
     run = subprocess.run(
         [sys.executable, "-c", code, str(tmp_path / "mod")],
@@ -363,11 +377,32 @@ def test_numba_search_imports_where_numba_cannot_cache_in_its_own_places(tmp_pat
         check=False,
     )
     assert run.returncode == 0, run.stderr
-    cached, folder = run.stdout.splitlines()[0].split()
+    (cached, folder), (result, path) = (line.split() for line in run.stdout.splitlines())
+    assert result == "42"
     if tmp_folder == "private":
         assert (cached, folder) == ("True", str(cache))
         assert (cache.stat().st_mode & 0o777) == 0o700
-        assert any(cache.rglob("local_search.cut_region-*.nbi"))
+        assert Path(path).is_relative_to(cache)
+        assert any(cache.rglob("user.twice-*.nbi"))
     else:
-        assert (cached, folder) == ("False", "None")
+        assert (cached, folder, path) == ("False", "None", "None")
         assert not any(cache.iterdir())
+
+
+def test_every_compiled_scan_takes_the_cache_choice_of_scratchfab_compiled():
+    """The tour search, the renderer's pair scans and the merge candidates all compile
+    through scratchfab.compiled: each is cached exactly when it caches."""
+    from scratchfab import compiled
+    from scratchfab.optimize.loss import _compiled_scan
+    from scratchfab.render.pairs import _compiled
+    from scratchfab.toolpath import local_search
+
+    scans = {
+        "local_search.cut_region": local_search.cut_region,
+        "local_search.improve": local_search.improve,
+        "loss._scan_pairs": _compiled_scan(),
+        "pairs._count_pairs": _compiled()[0],
+        "pairs._write_pairs": _compiled()[1],
+    }
+    for name, scan in scans.items():
+        assert (scan.stats.cache_path is not None) == compiled.NUMBA_CACHE, name

@@ -281,12 +281,9 @@ def _grid(points: np.ndarray, size: float) -> _Grid:
 @functools.cache
 def _compiled_scan() -> Any:
     """:func:`_scan_pairs` compiled (numba is imported here: it takes a while to load)."""
-    import numba
+    from scratchfab.compiled import njit
 
-    # importing it points numba's cache to a folder this user may write
-    from scratchfab.toolpath.local_search import NUMBA_CACHE
-
-    return numba.njit(cache=NUMBA_CACHE, nogil=True)(_scan_pairs)
+    return njit(_scan_pairs, nogil=True)
 
 
 def _scan_pairs(

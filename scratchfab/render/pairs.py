@@ -124,13 +124,9 @@ def raster_pairs(
 @functools.cache
 def _compiled() -> tuple[Any, Any]:
     """:func:`_count_pairs` and :func:`_write_pairs` compiled (numba is loaded on first use)."""
-    import numba
+    from scratchfab.compiled import njit
 
-    # importing it points numba's cache to a folder this user may write
-    from scratchfab.toolpath.local_search import NUMBA_CACHE
-
-    compile_ = numba.njit(cache=NUMBA_CACHE, nogil=True)
-    return compile_(_count_pairs), compile_(_write_pairs)
+    return njit(_count_pairs, nogil=True), njit(_write_pairs, nogil=True)
 
 
 def _count_pairs(

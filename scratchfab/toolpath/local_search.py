@@ -30,12 +30,10 @@ move or (on long tours) fewer than one per ``SETTLED_ITEMS_PER_MOVE`` items.
 from __future__ import annotations
 
 import math
-import os
-import stat
-import tempfile
 
-import numba
 import numpy as np
+
+from scratchfab.compiled import njit
 
 # A sweep over the whole tour that finds fewer moves than one per this many items
 # (besides the start item) ends the local search; on tours of up to this many strokes only
@@ -43,55 +41,14 @@ import numpy as np
 SETTLED_ITEMS_PER_MOVE = 1000
 
 
-def _probe() -> None:
-    """Nothing: decorated to ask numba whether it can cache this module's functions."""
-
-
-def _numba_can_cache() -> bool:
-    try:
-        numba.njit(cache=True)(_probe)
-    except RuntimeError:  # "cannot cache function '_probe': no locator available"
-        return False
-    return True
-
-
-def _numba_cache() -> bool:
-    """Whether numba can cache the compiled search, in a private temporary folder if need be.
-
-    numba caches in NUMBA_CACHE_DIR, beside this file or in the user's cache folder; where
-    none is writable (a read-only install run by a user without a home) ``cache=True``
-    fails on import. Compiling takes about 9 s, so such a user's cache goes to
-    ``<tmp>/scratchfab-numba-<uid>``, a folder of theirs alone; failing that, to none.
-    """
-    if _numba_can_cache():
-        return True
-    if os.environ.get("NUMBA_CACHE_DIR") or not hasattr(os, "getuid"):
-        return False
-    folder = os.path.join(tempfile.gettempdir(), f"scratchfab-numba-{os.getuid()}")
-    try:
-        os.makedirs(folder, mode=0o700, exist_ok=True)
-        info = os.lstat(folder)
-    except OSError:
-        return False
-    if not stat.S_ISDIR(info.st_mode) or info.st_uid != os.getuid() or info.st_mode & 0o077:
-        return False  # someone else's: code loaded from it could not be trusted
-    os.environ["NUMBA_CACHE_DIR"] = folder
-    numba.core.config.reload_config()
-    return _numba_can_cache()
-
-
-#: Whether numba caches compiled functions of this package (``cache=NUMBA_CACHE``).
-NUMBA_CACHE = _numba_cache()
-
-
-@numba.njit(cache=NUMBA_CACHE, inline="always")
+@njit(inline="always")
 def _d(pts: np.ndarray, a: int, b: int) -> float:
     dx = pts[a, 0] - pts[b, 0]
     dy = pts[a, 1] - pts[b, 1]
     return math.sqrt(dx * dx + dy * dy)
 
 
-@numba.njit(cache=NUMBA_CACHE, inline="always")
+@njit(inline="always")
 def _note(log: np.ndarray, first: int, count: int) -> None:
     """Record that ``count`` positions from ``first`` on (cyclic) are about to change.
 
@@ -107,7 +64,7 @@ def _note(log: np.ndarray, first: int, count: int) -> None:
     log[0] = n + count
 
 
-@numba.njit(cache=NUMBA_CACHE)
+@njit()
 def _reverse(ent: np.ndarray, pos: np.ndarray, first: int, last: int, log: np.ndarray) -> None:
     """Reverse the cyclic arc first..last (or its complement, whichever is shorter)."""
     m = ent.shape[0]
@@ -127,7 +84,7 @@ def _reverse(ent: np.ndarray, pos: np.ndarray, first: int, last: int, log: np.nd
         pos[ea >> 1] = b
 
 
-@numba.njit(cache=NUMBA_CACHE)
+@njit()
 def _move_chain(
     ent: np.ndarray,
     pos: np.ndarray,
@@ -174,7 +131,7 @@ def _move_chain(
         pos[buf[k] >> 1] = p
 
 
-@numba.njit(cache=NUMBA_CACHE, inline="always")
+@njit(inline="always")
 def _partner(ent: np.ndarray, pos: np.ndarray, e: int) -> int:
     """The endpoint joined to ``e`` by its travel edge."""
     m = ent.shape[0]
@@ -184,7 +141,7 @@ def _partner(ent: np.ndarray, pos: np.ndarray, e: int) -> int:
     return ent[(q + 1) % m]
 
 
-@numba.njit(cache=NUMBA_CACHE, inline="always")
+@njit(inline="always")
 def _place(
     ent: np.ndarray, pos: np.ndarray, e: int, first: np.ndarray, length: np.ndarray, n: int
 ) -> tuple[int, bool]:
@@ -200,7 +157,7 @@ def _place(
     return q, entry
 
 
-@numba.njit(cache=NUMBA_CACHE)
+@njit()
 def _flip(ent: np.ndarray, pos: np.ndarray, x: int, f: int, log: np.ndarray) -> None:
     """Join x to f (both entries or both exits) and their old partners to each other."""
     m = ent.shape[0]
@@ -210,7 +167,7 @@ def _flip(ent: np.ndarray, pos: np.ndarray, x: int, f: int, log: np.ndarray) -> 
     _reverse(ent, pos, first, (first + (qf - qx) % m - 1) % m, log)
 
 
-@numba.njit(cache=NUMBA_CACHE)
+@njit()
 def _chain(
     pts: np.ndarray,
     ent: np.ndarray,
@@ -300,7 +257,7 @@ def _chain(
     return best, best_n
 
 
-@numba.njit(cache=NUMBA_CACHE)
+@njit()
 def _search(
     pts: np.ndarray,
     ent: np.ndarray,
@@ -447,7 +404,7 @@ def _search(
     return moves, total_gain, budget
 
 
-@numba.njit(cache=NUMBA_CACHE)
+@njit()
 def improve(
     pts: np.ndarray,
     ent: np.ndarray,
@@ -571,7 +528,7 @@ def improve(
     return moves
 
 
-@numba.njit(cache=NUMBA_CACHE)
+@njit()
 def cut_region(inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The items of a region's small tour, as tour position ranges [starts, ends].
 
@@ -601,7 +558,7 @@ def cut_region(inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return starts[:w], ends[:w]
 
 
-@numba.njit(cache=NUMBA_CACHE)
+@njit()
 def expand_region(
     ent: np.ndarray, starts: np.ndarray, ends: np.ndarray, sub_ent: np.ndarray
 ) -> np.ndarray:
@@ -626,7 +583,7 @@ def expand_region(
     return out
 
 
-@numba.njit(cache=NUMBA_CACHE)
+@njit()
 def greedy_steps(
     near: np.ndarray, used: np.ndarray, entries: np.ndarray, step: int, cur: int
 ) -> tuple[int, int]:
