@@ -8,6 +8,7 @@ unless the test says otherwise.
 
 from __future__ import annotations
 
+import json
 import re
 from dataclasses import replace
 from pathlib import Path
@@ -15,6 +16,7 @@ from pathlib import Path
 import pytest
 from stream_helpers import FAST, stream_program
 
+from scratchfab.cli import main
 from scratchfab.machine.profile import load_profile, profile_from_mapping
 from scratchfab.machine.sender import (
     Streamer,
@@ -506,3 +508,28 @@ def test_work_position_reports_are_placed_by_the_reports_own_offset(tmp_path):
     )
     assert "the tool was NOT raised (the status reports after the reset gave no machine" in str(exc)
     assert after_reset(sim, "rx") == [] and sim.mpos[2] == pytest.approx(-10.05)
+
+
+@pytest.mark.parametrize("flag", [None, "--no-lift"])
+def test_the_stream_command_lifts_by_default_and_not_with_no_lift(tmp_path, capsys, flag):
+    """`scratchfab stream` turns the lift on (``StreamRequest.lift``); ``--no-lift`` off."""
+    job = tmp_path / "job.gcode"
+    z_job(job)
+    prog = load_program(job)
+    bad = segment_index(prog, 30)
+    rec = tmp_path / "rec.jsonl"
+    url = f"grblsim://?baud=0&time_scale=0.2&error_at={bad + 1}&record={rec}"
+    args = ["stream", str(job), "--port", url, "--yes", "--banner-timeout", "0.5"]
+    with pytest.raises(SystemExit) as exc:
+        main(args + ([flag] if flag else []))
+    assert exc.value.code == 3
+    err = capsys.readouterr().err
+    record = [json.loads(line) for line in rec.read_text().splitlines()]
+    reset = next(e["t"] for e in record if e["ev"] == "reset")
+    moves = [e for e in record if e["ev"] == "exec" and e["t"] > reset]
+    if flag is None:
+        assert "tool raised to Z 2.000 (machine Z 2.000)" in err
+        assert len(moves) == 1 and moves[0]["rapid"] and moves[0]["to"][2] == pytest.approx(2.0)
+    else:
+        assert "raised" not in err
+        assert moves == []

@@ -146,6 +146,15 @@ def _columns() -> int:
     "and rapid heights",
     help="The tool is down below this Z (mm).",
 )
+@click.option(
+    "--lift/--no-lift",
+    default=True,
+    show_default=True,
+    help="After a stop (an error, a stall, Ctrl-C's stop, SIGTERM), once the controller is "
+    "reset and Idle with its position known, raise the tool: Z up to the travel height (the "
+    "machine's z.safe_mm, else the file's highest Z) in machine coordinates (G53), or the "
+    "servo's up command. Never after an alarm, a lost link or with the door open.",
+)
 def stream(
     gcode: Path,
     port: str,
@@ -161,6 +170,7 @@ def stream(
     stall_timeout: float,
     banner_timeout: float,
     z_threshold: float | None,
+    lift: bool,
 ) -> None:
     """Stream GCODE to a GRBL 1.1 controller on PORT, safely.
 
@@ -184,6 +194,7 @@ def stream(
         stall_timeout=stall_timeout,
         banner_timeout=banner_timeout,
         z_threshold=z_threshold,
+        lift=lift,
     )
     bar = _ProgressLine()
 

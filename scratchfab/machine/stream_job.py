@@ -73,6 +73,9 @@ class StreamRequest:
         stall_timeout: Seconds of silence with lines in flight and an Idle controller.
         banner_timeout: Seconds to wait for the banner before a soft reset.
         z_threshold: Tool is down below this Z (None: the profile's, else automatic).
+        lift: After a stop (an error, a stall, Ctrl-C's stop, SIGTERM) that ended in a soft
+            reset of a machine standing still, raise the tool once the controller is Idle
+            (:attr:`StreamOptions.lift`).
     """
 
     gcode: Path
@@ -89,6 +92,7 @@ class StreamRequest:
     stall_timeout: float = 10.0
     banner_timeout: float = 2.5
     z_threshold: float | None = None
+    lift: bool = True
 
 
 @dataclass(frozen=True)
@@ -273,6 +277,8 @@ def _stream_locked(
         rx_buffer=profile.serial.rx_buffer_bytes if profile is not None else None,
         stall_timeout=req.stall_timeout,
         banner_timeout=req.banner_timeout,
+        lift=req.lift,
+        profile=profile,
     )
     baud = req.baud or (profile.serial.baud if profile is not None else 115200)
     ser = open_port(req.port, baud)
