@@ -16,8 +16,8 @@ Cases:
   each part (pixel pairs per view, ``find_pairs`` and the ``raster_pairs`` in it,
   merge-candidate neighbour pairs, the whole refresh with ``--threads`` Dr.Jit threads,
   which finds the merge candidates on a second thread, and on one thread; best of
-  ``--refresh-repeats``), the pair counts, and each one's growth exponent (log-log
-  slope over the counts).
+  ``--refresh-repeats``), the neighbour pairs' peak of numpy memory (tracemalloc), the
+  pair counts, and each one's growth exponent (log-log slope over the counts).
 - ``steps``: where one step's time goes, on the demo (``--steps-pipeline full-size`` for
   ``pipelines/full-size.toml``, sized by ``--steps-count`` and ``--steps-resolution``):
   mean wall seconds of ``LayoutOptimizer.step`` after the first (which compiles), split
@@ -45,6 +45,7 @@ import math
 import sys
 import tempfile
 import time
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -200,7 +201,7 @@ def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int
                 raster_pairs(r.camera, corners, r.pixel_ok)
                 times[f"raster_pairs_{r.view.name}_s"] = time.perf_counter() - t0
             t0 = time.perf_counter()
-            neighbour_pairs(p0, p1, reach, slack)
+            neighbour_pairs(p0, p1, reach, slack, dtype=np.uint32)  # as the refresh calls it
             times["neighbour_pairs_s"] = time.perf_counter() - t0
             t0 = time.perf_counter()
             opt._refresh(opt.ends)
@@ -215,6 +216,11 @@ def bench_refresh(counts: list[int], resolution: int, repeats: int, threads: int
             best = {k: min(v, best.get(k, math.inf)) for k, v in times.items()}
         row: dict[str, float] = {"scratches": count}
         row.update({k: round(v, 3) for k, v in best.items()})
+        # numpy's allocations (tracemalloc sees them; the compiled scan's few are O(n))
+        tracemalloc.start()
+        neighbour_pairs(p0, p1, reach, slack, dtype=np.uint32)
+        row["neighbour_pairs_peak_mb"] = round(tracemalloc.get_traced_memory()[1] / 2**20, 1)
+        tracemalloc.stop()
         for v, n in zip(opt.views, opt.pair_counts(), strict=True):
             row[f"pixel_pairs_{v.name}"] = n
         row["neighbour_pairs"] = opt._neighbour_count

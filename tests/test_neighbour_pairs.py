@@ -183,6 +183,44 @@ def test_pairs_a_rounding_away_from_the_parallel_limit(rng):
     assert 0 < len(got & crossing) < n  # both sides of the limit occur
 
 
+@pytest.mark.parametrize("slices", [1, 2, 5, 6, 7, 11])
+def test_direction_slices_change_nothing(rng, monkeypatch, slices):
+    """Pairs with one scratch on a slice boundary (0 = pi among them) and turned by the
+    parallel limit, and random layouts: any number of slices gives brute force's pairs."""
+    import scratchfab.optimize.loss as loss
+
+    monkeypatch.setattr(loss, "NEIGHBOUR_DIRECTIONS", slices)
+    scan = loss._compiled_scan()
+    used = []
+
+    def scan_and_note(*args: object) -> object:
+        used.append(args[6])  # the slices it scans with
+        return scan(*args)
+
+    monkeypatch.setattr(loss, "_compiled_scan", lambda: scan_and_note)
+    n = 300
+    base = rng.uniform(0, 10, (n, 2))
+    slack = 0.05
+    turn = rng.choice([-1, 1], n) * (PARALLEL_LIMIT + slack + rng.uniform(-2e-15, 2e-15, n))
+    # the first or the second (turned) of each pair on a boundary, give or take an ulp or 1e-7
+    edges = np.arange(slices + 1) * np.pi / slices
+    a = rng.choice(edges, n) - np.where(np.arange(n) % 2, turn, 0.0)
+    a += rng.choice([0.0, -1e-15, 1e-15, -1e-7, 1e-7], n)
+    u = np.stack([np.cos(a), np.sin(a)], 1)
+    v = np.stack([np.cos(a + turn), np.sin(a + turn)], 1)
+    p0 = np.concatenate([base, base + 0.1 * u])
+    p1 = np.concatenate([base + 3 * u, base + 0.1 * u + 3 * v])
+    got = check(p0, p1, 0.4, slack)
+    assert set(used) == {slices}
+    crossing = {(k, k + n) for k in range(n)}
+    assert 0 < len(got & crossing) < n  # both sides of the limit occur
+    # random directions and lengths, a few points among them, narrow and wide limits
+    q0, q1 = random_layout(rng, 800, 30.0, 8.0)
+    q1[::50] = q0[::50]
+    for slack in (0.0, 0.5, 1.2):
+        assert len(check(q0, q1, 1.0, slack)) > len(q0)
+
+
 @pytest.mark.parametrize(
     ("n", "size", "longest", "reach", "slack", "spacing"),
     [
