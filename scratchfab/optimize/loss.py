@@ -227,27 +227,29 @@ def neighbour_pairs(
         [centre[order], unit[owner[order]], half[order, None], ends[owner[order]]], axis=1
     )
     scan = _compiled_scan()
-    # pairs go to a buffer, copied out whenever it may not hold the next scratch's pairs
-    # (fewer than n); int32 while the indices fit
+    # of the pairs (i, j), j goes to a buffer (int32 while the indices fit) and ``pairs``
+    # counts each i's; a fresh buffer follows whenever one may not hold the next
+    # scratch's pairs (fewer than n)
     capacity = max(2 * n, NEIGHBOUR_BUFFER_PAIRS)
     index = np.int32 if n < 2**31 else np.int64
-    buffer_i, buffer_j = np.empty(capacity, index), np.empty(capacity, index)
-    found_i, found_j = [np.zeros(0, index)], [np.zeros(0, index)]
+    buffer = np.empty(capacity, index)
+    found = [np.zeros(0, index)]
+    pairs = np.zeros(n, np.int64)
     step = max(1, int(strip_points))
     lo = used = 0
     while lo < n:
         used, lo = scan(
             pieces, owner[order], angle, start, grid.nx, grid.ny, slices, grid.x0, grid.y0,
             grid.size, longest, where, first, count, ends, near, limit - 1e-9, limit, reach,
-            lo, min(n, lo + step), buffer_i, buffer_j, used,
+            lo, min(n, lo + step), pairs, buffer, used,
         )  # fmt: skip
         if used + n > capacity or lo == n:
-            found_i.append(buffer_i[:used].copy())
-            found_j.append(buffer_j[:used].copy())
+            found.append(buffer[:used])
+            buffer = np.empty(capacity, index) if lo < n else buffer
             used = 0
     return (
-        np.concatenate(found_i, dtype=dtype, casting="unsafe"),
-        np.concatenate(found_j, dtype=dtype, casting="unsafe"),
+        np.repeat(np.arange(n, dtype=dtype), pairs),
+        np.concatenate(found, dtype=dtype, casting="unsafe"),
     )
 
 
@@ -308,21 +310,23 @@ def _scan_pairs(
     reach: float,
     lo: int,
     hi: int,
-    out_i: np.ndarray,
-    out_j: np.ndarray,
+    pairs: np.ndarray,
+    out: np.ndarray,
     used: int,
 ) -> tuple[int, int]:
     """:func:`neighbour_pairs` of scratches ``lo`` to ``hi`` - 1 (compiled by numba).
 
-    ``pieces`` rows (centre x, y, unit direction x, y, half length) and ``owner`` are
-    sorted by direction slice, then grid cell; ``start`` holds the first piece of each
-    (slice, cell) and ``where`` each piece's place in that order. ``angle`` is each
-    scratch's direction in [0, pi], ``ends`` rows its endpoints (x0, y0, x1, y1) and
-    length. NaN fails every test, as in numpy. The pairs go to ``out_i`` and ``out_j``
-    from ``used`` on, sorted; it stops before a scratch whose candidates may not fit.
+    ``ends`` rows are the scratches' endpoints (x0, y0, x1, y1) and length; ``pieces``
+    rows the pieces' centre (x, y), unit direction (x, y), half length and their
+    scratch's ``ends`` row. ``pieces`` and ``owner`` are sorted by direction slice, then
+    grid cell; ``start`` holds the first piece of each (slice, cell) and ``where`` each
+    piece's place in that order. ``angle`` is each scratch's direction in [0, pi]. NaN
+    fails every test, as in numpy. Of each pair (i, j) found, j goes to ``out`` from
+    ``used`` on, in (i, j) order, and ``pairs[i]`` counts them; it stops before a
+    scratch whose pairs may not fit.
 
     Returns:
-        The pairs in ``out_i`` and ``out_j`` now, and the scratch it stopped before.
+        The entries of ``out`` used now, and the scratch it stopped before.
     """
 
     def cells(lo_x: float, hi_x: float, origin: float, total: int) -> tuple[int, int]:
@@ -415,10 +419,11 @@ def _scan_pairs(
     def opposite(a: float, b: float) -> bool:
         return (a > 0.0 and b < 0.0) or (a < 0.0 and b > 0.0)
 
-    def exact(e: np.ndarray, f: np.ndarray) -> bool:
-        # the parallel limit and the segment distance of scratches e and f (rows of ends)
-        iax, iay, ibx, iby, ilen = e[0], e[1], e[2], e[3], e[4]
-        jax, jay, jbx, jby, jlen = f[0], f[1], f[2], f[3], f[4]
+    def exact(i: int, b: int) -> bool:
+        # the parallel limit and the segment distance of scratch i and piece b's scratch
+        iax, iay, ibx, iby, ilen = ends[i, 0], ends[i, 1], ends[i, 2], ends[i, 3], ends[i, 4]
+        jax, jay, jbx, jby = pieces[b, 5], pieces[b, 6], pieces[b, 7], pieces[b, 8]
+        jlen = pieces[b, 9]
         den = ilen * jlen
         if den < 1e-300:
             den = 1e-300
@@ -442,7 +447,7 @@ def _scan_pairs(
         )
 
     n = len(first)
-    seen = np.full(n, -1, out_i.dtype)
+    seen = np.full(n, -1, out.dtype)
     found = np.empty(n, np.int64)
     spare = np.empty(n, np.int64)
     counts = np.empty(257, np.int64)
@@ -458,7 +463,6 @@ def _scan_pairs(
     cells_total = nx * ny
     pad = near - reach
     for i in range(lo, hi):
-        i_row = ends[i]
         k = 0
         for q in range(first[i], first[i] + count[i]):
             a = where[q]
@@ -496,15 +500,15 @@ def _scan_pairs(
                         continue
                     cx0, cx1 = cells(left, right, x0, nx)
                 for sl in range(s0, s1 + 1):
-                    row = (sl + slices) % slices * cells_total + nx * cy
+                    # slices wrap round at 0 = pi (s0 > -slices, s1 < 2 slices)
+                    wrapped = sl + slices if sl < 0 else sl - slices if sl >= slices else sl
+                    row = wrapped * cells_total + nx * cy
                     for c in range(row + cx0, row + cx1 + 1):
                         # a cell's pieces come in scratch order: the last ones are of j > i
                         for b in range(start[c + 1] - 1, start[c] - 1, -1):
                             j = owner[b]
                             if j <= i:
                                 break
-                            if seen[j] == i:
-                                continue
                             uxb, uyb, hb = pieces[b, 2], pieces[b, 3], pieces[b, 4]
                             cos = abs(uxa * uxb + uya * uyb)
                             if not cos >= bound_limit:
@@ -517,17 +521,17 @@ def _scan_pairs(
                                 and abs(uxb * dy - uyb * dx) - ha * sin < near
                                 and abs(uxa * dx + uya * dy) - ha - hb * cos < near
                                 and abs(uxb * dx + uyb * dy) - hb - ha * cos < near
+                                and seen[j] != i
                             ):
                                 seen[j] = i
-                                if exact(i_row, pieces[b, 5:]):
+                                if exact(i, b):
                                     found[k] = j
                                     k += 1
         if k == 0:
             continue
-        if m + k > len(out_i):
+        if m + k > len(out):
             return m, i  # the next call looks around scratch i again
-        for j in sort_below_n(found, spare, counts, k, digits):
-            out_i[m] = i
-            out_j[m] = j
-            m += 1
+        out[m : m + k] = sort_below_n(found, spare, counts, k, digits)
+        pairs[i] = k
+        m += k
     return m, hi
