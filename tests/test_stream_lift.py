@@ -282,10 +282,54 @@ def test_soft_limits_cap_the_lift_at_machine_z_0(tmp_path):
     )  # fmt: skip
     assert isinstance(exc, StreamStopped)
     assert (
-        "raising the tool to Z 1.000 (machine Z 0.000), capped at machine Z 0, the top of "
+        "raising the tool to Z 1.000 (machine Z 0.000), capped at machine Z 0.000, the top of "
         "GRBL's soft-limit travel"
     ) in messages
     assert_raised_z_only(sim, 1.0, 0.0, -2.0)
+
+
+def test_with_hard_limits_the_lift_stays_the_pull_off_below_the_z_switch(tmp_path):
+    """Homing leaves Grbl 1.1h's Z switch at machine Z 0 and pulls off by $27: with hard
+    limits on, a rapid to Z 0 can trip it (ALARM:1, position lost), and grblHAL's soft
+    limits end at -$27 there. The lift stops at machine Z -$27 (1.5 mm here)."""
+    profile = _profile(
+        "grbl-3018-diamond",
+        envelope={"coordinates": "work", "z_mm": [-40.0, 5.0]},
+        z={"safe_mm": 3.0, "engrave_mm": -2.0},
+    )
+    job = tmp_path / "job.gcode"
+    z_job(job, travel=0.5, depth=-2.0, x0=-70.0, y0=-10.0)
+    prog = load_program(job)
+    exc, messages, sim = run(
+        tmp_path, prog, "time_scale=0.2&soft_limits=1&homed=1&wco=0,0,-3&$21=1&$27=1.5",
+        replace(LIFT, profile=profile), stop_at=segment_index(prog, -50),
+    )  # fmt: skip
+    assert isinstance(exc, StreamStopped)
+    assert (
+        "raising the tool to Z 1.500 (machine Z -1.500), capped at machine Z -1.500, the "
+        "homing pull-off ($27) below the Z limit switch (hard limits are on, $21=1)"
+    ) in messages
+    assert [e["text"] for e in after_reset(sim, "rx")] == ["G21G53G0Z-1.5", "G4P0"]
+    assert_raised_z_only(sim, 1.5, -1.5, -2.0)
+
+
+def test_a_file_that_changes_its_work_offset_is_not_raised(tmp_path):
+    """Past a G92 in the file the sender cannot tell which frame its travel height is in
+    (a build without the WCO field never says): the lift is refused, and says why."""
+    job = tmp_path / "job.gcode"
+    z_job(job)
+    lines = job.read_text().splitlines()
+    lines.insert(2, "G92 Z2")  # after the first G0 Z2: the work zero moves down 2 mm
+    job.write_text("\n".join(lines) + "\n")
+    prog = load_program(job)
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.2", stop_at=segment_index(prog, 20))
+    assert isinstance(exc, StreamStopped)
+    assert (
+        "the tool was NOT raised (line 3 (G92 changes the work coordinates) leaves the job's "
+        "coordinate frame unknown; jog Z up)"
+    ) in str(exc)
+    assert after_reset(sim, "rx") == [] and after_reset(sim, "exec") == []
+    assert lift_record(tmp_path / "j.jsonl")["result"] == "skipped"
 
 
 # --------------------------------------------------------------------------- never

@@ -51,8 +51,8 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
   ``G21G53G0Z..`` to the travel height (the profile's ``z.safe_mm``, else the highest Z of
   the file's own moves) placed in machine coordinates with the work offset the job ran
   under (the reset clears G92; a startup line may select another system), only up, at
-  most the profile's envelope top and, with soft limits on, machine Z 0; then ``G4P0`` and
-  Idle. A servo scribe gets the profile's up command, unless that is M5, which the reset
+  most the profile's envelope top and, with soft limits on, machine Z 0 (``-$27`` with hard
+  limits on: the Z switch trips at 0); then ``G4P0`` and Idle. A servo scribe gets the profile's up command, unless that is M5, which the reset
   just did. Never after an alarm (GRBL is locked; the sender never sends ``$X``), a reset
   of the controller's own, a lost link, a machine that did not report standing still
   before the reset, or with the safety door open: the stop's message says why instead.
@@ -1340,10 +1340,11 @@ class Streamer:
         goes up to the travel height by a rapid in machine coordinates (``G53``, placed
         with the work offset the job ran under: the reset may have cleared G92, a
         startup line may have chosen another system), only up, never above the profile's
-        envelope nor, with soft limits on, machine Z 0. A servo scribe gets the profile's
-        up command, unless it is M5, which the reset has just done. The sender waits
-        for Idle after it; a failure is told and nothing is tried again. A Ctrl-C during
-        the lift holds and resets the machine where it is.
+        envelope nor, with soft limits on, machine Z 0 (``-$27`` with hard limits on:
+        :func:`_soft_limit_top`). A servo scribe gets the profile's up command, unless
+        it is M5, which the reset has just done. The sender waits for Idle after it; a
+        failure is told and nothing is tried again. A Ctrl-C during the lift holds and
+        resets the machine where it is.
 
         Returns:
             What became of the tool, or None with the lift off.
@@ -1473,8 +1474,9 @@ class Streamer:
                 z, capped = top, f", capped at the envelope's top Z {top:.3f}"
         # floor to the digits sent: never above the height asked for
         mz = math.floor((z + frame[2]) * 1000.0 + 1e-6) / 1000.0
-        if self.info.settings.get(20) and mz > 0.0:
-            mz, capped = 0.0, ", capped at machine Z 0, the top of GRBL's soft-limit travel"
+        limit = _soft_limit_top(self.info.settings)
+        if limit is not None and mz > limit[0]:
+            mz, capped = limit
             z = mz - frame[2]
         now = status.mpos
         if now is None:
@@ -1490,7 +1492,7 @@ class Streamer:
         if now[2] >= mz - 0.001:
             self._tell(
                 f"the tool is at machine Z {now[2]:.3f}, already at or above the travel "
-                f"height Z {z:.3f} (machine Z {mz:.3f}): not moved"
+                f"height Z {z:.3f} (machine Z {mz:.3f}){capped}: not moved"
             )
             return _Lifted("; the tool was already up", {"result": "up", **record})
         self._tell(f"raising the tool to Z {z:.3f} (machine Z {mz:.3f}){capped}")
@@ -1617,6 +1619,27 @@ class Streamer:
         if reported and math.dist(wpos, _xyz(blocks[reported[-1]].modal, wpos)) < 0.01:
             return reported[-1]
         return surely
+
+
+def _soft_limit_top(settings: dict[int, float]) -> tuple[float, str] | None:
+    """The highest machine Z a lift may go to under soft limits, and the clause saying so.
+
+    None with soft limits off (``$20=0``). Grbl 1.1h's soft limits allow up to machine Z 0,
+    which with hard limits on (``$21=1``) is where homing found the Z switch (it then
+    pulls off by ``$27``), so a move there can trip it: ``ALARM:1``, position lost; grblHAL
+    with hard limits on puts its soft-limit top at ``-$27`` itself. With ``$21=1`` the
+    top is therefore the pull-off position ``-$27`` (GRBL's default 1 mm where unknown).
+    """
+    if not settings.get(20):
+        return None
+    if not settings.get(21):
+        return 0.0, ", capped at machine Z 0.000, the top of GRBL's soft-limit travel"
+    pulloff = max(0.0, settings.get(27, 1.0))
+    top = math.floor(-pulloff * 1000.0 + 1e-6) / 1000.0
+    return top, (
+        f", capped at machine Z {top:.3f}, the homing pull-off ($27) below the Z limit "
+        "switch (hard limits are on, $21=1)"
+    )
 
 
 def _clause(lifted: _Lifted | None) -> str:
