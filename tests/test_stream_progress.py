@@ -38,6 +38,13 @@ TABLE = [
         59.6,
         " 99.9% 999/1000 lines  elapsed 01:00  ETA 00:00  Hold:0 X-12.35 Y100.00 Z0.00",
     ),
+    # cut, not rounded: 99.99 % is not done, 2/3 is not yet 66.7 %
+    (
+        (79999, 80000, 0.8, "Run", (0.0, 0.0, -0.05), False),
+        3600.0,
+        " 99.9% 79999/80000 lines  elapsed 1:00:00  ETA 00:01  Run X0.00 Y0.00 Z-0.05",
+    ),
+    ((2, 3, 1.0, "Run", None, False), 2.0, " 66.6% 2/3 lines  elapsed 00:02  ETA 00:01  Run"),
     (
         (5, 7, 7322.0, "Door:1", (0.0, 0.0, 2.0), False),
         3599.6,
