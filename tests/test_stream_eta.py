@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -387,3 +388,38 @@ def test_eta_takes_the_profiles_junction_deviation_where_grbl_does_not_report_it
     done = sum(b.seconds for b in program.blocks[: first.acked])
     assert first.eta_s + done == pytest.approx(remaining[0], rel=2e-3)
     assert abs(first.eta_s + done - remaining[1]) > 0.02 * remaining[1]  # default $11: far off
+
+
+def test_a_resumed_streams_progress_starts_at_its_resume_line(tmp_path):
+    """Resumed at a stroke k: the first report (sent before anything is acknowledged, while
+    the preamble travels back) already counts the k lines before as done and gives the time
+    of the rest, as the reports after it do; not 0 lines and the whole job's time."""
+    from stream_helpers import FAST
+    from test_stream_lift import z_job
+
+    from scratchfab.machine.sender import Streamer, open_port
+    from scratchfab.machine.sender_journal import Journal
+    from scratchfab.machine.sender_program import resume_preamble
+
+    job = tmp_path / "job.gcode"
+    z_job(job, strokes=3)
+    prog = load_program(job)
+    start = prog.strokes[2][0]
+    rest = sum(b.seconds for b in prog.blocks[start:])
+    reports = []
+    port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
+    try:
+        streamer = Streamer(port, FAST, on_progress=reports.append)
+        streamer.connect()
+        # answers now come 0.2 s after their line: the first report precedes every ack
+        port.sim.options = replace(port.sim.options, latency=0.1)
+        journal = Journal(tmp_path / "j.jsonl").open()
+        streamer.stream(prog, journal, start, resume_preamble(prog, start), resume=True)
+        journal.close()
+    finally:
+        port.close()
+    assert reports[-1].final and reports[-1].acked == len(prog.blocks)
+    assert all(r.acked >= start for r in reports), [r.acked for r in reports[:3]]
+    assert reports[0].acked == start  # nothing acknowledged yet at the first report
+    assert reports[0].eta_s == pytest.approx(rest)
+    assert all(r.eta_s <= rest + 1e-9 for r in reports)

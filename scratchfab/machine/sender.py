@@ -894,7 +894,10 @@ class Streamer:
         simple = self.options.protocol == "simple"
         self._inflight: collections.deque[tuple[_Item, int]] = collections.deque()
         self._inflight_bytes = 0
-        self._acked_through = -1  # highest block index acknowledged (acks come in order)
+        # highest block index acknowledged (acks come in order); a resumed job's first
+        # report counts the blocks before its start as done, as its later ones do
+        first = next((it.block.index for it in items if it.block is not None), len(program.blocks))
+        self._acked_through = first - 1
         self._acked_items = 0
         self._last_answer = time.monotonic()
         self._last_ack_time = 0.0
