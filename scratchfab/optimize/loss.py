@@ -51,10 +51,11 @@ NEIGHBOUR_STRIP_POINTS = 4096
 #: Grid cells of :func:`neighbour_pairs`, relative to the longest half piece plus the
 #: reach (a piece looks this far and its own half length around itself).
 NEIGHBOUR_CELL = 0.35
-#: Direction classes of :func:`neighbour_pairs` (equal slices of [0, pi)): a piece looks
-#: only at those the parallel limit lets it pair with.
+#: Direction slices of :func:`neighbour_pairs` (equal slices of [0, pi)): a piece looks
+#: only into those the parallel limit lets it pair with.
 NEIGHBOUR_DIRECTIONS = 6
-#: Pairs :func:`neighbour_pairs` buffers before it copies them out (at least 2 per scratch).
+#: Pairs :func:`neighbour_pairs` buffers before it starts a fresh buffer (at least 2 per
+#: scratch).
 NEIGHBOUR_BUFFER_PAIRS = 1 << 20
 #: Slack (mm) of :func:`neighbour_pairs`' bounds, far above float64 rounding.
 NEIGHBOUR_SLACK_MM = 1e-6
@@ -182,8 +183,8 @@ def neighbour_pairs(
     the float64 operations of the brute-force form (:func:`segment_distance_np`) in the
     same order: the parallel limit PARALLEL_LIMIT + ``angle_slack`` (weights below 0.05
     past it) and the segment distance. The scan is compiled (numba, loaded on first
-    use), ``strip_points`` scratches a call; it finds the pairs in (i, j) order into a
-    buffer of NEIGHBOUR_BUFFER_PAIRS, so memory follows the pairs found.
+    use), ``strip_points`` scratches a call; it finds the pairs in (i, j) order into
+    buffers of NEIGHBOUR_BUFFER_PAIRS, so memory follows the pairs found.
 
     Returns:
         (i, j), sorted by (i, j), of integer type ``dtype`` (which must hold n - 1).
@@ -212,7 +213,7 @@ def neighbour_pairs(
     cells = grid.nx * grid.ny
     # no more direction slices than keep the cell table within 8 entries a piece
     slices = max(1, min(NEIGHBOUR_DIRECTIONS, (8 * len(owner) + 64) // cells))
-    # direction in [0, pi] (NaN for no direction: slice 0, never a candidate)
+    # direction in [0, pi]; NaN (ends not finite) goes to slice 0 and fails every test
     angle = np.mod(np.arctan2(unit[:, 1], unit[:, 0]), math.pi)
     direction = np.clip(np.nan_to_num(angle * (slices / math.pi)), 0, slices - 1).astype(np.int64)
     key = direction[owner] * cells + grid.cell
@@ -466,13 +467,8 @@ def _scan_pairs(
         k = 0
         for q in range(first[i], first[i] + count[i]):
             a = where[q]
-            xa, ya, uxa, uya, ha = (
-                pieces[a, 0],
-                pieces[a, 1],
-                pieces[a, 2],
-                pieces[a, 3],
-                pieces[a, 4],
-            )
+            xa, ya, ha = pieces[a, 0], pieces[a, 1], pieces[a, 4]
+            uxa, uya = pieces[a, 2], pieces[a, 3]
             s0, s1 = 0, slices - 1
             if abs(uxa * uxa + uya * uya - 1.0) < 1e-9:
                 if some_slices:
