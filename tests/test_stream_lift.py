@@ -577,3 +577,20 @@ def test_the_stream_command_lifts_by_default_and_not_with_no_lift(tmp_path, caps
     else:
         assert "raised" not in err
         assert moves == []
+
+
+def test_an_inch_file_on_a_controller_reporting_inches_is_raised_in_mm(tmp_path):
+    """A G20 file (travel 0.1 in) and $13=1 (reports, WCO and $# in inches): the height and
+    the offset are both taken in mm, and the lift is sent in mm (G21) in machine coordinates."""
+    job = tmp_path / "job.gcode"
+    lines = ["G20 G90 G17 G94", "G0 Z0.1", "G0 X0 Y0", "G1 Z-0.002 F8"]
+    lines += [f"G1 X{0.04 * k:g} F12" for k in range(1, SEGMENTS + 1)] + ["G0 Z0.1", "M2"]
+    job.write_text("\n".join(lines) + "\n")
+    prog = load_program(job)
+    exc, messages, sim = run(
+        tmp_path, prog, "time_scale=0.2&$13=1&$10=0&wco=5,7,-10", stop_at=segment_index(prog, 0.8)
+    )
+    assert isinstance(exc, StreamStopped)
+    assert "raising the tool to Z 2.540 (machine Z -7.460)" in messages
+    assert [e["text"] for e in after_reset(sim, "rx")] == ["G21G53G0Z-7.46", "G4P0"]
+    assert_raised_z_only(sim, 2.54, -7.46, -0.0508)
