@@ -2884,3 +2884,22 @@ def test_a_reset_while_held_at_the_prompt_is_not_resumed(tmp_path):
     ran = _executed_blocks(sim.record)
     assert stop["ev"] == "stop"
     assert all(i in ran for i in range(stop["executed_through"] + 1) if prog.blocks[i].motion)
+
+
+@pytest.mark.parametrize(
+    ("header", "first"),
+    [
+        ("G21 G90", "G21G90G17G94"),  # our exports: the controller's own system stays
+        ("G21 G90 G54", "G21G90G17G94G54"),  # the file chose G54: the resume does too
+    ],
+)
+def test_resume_preamble_selects_a_work_system_only_where_the_file_did(tmp_path, header, first):
+    """A controller put in G55 by a startup line runs a file that names none in G55; a
+    resume that sent G54 would cut the rest of the board elsewhere."""
+    job = tmp_path / "j.gcode"
+    write_job(job, 3)
+    job.write_text(job.read_text().replace("G21 G90", header, 1))
+    assert header in job.read_text()
+    prog = load_program(job)
+    pre = resume_preamble(prog, prog.strokes[1][0])
+    assert pre[0] == first

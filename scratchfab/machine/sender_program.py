@@ -765,10 +765,25 @@ def spin_up_dwell(program: Program, start: int) -> float:
     return 0.0
 
 
+def _sets_wcs(blocks: Sequence[Block]) -> bool:
+    """Whether ``blocks`` select a work coordinate system: a G54-G59, or M2/M30 (to G54).
+
+    A file that never does runs in whichever the controller is in (a startup line may
+    select G55): a resume must then not select one either.
+    """
+    return any(
+        (letter == "G" and value in (54, 55, 56, 57, 58, 59))
+        or (letter == "M" and value in (2, 30))
+        for b in blocks
+        for letter, value in block_words(b.text)
+    )
+
+
 def resume_preamble(program: Program, start: int) -> list[str]:
     """Blocks that restore the state the file had before block ``start``, safely.
 
-    Order: mm and absolute (G21 G90, plane, G94, work coordinates); Z up to the highest Z
+    Order: mm and absolute (G21 G90, plane, G94, and the work coordinates where the file
+    selected them); Z up to the highest Z
     the file used so far (a stop may have left the bit in the board: the spindle must not
     start there), or, in a job without Z (a servo), the tool output off (pen up) before any
     move; then spindle/servo and coolant as the file had them, with the spin-up dwell the
@@ -784,7 +799,8 @@ def resume_preamble(program: Program, start: int) -> list[str]:
     zs = [b.modal.z for b in program.blocks[:start] if b.modal.z is not None]
     mode, feed = travel_move(program, start)
     move = mode if mode == "G0" else f"G1F{gcode_number(feed, 4)}"
-    lines = [f"G21G90{before.plane}G94{before.wcs}"]
+    wcs = before.wcs if _sets_wcs(program.blocks[:start]) else ""
+    lines = [f"G21G90{before.plane}G94{wcs}"]
     if zs:
         lines.append(f"{move}Z{gcode_number(max(zs), 4)}")
     else:
