@@ -312,3 +312,49 @@ def test_numba_loads_on_first_use_only():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("offset", [-3e13, 1e14, 1e15])
+def test_far_from_the_origin(rng, offset):
+    """Layouts a long way from the origin: the bounds' slack grows past the rounding of
+    the piece centres (ulps of the coordinates), so none of brute force's pairs is lost."""
+    for reach, slack, longest, size in [(0.3, 0.3, 3.0, 10.0), (0.01, 0.05, 20.0, 1.0)]:
+        p0, p1 = random_layout(rng, 300, size, longest)
+        check(p0 + offset, p1 + offset, reach, slack)
+
+
+def test_ends_not_finite(rng):
+    """A scratch with a NaN or infinite end (or a length past float64) pairs with none, as
+    in brute force; the others keep their pairs and their indices."""
+    p0, p1 = random_layout(rng, 200, 15.0, 4.0)
+    bad = [3, 50, 51, 120, 199]
+    p0[3, 0], p1[50, 1], p0[51], p1[120, 0] = np.nan, np.inf, -np.inf, -np.inf
+    p0[199], p1[199] = [-1e308, 0.0], [1e308, 0.0]  # finite ends, infinite length
+    with np.errstate(invalid="ignore", over="ignore"):
+        got = check(p0, p1, 1.0, 0.3)
+        narrow = neighbour_pairs(p0, p1, 1.0, 0.3, dtype=np.uint32)
+    assert not {k for pair in got for k in pair} & set(bad)
+    ok = np.setdiff1d(np.arange(200), bad)
+    i, j = neighbour_pairs(p0[ok], p1[ok], 1.0, 0.3)
+    assert got == set(zip(ok[i].tolist(), ok[j].tolist(), strict=True))
+    assert narrow[0].dtype == narrow[1].dtype == np.uint32
+    assert set(zip(narrow[0].tolist(), narrow[1].tolist(), strict=True)) == got
+    assert len(check(np.full((4, 2), np.nan), np.zeros((4, 2)), 1.0)) == 0
+
+
+def test_concurrent_calls_on_threads(rng):
+    """The scan runs without the GIL: calls on several threads at once give each its own
+    pairs (no state shared between calls)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    layouts = [random_layout(rng, 1500, 30.0, 6.0) for _ in range(3)]
+    want = [neighbour_pairs(a, b, 0.8, 0.07) for a, b in layouts]
+    with ThreadPoolExecutor(4) as pool:
+        got = list(
+            pool.map(
+                lambda k: neighbour_pairs(*layouts[k % 3], 0.8, 0.07, strip_points=61), range(12)
+            )
+        )
+    for k, (i, j) in enumerate(got):
+        np.testing.assert_array_equal(i, want[k % 3][0])
+        np.testing.assert_array_equal(j, want[k % 3][1])

@@ -57,7 +57,8 @@ NEIGHBOUR_DIRECTIONS = 6
 #: Pairs :func:`neighbour_pairs` buffers before it starts a fresh buffer (at least 2 per
 #: scratch).
 NEIGHBOUR_BUFFER_PAIRS = 1 << 20
-#: Slack (mm) of :func:`neighbour_pairs`' bounds, far above float64 rounding.
+#: Slack (mm) of :func:`neighbour_pairs`' bounds, far above float64 rounding on a board
+#: (past about 70 km from the origin it grows with the coordinates).
 NEIGHBOUR_SLACK_MM = 1e-6
 
 
@@ -198,6 +199,13 @@ def neighbour_pairs(
     p1 = np.asarray(p1, dtype=np.float64)
     d = p1 - p0
     length = np.linalg.norm(d, axis=1)
+    finite = np.isfinite(p0).all(axis=1) & np.isfinite(p1).all(axis=1) & np.isfinite(length)
+    if not finite.all():
+        # NaN fails the exact tests (as in numpy): such a scratch pairs with none, and
+        # the others are scanned under their own indices
+        keep = np.flatnonzero(finite)
+        i, j = neighbour_pairs(p0[keep], p1[keep], reach, angle_slack, spacing, strip_points)
+        return keep[i].astype(dtype), keep[j].astype(dtype)
     count = np.maximum(1, np.ceil(length / max(spacing, reach))).astype(np.int64)
     owner = np.repeat(np.arange(n), count)
     first = np.cumsum(count) - count
@@ -205,15 +213,16 @@ def neighbour_pairs(
     centre = p0[owner] + t[:, None] * d[owner]
     unit = d / np.maximum(length, 1e-300)[:, None]
     half = (length / (2 * count))[owner]
-    # the bounds get a little slack, the exact tests none
-    near = reach + NEIGHBOUR_SLACK_MM
+    # the bounds get a little slack, the exact tests none; far from the origin, more
+    # than the rounding of the piece centres (a few ulps of the coordinates)
+    near = reach + max(NEIGHBOUR_SLACK_MM, 64 * np.finfo(np.float64).eps * _largest(p0, p1))
     limit = math.cos(min(math.pi / 2, PARALLEL_LIMIT + angle_slack))
     longest = float(half.max())
     grid = _grid(centre, NEIGHBOUR_CELL * (longest + near))
     cells = grid.nx * grid.ny
     # no more direction slices than keep the cell table within 8 entries a piece
     slices = max(1, min(NEIGHBOUR_DIRECTIONS, (8 * len(owner) + 64) // cells))
-    # direction in [0, pi]; NaN (ends not finite) goes to slice 0 and fails every test
+    # direction in [0, pi] (the ends are finite here)
     angle = np.mod(np.arctan2(unit[:, 1], unit[:, 0]), math.pi)
     direction = np.clip(np.nan_to_num(angle * (slices / math.pi)), 0, slices - 1).astype(np.int64)
     key = direction[owner] * cells + grid.cell
@@ -252,6 +261,11 @@ def neighbour_pairs(
         np.repeat(np.arange(n, dtype=dtype), pairs),
         np.concatenate(found, dtype=dtype, casting="unsafe"),
     )
+
+
+def _largest(p0: np.ndarray, p1: np.ndarray) -> float:
+    """The largest absolute coordinate of the ends."""
+    return float(max(np.abs(p0).max(), np.abs(p1).max()))
 
 
 @dataclass(frozen=True)
