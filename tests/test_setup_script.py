@@ -406,3 +406,60 @@ def test_every_compiled_scan_takes_the_cache_choice_of_scratchfab_compiled():
     }
     for name, scan in scans.items():
         assert (scan.stats.cache_path is not None) == compiled.NUMBA_CACHE, name
+
+
+@pytest.mark.parametrize("case", ["someone_elses", "a_link", "the_users_own"])
+def test_numba_keeps_out_of_cache_folders_it_cannot_trust(tmp_path, case):
+    """Where numba cannot cache in its own places, scratchfab.compiled does not take:
+
+    - a private-looking <tmp>/scratchfab-numba-<uid> (0700) owned by another user,
+    - a link put there (even to a private folder of this user's),
+    - its own folder in place of a NUMBA_CACHE_DIR the user set (unusable here):
+    it compiles uncached, and nothing is written there.
+    """
+    import os
+    import sys
+
+    (tmp_path / "mod").mkdir()
+    (tmp_path / "mod" / "compiled.py").write_text(COMPILED.read_text())
+    (tmp_path / "mod" / "user.py").write_text(USER)
+    (tmp_path / "mod" / "__pycache__").write_bytes(b"")
+    (tmp_path / "home").write_bytes(b"")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    # the process below takes uid + 1 for its own (files stay the real uid's): the folder
+    # this user makes here is then another user's to it
+    uid = os.getuid() + (case == "someone_elses")
+    cache = tmp / f"scratchfab-numba-{uid}"
+    target = tmp_path / "private"
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "XDG_"))}
+    env.update(HOME=str(tmp_path / "home"), TMPDIR=str(tmp), PYTHONDONTWRITEBYTECODE="1")
+    if case == "someone_elses":
+        cache.mkdir(mode=0o700)
+        target = cache
+    elif case == "a_link":
+        target.mkdir(mode=0o700)
+        cache.symlink_to(target, target_is_directory=True)
+    else:
+        env["NUMBA_CACHE_DIR"] = str(tmp_path / "home" / "numba")  # under a file
+    code = (
+        "import os, sys; uid = int(sys.argv[2]); os.getuid = lambda: uid;"
+        "sys.path.insert(0, sys.argv[1]); import compiled, user;"
+        "print(compiled.NUMBA_CACHE, os.environ.get('NUMBA_CACHE_DIR'));"
+        "print(user.twice(21), user.twice.stats.cache_path)"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / "mod"), str(uid)],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert run.returncode == 0, run.stderr
+    (cached, folder), (result, path) = (line.split() for line in run.stdout.splitlines())
+    assert (cached, result, path) == ("False", "42", "None")
+    assert folder == env.get("NUMBA_CACHE_DIR", "None")
+    if case == "the_users_own":
+        assert not cache.exists()
+    else:
+        assert not any(target.iterdir())
