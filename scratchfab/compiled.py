@@ -55,5 +55,14 @@ NUMBA_CACHE = _numba_cache()
 
 
 def njit(function: Callable[..., Any] | None = None, **options: Any) -> Any:
-    """``numba.njit`` with the package's cache choice: ``njit(f, nogil=True)`` or ``@njit()``."""
-    return numba.njit(function, cache=NUMBA_CACHE, **options)
+    """``numba.njit`` with the package's cache choice: ``njit(f, nogil=True)`` or ``@njit()``.
+
+    A function numba cannot cache where this module can (its own folder not writable, or
+    no source file) is compiled uncached rather than failing its module's import.
+    """
+    if function is None:
+        return lambda f: njit(f, **options)
+    try:
+        return numba.njit(function, cache=NUMBA_CACHE, **options)
+    except RuntimeError:  # "cannot cache function ...: no locator available"
+        return numba.njit(function, cache=False, **options)

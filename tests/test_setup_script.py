@@ -463,3 +463,14 @@ def test_numba_keeps_out_of_cache_folders_it_cannot_trust(tmp_path, case):
         assert not cache.exists()
     else:
         assert not any(target.iterdir())
+
+
+def test_a_function_numba_cannot_cache_is_compiled_uncached():
+    """A function without a cache locator (here: no source file) must not fail its import."""
+    from scratchfab.compiled import njit
+
+    namespace: dict = {}
+    exec("def twice(x):\n    return 2 * x\n", namespace)  # no file: numba cannot cache it
+    assert njit(namespace["twice"])(21) == 42
+    assert njit()(namespace["twice"])(4) == 8
+    assert njit(namespace["twice"], nogil=True)(1.5) == 3.0
