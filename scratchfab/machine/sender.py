@@ -52,10 +52,11 @@ Protocol (``../shared/references/grbl-1.1-facts.md``):
   the file's own moves) placed in machine coordinates with the work offset the job ran
   under (the reset clears G92; a startup line may select another system), only up, at
   most the profile's envelope top and, with soft limits on, machine Z 0 (``-$27`` with hard
-  limits on: the Z switch trips at 0); then ``G4P0`` and Idle. A servo scribe gets the profile's up command, unless that is M5, which the reset
-  just did. Never after an alarm (GRBL is locked; the sender never sends ``$X``), a reset
-  of the controller's own, a lost link, a machine that did not report standing still
-  before the reset, or with the safety door open: the stop's message says why instead.
+  limits on: the Z switch trips at 0); then ``G4P0`` and Idle. A servo scribe gets the
+  profile's up command, unless that is M5, which the reset just did. Never after an
+  alarm (GRBL is locked; the sender never sends ``$X``), a reset of the controller's own,
+  a lost link, a machine that did not report standing still before the reset, or with
+  the safety door open: the stop's message says why instead.
   A failed lift is told and not tried again.
 - Journal: every ``ok`` of a file block is appended and flushed; after a reset the journal
   records which acknowledged blocks actually ran (from the hold position), so ``--resume``
