@@ -4,18 +4,27 @@ from __future__ import annotations
 
 from scratchfab.machine.sender import Streamer, StreamOptions
 from scratchfab.machine.sender_journal import Journal
+from scratchfab.machine.sender_program import resume_preamble
 
 #: Short timeouts for emulator ports (which send a banner's messages with it, at once).
 FAST = StreamOptions(banner_timeout=0.5, banner_settle=0.02, stall_timeout=1.0)
 
 
-def stream_program(port, prog, journal_path, options=FAST, **kwargs):
-    """Connect, stream ``prog`` with a journal at ``journal_path``, return the Streamer."""
+def stream_program(port, prog, journal_path, options=FAST, resume_at=None, **kwargs):
+    """Connect, stream ``prog`` with a journal at ``journal_path``, return the Streamer.
+
+    ``resume_at``: a block index to resume at, as ``stream --resume`` does (the resume
+    preamble, the journal session marked as a continuation); None streams from the top.
+    """
     streamer = Streamer(port, options, **kwargs)
     streamer.connect()
     journal = Journal(journal_path).open()
     try:
-        streamer.stream(prog, journal)
+        if resume_at is None:
+            streamer.stream(prog, journal)
+        else:
+            preamble = resume_preamble(prog, resume_at)
+            streamer.stream(prog, journal, start=resume_at, preamble=preamble, resume=True)
     finally:
         journal.close()
     return streamer

@@ -340,6 +340,47 @@ def twice(x):
 """
 
 
+def _homeless_install(tmp_path):
+    """A copy of scratchfab/compiled.py and a module compiled through it, in tmp_path/mod,
+    where numba can cache neither beside the module nor in ~ (files where it wants
+    folders). Returns the temporary folder the process gets and its environment."""
+    import os
+
+    (tmp_path / "mod").mkdir()
+    (tmp_path / "mod" / "compiled.py").write_text(COMPILED.read_text())
+    (tmp_path / "mod" / "user.py").write_text(USER)
+    (tmp_path / "mod" / "__pycache__").write_bytes(b"")
+    (tmp_path / "home").write_bytes(b"")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "XDG_"))}
+    env.update(HOME=str(tmp_path / "home"), TMPDIR=str(tmp), PYTHONDONTWRITEBYTECODE="1")
+    return tmp, env
+
+
+def _import_compiled(tmp_path, env, uid):
+    """Import the copy in a fresh process that takes ``uid`` for its own; returns its
+    NUMBA_CACHE, NUMBA_CACHE_DIR, twice(21) and twice's cache path, as printed."""
+    import sys
+
+    code = (
+        "import os, sys; uid = int(sys.argv[2]); os.getuid = lambda: uid;"
+        "sys.path.insert(0, sys.argv[1]); import compiled, user;"
+        "print(compiled.NUMBA_CACHE, os.environ.get('NUMBA_CACHE_DIR'));"
+        "print(user.twice(21), user.twice.stats.cache_path)"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / "mod"), str(uid)],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert run.returncode == 0, run.stderr
+    (cached, folder), (result, path) = (line.split() for line in run.stdout.splitlines())
+    return cached, folder, result, path
+
+
 @pytest.mark.parametrize("tmp_folder", ["private", "shared"])
 def test_numba_compiles_where_it_cannot_cache_in_its_own_places(tmp_path, tmp_folder):
     """A read-only install run by a user without a home: no __pycache__, no ~/.cache.
@@ -348,36 +389,13 @@ def test_numba_compiles_where_it_cannot_cache_in_its_own_places(tmp_path, tmp_fo
     that folder is someone else's), so importing and compiling through it still works.
     """
     import os
-    import sys
 
-    (tmp_path / "mod").mkdir()
-    (tmp_path / "mod" / "compiled.py").write_text(COMPILED.read_text())
-    (tmp_path / "mod" / "user.py").write_text(USER)
-    # Files where numba wants folders: it can write neither beside the module nor in ~.
-    (tmp_path / "mod" / "__pycache__").write_bytes(b"")
-    (tmp_path / "home").write_bytes(b"")
-    tmp = tmp_path / "tmp"
-    tmp.mkdir()
+    tmp, env = _homeless_install(tmp_path)
     cache = tmp / f"scratchfab-numba-{os.getuid()}"
     if tmp_folder == "shared":  # made by someone else, or open to all: not to be trusted
         cache.mkdir(mode=0o777)
         cache.chmod(0o777)
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "XDG_"))}
-    env.update(HOME=str(tmp_path / "home"), TMPDIR=str(tmp), PYTHONDONTWRITEBYTECODE="1")
-    code = (
-        "import os, sys; sys.path.insert(0, sys.argv[1]); import compiled, user;"
-        "print(compiled.NUMBA_CACHE, os.environ.get('NUMBA_CACHE_DIR'));"
-        "print(user.twice(21), user.twice.stats.cache_path)"
-    )
-    run = subprocess.run(
-        [sys.executable, "-c", code, str(tmp_path / "mod")],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    assert run.returncode == 0, run.stderr
-    (cached, folder), (result, path) = (line.split() for line in run.stdout.splitlines())
+    cached, folder, result, path = _import_compiled(tmp_path, env, os.getuid())
     assert result == "42"
     if tmp_folder == "private":
         assert (cached, folder) == ("True", str(cache))
@@ -418,22 +436,13 @@ def test_numba_keeps_out_of_cache_folders_it_cannot_trust(tmp_path, case):
     it compiles uncached, and nothing is written there.
     """
     import os
-    import sys
 
-    (tmp_path / "mod").mkdir()
-    (tmp_path / "mod" / "compiled.py").write_text(COMPILED.read_text())
-    (tmp_path / "mod" / "user.py").write_text(USER)
-    (tmp_path / "mod" / "__pycache__").write_bytes(b"")
-    (tmp_path / "home").write_bytes(b"")
-    tmp = tmp_path / "tmp"
-    tmp.mkdir()
+    tmp, env = _homeless_install(tmp_path)
     # the process below takes uid + 1 for its own (files stay the real uid's): the folder
     # this user makes here is then another user's to it
     uid = os.getuid() + (case == "someone_elses")
     cache = tmp / f"scratchfab-numba-{uid}"
     target = tmp_path / "private"
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_", "XDG_"))}
-    env.update(HOME=str(tmp_path / "home"), TMPDIR=str(tmp), PYTHONDONTWRITEBYTECODE="1")
     if case == "someone_elses":
         cache.mkdir(mode=0o700)
         target = cache
@@ -442,21 +451,7 @@ def test_numba_keeps_out_of_cache_folders_it_cannot_trust(tmp_path, case):
         cache.symlink_to(target, target_is_directory=True)
     else:
         env["NUMBA_CACHE_DIR"] = str(tmp_path / "home" / "numba")  # under a file
-    code = (
-        "import os, sys; uid = int(sys.argv[2]); os.getuid = lambda: uid;"
-        "sys.path.insert(0, sys.argv[1]); import compiled, user;"
-        "print(compiled.NUMBA_CACHE, os.environ.get('NUMBA_CACHE_DIR'));"
-        "print(user.twice(21), user.twice.stats.cache_path)"
-    )
-    run = subprocess.run(
-        [sys.executable, "-c", code, str(tmp_path / "mod"), str(uid)],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    assert run.returncode == 0, run.stderr
-    (cached, folder), (result, path) = (line.split() for line in run.stdout.splitlines())
+    cached, folder, result, path = _import_compiled(tmp_path, env, uid)
     assert (cached, result, path) == ("False", "42", "None")
     assert folder == env.get("NUMBA_CACHE_DIR", "None")
     if case == "the_users_own":

@@ -714,11 +714,7 @@ def test_ctrl_c_stop_is_safe_and_resume_completes(tmp_path):
     start = resume_point(prog, done)
     port = open_port("grblsim://?baud=0&time_scale=0.002", 115200)
     try:
-        streamer = Streamer(port, FAST)
-        streamer.connect()
-        j = Journal(journal).open()
-        streamer.stream(prog, j, start=start, preamble=resume_preamble(prog, start), resume=True)
-        j.close()
+        stream_program(port, prog, journal, resume_at=start)
     finally:
         port.close()
     counts = cut_counts([rec1, port.sim.record], cuts)

@@ -25,7 +25,7 @@ from scratchfab.machine.sender import (
     open_port,
 )
 from scratchfab.machine.sender_journal import Journal, done_blocks, read_journal
-from scratchfab.machine.sender_program import load_program, resume_point, resume_preamble
+from scratchfab.machine.sender_program import load_program, resume_point
 
 LIFT = replace(FAST, lift=True)
 SEGMENTS = 60
@@ -265,13 +265,18 @@ def test_a_profile_sets_the_height_not_the_files_highest_z(tmp_path):
     assert_raised_z_only(sim, -27.0, -27.0, -30.2)
 
 
-def test_soft_limits_cap_the_lift_at_machine_z_0(tmp_path):
-    """A travel height above GRBL's travel (machine Z 0 with $20=1) would raise ALARM:2."""
-    profile = _profile(
+def _travel_above_the_machine_top():
+    """The 3018 in work coordinates with a travel height (Z 3) above the machine's top."""
+    return _profile(
         "grbl-3018-diamond",
         envelope={"coordinates": "work", "z_mm": [-40.0, 5.0]},
         z={"safe_mm": 3.0, "engrave_mm": -2.0},
     )
+
+
+def test_soft_limits_cap_the_lift_at_machine_z_0(tmp_path):
+    """A travel height above GRBL's travel (machine Z 0 with $20=1) would raise ALARM:2."""
+    profile = _travel_above_the_machine_top()
     job = tmp_path / "job.gcode"
     # work zero 1 mm below the machine's top: the file travels at machine -0.5
     z_job(job, travel=0.5, depth=-2.0, x0=-70.0, y0=-10.0)
@@ -292,11 +297,7 @@ def test_with_hard_limits_the_lift_stays_the_pull_off_below_the_z_switch(tmp_pat
     """Homing leaves Grbl 1.1h's Z switch at machine Z 0 and pulls off by $27: with hard
     limits on, a rapid to Z 0 can trip it (ALARM:1, position lost), and grblHAL's soft
     limits end at -$27 there. The lift stops at machine Z -$27 (1.5 mm here)."""
-    profile = _profile(
-        "grbl-3018-diamond",
-        envelope={"coordinates": "work", "z_mm": [-40.0, 5.0]},
-        z={"safe_mm": 3.0, "engrave_mm": -2.0},
-    )
+    profile = _travel_above_the_machine_top()
     job = tmp_path / "job.gcode"
     z_job(job, travel=0.5, depth=-2.0, x0=-70.0, y0=-10.0)
     prog = load_program(job)
@@ -438,11 +439,7 @@ def test_resume_after_a_lifted_stop_cuts_every_segment(tmp_path):
     start = resume_point(prog, done)
     port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
     try:
-        streamer = Streamer(port, LIFT)
-        streamer.connect()
-        j = Journal(journal).open()
-        streamer.stream(prog, j, start=start, preamble=resume_preamble(prog, start), resume=True)
-        j.close()
+        stream_program(port, prog, journal, LIFT, resume_at=start)
     finally:
         port.close()
     counts: dict[tuple, int] = {}
