@@ -1175,25 +1175,14 @@ class Streamer:
             if str(exc)
             else (f"sender interrupted ({type(exc).__name__})")
         )
-        wpos = None
         try:
-            with contextlib.suppress(KeyboardInterrupt):
-                self._write(REALTIME_HOLD)
-            try:
-                held = self._wait_held(min(self.options.hold_timeout, 5.0))
-                wpos = held.wpos if held is not None else None
-            except (Exception, KeyboardInterrupt):
-                wpos = None
-            self._write_surely(REALTIME_RESET)
+            held = self._hold_briefly_then_reset()
         except _Fault:
             self._journal_quietly(
                 "lost", reason=reason, executed_through=self._executed_guess(self.status.wpos)
             )
             return
-        try:
-            self._wait_banner(self.options.banner_timeout)
-        except (Exception, KeyboardInterrupt):
-            pass
+        wpos = held.wpos if held is not None else None
         lifted = self._no_lift(f"{reason} cut the stop short; jog Z up")
         self._journal_quietly(
             "stop", reason=reason, executed_through=self._executed_guess(wpos), **_journaled(lifted)
@@ -1570,13 +1559,31 @@ class Streamer:
         return when > 0.0 and self.status.state == "Idle" and self.status.time > when
 
     def _halt_lift(self) -> None:
-        """Stop a lift where it is: feed hold, a short wait for Hold:0, soft reset."""
+        """Stop a lift where it is (:meth:`_hold_briefly_then_reset`, nothing raised)."""
         with contextlib.suppress(Exception, KeyboardInterrupt):
-            self._write_surely(REALTIME_HOLD)
-            self._wait_held(min(self.options.hold_timeout, 5.0))
+            self._hold_briefly_then_reset()
+
+    def _hold_briefly_then_reset(self) -> Status | None:
+        """Feed hold, a short wait for ``Hold:0``, soft reset and its banner.
+
+        A Ctrl-C or a fault cuts the wait short, and the banner's wait is not checked; both
+        writes go out even if Ctrl-C comes meanwhile.
+
+        Returns:
+            The held status, or None where none came.
+
+        Raises:
+            _Fault: The hold or the reset could not be written (the port is gone).
+        """
+        self._write_surely(REALTIME_HOLD)
+        try:
+            held = self._wait_held(min(self.options.hold_timeout, 5.0))
+        except (Exception, KeyboardInterrupt):
+            held = None
+        self._write_surely(REALTIME_RESET)
         with contextlib.suppress(Exception, KeyboardInterrupt):
-            self._write_surely(REALTIME_RESET)
             self._wait_banner(self.options.banner_timeout)
+        return held
 
     def _reset(
         self,
