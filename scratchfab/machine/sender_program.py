@@ -521,10 +521,10 @@ def travel_height(program: Program) -> float | None:
     None when the program sets no Z, or when that Z is not above its cutting threshold
     (nothing in the file shows a height that clears the board).
     """
-    zs = [b.modal.z for b in program.blocks if b.motion and b.modal.z is not None]
-    if not zs:
+    levels = z_levels(program.blocks)
+    if not levels:
         return None
-    top = max(zs)
+    top = levels[-1]
     if program.z_threshold is not None and top <= program.z_threshold:
         return None
     return top
