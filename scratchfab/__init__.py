@@ -1,3 +1,29 @@
-"""scratchfab: scratch-based reflection art, from target images to an engraved board."""
+"""scratchfab: scratch-based reflection art, from target images to an engraved board.
+
+The core library works without the command line (``scratchfab.cli`` is a thin click
+layer over it). Lengths are millimetres, images (H, W) numpy arrays of linear radiance.
+A notebook's path from a design to a machine, in memory where it can be:
+
+- design: :func:`scratchfab.model.design.design_from_mapping` (a dict, as the TOML file's
+  tables) or :func:`~scratchfab.model.design.load_design` (a file);
+- targets: :func:`scratchfab.design.targets.fit_to_board` (an array) or
+  :func:`~scratchfab.design.targets.board_image` (a file), then
+  :func:`~scratchfab.design.targets.warp_to_view` for each view's camera pixels;
+- initial layout: :func:`scratchfab.design.layout.initial_layout` -> a
+  :class:`scratchfab.model.scratches.ScratchSet`;
+- optimize: :class:`scratchfab.optimize.optimizer.LayoutOptimizer` (``step()``, then
+  ``scratches()``), its Dr.Jit module from :func:`scratchfab.backend.array_module`;
+- render: :func:`scratchfab.render.renderer.render_scratches` -> ``{view: (H, W)}``;
+- toolpath: :func:`scratchfab.machine.profile.load_profile` (a bundled name or a file)
+  and :func:`scratchfab.toolpath.plan_toolpath`;
+- export: :func:`scratchfab.export.gcode.gcode_lines` (G-code as text) or
+  :func:`scratchfab.export.export` (a G-code, DXF or SVG file);
+- stream: :func:`scratchfab.machine.stream_job.stream_file` (a G-code file to a serial
+  port, or ``grblsim://`` for the built-in GRBL emulator).
+
+The ``run_*`` functions of each stage's ``stage`` module do the same on a job folder
+(SPEC section 6). Mistakes in what a user gives raise
+:class:`scratchfab.errors.ScratchfabError` (one line naming the file and key or row).
+"""
 
 __version__ = "0.1.0"

@@ -90,3 +90,39 @@ def test_help_of_every_command_loads_none_of_the_heavy_libraries():
         "        assert not stop.code, stop.code"
     )
     assert loaded_after(code) == set()
+
+
+def core_modules() -> list[str]:
+    """Every module of the package outside the click layer (``scratchfab.cli``, ``__main__``)."""
+    import pkgutil
+
+    import scratchfab
+
+    names = [
+        info.name
+        for info in pkgutil.walk_packages(scratchfab.__path__, "scratchfab.")
+        if not info.name.startswith(("scratchfab.cli", "scratchfab.data"))
+        and info.name != "scratchfab.__main__"
+    ]
+    return sorted(names)
+
+
+def test_no_core_module_imports_click():
+    modules = core_modules()
+    assert {
+        "scratchfab.model.design",
+        "scratchfab.machine.sender",
+        "scratchfab.verify.bsdf",
+    } <= set(modules)
+    code = (
+        "import importlib, sys\n"
+        "for name in sys.argv[1:]:\n"
+        "    importlib.import_module(name)\n"
+        "    assert 'click' not in sys.modules, name"
+    )
+    subprocess.run([sys.executable, "-c", code, *modules], check=True)
+
+
+def test_the_click_check_sees_a_click_import():
+    code = "import sys, scratchfab.cli; assert 'click' in sys.modules"
+    subprocess.run([sys.executable, "-c", code], check=True)

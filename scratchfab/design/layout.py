@@ -27,7 +27,7 @@ from scratchfab.design.feasibility import (
     tilt_deg,
 )
 from scratchfab.design.targets import bilinear
-from scratchfab.errors import ConfigError
+from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.model.camera import Camera
 from scratchfab.model.design import Board, Design, View
 from scratchfab.model.scratches import ScratchSet
@@ -152,6 +152,29 @@ def _bright_run(
     return np.concatenate([[0.0], steps])[first]
 
 
+def check_targets(design: Design, targets: Mapping[str, np.ndarray]) -> None:
+    """Refuse targets that name none of the design's views or do not fit their view.
+
+    Raises:
+        ScratchfabError: Naming the views expected, or the view and both sizes (W x H).
+    """
+    views = [v for v in design.views if v.name in targets]
+    if not views:
+        raise ScratchfabError(
+            f"{design.source}: the targets name none of the views "
+            f"({', '.join(v.name for v in design.views)}); got {', '.join(map(str, targets))}"
+        )
+    for view in views:
+        shape = np.shape(targets[view.name])
+        if shape != (view.height, view.width):
+            size = "x".join(map(str, shape[::-1])) if len(shape) == 2 else f"shape {shape}"
+            raise ScratchfabError(
+                f"target of view '{view.name}' is {size}, the view is "
+                f"{view.width}x{view.height} pixels (a target is in the view's camera pixels, "
+                "see scratchfab.design.targets.warp_to_view)"
+            )
+
+
 def view_densities(
     design: Design, targets: Mapping[str, np.ndarray]
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -159,7 +182,11 @@ def view_densities(
 
     Only points whose centre region leaves room for a ``min_length_mm`` scratch inside
     the margin in every direction count, so every sampled centre can take a scratch.
+
+    Raises:
+        ScratchfabError: As :func:`check_targets`.
     """
+    check_targets(design, targets)
     pts = board_points(design.board, DENSITY_GRID)
     hw, hh = design.board.half_extent
     inset = design.board.margin_mm + design.scratch.min_length_mm / 2
@@ -190,6 +217,10 @@ def initial_layout(design: Design, targets: Mapping[str, np.ndarray], seed: int)
         The layout (the views' scratches one after the other, see
         :func:`layout_by_view`); all lie inside ``board.margin_mm`` with lengths in
         ``[min_length_mm, max_length_mm]``.
+
+    Raises:
+        ScratchfabError: The targets name none of the views or one is not (H, W) of its
+            view (:func:`check_targets`); ``min_length_mm`` does not fit the margin.
     """
     parts = list(layout_by_view(design, targets, seed).values())
     return ScratchSet(
@@ -224,8 +255,6 @@ def layout_by_view(
         )
     pts, dens = view_densities(design, targets)
     names = list(dens)
-    if not names:
-        raise ValueError("initial_layout needs at least one view with a target")
     energy = np.array([dens[n].sum() for n in names])
     box = (hw - design.board.margin_mm, hh - design.board.margin_mm)
     inner = np.array([box[0] - tool.min_length_mm / 2, box[1] - tool.min_length_mm / 2])

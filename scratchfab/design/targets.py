@@ -87,7 +87,16 @@ def fit_to_board(picture: np.ndarray, board: Board, fit: str = "contain") -> np.
     Returns:
         (rows, cols) float64 board-space image; row 0 lies along the board's top edge
         (+y), column 0 along its left edge (-x).
+
+    Raises:
+        ConfigError: ``fit`` is neither ``contain`` nor ``cover``.
+        ValueError: ``picture`` is not 2-D (colour: :func:`scratchfab.design.images.load_image`
+            turns a file into linear luminance).
     """
+    if np.ndim(picture) != 2:
+        raise ValueError(
+            f"picture: expected (h, w) linear luminance, got shape {np.shape(picture)}"
+        )
     if fit not in FITS:
         raise ConfigError(f"fit must be one of {', '.join(FITS)}, got {fit!r}")
     h, w = picture.shape
@@ -208,9 +217,23 @@ def warp_to_view(board_img: np.ndarray, board: Board, view: View) -> np.ndarray:
     an area average over the footprint P. Samples that miss the board count as black,
     so edge pixels are dimmed like the render's (SPEC section 4, the |P ∩ B| term).
 
+    Args:
+        board_img: (rows, cols) linear board-space image, as :func:`fit_to_board` or
+            :func:`board_image` return it.
+        board: The board the image covers.
+        view: The camera.
+
     Returns:
-        (H, W) float64; NaN where the pixel centre's ray misses the board.
+        (H, W) float64 (the view's resolution); NaN where the pixel centre's ray misses
+        the board.
+
+    Raises:
+        ValueError: ``board_img`` is not 2-D.
     """
+    if np.ndim(board_img) != 2:
+        raise ValueError(
+            f"board_img: expected a (rows, cols) board image, got shape {np.shape(board_img)}"
+        )
     camera = Camera.from_view(view)
     n = supersample_rate(board_img, board, camera)
     offsets = (np.arange(n) + 0.5) / n

@@ -240,7 +240,11 @@ class Design:
     source: str = "<design>"
 
     def view(self, name: str) -> View:
-        """The view called ``name``."""
+        """The view called ``name``.
+
+        Raises:
+            KeyError: No view has that name.
+        """
         for v in self.views:
             if v.name == name:
                 return v

@@ -53,13 +53,38 @@ class ScratchSet:
         width: float | np.ndarray,
         depth: float | np.ndarray,
     ) -> ScratchSet:
-        """Build a set, broadcasting scalar width and depth."""
-        p0 = np.asarray(p0, dtype=np.float64).reshape(-1, 2)
-        p1 = np.asarray(p1, dtype=np.float64).reshape(-1, 2)
-        n = len(p0)
-        w = np.broadcast_to(np.asarray(width, dtype=np.float64), (n,)).copy()
-        d = np.broadcast_to(np.asarray(depth, dtype=np.float64), (n,)).copy()
-        return cls(p0.copy(), p1.copy(), w, d)
+        """Build a set from end points in mm, broadcasting scalar width and depth.
+
+        Args:
+            p0: (N, 2) start points x, y in mm (board frame, SPEC section 2); one point
+                (2,) stands for N = 1.
+            p1: (N, 2) end points, as ``p0``.
+            width: Full dent width 2w in mm, one for all or (N,).
+            depth: Dent depth d in mm, one for all or (N,).
+
+        Raises:
+            ValueError: Arrays of other shapes (a (2, N) array of x and y rows among them).
+        """
+        ends = []
+        for name, value in (("p0", p0), ("p1", p1)):
+            arr = np.asarray(value, dtype=np.float64)
+            if arr.shape == (2,):
+                arr = arr.reshape(1, 2)
+            if arr.ndim != 2 or arr.shape[1] != 2:
+                raise ValueError(f"{name}: expected (N, 2) points x, y, got shape {arr.shape}")
+            ends.append(arr.copy())
+        if len(ends[0]) != len(ends[1]):
+            raise ValueError(
+                f"p0 and p1 must both be (N, 2): {len(ends[0])} and {len(ends[1])} points"
+            )
+        n = len(ends[0])
+        sizes = []
+        for name, size in (("width", width), ("depth", depth)):
+            values = np.asarray(size, dtype=np.float64)
+            if values.shape not in ((), (1,), (n,)):
+                raise ValueError(f"{name}: expected one value or ({n},), got shape {values.shape}")
+            sizes.append(np.broadcast_to(values, (n,)).copy())
+        return cls(ends[0], ends[1], sizes[0], sizes[1])
 
     @property
     def lengths(self) -> np.ndarray:

@@ -271,12 +271,17 @@ def order_strokes(
 
     Returns:
         The order, per-stroke reversal and travel figures.
+
+    Raises:
+        ValueError: ``p0`` and ``p1`` are not both (N, 2) (a (2, N) array among them).
     """
     from scipy.spatial import cKDTree
 
     opts = options or OrderOptions()
-    p0 = np.asarray(p0, dtype=np.float64).reshape(-1, 2)
-    p1 = np.asarray(p1, dtype=np.float64).reshape(-1, 2)
+    p0 = np.asarray(p0, dtype=np.float64)
+    p1 = np.asarray(p1, dtype=np.float64)
+    if p0.ndim != 2 or p0.shape[1:] != (2,) or p1.shape != p0.shape:
+        raise ValueError(f"p0 and p1: expected both (N, 2), got shapes {p0.shape} and {p1.shape}")
     origin = np.asarray(start, dtype=np.float64).reshape(2)
     n = len(p0)
     travel_input = tour_travel(p0, p1, origin)

@@ -238,9 +238,17 @@ def plan_toolpath(
         ``kept_input_order``, ``local_search_moves`` and ``estimated_time_s``.
 
     Raises:
-        ScratchfabError: The tools differ, or the board does not meet the envelope.
+        ScratchfabError: The tools differ, an end point is NaN or infinite, or the board
+            does not meet the envelope.
     """
     check_tool(profile, design_tool, scratches)
+    bad = np.flatnonzero(~np.all(np.isfinite(np.hstack([scratches.p0, scratches.p1])), axis=1))
+    if len(bad):
+        row = int(bad[0])
+        raise ScratchfabError(
+            f"scratch {row + 1} (line {row + 2}) has an end point that is not a finite number "
+            f"({len(bad)} scratches); nothing planned"
+        )
     size = (board.width_mm, board.height_mm)
     outline = profile.board_outline(size)
     env = profile.envelope

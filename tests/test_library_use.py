@@ -1,0 +1,195 @@
+"""scratchfab as a library: a notebook's walk from a dict to G-code, without the CLI.
+
+The walk runs in a fresh interpreter at a tiny size, so it also catches a core module
+that imports click or writes to stdout/stderr. The other tests pin the errors a library
+user meets for arrays of the wrong shape.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scratchfab.design.layout import initial_layout
+from scratchfab.design.targets import fit_to_board, warp_to_view
+from scratchfab.errors import ScratchfabError
+from scratchfab.machine.profile import load_profile
+from scratchfab.model.design import design_from_mapping
+from scratchfab.model.scratches import ScratchSet
+from scratchfab.toolpath import plan_toolpath
+
+TABLES = {
+    "board": {"width_mm": 30.0, "height_mm": 30.0, "margin_mm": 1.5},
+    "light": {"position_mm": [0.0, 187.3, 463.6]},
+    "scratch": {"count": 120, "min_length_mm": 1.5, "max_length_mm": 5.0},
+    "views": [
+        {
+            "name": name,
+            "azimuth_deg": azimuth,
+            "elevation_deg": 0.0,
+            "distance_mm": 400.0,
+            "fov_deg": "auto",
+            "resolution": [16, 16],
+        }
+        for name, azimuth in (("disc", -22.0), ("bar", 22.0))
+    ],
+}
+
+WALK = f"""
+import io, json, sys, tempfile
+from contextlib import redirect_stdout
+from pathlib import Path
+import numpy as np
+from scratchfab.backend import array_module
+from scratchfab.design.layout import initial_layout
+from scratchfab.design.targets import fit_to_board, warp_to_view
+from scratchfab.export import export
+from scratchfab.export.gcode import gcode_lines
+from scratchfab.machine.profile import load_profile
+from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
+from scratchfab.model.design import design_from_mapping
+from scratchfab.model.scratches import ScratchSet
+from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
+from scratchfab.render.renderer import render_scratches
+from scratchfab.toolpath import plan_toolpath
+
+design = design_from_mapping({TABLES!r}, "<notebook>", Path("."))
+yy, xx = np.mgrid[0:48, 0:48]
+pictures = {{
+    "disc": ((xx - 24) ** 2 + (yy - 24) ** 2 < 15**2).astype(float),
+    "bar": ((yy > 19) & (yy < 29) & (xx > 6) & (xx < 42)).astype(float),
+}}
+targets = {{
+    v.name: warp_to_view(fit_to_board(pictures[v.name], design.board), design.board, v)
+    for v in design.views
+}}
+layout = initial_layout(design, targets, seed=0)
+lr = {{"cx": 0.05, "cy": 0.05, "theta": 0.02, "length": 0.05}}
+opt = LayoutOptimizer(design, targets, layout, Settings(lr=lr), array_module("llvm"))
+losses = [opt.step().loss for _ in range(3)]
+board = opt.scratches()
+images = render_scratches(design, board)
+profile = load_profile("grbl-3018-diamond")
+toolpath = plan_toolpath(board, design.board, profile, design.scratch)
+text = "\\n".join(gcode_lines(toolpath)) + "\\n"
+folder = Path(sys.argv[1])
+sizes = {{ext: export(toolpath, None, folder / f"board.{{ext}}")["bytes"]
+         for ext in ("gcode", "svg", "dxf")}}
+said = []
+request = StreamRequest(
+    gcode=folder / "board.gcode",
+    port="grblsim://?time_scale=0&$130=300&$131=180&$132=45",
+    machine=profile,
+)
+stream_file(request, StreamCallbacks(lambda p: None, said.append, lambda: "stop", lambda _: True))
+result = {{
+    "click": "click" in sys.modules,
+    "layout": len(layout),
+    "count": design.scratch.count,
+    "losses": losses,
+    "images": {{k: [list(v.shape), float(np.nanmax(v))] for k, v in images.items()}},
+    "strokes": len(toolpath),
+    "text_matches_file": text == (folder / "board.gcode").read_text(),
+    "sizes": sizes,
+    "done": said[-1],
+}}
+sys.__stdout__.write("RESULT " + json.dumps(result))
+"""
+
+
+def test_a_notebook_walk_needs_no_cli_and_prints_nothing(tmp_path):
+    run = subprocess.run(
+        [sys.executable, "-c", WALK, str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert run.stderr == ""
+    assert run.stdout.startswith("RESULT "), run.stdout[:2000]
+    result = json.loads(run.stdout.removeprefix("RESULT "))
+    assert not result["click"]
+    assert result["layout"] == result["count"]
+    assert result["losses"][-1] < result["losses"][0]
+    for view in TABLES["views"]:
+        shape, peak = result["images"][view["name"]]
+        assert shape == view["resolution"][::-1] and peak > 0
+    assert 0 < result["strokes"] <= result["layout"]
+    assert result["text_matches_file"]
+    assert all(size > 0 for size in result["sizes"].values())
+    assert result["done"].startswith("done:")
+    assert (tmp_path / "board.gcode.journal.jsonl").is_file()
+
+
+@pytest.fixture(scope="module")
+def design():
+    return design_from_mapping(TABLES, "<notebook>", Path("."))
+
+
+@pytest.mark.parametrize(
+    ("p0", "p1", "width"),
+    [
+        (np.zeros((2, 6)), np.ones((2, 6)), 0.1),  # x row and y row: transposed
+        (np.zeros((4, 3)), np.ones((4, 3)), 0.1),  # 3-D points
+        (np.zeros((4, 2)), np.ones((3, 2)), 0.1),  # different counts
+        (np.zeros((4, 2)), np.ones((4, 2)), [0.1, 0.2]),  # widths for 2 of 4
+    ],
+)
+def test_scratch_arrays_of_the_wrong_shape_are_refused(p0, p1, width):
+    with pytest.raises(ValueError, match=r"\(N, 2\)|width"):
+        ScratchSet.from_arrays(p0, p1, width, 0.01)
+
+
+def test_scratch_arrays_accept_lists_and_one_point():
+    one = ScratchSet.from_arrays([1.0, 2.0], [3.0, 4.0], 0.1, 0.01)
+    assert one.p0.tolist() == [[1.0, 2.0]] and one.p1.tolist() == [[3.0, 4.0]]
+    rows = ScratchSet.from_arrays([[0, 0], [1, 1]], [[2, 2], [3, 3]], [0.1, 0.2], 0.01)
+    assert rows.width.tolist() == [0.1, 0.2] and rows.depth.tolist() == [0.01, 0.01]
+
+
+def test_initial_layout_names_the_views_it_expected(design):
+    with pytest.raises(ScratchfabError, match="disc, bar"):
+        initial_layout(design, {"left": np.ones((16, 16))}, seed=0)
+
+
+def test_initial_layout_refuses_a_target_of_another_size(design):
+    with pytest.raises(ScratchfabError, match=r"disc.*8x8.*16x16"):
+        initial_layout(design, {"disc": np.ones((8, 8))}, seed=0)
+
+
+@pytest.mark.parametrize("shape", [(10, 10, 3), (10,)])
+def test_board_images_must_be_2d(design, shape):
+    with pytest.raises(ValueError, match=r"\(h, w\)"):
+        fit_to_board(np.ones(shape), design.board)
+    with pytest.raises(ValueError, match=r"\(rows, cols\)"):
+        warp_to_view(np.ones(shape), design.board, design.views[0])
+
+
+@pytest.mark.parametrize("where", ["p0", "p1"])
+def test_plan_toolpath_names_a_scratch_that_is_not_finite(design, where):
+    p0 = np.array([[0.0, 0.0], [1.0, 1.0], [-2.0, 3.0]])
+    p1 = p0 + 2.0
+    (p0 if where == "p0" else p1)[1, 0] = np.nan
+    scratches = ScratchSet.from_arrays(p0, p1, 0.1, 0.01)
+    with pytest.raises(ScratchfabError, match="scratch 2 "):
+        plan_toolpath(scratches, design.board, load_profile("grbl-3018-diamond"))
+
+
+@pytest.mark.parametrize(
+    ("p0", "p1"),
+    [
+        (np.zeros((2, 6)), np.ones((2, 6))),  # x row and y row: transposed
+        (np.zeros((4, 3)), np.ones((4, 3))),
+        (np.zeros((4, 2)), np.ones((3, 2))),
+    ],
+)
+def test_order_strokes_refuses_arrays_of_the_wrong_shape(p0, p1):
+    from scratchfab.toolpath import order_strokes
+
+    with pytest.raises(ValueError, match=r"\(N, 2\)"):
+        order_strokes(p0, p1, (0.0, 0.0))
