@@ -358,3 +358,47 @@ def test_concurrent_calls_on_threads(rng):
     for k, (i, j) in enumerate(got):
         np.testing.assert_array_equal(i, want[k % 3][0])
         np.testing.assert_array_equal(j, want[k % 3][1])
+
+
+def test_buffer_renewed_before_a_scratch_that_may_not_fit(monkeypatch):
+    """Scratches 1 to n - 1 side by side (each pairs with all after it) and scratch 0 beside
+    the first ``near`` of them, on the smallest buffer (2 n pairs): scratch 2's n - 3 pairs
+    come on a buffer with ``near`` + n - 2 used. Every scan call must be handed a buffer
+    that holds its next scratch's pairs (or it stops at once, for ever), and the pairs must
+    be brute force's.
+
+    Over ``near`` = 1 .. n - 1 this finds any renewal rule "used + n - x > capacity" with
+    x >= 4 (the exact bound before scratch i is n - 1 - i pairs).
+    """
+    import scratchfab.optimize.loss as loss
+
+    scan = loss._compiled_scan()
+    starts = []
+
+    def scan_and_check(*args: object) -> tuple[int, int]:
+        lo, used = args[19], args[23]
+        got = scan(*args)
+        starts.append(used)
+        assert got[1] > lo, f"a scan from scratch {lo} with {used} of the buffer used stopped"
+        return got
+
+    monkeypatch.setattr(loss, "_compiled_scan", lambda: scan_and_check)
+    monkeypatch.setattr(loss, "NEIGHBOUR_BUFFER_PAIRS", 1)
+    reach = 1.0
+    for n in (12, 41, 100):
+        gap = 0.9 / (n - 2)  # lines 1 .. n - 1 within 0.9 of each other
+        y = gap * np.arange(1, n, dtype=np.float64)
+        for near in range(1, n):
+            # scratch 0 below the lines, closer than the reach to the first ``near``
+            y0 = gap * (near + 0.5) - reach
+            ys = np.concatenate([[y0], y])
+            p0 = np.stack([np.zeros(n), ys], 1)
+            p1 = np.stack([np.full(n, 4.0), ys], 1)
+            want = brute_force(p0, p1, reach)
+            assert sum(a == 0 for a, _ in want) == near
+            for strip_points in (1, 2, 100000):
+                starts.clear()
+                i, j = neighbour_pairs(p0, p1, reach, strip_points=strip_points)
+                assert set(zip(i.tolist(), j.tolist(), strict=True)) == want
+                assert np.all(np.diff(i * n + j) > 0)
+                assert starts.count(0) >= 2  # renewed at least once
