@@ -49,12 +49,15 @@ from scratchfab.backend import array_module
 from scratchfab.design.layout import initial_layout
 from scratchfab.design.targets import fit_to_board, warp_to_view
 from scratchfab.export import export
-from scratchfab.export.gcode import gcode_lines
+from scratchfab.export.dxf import dxf_text
+from scratchfab.export.gcode import gcode_lines, gcode_text
+from scratchfab.export.svg import svg_text
 from scratchfab.machine.profile import load_profile
 from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
 from scratchfab.model.design import design_from_mapping
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
+from scratchfab.optimize.options import OptimizeOptions
 from scratchfab.render.renderer import render_scratches
 from scratchfab.toolpath import plan_toolpath
 
@@ -69,7 +72,7 @@ targets = {{
     for v in design.views
 }}
 layout = initial_layout(design, targets, seed=0)
-lr = {{"cx": 0.05, "cy": 0.05, "theta": 0.02, "length": 0.05}}
+lr = OptimizeOptions().learning_rates()
 opt = LayoutOptimizer(design, targets, layout, Settings(lr=lr), array_module("llvm"))
 losses = [opt.step().loss for _ in range(3)]
 board = opt.scratches()
@@ -94,7 +97,11 @@ result = {{
     "losses": losses,
     "images": {{k: [list(v.shape), float(np.nanmax(v))] for k, v in images.items()}},
     "strokes": len(toolpath),
-    "text_matches_file": text == (folder / "board.gcode").read_text(),
+    "text_matches_file": [
+        text == gcode_text(toolpath) == (folder / "board.gcode").read_text(),
+        svg_text(toolpath) == (folder / "board.svg").read_text(),
+        dxf_text(toolpath) == (folder / "board.dxf").read_text(),
+    ],
     "sizes": sizes,
     "done": said[-1],
 }}
@@ -120,7 +127,7 @@ def test_a_notebook_walk_needs_no_cli_and_prints_nothing(tmp_path):
         shape, peak = result["images"][view["name"]]
         assert shape == view["resolution"][::-1] and peak > 0
     assert 0 < result["strokes"] <= result["layout"]
-    assert result["text_matches_file"]
+    assert result["text_matches_file"] == [True, True, True]
     assert all(size > 0 for size in result["sizes"].values())
     assert result["done"].startswith("done:")
     assert (tmp_path / "board.gcode.journal.jsonl").is_file()
@@ -193,3 +200,18 @@ def test_order_strokes_refuses_arrays_of_the_wrong_shape(p0, p1):
 
     with pytest.raises(ValueError, match=r"\(N, 2\)"):
         order_strokes(p0, p1, (0.0, 0.0))
+
+
+@pytest.mark.parametrize(
+    ("column", "value"), [("p0", np.nan), ("p1", np.inf), ("width", 0.0), ("depth", np.nan)]
+)
+def test_render_names_a_scratch_it_cannot_draw(design, column, value):
+    from scratchfab.render.renderer import render_scratches
+
+    rng = np.random.default_rng(5)
+    c = rng.uniform(-10, 10, (6, 2))
+    arrays = {"p0": c - 1.0, "p1": c + 1.0, "width": np.full(6, 0.1), "depth": np.full(6, 0.01)}
+    arrays[column][4] = value
+    scratches = ScratchSet(**arrays)
+    with pytest.raises(ScratchfabError, match=r"scratch 5 \(line 6\)"):
+        render_scratches(design, scratches)

@@ -48,10 +48,12 @@ def _register_classes_sorted(doc: Any) -> None:
     doc.classes.classes = dict(sorted(doc.classes.classes.items()))
 
 
-def write_dxf(
-    toolpath: Toolpath, profile: MachineProfile | None, path: str | Path
-) -> dict[str, Any]:
-    """Write the DXF file atomically; returns entity counts and the file size."""
+def dxf_text(toolpath: Toolpath) -> str:
+    """The DXF document (R2010, millimetres, machine coordinates) as text.
+
+    Raises:
+        ScratchfabError: The document fails ezdxf's audit.
+    """
     with _fixed_metadata():
         doc = ezdxf.new("R2010", setup=False)
     doc.units = units.MM
@@ -72,7 +74,17 @@ def write_dxf(
     buffer = io.StringIO()
     with _fixed_metadata():
         doc.write(buffer)
-    data = buffer.getvalue().encode("utf-8")
+    return buffer.getvalue()
+
+
+def write_dxf(
+    toolpath: Toolpath, profile: MachineProfile | None, path: str | Path
+) -> dict[str, Any]:
+    """Write :func:`dxf_text` atomically; returns entity counts and the file size.
+
+    ``profile`` is not used: the strokes already are in machine coordinates.
+    """
+    data = dxf_text(toolpath).encode("utf-8")
     write_bytes(path, data)
     return {
         "entities": {BOARD_LAYER: 4, SCRATCH_LAYER: len(toolpath)},

@@ -107,7 +107,17 @@ def check_envelope(strokes: np.ndarray, rows: np.ndarray, profile: MachineProfil
 
 
 def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> list[str]:
-    """The program as lines (without line ends), after the envelope check."""
+    """The program as lines (without line ends), after the envelope check.
+
+    Args:
+        toolpath: The ordered strokes (machine mm).
+        profile: The machine: feeds, Z heights, tool control, G-code format; default the
+            toolpath's own.
+
+    Raises:
+        ScratchfabError: A stroke outside the machine's envelope, or a line with a control
+            character or over the profile's ``max_line_length``.
+    """
     prof = profile or toolpath.profile
     check_envelope(toolpath.strokes, toolpath.source_rows, prof)
     grid = _Grid(prof)
@@ -201,10 +211,19 @@ def gcode_stats(lines: list[str], dec: int | None = None) -> dict[str, Any]:
     }
 
 
+def gcode_text(toolpath: Toolpath, profile: MachineProfile | None = None) -> str:
+    """:func:`gcode_lines` as the file's text (LF line ends, ASCII)."""
+    return "\n".join(gcode_lines(toolpath, profile)) + "\n"
+
+
 def write_gcode(
     toolpath: Toolpath, profile: MachineProfile | None, path: str | Path
 ) -> dict[str, Any]:
-    """Write the G-code file atomically; returns :func:`gcode_stats` of what was written."""
+    """Write the G-code file atomically; returns :func:`gcode_stats` of what was written.
+
+    Raises:
+        ScratchfabError: As :func:`gcode_lines`; nothing is written.
+    """
     prof = profile or toolpath.profile
     lines = gcode_lines(toolpath, prof)
     write_bytes(path, ("\n".join(lines) + "\n").encode("ascii"))

@@ -106,6 +106,11 @@ def export(
 
     Returns:
         Figures for the report (G-code: lines, bytes, max_line_length, bbox).
+
+    Raises:
+        ScratchfabError: An unknown format or extension, a profile that would have
+            planned other strokes (:func:`check_same_plan`), or what the writer refuses
+            (G-code: a stroke outside the envelope, a line too long).
     """
     name = format_for(path, format)
     if profile is not None:

@@ -40,10 +40,13 @@ def _layer(index: int, name: str, style: str, body: list[str]) -> list[str]:
     return [head, *body, "</g>"]
 
 
-def write_svg(
-    toolpath: Toolpath, profile: MachineProfile | None, path: str | Path
-) -> dict[str, Any]:
-    """Write the SVG file atomically; returns element counts and the file size."""
+def svg_text(toolpath: Toolpath, profile: MachineProfile | None = None) -> str:
+    """The SVG document as text (machine mm, the module docstring's frame).
+
+    Args:
+        toolpath: The ordered strokes.
+        profile: The machine (its name and tool width); default the toolpath's own.
+    """
     prof = profile or toolpath.profile
     pts = np.vstack([toolpath.outline, toolpath.strokes.reshape(-1, 2)])
     lo, hi = pts.min(axis=0) - MARGIN_MM, pts.max(axis=0) + MARGIN_MM
@@ -68,9 +71,20 @@ def write_svg(
         ),
         "</svg>",
     ]
-    data = ("\n".join(lines) + "\n").encode("utf-8")
+    return "\n".join(lines) + "\n"
+
+
+def write_svg(
+    toolpath: Toolpath, profile: MachineProfile | None, path: str | Path
+) -> dict[str, Any]:
+    """Write :func:`svg_text` atomically; returns element counts and the file size."""
+    data = svg_text(toolpath, profile).encode("utf-8")
     write_bytes(path, data)
-    return {"elements": {"board": 4, "scratches": len(cuts)}, "bytes": len(data), "units": "mm"}
+    return {
+        "elements": {"board": 4, "scratches": len(toolpath)},
+        "bytes": len(data),
+        "units": "mm",
+    }
 
 
 def _escape(text: str) -> str:

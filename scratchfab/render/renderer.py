@@ -23,6 +23,7 @@ import numpy as np
 import shapely
 
 from scratchfab.backend import BackendName, array_module, jit_array
+from scratchfab.errors import ScratchfabError
 from scratchfab.model.camera import Camera, polygon_area
 from scratchfab.model.design import Design, View
 from scratchfab.model.scratches import ScratchSet
@@ -572,7 +573,24 @@ def render_scratches(
 
     Returns:
         ``{view name: float32 (H, W) linear radiance}``.
+
+    Raises:
+        ScratchfabError: A scratch's end, width or depth is not a finite number, or its
+            width or depth is not positive (naming the first such scratch).
+        BackendError: The backend cannot run here.
     """
+    ends = np.hstack(
+        [scratches.p0, scratches.p1, scratches.width[:, None], scratches.depth[:, None]]
+    )
+    sizes = np.stack([scratches.width, scratches.depth], axis=1)
+    bad = np.flatnonzero(~np.all(np.isfinite(ends), axis=1) | np.any(sizes <= 0, axis=1))
+    if len(bad):
+        row = int(bad[0])
+        raise ScratchfabError(
+            f"scratch {row + 1} (line {row + 2}) is not drawable: ends "
+            f"{ends[row, :4].tolist()}, width {ends[row, 4]:g}, depth {ends[row, 5]:g} mm "
+            f"({len(bad)} scratches)"
+        )
     m = array_module(backend)
     images: dict[str, np.ndarray] = {}
     for view in design.views:

@@ -17,9 +17,9 @@ def clip_strokes(
     """Clip segments to a convex polygon (shapely, vectorised).
 
     Args:
-        p0: (N, 2) segment starts.
-        p1: (N, 2) segment ends.
-        region: A convex polygon (the board within the envelope).
+        p0: (N, 2) segment starts (machine XY, mm).
+        p1: (N, 2) segment ends (machine XY, mm).
+        region: A convex polygon in the same frame (the board within the envelope).
 
     Returns:
         (keep, q0, q1): indices of the segments that keep a piece of positive length, and

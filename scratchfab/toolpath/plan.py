@@ -166,6 +166,11 @@ def estimate_time(strokes: np.ndarray, profile: MachineProfile) -> float:
     servo's ``M3`` and ``M5`` around every cut, the spindle's start and stop. Each servo
     lowering and lift waits ``dwell_s`` (and so does the lift before the first travel);
     the travel back to the start is included, the time to reach the start is not.
+
+    Args:
+        strokes: (N, 2, 2) strokes in cut order, each from ``[k, 0]`` to ``[k, 1]``
+            (machine XY, mm), as :attr:`Toolpath.strokes`.
+        profile: The machine (start position, feeds, motion limits, tool control).
     """
     n = len(strokes)
     start = np.asarray(profile.start_mm, dtype=np.float64)
