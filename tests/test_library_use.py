@@ -215,3 +215,30 @@ def test_render_names_a_scratch_it_cannot_draw(design, column, value):
     scratches = ScratchSet(**arrays)
     with pytest.raises(ScratchfabError, match=r"scratch 5 \(line 6\)"):
         render_scratches(design, scratches)
+
+
+@pytest.mark.parametrize("data", [[], "board", None])
+def test_design_from_something_else_than_tables_names_the_source(data):
+    with pytest.raises(ScratchfabError, match="<notebook>: expected tables"):
+        design_from_mapping(data, "<notebook>", Path("."))
+
+
+@pytest.mark.parametrize(
+    ("targets", "cross", "message"),
+    [
+        ({"disc": np.ones((8, 8))}, None, r"targets: disc: the image has shape \(8, 8\)"),
+        ({"left": np.ones((16, 16))}, None, "targets: left names no view"),
+        (None, {("disc", "left"): np.ones((16, 16))}, r"cross: \(disc, left\) names no view"),
+        (None, {("bar", "disc"): np.ones((16, 8))}, r"cross: \(bar, disc\): the image"),
+    ],
+)
+def test_verify_refuses_targets_of_other_views_before_rendering(
+    design, tmp_path, targets, cross, message
+):
+    from scratchfab.verify.verify import VerifySettings, run_verify
+
+    scratches = ScratchSet.from_arrays([[-5.0, 0.0]], [[5.0, 1.0]], 0.1, 0.01)
+    out = tmp_path / "verify"
+    with pytest.raises(ScratchfabError, match=message):
+        run_verify(design, scratches, out, VerifySettings(spp=4), targets=targets, cross=cross)
+    assert not out.exists()

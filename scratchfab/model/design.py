@@ -414,7 +414,23 @@ def light_problem(intensity: float, position: Vec3) -> str | None:
 def design_from_mapping(
     data: dict[str, Any], source: str, base_dir: Path, require_views: bool = True
 ) -> Design:
-    """Build a resolved :class:`Design` from parsed TOML; stage tables are left for the pipeline."""
+    """Build a resolved :class:`Design` from parsed TOML; stage tables are left for the pipeline.
+
+    Args:
+        data: The tables as ``tomllib`` reads them (``board``, ``light``, ``scratch``,
+            ``views``: SPEC section 5, lengths in mm, angles in degrees); a dict built in
+            code works alike.
+        source: What ``data`` came from, named in every message (a file path, or
+            ``"<notebook>"``).
+        base_dir: The folder that relative ``target`` paths are read from.
+        require_views: Refuse a design without ``[[views]]``.
+
+    Raises:
+        ConfigError: Naming ``source`` and the key on any mistake (an unknown key, a
+            value out of range, a light or view that cannot work).
+    """
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: expected tables (a mapping), got {type(data).__name__}")
     design_data = {k: v for k, v in data.items() if k not in STAGE_TABLES}
     if "design" in design_data and isinstance(design_data["design"], dict):
         raise ConfigError(
@@ -467,6 +483,10 @@ def design_from_mapping(
 
 def load_design(path: str | Path, require_views: bool = True) -> Design:
     """Load a design file (or the design part of a pipeline file).
+
+    Args:
+        path: The TOML file; its folder is the base of relative ``target`` paths.
+        require_views: Refuse a design without ``[[views]]``.
 
     Raises:
         ConfigError: Naming the file and the key on any mistake.

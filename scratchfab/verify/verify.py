@@ -349,11 +349,25 @@ def run_verify(
         The metrics (also in ``metrics.json``).
 
     Raises:
+        ConfigError: Before any rendering, when ``targets``, ``cross`` or ``analytic``
+            name another view or hold an image of another size than its view.
         VerifyGateError: After writing everything, when a view's rho_kk < ``min_rho``.
     """
     say = progress or (lambda _msg: None)
     out = Path(out_dir)
     targets = dict(targets or {})
+    shapes = {v.name: (v.height, v.width) for v in design.views}
+    given = [("targets", k, k, [k], img) for k, img in targets.items()] + [
+        ("cross", f"({k}, {j})", k, [k, j], img) for (k, j), img in (cross or {}).items()
+    ]
+    for what, key, name, names, image in given:
+        if not set(names) <= set(shapes):
+            raise ConfigError(f"{what}: {key} names no view of the design ({', '.join(shapes)})")
+        if np.shape(image) != shapes[name]:
+            raise ConfigError(
+                f"{what}: {key}: the image has shape {np.shape(image)}, view {name} is "
+                f"{shapes[name]} (H, W)"
+            )
     if analytic is None:
         from scratchfab.render.renderer import render_scratches
 
