@@ -242,3 +242,11 @@ def test_verify_refuses_targets_of_other_views_before_rendering(
     with pytest.raises(ScratchfabError, match=message):
         run_verify(design, scratches, out, VerifySettings(spp=4), targets=targets, cross=cross)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, np.nan, np.inf])
+def test_a_preview_needs_a_positive_exposure(value):
+    from scratchfab.render.layout import png_bytes
+
+    with pytest.raises(ValueError, match="exposure_value"):
+        png_bytes(np.ones((4, 4)), value)

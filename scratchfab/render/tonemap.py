@@ -35,10 +35,19 @@ def exposure(image: np.ndarray) -> float:
 def tone_map(image: np.ndarray, exposure_value: float | None = None) -> tuple[np.ndarray, float]:
     """8-bit preview of a linear image (non-finite pixels become black).
 
+    Args:
+        image: (H, W) linear radiance.
+        exposure_value: The radiance shown white (default: step 1's percentile).
+
     Returns:
         (uint8 (H, W), the exposure used).
+
+    Raises:
+        ValueError: ``exposure_value`` is not a finite number > 0.
     """
     e = exposure(image) if exposure_value is None else float(exposure_value)
+    if not (np.isfinite(e) and e > 0):
+        raise ValueError(f"exposure_value: expected a finite number > 0, got {exposure_value}")
     values = np.nan_to_num(np.asarray(image, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     encoded = linear_to_srgb(values / e)
     return np.round(255 * encoded).astype(np.uint8), e
