@@ -250,3 +250,11 @@ def test_a_preview_needs_a_positive_exposure(value):
 
     with pytest.raises(ValueError, match="exposure_value"):
         png_bytes(np.ones((4, 4)), value)
+
+
+@pytest.mark.parametrize("scale", [255.0, -1.0, np.nan])
+def test_a_picture_is_linear_luminance_in_0_1(design, scale):
+    picture = np.ones((10, 10))
+    picture[3, 4] = scale
+    with pytest.raises(ValueError, match=r"in \[0, 1\]"):
+        fit_to_board(picture, design.board)

@@ -84,19 +84,30 @@ def adjust(image: np.ndarray, gamma: float = 1.0, contrast: float = 1.0) -> np.n
 def fit_to_board(picture: np.ndarray, board: Board, fit: str = "contain") -> np.ndarray:
     """Place a linear picture (h, w) on the board: ``contain`` pads with black, ``cover`` crops.
 
+    The picture is linear luminance in [0, 1] (0 black, 1 white), row 0 at its top, as
+    :func:`scratchfab.design.images.load_image` reads a file; an 8-bit sRGB array ``a``
+    becomes one by ``srgb_to_linear(a / 255)``.
+
     Returns:
         (rows, cols) float64 board-space image; row 0 lies along the board's top edge
         (+y), column 0 along its left edge (-x).
 
     Raises:
         ConfigError: ``fit`` is neither ``contain`` nor ``cover``.
-        ValueError: ``picture`` is not 2-D (colour: :func:`scratchfab.design.images.load_image`
-            turns a file into linear luminance).
+        ValueError: ``picture`` is not 2-D, or holds values outside [0, 1] (an 8-bit
+            or sRGB-encoded array passed as it is).
     """
     if np.ndim(picture) != 2:
         raise ValueError(
             f"picture: expected (h, w) linear luminance, got shape {np.shape(picture)}"
         )
+    values = np.asarray(picture, dtype=np.float64)
+    if values.size and not (np.all(np.isfinite(values)) and 0 <= values.min() <= values.max() <= 1):
+        raise ValueError(
+            f"picture: expected linear luminance in [0, 1], got values from {values.min():g} "
+            f"to {values.max():g} (8-bit sRGB a: srgb_to_linear(a / 255))"
+        )
+    picture = values
     if fit not in FITS:
         raise ConfigError(f"fit must be one of {', '.join(FITS)}, got {fit!r}")
     h, w = picture.shape
