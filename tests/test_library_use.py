@@ -258,3 +258,13 @@ def test_a_picture_is_linear_luminance_in_0_1(design, scale):
     picture[3, 4] = scale
     with pytest.raises(ValueError, match=r"in \[0, 1\]"):
         fit_to_board(picture, design.board)
+
+
+def test_a_scratch_set_takes_lists_as_float64_arrays():
+    s = ScratchSet([[0, 0], [1, 2]], [[3, 4], [4, 6]], [0.1, 0.2], [0.01, 0.02])
+    assert s.p1.dtype == np.float64 and s.p1.tolist() == [[3.0, 4.0], [4.0, 6.0]]
+    assert s.lengths.tolist() == [5.0, 5.0]
+    same = np.zeros((2, 2))
+    assert ScratchSet(same, same, np.ones(2), np.ones(2)).p0 is same
+    with pytest.raises(ValueError, match=r"\(2,\), got shapes \(\) and \(2,\)"):
+        ScratchSet(same, same, 0.1, np.ones(2))

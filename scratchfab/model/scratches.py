@@ -36,11 +36,19 @@ class ScratchSet:
     depth: np.ndarray
 
     def __post_init__(self) -> None:
+        for name in ("p0", "p1", "width", "depth"):
+            # float64 arrays as they are (no copy); lists and other dtypes converted
+            object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=np.float64))
         n = len(self.p0)
         if self.p0.shape != (n, 2) or self.p1.shape != (n, 2):
-            raise ValueError("p0 and p1 must both be (N, 2)")
+            raise ValueError(
+                f"p0 and p1 must both be (N, 2), got shapes {self.p0.shape} and {self.p1.shape}"
+            )
         if self.width.shape != (n,) or self.depth.shape != (n,):
-            raise ValueError("width and depth must be (N,)")
+            raise ValueError(
+                f"width and depth must be ({n},), got shapes {self.width.shape} and "
+                f"{self.depth.shape} (ScratchSet.from_arrays broadcasts one value)"
+            )
 
     def __len__(self) -> int:
         return len(self.p0)
