@@ -22,8 +22,10 @@ A notebook's path from a design to a machine, in memory where it can be:
   port, or ``grblsim://`` for the built-in GRBL emulator).
 
 The ``run_*`` functions of each stage's ``stage`` module do the same on a job folder
-(SPEC section 6). Mistakes in what a user gives raise
-:class:`scratchfab.errors.ScratchfabError` (one line naming the file and key or row).
+(SPEC section 6). Mistakes in files, tables and settings raise
+:class:`scratchfab.errors.ScratchfabError` (one line naming the file and key or row);
+arrays of the wrong shape or range given to a function raise ``ValueError``. Nothing
+in the core prints: progress goes to the callbacks a caller passes.
 """
 
 __version__ = "0.1.0"
