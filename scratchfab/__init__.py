@@ -22,10 +22,11 @@ A notebook's path from a design to a machine, in memory where it can be:
   port, or ``grblsim://`` for the built-in GRBL emulator).
 
 The ``run_*`` functions of each stage's ``stage`` module do the same on a job folder
-(SPEC section 6). Mistakes in files, tables and settings raise
+(SPEC section 6). Mistakes in files, tables, settings and targets raise
 :class:`scratchfab.errors.ScratchfabError` (one line naming the file and key or row);
-arrays of the wrong shape or range given to a function raise ``ValueError``. Nothing
-in the core prints: progress goes to the callbacks a caller passes.
+the array building blocks (``ScratchSet``, ``fit_to_board``, ``warp_to_view``,
+``order_strokes``) refuse arrays of the wrong shape or range with ``ValueError``.
+Nothing in the core prints: progress goes to the callbacks a caller passes.
 """
 
 __version__ = "0.1.0"
