@@ -268,3 +268,44 @@ def test_a_scratch_set_takes_lists_as_float64_arrays():
     assert ScratchSet(same, same, np.ones(2), np.ones(2)).p0 is same
     with pytest.raises(ValueError, match=r"\(2,\), got shapes \(\) and \(2,\)"):
         ScratchSet(same, same, 0.1, np.ones(2))
+
+
+def bounded_fields():
+    """(class, field, a value outside its spec bounds) for every bounded design field."""
+    from dataclasses import fields
+
+    from scratchfab.model.design import Board, Light, ScratchTool, View
+
+    cases = []
+    for cls in (Board, Light, ScratchTool, View):
+        for f in fields(cls):
+            meta = f.metadata
+            if not meta:
+                continue
+            if meta.get("gt") is not None:
+                bad = meta["gt"]
+            elif meta.get("ge") is not None:
+                bad = meta["ge"] - 1.0
+            else:
+                bad = meta["le"] * 2.0
+            cases.append((cls, f.name, bad))
+    return cases
+
+
+VALID = {
+    "Board": {},
+    "Light": {"position_mm": (0.0, 100.0, 400.0)},
+    "ScratchTool": {},
+    "View": {"name": "v", "position_mm": (0.0, 0.0, 400.0)},
+}
+
+
+@pytest.mark.parametrize(("cls", "name", "bad"), bounded_fields())
+def test_a_design_table_built_in_code_meets_the_files_bounds(cls, name, bad):
+    """The bounds of spec() hold for a dataclass built in code, not only for a file's."""
+    kwargs = dict(VALID[cls.__name__])
+    default = kwargs.get(name, getattr(cls, name, None))
+    kwargs[name] = tuple(bad for _ in default) if isinstance(default, tuple) else bad
+    with pytest.raises(ValueError, match=rf"{cls.__name__}\.{name}: expected a value"):
+        cls(**kwargs)
+    cls(**VALID[cls.__name__])

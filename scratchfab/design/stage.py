@@ -82,10 +82,16 @@ def load_source(
     """
     if isinstance(source, Design):
         design = source
-        if count is not None:
-            design = replace(design, scratch=replace(design.scratch, count=count))
         if resolution is not None:
-            raise ValueError("apply resolution when building a Design, not to a resolved one")
+            raise ConfigError(
+                f"{design.source}: resolution: give it when building the design, "
+                "not to a resolved one"
+            )
+        if count is not None:
+            try:
+                design = replace(design, scratch=replace(design.scratch, count=count))
+            except ValueError as exc:
+                raise ConfigError(f"{design.source}: count: {exc}") from None
         return design, PipelineOptions()
     file = Path(source)
     data = load_toml(file)

@@ -20,6 +20,7 @@ import tomli_w
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import write_text
 from scratchfab.model.schema import (
+    check_bounds,
     load_toml,
     parse_table,
     reject_unknown_keys,
@@ -56,6 +57,7 @@ class Board:
     margin_mm: float = field(default=2.0, metadata=spec(ge=0))
 
     def __post_init__(self) -> None:
+        check_bounds(self)
         for key in ("width_mm", "height_mm"):
             if getattr(self, key) > MAX_MM:
                 raise ValueError(
@@ -81,6 +83,7 @@ class Light:
     intensity: float = field(default=1.0, metadata=spec(gt=0))
 
     def __post_init__(self) -> None:
+        check_bounds(self)
         if self.position_mm[2] <= 0:
             raise ValueError(
                 f"position_mm: the light must be in front of the board (z > 0), "
@@ -116,6 +119,7 @@ class ScratchTool:
     max_length_mm: float = field(default=12.0, metadata=spec(gt=0))
 
     def __post_init__(self) -> None:
+        check_bounds(self)
         if (why := dent_problem(self.width_mm, self.depth_mm)) is not None:
             raise ValueError(f"width_mm {self.width_mm:g} and depth_mm {self.depth_mm:g}: {why}")
         if self.min_length_mm > self.max_length_mm:
@@ -148,6 +152,7 @@ class View:
     light_position_mm: Vec3 | None = field(default=None, metadata=_COORD)
 
     def __post_init__(self) -> None:
+        check_bounds(self)
         if not _NAME_RE.fullmatch(self.name) or RESERVED_NAME_RE.match(self.name):
             raise ValueError(
                 f"name {self.name!r} is not file-name safe (letters, digits, '_', '-', '.'; "

@@ -173,6 +173,26 @@ def _check_bounds(value: Any, meta: Mapping[str, Any], where: str) -> None:
             raise ConfigError(f"{where}: expected a value {words} {bound}, got {_show(value)}")
 
 
+def check_bounds(obj: Any) -> None:
+    """Refuse a dataclass whose fields lie outside their :func:`spec` bounds.
+
+    :func:`parse_table` checks the bounds of a file's values; a ``__post_init__`` calls
+    this so that a dataclass built in code meets the same bounds.
+
+    Raises:
+        ValueError: Naming the class, the field and the bounds.
+    """
+    for f in dataclasses.fields(obj):
+        if not f.metadata:
+            continue
+        value = getattr(obj, f.name)
+        for item in value if isinstance(value, tuple) else (value,):
+            try:
+                _check_bounds(item, f.metadata, f"{type(obj).__name__}.{f.name}")
+            except ConfigError as exc:
+                raise ValueError(str(exc)) from None
+
+
 def reject_unknown_keys(data: Mapping[str, Any], valid: list[str], here: str) -> None:
     """Raise a ConfigError naming the first key of ``data`` not in ``valid`` and the nearest one.
 
