@@ -271,13 +271,25 @@ def test_a_scratch_set_takes_lists_as_float64_arrays():
 
 
 def bounded_fields():
-    """(class, field, a value outside its spec bounds) for every bounded design field."""
+    """(class, field, a value outside its spec bounds) for every bounded design and profile field."""
     from dataclasses import fields
 
+    from scratchfab.machine.profile import Feeds, GcodeFormat, Motion, Serial, Tool, ToolControl
     from scratchfab.model.design import Board, Light, ScratchTool, View
 
     cases = []
-    for cls in (Board, Light, ScratchTool, View):
+    for cls in (
+        Board,
+        Light,
+        ScratchTool,
+        View,
+        Feeds,
+        Motion,
+        Tool,
+        ToolControl,
+        Serial,
+        GcodeFormat,
+    ):
         for f in fields(cls):
             meta = f.metadata
             if not meta:
@@ -297,12 +309,18 @@ VALID = {
     "Light": {"position_mm": (0.0, 100.0, 400.0)},
     "ScratchTool": {},
     "View": {"name": "v", "position_mm": (0.0, 0.0, 400.0)},
+    "Feeds": {},
+    "Motion": {},
+    "Tool": {"width_mm": 0.1, "depth_mm": 0.01},
+    "ToolControl": {},
+    "Serial": {},
+    "GcodeFormat": {},
 }
 
 
 @pytest.mark.parametrize(("cls", "name", "bad"), bounded_fields())
-def test_a_design_table_built_in_code_meets_the_files_bounds(cls, name, bad):
-    """The bounds of spec() hold for a dataclass built in code, not only for a file's."""
+def test_a_table_built_in_code_meets_the_files_bounds(cls, name, bad):
+    """The bounds of spec() hold for a design or profile table built in code, not only a file's."""
     kwargs = dict(VALID[cls.__name__])
     default = kwargs.get(name, getattr(cls, name, None))
     kwargs[name] = tuple(bad for _ in default) if isinstance(default, tuple) else bad

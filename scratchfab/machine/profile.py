@@ -79,7 +79,7 @@ from typing import Any, Literal
 import numpy as np
 
 from scratchfab.bundled import find_bundled
-from scratchfab.model.schema import load_toml, parse_table, spec, to_table
+from scratchfab.model.schema import check_bounds, load_toml, parse_table, spec, to_table
 from scratchfab.toolpath.timing import GRBL_JUNCTION_DEVIATION_MM
 
 Range = tuple[float, float]
@@ -184,6 +184,9 @@ class Feeds:
     plunge_mm_min: float = field(default=200.0, metadata=spec(gt=0))
     travel_mm_min: float | None = field(default=None, metadata=spec(gt=0))
 
+    def __post_init__(self) -> None:
+        check_bounds(self)
+
 
 @dataclass(frozen=True)
 class Motion:
@@ -197,6 +200,9 @@ class Motion:
     )
     junction_deviation_mm: float = field(default=GRBL_JUNCTION_DEVIATION_MM, metadata=spec(ge=0))
 
+    def __post_init__(self) -> None:
+        check_bounds(self)
+
 
 @dataclass(frozen=True)
 class Tool:
@@ -206,6 +212,9 @@ class Tool:
     depth_mm: float = field(metadata=spec(gt=0))
     min_length_mm: float = field(default=0.5, metadata=spec(ge=0))
     tolerance_mm: float = field(default=0.01, metadata=spec(gt=0))
+
+    def __post_init__(self) -> None:
+        check_bounds(self)
 
 
 _TOOL_CODE = re.compile(r"(?:\s*[A-Z]\s*[-+]?(?:\d+\.?\d*|\.\d+))+\s*")
@@ -277,6 +286,7 @@ class ToolControl:
     dwell_s: float = field(default=0.0, metadata=spec(ge=0))
 
     def __post_init__(self) -> None:
+        check_bounds(self)
         for name in ("on", "off"):
             _check_tool_command(name, getattr(self, name), self.power)
         if self.command("on") == self.command("off"):
@@ -294,6 +304,9 @@ class Serial:
     baud: int = field(default=115200, metadata=spec(gt=0))
     rx_buffer_bytes: int = field(default=128, metadata=spec(ge=16))
 
+    def __post_init__(self) -> None:
+        check_bounds(self)
+
 
 #: Digits after the point G-code coordinates may have.
 MAX_DECIMALS = 6
@@ -305,6 +318,9 @@ class GcodeFormat:
 
     decimals: int = field(default=3, metadata=spec(ge=0, le=MAX_DECIMALS))
     max_line_length: int = field(default=79, metadata=spec(ge=20))
+
+    def __post_init__(self) -> None:
+        check_bounds(self)
 
 
 @dataclass(frozen=True)
