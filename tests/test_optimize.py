@@ -247,6 +247,28 @@ def test_merge_penalty_pushes_close_parallel_scratches_apart(m, board) -> None:
     assert merged > image_only + 0.02  # and farther than the image term alone takes them
 
 
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ("targets", r"the targets \(elsewhere\) name none of the views \(left, right\)"),
+        ("lr", r"Settings\.lr: missing theta, length"),
+    ],
+)
+def test_the_optimizer_refuses_targets_of_no_view_and_missing_rates(
+    m, board, change: str, message: str
+) -> None:
+    """A library user's slips are named before the first step, not a Dr.Jit error in it."""
+    design, targets, _ = board
+    layout = make_layout(design, 20, seed=1)
+    lr = dict(LR)
+    if change == "targets":
+        targets = {"elsewhere": next(iter(targets.values()))}
+    else:
+        del lr["theta"], lr["length"]
+    with pytest.raises(ScratchfabError, match=message):
+        LayoutOptimizer(design, targets, layout, Settings(lr=lr), m)
+
+
 def test_pairs_the_step_skips_add_exact_zeros(m, board) -> None:
     """Every pair that the touch test drops contributes 0.0, with 0.0 derivatives.
 

@@ -223,6 +223,17 @@ class LayoutOptimizer:
         self.m = m
         self.bounds = Bounds.from_design(design)
         self.views = [v for v in design.views if v.name in targets]
+        if not self.views:
+            names = ", ".join(v.name for v in design.views)
+            raise ScratchfabError(
+                f"{design.source}: the targets ({', '.join(map(str, targets)) or 'none'}) "
+                f"name none of the views ({names})"
+            )
+        if missing := [k for k in KEYS if k not in settings.lr]:
+            raise ScratchfabError(
+                f"Settings.lr: missing {', '.join(missing)} "
+                "(OptimizeOptions().learning_rates() gives all four)"
+            )
         self.renderers = [ViewRenderer(design, v, m) for v in self.views]
         #: The renderer's float type (float64: its closed form needs the precision).
         self.Float = m.Float64
