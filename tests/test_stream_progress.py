@@ -8,7 +8,7 @@ import re
 import pytest
 from test_stream import write_job
 
-from scratchfab.cli import main, stream_cmd
+from scratchfab.cli import main, options
 from scratchfab.cli.stream_cmd import _ProgressLine
 from scratchfab.machine import stream_job
 from scratchfab.machine.sender import StreamProgress
@@ -126,7 +126,7 @@ def test_the_clock_starts_at_the_first_report():
 
 
 def test_the_terminal_bar_draws_the_formatters_text(capsys, monkeypatch):
-    monkeypatch.setattr(stream_cmd, "_columns", lambda: 0)  # a terminal that does not say
+    monkeypatch.setattr(options, "terminal_columns", lambda: 0)  # a terminal that does not say
     bar = _ProgressLine()
     bar.tty = True
     report = StreamProgress(7, 28, 12.0, "Run", (1.0, -2.0, -0.05))
@@ -139,7 +139,7 @@ def test_the_terminal_bar_draws_the_formatters_text(capsys, monkeypatch):
 @pytest.mark.parametrize("columns", [200, 120, 100, 80, 60])
 def test_the_terminal_bar_stays_inside_the_terminals_width(columns, capsys, monkeypatch):
     """A line as wide as the terminal wraps, and every redraw would then start a row lower."""
-    monkeypatch.setattr(stream_cmd, "_columns", lambda: columns)
+    monkeypatch.setattr(options, "terminal_columns", lambda: columns)
     report = StreamProgress(33600, 80000, 2880.0, "Run", (-123.45, -167.89, -0.05))
     text = progress_text(report, 0.0)
     assert len(text) == 80  # an 80k-line job's line, without the bar
@@ -209,3 +209,36 @@ def test_the_pipelines_stream_stage_prints_the_formatters_lines(tmp_path, monkey
     run_stream_job(layout.root, "grblsim://?baud=0&time_scale=0.01", say=said.append)
     marks = [line for line in said if "MARK" in line]
     assert marks and marks[-1] == "  MARK 103/103 True", said
+
+
+@pytest.mark.parametrize("columns", [0, 20, 40, 70, 200])
+def test_the_terminal_bar_fits_narrow_terminals(columns, capsys, monkeypatch):
+    """The stream's bar is the optimizer's (RedrawnLine): at 20 to 200 columns no redraw
+    wraps, the bar narrows and goes, then whole words are kept; 0 columns (unknown): all."""
+    from test_optimize_progress import drawn_lines, whole_words
+
+    monkeypatch.setattr(options, "terminal_columns", lambda: columns)
+    bar = _ProgressLine()
+    bar.tty = True
+    reports = [
+        StreamProgress(33600, 80000, 2880.0, "Run", (-123.45, -167.89, -0.05)),
+        StreamProgress(40000, 80000, 2000.0, "Run", (1.0, 2.0, -0.05)),
+        StreamProgress(80000, 80000, 0.0, "Idle", (0.0, 0.0, 5.0), final=True),
+    ]
+    for report in reports:
+        bar(report)
+    bar.end()
+    lines = drawn_lines(capsys.readouterr().err)
+    assert len(lines) == 3
+    for line, report in zip(lines, reports, strict=True):
+        text = progress_text(report, 0.0)
+        assert not columns or len(line) <= columns - 1
+        width = 28 if not columns else min(28, columns - 1 - len(text) - 3)
+        if width >= 8:
+            fill = int(width * report.fraction)
+            assert line.rstrip() == f"[{'#' * fill}{'.' * (width - fill)}] {text}"
+        else:  # (spaces blank what a longer line before left)
+            assert line.rstrip() == whole_words(text, columns - 1)
+    words = {20: " 42.0% 33600/80000", 40: " 42.0% 33600/80000 lines  elapsed 00:00"}
+    if columns in words:
+        assert lines[0] == words[columns]

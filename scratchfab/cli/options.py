@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+import os
 import re
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -123,18 +125,60 @@ def job_or_files(
     return design_file, scratch_file, out_dir
 
 
+#: The widest and the narrowest bar :func:`fit_line` draws (characters inside the brackets).
+BAR_WIDEST = 28
+BAR_NARROWEST = 8
+
+
+def terminal_columns() -> int:
+    """The width of the terminal on stderr in characters; 0 where it does not say."""
+    try:
+        return os.get_terminal_size(sys.stderr.fileno()).columns
+    except (OSError, ValueError):
+        return 0
+
+
+def fit_line(text: str, columns: int, fraction: float | None = None) -> str:
+    """``text`` (after a bar ``fraction`` full, if given) fitted to ``columns - 1`` characters.
+
+    A line as wide as the terminal wraps, and each redraw would then start a row lower.
+    The bar narrows (from BAR_WIDEST to BAR_NARROWEST, then none) to make room for the
+    text; text still too long is cut after its last whole word that fits (a word longer
+    than the line: where the line ends). ``columns`` 0 (a terminal that does not say):
+    the widest bar and the whole text.
+    """
+    room = columns - 1
+    width = min(BAR_WIDEST, room - len(text) - 3) if columns else BAR_WIDEST
+    if fraction is not None and width >= BAR_NARROWEST:
+        fill = min(width, max(0, int(width * fraction)))
+        return f"[{'#' * fill}{'.' * (width - fill)}] {text}"
+    if not columns or len(text) <= room:
+        return text
+    # the first ``columns`` characters: a space at the last is a word's end that fits
+    words = text[:columns].rsplit(" ", 1)[0].rstrip()
+    return words if 0 < len(words) <= room else text[: max(0, room)]
+
+
 class RedrawnLine:
-    """One line of a terminal on stderr, redrawn in place.
+    """One line of a terminal on stderr, redrawn in place and kept inside its width.
 
     Spaces, not an ANSI erase code, blank what a shorter line leaves: a Windows console
     prints ANSI codes as text.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, columns: Callable[[], int] | None = None) -> None:
+        """A line whose width comes from ``columns()`` (default :func:`terminal_columns`)."""
         self.last_len = 0
+        self._columns = columns
 
-    def __call__(self, text: str, newline: bool) -> None:
-        """Draw ``text`` over the line; ``newline`` ends it."""
-        pad = " " * max(0, self.last_len - len(text))
+    def __call__(self, text: str, newline: bool, fraction: float | None = None) -> None:
+        """Draw ``text`` (after a bar ``fraction`` full) fitted over the line.
+
+        ``newline`` ends the line: the next draw starts a new one.
+        """
+        columns = self._columns() if self._columns is not None else terminal_columns()
+        text = fit_line(text, columns, fraction)
+        blank = self.last_len if not columns else min(self.last_len, columns - 1)
+        pad = " " * max(0, blank - len(text))
         click.echo(f"\r{text}{pad}", nl=newline, err=True)
         self.last_len = 0 if newline else len(text)

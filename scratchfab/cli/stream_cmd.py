@@ -25,8 +25,7 @@ class _ProgressLine:
 
     The text is :func:`~scratchfab.machine.stream_job.progress_text`'s, as the pipeline's
     stream stage prints it; off a terminal :class:`ProgressLines` paces it. On a terminal
-    that tells its width the bar narrows (to 8 characters, then none) to keep the line
-    inside it: a full-width line wraps, and each redraw would start a row lower.
+    :class:`RedrawnLine` draws the bar and keeps the line inside the terminal's width.
     """
 
     def __init__(self) -> None:
@@ -37,16 +36,7 @@ class _ProgressLine:
 
     def __call__(self, p: StreamProgress) -> None:
         if self.tty:
-            text = self._lines.text(p)
-            columns = _columns()
-            # a line as wide as the terminal wraps, and the next redraw starts below it
-            width = min(28, columns - 1 - len(text) - 3) if columns else 28
-            if width >= 8:
-                fill = int(width * p.fraction)
-                text = f"[{'#' * fill}{'.' * (width - fill)}] {text}"
-            elif columns and len(text) > columns - 1:
-                text = text[:columns].rsplit(" ", 1)[0].rstrip()  # whole words only
-            self._line(text, newline=False)
+            self._line(self._lines.text(p), newline=False, fraction=p.fraction)
             self._open = True
         else:
             due = self._lines.line(p)
@@ -59,14 +49,6 @@ class _ProgressLine:
             self._line.last_len = 0
             click.echo("", err=True)
             self._open = False
-
-
-def _columns() -> int:
-    """The width of the terminal on stderr in characters; 0 where it does not say."""
-    try:
-        return os.get_terminal_size(sys.stderr.fileno()).columns
-    except (OSError, ValueError):
-        return 0
 
 
 @click.command("stream")
