@@ -256,3 +256,49 @@ def test_scheduled_resume_matches_uninterrupted_and_needs_the_same_iterations(
             run_optimize(b, other)
         text = str(exc.value)
         assert "different settings" in text and named in text and "\n" not in text
+
+
+def test_equal_scales_resume_with_more_iterations_as_constant_steps(tmp_path: Path) -> None:
+    """Start and end scales equal (not 1): every step takes that scale, whatever the total
+    and the shape, so a finished run extends to more iterations (with another shape too)
+    and ends as a run that had the larger count from the start."""
+    design = make_design(resolution=24, size_mm=30.0)
+    a = make_job(tmp_path / "a", design, count=150)
+    b = make_job(tmp_path / "b", design, count=150)
+    options = OptimizeOptions(
+        iterations=16, checkpoint_every=4, lr_start_scale=0.5, lr_end_scale=0.5, refresh_every=4
+    )
+    schedule = options.schedule()
+    assert schedule is not None
+    assert {schedule.scale(t) for t in range(16)} == {0.5}
+    run_optimize(a, options)
+    short = dataclasses.replace(options, iterations=7, lr_schedule="linear")
+    assert run_optimize(b, short).iterations == 7
+    resumed = run_optimize(b, dataclasses.replace(options, resume=True))
+    assert resumed.iterations == 16
+    assert (b / "optimize" / "scratches.csv").read_bytes() == (
+        a / "optimize" / "scratches.csv"
+    ).read_bytes()
+    log_a = (a / "optimize" / "log.csv").read_text().splitlines()
+    log_b = (b / "optimize" / "log.csv").read_text().splitlines()
+    strip = [lambda line: line.split(",")[:2] + line.split(",")[3:]][0]  # not the seconds
+    assert log_a[-1].startswith("16,") and [strip(x) for x in log_a] == [strip(x) for x in log_b]
+    # another equal scale is another run, named by its options
+    with pytest.raises(ConfigError, match=r"\(lr_start_scale, lr_end_scale\)"):
+        run_optimize(
+            b, dataclasses.replace(options, lr_start_scale=0.7, lr_end_scale=0.7, resume=True)
+        )
+
+
+def test_a_checkpoint_that_kept_an_equal_scales_total_still_resumes() -> None:
+    """Checkpoints written before kept the shape and total of equal scales: still the same."""
+    from scratchfab.optimize.stage import _changed_keys
+
+    made = {
+        "seed": 0,
+        "lr_schedule": {"shape": "cosine", "start": 0.5, "end": 0.5, "iterations": 9},
+    }
+    now = {"seed": 0, "lr_schedule": {"start": 0.5, "end": 0.5}}
+    assert _changed_keys(made, now) == []
+    varying = {"shape": "cosine", "start": 0.5, "end": 0.25, "iterations": 9}
+    assert _changed_keys({**made, "lr_schedule": varying}, now) == ["lr_end_scale"]

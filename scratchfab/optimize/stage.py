@@ -181,8 +181,19 @@ def _fingerprint(
     if schedule is not None:
         # its scales depend on the run's total, so a resume needs the same iterations;
         # only present with a schedule, so a constant run may still be extended
-        out["lr_schedule"] = asdict(schedule)
+        out["lr_schedule"] = _schedule_fields(asdict(schedule))
     return out
+
+
+def _schedule_fields(fields: dict[str, Any]) -> dict[str, Any]:
+    """The fields of a fingerprint's schedule (a StepSchedule's) that its steps depend on.
+
+    Equal start and end scales make every step take that scale, whatever the shape and
+    the total: such a run may be extended as a constant one can.
+    """
+    if fields.get("start") == fields.get("end"):
+        return {k: v for k, v in fields.items() if k not in ("shape", "iterations")}
+    return fields
 
 
 # The fields of a fingerprint's "lr_schedule" (a StepSchedule) by option name.
@@ -198,11 +209,14 @@ def _changed_keys(made: dict[str, Any], now: dict[str, Any]) -> list[str]:
     """Option names (or "inputs_sha256") whose fingerprint values differ.
 
     A schedule's change is named by the options that changed (its total, ``iterations``,
-    rather than ``lr_schedule``); a constant run has no schedule: scales 1, no total.
+    rather than ``lr_schedule``); a constant run has no schedule: scales 1, no total. A
+    schedule of equal scales depends on neither its shape nor its total.
     """
     out: list[str] = []
     for k in dict.fromkeys([*now, *made]):
         a, b = made.get(k), now.get(k)
+        if k == "lr_schedule":  # a checkpoint may keep a constant scale's shape and total
+            a, b = (_schedule_fields(v) if isinstance(v, dict) else v for v in (a, b))
         if json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True):
             continue
         if k != "lr_schedule" or not isinstance(a or b, dict):
