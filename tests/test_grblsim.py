@@ -2,18 +2,27 @@
 
 from __future__ import annotations
 
+import collections
+import math
 import time
 from dataclasses import FrozenInstanceError, replace
 
+import grbl_planner_sim as planner_sim
+import numpy as np
 import pytest
 import serial
+from test_export import random_scratches
 
 import scratchfab.machine.sender  # noqa: F401  (registers grblsim://)
 from scratchfab.cli import main
+from scratchfab.export import export
 from scratchfab.machine.grbl_codes import ALARM_CODES, ERROR_CODES, error_meaning
 from scratchfab.machine.grblsim import BANNER, GrblSim, SimOptions
 from scratchfab.machine.grblsim_pty import GrblPty
+from scratchfab.machine.profile import load_profile
 from scratchfab.machine.sender_journal import default_journal_path
+from scratchfab.model.design import Board
+from scratchfab.toolpath import plan_toolpath
 
 
 def _open(query: str = "time_scale=0.01") -> serial.SerialBase:
@@ -625,3 +634,189 @@ def test_a_feed_hold_suspends_a_dwell_which_goes_on_after_the_resume():
         assert resume - held > seconds  # the hold outlasted the whole dwell
         # the dwell counted only while not held: ``seconds`` in all, its rest after the resume
         assert ok - resume == pytest.approx(seconds - (held - rx), abs=1e-5)
+
+
+# ------------------------------------------------------------- motion time: Grbl's planner
+
+
+def _sim_in_own_time(options: SimOptions) -> tuple[GrblSim, list[float]]:
+    """An emulator run by a fake clock (``clock[0]``, seconds) that the test moves on."""
+    clock = [0.0]
+    sim = GrblSim(options, clock=lambda: clock[0])
+    sim.start(thread=False)
+    return sim, clock
+
+
+def _run_until_still(sim: GrblSim, clock: list[float]) -> None:
+    """Move the fake clock from event to event until the emulator waits for input."""
+    while (t := sim.next_event()) < math.inf:
+        clock[0] = max(clock[0], t)
+        sim.advance(clock[0])
+        sim.host_read(1 << 16, 0.0)
+
+
+def _stream_in_own_time(
+    lines: list[str], options: SimOptions, one_at_a_time: bool = False
+) -> GrblSim:
+    """Stream ``lines`` into an emulator that runs in its own time, until motion ends.
+
+    The host answers at once: character counting keeps the 128-byte RX buffer as full as
+    the lines allow; ``one_at_a_time`` sends a line only after the previous one's ``ok``
+    (a simple send-response sender), so over a slow link the planner runs short.
+    """
+    sim, clock = _sim_in_own_time(options)
+    todo = collections.deque((ln + "\n").encode() for ln in lines)
+    waiting: collections.deque[int] = collections.deque()  # bytes of lines awaiting an ok
+    buf = b""
+    while todo or waiting:
+        while todo and (not waiting if one_at_a_time else sum(waiting) + len(todo[0]) <= 127):
+            waiting.append(sim.host_write(todo.popleft()))
+        sim.advance(clock[0])
+        buf += sim.host_read(1 << 16, 0.0)
+        *answers, buf = buf.split(b"\n")
+        acks = [a.strip() for a in answers if a.strip() == b"ok" or a.startswith(b"error")]
+        assert b"".join(acks).count(b"error") == 0, acks
+        for _ in acks:
+            waiting.popleft()
+        if not acks:
+            clock[0] = max(clock[0], sim.next_event())
+            assert clock[0] < math.inf, "the emulator waits, yet lines await their ok"
+    _run_until_still(sim, clock)
+    sim.close()
+    return sim
+
+
+def _motion_seconds(sim: GrblSim) -> float:
+    """From the first line's arrival until the last move or line ended (the record's times)."""
+    start = next(e["t"] for e in sim.record if e["ev"] == "rx")
+    return max(e["t"] for e in sim.record if e["ev"] in ("exec", "resp")) - start
+
+
+def _grbl_settings(profile) -> dict[int, float]:
+    m = profile.motion
+    out = {110 + k: m.max_rate_mm_min[k] for k in range(3)}
+    out |= {120 + k: m.acceleration_mm_s2[k] for k in range(3)}
+    out[11] = m.junction_deviation_mm
+    return out
+
+
+def _reference(settings: dict[int, float], **kw) -> planner_sim.Settings:
+    return planner_sim.Settings(
+        tuple(settings[110 + k] for k in range(3)),  # type: ignore[arg-type]
+        tuple(settings[120 + k] for k in range(3)),  # type: ignore[arg-type]
+        settings[11],
+        **kw,
+    )
+
+
+@pytest.mark.parametrize("name", ["grbl-3018-diamond", "grbl-plotter-scribe"])
+def test_motion_time_of_an_exported_job_follows_grbls_planner(name, tmp_path):
+    """The emulator times a job as Grbl 1.1's planner does (accelerations, corners by $11,
+    look-ahead over its 15 blocks, stops where a line empties the planner): against the
+    tests' own planner model, not distance / feed (which the check can tell apart)."""
+    profile = load_profile(name)
+    board = Board(width_mm=40.0, height_mm=40.0, margin_mm=1.0)
+    tp = plan_toolpath(random_scratches(np.random.default_rng(3), 150), board, profile)
+    out = tmp_path / "board.gcode"
+    export(tp, profile, out)
+    lines = out.read_text().splitlines()
+    settings = _grbl_settings(profile)
+    sim = _stream_in_own_time(lines, SimOptions(baud=115200, settings=settings))
+    want = planner_sim.simulate(lines, _reference(settings), (0.0, 0.0, 0.0))
+    assert _motion_seconds(sim) == pytest.approx(want.seconds, rel=1e-3)
+    no_accel = {**settings, 120: 1e12, 121: 1e12, 122: 1e12}  # distance / feed
+    flat = planner_sim.simulate(lines, _reference(no_accel), (0.0, 0.0, 0.0)).seconds
+    assert abs(flat - want.seconds) > 0.05 * want.seconds
+
+
+def _polygon(segments: int, radius: float, feed: float) -> list[str]:
+    angles = np.linspace(0.0, 2.0 * np.pi, segments + 1)[1:]
+    points = [f"G1 X{radius * np.cos(a):.3f} Y{radius * np.sin(a):.3f}" for a in angles]
+    return ["G21 G90 G94", f"G0 X{radius:g} Y0", f"F{feed:g}", *points]
+
+
+def test_a_starved_planner_stops_where_a_full_one_goes_round_corners():
+    """Send-response over a link slower than the moves keeps Grbl's planner short of blocks:
+    the newest always ends at rest, so the machine slows down at every block; character
+    counting keeps the 15 blocks queued and the job takes the full planner's time."""
+    lines = _polygon(80, 8.0, 1500.0)  # 0.6 mm sides: 25 ms each at full speed
+    settings = {110: 3000.0, 111: 3000.0, 112: 600.0, 120: 200.0, 121: 200.0, 122: 50.0, 11: 0.02}
+    options = SimOptions(baud=115200, latency=0.02, settings=settings)  # 20 ms each way
+    full = _motion_seconds(_stream_in_own_time(lines, options))
+    starved = _motion_seconds(_stream_in_own_time(lines, options, one_at_a_time=True))
+    want = planner_sim.simulate(lines, _reference(settings), (0.0, 0.0, 0.0)).seconds
+    assert full == pytest.approx(want, rel=2e-3)
+    one_block = planner_sim.simulate(lines, _reference(settings), (0.0, 0.0, 0.0), 1).seconds
+    assert full * 1.3 < starved  # a stop or near-stop at most corners
+    assert one_block > full * 1.3  # (the reference agrees that stopping costs that much)
+
+
+def test_a_move_that_comes_while_the_last_one_runs_joins_it():
+    """Grbl re-plans the running block when a block is queued behind it: a straight
+    continuation that arrives while the first move still accelerates runs as one move; one
+    that arrives after the first stopped starts from rest. ``$120`` = 10 mm/s^2 (default)."""
+    for gap, joined in ((0.3, True), (2.5, False)):
+        sim, clock = _sim_in_own_time(SimOptions(baud=0, settings={110: 1000.0}))
+        sim.host_write(b"G1X10F600\n")  # 10 mm/s needs 1 s and 5 mm to reach
+        while clock[0] < gap:
+            sim.host_read(1 << 16, 0.0)
+            clock[0] = min(gap, sim.next_event())
+            sim.advance(clock[0])
+        sim.host_write(b"G1X20\n")
+        _run_until_still(sim, clock)
+        sim.close()
+        end = max(e["t"] for e in sim.record if e["ev"] == "exec")
+        # from rest to rest over 20 mm: 1 s up, 1 s at 10 mm/s, 1 s down
+        one = planner_sim.block_seconds(20.0, 0.0, 0.0, 10.0, 10.0)
+        assert one == pytest.approx(3.0)
+        alone = 2.0 * planner_sim.block_seconds(10.0, 0.0, 0.0, 10.0, 10.0)  # 2 s each
+        assert end == pytest.approx(one if joined else gap + alone / 2.0, abs=1e-6)
+
+
+def test_position_and_rate_in_a_status_follow_the_acceleration():
+    """Half a second into ``G1X10F600`` from rest at 10 mm/s^2: x = a t^2 / 2 = 1.25 mm,
+    at 5 mm/s (FS:300, the realtime rate Grbl 1.1 reports)."""
+    sim, clock = _sim_in_own_time(SimOptions(baud=0))
+    sim.host_write(b"G1X10F600\n")
+    sim.advance(0.0)
+    clock[0] = 0.5
+    sim.advance(0.5)
+    sim.host_read(1 << 16, 0.0)
+    sim.host_write(b"?")
+    sim.advance(0.5)
+    report = sim.host_read(1 << 16, 0.0).decode()
+    assert report.startswith("<Run|MPos:1.250,0.000,0.000|") and "|FS:300,0" in report
+    sim.close()
+
+
+@pytest.mark.parametrize(
+    ("before", "line", "laser", "waits"),
+    [
+        ("", "G92X0", 0, True),  # G92 / G92.1: the work offset changes
+        ("", "G92.1", 0, True),
+        ("", "G10L20P1X0", 0, True),  # G10 writes EEPROM
+        ("", "G10L2P2X5", 0, True),
+        ("", "G28.1", 0, True),
+        ("", "G55", 0, True),  # another coordinate system
+        ("", "G54", 0, False),  # the one already active: no change
+        ("", "G43.1Z1", 0, True),
+        ("", "G49", 0, False),  # no length offset to cancel
+        ("", "G90G21", 0, False),
+        ("M3S100", "M4", 1, True),  # laser mode: a spindle state change still waits
+        ("M3S100", "G0", 1, True),  # laser mode M3: G1 -> G0 without motion (force sync)
+        ("M3S100", "S200G1X20", 1, False),  # laser mode: a new S with motion goes along
+        ("M3S100", "S200G1X20", 0, True),
+        ("M4S100", "G0", 1, False),  # M4 (dynamic power) needs no sync there
+    ],
+)
+def test_which_lines_wait_for_the_planner_to_empty(before, line, laser, waits):
+    """Grbl 1.1 answers these only once the motion before them has ended
+    (``protocol_buffer_synchronize`` via ``system_flag_wco_change``,
+    ``settings_write_coord_data`` or ``spindle_sync``); the others are queued at once."""
+    text = "".join(f"{ln}\n" for ln in (before, "G1X10F600", line) if ln)
+    sim = _stream_in_own_time(text.splitlines(), SimOptions(baud=0, settings={32: laser}))
+    rx = {e["text"]: e["n"] for e in sim.record if e["ev"] == "rx"}
+    ok = next(e["t"] for e in sim.record if e["ev"] == "resp" and e["n"] == rx[line])
+    moved = next(e["t"] for e in sim.record if e["ev"] == "exec" and e["n"] == rx["G1X10F600"])
+    assert moved > 0.5
+    assert (ok >= moved) == waits

@@ -10,10 +10,18 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
 - the main loop moves characters into an 80-byte line buffer (stripping spaces, control
   characters and comments, upper-casing), treats CR and LF each as a line end (so CRLF
   gets two ``ok``), and answers ``error:11`` for lines over 79 characters;
-- a 15-block planner: ``ok`` means "queued", so it lags while the planner is full; motion
-  takes distance / feed (G0 at the ``$110``-``$112`` rates) times ``time_scale``; spindle
-  and coolant changes, dwells, M0/M2/M30 and G10 wait for the planner to empty, except an
-  S change in a block that moves under laser mode (``$32=1``);
+- a 15-block planner: ``ok`` means "queued", so it lags while the planner is full. Motion
+  is timed as Grbl's planner runs it, by the ETA's model (:mod:`scratchfab.toolpath.timing`):
+  per-axis rates and accelerations (``$110``-``$112``, ``$120``-``$122``), corners at the
+  junction speed of ``$11``, look-ahead over the blocks queued when it plans (the newest
+  ends at rest, so a planner that runs short slows down; a block queued behind the running
+  one re-plans it from its current speed), trapezoid profiles in the reported position and
+  realtime ``FS:`` rate; all times ``time_scale``. These wait for the planner to empty (so
+  their ``ok`` comes after the motion before them ended): spindle and coolant changes,
+  dwells, M0/M2/M30, G10, G28.1/G30.1, G92/G92.1 and a change of G54-G59 or of the G43.1
+  offset (Grbl's default ``FORCE_BUFFER_SYNC_DURING_WCO_CHANGE``); not an S change in a
+  block that moves under laser mode (``$32=1``); in laser mode with M3 on, also a block
+  without motion that switches between G1-G3 and another motion mode;
 - ``$`` commands with their state rules (``error:8``/``error:9``), check mode ``$C`` with the
   soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset,
   feed hold ``Hold:1`` -> ``Hold:0`` and resume (lines are still read and planned while
@@ -39,6 +47,7 @@ after N blocks (the host vanishes; the controller still runs what it had receive
 from __future__ import annotations
 
 import collections
+import itertools
 import json
 import math
 import threading
@@ -47,6 +56,8 @@ import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
 
 from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim_gcode import (
@@ -58,6 +69,13 @@ from scratchfab.machine.grblsim_gcode import (
     interpret,
 )
 from scratchfab.model.schema import parse_table, spec
+from scratchfab.toolpath.timing import (
+    corner_speed_sq,
+    exit_speed_sq,
+    move_limits,
+    profile_at,
+    profile_seconds,
+)
 
 VERSION = "1.1h"
 BUILD = "20190830"
@@ -225,17 +243,26 @@ def _value_from_text(raw: str, tp: Any, where: str) -> Any:
 
 @dataclass
 class _Block:
-    """A planned motion."""
+    """A planned motion and, once planned, its current velocity profile."""
 
     start: tuple[float, float, float]
     end: tuple[float, float, float]
-    duration: float  # seconds, already scaled
-    rate: float  # mm/min
+    rate: float  # mm/min: the G1 feed, or the axis-limited rapid rate (before overrides)
+    limit: float  # mm/min: the axis-limited rate along the move
     rapid: bool
     line: int  # received-line index
     work_end: tuple[float, float, float]
     work_start: tuple[float, float, float]
     spindle: str
+    length: float  # mm
+    unit: tuple[float, float, float]  # direction
+    accel: float  # mm/s^2 along the move
+    corner_sq: float  # (mm/s)^2: the junction limit with the move before (0: from rest)
+    done: float = 0.0  # mm run before the current profile starts (a re-plan or a hold)
+    v0: float = 0.0  # mm/s entering the current profile
+    v1: float = 0.0  # mm/s leaving the move
+    vmax: float = 0.0  # mm/s cruise (overrides applied)
+    duration: float = 0.0  # seconds of the current profile, already scaled
 
 
 @dataclass
@@ -291,8 +318,7 @@ class GrblSim:
         self._overflow = False
         self._pending: _Pending | None = None
         self._planner: collections.deque[_Block] = collections.deque()
-        self._head_start = 0.0  # when the head block (re)started
-        self._head_done = 0.0  # seconds of the head block done before a hold
+        self._head_start = 0.0  # when the head block's current profile started
         self._hold_complete = False
         self._hold_until = math.inf
         self._door_ajar = False  # the door switch
@@ -324,15 +350,32 @@ class GrblSim:
 
     # ------------------------------------------------------------------ host side
 
-    def start(self) -> None:
-        """Start the controller's thread and power it up (banner after ``boot`` seconds)."""
+    def start(self, thread: bool = True) -> None:
+        """Power the controller up (banner after ``boot`` seconds) and run it.
+
+        Args:
+            thread: Run it on its own thread by ``clock``; False: the caller runs it with
+                :meth:`advance` (a simulation in the caller's own time, e.g. a fake clock).
+        """
         with self._cond:
             now = self._clock()
             self._tx_free = now
             self._wire_last = now
             self._boot_at = now + self.options.boot
-            self._thread = threading.Thread(target=self._run, name="grblsim", daemon=True)
-            self._thread.start()
+            if thread:
+                self._thread = threading.Thread(target=self._run, name="grblsim", daemon=True)
+                self._thread.start()
+
+    def advance(self, now: float) -> None:
+        """Run the controller up to ``now`` (for a caller that started it without a thread)."""
+        with self._cond:
+            self._advance(now)
+
+    def next_event(self) -> float:
+        """When the controller next acts or a byte reaches the host (``inf``: waits for input)."""
+        with self._cond:
+            t = self._next_event()
+            return min(t, self._out[0][0]) if self._out else t
 
     def host_write(self, data: bytes) -> int:
         """Bytes from the host; they reach the controller at the line's speed."""
@@ -390,7 +433,7 @@ class GrblSim:
         """The host is gone: run what was received (bounded), stop, and write the record."""
         deadline = time.monotonic() + drain_timeout
         with self._cond:
-            while time.monotonic() < deadline and self._busy():
+            while self._thread is not None and time.monotonic() < deadline and self._busy():
                 self._cond.wait(0.02)
             self._stop = True
             self._cond.notify_all()
@@ -461,7 +504,7 @@ class GrblSim:
     def _head_end(self) -> float:
         if self.state not in ("Run", "Jog") or not self._planner or self._jog_cancel:
             return math.inf
-        return self._head_start + self._planner[0].duration - self._head_done
+        return self._head_start + self._planner[0].duration
 
     def _next_event(self) -> float:
         t = min(
@@ -554,7 +597,7 @@ class GrblSim:
             elif self.state == "Hold" and self._hold_complete:
                 self._hold_complete = False
                 if self._planner:
-                    self._head_start = t
+                    self._head_start = t  # from rest: planned so when the hold stopped it
                     self._set_state(t, "Run")
                 else:
                     self._set_state(t, "Idle")
@@ -562,9 +605,11 @@ class GrblSim:
         elif 0x90 <= byte <= 0x94:
             self._overrides[0] = _override(self._overrides[0], byte - 0x90)
             self._ovr_counter = 0
+            self._replan(t)  # plan_update_velocity_profile_parameters
         elif 0x95 <= byte <= 0x97:
             self._overrides[1] = (100, 50, 25)[byte - 0x95]
             self._ovr_counter = 0
+            self._replan(t)
         elif 0x99 <= byte <= 0x9D:
             self._overrides[2] = _override(self._overrides[2], byte - 0x99)
             self._ovr_counter = 0
@@ -697,7 +742,6 @@ class GrblSim:
     def _auto_cycle_start(self, t: float) -> None:
         if self.state == "Idle" and self._planner and not self._critical:
             self._head_start = t
-            self._head_done = 0.0
             self._set_state(t, "Jog" if self._jogging else "Run")
 
     def _main_loop(self, t: float) -> None:
@@ -859,43 +903,119 @@ class GrblSim:
         return True
 
     def _plan(self, t: float, act: Action, line: int) -> None:
+        """Grbl's ``plan_buffer_line``: queue the move, then re-plan the running one.
+
+        A move's rate and acceleration limits and its junction speed with the move before
+        (none when the planner is empty: it starts from rest) are fixed here, as in Grbl.
+        """
         start = self._planner[-1].end if self._planner else self.mpos
         end = act.target
-        dist = math.dist(start, end)
-        rates = (self.settings[110], self.settings[111], self.settings[112])
-        limit = math.inf
-        for k in range(3):
-            d = abs(end[k] - start[k])
-            if d > 0:
-                limit = min(limit, rates[k] * dist / d)
-        rate = limit if act.rapid else min(act.rate, limit)
-        ovr = self._overrides[1] if act.rapid else self._overrides[0]
-        rate = rate * ovr / 100.0
-        duration = 0.0 if dist == 0 or rate <= 0 else dist / rate * 60.0 * self.options.time_scale
+        s = self.settings
+        rates = (s[110], s[111], s[112])
+        accels = (s[120], s[121], s[122])
+        delta = np.subtract(end, start)
+        length, unit, limit, accel = move_limits(delta, np.inf, rates, accels)
+        u = (float(unit[0, 0]), float(unit[0, 1]), float(unit[0, 2]))
+        before = next((b for b in reversed(self._planner) if b.length > 0), None)
+        corner_sq = 0.0
+        if before is not None and length[0] > 0:
+            corner_sq = float(corner_speed_sq(before.unit, unit, accels, s[11])[0])
         wco = self._wco()
         self._planner.append(
             _Block(
                 start=start,
                 end=end,
-                duration=duration,
-                rate=rate,
+                rate=float(limit[0]) * 60.0 if act.rapid else act.rate,
+                limit=float(limit[0]) * 60.0,
                 rapid=act.rapid,
                 line=line,
                 work_start=(start[0] - wco[0], start[1] - wco[1], start[2] - wco[2]),
                 work_end=(end[0] - wco[0], end[1] - wco[1], end[2] - wco[2]),
                 spindle=self._spindle,
+                length=float(length[0]),
+                unit=u,
+                accel=float(accel[0]),
+                corner_sq=corner_sq,
             )
         )
+        self._replan(t)
         if self.state == "Idle" and self._jogging:
             # a jog starts at once (jog_execute); other motion waits for the auto cycle start
             self._head_start = t
-            self._head_done = 0.0
             self._set_state(t, "Jog")
+
+    def _running(self) -> bool:
+        return self.state in ("Run", "Jog") and not self._jog_cancel and bool(self._planner)
+
+    def _head_progress(self, t: float) -> tuple[float, float]:
+        """Distance (mm) into the head's current profile and its speed (mm/s) at ``t``."""
+        if not self._running():
+            return 0.0, 0.0
+        head = self._planner[0]
+        scale = self.options.time_scale
+        if scale <= 0.0 or head.done >= head.length:  # no time passes, or nothing left
+            return 0.0, head.v0
+        return profile_at(
+            (t - self._head_start) / scale,
+            head.length - head.done,
+            head.v0,
+            head.v1,
+            head.vmax,
+            head.accel,
+        )
+
+    def _cruise(self, block: _Block) -> float:
+        """A block's nominal speed (mm/s) under the overrides (``plan_compute_profile_nominal_speed``)."""
+        if block.rapid:
+            return block.limit * self._overrides[1] / 6000.0
+        return min(block.rate * self._overrides[0] / 100.0, block.limit) / 60.0
+
+    def _replan(self, t: float, stopped: bool = False) -> None:
+        """Re-plan the head block as Grbl's ``planner_recalculate`` does on a new block.
+
+        The head, if it runs, goes on from where it is at the speed it has (Grbl's
+        ``st_update_plan_block_parameters``); else, or ``stopped`` (a hold), from rest.
+        """
+        if not self._planner:
+            return
+        entry = 0.0
+        if self._running():
+            head = self._planner[0]
+            ran, entry = self._head_progress(t)
+            head.done = min(head.done + ran, head.length)
+            self._head_start = t
+        self._plan_head(0.0 if stopped else entry)
+
+    def _plan_head(self, entry: float) -> None:
+        """The head block's profile from ``entry`` (mm/s) over what is left of it.
+
+        Look-ahead covers only the blocks queued now, the newest ending at rest (a planner
+        that runs short slows down), by the ETA's model (:mod:`scratchfab.toolpath.timing`).
+        """
+        head = self._planner[0]
+        head.vmax = self._cruise(head)
+        head.v0 = min(entry, head.vmax)
+        left = head.length - head.done
+        if left <= 0.0:
+            head.v1, head.duration = head.v0, 0.0
+            return
+        later = []
+        speed = head.vmax
+        for b in itertools.islice(self._planner, 1, None):
+            if b.length > 0.0:
+                cruise = self._cruise(b)
+                later.append(
+                    (min(b.corner_sq, speed * speed, cruise * cruise), 2.0 * b.accel * b.length)
+                )
+                speed = cruise
+        exit_sq = exit_speed_sq(head.v0 * head.v0, 2.0 * head.accel * left, later)
+        head.v1 = math.sqrt(max(exit_sq, 0.0))
+        seconds = profile_seconds(left, head.v0, head.v1, head.vmax, head.accel)
+        head.duration = float(seconds) * self.options.time_scale
 
     def _finish_head(self, t: float) -> None:
         block = self._planner.popleft()
         self.mpos = block.end
-        self._head_done = 0.0
         self._head_start = t
         self._log(
             t,
@@ -906,23 +1026,23 @@ class GrblSim:
             rapid=block.rapid,
             spindle=block.spindle,
         )
-        if not self._planner:
+        if self._planner:
+            self._plan_head(block.v1)
+        else:
             self._jogging = False
             self._set_state(t, "Idle")
 
     def _pause_head(self, t: float) -> None:
-        if self._planner:
-            self._head_done += t - self._head_start
-            self._head_done = min(self._head_done, self._planner[0].duration)
+        """The head stops where it is (a hold or jog cancel); it will go on from rest."""
+        if self._running():
+            self._replan(t, stopped=True)
 
     def _position(self, t: float) -> tuple[float, float, float]:
         if not self._planner:
             return self.mpos
         head = self._planner[0]
-        done = self._head_done
-        if self.state in ("Run", "Jog") and not self._jog_cancel:
-            done += t - self._head_start
-        frac = 1.0 if head.duration <= 0 else min(1.0, max(0.0, done / head.duration))
+        done = head.done + self._head_progress(t)[0]
+        frac = 1.0 if head.length <= 0 else min(1.0, max(0.0, done / head.length))
         return tuple(a + (b - a) * frac for a, b in zip(head.start, head.end, strict=True))  # type: ignore[return-value]
 
     # ------------------------------------------------------------------ resets and alarms
@@ -1095,7 +1215,7 @@ class GrblSim:
             fields_.append(
                 f"Bf:{PLANNER_BLOCKS - len(self._planner)},{RX_BUFFER_SIZE - len(self._rx)}"
             )
-        rate = self._planner[0].rate if self.state in ("Run", "Jog") and self._planner else 0.0
+        rate = self._head_progress(t)[1] * 60.0  # Grbl 1.1 reports the realtime rate
         if inches:
             fields_.append(f"FS:{rate / MM_PER_INCH:.1f},{self._spindle_speed:.0f}")
         else:

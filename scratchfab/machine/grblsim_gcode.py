@@ -380,25 +380,39 @@ def interpret(line: str, state: ModalState, settings: Settings) -> Outcome:
 
     # gc_execute_line steps 4, 7 and 8: only a change acts (and syncs). An S change with
     # the spindle on syncs too, except in laser mode ($32=1) in a block that moves
-    # (GC_PARSER_LASER_ISMOTION); a spindle state change syncs even in laser mode.
+    # (GC_PARSER_LASER_ISMOTION); a spindle state change syncs even in laser mode. In laser
+    # mode with M3 on, a block without motion that switches between G1/G2/G3 and another
+    # motion mode syncs as well (GC_PARSER_LASER_FORCE_SYNC), the laser off outside G1-G3.
     if spindle is not None:
         new.spindle = spindle
     speed_change = "S" in values and values["S"] != state.spindle_speed and state.spindle != "M5"
-    if new.spindle != state.spindle or speed_change:
-        free = (
-            new.spindle == state.spindle
-            and settings.laser_mode
-            and axis_command == "motion"
-            and bool(axis_words)
-        )
-        actions.append(Action("spindle", spindle=new.spindle, speed=new.spindle_speed, free=free))
+    laser_motion = settings.laser_mode and axis_command == "motion" and bool(axis_words)
+    cutting = ("G1", "G2", "G3")
+    force_sync = (
+        settings.laser_mode
+        and not laser_motion
+        and state.spindle == "M3"
+        and (state.motion in cutting) != (mode in cutting)
+    )
+    if new.spindle != state.spindle or speed_change or force_sync:
+        free = new.spindle == state.spindle and laser_motion
+        speed = new.spindle_speed
+        if force_sync and new.spindle == state.spindle and mode not in cutting:
+            speed = 0.0
+        actions.append(Action("spindle", spindle=new.spindle, speed=speed, free=free))
     if coolant or coolant_off:
         new.coolant = frozenset() if coolant_off else frozenset(coolant | set(state.coolant))
         if new.coolant != state.coolant:
             actions.append(Action("coolant"))
     if nonmodal == "G4":
         actions.append(Action("dwell", seconds=values["P"]))
-    if nonmodal == "G10":
+    # Grbl empties the planner before a G10 (an EEPROM write) and before any change of the
+    # work offset (FORCE_BUFFER_SYNC_DURING_WCO_CHANGE, on by default): G43.1/G49 to another
+    # length, another of G54-G59, G92 and G92.1 (even to the same offset).
+    wco_change = (
+        new.tlo != state.tlo or new.coord_index != state.coord_index or nonmodal in ("G92", "G92.1")
+    )
+    if nonmodal == "G10" or wco_change:
         actions.append(Action("sync"))
 
     if nonmodal in ("G28", "G30"):

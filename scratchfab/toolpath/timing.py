@@ -3,21 +3,29 @@
 A move of length L at cruise speed v with acceleration a, from rest to rest, takes
 L/v + v/a when it reaches v (L >= v^2/a), else 2 sqrt(L/a) (a triangular profile). Like
 GRBL, speed and acceleration along a direction u are the largest that keep every axis
-within its own limit: v = min(feed, min_i rate_i/|u_i|), a = min_i accel_i/|u_i|.
+within its own limit: v = min(feed, min_i rate_i/|u_i|), a = min_i accel_i/|u_i|
+(:func:`move_limits`).
 
 GRBL does not stop between consecutive moves unless a command empties its planner (a
 spindle or servo M3/M5, a G4 dwell): it passes a corner at up to the speed whose
 centripetal acceleration over a circle that deviates ``$11`` mm from the corner stays
 within the acceleration along the corner's bisector,
-v^2 = a_j $11 sin(t/2) / (1 - sin(t/2)), t the angle between the moves; not faster
-than either move's own speed, and no faster than it can still stop at the end of the
-path. :func:`path_times` plans that way (whole-path look-ahead; GRBL sees 15 moves,
-which makes no difference where corners come every move or two, as in a scratch job).
+v^2 = a_j $11 sin(t/2) / (1 - sin(t/2)), t the angle between the moves
+(:func:`corner_speed_sq`); not faster than either move's own speed, and no faster than it
+can still stop at the end of what it has planned. :func:`path_times` plans a whole path
+that way (whole-path look-ahead; GRBL sees 15 moves, which makes no difference where
+corners come every move or two, as in a scratch job). The GRBL emulator
+(:mod:`scratchfab.machine.grblsim`) plans over the blocks its planner holds with the same
+pieces (:func:`exit_speed_sq`, :func:`profile_seconds`, :func:`profile_at`).
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 #: GRBL's default junction deviation ``$11`` (mm): a profile's ``[motion]`` default.
 GRBL_JUNCTION_DEVIATION_MM = 0.01
@@ -25,13 +33,21 @@ GRBL_JUNCTION_DEVIATION_MM = 0.01
 _STRAIGHT_COS = 0.999999
 
 
-def _limits(
-    d: np.ndarray,
+def move_limits(
+    delta: np.ndarray,
     feed_mm_min: np.ndarray | float,
-    max_rate_mm_min: tuple[float, float, float],
-    acceleration_mm_s2: tuple[float, float, float],
+    max_rate_mm_min: Sequence[float],
+    acceleration_mm_s2: Sequence[float],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Length, unit vector, cruise speed (mm/s) and acceleration of each move."""
+    """Length (mm), unit vector, cruise speed (mm/s) and acceleration (mm/s^2) of each move.
+
+    Args:
+        delta: (N, 3) move vectors in mm.
+        feed_mm_min: (N,) or scalar programmed feed; ``inf`` for a rapid (G0) move.
+        max_rate_mm_min: Per-axis maximum rates (GRBL $110-$112).
+        acceleration_mm_s2: Per-axis accelerations (GRBL $120-$122).
+    """
+    d = np.asarray(delta, dtype=np.float64).reshape(-1, 3)
     length = np.sqrt((d * d).sum(axis=1))
     moving = length > 0
     unit = np.zeros_like(d)
@@ -44,6 +60,35 @@ def _limits(
         np.broadcast_to(np.asarray(feed_mm_min, dtype=np.float64) / 60.0, length.shape), rate_limit
     )
     return length, unit, speed, accel
+
+
+def corner_speed_sq(
+    before: ArrayLike,
+    after: ArrayLike,
+    acceleration_mm_s2: Sequence[float],
+    junction_deviation_mm: float,
+) -> np.ndarray:
+    """The fastest speed^2 through each corner from unit vector ``before`` to ``after``.
+
+    GRBL's junction deviation: ``inf`` for a straight continuation, 0 for a reversal.
+
+    Args:
+        before: (N, 3) unit vectors of the moves into the corners.
+        after: (N, 3) unit vectors of the moves out of them.
+        acceleration_mm_s2: Per-axis accelerations (GRBL $120-$122).
+        junction_deviation_mm: GRBL's ``$11``; 0 stops at every corner.
+    """
+    u0 = np.asarray(before, dtype=np.float64).reshape(-1, 3)
+    u1 = np.asarray(after, dtype=np.float64).reshape(-1, 3)
+    cos = -np.einsum("ij,ij->i", u0, u1)
+    bisector = u1 - u0
+    norm = np.sqrt((bisector * bisector).sum(axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        comp = np.abs(bisector / norm[:, None])
+        a_corner = np.min(np.asarray(acceleration_mm_s2) / comp, axis=1)
+        half = np.sqrt(np.clip(0.5 * (1.0 - cos), 0.0, 1.0))
+        corner_sq = a_corner * junction_deviation_mm * half / (1.0 - half)
+    return np.where(cos < -_STRAIGHT_COS, np.inf, np.where(cos > _STRAIGHT_COS, 0.0, corner_sq))
 
 
 def path_times(
@@ -69,7 +114,7 @@ def path_times(
         junction_deviation_mm: GRBL's ``$11``; 0 stops at every corner.
     """
     d = np.asarray(delta, dtype=np.float64).reshape(-1, 3)
-    length, unit, speed, accel = _limits(d, feed_mm_min, max_rate_mm_min, acceleration_mm_s2)
+    length, unit, speed, accel = move_limits(d, feed_mm_min, max_rate_mm_min, acceleration_mm_s2)
     t = np.zeros_like(length)
     kept = np.flatnonzero(length > 0)
     if len(kept) == 0:
@@ -80,17 +125,7 @@ def path_times(
     rest[0] = True
     L, u, v, a = length[kept], unit[kept], speed[kept], accel[kept]
     # The fastest each move may be entered: its corner with the move before, both cruise speeds.
-    cos = -np.einsum("ij,ij->i", u[:-1], u[1:])
-    bisector = u[1:] - u[:-1]
-    norm = np.sqrt((bisector * bisector).sum(axis=1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        comp = np.abs(bisector / norm[:, None])
-        a_corner = np.min(np.asarray(acceleration_mm_s2) / comp, axis=1)
-        half = np.sqrt(np.clip(0.5 * (1.0 - cos), 0.0, 1.0))
-        corner_sq = a_corner * junction_deviation_mm * half / (1.0 - half)
-    corner_sq = np.where(
-        cos < -_STRAIGHT_COS, np.inf, np.where(cos > _STRAIGHT_COS, 0.0, corner_sq)
-    )
+    corner_sq = corner_speed_sq(u[:-1], u[1:], acceleration_mm_s2, junction_deviation_mm)
     entry_max = np.zeros(len(L))
     entry_max[1:] = np.minimum(corner_sq, np.minimum(v[1:], v[:-1]) ** 2)
     entry_max[rest] = 0.0
@@ -104,12 +139,38 @@ def path_times(
     entry_sq = np.clip(entry, 0.0, None)
     v0 = np.sqrt(entry_sq)
     v1 = np.append(v0[1:], 0.0)
-    t[kept] = _profile_times(L, v0, v1, v, a)
+    t[kept] = profile_seconds(L, v0, v1, v, a)
     return t
 
 
-def _profile_times(
-    length: np.ndarray, v0: np.ndarray, v1: np.ndarray, vmax: np.ndarray, accel: np.ndarray
+def exit_speed_sq(entry_sq: float, gain: float, later: Sequence[tuple[float, float]]) -> float:
+    """Speed^2 leaving a move, as GRBL's planner sets it over the moves queued behind it.
+
+    No more than the move can reach from its entry, and low enough that every later move
+    can still slow down for its own entry limit and the last one stop at its end (GRBL's
+    newest block always ends at rest): the backward and forward passes of
+    :func:`path_times`, seen from the first move.
+
+    Args:
+        entry_sq: Speed^2 entering the move.
+        gain: 2 a L of the move (the speed^2 it can add or shed).
+        later: ``(entry_max_sq, gain)`` of each move queued behind it, in order; an entry
+            limit of 0 stops the machine there.
+    """
+    best = entry_sq + gain
+    shed = 0.0  # speed^2 the later moves can shed before the one at hand
+    for entry_max, g in later:
+        best = min(best, entry_max + shed)
+        shed += g
+    return min(best, shed)
+
+
+def profile_seconds(
+    length: np.ndarray | float,
+    v0: np.ndarray | float,
+    v1: np.ndarray | float,
+    vmax: np.ndarray | float,
+    accel: np.ndarray | float,
 ) -> np.ndarray:
     """Seconds over moves entered at ``v0``, left at ``v1``, cruising at most ``vmax``."""
     up = (vmax * vmax - v0 * v0) / (2.0 * accel)
@@ -123,3 +184,29 @@ def _profile_times(
             (2.0 * vmax - v0 - v1) / accel + cruise / vmax,
             (2.0 * peak - v0 - v1) / accel,
         )
+
+
+def profile_at(
+    elapsed: float, length: float, v0: float, v1: float, vmax: float, accel: float
+) -> tuple[float, float]:
+    """Distance (mm) and speed (mm/s) ``elapsed`` seconds into one move's profile.
+
+    The profile of :func:`profile_seconds`: up from ``v0`` at ``accel``, cruising at most
+    ``vmax``, down to ``v1`` at the end (a trapezoid, or a triangle on a short move).
+    """
+    up = (vmax * vmax - v0 * v0) / (2.0 * accel)
+    down = (vmax * vmax - v1 * v1) / (2.0 * accel)
+    if up + down <= length:
+        peak, cruise_s = vmax, (length - up - down) / vmax
+    else:
+        peak = math.sqrt(max(accel * length + 0.5 * (v0 * v0 + v1 * v1), 0.0))
+        peak, cruise_s = max(peak, v0, v1), 0.0
+    rise = (peak - v0) / accel
+    if elapsed <= rise:
+        return min(v0 * elapsed + 0.5 * accel * elapsed * elapsed, length), v0 + accel * elapsed
+    done = (v0 + peak) * 0.5 * rise
+    if elapsed <= rise + cruise_s:
+        return min(done + peak * (elapsed - rise), length), peak
+    fall = min(elapsed - rise - cruise_s, (peak - v1) / accel)
+    done += peak * cruise_s + peak * fall - 0.5 * accel * fall * fall
+    return min(done, length), peak - accel * fall
