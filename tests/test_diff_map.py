@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import base64
+import html
 import json
 import math
+import re
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import make_design, write_pipeline
+from conftest import CHROMIUM, chromium_dom, make_design, write_pipeline
 from PIL import Image
 from test_report import fake_job
 
@@ -265,3 +267,68 @@ def test_pipeline_records_the_maps_so_a_missing_one_reruns_verify(tmp_path):
     assert again.skipped == ["design", "optimize", "verify"]
     page = layout.report_html.read_text()
     assert "difference map" not in page and "verify render" in page
+
+
+def _job_with_a_map(tmp_path: Path, size: int) -> tuple[Path, int]:
+    """fake_job with a difference map of view left, ``size`` pixels square; its PNG width."""
+    job = fake_job(tmp_path)
+    layout = JobLayout(job)
+    rng = np.random.default_rng(5)
+    target = np.full((size, size), 0.5)
+    write_diff_map(layout.verify_diff_png("left"), rng.uniform(0, 1, target.shape), target, "left")
+    with Image.open(layout.verify_diff_png("left")) as image:
+        return job, image.width
+
+
+@pytest.mark.parametrize("size", [8, 64, 300, 700])
+def test_report_boxes_of_the_views_are_as_wide_as_the_widest_picture(tmp_path, size):
+    """Every view's boxes (the difference map's among them) get one width: the map's own
+    (drawn at full size for its key's text, at most 640 px), or the pictures' 256 px."""
+    job, map_width = _job_with_a_map(tmp_path, size)
+    assert map_width > 256  # the map's key is wider than a picture
+    page = write_report(job).read_text()
+    start = page.index("<h3>view ")
+    rows = re.findall(r"<div class='row views'>(.*?)</div>", page[start:])
+    assert len(rows) == 2
+    widths = [re.findall(r"<figure[^>]*style='width:(\d+)px'>", row) for row in rows]
+    assert [len(w) for w in widths] == [3, 4]  # right: no map; left: its map
+    assert {int(w) for row in widths for w in row} == {min(640, map_width)}
+    assert all(row.count("<figure") == len(w) for row, w in zip(rows, widths, strict=True))
+
+
+@pytest.mark.skipif(
+    CHROMIUM is None, reason="Debian's chromium is not installed (.ci/run installs it)"
+)
+@pytest.mark.parametrize("size", [64, 700])
+def test_report_boxes_of_the_views_measured_in_chromium(tmp_path, size):
+    """As laid out by a browser: every view's boxes one width, each picture inside its box,
+    the difference map at its own size (up to 640 px), the others at 256 px."""
+    job, map_width = _job_with_a_map(tmp_path, size)
+    page = write_report(job)
+    measure = """<script>
+window.addEventListener('load', function () {
+  var out = [];
+  document.querySelectorAll('.views figure').forEach(function (f) {
+    var b = f.getBoundingClientRect(), img = f.querySelector('img');
+    var i = img.getBoundingClientRect(), c = f.querySelector('figcaption').getBoundingClientRect();
+    out.push([b.left, b.right, i.left, i.right, c.right, img.naturalWidth, img.alt]);
+  });
+  document.body.setAttribute('data-boxes', JSON.stringify(out));
+});
+</script></body>"""
+    page.write_text(page.read_text().replace("</body>", measure))
+    dom = chromium_dom(page, tmp_path / "profile")
+    found = re.search(r'data-boxes="([^"]*)"', dom)
+    assert found, dom[:2000]
+    boxes = json.loads(html.unescape(found.group(1)))
+    assert len(boxes) == 7
+    widths = {round(right - left, 1) for left, right, *_ in boxes}
+    assert len(widths) == 1  # one width for every box
+    shown = min(640, map_width)
+    for left, right, img_left, img_right, caption_right, natural, alt in boxes:
+        assert left < img_left and img_right < right and caption_right < right
+        want = shown if alt == "left difference map" else 256
+        assert img_right - img_left == pytest.approx(want, abs=0.5), alt
+        assert right - left == pytest.approx(shown + 2 * 8 + 2, abs=1.0)  # padding, border
+        if alt == "left difference map":
+            assert natural == map_width

@@ -27,13 +27,21 @@ from scratchfab.model.job import JobLayout
 
 _MIME = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
 
-_STYLE = """
+#: How wide (CSS pixels) the report shows a picture, and a wide one at most.
+PICTURE_PX = 256
+WIDE_PX = 640
+
+_STYLE = (
+    """
 body{font-family:system-ui,sans-serif;margin:2em;max-width:1200px;color:#222}
 h1{margin-bottom:0}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
 .row{display:flex;flex-wrap:wrap;gap:1em}
 figure{border:1px solid #ddd;padding:.5em;border-radius:4px;margin:0;max-width:300px}
-figure img{image-rendering:pixelated;width:256px;display:block}
-figure.wide{max-width:660px}figure.wide img{width:auto;max-width:640px}
+"""
+    f"figure img{{image-rendering:pixelated;width:{PICTURE_PX}px;display:block}}\n"
+    f"figure.wide{{max-width:{WIDE_PX + 20}px}}\n"
+    f"figure.wide img{{width:auto;max-width:{WIDE_PX}px}}\n"
+    """.views figure{max-width:none}
 figcaption{font-size:.85em;color:#444;margin-top:.3em}
 table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
 th[scope=row],td.text{text-align:left}
@@ -44,6 +52,7 @@ th[scope=row],td.text{text-align:left}
 .verdict h2{margin:0 0 .4em 0;border:0}.verdict ul{list-style:none;padding-left:0;margin:0}
 .verdict li{margin:.2em 0}
 """
+)
 
 # Runs in the page: counts the images that decoded, for tests (nothing is shown).
 _SCRIPT = """
@@ -95,9 +104,30 @@ def _img(path: Path, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:{mime};base64,{data}">'
 
 
-def _figure(path: Path, alt: str, caption: str, wide: bool = False) -> str:
+def _figure(
+    path: Path, alt: str, caption: str, wide: bool = False, width: int | None = None
+) -> str:
+    """A picture and its caption in a box.
+
+    ``wide``: the picture at its own size (up to WIDE_PX), else PICTURE_PX wide; ``width``:
+    the box's inner width in pixels (else as the picture and the caption ask).
+    """
     cls = " class='wide'" if wide else ""
-    return f"<figure{cls}>{_img(path, alt)}<figcaption>{caption}</figcaption></figure>"
+    style = f" style='width:{width}px'" if width is not None else ""
+    return f"<figure{cls}{style}>{_img(path, alt)}<figcaption>{caption}</figcaption></figure>"
+
+
+def _shown_width(path: Path, wide: bool) -> int:
+    """The width the report shows the picture ``path`` at (a wide one: its own, capped)."""
+    if not wide:
+        return PICTURE_PX
+    from PIL import Image
+
+    try:
+        with Image.open(path) as image:
+            return min(WIDE_PX, image.width)
+    except OSError:
+        return PICTURE_PX
 
 
 def _fmt(value: Any, digits: int = 3) -> str:
@@ -390,10 +420,9 @@ def _views_section(
         if isinstance(maps, dict)
         else "where the tool reaches this view"
     )
-    parts = []
+    rows = []
     for name in names:
         n = html.escape(name)
-        figures = []
         shown = (
             (layout.design.target_png(name), "target", f"target: what {n} should look like"),
             (
@@ -420,11 +449,24 @@ def _views_section(
                 f"feasibility map: {html.escape(maps_text)}",
             ),
         )
-        for png, label, caption in shown:
-            if png.is_file():
-                wide = png == layout.verify_diff_png(name)  # its key is drawn at full size
-                figures.append(_figure(png, f"{name} {label}", caption, wide=wide))
-        parts.append(f"<h3>view {n}</h3><div class='row'>{''.join(figures)}</div>")
+        # the difference map at its own size (its key's text at full size)
+        wide = layout.verify_diff_png(name)
+        rows.append(
+            (name, [(png, f"{name} {label}", text, png == wide) for png, label, text in shown])
+        )
+    # every view's boxes as wide as the widest picture of any
+    pictures = [(png, wide) for _, row in rows for png, _, _, wide in row if png.is_file()]
+    width = max((_shown_width(png, wide) for png, wide in pictures), default=PICTURE_PX)
+    parts = [
+        f"<h3>view {html.escape(name)}</h3><div class='row views'>"
+        + "".join(
+            _figure(png, alt, caption, wide=wide, width=width)
+            for png, alt, caption, wide in row
+            if png.is_file()
+        )
+        + "</div>"
+        for name, row in rows
+    ]
     return "\n".join(parts) + _metrics_table(names, metrics, min_rho)
 
 
