@@ -271,11 +271,12 @@ def test_a_scratch_set_takes_lists_as_float64_arrays():
 
 
 def bounded_fields():
-    """(class, field, a value outside its spec bounds) for every bounded design and profile field."""
+    """(class, field, a value outside its bounds) for each bounded design/profile/optimize field."""
     from dataclasses import fields
 
     from scratchfab.machine.profile import Feeds, GcodeFormat, Motion, Serial, Tool, ToolControl
     from scratchfab.model.design import Board, Light, ScratchTool, View
+    from scratchfab.optimize.options import OptimizeOptions
 
     cases = []
     for cls in (
@@ -289,6 +290,7 @@ def bounded_fields():
         ToolControl,
         Serial,
         GcodeFormat,
+        OptimizeOptions,
     ):
         for f in fields(cls):
             meta = f.metadata
@@ -315,12 +317,13 @@ VALID = {
     "ToolControl": {},
     "Serial": {},
     "GcodeFormat": {},
+    "OptimizeOptions": {},
 }
 
 
 @pytest.mark.parametrize(("cls", "name", "bad"), bounded_fields())
 def test_a_table_built_in_code_meets_the_files_bounds(cls, name, bad):
-    """The bounds of spec() hold for a design or profile table built in code, not only a file's."""
+    """The bounds of spec() hold for a table built in code, not only for a file's."""
     kwargs = dict(VALID[cls.__name__])
     default = kwargs.get(name, getattr(cls, name, None))
     kwargs[name] = tuple(bad for _ in default) if isinstance(default, tuple) else bad

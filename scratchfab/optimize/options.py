@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
-from scratchfab.model.schema import spec
+from scratchfab.model.schema import check_bounds, spec
 
 
 @dataclass(frozen=True)
@@ -101,6 +101,9 @@ class OptimizeOptions:
     prune_tolerance: float | None = field(default=None, metadata=spec(ge=0))
     feed_mm_min: float = field(default=300.0, metadata=spec(gt=0))
     stroke_overhead_s: float = field(default=2.0, metadata=spec(ge=0))
+
+    def __post_init__(self) -> None:
+        check_bounds(self)
 
     def schedule(self) -> StepSchedule | None:
         """The step-size schedule over ``iterations`` (None: the ``lr_*`` throughout)."""
