@@ -330,3 +330,41 @@ def test_a_table_built_in_code_meets_the_files_bounds(cls, name, bad):
     with pytest.raises(ValueError, match=rf"{cls.__name__}\.{name}: expected a value"):
         cls(**kwargs)
     cls(**VALID[cls.__name__])
+
+
+@pytest.mark.parametrize(
+    ("look_at", "distance", "azimuth", "refused"),
+    [
+        ([0.0, 0.0, 10.0], 1e6, 0.0, True),  # z = 1e6 + 10
+        ([-1.0, 0.0, 0.0], 1e6, -90.0, True),  # x = -1e6 - 1
+        ([0.0, 0.0, 0.0], 1e6, 0.0, False),  # z = 1e6 exactly: the bound's edge
+        ([0.0, 0.0, -10.0], 1e6, 0.0, False),
+    ],
+)
+def test_a_polar_camera_beyond_the_coordinates_names_the_polar_keys(
+    look_at, distance, azimuth, refused
+):
+    """Each key within its own bounds, the camera they place may lie beyond +-1e6 mm: the
+    message names the keys the file has (azimuth/elevation/distance, look_at_mm), not the
+    View's position_mm that it lacks; a camera on the bound itself is a camera."""
+    from scratchfab.errors import ConfigError
+
+    view = {
+        "name": "far",
+        "azimuth_deg": azimuth,
+        "elevation_deg": 0.0,
+        "distance_mm": distance,
+        "look_at_mm": look_at,
+        "fov_deg": 1.0,
+        "resolution": [8, 8],
+    }
+    data = {**TABLES, "views": [view]}
+    if not refused:
+        design = design_from_mapping(data, "far.toml", Path("."))
+        assert max(abs(c) for c in design.views[0].position_mm) == pytest.approx(1e6, abs=10)
+        return
+    with pytest.raises(ConfigError) as exc:
+        design_from_mapping(data, "far.toml", Path("."))
+    text = str(exc.value)
+    assert text.startswith("far.toml: views[0]: ") and "\n" not in text
+    assert "distance_mm" in text and "look_at_mm" in text and "position_mm" not in text

@@ -361,6 +361,13 @@ def auto_fov(view: View, board: Board, margin: float = 1.08) -> float:
 def resolve_view(view: View, board: Board) -> View:
     """Fill in the position from polar coordinates and a numeric fov from ``"auto"``."""
     if view.position_mm is None:
+        far = max(abs(c) for c in polar_position(view))
+        if not far <= MAX_MM:  # else View's position_mm bound names a key the file lacks
+            raise ValueError(
+                f"view '{view.name}': azimuth_deg, elevation_deg and distance_mm about "
+                f"look_at_mm put the camera {far:g} mm from the origin along an axis; "
+                f"coordinates are at most {MAX_MM:g} mm"
+            )
         view = replace(
             view,
             position_mm=polar_position(view),
