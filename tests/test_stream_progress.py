@@ -242,3 +242,60 @@ def test_the_terminal_bar_fits_narrow_terminals(columns, capsys, monkeypatch):
     words = {20: " 42.0% 33600/80000", 40: " 42.0% 33600/80000 lines  elapsed 00:00"}
     if columns in words:
         assert lines[0] == words[columns]
+
+
+def _clock_seconds(text: str) -> int:
+    """``mm:ss`` or ``h:mm:ss`` as seconds."""
+    parts = [int(p) for p in text.split(":")]
+    return sum(p * 60**k for k, p in enumerate(reversed(parts)))
+
+
+def test_the_emulators_eta_counts_its_time_not_a_machines(tmp_path):
+    """A stream to the emulator reports the machine's ETA; the emulator's own is that times
+    its time_scale, and no less than its serial line needs for the lines left (10 bits a
+    byte at its baud; the bytes sent read here from the file itself)."""
+    from scratchfab.machine.protocol_grblsim import sim_options
+    from scratchfab.machine.sender_program import load_program
+    from scratchfab.machine.stream_job import EmulatorEta
+
+    job = tmp_path / "job.gcode"
+    write_job(job, 20)
+    # what goes over the line: each line without its comments and spaces
+    sent = [re.sub(r"\(.*?\)|;.*| ", "", ln) for ln in job.read_text().splitlines()]
+    sent = [ln for ln in sent if ln]
+    options = sim_options("grblsim://?time_scale=0.01&baud=2400", 115200)
+    assert options is not None
+    eta = EmulatorEta(options, load_program(job))
+    for acked, machine_s in ((0, 600.0), (40, 600.0), (40, 0.5), (len(sent), 0.0)):
+        link_s = sum(len(ln) + 1 for ln in sent[acked:]) * 10 / 2400
+        report = StreamProgress(acked, len(sent), machine_s, "Run", None)
+        assert eta(report).eta_s == pytest.approx(max(machine_s * 0.01, link_s))
+        assert eta(report).acked == acked and report.eta_s == machine_s
+    assert eta.note(3725.0) == (
+        "emulator at time_scale 0.01: elapsed and ETA count its time (on a machine: ETA 1:02:05)"
+    )
+
+
+def test_the_pipelines_stream_eta_runs_with_the_emulators_elapsed(tmp_path):
+    """With a time_scale the pipeline's lines give the ETA in the emulator's time (the
+    machine's once, in a note): the first line's ETA is about the elapsed time at the end."""
+    layout = JobLayout(tmp_path / "job")
+    gcode = layout.export_file("gcode")
+    gcode.parent.mkdir(parents=True)
+    write_job(gcode, 20)
+    said: list[str] = []
+    run_stream_job(layout.root, "grblsim://?baud=0&time_scale=0.02", say=said.append)
+    (note,) = [line for line in said if "time_scale" in line]
+    machine = re.fullmatch(
+        r"  emulator at time_scale 0\.02: elapsed and ETA count its time "
+        r"\(on a machine: ETA (\d\d:\d\d)\)",
+        note,
+    )
+    assert machine is not None, note
+    shown = [line for line in said if " lines  " in line]
+    assert said.index(note) < said.index(shown[0])
+    first_eta = _clock_seconds(shown[0].split("ETA ")[1].split()[0])
+    assert abs(first_eta - 0.02 * _clock_seconds(machine.group(1))) <= 1
+    assert first_eta >= 2  # a machine's ETA of about 2 minutes, scaled
+    end = _clock_seconds(shown[-1].split("elapsed ")[1].split()[0])
+    assert abs(end - first_eta) <= 1

@@ -513,3 +513,46 @@ def test_an_unanswered_offset_query_is_not_passed_over():
             streamer._read_work_offset()
     finally:
         port.close()
+
+
+@pytest.mark.parametrize(
+    ("port", "query"),
+    [
+        ("grblsim://?time_scale=0.5&$110=900", {"time_scale": "0.5", "$110": "900"}),
+        ("GrblSim://?time_scale=0&recor%64=x", {"time_scale": "0", "record": "x"}),
+        ("grblsim://?time_scale=0&record", {"time_scale": "0", "record": ""}),
+        ("grblsim://", {}),
+        ("/dev/ttyUSB0", None),
+        ("socket://localhost:7777?grblsim://", None),
+    ],
+)
+def test_one_reader_of_grblsim_urls(port, query):
+    """The handler, the pipeline's record= check and the stream's ETA read a grblsim URL
+    with one function: the handler opens the emulator with what it reads."""
+    from scratchfab.machine.protocol_grblsim import grblsim_query, sim_options
+    from scratchfab.pipeline.config import _grblsim_record
+
+    assert grblsim_query(port) == query
+    assert _grblsim_record(port) == (query is not None and "record" in query)
+    if query is None:
+        assert sim_options(port, 9600) is None
+        return
+    options = sim_options(port, 9600)
+    assert options is not None and options.baud == 9600  # the port's, the URL sets none
+    if "record" not in query:
+        ser = serial.serial_for_url(port, baudrate=9600, timeout=0.01)
+        try:
+            assert ser.sim.options == options
+        finally:
+            ser.close()
+
+
+def test_a_grblsim_key_given_twice_is_one_error_line():
+    from scratchfab.errors import ConfigError
+    from scratchfab.machine.protocol_grblsim import grblsim_query
+
+    port = "grblsim://?time_scale=0&time_scale=1"
+    with pytest.raises(ConfigError, match=r"^port '.*': time_scale: given more than once$"):
+        grblsim_query(port)
+    with pytest.raises(ConfigError, match="time_scale: given more than once"):
+        serial.serial_for_url(port, baudrate=115200)

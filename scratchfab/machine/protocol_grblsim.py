@@ -21,6 +21,45 @@ from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim import GrblSim, LinkDown, SimOptions
 
 
+def grblsim_query(port: str) -> dict[str, str] | None:
+    """The pairs of a ``grblsim://`` URL's query (percent-decoded); None for another port.
+
+    The one reader of such URLs: the scheme as pyserial picks a handler (the text before
+    ``://``, any case), the query as this handler takes it.
+
+    Raises:
+        ConfigError: A key given more than once (one line naming the port).
+    """
+    scheme, sep, _ = port.partition("://")
+    if not sep or scheme.lower() != "grblsim":
+        return None
+    query: dict[str, str] = {}
+    for key, value in urllib.parse.parse_qsl(
+        urllib.parse.urlsplit(port).query, keep_blank_values=True
+    ):
+        if key in query:
+            raise ConfigError(f"port {port!r}: {key}: given more than once")
+        query[key] = value
+    return query
+
+
+def sim_options(port: str, baud: int) -> SimOptions | None:
+    """The options the emulator of a ``grblsim://`` port opens with; None for another port.
+
+    Args:
+        port: The URL.
+        baud: The port's baud rate: the line speed unless the URL sets ``baud``.
+
+    Raises:
+        ConfigError: A bad option (one line naming the port and the key).
+    """
+    query = grblsim_query(port)
+    if query is None:
+        return None
+    query.setdefault("baud", str(baud))
+    return SimOptions.from_query(query, f"port {port!r}")
+
+
 class Serial(SerialBase):
     """A pyserial port whose other end is a :class:`~scratchfab.machine.grblsim.GrblSim`."""
 
@@ -40,16 +79,10 @@ class Serial(SerialBase):
             raise SerialException("Port is already open.")
         if self._port is None:
             raise SerialException("Port must be configured before it can be used.")
-        parts = urllib.parse.urlsplit(self.portstr or "")
-        if parts.scheme != "grblsim":
+        options = sim_options(self.portstr or "", self._baudrate)
+        if options is None:
             raise SerialException(f"expected a grblsim:// URL, got {self.portstr!r}")
-        query: dict[str, str] = {}
-        for key, value in urllib.parse.parse_qsl(parts.query, keep_blank_values=True):
-            if key in query:
-                raise ConfigError(f"port {self.portstr!r}: {key}: given more than once")
-            query[key] = value
-        query.setdefault("baud", str(self._baudrate))
-        self.sim = GrblSim(SimOptions.from_query(query, f"port {self.portstr!r}"))
+        self.sim = GrblSim(options)
         self.sim.start()
         self.is_open = True
 

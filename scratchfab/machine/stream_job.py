@@ -12,13 +12,14 @@ import contextlib
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from scratchfab.console import Confirm, Say, clock
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
+from scratchfab.machine.protocol_grblsim import sim_options
 from scratchfab.machine.sender import (
     Streamer,
     StreamOptions,
@@ -48,6 +49,7 @@ from scratchfab.machine.sender_program import (
 from scratchfab.model.job import JobLayout
 
 if TYPE_CHECKING:
+    from scratchfab.machine.grblsim import SimOptions
     from scratchfab.machine.profile import MachineProfile
 
 
@@ -186,6 +188,56 @@ class ProgressLines:
         if self._start is None:
             self._start = now
         return progress_text(p, now - self._start)
+
+
+class EmulatorEta:
+    """The ETA of a stream to the emulator in the emulator's own time.
+
+    A stream's reports carry machine time as GRBL plans the job, right for a machine. The
+    emulator runs that time multiplied by its ``time_scale`` (0.001 in the demo), so beside
+    the wall-clock "elapsed" a person expects the ETA to count the emulator's time too: the
+    machine time left times ``time_scale``, but no less than its serial line needs for the
+    lines left (10 bits a byte at ``baud``), which bounds a fast-forwarded job.
+    :meth:`note` says so once, with the machine's time.
+
+    Args:
+        options: The emulator's options (:func:`~scratchfab.machine.protocol_grblsim.sim_options`).
+        program: The program streamed.
+    """
+
+    def __init__(self, options: SimOptions, program: Program) -> None:
+        self.time_scale = options.time_scale
+        byte_s = 10.0 / options.baud if options.baud > 0 else 0.0
+        sizes = [len(b.text) + 1 for b in program.blocks]  # each line and its newline
+        left = [0.0] * (len(sizes) + 1)
+        for k in range(len(sizes) - 1, -1, -1):
+            left[k] = left[k + 1] + sizes[k] * byte_s
+        self._link_left = left
+
+    def __call__(self, p: StreamProgress) -> StreamProgress:
+        """The report with its ETA in the emulator's time."""
+        link = self._link_left[min(max(p.acked, 0), len(self._link_left) - 1)]
+        return replace(p, eta_s=max(p.eta_s * self.time_scale, link))
+
+    def note(self, machine_s: float) -> str:
+        """The line that says which time the ETA counts (``machine_s``: a machine's ETA)."""
+        return (
+            f"emulator at time_scale {self.time_scale:g}: elapsed and ETA count its time "
+            f"(on a machine: ETA {clock(machine_s)})"
+        )
+
+
+def _emulator_eta(port: str, baud: int | None, gcode: Path) -> EmulatorEta | None:
+    """The ETA in the emulator's time for a ``grblsim://`` port; None for a machine.
+
+    ``baud``: the port's (None: 115200) unless the URL sets it. A URL or file that cannot
+    be read gets None here: :func:`stream_file` reports it.
+    """
+    try:
+        options = sim_options(port, baud or 115200)
+        return None if options is None else EmulatorEta(options, load_program(gcode))
+    except (ScratchfabError, OSError):
+        return None
 
 
 def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
@@ -471,13 +523,21 @@ def run_stream_job(
     after an interrupted stream of the same G-code resumes it from the journal.
     """
     lines = ProgressLines()
+    layout = JobLayout(job)
+    eta = _emulator_eta(port, baud, layout.export_file("gcode"))
+
+    noted: list[bool] = []
 
     def progress(p: StreamProgress) -> None:
+        if eta is not None:
+            if not noted and eta.time_scale != 1.0:
+                noted.append(True)
+                say(f"  {eta.note(p.eta_s)}")
+            p = eta(p)
         text = lines.line(p)
         if text is not None:
             say(f"  {text}")
 
-    layout = JobLayout(job)
     req = StreamRequest(
         gcode=layout.export_file("gcode"),
         port=port,

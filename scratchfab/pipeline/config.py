@@ -6,7 +6,6 @@ like the design itself.
 
 from __future__ import annotations
 
-import urllib.parse
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -142,17 +141,16 @@ class StageTables:
 def _grblsim_record(port: str) -> bool:
     """True when ``port`` opens the GRBL emulator with a ``record`` key in its query.
 
-    Read as pyserial picks the handler (the text before ``://``, any case) and as the
-    handler reads its query (percent-decoded), so no spelling slips past.
+    Read by the emulator's own URL reader
+    (:func:`~scratchfab.machine.protocol_grblsim.grblsim_query`), so no spelling slips past.
     """
-    scheme, sep, _ = port.partition("://")
-    if not sep or scheme.strip().lower() != "grblsim":
-        return False
-    query = urllib.parse.urlsplit(port.strip()).query
-    return any(
-        key.strip().lower() == "record"
-        for key, _ in urllib.parse.parse_qsl(query, keep_blank_values=True)
-    )
+    from scratchfab.machine.protocol_grblsim import grblsim_query
+
+    try:
+        query = grblsim_query(port.strip())
+    except ConfigError as exc:  # a key given twice
+        raise ValueError(f"stream.port: {exc}") from None
+    return query is not None and any(key.strip().lower() == "record" for key in query)
 
 
 def parse_stage_tables(data: Mapping[str, Any], source: str) -> StageTables:
