@@ -368,3 +368,34 @@ def test_a_polar_camera_beyond_the_coordinates_names_the_polar_keys(
     text = str(exc.value)
     assert text.startswith("far.toml: views[0]: ") and "\n" not in text
     assert "distance_mm" in text and "look_at_mm" in text and "position_mm" not in text
+
+
+@pytest.mark.parametrize("damage", ["resolution", "bytes"])
+def test_verify_job_names_a_stale_or_damaged_target_file(tmp_path, capsys, damage):
+    """``verify-render JOB`` reads JOB/design/targets/<view>.npy: one that no longer fits
+    its view (the design's resolution edited after `design`) or is not a NumPy file is
+    named by its path, through the CLI as one line, before any rendering (before: a line
+    without the file, or numpy's traceback)."""
+    import re
+
+    from conftest import make_design
+    from test_optimize_helpers import make_job
+
+    import scratchfab.cli as cli
+
+    job = make_job(tmp_path / "job", make_design(resolution=24, size_mm=30.0), count=20)
+    target = job / "design" / "targets" / "left.npy"
+    if damage == "resolution":
+        toml = job / "design" / "design.toml"
+        text = toml.read_text()
+        edited = re.sub(r"resolution = \[\s*24,\s*24,?\s*\]", "resolution = [32, 32]", text)
+        assert edited != text
+        toml.write_text(edited)
+    else:
+        target.write_bytes(b"\x93NUMPY\x01\x00garbage")
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["verify-render", str(job), "--spp", "2", "--out", str(tmp_path / "v")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"error: {target}: ") and "Traceback" not in "".join(err)
+    assert not (tmp_path / "v").exists()  # refused before anything was rendered or written

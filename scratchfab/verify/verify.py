@@ -24,7 +24,7 @@ from scratchfab.backend import BackendName
 from scratchfab.console import Say, clock
 from scratchfab.design.targets import cross_targets, job_cross_targets
 from scratchfab.errors import ConfigError, ScratchfabError
-from scratchfab.fileio import write_bytes, write_json
+from scratchfab.fileio import load_numpy, write_bytes, write_json
 from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design, View, load_design
 from scratchfab.model.job import (
@@ -600,7 +600,13 @@ def load_job_targets(
     for view in design.views:
         path = JobLayout(job).design.target_npy(view.name)
         if path.is_file():
-            targets[view.name] = np.load(path, allow_pickle=False)
+            arr = load_numpy(path)
+            if arr.shape != (view.height, view.width) or not np.issubdtype(arr.dtype, np.floating):
+                raise ConfigError(
+                    f"{path}: expected float (H, W) = ({view.height}, {view.width}) as view "
+                    f"'{view.name}' is, got {arr.dtype} {arr.shape}; rerun `scratchfab design`"
+                )
+            targets[view.name] = arr
     cross = job_cross_targets(design)
     if not targets and cross:
         targets = {k: img for (k, j), img in cross.items() if k == j}
@@ -667,9 +673,7 @@ def run_verify_job(
     if scratch_file == layout.optimized_scratches and all(
         (renders_dir / f"{v.name}.npy").is_file() for v in design.views
     ):
-        analytic = {
-            v.name: np.load(renders_dir / f"{v.name}.npy", allow_pickle=False) for v in design.views
-        }
+        analytic = {v.name: load_numpy(renders_dir / f"{v.name}.npy") for v in design.views}
     source = str(renders_dir) if analytic is not None else "render_scratches"
     targets, cross = load_job_targets(folder, design)
     if cross is None and progress is not None:
