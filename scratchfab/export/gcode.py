@@ -213,7 +213,12 @@ def gcode_stats(lines: list[str], dec: int | None = None) -> dict[str, Any]:
 
 def gcode_text(toolpath: Toolpath, profile: MachineProfile | None = None) -> str:
     """:func:`gcode_lines` as the file's text (LF line ends, ASCII)."""
-    return "\n".join(gcode_lines(toolpath, profile)) + "\n"
+    return _file_text(gcode_lines(toolpath, profile))
+
+
+def _file_text(lines: list[str]) -> str:
+    """The G-code file's text of its lines: the one place that joins them."""
+    return "\n".join(lines) + "\n"
 
 
 def write_gcode(
@@ -226,5 +231,5 @@ def write_gcode(
     """
     prof = profile or toolpath.profile
     lines = gcode_lines(toolpath, prof)
-    write_bytes(path, ("\n".join(lines) + "\n").encode("ascii"))
+    write_bytes(path, _file_text(lines).encode("ascii"))
     return gcode_stats(lines, prof.gcode.decimals)
