@@ -332,3 +332,17 @@ window.addEventListener('load', function () {
         assert right - left == pytest.approx(shown + 2 * 8 + 2, abs=1.0)  # padding, border
         if alt == "left difference map":
             assert natural == map_width
+
+
+def test_report_of_a_map_larger_than_pillow_opens_shows_it_at_the_cap(tmp_path, monkeypatch):
+    """The report reads only the map's width: a map with more pixels than Pillow's
+    decompression-bomb limit (a view near the 16384 px resolution bound) is shown at the
+    640 px cap, not a DecompressionBombError out of write_report."""
+    job, map_width = _job_with_a_map(tmp_path, 700)
+    assert map_width > 640
+    with Image.open(JobLayout(job).verify_diff_png("left")) as image:
+        pixels = image.width * image.height
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", pixels // 3)  # past twice the limit: error
+    page = write_report(job).read_text()
+    widths = re.findall(r"<figure[^>]*style='width:(\d+)px'>", page)
+    assert len(widths) == 7 and set(widths) == {"640"}

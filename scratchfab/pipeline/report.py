@@ -121,11 +121,17 @@ def _shown_width(path: Path, wide: bool) -> int:
     """The width the report shows the picture ``path`` at (a wide one: its own, capped)."""
     if not wide:
         return PICTURE_PX
+    import warnings
+
     from PIL import Image
 
     try:
-        with Image.open(path) as image:
-            return min(WIDE_PX, image.width)
+        with warnings.catch_warnings():  # only the size is read, never the pixels
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as image:
+                return min(WIDE_PX, image.width)
+    except Image.DecompressionBombError:  # more pixels than Pillow opens: wider than shown
+        return WIDE_PX
     except OSError:
         return PICTURE_PX
 
