@@ -8,4 +8,8 @@
 - :mod:`.camera`: pinhole cameras and pixel footprints on the board (SPEC section 2);
 - :mod:`.job`: where each stage reads and writes in a job folder (SPEC section 6);
 - :mod:`.schema`: strict TOML tables into frozen dataclasses.
+
+A file's mistakes raise :class:`~scratchfab.errors.ConfigError` naming the file and key;
+a ``Board``, ``Light``, ``ScratchTool``, ``View`` or ``ScratchSet`` built in code with a
+value out of the same bounds, or arrays of the wrong shape, raises ``ValueError``.
 """
