@@ -302,3 +302,39 @@ def test_a_checkpoint_that_kept_an_equal_scales_total_still_resumes() -> None:
     assert _changed_keys(made, now) == []
     varying = {"shape": "cosine", "start": 0.5, "end": 0.25, "iterations": 9}
     assert _changed_keys({**made, "lr_schedule": varying}, now) == ["lr_end_scale"]
+
+
+def test_equal_scales_above_k_resume_an_interrupted_shorter_run(tmp_path: Path) -> None:
+    """Equal scales above K (the pair budget widened to the scale: a refresh before every
+    step at 3.0 with K = 2) in a shorter cosine run interrupted between checkpoints,
+    resumed as a longer linear one: the same scratches and log as the longer run from the
+    start (checkpoint, refresh plan and margins depend on neither total nor shape)."""
+    design = make_design(resolution=24, size_mm=30.0)
+    a = make_job(tmp_path / "a", design, count=150)
+    b = make_job(tmp_path / "b", design, count=150)
+    options = OptimizeOptions(
+        iterations=13,
+        checkpoint_every=3,
+        lr_start_scale=3.0,
+        lr_end_scale=3.0,
+        refresh_every=2,
+        lr_schedule="linear",
+    )
+    run_optimize(a, options)
+    done = [0]
+
+    def stop() -> bool:
+        done[0] += 1
+        return done[0] == 4  # after step 4 of 5, one past a checkpoint
+
+    short = dataclasses.replace(options, iterations=5, lr_schedule="cosine")
+    first = run_optimize(b, short, should_stop=stop)
+    assert first.stopped == "interrupted" and first.iterations == 4
+    assert run_optimize(b, dataclasses.replace(options, resume=True)).iterations == 13
+    assert (b / "optimize" / "scratches.csv").read_bytes() == (
+        a / "optimize" / "scratches.csv"
+    ).read_bytes()
+    strip = [lambda line: line.split(",")[:2] + line.split(",")[3:]][0]  # not the seconds
+    log_a = (a / "optimize" / "log.csv").read_text().splitlines()
+    log_b = (b / "optimize" / "log.csv").read_text().splitlines()
+    assert len(log_a) == 15 and [strip(x) for x in log_a] == [strip(x) for x in log_b]
