@@ -16,16 +16,19 @@ A notebook's path from a design to a machine, in memory where it can be:
 - render: :func:`scratchfab.render.renderer.render_scratches` -> ``{view: (H, W)}``;
 - toolpath: :func:`scratchfab.machine.profile.load_profile` (a bundled name or a file)
   and :func:`scratchfab.toolpath.plan_toolpath`;
-- export: :func:`scratchfab.export.gcode.gcode_lines` (G-code as text) or
-  :func:`scratchfab.export.export` (a G-code, DXF or SVG file);
+- export: :func:`scratchfab.export.gcode.gcode_text`, :func:`scratchfab.export.svg.svg_text`,
+  :func:`scratchfab.export.dxf.dxf_text` (text in memory) or
+  :func:`scratchfab.export.export` (a file);
 - stream: :func:`scratchfab.machine.stream_job.stream_file` (a G-code file to a serial
   port, or ``grblsim://`` for the built-in GRBL emulator).
 
 The ``run_*`` functions of each stage's ``stage`` module do the same on a job folder
 (SPEC section 6). Mistakes in files, tables, settings and targets raise
 :class:`scratchfab.errors.ScratchfabError` (one line naming the file and key or row);
-the array building blocks (``ScratchSet``, ``fit_to_board``, ``warp_to_view``,
-``order_strokes``) refuse arrays of the wrong shape or range with ``ValueError``.
+the building blocks made in code raise ``ValueError``: the dataclasses (``Board``,
+``Light``, ``ScratchTool``, ``View``, ``OptimizeOptions``, a profile's tables) for a value
+outside a file's bounds, ``tone_map`` for an exposure that is not > 0, and ``ScratchSet``,
+``fit_to_board``, ``warp_to_view``, ``order_strokes`` for arrays of the wrong shape or range.
 Nothing in the core prints: progress goes to the callbacks a caller passes.
 """
 
