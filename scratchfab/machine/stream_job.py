@@ -227,11 +227,37 @@ class EmulatorEta:
         )
 
 
+def emulator_progress(
+    port: str,
+    baud: int | None,
+    gcode: Path,
+    progress: Callable[[StreamProgress], Any],
+    say: Say,
+) -> Callable[[StreamProgress], Any]:
+    """``progress`` with the ETA in the emulator's time for a ``grblsim://`` port.
+
+    For the emulator each report's ETA becomes :class:`EmulatorEta`'s, and before the
+    first one ``say`` gets its note (unless time_scale is 1); a machine's port gets
+    ``progress`` itself. ``baud``: the port's (None: 115200) unless the URL sets it.
+    """
+    eta = _emulator_eta(port, baud, gcode)
+    if eta is None:
+        return progress
+    noted: list[bool] = []
+
+    def in_emulator_time(p: StreamProgress) -> Any:
+        if not noted and eta.time_scale != 1.0:
+            noted.append(True)
+            say(eta.note(p.eta_s))
+        return progress(eta(p))
+
+    return in_emulator_time
+
+
 def _emulator_eta(port: str, baud: int | None, gcode: Path) -> EmulatorEta | None:
     """The ETA in the emulator's time for a ``grblsim://`` port; None for a machine.
 
-    ``baud``: the port's (None: 115200) unless the URL sets it. A URL or file that cannot
-    be read gets None here: :func:`stream_file` reports it.
+    A URL or file that cannot be read gets None here: :func:`stream_file` reports it.
     """
     try:
         options = sim_options(port, baud or 115200)
@@ -524,20 +550,18 @@ def run_stream_job(
     """
     lines = ProgressLines()
     layout = JobLayout(job)
-    eta = _emulator_eta(port, baud, layout.export_file("gcode"))
 
-    noted: list[bool] = []
-
-    def progress(p: StreamProgress) -> None:
-        if eta is not None:
-            if not noted and eta.time_scale != 1.0:
-                noted.append(True)
-                say(f"  {eta.note(p.eta_s)}")
-            p = eta(p)
+    def show(p: StreamProgress) -> None:
         text = lines.line(p)
         if text is not None:
             say(f"  {text}")
 
+    line_baud = baud or (
+        None if machine is None or isinstance(machine, str) else machine.serial.baud
+    )
+    progress = emulator_progress(
+        port, line_baud, layout.export_file("gcode"), show, lambda text: say(f"  {text}")
+    )
     req = StreamRequest(
         gcode=layout.export_file("gcode"),
         port=port,
