@@ -325,3 +325,34 @@ def test_the_profiles_junction_deviation_sets_the_estimate_and_the_header(deviat
     header = next(line for line in gcode_lines(tp, profile) if " min" in line)
     assert f"about {run.seconds / 60:.1f} min" in header
     assert f"about {default / 60:.1f} min" not in header
+
+
+def test_exit_speed_over_the_blocks_queued_agrees_with_the_simulator():
+    """The emulator's planner step: a move's exit speed from what is queued behind it
+    (entry limits by corner and cruise speeds, the newest ending at rest), against the
+    simulator's junction speeds over windows of 1 to 15 blocks."""
+    from scratchfab.toolpath.timing import corner_speed_sq, exit_speed_sq, move_limits
+
+    rng = np.random.default_rng(11)
+    s = Settings((2000.0, 1500.0, 600.0), (100.0, 80.0, 50.0), 0.02, (1000.0, 1000.0, 1000.0))
+    points = np.round(rng.uniform(0, 20, (40, 3)), 3)
+    points[5::9, :2] = points[4::9, :2]  # Z-only moves
+    feeds = rng.choice([np.inf, 300.0, 900.0, 3000.0], len(points) - 1)
+    lines = ["G21 G90"] + [
+        ("G0" if np.isinf(f) else f"G1 F{f:g}") + " X{:.3f} Y{:.3f} Z{:.3f}".format(*p)
+        for p, f in zip(points[1:], feeds, strict=True)
+    ]
+    length, unit, cruise, accel = move_limits(
+        np.diff(points, axis=0), feeds, s.max_rate_mm_min, s.acceleration_mm_s2
+    )
+    corner = corner_speed_sq(unit[:-1], unit[1:], s.acceleration_mm_s2, 0.02)
+    entry_max = np.minimum(corner, np.minimum(cruise[1:], cruise[:-1]) ** 2)
+    gain = 2.0 * accel * length
+    for window in (1, 2, 5, 15):
+        want = simulate(lines, s, start=points[0], buffer_blocks=window).junction_speeds
+        entry_sq = 0.0
+        for i in range(len(length) - 1):
+            later = list(zip(entry_max[i : i + window - 1], gain[i + 1 : i + window], strict=True))
+            exit_sq = exit_speed_sq(entry_sq, gain[i], later)
+            assert math.sqrt(exit_sq) == pytest.approx(want[i], rel=1e-9, abs=1e-9)
+            entry_sq = exit_sq
