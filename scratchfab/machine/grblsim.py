@@ -934,7 +934,7 @@ class GrblSim:
                 spindle=self._spindle,
                 length=float(length[0]),
                 unit=u,
-                accel=float(accel[0]),
+                accel=max(float(accel[0]), 1e-9),  # $120=0: a machine that barely moves
                 corner_sq=corner_sq,
             )
         )
@@ -965,10 +965,15 @@ class GrblSim:
         )
 
     def _cruise(self, block: _Block) -> float:
-        """A block's nominal speed (mm/s) under the overrides (``plan_compute_profile_nominal_speed``)."""
+        """A block's nominal speed (mm/s) under the overrides (``plan_compute_profile_nominal_speed``).
+
+        At least Grbl's ``MINIMUM_FEED_RATE`` (1 mm/min).
+        """
         if block.rapid:
-            return block.limit * self._overrides[1] / 6000.0
-        return min(block.rate * self._overrides[0] / 100.0, block.limit) / 60.0
+            rate = block.limit * self._overrides[1] / 100.0
+        else:
+            rate = min(block.rate * self._overrides[0] / 100.0, block.limit)
+        return max(rate, 1.0) / 60.0
 
     def _replan(self, t: float, stopped: bool = False) -> None:
         """Re-plan the head block as Grbl's ``planner_recalculate`` does on a new block.
