@@ -1,13 +1,15 @@
 """Streaming throughput: character counting vs simple send-response on the GRBL emulator.
 
 The emulator models the serial line (10 bits per byte at 115200 baud, both directions), an
-optional USB latency per direction, and motion time from the feeds (distance / feed, G0 at
-$110-$112; time_scale 1, i.e. real time). Jobs are strokes in the exporter's format
-(G0 Z / G0 XY / G1 Z / G1 XY / G0 Z):
+optional USB latency per direction, and motion as GRBL's planner runs it (the feeds,
+$110-$112 rates, $120-$122 accelerations, corners by $11; time_scale 1, i.e. real time).
+Jobs are strokes in the exporter's format (G0 Z / G0 XY / G1 Z / G1 XY / G0 Z):
 
-- ``short``: 0.1 mm strokes, 0.05 mm Z hops, F5000 and $110-$112 = 5000 mm/min: each move
-  takes about a millisecond, so the link, not the machine, limits the speed;
-- ``engrave``: 2 mm strokes at F800, Z at 500 mm/min (GRBL defaults): motion-bound.
+- ``short``: 0.1 mm strokes, 0.05 mm Z hops, F5000, $110-$112 = 5000 mm/min and
+  $120-$122 = 1e5 mm/s^2: each move takes about a millisecond, so the link, not the
+  machine, limits the speed (at GRBL's default 10 mm/s^2 each move would take ~0.1 s);
+- ``engrave``: 2 mm strokes at F800, Z at 500 mm/min, GRBL's default accelerations:
+  motion-bound.
 
 Prints JSON (lines per second per protocol and the counting/simple ratio). The goal is judged
 with 1 ms of USB latency per direction (a CH340 is about that, an FTDI at its default latency
@@ -72,9 +74,9 @@ def run(job: Path, protocol: str, url: str) -> dict[str, float]:
 
 
 SCENARIOS = {
-    # name: (stroke length mm, Z hop mm, feed mm/min, $110-$112 mm/min)
-    "short": (0.1, 0.05, 5000.0, 5000.0),
-    "engrave": (2.0, 0.5, 800.0, 500.0),
+    # name: (stroke length mm, Z hop mm, feed mm/min, $110-$112 mm/min, $120-$122 mm/s^2)
+    "short": (0.1, 0.05, 5000.0, 5000.0, 1e5),
+    "engrave": (2.0, 0.5, 800.0, 500.0, 10.0),
 }
 
 
@@ -86,13 +88,13 @@ def main() -> None:
     strokes = parser.parse_args().strokes
     results: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for name, (length, hop, feed, rate) in SCENARIOS.items():
+        for name, (length, hop, feed, rate, accel) in SCENARIOS.items():
             job = Path(tmp) / f"{name}.gcode"
             write_job(job, strokes if name == "short" else 10, length, hop, feed)
             for latency_ms in (0.0, 1.0) if name == "short" else (1.0,):
                 url = (
                     f"grblsim://?baud=115200&time_scale=1&latency={latency_ms / 1000}"
-                    f"&$110={rate}&$111={rate}&$112={rate}"
+                    f"&$110={rate}&$111={rate}&$112={rate}&$120={accel}&$121={accel}&$122={accel}"
                 )
                 row = {p: run(job, p, url) for p in ("counting", "simple")}
                 speedup = row["counting"]["lines_per_s"] / row["simple"]["lines_per_s"]
@@ -100,6 +102,7 @@ def main() -> None:
                     "stroke_mm": length,
                     "feed_mm_min": feed,
                     "max_rate_mm_min": rate,
+                    "acceleration_mm_s2": accel,
                     **row,
                     "speedup": round(speedup, 2),
                 }
