@@ -186,6 +186,8 @@ def test_the_stream_command_prints_the_formatters_lines(tmp_path, capsys, monkey
     assert shown and all(LINE.fullmatch(line) for line in shown), shown
     assert shown[-1].startswith("100.0% 103/103 lines  elapsed ")
     assert " ETA 00:00  Idle X" in shown[-1]
+    notes = [line for line in err if line.startswith("emulator at time_scale 0.01: ")]
+    assert len(notes) == 1 and err.index(notes[0]) < err.index(shown[0])
     _marked(monkeypatch)
     main([*args, "--banner-timeout", "0.3"])
     err = capsys.readouterr().err.splitlines()

@@ -16,6 +16,7 @@ from scratchfab.machine.stream_job import (
     ProgressLines,
     StreamCallbacks,
     StreamRequest,
+    emulator_progress,
     stream_file,
 )
 
@@ -202,7 +203,8 @@ def stream(
         return yes or click.confirm(question, default=False, err=True)
 
     try:
-        stream_file(request, StreamCallbacks(bar, message, ask_interrupt, confirm, outcome))
+        progress = emulator_progress(port, baud, gcode, bar, message)
+        stream_file(request, StreamCallbacks(progress, message, ask_interrupt, confirm, outcome))
     finally:
         bar.end()
 

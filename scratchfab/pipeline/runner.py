@@ -36,7 +36,9 @@ from scratchfab.pipeline.report import write_report
 
 def is_emulator(port: str) -> bool:
     """True for the built-in GRBL emulator (``grblsim://...``), which moves nothing."""
-    return port.strip().lower().startswith("grblsim://")
+    from scratchfab.machine.protocol_grblsim import grblsim_query
+
+    return grblsim_query(port) is not None
 
 
 @dataclass
