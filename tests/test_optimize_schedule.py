@@ -45,7 +45,8 @@ def test_scales_follow_the_hand_formula() -> None:
 
 
 def test_options_give_a_schedule_only_when_the_scales_differ_from_one() -> None:
-    assert OptimizeOptions().schedule() is None
+    assert OptimizeOptions(lr_start_scale=1.0).schedule() is None
+    assert OptimizeOptions().schedule() == StepSchedule("cosine", 4.0, 1.0, 300)  # the default
     options = OptimizeOptions(iterations=50, lr_start_scale=2.0, lr_schedule="linear")
     assert options.schedule() == StepSchedule("linear", 2.0, 1.0, 50)
     assert OptimizeOptions(lr_start_scale=0.5, lr_end_scale=0.5).schedule() is not None
@@ -242,10 +243,10 @@ def test_scheduled_resume_matches_uninterrupted_and_needs_the_same_iterations(
     log_b = (b / "optimize" / "log.csv").read_text().splitlines()
     strip = [lambda line: line.split(",")[:2] + line.split(",")[3:]][0]
     assert [strip(x) for x in log_a] == [strip(x) for x in log_b]
-    # the scales depend on the total: another total, or no schedule, is another run; the
+    # the scales depend on the total: a smaller total, or no schedule, is another run; the
     # refusal names the options that changed, not the fingerprint's "lr_schedule"
     for other, named in (
-        (dataclasses.replace(options, iterations=30, resume=True), "(iterations; "),
+        (dataclasses.replace(options, iterations=12, resume=True), "(iterations; "),
         (
             dataclasses.replace(options, lr_start_scale=1.0, lr_end_scale=1.0, resume=True),
             "(lr_start_scale, lr_end_scale)",
@@ -256,6 +257,36 @@ def test_scheduled_resume_matches_uninterrupted_and_needs_the_same_iterations(
             run_optimize(b, other)
         text = str(exc.value)
         assert "different settings" in text and named in text and "\n" not in text
+
+
+def test_a_scheduled_run_extends_past_its_total_at_the_end_scale(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """--resume with more iterations goes on past the total the run started with at its end
+    scale, as a fresh run whose schedule has that total does (and so does a resume of the
+    extended run); the checkpoint keeps the first total."""
+    design = make_design(resolution=24, size_mm=30.0)
+    a = make_job(tmp_path / "a", design, count=150)
+    b = make_job(tmp_path / "b", design, count=150)
+    options = OptimizeOptions(
+        iterations=12, checkpoint_every=4, lr_start_scale=3.0, lr_end_scale=0.5, refresh_every=4
+    )
+    run_optimize(b, options)
+    done = [0]
+
+    def stop() -> bool:
+        done[0] += 1
+        return done[0] == 5  # stop the extension part way, then resume it again
+
+    longer = dataclasses.replace(options, iterations=20, resume=True)
+    assert run_optimize(b, longer, should_stop=stop).stopped == "interrupted"
+    assert run_optimize(b, longer).iterations == 20
+    first = options.schedule()
+    monkeypatch.setattr(OptimizeOptions, "schedule", lambda self: first)
+    run_optimize(a, dataclasses.replace(options, iterations=20))
+    assert (b / "optimize" / "scratches.csv").read_bytes() == (
+        a / "optimize" / "scratches.csv"
+    ).read_bytes()
 
 
 def test_equal_scales_resume_with_more_iterations_as_constant_steps(tmp_path: Path) -> None:

@@ -42,7 +42,7 @@ from scratchfab.model.job import JobLayout, design_digest, load_job_design
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.checkpoint import load_checkpoint, save_checkpoint
 from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
-from scratchfab.optimize.options import OptimizeOptions
+from scratchfab.optimize.options import OptimizeOptions, StepSchedule
 from scratchfab.optimize.plots import save_loss_plot, save_side_by_side
 from scratchfab.optimize.prune import PruneReport, prune
 from scratchfab.render.layout import write_render_layout
@@ -196,6 +196,28 @@ def _schedule_fields(fields: dict[str, Any]) -> dict[str, Any]:
     return fields
 
 
+def _extended_schedule(
+    made: dict[str, Any], now: dict[str, Any], options: OptimizeOptions
+) -> StepSchedule | None:
+    """The schedule a checkpoint ran, when ``options`` extend that run to more iterations.
+
+    Its steps follow the total it started with, and the steps past that total take its end
+    scale (:meth:`StepSchedule.scale`), so a finished run can go on as a constant run can.
+    None when the schedule differs otherwise, or the total is not larger.
+    """
+    was, wants = made.get("lr_schedule"), now.get("lr_schedule")
+    if not (isinstance(was, dict) and isinstance(wants, dict)):
+        return None
+    if {k: v for k, v in was.items() if k != "iterations"} != {
+        k: v for k, v in wants.items() if k != "iterations"
+    }:
+        return None
+    total = was.get("iterations")
+    if not isinstance(total, int) or isinstance(total, bool) or total >= options.iterations:
+        return None
+    return StepSchedule(**was)
+
+
 # The fields of a fingerprint's "lr_schedule" (a StepSchedule) by option name.
 SCHEDULE_OPTIONS = {
     "shape": "lr_schedule",
@@ -320,12 +342,27 @@ def _run(
             [half[:, :1] * cos - half[:, 1:] * sin, half[:, :1] * sin + half[:, 1:] * cos], 1
         )
         start_layout = ScratchSet(c - rot, c + rot, initial.width, initial.depth)
+    schedule = options.schedule()
+    ckpt = paths.optimize_checkpoint
+    if options.resume:
+        state, meta, log_rows = load_checkpoint(ckpt)
+        made = meta.get("fingerprint", {})
+        if (extended := _extended_schedule(made, fingerprint, options)) is not None:
+            schedule = extended
+            fingerprint = {**fingerprint, "lr_schedule": made["lr_schedule"]}
+        differ = _changed_keys(made, fingerprint)
+        if differ:
+            total = "; a scheduled run's step sizes follow its total" * ("iterations" in differ)
+            raise ConfigError(
+                f"{ckpt}: made with different settings or inputs ({', '.join(differ)}{total}); "
+                "run without --resume to start over"
+            )
     settings = Settings(
         lr=options.learning_rates(),
         refresh_every=options.refresh_every,
         space=options.space,
         merge_weight=options.merge_weight,
-        schedule=options.schedule(),
+        schedule=schedule,
     )
     report(Progress(0, options.iterations, math.nan, 0.0, math.nan, "compiling kernels"))
     opt = LayoutOptimizer(design, targets, start_layout, settings, m)
@@ -334,16 +371,7 @@ def _run(
     columns = log_columns(names)
     rows: list[list[float]] = []
     elapsed0 = 0.0
-    ckpt = paths.optimize_checkpoint
     if options.resume:
-        state, meta, log_rows = load_checkpoint(ckpt)
-        differ = _changed_keys(meta.get("fingerprint", {}), fingerprint)
-        if differ:
-            total = "; a scheduled run's step sizes follow its total" * ("iterations" in differ)
-            raise ConfigError(
-                f"{ckpt}: made with different settings or inputs ({', '.join(differ)}{total}); "
-                "run without --resume to start over"
-            )
         opt.load_state(state)
         rng.bit_generator.state = meta["rng"]
         rows = [list(map(float, r)) for r in log_rows]
