@@ -36,7 +36,8 @@ def _bar() -> Callable[[Progress], None]:
     type=FiniteFloat(min=0),
     default=0.0,
     show_default=True,
-    help="Stop after this many seconds of optimizing (0: no limit).",
+    help="Stop after this many seconds of optimizing (0: no limit). The step sizes shrink "
+    "over --iterations, not over the budget: give the steps that fit in it.",
 )
 @click.option(
     "--seed",
