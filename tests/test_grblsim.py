@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import collections
 import math
+import threading
 import time
 from dataclasses import FrozenInstanceError, replace
 
@@ -820,3 +821,64 @@ def test_which_lines_wait_for_the_planner_to_empty(before, line, laser, waits):
     moved = next(e["t"] for e in sim.record if e["ev"] == "exec" and e["n"] == rx["G1X10F600"])
     assert moved > 0.5
     assert (ok >= moved) == waits
+
+
+def _run_in_own_time_or_fail(sim: GrblSim, clock: list[float], seconds: float = 10.0) -> bytes:
+    """``_run_until_still`` on a watchdog thread: a controller that spins fails the test."""
+    out = bytearray()
+
+    def run() -> None:
+        while (t := sim.next_event()) < math.inf:
+            clock[0] = max(clock[0], t)
+            sim.advance(clock[0])
+            out.extend(sim.host_read(1 << 16, 0.0))
+
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    worker.join(seconds)
+    assert not worker.is_alive(), "the emulator never got past a move"
+    return bytes(out)
+
+
+@pytest.mark.parametrize(
+    ("setting", "answer"),
+    [
+        ("$120=nan", "error:2"),  # read_float takes no nan or inf (a NaN move spun forever)
+        ("$110=inf", "error:2"),
+        ("$11=nan", "error:2"),
+        ("$120=1e3", "error:3"),  # no exponent: the 'E' after the number is left over
+        ("$120=50.", "ok"),
+        ("$110=+400", "ok"),
+    ],
+)
+def test_a_setting_is_read_as_grbls_read_float_reads_it(setting, answer):
+    """``$N=value`` goes through Grbl's ``read_float`` (sign, digits, one point; error:2
+    without digits) and must end there (error:3), as in ``system_execute_line``; a move
+    after it still ends, at the time of the settings Grbl then has."""
+    sim, clock = _sim_in_own_time(SimOptions(baud=0))
+    sim.host_write(f"{setting}\nG1X10F600\n".encode())
+    lines = _run_in_own_time_or_fail(sim, clock).decode().split()
+    sim.close()
+    assert lines[-2:] == [answer, "ok"]
+    if answer == "ok":
+        key, value = setting[1:].split("=")
+        assert sim.settings[int(key)] == float(value)
+    rate, accel = min(600.0, sim.settings[110]) / 60.0, sim.settings[120]
+    end = max(e["t"] for e in sim.record if e["ev"] == "exec")
+    assert end == pytest.approx(planner_sim.block_seconds(10.0, 0.0, 0.0, rate, accel), abs=1e-6)
+
+
+@pytest.mark.parametrize("key", [110, 120])
+def test_a_zero_rate_or_acceleration_limits_only_moves_along_its_axis(key):
+    """Grbl's ``limit_value_by_axis_maximum`` skips the axes a move does not use: ``$110=0``
+    or ``$120=0`` leaves a Y move as it was (0/0 spun the emulator before), and an X
+    move crawls at ``MINIMUM_FEED_RATE`` (1 mm/min) or ends up at a finite time."""
+    sim, clock = _sim_in_own_time(SimOptions(baud=0, settings={111: 600.0, key: 0.0}))
+    sim.host_write(b"G0Y10\nG4P0\nG1X10Y10F600\n")
+    _run_in_own_time_or_fail(sim, clock)
+    sim.close()
+    ends = [e["t"] for e in sim.record if e["ev"] == "exec"]
+    assert ends[0] == pytest.approx(planner_sim.block_seconds(10.0, 0.0, 0.0, 10.0, 10.0))
+    assert math.isfinite(ends[1]) and ends[1] - ends[0] > 10.0
+    if key == 110:  # 10 mm at 1 mm/min
+        assert ends[1] - ends[0] == pytest.approx(600.0, rel=1e-3)

@@ -67,6 +67,7 @@ from scratchfab.machine.grblsim_gcode import (
     ModalState,
     Settings,
     interpret,
+    read_number,
 )
 from scratchfab.model.schema import parse_table, spec
 from scratchfab.toolpath.timing import (
@@ -1337,10 +1338,12 @@ class GrblSim:
         key, _, raw = cmd.partition("=")
         if not key.isdigit():
             return "error:3"
-        try:
-            value = float(raw)
-        except ValueError:
+        try:  # Grbl's read_float: sign, digits and a point (no exponent, nan or inf)
+            value, end = read_number(raw, 0)
+        except GcodeError:
             return "error:2"
+        if end != len(raw):
+            return "error:3"
         k = int(key)
         if k not in DEFAULT_SETTINGS:
             return "error:3"

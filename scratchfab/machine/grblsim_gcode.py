@@ -99,7 +99,7 @@ class Outcome:
     coord_offsets: list[tuple[float, float, float]] = field(default_factory=list)
 
 
-def _read_number(line: str, i: int) -> tuple[float, int]:
+def read_number(line: str, i: int) -> tuple[float, int]:
     """Grbl's ``read_float``: optional sign, digits and one point; raises error 2."""
     j = i
     if j < len(line) and line[j] in "+-":
@@ -125,7 +125,7 @@ def _words(line: str) -> list[tuple[str, float]]:
         letter = line[i]
         if not ("A" <= letter <= "Z"):
             raise GcodeError(1)
-        value, i = _read_number(line, i + 1)
+        value, i = read_number(line, i + 1)
         out.append((letter, value))
     return out
 

@@ -53,9 +53,12 @@ def move_limits(
     unit = np.zeros_like(d)
     unit[moving] = d[moving] / length[moving, None]
     comp = np.abs(unit)
-    with np.errstate(divide="ignore"):
-        rate_limit = np.min(np.asarray(max_rate_mm_min) / 60.0 / comp, axis=1)
-        accel = np.min(np.asarray(acceleration_mm_s2) / comp, axis=1)
+    # An axis the move does not use limits nothing (GRBL skips it), even at a limit of 0.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rate_limit = np.min(
+            np.where(comp > 0, np.asarray(max_rate_mm_min) / 60.0 / comp, np.inf), axis=1
+        )
+        accel = np.min(np.where(comp > 0, np.asarray(acceleration_mm_s2) / comp, np.inf), axis=1)
     speed = np.minimum(
         np.broadcast_to(np.asarray(feed_mm_min, dtype=np.float64) / 60.0, length.shape), rate_limit
     )
@@ -85,7 +88,7 @@ def corner_speed_sq(
     norm = np.sqrt((bisector * bisector).sum(axis=1))
     with np.errstate(divide="ignore", invalid="ignore"):
         comp = np.abs(bisector / norm[:, None])
-        a_corner = np.min(np.asarray(acceleration_mm_s2) / comp, axis=1)
+        a_corner = np.min(np.where(comp > 0, np.asarray(acceleration_mm_s2) / comp, np.inf), axis=1)
         half = np.sqrt(np.clip(0.5 * (1.0 - cos), 0.0, 1.0))
         corner_sq = a_corner * junction_deviation_mm * half / (1.0 - half)
     return np.where(cos < -_STRAIGHT_COS, np.inf, np.where(cos > _STRAIGHT_COS, 0.0, corner_sq))
