@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+from pathlib import Path
 
 import pytest
 from test_stream import write_job
@@ -12,7 +13,13 @@ from scratchfab.cli import main, options
 from scratchfab.cli.stream_cmd import _ProgressLine
 from scratchfab.machine import stream_job
 from scratchfab.machine.sender import StreamProgress
-from scratchfab.machine.stream_job import ProgressLines, progress_text, run_stream_job
+from scratchfab.machine.stream_job import (
+    ProgressLines,
+    StreamCallbacks,
+    StreamRequest,
+    progress_text,
+    run_stream_job,
+)
 from scratchfab.model.job import JobLayout
 
 # (acked, total, eta_s, state, wpos, final), elapsed_s, the line as a person should read it
@@ -301,3 +308,39 @@ def test_the_pipelines_stream_eta_runs_with_the_emulators_elapsed(tmp_path):
     assert first_eta >= 2  # a machine's ETA of about 2 minutes, scaled
     end = _clock_seconds(shown[-1].split("elapsed ")[1].split()[0])
     assert abs(end - first_eta) <= 1
+
+
+def test_a_stream_to_the_emulator_reads_the_job_once(tmp_path, monkeypatch):
+    """The emulator's ETA uses the program the stream loaded (an 80k-line job takes about
+    two seconds to read), at the baud the port opened at (the request's here, which the
+    ETA's caller did not give). Both the stream function and the pipeline's stage."""
+    from scratchfab.machine import sender_program
+
+    loads: list[Path] = []
+
+    def counted(path, *args, **kwargs):
+        loads.append(Path(path))
+        return sender_program.load_program(path, *args, **kwargs)
+
+    monkeypatch.setattr(stream_job, "load_program", counted)
+    seen: list[StreamProgress] = []
+    job = tmp_path / "job.gcode"
+    write_job(job, 20)
+    port = "grblsim://?time_scale=0"
+    progress = stream_job.emulator_progress(port, None, job, seen.append, lambda _: None)
+    cb = StreamCallbacks(progress, lambda _: None, lambda: "stop", lambda _: True)
+    stream_job.stream_file(StreamRequest(gcode=job, port=port, baud=38400), cb)
+    assert loads == [job]
+    # time_scale 0: the ETA is what the line needs at 38400 baud for the lines not acked
+    sent = [re.sub(r"\(.*?\)|;.*| ", "", ln) for ln in job.read_text().splitlines()]
+    sent = [ln for ln in sent if ln]
+    first = seen[0]
+    link_s = sum(len(ln) + 1 for ln in sent[first.acked :]) * 10 / 38400
+    assert first.eta_s == pytest.approx(link_s) and seen[-1].eta_s == 0.0
+    loads.clear()
+    layout = JobLayout(tmp_path / "job2")
+    gcode = layout.export_file("gcode")
+    gcode.parent.mkdir(parents=True)
+    write_job(gcode, 20)
+    run_stream_job(layout.root, "grblsim://?baud=0&time_scale=0.01", say=lambda _: None)
+    assert loads == [gcode]

@@ -217,7 +217,8 @@ class EmulatorEta:
     def __call__(self, p: StreamProgress) -> StreamProgress:
         """The report with its ETA in the emulator's time."""
         link = self._link_left[min(max(p.acked, 0), len(self._link_left) - 1)]
-        return replace(p, eta_s=max(p.eta_s * self.time_scale, link))
+        scaled = p.eta_s * self.time_scale if self.time_scale > 0.0 else 0.0  # (inf * 0)
+        return replace(p, eta_s=max(scaled, link))
 
     def note(self, machine_s: float) -> str:
         """The line that says which time the ETA counts (``machine_s``: a machine's ETA)."""
@@ -225,6 +226,43 @@ class EmulatorEta:
             f"emulator at time_scale {self.time_scale:g}: elapsed and ETA count its time "
             f"(on a machine: ETA {clock(machine_s)})"
         )
+
+
+class EmulatorProgress:
+    """A progress callback with the ETA in the emulator's time (:func:`emulator_progress`).
+
+    :func:`stream_file` hands it the program it loaded and the line's baud
+    (:meth:`prepare`), so the job is read once; a caller that streams otherwise gets the
+    program loaded at the first report.
+    """
+
+    def __init__(
+        self, port: str, gcode: Path, progress: Callable[[StreamProgress], Any], say: Say
+    ) -> None:
+        self._port = port
+        self._gcode = gcode
+        self._progress = progress
+        self._say = say
+        self._eta: EmulatorEta | None = None
+        self._noted = False
+
+    def prepare(self, program: Program, baud: int) -> None:
+        """Use the program streamed and the port's baud (the URL's ``baud`` wins)."""
+        options = sim_options(self._port, baud)
+        if options is not None:
+            self._eta = EmulatorEta(options, program)
+
+    def __call__(self, p: StreamProgress) -> Any:
+        """Report ``p`` with its ETA in the emulator's time; the note before the first."""
+        if self._eta is None:
+            self.prepare(load_program(self._gcode), 115200)
+        eta = self._eta
+        if eta is None:  # (a port that sim_options refused streams nothing)
+            return self._progress(p)
+        if not self._noted and eta.time_scale != 1.0:
+            self._noted = True
+            self._say(eta.note(p.eta_s))
+        return self._progress(eta(p))
 
 
 def emulator_progress(
@@ -237,33 +275,17 @@ def emulator_progress(
     """``progress`` with the ETA in the emulator's time for a ``grblsim://`` port.
 
     For the emulator each report's ETA becomes :class:`EmulatorEta`'s, and before the
-    first one ``say`` gets its note (unless time_scale is 1); a machine's port gets
-    ``progress`` itself. ``baud``: the port's (None: 115200) unless the URL sets it.
+    first one ``say`` gets its note (unless time_scale is 1); a machine's port, or a URL
+    that :func:`stream_file` will refuse, gets ``progress`` itself. The program and the
+    line's baud come from :func:`stream_file` (``baud`` is not needed: kept for callers).
     """
-    eta = _emulator_eta(port, baud, gcode)
-    if eta is None:
-        return progress
-    noted: list[bool] = []
-
-    def in_emulator_time(p: StreamProgress) -> Any:
-        if not noted and eta.time_scale != 1.0:
-            noted.append(True)
-            say(eta.note(p.eta_s))
-        return progress(eta(p))
-
-    return in_emulator_time
-
-
-def _emulator_eta(port: str, baud: int | None, gcode: Path) -> EmulatorEta | None:
-    """The ETA in the emulator's time for a ``grblsim://`` port; None for a machine.
-
-    A URL or file that cannot be read gets None here: :func:`stream_file` reports it.
-    """
+    del baud  # stream_file hands over the baud it opens the port at
     try:
-        options = sim_options(port, baud or 115200)
-        return None if options is None else EmulatorEta(options, load_program(gcode))
-    except (ScratchfabError, OSError):
-        return None
+        if sim_options(port, 115200) is None:
+            return progress
+    except ScratchfabError:
+        return progress  # stream_file reports the URL's mistake, once
+    return EmulatorProgress(port, gcode, progress, say)
 
 
 def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
@@ -361,6 +383,8 @@ def _stream_locked(
         profile=profile,
     )
     baud = req.baud or (profile.serial.baud if profile is not None else 115200)
+    if isinstance(cb.progress, EmulatorProgress):
+        cb.progress.prepare(program, baud)
     ser = open_port(req.port, baud)
     try:
         streamer = Streamer(ser, options, cb.progress, cb.say, cb.ask_interrupt)
@@ -556,11 +580,8 @@ def run_stream_job(
         if text is not None:
             say(f"  {text}")
 
-    line_baud = baud or (
-        None if machine is None or isinstance(machine, str) else machine.serial.baud
-    )
     progress = emulator_progress(
-        port, line_baud, layout.export_file("gcode"), show, lambda text: say(f"  {text}")
+        port, baud, layout.export_file("gcode"), show, lambda text: say(f"  {text}")
     )
     req = StreamRequest(
         gcode=layout.export_file("gcode"),
