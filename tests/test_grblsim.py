@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import collections
 import math
+import re
 import threading
 import time
 from dataclasses import FrozenInstanceError, replace
@@ -882,3 +883,23 @@ def test_a_zero_rate_or_acceleration_limits_only_moves_along_its_axis(key):
     assert math.isfinite(ends[1]) and ends[1] - ends[0] > 10.0
     if key == 110:  # 10 mm at 1 mm/min
         assert ends[1] - ends[0] == pytest.approx(600.0, rel=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "named"),
+    [
+        ({"time_scale": math.nan}, "SimOptions.time_scale"),  # NaN times spun the thread
+        ({"time_scale": math.inf}, "SimOptions.time_scale"),
+        ({"latency": -0.001}, "SimOptions.latency"),
+        ({"settings": {120: math.nan}}, "$120=nan"),
+        ({"settings": {110: -1.0}}, "$110=-1.0"),
+        ({"settings": {999: 1.0}}, "$999=1.0"),
+    ],
+)
+def test_options_built_in_code_meet_the_bounds_of_a_url(kwargs, named):
+    """SimOptions from code are checked as a ``grblsim://`` query is (finite, in bounds,
+    Grbl 1.1 settings at least 0), so no emulator starts with a time or limit that is NaN;
+    the URL's own checks still answer first, as one line."""
+    with pytest.raises(ValueError, match=re.escape(named)):
+        SimOptions(**kwargs)
+    assert SimOptions(settings={110: 0.0}, time_scale=0.0).settings == {110: 0.0}

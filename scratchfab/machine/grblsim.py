@@ -47,6 +47,7 @@ after N blocks (the host vanishes; the controller still runs what it had receive
 from __future__ import annotations
 
 import collections
+import dataclasses
 import itertools
 import json
 import math
@@ -69,7 +70,7 @@ from scratchfab.machine.grblsim_gcode import (
     interpret,
     read_number,
 )
-from scratchfab.model.schema import parse_table, spec
+from scratchfab.model.schema import check_bounds, parse_table, spec
 from scratchfab.toolpath.timing import (
     corner_speed_sq,
     exit_speed_sq,
@@ -168,6 +169,24 @@ class SimOptions:
     banner: str = ""
     record: str = ""
     settings: dict[int, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        """Options built in code meet the bounds a URL's do (a NaN time spins the emulator).
+
+        Raises:
+            ValueError: Naming the field, or the setting and its value.
+        """
+        check_bounds(self)
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"SimOptions.{f.name}: expected a finite number, got {value}")
+        for number, value in self.settings.items():
+            if number not in DEFAULT_SETTINGS or not (math.isfinite(value) and value >= 0):
+                raise ValueError(
+                    f"SimOptions.settings: ${number}={value}: expected a Grbl 1.1 setting "
+                    "at least 0"
+                )
 
     @classmethod
     def from_query(cls, query: Mapping[str, str], source: str = "port 'grblsim://'") -> SimOptions:
