@@ -215,34 +215,51 @@ def test_scheduled_frozen_steps_replay_the_traced_trajectory(m, board) -> None:
     assert not np.array_equal(a["raw_cx"], c["raw_cx"])
 
 
+def _twin_jobs(tmp_path: Path) -> tuple[Path, Path]:
+    """Two jobs of the same small design and layout: one runs straight, one is resumed."""
+    design = make_design(resolution=24, size_mm=30.0)
+    return make_job(tmp_path / "a", design, count=150), make_job(tmp_path / "b", design, count=150)
+
+
+def _stop_after(steps: int):  # type: ignore[no-untyped-def]
+    """A should_stop that asks to stop after ``steps`` steps."""
+    done = [0]
+
+    def stop() -> bool:
+        done[0] += 1
+        return done[0] == steps
+
+    return stop
+
+
+def _same_run(a: Path, b: Path) -> list[str]:
+    """Assert the two jobs wrote the same scratches and log (but its seconds); a's log."""
+    assert (b / "optimize" / "scratches.csv").read_bytes() == (
+        a / "optimize" / "scratches.csv"
+    ).read_bytes()
+    log_a = (a / "optimize" / "log.csv").read_text().splitlines()
+    log_b = (b / "optimize" / "log.csv").read_text().splitlines()
+    strip = [lambda line: line.split(",")[:2] + line.split(",")[3:]][0]  # not the seconds
+    assert [strip(x) for x in log_a] == [strip(x) for x in log_b]
+    return log_a
+
+
 # ---------------------------------------------------------------- resume
 
 
 def test_scheduled_resume_matches_uninterrupted_and_needs_the_same_iterations(
     tmp_path: Path,
 ) -> None:
-    design = make_design(resolution=24, size_mm=30.0)
-    a = make_job(tmp_path / "a", design, count=150)
-    b = make_job(tmp_path / "b", design, count=150)
+    a, b = _twin_jobs(tmp_path)
     options = OptimizeOptions(
         iterations=20, checkpoint_every=4, lr_start_scale=3.0, lr_end_scale=0.5, refresh_every=4
     )
     run_optimize(a, options)
-    done = [0]
-
-    def stop() -> bool:
-        done[0] += 1
-        return done[0] == 9  # after step 9, between checkpoints and refreshes
-
-    first = run_optimize(b, options, should_stop=stop)
+    # after step 9, between checkpoints and refreshes
+    first = run_optimize(b, options, should_stop=_stop_after(9))
     assert first.stopped == "interrupted" and first.iterations == 9
     run_optimize(b, dataclasses.replace(options, resume=True))
-    text = (a / "optimize" / "scratches.csv").read_bytes()
-    assert (b / "optimize" / "scratches.csv").read_bytes() == text
-    log_a = (a / "optimize" / "log.csv").read_text().splitlines()
-    log_b = (b / "optimize" / "log.csv").read_text().splitlines()
-    strip = [lambda line: line.split(",")[:2] + line.split(",")[3:]][0]
-    assert [strip(x) for x in log_a] == [strip(x) for x in log_b]
+    _same_run(a, b)
     # the scales depend on the total: a smaller total, or no schedule, is another run; the
     # refusal names the options that changed, not the fingerprint's "lr_schedule"
     for other, named in (
@@ -265,37 +282,26 @@ def test_a_scheduled_run_extends_past_its_total_at_the_end_scale(
     """--resume with more iterations goes on past the total the run started with at its end
     scale, as a fresh run whose schedule has that total does (and so does a resume of the
     extended run); the checkpoint keeps the first total."""
-    design = make_design(resolution=24, size_mm=30.0)
-    a = make_job(tmp_path / "a", design, count=150)
-    b = make_job(tmp_path / "b", design, count=150)
+    a, b = _twin_jobs(tmp_path)
     options = OptimizeOptions(
         iterations=12, checkpoint_every=4, lr_start_scale=3.0, lr_end_scale=0.5, refresh_every=4
     )
     run_optimize(b, options)
-    done = [0]
-
-    def stop() -> bool:
-        done[0] += 1
-        return done[0] == 5  # stop the extension part way, then resume it again
-
     longer = dataclasses.replace(options, iterations=20, resume=True)
-    assert run_optimize(b, longer, should_stop=stop).stopped == "interrupted"
+    # the extension stopped part way, then resumed again
+    assert run_optimize(b, longer, should_stop=_stop_after(5)).stopped == "interrupted"
     assert run_optimize(b, longer).iterations == 20
     first = options.schedule()
     monkeypatch.setattr(OptimizeOptions, "schedule", lambda self: first)
     run_optimize(a, dataclasses.replace(options, iterations=20))
-    assert (b / "optimize" / "scratches.csv").read_bytes() == (
-        a / "optimize" / "scratches.csv"
-    ).read_bytes()
+    assert _same_run(a, b)[-1].startswith("20,")
 
 
 def test_equal_scales_resume_with_more_iterations_as_constant_steps(tmp_path: Path) -> None:
     """Start and end scales equal (not 1): every step takes that scale, whatever the total
     and the shape, so a finished run extends to more iterations (with another shape too)
     and ends as a run that had the larger count from the start."""
-    design = make_design(resolution=24, size_mm=30.0)
-    a = make_job(tmp_path / "a", design, count=150)
-    b = make_job(tmp_path / "b", design, count=150)
+    a, b = _twin_jobs(tmp_path)
     options = OptimizeOptions(
         iterations=16, checkpoint_every=4, lr_start_scale=0.5, lr_end_scale=0.5, refresh_every=4
     )
@@ -307,13 +313,7 @@ def test_equal_scales_resume_with_more_iterations_as_constant_steps(tmp_path: Pa
     assert run_optimize(b, short).iterations == 7
     resumed = run_optimize(b, dataclasses.replace(options, resume=True))
     assert resumed.iterations == 16
-    assert (b / "optimize" / "scratches.csv").read_bytes() == (
-        a / "optimize" / "scratches.csv"
-    ).read_bytes()
-    log_a = (a / "optimize" / "log.csv").read_text().splitlines()
-    log_b = (b / "optimize" / "log.csv").read_text().splitlines()
-    strip = [lambda line: line.split(",")[:2] + line.split(",")[3:]][0]  # not the seconds
-    assert log_a[-1].startswith("16,") and [strip(x) for x in log_a] == [strip(x) for x in log_b]
+    assert _same_run(a, b)[-1].startswith("16,")
     # another equal scale is another run, named by its options
     with pytest.raises(ConfigError, match=r"\(lr_start_scale, lr_end_scale\)"):
         run_optimize(
@@ -340,9 +340,7 @@ def test_equal_scales_above_k_resume_an_interrupted_shorter_run(tmp_path: Path) 
     step at 3.0 with K = 2) in a shorter cosine run interrupted between checkpoints,
     resumed as a longer linear one: the same scratches and log as the longer run from the
     start (checkpoint, refresh plan and margins depend on neither total nor shape)."""
-    design = make_design(resolution=24, size_mm=30.0)
-    a = make_job(tmp_path / "a", design, count=150)
-    b = make_job(tmp_path / "b", design, count=150)
+    a, b = _twin_jobs(tmp_path)
     options = OptimizeOptions(
         iterations=13,
         checkpoint_every=3,
@@ -352,20 +350,9 @@ def test_equal_scales_above_k_resume_an_interrupted_shorter_run(tmp_path: Path) 
         lr_schedule="linear",
     )
     run_optimize(a, options)
-    done = [0]
-
-    def stop() -> bool:
-        done[0] += 1
-        return done[0] == 4  # after step 4 of 5, one past a checkpoint
-
     short = dataclasses.replace(options, iterations=5, lr_schedule="cosine")
-    first = run_optimize(b, short, should_stop=stop)
+    # after step 4 of 5, one past a checkpoint
+    first = run_optimize(b, short, should_stop=_stop_after(4))
     assert first.stopped == "interrupted" and first.iterations == 4
     assert run_optimize(b, dataclasses.replace(options, resume=True)).iterations == 13
-    assert (b / "optimize" / "scratches.csv").read_bytes() == (
-        a / "optimize" / "scratches.csv"
-    ).read_bytes()
-    strip = [lambda line: line.split(",")[:2] + line.split(",")[3:]][0]  # not the seconds
-    log_a = (a / "optimize" / "log.csv").read_text().splitlines()
-    log_b = (b / "optimize" / "log.csv").read_text().splitlines()
-    assert len(log_a) == 15 and [strip(x) for x in log_a] == [strip(x) for x in log_b]
+    assert len(_same_run(a, b)) == 15
