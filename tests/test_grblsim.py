@@ -903,3 +903,17 @@ def test_options_built_in_code_meet_the_bounds_of_a_url(kwargs, named):
     with pytest.raises(ValueError, match=re.escape(named)):
         SimOptions(**kwargs)
     assert SimOptions(settings={110: 0.0}, time_scale=0.0).settings == {110: 0.0}
+
+
+@pytest.mark.parametrize("middle", ["G1X10F100", "G1X10.001F100", "G1Y0.0019F100"])
+def test_a_move_of_no_steps_does_not_slow_the_moves_around_it(middle):
+    """Grbl drops a block whose target rounds to the steps it is at (``plan_buffer_line``
+    returns ``PLAN_EMPTY_BLOCK``: no entry speed, no nominal speed, no direction), so a
+    repeated point or one less than a step away, even at a slower feed, leaves the two
+    moves around it one straight 20 mm move, as the planner reference times it."""
+    settings = {110: 1000.0, 111: 1000.0, 112: 1000.0, 120: 10.0, 121: 10.0, 122: 10.0, 11: 0.01}
+    lines = ["G1X10F1000", middle, "G1X20F1000"]
+    sim = _stream_in_own_time(lines, SimOptions(baud=0, settings=settings))
+    want = planner_sim.simulate(lines, _reference(settings), (0.0, 0.0, 0.0)).seconds
+    assert want == pytest.approx(planner_sim.block_seconds(20.0, 0.0, 0.0, 1000 / 60, 10.0))
+    assert _motion_seconds(sim) == pytest.approx(want, rel=1e-4)

@@ -16,7 +16,8 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   junction speed of ``$11``, look-ahead over the blocks queued when it plans (the newest
   ends at rest, so a planner that runs short slows down; a block queued behind the running
   one re-plans it from its current speed), trapezoid profiles in the reported position and
-  realtime ``FS:`` rate; all times ``time_scale``. These wait for the planner to empty (so
+  realtime ``FS:`` rate; a move of no whole step (``$100``-``$102``), which Grbl drops,
+  passes at once; all times ``time_scale``. These wait for the planner to empty (so
   their ``ok`` comes after the motion before them ended): spindle and coolant changes,
   dwells, M0/M2/M30, G10, G28.1/G30.1, G92/G92.1 and a change of G54-G59 or of the G43.1
   offset (Grbl's default ``FORCE_BUFFER_SYNC_DURING_WCO_CHANGE``); not an S change in a
@@ -259,6 +260,11 @@ def _value_from_text(raw: str, tp: Any, where: str) -> Any:
             raise ConfigError(f"{where}: expected x,y,z (3 numbers in mm), got {raw!r}")
         return tuple(parts)
     return raw
+
+
+def _lround(x: float) -> int:
+    """C's ``lround``: to the nearest integer, halves away from zero (Grbl's steps)."""
+    return int(math.copysign(math.floor(abs(x) + 0.5), x))
 
 
 @dataclass
@@ -935,6 +941,9 @@ class GrblSim:
         accels = (s[120], s[121], s[122])
         delta = np.subtract(end, start)
         length, unit, limit, accel = move_limits(delta, np.inf, rates, accels)
+        steps = (s[100], s[101], s[102])
+        if all(_lround(a * k) == _lround(b * k) for a, b, k in zip(start, end, steps, strict=True)):
+            length[0] = 0.0  # no step on any axis: Grbl drops it (PLAN_EMPTY_BLOCK)
         u = (float(unit[0, 0]), float(unit[0, 1]), float(unit[0, 2]))
         before = next((b for b in reversed(self._planner) if b.length > 0), None)
         corner_sq = 0.0
@@ -1019,11 +1028,12 @@ class GrblSim:
         """
         head = self._planner[0]
         head.vmax = self._cruise(head)
-        head.v0 = min(entry, head.vmax)
         left = head.length - head.done
-        if left <= 0.0:
-            head.v1, head.duration = head.v0, 0.0
+        if left <= 0.0:  # nothing left, or a move Grbl drops: passed at the speed it has
+            head.v0 = head.v1 = entry
+            head.duration = 0.0
             return
+        head.v0 = min(entry, head.vmax)
         later = []
         speed = head.vmax
         for b in itertools.islice(self._planner, 1, None):
