@@ -233,13 +233,19 @@ class EmulatorProgress:
 
     :func:`stream_file` hands it the program it loaded and the line's baud
     (:meth:`prepare`), so the job is read once; a caller that streams otherwise gets the
-    program loaded at the first report.
+    program loaded at the first report, timed at ``baud`` (None: 115200).
     """
 
     def __init__(
-        self, port: str, gcode: Path, progress: Callable[[StreamProgress], Any], say: Say
+        self,
+        port: str,
+        baud: int | None,
+        gcode: Path,
+        progress: Callable[[StreamProgress], Any],
+        say: Say,
     ) -> None:
         self._port = port
+        self._baud = baud or 115200
         self._gcode = gcode
         self._progress = progress
         self._say = say
@@ -255,7 +261,7 @@ class EmulatorProgress:
     def __call__(self, p: StreamProgress) -> Any:
         """Report ``p`` with its ETA in the emulator's time; the note before the first."""
         if self._eta is None:
-            self.prepare(load_program(self._gcode), 115200)
+            self.prepare(load_program(self._gcode), self._baud)
         eta = self._eta
         if eta is None:  # (a port that sim_options refused streams nothing)
             return self._progress(p)
@@ -277,15 +283,15 @@ def emulator_progress(
     For the emulator each report's ETA becomes :class:`EmulatorEta`'s, and before the
     first one ``say`` gets its note (unless time_scale is 1); a machine's port, or a URL
     that :func:`stream_file` will refuse, gets ``progress`` itself. The program and the
-    line's baud come from :func:`stream_file` (``baud`` is not needed: kept for callers).
+    line's baud come from :func:`stream_file`; ``baud`` (None: 115200) serves only a
+    caller that streams otherwise (the URL's ``baud`` wins over both).
     """
-    del baud  # stream_file hands over the baud it opens the port at
     try:
         if sim_options(port, 115200) is None:
             return progress
     except ScratchfabError:
         return progress  # stream_file reports the URL's mistake, once
-    return EmulatorProgress(port, gcode, progress, say)
+    return EmulatorProgress(port, baud, gcode, progress, say)
 
 
 def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
