@@ -274,17 +274,23 @@ def _travel_above_the_machine_top():
     )
 
 
-def test_soft_limits_cap_the_lift_at_machine_z_0(tmp_path):
-    """A travel height above GRBL's travel (machine Z 0 with $20=1) would raise ALARM:2."""
-    profile = _travel_above_the_machine_top()
+def _stop_under_the_top(tmp_path, settings: str):  # type: ignore[no-untyped-def]
+    """A job travelling at work Z 0.5, stopped near its end under soft limits on a homed
+    emulator with ``settings`` added (its work offset): (exception, messages, emulator)."""
     job = tmp_path / "job.gcode"
-    # work zero 1 mm below the machine's top: the file travels at machine -0.5
     z_job(job, travel=0.5, depth=-2.0, x0=-70.0, y0=-10.0)
     prog = load_program(job)
-    exc, messages, sim = run(
-        tmp_path, prog, "time_scale=0.2&soft_limits=1&homed=1&wco=0,0,-1",
-        replace(LIFT, profile=profile), stop_at=segment_index(prog, -50),
+    return run(
+        tmp_path, prog, f"time_scale=0.2&soft_limits=1&homed=1&{settings}",
+        replace(LIFT, profile=_travel_above_the_machine_top()),
+        stop_at=segment_index(prog, -50),
     )  # fmt: skip
+
+
+def test_soft_limits_cap_the_lift_at_machine_z_0(tmp_path):
+    """A travel height above GRBL's travel (machine Z 0 with $20=1) would raise ALARM:2."""
+    # work zero 1 mm below the machine's top: the file travels at machine -0.5
+    exc, messages, sim = _stop_under_the_top(tmp_path, "wco=0,0,-1")
     assert isinstance(exc, StreamStopped)
     assert (
         "raising the tool to Z 1.000 (machine Z 0.000), capped at machine Z 0.000, the top of "
@@ -297,14 +303,7 @@ def test_with_hard_limits_the_lift_stays_the_pull_off_below_the_z_switch(tmp_pat
     """Homing leaves Grbl 1.1h's Z switch at machine Z 0 and pulls off by $27: with hard
     limits on, a rapid to Z 0 can trip it (ALARM:1, position lost), and grblHAL's soft
     limits end at -$27 there. The lift stops at machine Z -$27 (1.5 mm here)."""
-    profile = _travel_above_the_machine_top()
-    job = tmp_path / "job.gcode"
-    z_job(job, travel=0.5, depth=-2.0, x0=-70.0, y0=-10.0)
-    prog = load_program(job)
-    exc, messages, sim = run(
-        tmp_path, prog, "time_scale=0.2&soft_limits=1&homed=1&wco=0,0,-3&$21=1&$27=1.5",
-        replace(LIFT, profile=profile), stop_at=segment_index(prog, -50),
-    )  # fmt: skip
+    exc, messages, sim = _stop_under_the_top(tmp_path, "wco=0,0,-3&$21=1&$27=1.5")
     assert isinstance(exc, StreamStopped)
     assert (
         "raising the tool to Z 1.500 (machine Z -1.500), capped at machine Z -1.500, the "

@@ -203,11 +203,17 @@ def test_the_stream_command_prints_the_formatters_lines(tmp_path, capsys, monkey
     assert not [line for line in err if " lines  " in line]
 
 
-def test_the_pipelines_stream_stage_prints_the_formatters_lines(tmp_path, monkeypatch):
-    layout = JobLayout(tmp_path / "job")
+def _exported_job(root: Path) -> JobLayout:
+    """A job folder whose export/board.gcode holds a 20-stroke job, for the stream stage."""
+    layout = JobLayout(root)
     gcode = layout.export_file("gcode")
     gcode.parent.mkdir(parents=True)
     write_job(gcode, 20)
+    return layout
+
+
+def test_the_pipelines_stream_stage_prints_the_formatters_lines(tmp_path, monkeypatch):
+    layout = _exported_job(tmp_path / "job")
     said: list[str] = []
     run_stream_job(layout.root, "grblsim://?baud=0&time_scale=0.01", say=said.append)
     shown = [line for line in said if " lines  " in line]
@@ -288,10 +294,7 @@ def test_the_emulators_eta_counts_its_time_not_a_machines(tmp_path):
 def test_the_pipelines_stream_eta_runs_with_the_emulators_elapsed(tmp_path):
     """With a time_scale the pipeline's lines give the ETA in the emulator's time (the
     machine's once, in a note): the first line's ETA is about the elapsed time at the end."""
-    layout = JobLayout(tmp_path / "job")
-    gcode = layout.export_file("gcode")
-    gcode.parent.mkdir(parents=True)
-    write_job(gcode, 20)
+    layout = _exported_job(tmp_path / "job")
     said: list[str] = []
     run_stream_job(layout.root, "grblsim://?baud=0&time_scale=0.02", say=said.append)
     (note,) = [line for line in said if "time_scale" in line]
@@ -338,9 +341,7 @@ def test_a_stream_to_the_emulator_reads_the_job_once(tmp_path, monkeypatch):
     link_s = sum(len(ln) + 1 for ln in sent[first.acked :]) * 10 / 38400
     assert first.eta_s == pytest.approx(link_s) and seen[-1].eta_s == 0.0
     loads.clear()
-    layout = JobLayout(tmp_path / "job2")
+    layout = _exported_job(tmp_path / "job2")
     gcode = layout.export_file("gcode")
-    gcode.parent.mkdir(parents=True)
-    write_job(gcode, 20)
     run_stream_job(layout.root, "grblsim://?baud=0&time_scale=0.01", say=lambda _: None)
     assert loads == [gcode]
