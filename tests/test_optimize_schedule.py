@@ -4,21 +4,25 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import typing
 from pathlib import Path
 
+import click
 import drjit as dr
 import numpy as np
 import pytest
 from conftest import make_design
 from test_optimize_helpers import cross_of, make_job, make_layout
 
+from scratchfab.cli import main
+from scratchfab.cli.optimize_cmd import optimize as optimize_command
 from scratchfab.errors import ConfigError
 from scratchfab.model.schema import parse_table
 from scratchfab.optimize import optimizer as optimizer_module
 from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
 from scratchfab.optimize.options import OptimizeOptions, StepSchedule
 from scratchfab.optimize.params import KEYS, BoundedAdam, max_step_mm
-from scratchfab.optimize.stage import run_optimize
+from scratchfab.optimize.stage import ResumeRefused, run_optimize
 
 LR = {"cx": 0.03, "cy": 0.03, "theta": math.radians(0.25), "length": 0.03}
 
@@ -262,18 +266,46 @@ def test_scheduled_resume_matches_uninterrupted_and_needs_the_same_iterations(
     _same_run(a, b)
     # the scales depend on the total: a smaller total, or no schedule, is another run; the
     # refusal names the options that changed, not the fingerprint's "lr_schedule"
-    for other, named in (
-        (dataclasses.replace(options, iterations=12, resume=True), "(iterations; "),
+    # and says what the checkpoint was made with; those resume it
+    for other, named, made in (
+        (
+            dataclasses.replace(options, iterations=12, resume=True),
+            "(iterations; ",
+            "iterations = 20",
+        ),
         (
             dataclasses.replace(options, lr_start_scale=1.0, lr_end_scale=1.0, resume=True),
             "(lr_start_scale, lr_end_scale)",
+            "lr_start_scale = 3.0, lr_end_scale = 0.5",
         ),
-        (dataclasses.replace(options, lr_schedule="linear", resume=True), "(lr_schedule)"),
+        (
+            dataclasses.replace(options, lr_schedule="linear", resume=True),
+            "(lr_schedule)",
+            'lr_schedule = "cosine"',
+        ),
+        (  # a linear run of scales 1 at 12 steps differs in every field of the schedule
+            dataclasses.replace(
+                options,
+                iterations=12,
+                lr_schedule="linear",
+                lr_start_scale=1.0,
+                lr_end_scale=1.0,
+                seed=4,
+                resume=True,
+            ),
+            "(seed, lr_start_scale, lr_end_scale)",
+            'seed = 0, lr_schedule = "cosine", lr_start_scale = 3.0, lr_end_scale = 0.5, '
+            "iterations = 20",
+        ),
     ):
-        with pytest.raises(ConfigError) as exc:
+        with pytest.raises(ResumeRefused) as exc:
             run_optimize(b, other)
         text = str(exc.value)
         assert "different settings" in text and named in text and "\n" not in text
+        assert f"it was made with {made}: give that to resume it" in text
+        assert dataclasses.replace(other, **(exc.value.made_with or {})) == dataclasses.replace(
+            options, resume=True
+        )
 
 
 def test_a_scheduled_run_extends_past_its_total_at_the_end_scale(
@@ -356,3 +388,76 @@ def test_equal_scales_above_k_resume_an_interrupted_shorter_run(tmp_path: Path) 
     assert first.stopped == "interrupted" and first.iterations == 4
     assert run_optimize(b, dataclasses.replace(options, resume=True)).iterations == 13
     assert len(_same_run(a, b)) == 15
+
+
+def test_a_constant_checkpoint_resumes_from_the_command_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A checkpoint of constant steps (the default before the schedule) is refused by
+    ``optimize --resume`` under the default schedule, naming ``--lr-schedule constant``,
+    and resumes with it as the run it was."""
+    a, b = _twin_jobs(tmp_path)
+    constant = OptimizeOptions(iterations=10, checkpoint_every=4, lr_start_scale=1.0)
+    assert constant.schedule() is None
+    run_optimize(a, constant)
+    assert run_optimize(b, constant, should_stop=_stop_after(6)).iterations == 6
+    resume = ["optimize", str(b), "--iterations", "10", "--checkpoint-every", "4", "--resume"]
+    with pytest.raises(SystemExit):
+        main(resume)
+    err = capsys.readouterr().err
+    assert "(lr_start_scale)" in err
+    assert "it was made with --lr-schedule constant: give that to resume it" in err
+    with pytest.raises(SystemExit):  # constant steps take no scale
+        main([*resume, "--lr-schedule", "constant", "--lr-end-scale", "2"])
+    assert "--lr-end-scale" in capsys.readouterr().err
+    main([*resume, "--lr-schedule", "constant"])
+    _same_run(a, b)
+    # the other spellings of a schedule: flags for the options that have one
+    with pytest.raises(SystemExit):
+        main([*resume, "--lr-schedule", "linear", "--lr-start-scale", "2", "--seed", "5"])
+    err = capsys.readouterr().err
+    assert "it was made with --lr-schedule constant --seed 0: give that" in err
+
+
+@pytest.mark.parametrize(
+    "option",
+    [
+        "iterations",
+        "time_budget_s",
+        "seed",
+        "threads",
+        "lr_start_scale",
+        "lr_end_scale",
+        "prune_tolerance",
+        "checkpoint_every",
+    ],
+)
+def test_the_command_line_takes_what_the_options_take(option: str) -> None:
+    """Each ``optimize`` flag of an OptimizeOptions field defaults to the field's default
+    and accepts a value near its bounds exactly when the dataclass does."""
+    params = {p.name: p for p in optimize_command.params}
+    param = params[{"time_budget_s": "time_budget"}.get(option, option)]
+    default = getattr(OptimizeOptions(), option)
+    if param.default is not None or default is not None:
+        assert param.default == default
+    for value in (-1, -1e-9, 0, 1e-9, 1, 2.5):
+        if isinstance(default, int) and value != int(value):
+            continue
+        try:
+            OptimizeOptions(**{option: value})
+            takes = True
+        except ValueError:
+            takes = False
+        try:
+            param.type.convert(str(value), param, None)
+            accepted = True
+        except click.BadParameter:
+            accepted = False
+        assert accepted == takes, (option, value)
+
+
+def test_the_schedule_flag_names_every_shape_of_the_options() -> None:
+    """``--lr-schedule`` offers the options' shapes and ``constant``."""
+    param = {p.name: p for p in optimize_command.params}["lr_schedule"]
+    shapes = typing.get_args(typing.get_type_hints(OptimizeOptions)["lr_schedule"])
+    assert set(param.type.choices) == {*shapes, "constant"}

@@ -4,15 +4,19 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import click
 
 from scratchfab.cli.options import FiniteFloat, RedrawnLine, backend_option
 from scratchfab.console import command_line
-from scratchfab.errors import Interrupted
+from scratchfab.errors import ConfigError, Interrupted
 from scratchfab.optimize.progress import clock, progress_printer
-from scratchfab.optimize.stage import OptimizeOptions, Progress, run_optimize
+from scratchfab.optimize.stage import OptimizeOptions, Progress, ResumeRefused, run_optimize
+
+_DEFAULTS = OptimizeOptions()
 
 
 def _bar() -> Callable[[Progress], None]:
@@ -61,6 +65,29 @@ def _bar() -> Callable[[Progress], None]:
     show_default=True,
     help="CPU threads; 1 is bit-reproducible, 0 uses every core.",
 )
+@click.option(
+    "--lr-schedule",
+    type=click.Choice(["constant", "linear", "cosine"]),
+    default=_DEFAULTS.lr_schedule,
+    show_default=True,
+    help="How the step sizes change over --iterations: from --lr-start-scale times the "
+    "base steps at the first step to --lr-end-scale times at the last, along a cosine or "
+    "a line; constant: the base steps throughout (scales 1).",
+)
+@click.option(
+    "--lr-start-scale",
+    type=FiniteFloat(min=0, min_open=True),
+    default=_DEFAULTS.lr_start_scale,
+    show_default=True,
+    help="Step sizes of the first step, as a multiple of the base steps.",
+)
+@click.option(
+    "--lr-end-scale",
+    type=FiniteFloat(min=0, min_open=True),
+    default=_DEFAULTS.lr_end_scale,
+    show_default=True,
+    help="Step sizes of the last step, as a multiple of the base steps.",
+)
 @click.option("--resume", is_flag=True, help="Continue from JOB/optimize/checkpoint.npz.")
 @click.option(
     "--prune",
@@ -88,6 +115,9 @@ def optimize(
     backend: str,
     space: str,
     threads: int,
+    lr_schedule: str,
+    lr_start_scale: float,
+    lr_end_scale: float,
     resume: bool,
     prune_tolerance: float | None,
     checkpoint_every: int,
@@ -97,6 +127,17 @@ def optimize(
     Ctrl-C stops after the current step, writes everything and exits with 130;
     --resume continues.
     """
+    if lr_schedule == "constant":
+        ctx = click.get_current_context()
+        for name in ("lr_start_scale", "lr_end_scale"):
+            if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT:
+                raise click.BadParameter(
+                    "a constant schedule keeps the base steps: give --lr-schedule linear or "
+                    "cosine with a scale (equal start and end scales: constant steps of that "
+                    "multiple)",
+                    param_hint=f"--{name.replace('_', '-')}",
+                )
+        lr_schedule, lr_start_scale, lr_end_scale = _DEFAULTS.lr_schedule, 1.0, 1.0
     options = OptimizeOptions(
         iterations=iterations,
         time_budget_s=time_budget,
@@ -104,11 +145,17 @@ def optimize(
         backend=backend,  # type: ignore[arg-type]
         space=space,  # type: ignore[arg-type]
         threads=threads,
+        lr_schedule=lr_schedule,  # type: ignore[arg-type]
+        lr_start_scale=lr_start_scale,
+        lr_end_scale=lr_end_scale,
         resume=resume,
         prune_tolerance=prune_tolerance,
         checkpoint_every=checkpoint_every,
     )
-    result = run_optimize(job, options, progress=_bar())
+    try:
+        result = run_optimize(job, options, progress=_bar())
+    except ResumeRefused as exc:
+        raise ConfigError(exc.message(lambda made: _as_flags(made, options))) from None
     views = result.quality["views"]
     for name, v in views.items():
         cross = ", ".join(f"x_{name},{j} = {x:.3f}" for j, x in v["crosstalk"].items())
@@ -131,3 +178,28 @@ def optimize(
             f"interrupted after {result.iterations} of {iterations} iterations; "
             f"`{command_line(['scratchfab', 'optimize', job, '--resume'])}` continues it"
         )
+
+
+def _as_flags(made_with: dict[str, Any], options: OptimizeOptions) -> str | None:
+    """A checkpoint's option values as this command's flags (None: one has no flag).
+
+    Scales that make the asked options constant are written ``--lr-schedule constant``.
+    """
+    flags = {p.name: p.opts[0] for p in optimize.params if p.name}
+    wanted = dict(made_with)
+    words = []
+    scales: dict[str, Any] = {
+        k: wanted.pop(k) for k in ("lr_start_scale", "lr_end_scale") if k in wanted
+    }
+    try:  # a checkpoint edited by hand may hold values out of bounds
+        constant = bool(scales) and replace(options, **scales).schedule() is None
+    except (TypeError, ValueError):
+        return None
+    if constant:
+        words.append("--lr-schedule constant")
+    else:
+        wanted.update(scales)
+    if not set(wanted) <= set(flags):
+        return None
+    words += [f"{flags[k]} {v}" for k, v in wanted.items()]
+    return " ".join(words)

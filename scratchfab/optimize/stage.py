@@ -255,6 +255,79 @@ def _changed_keys(made: dict[str, Any], now: dict[str, Any]) -> list[str]:
     return out
 
 
+def _made_with(
+    made: dict[str, Any], changed: list[str], options: OptimizeOptions
+) -> dict[str, Any] | None:
+    """The checkpoint's values of the options that ``options`` must take to resume it.
+
+    A changed schedule gives every field of the checkpoint's schedule that ``options``
+    differ in (a constant run's: scales 1), so that giving them resumes it at once; its
+    total only when ``options`` ask for fewer steps (more extend it). None when no options
+    can resume it: the inputs changed, or the checkpoint lacks a changed key.
+    """
+    out: dict[str, Any] = {}
+    for key in changed:
+        if key in SCHEDULE_OPTIONS.values():
+            continue
+        if key not in TRAJECTORY_KEYS or key not in made:
+            return None
+        out[key] = made[key]
+    if not set(changed) & set(SCHEDULE_OPTIONS.values()):
+        return out
+    was = made.get("lr_schedule", {"start": 1.0, "end": 1.0})
+    if not isinstance(was, dict):
+        return None
+    fields = _schedule_fields(was)
+    if not set(fields) <= set(SCHEDULE_OPTIONS) or type(fields.get("iterations", 0)) is not int:
+        return None
+    for field, option in SCHEDULE_OPTIONS.items():
+        if field not in fields:
+            continue
+        value, now = fields[field], getattr(options, option)
+        if value > now if option == "iterations" else value != now:
+            out[option] = value
+    return out
+
+
+class ResumeRefused(ConfigError):
+    """A checkpoint made with other settings or inputs than the resume asks for.
+
+    Its message names the options that differ and the values to give to resume it
+    (``lr_start_scale = 1.0``: a pipeline's ``[optimize]`` key and an
+    :class:`OptimizeOptions` field); :meth:`message` spells those values another way.
+
+    Attributes:
+        path: The checkpoint.
+        changed: The options (or ``"inputs_sha256"``) whose values differ.
+        made_with: The checkpoint's values of the options to give to resume it; None when
+            none can (its inputs differ).
+    """
+
+    def __init__(self, path: Path, changed: list[str], made_with: dict[str, Any] | None) -> None:
+        self.path, self.changed, self.made_with = path, changed, made_with
+        super().__init__(self.message(self.as_keys))
+
+    @staticmethod
+    def as_keys(made_with: dict[str, Any]) -> str:
+        """``key = value`` pairs, values in TOML (and JSON) form."""
+        return ", ".join(f"{k} = {json.dumps(v)}" for k, v in made_with.items())
+
+    def message(self, spell: Callable[[dict[str, Any]], str | None]) -> str:
+        """The one-line refusal, the values to resume with written by ``spell``.
+
+        Args:
+            spell: Writes :attr:`made_with` as its caller's user gives them; None when
+                that user cannot give them all.
+        """
+        total = "; a scheduled run's step sizes follow its total" * ("iterations" in self.changed)
+        given = spell(self.made_with) if self.made_with else None
+        fix = f"it was made with {given}: give that to resume it, or " if given else ""
+        return (
+            f"{self.path}: made with different settings or inputs "
+            f"({', '.join(self.changed)}{total}); {fix}run without --resume to start over"
+        )
+
+
 def log_columns(names: list[str]) -> list[str]:
     """Column names of ``log.csv``."""
     cols = ["iteration", "loss", "seconds"]
@@ -352,11 +425,7 @@ def _run(
             fingerprint = {**fingerprint, "lr_schedule": made["lr_schedule"]}
         differ = _changed_keys(made, fingerprint)
         if differ:
-            total = "; a scheduled run's step sizes follow its total" * ("iterations" in differ)
-            raise ConfigError(
-                f"{ckpt}: made with different settings or inputs ({', '.join(differ)}{total}); "
-                "run without --resume to start over"
-            )
+            raise ResumeRefused(ckpt, differ, _made_with(made, differ, options))
     settings = Settings(
         lr=options.learning_rates(),
         refresh_every=options.refresh_every,
