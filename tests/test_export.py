@@ -321,6 +321,21 @@ def test_format_registry():
             format_for(Path(path), fmt)
 
 
+@pytest.mark.parametrize("name", ["a\0b.gcode", "a\0/b.svg", "b.dxf\0"])
+def test_export_refuses_a_path_holding_a_nul_byte(rng, tmp_path, name):
+    """A NUL byte (possible in a path given in code, not from a shell) is a user mistake
+    named with the path, as another path that cannot be written is, and nothing is written."""
+    board = Board(width_mm=40.0, height_mm=40.0, margin_mm=1.0)
+    tp = plan_toolpath(random_scratches(rng, 20), board, load_profile("grbl-3018-diamond"))
+    path = f"{tmp_path}/{name}"
+    shown = re.escape(path.replace("\0", "\\0"))
+    with pytest.raises(
+        ScratchfabError, match=rf"^{shown}: cannot write \(a path cannot hold a NUL"
+    ):
+        export(tp, None, Path(path) if "/" in name else path)
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("mode", ["servo", "spindle"])
 def test_gcode_refuses_a_control_byte_whatever_let_it_into_the_profile(rng, tmp_path, mode):
     """The last check before writing: even a profile built around its checks writes none."""

@@ -8,6 +8,7 @@ user meets for arrays of the wrong shape.
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -200,6 +201,36 @@ def test_order_strokes_refuses_arrays_of_the_wrong_shape(p0, p1):
 
     with pytest.raises(ValueError, match=r"\(N, 2\)"):
         order_strokes(p0, p1, (0.0, 0.0))
+
+
+@pytest.mark.parametrize(
+    ("start", "message"),
+    [
+        ((0.0, 0.0, 0.0), r"start: expected one finite \(x, y\) in mm, got \(0\.0, 0\.0, 0\.0\)"),
+        ([[0.0, 0.0]], r"start: expected one finite \(x, y\)"),
+        ((math.nan, 0.0), r"start: expected one finite \(x, y\) in mm, got \(nan, 0\.0\)"),
+        ((0.0, -math.inf), r"start: expected one finite"),
+        (None, r"start: expected one finite \(x, y\) in mm, got None"),
+        ("ab", r"start: expected numbers in mm, got 'ab'"),
+    ],
+)
+def test_order_strokes_refuses_a_start_that_is_not_one_point(start, message):
+    from scratchfab.toolpath import order_strokes
+
+    p0 = np.array([[0.0, 0.0], [5.0, 5.0]])
+    with pytest.raises(ValueError, match=f"^{message}"):
+        order_strokes(p0, p0 + 1.0, start)
+
+
+@pytest.mark.parametrize("end", ["p0", "p1"])
+def test_order_strokes_names_the_first_stroke_that_is_not_finite(end):
+    from scratchfab.toolpath import order_strokes
+
+    arrays = {"p0": np.zeros((6, 2)), "p1": np.ones((6, 2))}
+    arrays[end][2, 1] = math.nan
+    arrays[end][4, 0] = math.inf
+    with pytest.raises(ValueError, match=r"^p0 and p1: stroke 2 is not finite .*, nor are 1 more$"):
+        order_strokes(arrays["p0"], arrays["p1"], (0.0, 0.0))
 
 
 @pytest.mark.parametrize(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import os
 from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
@@ -108,10 +109,14 @@ def export(
         Figures for the report (G-code: lines, bytes, max_line_length, bbox).
 
     Raises:
-        ScratchfabError: An unknown format or extension, a profile that would have
-            planned other strokes (:func:`check_same_plan`), or what the writer refuses
-            (G-code: a stroke outside the envelope, a line too long).
+        ScratchfabError: An unknown format or extension, a path that holds a NUL byte,
+            a profile that would have planned other strokes (:func:`check_same_plan`),
+            or what the writer refuses (G-code: a stroke outside the envelope, a line
+            too long).
     """
+    if "\0" in os.fspath(path):  # the system's calls take no NUL: Python's ValueError
+        shown = os.fspath(path).replace("\0", "\\0")
+        raise ScratchfabError(f"{shown}: cannot write (a path cannot hold a NUL byte, \\0)")
     name = format_for(path, format)
     if profile is not None:
         check_same_plan(toolpath, profile)

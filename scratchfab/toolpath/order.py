@@ -30,7 +30,9 @@ The result is never worse than the input order (it is returned instead if it is 
 
 from __future__ import annotations
 
+import reprlib
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -104,6 +106,14 @@ class OrderResult:
     travel_greedy_mm: float
     moves: int
     kept_input: bool
+
+
+def _floats(value: Any, name: str) -> np.ndarray:
+    """``value`` as a float64 array; a ValueError naming ``name`` when it holds no numbers."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected numbers in mm, got {reprlib.repr(value)}") from None
 
 
 def tour_travel(p0: np.ndarray, p1: np.ndarray, start: np.ndarray) -> float:
@@ -273,16 +283,24 @@ def order_strokes(
         The order, per-stroke reversal and travel figures.
 
     Raises:
-        ValueError: ``p0`` and ``p1`` are not both (N, 2) (a (2, N) array among them).
+        ValueError: ``p0`` and ``p1`` are not both (N, 2) (a (2, N) array among them) or
+            hold a point that is not finite, or ``start`` is not one finite (x, y).
     """
     from scipy.spatial import cKDTree
 
     opts = options or OrderOptions()
-    p0 = np.asarray(p0, dtype=np.float64)
-    p1 = np.asarray(p1, dtype=np.float64)
+    p0, p1, origin = (_floats(v, name) for v, name in ((p0, "p0"), (p1, "p1"), (start, "start")))
     if p0.ndim != 2 or p0.shape[1:] != (2,) or p1.shape != p0.shape:
         raise ValueError(f"p0 and p1: expected both (N, 2), got shapes {p0.shape} and {p1.shape}")
-    origin = np.asarray(start, dtype=np.float64).reshape(2)
+    bad = np.flatnonzero(~np.isfinite(np.hstack([p0, p1])).all(axis=1))
+    if len(bad):
+        k = int(bad[0])
+        raise ValueError(
+            f"p0 and p1: stroke {k} is not finite ({p0[k].tolist()} -> {p1[k].tolist()})"
+            + (f", nor are {len(bad) - 1} more" if len(bad) > 1 else "")
+        )
+    if origin.shape != (2,) or not np.isfinite(origin).all():
+        raise ValueError(f"start: expected one finite (x, y) in mm, got {reprlib.repr(start)}")
     n = len(p0)
     travel_input = tour_travel(p0, p1, origin)
     identity = np.arange(n)
