@@ -657,3 +657,41 @@ def test_verify_outputs_are_byte_identical_across_runs_and_thread_counts(
                 assert without_timings(json.loads((out / name).read_text())) == first
             else:
                 assert (out / name).read_bytes() == (outs[0] / name).read_bytes(), name
+
+
+@pytest.mark.parametrize(
+    ("near", "far"),
+    [
+        ([-120.0, 0.0, 300.0], [600.0, 0.0, 1500.0]),  # 300 -> 1500 mm would go below 0
+        ([-5e5, 0.0, 5e5], [9e5, 1e5, 9e5]),  # near the coordinate limit: the frames are not
+    ],
+)
+def test_sweep_frames_go_on_past_the_end_views_at_their_distance_within_bounds(near, far):
+    """Two views: the walk is the straight line between their (azimuth, elevation), going
+    on half its length past each end; its distance changes linearly between the views
+    and stays the end view's past them (carried on, 300 -> 1500 mm put the first frame
+    behind the board). A frame beyond MAX_MM on an axis is drawn in along its direction
+    to it (a ValueError from View's bounds before)."""
+    from scratchfab.model.design import MAX_MM
+
+    tables = two_view_tables(resolution=16)
+    tables["views"][0]["position_mm"], tables["views"][1]["position_mm"] = near, far
+    design = design_from_mapping(tables, "<test>", Path("."))
+    frames, view_params = sweep_path(design, 41)
+    ends = np.array([near, far])
+    az = np.arctan2(ends[:, 0], ends[:, 2])
+    el = np.arctan2(ends[:, 1], np.hypot(ends[:, 0], ends[:, 2]))
+    dist = np.linalg.norm(ends, axis=1)
+    span = math.degrees(math.hypot(az[1] - az[0], el[1] - el[0]))
+    assert view_params == pytest.approx({"left": span / 2, "right": 1.5 * span})
+    t = np.array([f.param for f in frames])
+    np.testing.assert_allclose(t, np.linspace(0.0, 2 * span, 41))
+    x = (t - span / 2) / span  # 0 at the first view, 1 at the second
+    a, e = az[0] + x * (az[1] - az[0]), el[0] + x * (el[1] - el[0])
+    d = dist[0] + np.clip(x, 0, 1) * (dist[1] - dist[0])
+    want = d[:, None] * np.stack([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)], 1)
+    want *= np.minimum(1.0, MAX_MM / np.abs(want).max(axis=1))[:, None]
+    got = np.array([f.view.position_mm for f in frames])
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * MAX_MM)
+    assert np.abs(got).max() <= MAX_MM and got[:, 2].min() > 0
+    assert (np.abs(got).max(axis=1) == MAX_MM).any() == (near[0] == -5e5)

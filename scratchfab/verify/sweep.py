@@ -2,8 +2,10 @@
 
 The path runs in spherical coordinates about the board centre (azimuth from +z toward
 +x, elevation toward +y, distance), through the design views in order of azimuth, and
-goes on beyond the first and last view by a fraction of the whole span, so the
-animation shows each image appear, hold near its own view and fade.
+goes on beyond the first and last view by a fraction of the whole span (at that view's
+distance), so the animation shows each image appear, hold near its own view and fade.
+A frame that would lie beyond the design's coordinate limit (:data:`MAX_MM` on an axis,
+possible only for views near it) is drawn in to it along its direction.
 """
 
 from __future__ import annotations
@@ -17,7 +19,13 @@ from PIL import Image, ImageDraw
 
 from scratchfab.design.images import linear_to_srgb
 from scratchfab.figures import TEXT_PX, enlarge, font, text_size
-from scratchfab.model.design import Design, View, polar_from_position, position_from_polar
+from scratchfab.model.design import (
+    MAX_MM,
+    Design,
+    View,
+    polar_from_position,
+    position_from_polar,
+)
 
 #: Beyond the outermost views the path goes on by this fraction of the views' span.
 EXTEND = 0.5
@@ -60,6 +68,13 @@ def _cartesian(az: float, el: float, dist: float) -> tuple[float, float, float]:
     return position_from_polar(math.degrees(az), math.degrees(el), dist)
 
 
+def _within_bounds(position: tuple[float, float, float]) -> tuple[float, float, float]:
+    """``position`` drawn in toward the board's centre until no coordinate exceeds MAX_MM."""
+    p = np.asarray(position, dtype=np.float64)
+    p = np.clip(p * min(1.0, MAX_MM / float(np.abs(p).max())), -MAX_MM, MAX_MM)
+    return float(p[0]), float(p[1]), float(p[2])
+
+
 def sweep_path(design: Design, frames: int) -> tuple[list[SweepFrame], dict[str, float]]:
     """The sweep's cameras and each design view's position along the path.
 
@@ -87,9 +102,10 @@ def sweep_path(design: Design, frames: int) -> tuple[list[SweepFrame], dict[str,
         view_params = {v.name: MIN_SPAN_DEG / 2 for v in views}
         lo, hi = 0.0, MIN_SPAN_DEG
     else:
-        # Extend linearly along the end segments.
-        first = (knots[1] - knots[0]) / (params[1] - params[0])
-        last = (knots[-1] - knots[-2]) / (params[-1] - params[-2])
+        # Extend linearly along the end segments' directions, at the end views' distances
+        # (a change of distance carried on could put the camera behind the board).
+        first = (knots[1] - knots[0]) / (params[1] - params[0]) * [1, 1, 0]
+        last = (knots[-1] - knots[-2]) / (params[-1] - params[-2]) * [1, 1, 0]
         ext = EXTEND * span
         knots = np.vstack([knots[0] - ext * first, knots, knots[-1] + ext * last])
         fovs = np.concatenate([fovs[:1], fovs, fovs[-1:]])
@@ -107,7 +123,7 @@ def sweep_path(design: Design, frames: int) -> tuple[list[SweepFrame], dict[str,
         lx, ly, lz = (float(np.interp(t, params, lights[:, k])) for k in range(3))
         view = View(
             name=f"frame{i:03d}",
-            position_mm=_cartesian(az, el, dist),
+            position_mm=_within_bounds(_cartesian(az, el, dist)),
             fov_deg=float(np.interp(t, params, fovs)),
             resolution=resolution,
             light_position_mm=(lx, ly, lz) if lz > 0 else None,
