@@ -219,6 +219,7 @@ def test_stream_resumes_in_a_job_moved_after_a_dropped_cable(project, tmp_path, 
     events = [json.loads(line) for line in (pi / "stream" / "journal.jsonl").open()]
     starts = [e for e in events if e["ev"] == "start"]
     assert [s["resume"] for s in starts] == [False, True]
+    assert [s["file"] for s in starts] == ["export/board.gcode"] * 2  # where it lay, and lies
     second = events.index(starts[1])
     before = {e["i"] for e in events[:second] if e["ev"] == "ack" and "i" in e}
     after = {e["i"] for e in events[second:] if e["ev"] == "ack" and "i" in e}
@@ -226,6 +227,28 @@ def test_stream_resumes_in_a_job_moved_after_a_dropped_cable(project, tmp_path, 
     # every cut of the board acknowledged in one session or the other: nothing skipped
     cuts = {i for i, b in enumerate(load_program(moved).blocks) if b.text.startswith("G1")}
     assert cuts <= before | after
+
+
+def test_a_copied_job_records_its_own_files(project, tmp_path, monkeypatch):
+    """The verify metrics' comparison and the stream journal's file are named relative to
+    the job folder, so a copy's records name the copy's own files (a file outside a job:
+    absolute, not relative to whatever folder the stream ran in)."""
+    copy = tmp_path / "copy"
+    _copy_as_cp_r(project / "jobs" / "board", copy)
+    metrics = json.loads((copy / "verify" / "metrics.json").read_text(encoding="utf-8"))
+    assert metrics["comparison"] == "optimize/renders"
+    assert (copy / metrics["comparison"]).is_dir()
+    (start, *_) = [json.loads(line) for line in (copy / "stream" / "journal.jsonl").open()]
+    assert start["ev"] == "start" and start["file"] == "export/board.gcode"
+    gcode = (copy / start["file"]).read_bytes()
+    assert hashlib.sha256(gcode).hexdigest() == start["sha256"]
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    (alone / "board.gcode").write_bytes(gcode)
+    monkeypatch.chdir(alone)
+    main(["stream", "board.gcode", "--port", "grblsim://?time_scale=0&$130=300&$131=180", "--yes"])
+    (start, *_) = [json.loads(line) for line in (alone / "board.gcode.journal.jsonl").open()]
+    assert start["file"] == str(alone / "board.gcode")
 
 
 def test_a_file_browser_looking_at_the_job_reruns_nothing(project, tmp_path):

@@ -323,13 +323,20 @@ def test_job_mode_compares_with_the_optimize_renders(half_job, tmp_path):
         np.save(job / "design" / "targets" / f"{name}.npy", t.astype(np.float32))
     main(["verify-render", str(job), "--spp", "256"])
     metrics = json.loads((job / "verify" / "metrics.json").read_text())
-    assert metrics["comparison"] == str(job / "optimize" / "renders")
+    # named inside the job (a copied job names its own renders); from outside it, absolute
+    assert metrics["comparison"] == "optimize/renders"
     for name in ("left", "right"):
         img = np.load(job / "verify" / f"{name}.npy")
         assert metrics["views"][name]["rel_l2"] == pytest.approx(
             relative_l2(img, analytic[name]), rel=1e-5
         )
         assert "crosstalk" in metrics["views"][name]
+    for out, named in (
+        (job / "verify" / "again", "optimize/renders"),
+        (tmp_path / "elsewhere", str(job / "optimize" / "renders")),
+    ):
+        main(["verify-render", str(job), "--spp", "4", "--out", str(out)])
+        assert json.loads((out / "metrics.json").read_text())["comparison"] == named
 
 
 @pytest.mark.parametrize(

@@ -3,7 +3,9 @@
 One JSON object per line, appended and flushed as it happens (a crash can cut only the last
 line, which the reader skips). Events:
 
-- ``{"ev": "start", "file": ..., "sha256": ..., "blocks": N, "resume": bool, ...}``
+- ``{"ev": "start", "file": ..., "sha256": ..., "blocks": N, "resume": bool, ...}``; the
+  file relative to the job folder when both lie in one job (:meth:`Journal.recorded`), for
+  messages only: a resume knows its file by ``sha256``
 - ``{"ev": "ack", "i": block, "line": file_line}`` for each ``ok`` of a file block
   (``{"ev": "ack", "pre": k}`` for the k-th resume preamble block)
 - ``{"ev": "error", "i": block, "line": file_line, "code": N}`` / ``{"ev": "alarm", "code": N}``
@@ -161,7 +163,7 @@ class Journal:
         """
         self.write(
             "start",
-            file=str(program.path),
+            file=self.recorded(program.path),
             sha256=program.sha256,
             blocks=len(program.blocks),
             resume=resume,
@@ -175,6 +177,18 @@ class Journal:
             g92=None if g92 is None else [round(float(v), 4) for v in g92],
             inches=inches,
         )
+
+    def recorded(self, file: str | os.PathLike[str]) -> str:
+        """``file`` as the journal records it (relative to the job folder, else absolute).
+
+        Relative when the journal is a job's (``JOB/stream/journal.jsonl``) and ``file``
+        lies in that job, so that a copied job names its own file.
+        """
+        job = JobLayout(self.path.resolve().parent.parent)
+        target = Path(file).resolve()
+        if self.path.resolve() == job.journal and target.is_relative_to(job.root):
+            return job.relative(target)
+        return str(Path(file).absolute())
 
     def close(self, remove_if_empty: bool = False) -> None:
         """Flush to disk, unlock and close (a journal that failed closes quietly).

@@ -12,6 +12,7 @@ render. Quality measures follow SPEC section 7 (:mod:`scratchfab.metrics`).
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -655,7 +656,9 @@ def run_verify_job(
 
     The board is ``JOB/optimize/scratches.csv`` (else ``JOB/design/scratches.csv``, as
     ``render JOB`` picks it); the comparison is ``JOB/optimize/renders`` when that
-    belongs to the board verified, else a fresh analytic render.
+    belongs to the board verified, else a fresh analytic render. The metrics' ``comparison``
+    names those renders relative to the job folder (``optimize/renders``; absolute when
+    ``out_dir`` lies outside the job), or ``render_scratches``.
 
     Raises:
         ConfigError: When the job lacks the design or a layout.
@@ -674,7 +677,14 @@ def run_verify_job(
         (renders_dir / f"{v.name}.npy").is_file() for v in design.views
     ):
         analytic = {v.name: load_numpy(renders_dir / f"{v.name}.npy") for v in design.views}
-    source = str(renders_dir) if analytic is not None else "render_scratches"
+    out = layout.verify_dir if out_dir is None else Path(out_dir)
+    source = "render_scratches"
+    if analytic is not None:  # relative to the job when the metrics are in it: a copy's own
+        inside = any(  # as named (a verify/ linked elsewhere is the job's) or resolved
+            Path(os.path.abspath(a)).is_relative_to(os.path.abspath(b))
+            for a, b in ((out, folder), (out.resolve(), folder.resolve()))
+        )
+        source = layout.relative(renders_dir) if inside else os.path.abspath(renders_dir)
     targets, cross = load_job_targets(folder, design)
     if cross is None and progress is not None:
         progress(
@@ -686,7 +696,7 @@ def run_verify_job(
     return run_verify(
         design,
         scratches,
-        layout.verify_dir if out_dir is None else out_dir,
+        out,
         settings,
         analytic=analytic,
         analytic_source=source,
