@@ -695,6 +695,7 @@ def test_sweep_frames_go_on_past_the_end_views_at_their_distance_within_bounds(n
     np.testing.assert_allclose(t, np.linspace(0.0, 2 * span, 41))
     x = (t - span / 2) / span  # 0 at the first view, 1 at the second
     a, e = az[0] + x * (az[1] - az[0]), el[0] + x * (el[1] - el[0])
+    a = np.clip(a, -max(1.4, *np.abs(az)), max(1.4, *np.abs(az)))  # 80 degrees at most
     d = dist[0] + np.clip(x, 0, 1) * (dist[1] - dist[0])
     want = d[:, None] * np.stack([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)], 1)
     want *= np.minimum(1.0, MAX_MM / np.abs(want).max(axis=1))[:, None]
@@ -702,3 +703,23 @@ def test_sweep_frames_go_on_past_the_end_views_at_their_distance_within_bounds(n
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * MAX_MM)
     assert np.abs(got).max() <= MAX_MM and got[:, 2].min() > 0
     assert (np.abs(got).max(axis=1) == MAX_MM).any() == (near[0] == -5e5)
+
+
+@pytest.mark.parametrize("azimuth", [60.0, 85.0])
+def test_sweep_frames_stay_in_front_of_the_board(azimuth):
+    """Views far to the sides: the walk past them turns no farther than 80 degrees from the
+    board's normal (the outermost view's azimuth if more), as the elevation does; carried
+    on, views at +-60 degrees put the first and last frames at +-120, behind the board."""
+    tables = two_view_tables(resolution=16)
+    a = math.radians(azimuth)
+    tables["views"][0]["position_mm"] = [-300 * math.sin(a), 0.0, 300 * math.cos(a)]
+    tables["views"][1]["position_mm"] = [300 * math.sin(a), 0.0, 300 * math.cos(a)]
+    design = design_from_mapping(tables, "<test>", Path("."))
+    frames, view_params = sweep_path(design, 41)
+    pos = np.array([f.view.position_mm for f in frames])
+    got = np.degrees(np.arctan2(pos[:, 0], pos[:, 2]))
+    turn = max(math.degrees(1.4), azimuth)
+    unclipped = np.linspace(-2 * azimuth, 2 * azimuth, 41)  # half the span past each view
+    np.testing.assert_allclose(got, np.clip(unclipped, -turn, turn), atol=1e-9)
+    assert pos[:, 2].min() > 0
+    np.testing.assert_allclose(np.linalg.norm(pos, axis=1), 300.0)

@@ -3,7 +3,8 @@
 The path runs in spherical coordinates about the board centre (azimuth from +z toward
 +x, elevation toward +y, distance), through the design views in order of azimuth, and
 goes on beyond the first and last view by a fraction of the whole span (at that view's
-distance), so the animation shows each image appear, hold near its own view and fade.
+distance), so the animation shows each image appear, hold near its own view and fade;
+it stays in front of the board (within 80 degrees of its normal, or the outermost view).
 A frame that would lie beyond the design's coordinate limit (:data:`MAX_MM` on an axis,
 possible only for views near it) is drawn in to it along its direction.
 """
@@ -116,10 +117,13 @@ def sweep_path(design: Design, frames: int) -> tuple[list[SweepFrame], dict[str,
     res = views[0].resolution
     scale = min(1.0, MAX_SIDE / max(res))
     resolution = (max(1, round(res[0] * scale)), max(1, round(res[1] * scale)))
+    # In front of the board: the azimuth turns no farther than 80 degrees (1.4 rad) or the
+    # outermost view, as the elevation does no farther than 80 degrees.
+    turn = max(1.4, *(abs(_polar(v.camera_position)[0]) for v in views))
     out = []
     for i, t in enumerate(np.linspace(lo, hi, max(frames, 2))):
         az, el, dist = (float(np.interp(t, params, knots[:, k])) for k in range(3))
-        el = float(np.clip(el, -1.4, 1.4))
+        az, el = float(np.clip(az, -turn, turn)), float(np.clip(el, -1.4, 1.4))
         lx, ly, lz = (float(np.interp(t, params, lights[:, k])) for k in range(3))
         view = View(
             name=f"frame{i:03d}",
