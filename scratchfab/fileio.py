@@ -46,6 +46,18 @@ def _umask() -> int:
 _UMASK = _umask()
 
 
+def shown_path(path: str | os.PathLike[str]) -> str:
+    r"""``path`` for a one-line message: a NUL byte, which no system call takes, shown as ``\0``."""
+    return os.fspath(path).replace("\0", "\\0")
+
+
+def _reason(exc: OSError | ValueError) -> str:
+    """Why a path could not be used, in words: the system's, or the NUL byte's."""
+    if isinstance(exc, OSError):
+        return str(exc.strerror or exc)
+    return "a path cannot hold a NUL byte, \\0"  # Python's "embedded null byte"
+
+
 @contextlib.contextmanager
 def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) -> Iterator[IO[Any]]:
     """Open a temporary file beside ``path``; rename it over ``path`` only on success.
@@ -63,8 +75,8 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) ->
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    except OSError as exc:
-        raise ScratchfabError(f"{target}: cannot write ({exc.strerror or exc})") from None
+    except (OSError, ValueError) as exc:
+        raise ScratchfabError(f"{shown_path(target)}: cannot write ({_reason(exc)})") from None
     os.close(fd)
     os.chmod(tmp_name, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the usual permissions
     try:
@@ -97,8 +109,8 @@ def atomic_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
-    except OSError as exc:
-        raise ScratchfabError(f"{target}: cannot write ({exc.strerror or exc})") from None
+    except (OSError, ValueError) as exc:
+        raise ScratchfabError(f"{shown_path(target)}: cannot write ({_reason(exc)})") from None
     os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp makes 0700; give the usual permissions
     try:
         yield tmp
@@ -153,6 +165,8 @@ def read_input(path: Path, expected: str, missing: str = "file not found") -> by
     """
     try:
         return path.read_bytes()
+    except ValueError as exc:  # the one ValueError of a read: a NUL in the path
+        raise ConfigError(f"{shown_path(path)}: cannot read ({_reason(exc)})") from None
     except FileNotFoundError:
         raise ConfigError(f"{path}: {missing}") from None
     except IsADirectoryError:

@@ -756,3 +756,42 @@ def test_deeply_nested_job_json_does_not_break_the_report(tmp_path, name):
     (tmp_path / "optimize").mkdir(exist_ok=True)
     (tmp_path / "optimize" / "scratches.csv").write_text("x0,y0,x1,y1\n")
     assert stale_layout_warning(tmp_path) is None
+
+
+@pytest.mark.parametrize(
+    "old, new, key",
+    [
+        ('target = "disc.png"', 'target = "disc\\u0000.png"', "target"),
+        ('machine = "grbl-3018-diamond"', 'machine = "grbl\\u0000"', "machine"),
+        ('port = "grblsim://', 'port = "\\u0000grblsim://', "port"),
+    ],
+)
+def test_a_nul_character_in_a_toml_string_is_named_not_a_traceback(tmp_path, old, new, key):
+    """TOML's \\u0000 puts a NUL in a string, which no path or port can hold (Python raised
+    'embedded null byte' from deep inside, e.g. resolving a target's path)."""
+    from conftest import write_pipeline
+
+    pipeline = write_pipeline(tmp_path, edits={old: new})
+    code, err = _cli(["run", str(pipeline), "--out", str(tmp_path / "job")])
+    assert code == 2, err
+    assert err.startswith(f"error: {pipeline}: ") and err.count("\n") == 1
+    assert f"{key}: expected a string without a NUL character" in err
+    assert not (tmp_path / "job").exists()
+
+
+def test_a_nul_byte_in_a_path_given_in_code_is_named_when_read_or_written(tmp_path):
+    """Paths built in code reach the file layer, which names them (NUL shown as \\0)."""
+    from scratchfab.fileio import read_input, write_text
+    from scratchfab.model.design import load_design
+
+    bad = tmp_path / "a\0b.toml"
+    shown = re.escape(str(bad).replace("\0", "\\0"))
+    with pytest.raises(ConfigError, match=rf"^{shown}: cannot read \(a path cannot hold a NUL"):
+        read_input(bad, "a TOML file")
+    with pytest.raises(ConfigError, match=rf"^{shown}: cannot read"):
+        load_design(bad)
+    with pytest.raises(ScratchfabError, match=rf"^{shown}: cannot write \(a path cannot hold"):
+        write_text(bad, "a = 1\n")
+    with pytest.raises(ScratchfabError, match=r": cannot write \(a path cannot hold"):
+        write_text(tmp_path / "a\0" / "b.toml", "a = 1\n")
+    assert list(tmp_path.iterdir()) == []

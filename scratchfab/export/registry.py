@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import importlib
-import os
 from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from scratchfab.errors import ScratchfabError
+from scratchfab.fileio import shown_path
 
 if TYPE_CHECKING:
     from scratchfab.machine.profile import MachineProfile
@@ -41,11 +41,11 @@ def format_for(path: str | Path, format: str | None = None) -> str:
     name = (format or extension).lower()
     if name not in WRITERS:
         known = ", ".join(sorted(WRITERS))
-        what = f"format '{format}'" if format else f"file extension of {path}"
+        what = f"format '{format}'" if format else f"file extension of {shown_path(path)}"
         raise ScratchfabError(f"unknown {what}; known: {known}")
     if extension in WRITERS and WRITERS[extension] != WRITERS[name]:
         raise ScratchfabError(
-            f"{path}: the extension says {extension} but the format asked for is {name}; "
+            f"{shown_path(path)}: the extension says {extension} but the format asked for is {name}; "
             f"name the file .{name} or leave the format out"
         )
     return name
@@ -114,9 +114,6 @@ def export(
             or what the writer refuses (G-code: a stroke outside the envelope, a line
             too long).
     """
-    if "\0" in os.fspath(path):  # the system's calls take no NUL: Python's ValueError
-        shown = os.fspath(path).replace("\0", "\\0")
-        raise ScratchfabError(f"{shown}: cannot write (a path cannot hold a NUL byte, \\0)")
     name = format_for(path, format)
     if profile is not None:
         check_same_plan(toolpath, profile)

@@ -122,6 +122,8 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
     if tp is str:
         if not isinstance(value, str):
             raise ConfigError(f"{where}: expected a string, got {_show(value)}")
+        if "\0" in value:  # no name, path or port holds one; a path with one is unusable
+            raise ConfigError(f"{where}: expected a string without a NUL character (\\u0000)")
         return value
     if origin is tuple:
         args = get_args(tp)
