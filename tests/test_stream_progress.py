@@ -22,8 +22,16 @@ from scratchfab.machine.stream_job import (
 )
 from scratchfab.model.job import JobLayout
 
-# (acked, total, eta_s, state, wpos, final), elapsed_s, the line as a person should read it
+# (acked, total, eta_s, state, wpos, final[, ran]), elapsed_s, the line as a person should
+# read it
 TABLE = [
+    # every line acknowledged, 125 of them still queued in GRBL's planner: not 100 %
+    (
+        (1000, 1000, 5.2, "Run", (1.0, 2.0, -0.1), False, 875),
+        65.2,
+        " 87.5% 875/1000 lines  elapsed 01:05  ETA 00:05  Run X1.00 Y2.00 Z-0.10",
+    ),
+    ((8, 8, 0.0, "Idle", None, True, 8), 6.0, "100.0% 8/8 lines  elapsed 00:06  ETA 00:00  Idle"),
     (
         (420, 1000, 184.4, "Run", (1.0, 2.0, -0.1), False),
         65.2,

@@ -88,10 +88,12 @@ from scratchfab.machine.sender_journal import Journal, last_surely_run
 from scratchfab.machine.sender_program import (
     DEFAULT_RAPID_MM_MIN,
     Block,
-    Modal,
     Program,
+    TimeLeft,
+    along_segment,
     block_words,
     dwell_seconds,
+    end_point,
     strip_block,
     travel_height,
 )
@@ -241,11 +243,17 @@ class StreamProgress:
     state: str
     wpos: tuple[float, float, float] | None
     final: bool = False  # the job is done: the controller reported Idle after the last ack
+    ran: int | None = None  # blocks the machine has run (None: not known, ``acked`` shown)
+
+    @property
+    def done(self) -> int:
+        """The blocks run, where known, else the blocks acknowledged."""
+        return self.acked if self.ran is None else self.ran
 
     @property
     def fraction(self) -> float:
-        """Acknowledged share of the blocks."""
-        return self.acked / self.total if self.total else 1.0
+        """The share of the blocks run (acknowledged where that is not known)."""
+        return self.done / self.total if self.total else 1.0
 
 
 @dataclass
@@ -825,10 +833,6 @@ class Streamer:
         self._acked_blocks = []
         self._acks_at_status = 0
         self._all_ran = False  # END_WAIT acknowledged: every acknowledged block ran
-        cum = [0.0]
-        for b in program.blocks:
-            cum.append(cum[-1] + b.seconds)
-        self._cum = cum
         try:
             with _signals_stop(self):
                 self._run(items, program, journal)
@@ -899,6 +903,9 @@ class Streamer:
         # report counts the blocks before its start as done, as its later ones do
         first = next((it.block.index for it in items if it.block is not None), len(program.blocks))
         self._acked_through = first - 1
+        self._left = TimeLeft(
+            program, first, self.info.planner_blocks, self.info.laser_mode, self._step_tol()
+        )
         self._acked_items = 0
         self._last_answer = time.monotonic()
         self._last_ack_time = 0.0
@@ -1004,7 +1011,11 @@ class Streamer:
                         "controller paused (M0 or hold): press Ctrl-C to resume or stop"
                     )
                     paused_since = math.inf
-                if now - last_report >= 1.0 / min(self.options.poll_hz, 5.0):
+                # a report follows each status report (its position is the one it shows),
+                # and comes on its own when none came for two periods
+                period = 1.0 / min(self.options.poll_hz, 5.0)
+                fresh = self.status.time > last_report
+                if now - last_report >= (period / 2 if fresh else 2 * period):
                     last_report = now
                     self._report(self._acked_through, len(program.blocks))
             except KeyboardInterrupt as exc:
@@ -1075,17 +1086,39 @@ class Streamer:
         return self.status.state == "Idle" and self.status.time > self._last_ack_time
 
     def _report(self, acked_through: int, total: int, final: bool = False) -> None:
-        done = self._cum[acked_through + 1] if acked_through >= 0 else 0.0
+        """Report progress: the lines acknowledged, and what the machine ran and has left.
+
+        GRBL acknowledges a move when it is queued, so the time left counts the queued
+        moves too, from the last status report's position (:class:`TimeLeft`).
+        """
+        seen = self._acks_at_status  # the blocks acknowledged before the last status report
+        left = self._left.update(
+            acked_through,
+            self._acked_blocks[seen - 1] if seen else -1,
+            self.status.wpos,
+            all_ran=self._all_ran or final,
+        )
         self.on_progress(
             StreamProgress(
                 acked=acked_through + 1,
                 total=total,
-                eta_s=max(0.0, self._cum[-1] - done),
+                eta_s=left,
                 state=self.status.state,
                 wpos=self.status.wpos,
                 final=final,
+                ran=self._left.ran,
             )
         )
+
+    def _step_tol(self) -> float:
+        """How far (mm) a reported position may lie off a move's line: rounding and a step.
+
+        GRBL's steps leave the ideal line by up to one step per axis (``$100``-``$102``
+        steps/mm; unknown: none counted).
+        """
+        steps = [self.info.settings.get(100 + k) for k in range(3)]
+        step_mm = max((1.0 / s for s in steps if s and s > 0), default=0.0)
+        return 0.01 + step_mm * math.sqrt(3.0)
 
     def _reset_fault(self, when: str) -> _Fault:
         """The fault of a controller that reset itself (its banner came) ``when``.
@@ -1624,10 +1657,10 @@ class Streamer:
             b = blocks[i]
             if not b.motion:
                 continue
-            start = _xyz(blocks[i - 1].modal if i > 0 else None, wpos)
-            if _on_segment(wpos, start, _xyz(b.modal, wpos), tol=0.01):
+            start = end_point(blocks[i - 1].modal if i > 0 else None, wpos)
+            if along_segment(wpos, start, end_point(b.modal, wpos), tol=0.01) is not None:
                 return i - 1
-        if reported and math.dist(wpos, _xyz(blocks[reported[-1]].modal, wpos)) < 0.01:
+        if reported and math.dist(wpos, end_point(blocks[reported[-1]].modal, wpos)) < 0.01:
             return reported[-1]
         return surely
 
@@ -1661,32 +1694,6 @@ def _clause(lifted: _Lifted | None) -> str:
 def _journaled(lifted: _Lifted | None) -> dict[str, Any]:
     """The stop event's ``lift`` field (none with the lift off)."""
     return {} if lifted is None else {"lift": lifted.record}
-
-
-def _xyz(modal: Modal | None, fallback: tuple[float, float, float]) -> tuple[float, float, float]:
-    """A block's end position; unknown Z (or no block) falls back to ``fallback``."""
-    if modal is None:
-        return (0.0, 0.0, fallback[2])
-    return (modal.x, modal.y, modal.z if modal.z is not None else fallback[2])
-
-
-def _on_segment(
-    p: tuple[float, float, float],
-    a: tuple[float, float, float],
-    b: tuple[float, float, float],
-    tol: float,
-) -> bool:
-    """True if ``p`` lies on segment ``a``-``b`` (within ``tol``), excluding its very end."""
-    ab = [b[k] - a[k] for k in range(3)]
-    ap = [p[k] - a[k] for k in range(3)]
-    length2 = sum(v * v for v in ab)
-    if length2 == 0.0:
-        return False
-    t = sum(ab[k] * ap[k] for k in range(3)) / length2
-    if t < -1e-9 or t > 1.0 - 1e-6:
-        return False
-    closest = [a[k] + t * ab[k] for k in range(3)]
-    return math.dist(p, closest) <= tol
 
 
 def banner_firmware(line: str) -> str | None:

@@ -15,6 +15,7 @@ up, or M5); :func:`stroke_spans` is the one definition used by streaming and res
 
 from __future__ import annotations
 
+import collections
 import hashlib
 import math
 import re
@@ -825,3 +826,176 @@ def resume_preamble(program: Program, start: int) -> list[str]:
     if restore:
         lines.append(restore)
     return lines
+
+
+def end_point(
+    modal: Modal | None, fallback: tuple[float, float, float]
+) -> tuple[float, float, float]:
+    """A block's end position (work mm); an unknown Z (or no block: the origin) takes ``fallback``'s."""
+    if modal is None:
+        return (0.0, 0.0, fallback[2])
+    return (modal.x, modal.y, modal.z if modal.z is not None else fallback[2])
+
+
+def along_segment(
+    p: Sequence[float],
+    a: Sequence[float],
+    b: Sequence[float],
+    tol: float,
+) -> float | None:
+    """How far ``p`` is along segment ``a``-``b`` (0 at ``a``), if within ``tol`` of it.
+
+    None when ``p`` is off the segment, at its very end, or the segment has no length.
+    """
+    ab = [b[k] - a[k] for k in range(3)]
+    length2 = sum(v * v for v in ab)
+    if length2 == 0.0:
+        return None
+    t = sum(ab[k] * (p[k] - a[k]) for k in range(3)) / length2
+    if t < -1e-9 or t > 1.0 - 1e-6:
+        return None
+    closest = [a[k] + t * ab[k] for k in range(3)]
+    return max(t, 0.0) if math.dist(p, closest) <= tol else None
+
+
+class TimeLeft:
+    """How much of a streamed program the machine still has to run, in the program's seconds.
+
+    GRBL answers a motion line once it is queued in its planner (``planner_blocks`` deep),
+    so the lines acknowledged are not the lines run. This follows a *run point*: the block
+    the machine is on and the seconds of it already run; everything before it ran. The
+    point only moves forward (the time left never grows), and from three clues, each
+    read at a report (:meth:`update`):
+
+    - the reported work position, matched against the acknowledged straight moves from the
+      run point on (the first segment it lies on, the share of its length run as the share
+      of its time); at the end point of the last move acknowledged before the report, all
+      of those ran;
+    - GRBL's planner: at most ``planner_blocks`` acknowledged moves are queued or running,
+      so every move before the ``planner_blocks``-th last acknowledged one ran (moves of no
+      length, which GRBL drops, are not counted; an arc or G28 counted as one move holds
+      more planner blocks, so the bound stays on the safe side);
+    - a block GRBL answers only after its planner emptied (spindle and coolant changes, G4,
+      M0/M2/M30...: :attr:`Block.sync`): everything before it ran, and the block itself
+      unless its own move was queued after the wait.
+
+    The cost per report is the blocks acknowledged since the last one plus a scan of the
+    moves that may still be queued (no scan over the whole job).
+
+    Args:
+        program: The program streamed, timed as the ETA's (:meth:`Program.timed_for`).
+        start: The first block sent (a resume's): the blocks before it count as run.
+        planner_blocks: GRBL's planner depth (``$I``'s ``[OPT:...]``, 15 on Grbl 1.1).
+        laser_mode: ``$32`` (None: not known; only the syncs whatever ``$32`` says count).
+        tol: How far (mm) a reported position may be off a move's line: report rounding
+            plus a step (GRBL's steps leave the ideal line by up to one).
+    """
+
+    def __init__(
+        self,
+        program: Program,
+        start: int = 0,
+        planner_blocks: int = 15,
+        laser_mode: bool | None = None,
+        tol: float = 0.01,
+    ) -> None:
+        self._blocks = program.blocks
+        self._cum = np.concatenate(([0.0], np.cumsum([b.seconds for b in program.blocks])))
+        self._planner = max(1, planner_blocks)
+        self._laser = laser_mode
+        self._tol = tol
+        self._seen = start - 1  # blocks walked for moves and syncs
+        self._moves: collections.deque[int] = collections.deque(maxlen=self._planner)
+        self._block = max(0, start)  # the run point: the block the machine is on ...
+        self._into = 0.0  # ... and the seconds of it already run
+
+    @property
+    def ran(self) -> int:
+        """How many blocks the machine has run (the blocks before the run point)."""
+        return self._block
+
+    @property
+    def seconds(self) -> float:
+        """The program's seconds from the run point to its end."""
+        return max(0.0, float(self._cum[-1] - self._cum[self._block]) - self._into)
+
+    def update(
+        self,
+        acked_through: int,
+        reported_through: int,
+        wpos: Sequence[float] | None,
+        all_ran: bool = False,
+    ) -> float:
+        """Move the run point by the clues of a report; returns :attr:`seconds`.
+
+        Args:
+            acked_through: The last block acknowledged (-1: none).
+            reported_through: The last block acknowledged before the status report that
+                gave ``wpos`` (only those can be where the report saw the machine).
+            wpos: The reported work position (mm); None when not known.
+            all_ran: Every acknowledged block ran (the sender's end-of-job dwell was
+                answered).
+        """
+        for i in range(self._seen + 1, acked_through + 1):
+            b = self._blocks[i]
+            if b.motion and not self._dropped(i):
+                self._moves.append(i)
+            if b.sync_after or (b.syncs_before(self._laser) if self._laser is not None else b.sync):
+                self._advance(i if b.motion and not b.sync_after else i + 1, 0.0)
+        self._seen = max(self._seen, acked_through)
+        if all_ran:
+            self._advance(acked_through + 1, 0.0)
+        if len(self._moves) == self._planner:
+            self._advance(self._moves[0], 0.0)
+        if wpos is not None:
+            self._follow(reported_through, wpos)
+        return self.seconds
+
+    def _line(self, i: int) -> bool:
+        """Whether block ``i`` moves on a straight line the sender knows (G0/G1, followed)."""
+        b = self._blocks[i]
+        return (
+            b.motion and not b.unfollowed and b.arc_box is None and b.modal.motion in ("G0", "G1")
+        )
+
+    def _dropped(self, i: int) -> bool:
+        """Whether block ``i`` is a straight move of no length (GRBL plans nothing for it)."""
+        if not self._line(i):
+            return False
+        before = self._blocks[i - 1].modal if i > 0 else Modal()
+        after = self._blocks[i].modal
+        return (before.x, before.y, before.z) == (after.x, after.y, after.z)
+
+    def _follow(self, reported_through: int, wpos: Sequence[float]) -> None:
+        """Put the run point where the reported position lies, if it lies on a queued move.
+
+        The first acknowledged straight move from the run point on that the position lies
+        on, not behind the run point (a path passing a point twice: the later pass); else, at the end point of the last block acknowledged before the report, all of
+        them ran (not when an arc or a move the sender cannot follow lies between: their
+        paths are not checked).
+        """
+        here = (float(wpos[0]), float(wpos[1]), float(wpos[2]))
+        unchecked = False
+        for i in range(self._block, reported_through + 1):
+            b = self._blocks[i]
+            if not self._line(i):
+                unchecked = unchecked or b.motion
+                continue
+            before = self._blocks[i - 1].modal if i > 0 else None
+            t = along_segment(here, end_point(before, here), end_point(b.modal, here), self._tol)
+            if t is not None and (i > self._block or t * b.seconds >= self._into):
+                self._advance(i, t * b.seconds)
+                return
+        if reported_through >= self._block and not unchecked:
+            end = end_point(self._blocks[reported_through].modal, here)
+            if math.dist(here, end) <= self._tol:
+                self._advance(reported_through + 1, 0.0)
+
+    def _advance(self, block: int, into: float) -> None:
+        """Move the run point to ``into`` seconds into ``block``, if that is further on."""
+        if block >= len(self._blocks):
+            block, into = len(self._blocks), 0.0
+        else:
+            into = min(into, float(self._blocks[block].seconds))
+        if block > self._block or (block == self._block and into > self._into):
+            self._block, self._into = block, into

@@ -128,19 +128,21 @@ PROGRESS_EVERY_S = 60.0
 def progress_text(p: StreamProgress, elapsed_s: float) -> str:
     """One progress line of a stream, for a terminal and a log alike.
 
-    Percent and count of lines acknowledged, the time since the stream started, the time
-    left (``--:--`` unknown), the controller's state and its work position (mm) where
-    reported: `` 42.0% 420/1000 lines  elapsed 01:05  ETA 03:04  Run X1.00 Y2.00 Z-0.10``.
-    The percent is cut, not rounded: ``100.0%`` only once every line is acknowledged.
+    Percent and count of lines the machine has run (GRBL acknowledges a line when it is
+    queued; where the report does not tell, those acknowledged), the time since the stream
+    started, the time left (``--:--`` unknown), the controller's state and its work
+    position (mm) where reported:
+    `` 42.0% 420/1000 lines  elapsed 01:05  ETA 03:04  Run X1.00 Y2.00 Z-0.10``.
+    The percent is cut, not rounded: ``100.0%`` only once every line has run.
     """
-    tenths = 1000 * p.acked // p.total if p.total else 1000
+    tenths = 1000 * p.done // p.total if p.total else 1000
     pos = ""
     if p.wpos is not None:
         # rounded first, so that -0.001 shows as 0.00, not -0.00
         x, y, z = (round(v, 2) + 0.0 for v in p.wpos)
         pos = f" X{x:.2f} Y{y:.2f} Z{z:.2f}"
     return (
-        f"{tenths / 10:5.1f}% {p.acked}/{p.total} lines  elapsed {clock(elapsed_s)}  "
+        f"{tenths / 10:5.1f}% {p.done}/{p.total} lines  elapsed {clock(elapsed_s)}  "
         f"ETA {clock(p.eta_s)}  {p.state}{pos}"
     )
 
