@@ -20,7 +20,10 @@ Written for the tests from Grbl 1.1's documented behaviour (gnea/grbl ``planner.
   block starts from rest: a change of spindle state (``M3``/``M4``/``M5``), a new ``S``
   while the spindle runs, ``G4`` (then it waits ``P`` seconds) and ``M2``/``M30``.
 
-Not modelled: the stepper's segment timing (a few milliseconds), the serial link, overrides.
+Not modelled here: the stepper's segment timing (a few milliseconds), the serial link.
+
+:class:`Stepper` runs planned blocks in small time steps instead, with feed holds and
+overrides at any moment: a reference for the slowdown that is not built from profiles.
 """
 
 from __future__ import annotations
@@ -58,6 +61,10 @@ class Block:
     nominal: float  # mm/s
     accel: float  # mm/s^2
     max_entry_sq: float  # (mm/s)^2, junction and nominal speeds included
+    junction_sq: float = math.inf  # (mm/s)^2, the corner alone (0 from rest)
+    rapid: bool = False
+    rate: float = math.inf  # mm/s: the feed of a G1, the axis-limited cap of a G0
+    cap: float = math.inf  # mm/s: the axis-limited rate along the block
 
 
 @dataclass
@@ -202,7 +209,20 @@ class Planner:
                 half = math.sqrt(0.5 * (1.0 - cos))
                 junction_sq = a_j * self.s.junction_deviation_mm * half / (1.0 - half)
         entry_cap = min(nominal, self.prev_nominal)
-        self.pending.append(Block(length, unit, nominal, accel, min(entry_cap**2, junction_sq)))
+        rate = cap if rapid else self.feed / 60.0  # type: ignore[operator]
+        self.pending.append(
+            Block(
+                length,
+                unit,
+                nominal,
+                accel,
+                min(entry_cap**2, junction_sq),
+                junction_sq,
+                rapid,
+                rate,
+                cap,
+            )
+        )
         self.prev_unit = unit
         self.prev_nominal = nominal
 
@@ -246,3 +266,123 @@ def simulate(
     run = planner.run
     run.seconds = run.motion_s + run.dwell_s
     return run
+
+
+def queued_blocks(
+    lines: Iterable[str], settings: Settings, start: Sequence[float] = (0.0, 0.0, 0.0)
+) -> list[Block]:
+    """The blocks ``lines`` queue in an empty planner (lines that empty it are not allowed)."""
+    planner = Planner(settings, start)
+    for text in lines:
+        planner.line(text)
+    if planner.run.syncs:
+        raise ValueError("a line emptied the planner")
+    return planner.pending
+
+
+class Stepper:
+    """Runs planned blocks in small time steps, all of them in the planner, from rest.
+
+    Each step the speed changes by at most the block's acceleration times ``dt``, towards
+    the fastest it may have where it will be: the block's nominal speed under the
+    overrides (a G1 its feed times the feed override, capped by the axis rates; a G0 the
+    cap times the rapid override; 1 mm/min at least), yet slow enough to brake, at each
+    block's acceleration, to every later block's entry limit (its corner, both nominal
+    speeds) and to a stop at the end. A held machine only slows down, at the acceleration
+    of the block it is in, until it stands. Nothing here comes from a profile's closed form.
+
+    Args:
+        blocks: The planned blocks (:func:`queued_blocks`).
+        start: Where the first block starts (mm).
+        dt: The time step (s).
+    """
+
+    def __init__(
+        self, blocks: Sequence[Block], start: Sequence[float] = (0.0, 0.0, 0.0), dt: float = 1e-4
+    ) -> None:
+        self.blocks = list(blocks)
+        self.start = list(map(float, start))
+        self.dt = dt
+        self.ends = []
+        total = 0.0
+        for b in self.blocks:
+            total += b.length
+            self.ends.append(total)
+        self.s = 0.0  # mm along the path
+        self.v = 0.0  # mm/s
+        self.t = 0.0  # s
+        self.held = False
+        self.feed_override = 100  # %
+        self.rapid_override = 100  # %
+
+    def nominal(self, b: Block) -> float:
+        """A block's speed under the overrides (Grbl's ``plan_compute_profile_nominal_speed``)."""
+        if b.rapid:
+            speed = b.cap * self.rapid_override / 100.0
+        else:
+            speed = min(b.rate * self.feed_override / 100.0, b.cap)
+        return max(speed, 1.0 / 60.0)
+
+    def _index(self, s: float) -> int:
+        return next((k for k, end in enumerate(self.ends) if s < end), len(self.ends) - 1)
+
+    def limit(self, s: float) -> float:
+        """The fastest the machine may go at ``s`` (mm/s)."""
+        if s >= self.ends[-1]:
+            return 0.0
+        k = self._index(s)
+        lim = self.nominal(self.blocks[k]) ** 2
+        shed = 2.0 * self.blocks[k].accel * (self.ends[k] - s)
+        for j in range(k + 1, len(self.blocks)):
+            b, prev = self.blocks[j], self.blocks[j - 1]
+            entry = min(b.junction_sq, self.nominal(b) ** 2, self.nominal(prev) ** 2)
+            lim = min(lim, entry + shed)
+            shed += 2.0 * b.accel * b.length
+        return math.sqrt(min(lim, shed))
+
+    def step(self, dt: float) -> None:
+        """Advance ``dt`` seconds."""
+        accel = self.blocks[self._index(self.s)].accel
+        v = self.v
+        if self.held:
+            if v <= accel * dt:  # stands within this step
+                self.s = min(self.s + 0.5 * v * v / accel, self.ends[-1])
+                self.v = 0.0
+                self.t += v / accel
+                return
+            new = v - accel * dt
+        else:
+            lim = self.limit(self.s + v * dt)
+            new = max(v - accel * dt, lim) if v > lim else min(v + accel * dt, lim)
+        self.s = min(self.s + 0.5 * (v + new) * dt, self.ends[-1])
+        self.v = new
+        self.t += dt
+
+    def done(self) -> bool:
+        """At rest at the end of the path (within a micrometre)."""
+        return self.ends[-1] - self.s < 1e-6 and self.v <= self.blocks[-1].accel * self.dt
+
+    def run_until(self, t: float) -> None:
+        """Run to time ``t``; a held machine that stands waits there. ``t`` stays the time
+        the motion ended if it ended before."""
+        while self.t < t - 1e-12 and not self.done():
+            if self.held and self.v == 0.0:
+                self.t = t
+                return
+            self.step(min(self.dt, t - self.t))
+
+    def run_to_stop(self) -> float:
+        """Run until the machine stands (held, or at the end); the time it stood."""
+        while not self.done() and not (self.held and self.v == 0.0):
+            self.step(self.dt)
+        return self.t
+
+    def position(self) -> tuple[float, float, float]:
+        """Where the machine is (mm)."""
+        pos = list(self.start)
+        begin = 0.0
+        for b, end in zip(self.blocks, self.ends, strict=True):
+            run = min(max(self.s - begin, 0.0), b.length)
+            pos = [p + u * run for p, u in zip(pos, b.unit, strict=True)]
+            begin = end
+        return (pos[0], pos[1], pos[2])

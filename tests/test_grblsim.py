@@ -216,7 +216,7 @@ def test_feed_hold_resume_and_state_rules():
     try:
         _banner(port)
         _cmd(port, b"G1X5F60\n")
-        # read while the hold decelerates (Hold:1, 50 ms): not while holding
+        # read while the hold decelerates (Hold:1, v/a = 0.1 s): not while holding
         assert _answers(_cmd(port, b"!$$\n$C\n", n=2)) == ["error:8", "error:8"]
         time.sleep(0.2)
         assert _status(port).startswith("<Hold:0|")
@@ -539,14 +539,14 @@ def test_a_door_during_a_jog_reports_jog_until_the_jog_stopped_then_door():
     """Grbl 1.1 (protocol.c): a door during a jog only flags the jog cancel; the state
     stays Jog while it decelerates, and once stopped the jog blocks are flushed and the
     state becomes the door's, already stopped (no Door:2). A resume then runs nothing."""
-    port = _open("time_scale=2")  # a 10 mm jog at F60: 20 s; the stop takes 0.1 s
+    port = _open("time_scale=2")  # a 10 mm jog at F60: 20 s; the stop v/a = 0.1 s: 0.2 s
     try:
         _banner(port)
         assert _answers(_cmd(port, b"$J=G91X10F60\n")) == ["ok"]
         time.sleep(0.2)
         port.sim.open_door()
         assert _status(port).startswith("<Jog|")  # still stopping
-        time.sleep(0.2)
+        time.sleep(0.4)
         assert _status(port).startswith("<Door:1|")
         port.sim.close_door()
         x = _mpos_x(_status(port))
@@ -567,7 +567,7 @@ def test_a_feed_hold_reads_lines_while_it_stops_and_none_once_held():
     """Grbl 1.1: while a hold decelerates (Hold:1) the main loop still reads and plans
     lines; once it is complete (Hold:0) the suspend loop reads none until the resume. A
     hold from Idle is complete at once, and M0's ok comes after the resume too."""
-    port = _open("time_scale=2")  # the G1 takes 6 s; a hold's stop 0.1 s
+    port = _open("time_scale=2")  # the G1 takes 6 s; a hold's stop v/a = 1/30 s: 0.07 s
     try:
         _banner(port)
         port.write(b"!")  # from Idle: Hold:0 at once

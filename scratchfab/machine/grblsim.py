@@ -17,19 +17,24 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   ends at rest, so a planner that runs short slows down; a block queued behind the running
   one re-plans it from its current speed), trapezoid profiles in the reported position and
   realtime ``FS:`` rate; a move of no whole step (``$100``-``$102``), which Grbl drops,
-  passes at once; all times ``time_scale``. These wait for the planner to empty (so
-  their ``ok`` comes after the motion before them ended): spindle and coolant changes,
-  dwells, M0/M2/M30, G10, G28.1/G30.1, G92/G92.1 and a change of G54-G59 or of the G43.1
+  passes at once and takes no block in ``Bf:``; a changed feed or rapid override
+  (``0x90``-``0x97``) re-plans, the running block slowing down (through it into the next
+  where it is too short) or speeding up at its acceleration; all times ``time_scale``.
+  These wait for the planner to empty (so their ``ok`` comes after the motion before
+  them ended): spindle and coolant changes, dwells, M0/M2/M30, G10, G28.1/G30.1, G92/G92.1 and a change of G54-G59 or of the G43.1
   offset (Grbl's default ``FORCE_BUFFER_SYNC_DURING_WCO_CHANGE``); not an S change in a
   block that moves under laser mode (``$32=1``); in laser mode with M3 on, also a block
   without motion that switches between G1-G3 and another motion mode;
 - ``$`` commands with their state rules (``error:8``/``error:9``), check mode ``$C`` with the
   soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset,
-  feed hold ``Hold:1`` -> ``Hold:0`` and resume (lines are still read and planned while
-  it decelerates, none once it is complete, M0's ``ok`` comes after the resume; a hold
-  or door during a dwell is ``Hold:0``/``Door`` at once and the dwell's time stands still
-  until the resume, Idle again); a feed hold or jog cancel (``0x85``) during a jog
-  cancels it instead: the machine stops, the jog blocks are flushed, Idle;
+  feed hold ``Hold:1`` -> ``Hold:0`` and resume (a hold, door or jog cancel slows down
+  at the acceleration of the block it is in, into the next one if it must, as Grbl's
+  stepper does, and the reported position follows; the resume starts from rest; lines
+  are still read and planned while it decelerates, none once it is complete, M0's
+  ``ok`` comes after the resume; a hold or door during a dwell is ``Hold:0``/``Door``
+  at once and the dwell's time stands still until the resume, Idle again); a feed
+  hold or jog cancel (``0x85``) during a jog cancels it instead: the machine slows down
+  (still ``Jog``), the jog blocks are flushed, Idle;
 - the safety door (``0x84``, or :meth:`GrblSim.open_door` for the switch): the machine
   stops (``Door:2``; a jog is cancelled first and reports ``Jog`` until it stopped),
   spindle and coolant go off, ``Door:1`` while the door is open and
@@ -288,6 +293,7 @@ class _Block:
     v0: float = 0.0  # mm/s entering the current profile
     v1: float = 0.0  # mm/s leaving the move
     vmax: float = 0.0  # mm/s cruise (overrides applied)
+    span: float = 0.0  # mm the current profile covers (less than what is left: a hold's stop)
     duration: float = 0.0  # seconds of the current profile, already scaled
 
 
@@ -346,7 +352,7 @@ class GrblSim:
         self._planner: collections.deque[_Block] = collections.deque()
         self._head_start = 0.0  # when the head block's current profile started
         self._hold_complete = False
-        self._hold_until = math.inf
+        self._stopping = False  # a hold, door or jog cancel decelerates the machine to a stop
         self._door_ajar = False  # the door switch
         self._restore_until = math.inf  # Door:3: spindle/coolant restoring before resuming
         self._door_saved: tuple[str, float, frozenset[str]] = ("M5", 0.0, frozenset())
@@ -528,14 +534,12 @@ class GrblSim:
                 self._cond.wait(min(max(nxt - now, 0.0), 0.05) if nxt < math.inf else 0.05)
 
     def _head_end(self) -> float:
-        if self.state not in ("Run", "Jog") or not self._planner or self._jog_cancel:
+        if not self._running():
             return math.inf
         return self._head_start + self._planner[0].duration
 
     def _next_event(self) -> float:
-        t = min(
-            self._head_end(), self._hold_until, self._reset_at, self._boot_at, self._restore_until
-        )
+        t = min(self._head_end(), self._reset_at, self._boot_at, self._restore_until)
         if self._wire:
             t = min(t, self._wire[0][0])
         if self._pending is not None and self._pending.until > 0.0:
@@ -559,16 +563,6 @@ class GrblSim:
                 self._soft_reset(t, from_command=False)
             elif self._wire and t == self._wire[0][0]:
                 self._receive(t, self._wire.popleft()[1])
-            elif t == self._hold_until:
-                self._hold_until = math.inf
-                if self._jog_cancel:
-                    self._end_jog(t)
-                else:
-                    self._hold_complete = True
-                    if self.state == "Door":
-                        self._door_stopped(t)
-                    elif self.state != "Idle":
-                        self._set_state(t, "Hold")
             elif t == self._restore_until:
                 self._restore_until = math.inf
                 self._door_resume(t)
@@ -607,10 +601,7 @@ class GrblSim:
             elif byte == CMD_JOG_CANCEL:
                 pass  # only a jog can be cancelled
             elif self.state == "Run":
-                self._pause_head(t)
-                self._hold_complete = False
-                self._hold_until = t + 0.05 * self.options.time_scale
-                self._set_state(t, "Hold")
+                self._decelerate(t, "Hold")
             elif self.state == "Idle":
                 self._hold_complete = True
                 self._set_state(t, "Hold")
@@ -645,9 +636,8 @@ class GrblSim:
         """Decelerate the jog (state stays Jog), then flush it (:meth:`_end_jog`)."""
         if self._jog_cancel:
             return
-        self._pause_head(t)
         self._jog_cancel = True
-        self._hold_until = t + 0.05 * self.options.time_scale
+        self._decelerate(t, "Jog")
 
     def _end_jog(self, t: float) -> None:
         """The cancelled jog stopped: flush its blocks, sync the position, Idle.
@@ -682,10 +672,7 @@ class GrblSim:
             self._cancel_jog(t)
             self._door_after_jog = True
         elif self.state == "Run":
-            self._pause_head(t)
-            self._hold_complete = False
-            self._hold_until = t + 0.05 * self.options.time_scale
-            self._set_state(t, "Door")
+            self._decelerate(t, "Door")
         elif self._hold_complete or self.state == "Idle":
             self._hold_complete = True
             self.state = "Door"
@@ -885,6 +872,9 @@ class GrblSim:
             return True
         act = p.actions[p.index]
         if act.kind == "motion":
+            # Grbl's mc_line waits for a free block, then drops a move of no step, which so
+            # takes none: Grbl queues more lines than this (the sender's last_surely_run
+            # counts such a move as a block; counted here too until it does not).
             if len(self._planner) >= PLANNER_BLOCKS:
                 return False
             self._plan(t, act, p.line)
@@ -974,7 +964,12 @@ class GrblSim:
             self._set_state(t, "Jog")
 
     def _running(self) -> bool:
-        return self.state in ("Run", "Jog") and not self._jog_cancel and bool(self._planner)
+        """The head block moves: a cycle or jog, or a hold, door or jog cancel stopping it."""
+        return bool(self._planner) and (self._stopping or self.state in ("Run", "Jog"))
+
+    def _blocks(self) -> int:
+        """Planner blocks in use (``Bf:``); a move of no whole step takes none (Grbl drops it)."""
+        return sum(1 for b in self._planner if b.length > 0.0)
 
     def _head_progress(self, t: float) -> tuple[float, float]:
         """Distance (mm) into the head's current profile and its speed (mm/s) at ``t``."""
@@ -982,15 +977,10 @@ class GrblSim:
             return 0.0, 0.0
         head = self._planner[0]
         scale = self.options.time_scale
-        if scale <= 0.0 or head.done >= head.length:  # no time passes, or nothing left
+        if scale <= 0.0 or head.span <= 0.0:  # no time passes, or nothing to run
             return 0.0, head.v0
         return profile_at(
-            (t - self._head_start) / scale,
-            head.length - head.done,
-            head.v0,
-            head.v1,
-            head.vmax,
-            head.accel,
+            (t - self._head_start) / scale, head.span, head.v0, head.v1, head.vmax, head.accel
         )
 
     def _cruise(self, block: _Block) -> float:
@@ -1004,11 +994,11 @@ class GrblSim:
             rate = min(block.rate * self._overrides[0] / 100.0, block.limit)
         return max(rate, 1.0) / 60.0
 
-    def _replan(self, t: float, stopped: bool = False) -> None:
+    def _replan(self, t: float) -> None:
         """Re-plan the head block as Grbl's ``planner_recalculate`` does on a new block.
 
         The head, if it runs, goes on from where it is at the speed it has (Grbl's
-        ``st_update_plan_block_parameters``); else, or ``stopped`` (a hold), from rest.
+        ``st_update_plan_block_parameters``); else from rest.
         """
         if not self._planner:
             return
@@ -1018,37 +1008,60 @@ class GrblSim:
             ran, entry = self._head_progress(t)
             head.done = min(head.done + ran, head.length)
             self._head_start = t
-        self._plan_head(0.0 if stopped else entry)
+        self._plan_head(entry)
 
     def _plan_head(self, entry: float) -> None:
         """The head block's profile from ``entry`` (mm/s) over what is left of it.
 
         Look-ahead covers only the blocks queued now, the newest ending at rest (a planner
         that runs short slows down), by the ETA's model (:mod:`scratchfab.toolpath.timing`).
+        A head entered faster than it may now go (a lowered override) slows down at its
+        acceleration; where the block is too short for that, it slows down all along it and
+        the next block enters at the speed left (Grbl's deceleration-only profile,
+        ``PREP_FLAG_DECEL_OVERRIDE``). While a hold, door or jog cancel stops the machine,
+        the head only slows down, at its acceleration, to a stop within it or through it
+        into the next block (``STEP_CONTROL_EXECUTE_HOLD``).
         """
         head = self._planner[0]
         head.vmax = self._cruise(head)
         left = head.length - head.done
+        head.v0 = entry
+        head.span = 0.0
+        head.duration = 0.0
         if left <= 0.0:  # nothing left, or a move Grbl drops: passed at the speed it has
-            head.v0 = head.v1 = entry
-            head.duration = 0.0
+            head.v1 = entry
             return
-        head.v0 = min(entry, head.vmax)
-        later = []
-        speed = head.vmax
-        for b in itertools.islice(self._planner, 1, None):
-            if b.length > 0.0:
-                cruise = self._cruise(b)
-                later.append(
-                    (min(b.corner_sq, speed * speed, cruise * cruise), 2.0 * b.accel * b.length)
-                )
-                speed = cruise
-        exit_sq = exit_speed_sq(head.v0 * head.v0, 2.0 * head.accel * left, later)
+        shed = 2.0 * head.accel * left  # the speed^2 the head can shed (or gain) over it
+        if self._stopping:
+            head.vmax = entry
+            exit_sq = entry * entry - shed
+            head.span = left if exit_sq > 0.0 else min(left, entry * entry / (2.0 * head.accel))
+        else:
+            later = []
+            speed = head.vmax
+            for b in itertools.islice(self._planner, 1, None):
+                if b.length > 0.0:
+                    cruise = self._cruise(b)
+                    later.append(
+                        (min(b.corner_sq, speed * speed, cruise * cruise), 2.0 * b.accel * b.length)
+                    )
+                    speed = cruise
+            exit_sq = max(exit_speed_sq(entry * entry, shed, later), entry * entry - shed)
+            head.vmax = max(head.vmax, math.sqrt(max(exit_sq, 0.0)))  # deceleration only
+            head.span = left
         head.v1 = math.sqrt(max(exit_sq, 0.0))
-        seconds = profile_seconds(left, head.v0, head.v1, head.vmax, head.accel)
-        head.duration = float(seconds) * self.options.time_scale
+        if head.span > 0.0:
+            seconds = profile_seconds(head.span, head.v0, head.v1, head.vmax, head.accel)
+            head.duration = float(seconds) * self.options.time_scale
 
     def _finish_head(self, t: float) -> None:
+        """The head's profile ended: a stop inside the block (a hold), else the block ended."""
+        head = self._planner[0]
+        if head.span < head.length - head.done:
+            head.done += head.span
+            self._head_start = t
+            self._stopped(t)
+            return
         block = self._planner.popleft()
         self.mpos = block.end
         self._head_start = t
@@ -1063,14 +1076,48 @@ class GrblSim:
         )
         if self._planner:
             self._plan_head(block.v1)
+        elif self._stopping:
+            self._stopped(t)  # stopped at the end of the last block
         else:
             self._jogging = False
             self._set_state(t, "Idle")
 
-    def _pause_head(self, t: float) -> None:
-        """The head stops where it is (a hold or jog cancel); it will go on from rest."""
-        if self._running():
-            self._replan(t, stopped=True)
+    def _decelerate(self, t: float, state: str) -> None:
+        """A hold, door or jog cancel: the head slows down from where it is to a stop.
+
+        Grbl's ``st_update_plan_block_parameters`` then ``STEP_CONTROL_EXECUTE_HOLD``; the
+        ``state`` (``Hold:1``, ``Door:2`` or ``Jog``) holds until :meth:`_stopped`.
+        """
+        moving = self._running()
+        ran, speed = self._head_progress(t)
+        if moving:
+            head = self._planner[0]
+            head.done = min(head.done + ran, head.length)
+            self._head_start = t
+        self._hold_complete = False
+        self._set_state(t, state)
+        self._stopping = True
+        if moving:
+            self._plan_head(speed)
+        else:
+            self._stopped(t)  # nothing moves
+
+    def _stopped(self, t: float) -> None:
+        """The hold's deceleration ended: ``Hold:0``, the door's stop or the jog's flush.
+
+        Grbl's ``plan_cycle_reinitialize``: the rest of the head is planned from rest.
+        """
+        self._stopping = False
+        if self._jog_cancel:
+            self._end_jog(t)
+            return
+        self._hold_complete = True
+        if self._planner:
+            self._plan_head(0.0)
+        if self.state == "Door":
+            self._door_stopped(t)
+        elif self.state == "Hold":
+            self._set_state(t, "Hold")
 
     def _position(self, t: float) -> tuple[float, float, float]:
         if not self._planner:
@@ -1126,7 +1173,8 @@ class GrblSim:
         self._rx.clear()
         self._wire.clear()
         self._pending = None
-        self._boot_at = self._reset_at = self._hold_until = self._restore_until = math.inf
+        self._boot_at = self._reset_at = self._restore_until = math.inf
+        self._stopping = False
         self._spindle = "M5"
         self._set_state(t, "Idle")
         self._log(t, "power_off")
@@ -1161,7 +1209,7 @@ class GrblSim:
         self._overflow = False
         self._pending = None
         self._report_due = False
-        self._hold_until = math.inf
+        self._stopping = False
         self._hold_complete = False
         self._restore_until = math.inf
         self._door_saved = ("M5", 0.0, frozenset())
@@ -1188,6 +1236,7 @@ class GrblSim:
         if self.state in ("Run", "Jog", "Hold"):
             self.mpos = self._position(t)
         self._planner.clear()
+        self._stopping = False
         self._pending = None
         self._spindle = "M5"
         self._spindle_speed = 0.0
@@ -1247,9 +1296,7 @@ class GrblSim:
             ("MPos:" if int(self.settings[10]) & 1 else "WPos:") + _fmt(pos, inches),
         ]
         if int(self.settings[10]) & 2:
-            fields_.append(
-                f"Bf:{PLANNER_BLOCKS - len(self._planner)},{RX_BUFFER_SIZE - len(self._rx)}"
-            )
+            fields_.append(f"Bf:{PLANNER_BLOCKS - self._blocks()},{RX_BUFFER_SIZE - len(self._rx)}")
         rate = self._head_progress(t)[1] * 60.0  # Grbl 1.1 reports the realtime rate
         if inches:
             fields_.append(f"FS:{rate / MM_PER_INCH:.1f},{self._spindle_speed:.0f}")

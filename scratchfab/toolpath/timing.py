@@ -175,16 +175,21 @@ def profile_seconds(
     vmax: np.ndarray | float,
     accel: np.ndarray | float,
 ) -> np.ndarray:
-    """Seconds over moves entered at ``v0``, left at ``v1``, cruising at most ``vmax``."""
-    up = (vmax * vmax - v0 * v0) / (2.0 * accel)
+    """Seconds over moves entered at ``v0``, left at ``v1``, cruising at most ``vmax``.
+
+    A move entered faster than ``vmax`` (a lowered override) first slows down to it at
+    ``accel``; ``v1`` is at most ``vmax``. GRBL's deceleration-only profile (a feed hold)
+    is ``vmax = v0``.
+    """
+    up = np.abs(vmax * vmax - v0 * v0) / (2.0 * accel)
     down = (vmax * vmax - v1 * v1) / (2.0 * accel)
     cruise = length - up - down
     peak = np.sqrt(np.maximum(accel * length + 0.5 * (v0 * v0 + v1 * v1), 0.0))
-    peak = np.minimum(peak, vmax)
+    peak = np.where(v0 > vmax, v0, np.minimum(peak, vmax))  # from above: only down
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(
             cruise >= 0,
-            (2.0 * vmax - v0 - v1) / accel + cruise / vmax,
+            (2.0 * vmax - v0 - v1 + 2.0 * np.maximum(v0 - vmax, 0.0)) / accel + cruise / vmax,
             (2.0 * peak - v0 - v1) / accel,
         )
 
@@ -194,19 +199,21 @@ def profile_at(
 ) -> tuple[float, float]:
     """Distance (mm) and speed (mm/s) ``elapsed`` seconds into one move's profile.
 
-    The profile of :func:`profile_seconds`: up from ``v0`` at ``accel``, cruising at most
-    ``vmax``, down to ``v1`` at the end (a trapezoid, or a triangle on a short move).
+    The profile of :func:`profile_seconds`: from ``v0`` to ``vmax`` at ``accel`` (up, or
+    down from a ``v0`` above it), cruising, down to ``v1`` at the end (a trapezoid, or a
+    triangle on a short move).
     """
-    up = (vmax * vmax - v0 * v0) / (2.0 * accel)
+    up = abs(vmax * vmax - v0 * v0) / (2.0 * accel)
     down = (vmax * vmax - v1 * v1) / (2.0 * accel)
     if up + down <= length:
         peak, cruise_s = vmax, (length - up - down) / vmax
     else:
         peak = math.sqrt(max(accel * length + 0.5 * (v0 * v0 + v1 * v1), 0.0))
         peak, cruise_s = max(peak, v0, v1), 0.0
-    rise = (peak - v0) / accel
+    ramp = accel if peak >= v0 else -accel  # the first ramp: up, or down to the cruise
+    rise = (peak - v0) / ramp
     if elapsed <= rise:
-        return min(v0 * elapsed + 0.5 * accel * elapsed * elapsed, length), v0 + accel * elapsed
+        return min(v0 * elapsed + 0.5 * ramp * elapsed * elapsed, length), v0 + ramp * elapsed
     done = (v0 + peak) * 0.5 * rise
     if elapsed <= rise + cruise_s:
         return min(done + peak * (elapsed - rise), length), peak

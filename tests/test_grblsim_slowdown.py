@@ -1,0 +1,294 @@
+"""The GRBL emulator slows down as Grbl 1.1h does on a feed hold, a jog cancel and overrides.
+
+Grbl's stepper (``st_prep_buffer``) decelerates a hold at the acceleration of the block it
+is in, into the next block if it must (``STEP_CONTROL_EXECUTE_HOLD``), reporting ``Hold:1``
+until it stands (``Hold:0``); a resume starts from rest (``plan_cycle_reinitialize``). A
+changed feed or rapid override re-plans, and a head block left faster than its new speed
+slows down at its acceleration (``RAMP_DECEL_OVERRIDE``; through the block where it is too
+short, ``PREP_FLAG_DECEL_OVERRIDE``). References: the closed form ``v^2 / 2a`` and the
+tests' time-stepped controller (:class:`grbl_planner_sim.Stepper`).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import threading
+
+import grbl_planner_sim as planner_sim
+import numpy as np
+import pytest
+
+from scratchfab.machine.grblsim import GrblSim, SimOptions
+
+_REPORT = re.compile(r"<([^|>]+)\|MPos:([^|>]+)\|(?:Bf:(\d+),(\d+)\|)?FS:([^,|>]+),")
+
+
+class _Machine:
+    """An emulator in its own time (a fake clock), with what it answers kept by time."""
+
+    def __init__(self, settings: dict[int, float], time_scale: float = 1.0) -> None:
+        self.clock = [0.0]
+        self.sim = GrblSim(
+            SimOptions(baud=0, time_scale=time_scale, settings=settings),
+            clock=lambda: self.clock[0],
+        )
+        self.sim.start(thread=False)
+        self.text = ""
+
+    def at(self, t: float, data: bytes = b"") -> str:
+        """Run to ``t``, send ``data`` there; what came back meanwhile."""
+        self.clock[0] = max(self.clock[0], t)
+        self.sim.advance(self.clock[0])
+        if data:
+            self.sim.host_write(data)
+            self.sim.advance(self.clock[0])
+        out = self.sim.host_read(1 << 16, 0.0).decode()
+        self.text += out
+        return out
+
+    def report(self, t: float) -> tuple[str, tuple[float, float, float], float]:
+        """State, position (mm) and rate (mm/min) of a status report asked for at ``t``."""
+        found = _REPORT.findall(self.at(t, b"?"))
+        assert found, self.text[-300:]
+        state, pos, _, _, rate = found[-1]
+        x, y, z = (float(v) for v in pos.split(","))
+        return state, (x, y, z), float(rate)
+
+    def until_still(self) -> None:
+        while (t := self.sim.next_event()) < math.inf:
+            self.at(t)
+        self.sim.close()
+
+    def times(self, event: str, **match: object) -> list[float]:
+        return [
+            e["t"]
+            for e in self.sim.record
+            if e["ev"] == event and all(e.get(k) == v for k, v in match.items())
+        ]
+
+
+def _stepper(settings: dict[int, float], lines: list[str]) -> planner_sim.Stepper:
+    reference = planner_sim.Settings(
+        tuple(settings.get(110 + k, 500.0) for k in range(3)),  # type: ignore[arg-type]
+        tuple(settings.get(120 + k, 10.0) for k in range(3)),  # type: ignore[arg-type]
+        settings.get(11, 0.01),
+    )
+    return planner_sim.Stepper(planner_sim.queued_blocks(lines, reference))
+
+
+def _apply(stepper: planner_sim.Stepper, data: bytes) -> None:
+    """The realtime bytes the tests send, as the reference takes them."""
+    for byte in data:
+        if byte == ord("!"):
+            stepper.held = True
+        elif byte == ord("~"):
+            stepper.held = False
+        elif byte == 0x90:
+            stepper.feed_override = 100
+        elif byte == 0x92:
+            stepper.feed_override = max(10, stepper.feed_override - 10)
+        elif 0x95 <= byte <= 0x97:
+            stepper.rapid_override = (100, 50, 25)[byte - 0x95]
+
+
+def _run_both(settings, lines, events, samples):
+    """The emulator's reports at ``samples`` and the reference there, and both end times."""
+    machine = _Machine(settings)
+    machine.at(0.0, "".join(f"{ln}\n" for ln in lines).encode())
+    stepper = _stepper(settings, lines)
+    got, want = [], []
+    for t, kind, data in sorted(
+        [(t, "event", d) for t, d in events] + [(t, "sample", b"") for t in samples]
+    ):
+        stepper.run_until(t)
+        if kind == "event":
+            machine.at(t, data)
+            _apply(stepper, data)
+        else:
+            got.append(machine.report(t))
+            want.append((stepper.position(), stepper.v * 60.0))
+    machine.until_still()
+    stepper.run_to_stop()
+    return machine, got, want, stepper
+
+
+def _assert_follows(got, want) -> None:
+    for (state, pos, rate), (ref_pos, ref_rate) in zip(got, want, strict=True):
+        assert pos == pytest.approx(ref_pos, abs=2e-3), (state, pos, ref_pos)
+        assert rate == pytest.approx(ref_rate, abs=1.0), (state, rate, ref_rate)
+
+
+def test_a_feed_hold_slows_down_over_v2_over_2a_then_resumes_from_rest():
+    """G1X50F600 at $120=10: 1 s up to 10 mm/s over 5 mm. A hold at 2 s (x = 15 mm)
+    slows down for v/a = 1 s over v^2/2a = 5 mm: x = 15 + 10 t - 5 t^2, Hold:1, then
+    Hold:0 at x = 20 from 3 s on. The resume at 4 s starts from rest: 30 mm to go take
+    1 s up, 2 s at 10 mm/s and 1 s down, so the move ends at 8 s."""
+    settings = {110: 1000.0}
+    samples = [2.0, 2.25, 2.5, 2.9, 3.1, 3.9, 4.5, 6.0, 7.9]
+    machine, got, want, stepper = _run_both(
+        settings, ["G1X50F600"], [(2.0, b"!"), (4.0, b"~")], samples
+    )
+    for t, (state, (x, _, _), rate) in zip(samples, got, strict=True):
+        if 2.0 <= t < 3.0:
+            tau = t - 2.0
+            assert state == "Hold:1"
+            assert x == pytest.approx(15.0 + 10.0 * tau - 5.0 * tau * tau, abs=6e-4)
+            assert rate == pytest.approx(60.0 * (10.0 - 10.0 * tau), abs=0.6)
+        elif 3.0 < t < 4.0:
+            assert (state, x, rate) == ("Hold:0", 20.0, 0.0)
+        else:
+            assert state == "Run"
+    _assert_follows(got, want)
+    assert machine.times("state", state="Hold:0") == pytest.approx([3.0], abs=1e-6)
+    assert machine.times("exec") == pytest.approx([8.0], abs=1e-6)
+    assert stepper.t == pytest.approx(8.0, abs=2e-3)  # the reference agrees
+    assert machine.sim.mpos == (50.0, 0.0, 0.0)
+
+
+def test_a_feed_hold_slows_down_into_the_next_block_at_its_acceleration():
+    """A hold at x = 18, 2 mm before a shallow corner ($11=0.5: passed at full speed),
+    cannot stop in the X block: it leaves it at v^2 = 10^2 - 2 a 2 and slows down on along
+    the next block at that block's acceleration ($121=2 makes it 8.25 mm/s^2, not 10), to
+    stand v^2 / 2a into it. Against that and the time-stepped reference, as are the resume
+    and where and when the move ends."""
+    settings = {110: 1000.0, 111: 1000.0, 121: 2.0, 11: 0.5}
+    lines = ["G1X20F600", "G1X40Y5"]
+    samples = [2.3, 2.4, 2.5, 2.7, 3.0, 3.3, 3.6, 3.9, 4.5, 5.0, 6.0]
+    machine, got, want, stepper = _run_both(settings, lines, [(2.3, b"!"), (4.0, b"~")], samples)
+    _assert_follows(got, want)
+    states = [state for state, _, _ in got]
+    assert states == ["Hold:1"] * 6 + ["Hold:0"] * 2 + ["Run"] * 3
+    unit = np.array([20.0, 5.0]) / math.hypot(20.0, 5.0)
+    accel = min(10.0 / unit[0], 2.0 / unit[1])
+    corner_sq = 10.0**2 - 2.0 * 10.0 * 2.0
+    block_end = machine.times("exec")[0]
+    assert block_end == pytest.approx(2.3 + (10.0 - math.sqrt(corner_sq)) / 10.0, abs=1e-6)
+    stop = machine.times("state", state="Hold:0")[0]
+    assert stop == pytest.approx(block_end + math.sqrt(corner_sq) / accel, abs=1e-6)
+    stood = np.array([20.0, 0.0]) + corner_sq / (2.0 * accel) * unit
+    assert got[6][1][:2] == got[7][1][:2] == pytest.approx(tuple(stood), abs=6e-4)
+    assert machine.times("exec")[-1] == pytest.approx(stepper.t, abs=2e-3)
+    assert machine.sim.mpos == (40.0, 5.0, 0.0)
+
+
+def test_a_jog_cancel_slows_down_then_flushes_the_jog_where_it_stood():
+    """0x85 at 1.5 s into a 20 mm jog at 10 mm/s (x = 10 mm): the state stays Jog while it
+    slows down over 1 s and 5 mm, then Idle at x = 15 with the jog's rest flushed."""
+    machine = _Machine({110: 1000.0})
+    machine.at(0.0, b"$J=G91X20F600\n")
+    machine.at(1.5, b"\x85")
+    state, (x, _, _), rate = machine.report(2.2)
+    assert state == "Jog" and x == pytest.approx(10.0 + 7.0 - 5.0 * 0.49, abs=6e-4)
+    assert rate == pytest.approx(60.0 * 3.0, abs=0.6)
+    assert machine.report(2.6) == ("Idle", (15.0, 0.0, 0.0), 0.0)
+    machine.until_still()
+    assert machine.times("state", state="Idle")[-1] == pytest.approx(2.5, abs=1e-6)
+    assert machine.sim.mpos == pytest.approx((15.0, 0.0, 0.0), abs=1e-6)
+    assert machine.times("exec") == []
+
+
+@pytest.mark.parametrize(
+    ("settings", "lines", "events", "lowered"),
+    [
+        # 20 mm/s, down to 50 % at 3 s (1 s to slow to 10 mm/s), back to 100 % at 6 s
+        ({110: 2000.0}, ["G1X100F1200"], [(3.0, b"\x92" * 5), (6.0, b"\x90")], 600.0),
+        # a rapid at 20 mm/s, rapid override 50 % at 3 s
+        ({110: 1200.0}, ["G0X100"], [(3.0, b"\x96")], 600.0),
+        # down to 10 % 0.1 s before 3 mm blocks: it slows down through three of them
+        (
+            {110: 2000.0},
+            ["G1X10F1200", "G1X13", "G1X16", "G1X19", "G1X40"],
+            [(1.9, b"\x92" * 9)],
+            120.0,
+        ),
+    ],
+)
+def test_a_feed_override_changes_the_speed_at_the_acceleration(settings, lines, events, lowered):
+    """Grbl re-plans on an override (``plan_cycle_reinitialize``): the running block
+    slows down from the speed it has at its acceleration, not at once (``lowered`` mm/min
+    is the new speed), and speeds up the same way; the reference is the time-stepped
+    controller."""
+    samples = [t for t in np.arange(1.85, 9.0, 0.25) if all(abs(t - e) > 1e-9 for e, _ in events)]
+    machine, got, want, stepper = _run_both(settings, lines, events, samples)
+    _assert_follows(got, want)
+    assert machine.times("exec")[-1] == pytest.approx(stepper.t, abs=2e-3)
+    after = next(k for k, t in enumerate(samples) if t > events[0][0])
+    assert got[after][2] > lowered + 200.0  # still slowing down
+
+
+def test_a_move_of_no_steps_takes_no_planner_block():
+    """Grbl drops a move of no whole step (``PLAN_EMPTY_BLOCK``): ``Bf:`` counts only the
+    one real move of three."""
+    machine = _Machine({10: 3, 110: 1000.0})
+    machine.at(0.0, b"G1X10F600\nG1X10\nG1X10.001\n")
+    machine.at(0.1)
+    found = _REPORT.findall(machine.at(0.2, b"?"))
+    assert found and found[-1][0] == "Run" and found[-1][2:4] == ("14", "128")
+
+
+_FUZZ_BYTES = [b"!", b"~", b"\x18", b"\x85", b"\x84", b"\x91", b"\x92", b"\x94", b"\x96"]
+
+
+def _fuzz_lines(rng: np.random.Generator) -> bytes:
+    pick = rng.integers(6)
+    x, y = (float(v) for v in rng.uniform(-20.0, 20.0, 2))
+    feed = float(rng.uniform(10.0, 3000.0))
+    return [
+        f"G1X{x:.3f}Y{y:.3f}F{feed:.0f}\n",
+        f"G0X{x:.3f}\n",
+        f"$J=G91X{x:.3f}F{feed:.0f}\n",
+        f"G1X{x:.3f}Y{y:.3f}F{feed:.0f}\nG1X{x:.3f}Y{y + 0.001:.3f}\n",  # no whole step
+        "$X\n",
+        "G4P0.01\n",
+    ][pick].encode()
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_holds_resumes_resets_and_jog_cancels_in_any_order_never_spin(seed):
+    """Random holds, resumes, resets, jog cancels, doors and overrides among moves, jogs
+    and dwells, at random times and time scales from 0 to 1: the emulator always reaches
+    a still state in finite time, every report is finite and a resume, door close and
+    unlock at the end run what is left to the end."""
+    rng = np.random.default_rng(seed)
+    for _ in range(25):
+        scale = float(rng.choice([0.0, 1.0, rng.uniform(0.0, 1.0)], p=[0.2, 0.2, 0.6]))
+        machine = _Machine({110: 3000.0, 111: 3000.0, 120: 50.0, 121: 20.0}, scale)
+        error: list[BaseException] = []
+
+        def run(machine: _Machine = machine, error: list[BaseException] = error) -> None:
+            try:
+                t = 0.0
+                for _ in range(60):
+                    t += float(rng.exponential(0.05))
+                    data = (
+                        _fuzz_lines(rng)
+                        if rng.random() < 0.5
+                        else _FUZZ_BYTES[rng.integers(len(_FUZZ_BYTES))]
+                    )
+                    machine.at(t, data)
+                    if rng.random() < 0.1:
+                        machine.sim.close_door()
+                    state, pos, rate = machine.report(t)
+                    assert all(math.isfinite(v) for v in (*pos, rate)), (state, pos, rate)
+                for _ in range(3):  # a ~ while a hold or door still stops is ignored
+                    machine.sim.close_door()
+                    t += 0.01
+                    machine.at(t, b"~")  # resume a hold or a closed door
+                    while (nxt := machine.sim.next_event()) < math.inf:
+                        t = max(t, nxt)
+                        machine.at(t)
+                assert machine.sim.state in ("Idle", "Alarm") and not machine.sim._planner
+                machine.at(t, b"\x18$X\n")
+                machine.until_still()
+            except BaseException as exc:  # handed to the test's thread
+                error.append(exc)
+
+        worker = threading.Thread(target=run, daemon=True)
+        worker.start()
+        worker.join(20.0)
+        assert not worker.is_alive(), f"the emulator spun (time_scale {scale})"
+        if error:
+            raise error[0]
+        assert machine.sim.state == "Idle" and not machine.sim._planner
+        assert all(math.isfinite(v) for v in machine.sim.mpos)
