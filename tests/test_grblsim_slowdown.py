@@ -188,6 +188,20 @@ def test_a_jog_cancel_slows_down_then_flushes_the_jog_where_it_stood():
     assert machine.times("exec") == []
 
 
+def test_a_jog_takes_no_feed_override():
+    """Grbl's ``jog_execute`` flags its moves ``PL_COND_FLAG_NO_FEED_OVERRIDE``: at 50 %
+    a 20 mm jog at F600 ($120=10) still cruises at 10 mm/s (x = 5 + 10 (t - 1)); a G1 at
+    F600 afterwards runs at 5 mm/s (0.5 s and 1.25 mm to reach it)."""
+    machine = _Machine({110: 1000.0})
+    machine.at(0.0, b"$J=G91X20F600\n")
+    machine.at(0.5, b"\x92" * 5)
+    assert machine.report(1.5) == ("Jog", (10.0, 0.0, 0.0), 600.0)
+    assert machine.report(3.5) == ("Idle", (20.0, 0.0, 0.0), 0.0)
+    machine.at(4.0, b"G1X0F600\n")
+    assert machine.report(6.0) == ("Run", (20.0 - 1.25 - 5.0 * 1.5, 0.0, 0.0), 300.0)
+    machine.until_still()
+
+
 @pytest.mark.parametrize(
     ("settings", "lines", "events", "lowered"),
     [

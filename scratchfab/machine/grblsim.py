@@ -281,6 +281,7 @@ class _Block:
     rate: float  # mm/min: the G1 feed, or the axis-limited rapid rate (before overrides)
     limit: float  # mm/min: the axis-limited rate along the move
     rapid: bool
+    jog: bool  # a $J= move: no feed override (Grbl's PL_COND_FLAG_NO_FEED_OVERRIDE)
     line: int  # received-line index
     work_end: tuple[float, float, float]
     work_start: tuple[float, float, float]
@@ -947,6 +948,7 @@ class GrblSim:
                 rate=float(limit[0]) * 60.0 if act.rapid else act.rate,
                 limit=float(limit[0]) * 60.0,
                 rapid=act.rapid,
+                jog=self._jogging,
                 line=line,
                 work_start=(start[0] - wco[0], start[1] - wco[1], start[2] - wco[2]),
                 work_end=(end[0] - wco[0], end[1] - wco[1], end[2] - wco[2]),
@@ -986,12 +988,13 @@ class GrblSim:
     def _cruise(self, block: _Block) -> float:
         """A block's nominal speed (mm/s) under the overrides (``plan_compute_profile_nominal_speed``).
 
-        At least Grbl's ``MINIMUM_FEED_RATE`` (1 mm/min).
+        At least Grbl's ``MINIMUM_FEED_RATE`` (1 mm/min); a jog takes no feed override.
         """
         if block.rapid:
             rate = block.limit * self._overrides[1] / 100.0
         else:
-            rate = min(block.rate * self._overrides[0] / 100.0, block.limit)
+            feed = 100 if block.jog else self._overrides[0]
+            rate = min(block.rate * feed / 100.0, block.limit)
         return max(rate, 1.0) / 60.0
 
     def _replan(self, t: float) -> None:
