@@ -512,7 +512,12 @@ def test_a_lift_that_does_not_finish_in_time_is_held_and_reset_not_retried(tmp_p
     text, messages, sim = _lift_disturbed(tmp_path, lambda port: port.write(b"!"), options)
     assert re.search(r"the tool was NOT raised \(the lift \(G21G53G0Z2 G4P0\) did not finish "
                      r"within \d\.\d s; feed hold and soft reset sent", text)  # fmt: skip
-    assert [e["text"] for e in after_reset(sim, "rx")] == ["G21G53G0Z2", "G4P0"]
+    # the hold comes as the lift's move starts from rest, so Grbl is at Hold:0 at once and
+    # its suspend loop parses no more lines: the dwell is read only if it came first
+    assert [e["text"] for e in after_reset(sim, "rx")] in (
+        ["G21G53G0Z2"],
+        ["G21G53G0Z2", "G4P0"],
+    )
     resets = [e for e in sim.record if e["ev"] == "reset"]
     assert len(resets) == 2  # the stop's and the one ending the lift
     assert not any(e["ev"] == "alarm" for e in sim.record)  # reset from Hold:0
