@@ -75,7 +75,7 @@ DEFAULT_CASES = (
     "refresh_every=4",
     "refresh_every=16",
     "merge_weight=0",
-    "merge_weight=0.2",
+    "merge_weight=0.05",
     "jitter_deg=3",
     "count=1000",
     "count=3000",
@@ -180,12 +180,12 @@ def merged_pairs(scratches: Any, angle_deg: float = 10.0) -> dict[str, float]:
 
     Both renderers add such scratches as if each were alone; the machine cuts them into
     one wider dent. The merge penalty exists to keep them apart. Returns ``pairs`` (their
-    count), ``crossing`` (those that cross: the penalty measures the ends' distances to
-    the other scratch, so it does not see a small-angle crossing whose ends are far) and
+    count), ``crossing`` (those that cross, whatever their ends' distances) and
     ``length_mm``, the length cut twice: over each pair, the mean of the two scratches'
     lengths that lie within the tool's width of the other. A pair side by side counts its
     shared length, a crossing at angle a about 2 w / sin(a), so this weighs a pair by how
-    much of it the machine merges, where ``pairs`` counts every pair as one.
+    much of it the machine merges, where ``pairs`` counts every pair as one (the merge
+    penalty weighs the same length by how close: :mod:`scratchfab.optimize.loss`).
     """
     tool = float(np.max(scratches.width))
     p0, p1 = scratches.p0, scratches.p1

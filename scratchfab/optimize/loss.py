@@ -20,12 +20,31 @@ crosstalk 0.026 / 0.034. The quality measures of SPEC section 7 are linear and t
 perceptual error spends scratches on dark-tone detail the measures do not reward, so
 ``linear`` is the default.
 
-Merge penalty: two nearly parallel scratches closer than the tool width merge into one
-wider groove when cut. For candidate pairs (i, j) (:func:`neighbour_pairs`) the penalty
-is ``par(i, j) * relu(1 - d_ij / width)^2`` with ``par = cos^16`` of the angle between
-them (1 when parallel, 0.1 at 30 degrees) and d_ij the distance between the two
-segments (the least of the four endpoint-to-segment distances, exact for segments that
-do not cross).
+Merge penalty: two scratches closer than the tool width are cut as one wider groove
+where they overlap, side by side or crossing at a small angle a (each then lies within
+the width of the other over about 2 width / sin a of its length, however far apart
+their ends are). For candidate pairs (i, j) (:func:`neighbour_pairs`: within
+PARALLEL_LIMIT of parallel and closer than the reach, or crossing) the penalty is the
+mean over both orders of
+
+    integral along scratch i of relu(1 - q / width)^2 dl     (mm)
+
+with q the distance of the point from scratch j's line, over the points of i that
+project onto j: the length of i within the tool width of j, weighted by how close. q
+is linear along i, so the integral is a difference quotient of an antiderivative of
+the weight, in closed form (its gradient jumps only where the overlap's limit passes
+from one end to another, as a distance's does). Side by side at distance d over a shared
+length L it is L (1 - d / width)^2; crossing at angle a away from the ends,
+(2 width / 3) / sin a (at the parallel limit 1.16 width: a small step when a pair
+leaves the candidates).
+
+It replaced ``cos^16(angle) * relu(1 - d_ij / width)^2``, d_ij the least of the four
+endpoint-to-segment distances, which did not see crossings. Measured
+(``benchmarks/bench_quality.py``, demo, 3 layout seeds, 300 steps): at merge_weight 0.02
+against that form's 0.05, the length cut twice by pairs within 10 degrees of parallel
+fell 54 % (2766 to 1276 mm) and mean PSNR rose 0.8 dB (28.7 to 29.5; Mitsuba's, 1024
+spp, 26.4 to 26.6). Weighing this form by cos^16 of the angle as well cost about 0.1 dB
+at the same length cut twice.
 """
 
 from __future__ import annotations
@@ -104,7 +123,7 @@ def merge_penalty(
     second: Any,
     tool_width: float,
 ) -> Any:
-    """Sum of the merge penalty over candidate pairs (Dr.Jit scalar, not evaluated)."""
+    """Sum of the merge penalty over candidate pairs (mm, Dr.Jit scalar, not evaluated)."""
     ax: Any = dr.gather(Float, p0x, first)
     ay: Any = dr.gather(Float, p0y, first)
     bx: Any = dr.gather(Float, p1x, first)
@@ -115,25 +134,53 @@ def merge_penalty(
     ey: Any = dr.gather(Float, p1y, second)
     ux, uy = bx - ax, by - ay
     vx, vy = ex - cx, ey - cy
-    cos = (ux * vx + uy * vy) * dr.rsqrt(
-        dr.maximum((ux * ux + uy * uy) * (vx * vx + vy * vy), 1e-20)
-    )
-    par = dr.power(dr.square(cos), 8)
-    d = dr.minimum(
-        dr.minimum(_point_segment(ax, ay, cx, cy, vx, vy), _point_segment(bx, by, cx, cy, vx, vy)),
-        dr.minimum(_point_segment(cx, cy, ax, ay, ux, uy), _point_segment(ex, ey, ax, ay, ux, uy)),
-    )
-    close = dr.maximum(1.0 - d / tool_width, 0.0)
-    return dr.sum(par * close * close, mode="symbolic")
+    lu = dr.sqrt(dr.maximum(ux * ux + uy * uy, 1e-20))
+    lv = dr.sqrt(dr.maximum(vx * vx + vy * vy, 1e-20))
+    both = _overlap(ax, ay, ux, uy, lu, cx, cy, vx, vy, lv, tool_width)
+    both = both + _overlap(cx, cy, vx, vy, lv, ax, ay, ux, uy, lu, tool_width)
+    return dr.sum(0.5 * both, mode="symbolic")
 
 
-def _point_segment(px: Any, py: Any, ax: Any, ay: Any, dx: Any, dy: Any) -> Any:
-    """Distance from points p to segments a + t d, t in [0, 1]."""
-    ll = dr.maximum(dx * dx + dy * dy, 1e-20)
-    t = dr.clip(((px - ax) * dx + (py - ay) * dy) / ll, 0.0, 1.0)
-    qx = px - ax - t * dx
-    qy = py - ay - t * dy
-    return dr.sqrt(dr.maximum(qx * qx + qy * qy, 1e-20))
+def _overlap(
+    ax: Any, ay: Any, ux: Any, uy: Any, lu: Any,
+    cx: Any, cy: Any, vx: Any, vy: Any, lv: Any, width: float,
+) -> Any:  # fmt: skip
+    """Length of segments a + t u weighted by closeness to the segments c + s v (mm).
+
+    The integral over t in [0, 1] of ``|u| * relu(1 - |q| / width)^2``, with q the signed
+    distance of a + t u from the line of c + s v, over the points that project onto
+    the segment c + s v itself.
+    """
+    nx, ny = -vy / lv, vx / lv
+    wx, wy = ax - cx, ay - cy
+    q0 = nx * wx + ny * wy
+    dq = nx * ux + ny * uy
+    # where the point projects onto c + s v: s lv = p0 + t dp, within [0, lv]
+    p0 = (vx * wx + vy * wy) / lv
+    dp = (vx * ux + vy * uy) / lv
+    dp = dr.select(dr.abs(dp) > 1e-12, dp, 1e-12)
+    t_a = -p0 / dp
+    t_b = (lv - p0) / dp
+    lo = dr.maximum(dr.minimum(t_a, t_b), 0.0)
+    hi = dr.maximum(dr.minimum(dr.maximum(t_a, t_b), 1.0), lo)
+    qa = q0 + lo * dq
+    qb = q0 + hi * dq
+    # the mean of relu(1 - |q| / w)^2 over [qa, qb]: a difference quotient of its
+    # antiderivative, or its value at the middle where qa and qb nearly meet
+    gap = qb - qa
+    apart = dr.abs(gap) > 1e-4 * width
+    mean = dr.select(
+        apart,
+        (_hat_integral(qb, width) - _hat_integral(qa, width)) / dr.select(apart, gap, 1.0),
+        dr.square(dr.maximum(1.0 - dr.abs(0.5 * (qa + qb)) / width, 0.0)),
+    )
+    return (hi - lo) * lu * mean
+
+
+def _hat_integral(q: Any, width: float) -> Any:
+    """An antiderivative of relu(1 - |q| / width)^2 in q (odd, +-width / 3 beyond +-width)."""
+    rest = dr.maximum(1.0 - dr.abs(q) / width, 0.0)
+    return dr.sign(q) * (width / 3.0) * (1.0 - rest * rest * rest)
 
 
 def segment_distance_np(p0: np.ndarray, p1: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:

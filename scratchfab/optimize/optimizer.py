@@ -142,7 +142,7 @@ class Settings:
         lr: Per-variable learning rate (cx, cy in mm, theta in rad, length in mm).
         refresh_every: Steps between pair refreshes (K).
         space: Image error space, ``"linear"`` or ``"perceptual"``.
-        merge_weight: Weight of the merge penalty (per scratch).
+        merge_weight: Weight of the merge penalty (per scratch, per mm cut twice).
         bound_weight: Weight of the pull back onto the feasible set (per scratch, 1/mm^2).
         schedule: Multiples of ``lr`` step by step (None: ``lr`` throughout).
     """
@@ -150,7 +150,7 @@ class Settings:
     lr: Mapping[str, float]
     refresh_every: int = 8
     space: Space = "linear"
-    merge_weight: float = 0.05
+    merge_weight: float = 0.02
     bound_weight: float = 1.0
     schedule: StepSchedule | None = None
 

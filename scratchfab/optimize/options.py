@@ -75,7 +75,9 @@ class OptimizeOptions:
             schedule above them refreshes more often, below them less: the pair
             margin covers this many steps of the ``lr_*``).
         checkpoint_every: Steps between checkpoints.
-        merge_weight: Weight of the penalty on parallel scratches closer than the tool.
+        merge_weight: Weight of the penalty on the length (mm) that overlapping scratches
+            cut twice, side by side or crossing within 35 degrees of parallel, weighted
+            by how close (divided by the scratch count; :mod:`scratchfab.optimize.loss`).
         jitter_deg: Standard deviation of a random turn of each initial scratch.
         threads: CPU threads (1: bit-reproducible; 0: all cores).
         resume: Continue from ``JOB/optimize/checkpoint.npz``.
@@ -98,7 +100,7 @@ class OptimizeOptions:
     lr_end_scale: float = field(default=1.0, metadata=spec(gt=0))
     refresh_every: int = field(default=8, metadata=spec(gt=0))
     checkpoint_every: int = field(default=25, metadata=spec(gt=0))
-    merge_weight: float = field(default=0.05, metadata=spec(ge=0))
+    merge_weight: float = field(default=0.02, metadata=spec(ge=0))
     jitter_deg: float = field(default=0.0, metadata=spec(ge=0))
     threads: int = field(default=1, metadata=spec(ge=0))
     resume: bool = False

@@ -1,0 +1,134 @@
+"""The merge penalty: the length two scratches cut twice, crossings at small angles included."""
+
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import numpy as np
+import pytest
+
+from scratchfab.optimize.loss import PARALLEL_LIMIT, merge_penalty, neighbour_pairs
+
+
+def penalty(m, p0: np.ndarray, p1: np.ndarray, i, j, width: float) -> float:
+    """merge_penalty of the pairs (i, j) as a float."""
+    F, U = m.Float64, m.UInt32
+    got = merge_penalty(F, F(p0[:, 0]), F(p0[:, 1]), F(p1[:, 0]), F(p1[:, 1]), U(i), U(j), width)
+    return float(got[0])
+
+
+def quadrature(p0: np.ndarray, p1: np.ndarray, i, j, width: float, n: int = 200_000) -> float:
+    """The penalty's definition by the midpoint rule: each scratch sampled at n points.
+
+    Per pair, the mean over both orders of: along scratch a, the length weighted by
+    relu(1 - q / width)^2, q the distance of the point from scratch b's line, over the
+    points that project onto scratch b.
+    """
+    t = (np.arange(n) + 0.5) / n
+    total = 0.0
+    for k, m_ in zip(i, j, strict=True):
+        for a, b in ((k, m_), (m_, k)):
+            e, f = p1[a] - p0[a], p1[b] - p0[b]
+            lf = np.linalg.norm(f)
+            rel = p0[a] + t[:, None] * e - p0[b]
+            along = rel @ f / lf
+            across = np.abs(rel @ np.array([-f[1], f[0]])) / lf
+            weight = np.maximum(1 - across / width, 0) ** 2 * ((along >= 0) & (along <= lf))
+            total += 0.5 * weight.mean() * np.linalg.norm(e)
+    return total
+
+
+def test_the_penalty_matches_its_definition(m, rng) -> None:
+    """Random near-parallel pairs (some reversed, some crossing) against the quadrature."""
+    n = 24
+    c = rng.uniform(-0.6, 0.6, (n, 2))
+    ang = rng.uniform(-0.5, 0.5, n) + np.where(rng.uniform(size=n) < 0.3, math.pi, 0.0)
+    half = np.stack([np.cos(ang), np.sin(ang)], 1) * rng.uniform(0.3, 2, n)[:, None]
+    p0, p1 = c - half, c + half
+    i, j = np.triu_indices(n, 1)
+    width = 0.4
+    ref = quadrature(p0, p1, i, j, width)
+    assert ref > 1.0
+    assert penalty(m, p0, p1, i, j, width) == pytest.approx(ref, rel=1e-6)
+
+
+@pytest.mark.parametrize("degrees", [2.0, 5.0, 10.0, 20.0, 30.0])
+def test_a_small_angle_crossing_costs_its_doubly_cut_length(m, degrees: float) -> None:
+    """Long scratches crossing at angle a far from their ends: (2 w / 3) / sin a.
+
+    The closeness weight relu(1 - |x| sin a / w)^2 integrates over x to (2 w / 3) / sin a
+    (each scratch's length within w of the other is 2 w / sin a), whatever the ends do.
+    """
+    a, width = math.radians(degrees), 0.1
+    p0 = np.array([[-30.0, 0.0], [-30.0 * math.cos(a), -30.0 * math.sin(a)]])
+    p1 = -p0
+    expected = (2 * width / 3) / math.sin(a)
+    assert penalty(m, p0, p1, [0], [1], width) == pytest.approx(expected, rel=1e-9)
+
+
+@pytest.mark.parametrize("gap", [0.0, 0.03, 0.07, 0.1, 0.15])
+def test_side_by_side_scratches_cost_their_shared_length(m, gap: float) -> None:
+    """Parallel scratches ``gap`` apart sharing 3 of their 5 mm: 3 (1 - gap / w)^2."""
+    p0 = np.array([[0.0, 0.0], [2.0, gap]])
+    p1 = np.array([[5.0, 0.0], [7.0, gap]])
+    expected = 3.0 * max(1 - gap / 0.1, 0.0) ** 2
+    assert penalty(m, p0, p1, [0], [1], 0.1) == pytest.approx(expected, rel=1e-9, abs=1e-12)
+    # reversing either scratch changes nothing
+    back0, back1 = np.array([p0[0], p1[1]]), np.array([p1[0], p0[1]])
+    assert penalty(m, back0, back1, [0], [1], 0.1) == pytest.approx(expected, rel=1e-9, abs=1e-12)
+
+
+def test_the_gradient_matches_central_differences(m, rng) -> None:
+    """d(penalty)/d(endpoints) of close pairs, crossing and side by side, numerically."""
+    n = 12
+    c = rng.uniform(-0.15, 0.15, (n, 2))
+    ang = rng.uniform(-0.4, 0.4, n)
+    half = np.stack([np.cos(ang), np.sin(ang)], 1) * rng.uniform(0.5, 1.5, n)[:, None]
+    p0, p1 = c - half, c + half
+    i, j = np.triu_indices(n, 1)
+    width = 0.2
+    F, U = m.Float64, m.UInt32
+    arrays = [F(p0[:, 0]), F(p0[:, 1]), F(p1[:, 0]), F(p1[:, 1])]
+    for a in arrays:
+        dr.enable_grad(a)
+    total = merge_penalty(F, *arrays, U(i), U(j), width)
+    dr.backward(total)
+    grad = [np.array(dr.grad(a), dtype=np.float64) for a in arrays]
+    values = [p0[:, 0], p0[:, 1], p1[:, 0], p1[:, 1]]
+
+    def at(changed: list[np.ndarray]) -> float:
+        with dr.suspend_grad():
+            return float(merge_penalty(F, *(F(v) for v in changed), U(i), U(j), width)[0])
+
+    h = 1e-6
+    scale = max(float(np.abs(g).max()) for g in grad)
+    checked = 0
+    for c_ in range(4):
+        for k in range(n):
+            plus = [v.copy() for v in values]
+            minus = [v.copy() for v in values]
+            plus[c_][k] += h
+            minus[c_][k] -= h
+            fd = (at(plus) - at(minus)) / (2 * h)
+            if abs(fd) > 1e-3 * scale:
+                checked += 1
+                assert grad[c_][k] == pytest.approx(fd, rel=1e-5, abs=1e-7 * scale), (c_, k)
+    assert checked >= 30
+
+
+def test_small_angle_crossings_are_merge_candidates() -> None:
+    """Crossing pairs within the parallel limit are candidates however far their ends are."""
+    angles = [2.0, 5.0, 10.0, 20.0, 30.0, 34.0, 36.0, 50.0]
+    p0, p1 = [], []
+    for k, degrees in enumerate(angles):
+        a = math.radians(degrees)
+        centre = np.array([0.0, 40.0 * k])
+        for turn in (0.0, a):
+            d = 6.0 * np.array([math.cos(turn), math.sin(turn)])
+            p0.append(centre - d)
+            p1.append(centre + d)
+    i, j = neighbour_pairs(np.array(p0), np.array(p1), reach=0.1)
+    found = set(zip(i.tolist(), j.tolist(), strict=True))
+    within = {(2 * k, 2 * k + 1) for k, d in enumerate(angles) if d < math.degrees(PARALLEL_LIMIT)}
+    assert found == within
