@@ -15,7 +15,7 @@ import pytest
 from stream_helpers import FAST
 from test_stream import write_job
 
-from scratchfab.machine.sender import Streamer, open_port
+from scratchfab.machine.sender import Streamer, open_port, parse_status
 from scratchfab.machine.sender_journal import Journal
 from scratchfab.machine.sender_program import Program, TimeLeft, load_program
 from scratchfab.machine.stream_job import progress_text
@@ -81,6 +81,27 @@ def test_without_a_position_the_15_last_moves_acknowledged_are_still_to_run(tmp_
     first = next(b.index for b in zeros.blocks if b.text == "G1X16F600")
     assert left.update(last, -1, None) == pytest.approx(_rest(zeros, first))
     assert left.ran == first
+
+
+def test_the_planner_blocks_free_tell_how_many_moves_still_wait(tmp_path):
+    """Arcs (their path is not matched): the report's ``Bf:`` says 3 of 15 planner blocks
+    are taken, so all but the 3 last moves acknowledged before it ran; 15 free: all ran.
+    Moves acknowledged after the report do not count as run."""
+    lines = ["G21 G90 G94", "G0 Z1 X0 Y0", "G1 X5 F600"]
+    lines += [
+        f"G{2 + k % 2} X{5 if k % 2 else -5} Y0 I{-5 if k % 2 == 0 else 5} J0" for k in range(20)
+    ]
+    program = _program(tmp_path, lines)
+    last = len(program.blocks) - 1
+    left = TimeLeft(program, planner_blocks=15)
+    assert left.update(last, last, (0.0, 5.0, 1.0)) == pytest.approx(_rest(program, last - 14))
+    assert left.update(last, last - 1, (0.0, 5.0, 1.0), planner_free=12) == pytest.approx(
+        _rest(program, last - 3)
+    )
+    assert left.ran == last - 3
+    assert left.update(last, last - 1, (0.0, 5.0, 1.0), planner_free=15) == pytest.approx(
+        _rest(program, last)
+    )
 
 
 def test_a_block_answered_after_the_planner_emptied_means_everything_before_it_ran(tmp_path):
@@ -232,3 +253,15 @@ def test_the_eta_streamed_to_the_emulator_follows_its_clock(tmp_path):
     assert all(a >= b - 1e-9 for a, b in zip(etas, etas[1:], strict=False))
     last = reports[-1][1]
     assert last.final and last.eta_s == 0.0 and last.ran == last.total == len(program.blocks)
+
+
+@pytest.mark.parametrize(
+    ("line", "free"),
+    [
+        ("<Run|MPos:1.000,2.000,3.000|Bf:7,120|FS:500,0>", 7),
+        ("<Idle|WPos:0.000,0.000,0.000|FS:0,0>", None),  # $10 without value 2: not told
+        ("<Run|WPos:0.000,0.000,0.000|Bf:x,1|FS:0,0>", None),  # garbled: not taken
+    ],
+)
+def test_a_status_report_gives_the_planner_blocks_free(line, free):
+    assert parse_status(line, None).planner_free == free

@@ -195,6 +195,7 @@ class Status:
     wco: tuple[float, float, float] | None = None
     feed: float = 0.0
     time: float = 0.0
+    planner_free: int | None = None  # ``Bf:``'s planner blocks free (``$10`` value 2 on)
 
 
 def parse_status(line: str, wco: tuple[float, float, float] | None, scale: float = 1.0) -> Status:
@@ -223,6 +224,8 @@ def parse_status(line: str, wco: tuple[float, float, float] | None, scale: float
                     st.wco = xyz
             elif key in ("FS", "F"):
                 st.feed = float(nums[0]) * scale
+            elif key == "Bf":
+                st.planner_free = int(nums[0])
         except (ValueError, IndexError):
             continue
     if st.wco is not None:
@@ -1089,13 +1092,15 @@ class Streamer:
         """Report progress: the lines acknowledged, and what the machine ran and has left.
 
         GRBL acknowledges a move when it is queued, so the time left counts the queued
-        moves too, from the last status report's position (:class:`TimeLeft`).
+        moves too, from the last status report's position and planner blocks free
+        (:class:`TimeLeft`).
         """
         seen = self._acks_at_status  # the blocks acknowledged before the last status report
         left = self._left.update(
             acked_through,
             self._acked_blocks[seen - 1] if seen else -1,
             self.status.wpos,
+            self.status.planner_free,
             all_ran=self._all_ran or final,
         )
         self.on_progress(

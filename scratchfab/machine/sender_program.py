@@ -872,9 +872,10 @@ class TimeLeft:
       of its time); at the end point of the last move acknowledged before the report, all
       of those ran;
     - GRBL's planner: at most ``planner_blocks`` acknowledged moves are queued or running,
-      so every move before the ``planner_blocks``-th last acknowledged one ran (moves of no
-      length, which GRBL drops, are not counted; an arc or G28 counted as one move holds
-      more planner blocks, so the bound stays on the safe side);
+      so every move before the ``planner_blocks``-th last acknowledged one ran; where the
+      report tells the blocks free (``Bf:``), the moves acknowledged before it less those
+      queued ran (moves of no length, which GRBL drops, are not counted; an arc or G28
+      counted as one move holds more planner blocks, so the bound stays on the safe side);
     - a block GRBL answers only after its planner emptied (spindle and coolant changes, G4,
       M0/M2/M30...: :attr:`Block.sync`): everything before it ran, and the block itself
       unless its own move was queued after the wait.
@@ -924,6 +925,7 @@ class TimeLeft:
         acked_through: int,
         reported_through: int,
         wpos: Sequence[float] | None,
+        planner_free: int | None = None,
         all_ran: bool = False,
     ) -> float:
         """Move the run point by the clues of a report; returns :attr:`seconds`.
@@ -933,6 +935,7 @@ class TimeLeft:
             reported_through: The last block acknowledged before the status report that
                 gave ``wpos`` (only those can be where the report saw the machine).
             wpos: The reported work position (mm); None when not known.
+            planner_free: The report's planner blocks free (``Bf:``); None when not told.
             all_ran: Every acknowledged block ran (the sender's end-of-job dwell was
                 answered).
         """
@@ -947,6 +950,13 @@ class TimeLeft:
             self._advance(acked_through + 1, 0.0)
         if len(self._moves) == self._planner:
             self._advance(self._moves[0], 0.0)
+        if planner_free is not None and reported_through >= self._block:
+            queued = max(0, self._planner - planner_free)
+            reported = [i for i in self._moves if i <= reported_through]
+            if queued == 0:
+                self._advance(reported_through + 1, 0.0)
+            elif queued <= len(reported):
+                self._advance(reported[-queued], 0.0)
         if wpos is not None:
             self._follow(reported_through, wpos)
         return self.seconds
