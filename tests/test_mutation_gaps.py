@@ -234,10 +234,20 @@ def test_the_work_offset_read_with_dollar_hash_is_in_mm(inches):
 
 
 def _blocks(kinds: list[str]) -> list[SimpleNamespace]:
-    return [
-        SimpleNamespace(index=k, motion=c in "mx", sync=c in "sx", text=c)
-        for k, c in enumerate(kinds)
-    ]
+    """Blocks of kinds m (a move), x (a sync block that moves), s (a sync block), o (other)
+    and z (a straight move of no length: back to where the block before it ended)."""
+    blocks = []
+    x = 0.0
+    for k, c in enumerate(kinds):
+        x += c in "mx"
+        modal = SimpleNamespace(motion="G1", x=x, y=0.0, z=-0.1)
+        blocks.append(
+            SimpleNamespace(
+                index=k, motion=c in "mxz", sync=c in "sx", text=c, modal=modal,
+                unfollowed="", arc_box=None,
+            )  # fmt: skip
+        )
+    return blocks
 
 
 def _surely_run_reference(
@@ -258,7 +268,7 @@ def _surely_run_reference(
             and (q > p or kinds[acked[p]] == "s")
             for q in range(p, n)
         )
-        motions_after = sum(kinds[acked[q]] in "mx" for q in range(p + 1, n))
+        motions_after = sum(kinds[acked[q]] in "mx" for q in range(p + 1, n))  # z: no block
         sure.append(later_sync or motions_after >= pending)
     unsure = [p for p in range(n) if not sure[p]]
     assert unsure == list(range(n - len(unsure), n))  # a suffix: the rule is monotone
@@ -267,7 +277,7 @@ def _surely_run_reference(
     return acked[unsure[0]] - 1 if unsure else acked[-1]
 
 
-_session = st.lists(st.sampled_from("mmmmsox"), max_size=40).flatmap(
+_session = st.lists(st.sampled_from("mmmmsoxzz"), max_size=40).flatmap(
     lambda kinds: st.tuples(
         st.just(kinds),
         st.integers(0, len(kinds)),

@@ -874,9 +874,8 @@ class GrblSim:
         act = p.actions[p.index]
         if act.kind == "motion":
             # Grbl's mc_line waits for a free block, then drops a move of no step, which so
-            # takes none: Grbl queues more lines than this (the sender's last_surely_run
-            # counts such a move as a block; counted here too until it does not).
-            if len(self._planner) >= PLANNER_BLOCKS:
+            # takes none
+            if self._blocks() >= PLANNER_BLOCKS:
                 return False
             self._plan(t, act, p.line)
             p.index += 1

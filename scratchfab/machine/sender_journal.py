@@ -38,14 +38,12 @@ import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, Any
 
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import decode_json, read_input, try_lock
+from scratchfab.machine.sender_program import Block, Program, plans_nothing
 from scratchfab.model.job import JobLayout
-
-if TYPE_CHECKING:
-    from scratchfab.machine.sender_program import Block, Program
 
 #: GRBL 1.1's usable planner blocks, for a journal that does not record them.
 PLANNER_BLOCKS = 15
@@ -449,7 +447,8 @@ def last_surely_run(
     After its last acknowledgement the controller may still hold ``planner_blocks``
     motion blocks, and GRBL's stepper keeps running the last segments of a block after
     the planner has let it go; counting one more for that and one more as a margin, up to
-    ``planner_blocks + 2`` acknowledged motion blocks count as unsure. An acknowledged sync
+    ``planner_blocks + 2`` acknowledged motion blocks count as unsure (a straight move of
+    no length holds no block, GRBL drops it: :func:`plans_nothing`). An acknowledged sync
     block (a spindle change, G4, ...: ``Block.sync``) followed by later acknowledgements
     means everything before it ran; the last acknowledged block is unsure even when it is
     a sync block (a margin too). An S change in a block that moves (``Block.speed_sync``)
@@ -468,7 +467,7 @@ def last_surely_run(
         if synced and i != acked[-1]:
             return i - 1 if b.motion else earliest - 1
         earliest = i
-        if b.motion:
+        if b.motion and not plans_nothing(blocks, i):
             motions += 1
             if motions > planner_blocks + 1:
                 break

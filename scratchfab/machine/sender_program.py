@@ -858,6 +858,30 @@ def along_segment(
     return max(t, 0.0) if math.dist(p, closest) <= tol else None
 
 
+def straight_move(block: Block) -> bool:
+    """Whether ``block`` moves on a straight line the sender knows (G0/G1, followed)."""
+    return (
+        block.motion
+        and not block.unfollowed
+        and block.arc_box is None
+        and block.modal.motion in ("G0", "G1")
+    )
+
+
+def plans_nothing(blocks: Sequence[Block], i: int) -> bool:
+    """Whether block ``i`` is a straight move of no length, which GRBL drops.
+
+    Grbl's ``mc_line`` waits for a free planner block, then plans nothing for a move of
+    no step, so such a move never holds a block: a bound on the blocks queued must not
+    count it.
+    """
+    if not straight_move(blocks[i]):
+        return False
+    before = blocks[i - 1].modal if i > 0 else Modal()
+    after = blocks[i].modal
+    return (before.x, before.y, before.z) == (after.x, after.y, after.z)
+
+
 class TimeLeft:
     """How much of a streamed program the machine still has to run, in the program's seconds.
 
@@ -941,7 +965,7 @@ class TimeLeft:
         """
         for i in range(self._seen + 1, acked_through + 1):
             b = self._blocks[i]
-            if b.motion and not self._dropped(i):
+            if b.motion and not plans_nothing(self._blocks, i):
                 self._moves.append(i)
             if b.sync_after or (b.syncs_before(self._laser) if self._laser is not None else b.sync):
                 self._advance(i if b.motion and not b.sync_after else i + 1, 0.0)
@@ -961,21 +985,6 @@ class TimeLeft:
             self._follow(reported_through, wpos)
         return self.seconds
 
-    def _line(self, i: int) -> bool:
-        """Whether block ``i`` moves on a straight line the sender knows (G0/G1, followed)."""
-        b = self._blocks[i]
-        return (
-            b.motion and not b.unfollowed and b.arc_box is None and b.modal.motion in ("G0", "G1")
-        )
-
-    def _dropped(self, i: int) -> bool:
-        """Whether block ``i`` is a straight move of no length (GRBL plans nothing for it)."""
-        if not self._line(i):
-            return False
-        before = self._blocks[i - 1].modal if i > 0 else Modal()
-        after = self._blocks[i].modal
-        return (before.x, before.y, before.z) == (after.x, after.y, after.z)
-
     def _follow(self, reported_through: int, wpos: Sequence[float]) -> None:
         """Put the run point where the reported position lies, if it lies on a queued move.
 
@@ -988,7 +997,7 @@ class TimeLeft:
         unchecked = False
         for i in range(self._block, reported_through + 1):
             b = self._blocks[i]
-            if not self._line(i):
+            if not straight_move(self._blocks[i]):
                 unchecked = unchecked or b.motion
                 continue
             before = self._blocks[i - 1].modal if i > 0 else None
