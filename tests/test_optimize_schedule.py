@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import typing
 from pathlib import Path
 
@@ -416,7 +417,61 @@ def test_a_constant_checkpoint_resumes_from_the_command_line(
     with pytest.raises(SystemExit):
         main([*resume, "--lr-schedule", "linear", "--lr-start-scale", "2", "--seed", "5"])
     err = capsys.readouterr().err
-    assert "it was made with --lr-schedule constant --seed 0: give that" in err
+    assert "it was made with --lr-start-scale 1.0 --seed 0: give that" in err
+
+
+@pytest.mark.parametrize(
+    ("made", "asked", "advice"),
+    [
+        # constant steps asked for: the checkpoint's schedule whole, as the scales left out
+        # take their defaults (4 and 1), not constant's 1 and 1
+        ({}, ["--lr-schedule", "constant"], "--lr-schedule cosine --lr-start-scale 4.0 "),
+        (
+            {"lr_schedule": "linear", "lr_end_scale": 0.5},
+            ["--lr-schedule", "constant"],
+            "--lr-schedule linear --lr-start-scale 4.0 --lr-end-scale 0.5",
+        ),
+        (
+            {"lr_start_scale": 1.0, "lr_end_scale": 0.5},
+            ["--lr-schedule", "constant"],
+            "--lr-schedule cosine --lr-start-scale 1.0 --lr-end-scale 0.5",
+        ),
+        (
+            {"lr_start_scale": 0.5, "lr_end_scale": 0.5},
+            ["--lr-schedule", "constant"],
+            "--lr-schedule cosine --lr-start-scale 0.5 --lr-end-scale 0.5",
+        ),
+        # a constant checkpoint and a scale given (which constant refuses): the scales
+        ({"lr_start_scale": 1.0}, ["--lr-schedule", "linear", "--lr-start-scale", "2"], None),
+        ({"lr_start_scale": 1.0}, ["--lr-start-scale", "1", "--lr-end-scale", "2"], None),
+        # a constant checkpoint under the default schedule, with another option
+        ({"lr_start_scale": 1.0, "seed": 2}, [], "--lr-schedule constant --seed 2"),
+    ],
+)
+def test_the_flags_a_refused_resume_gives_resume_it(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    made: dict[str, typing.Any],
+    asked: list[str],
+    advice: str | None,
+) -> None:
+    """The flags a refused ``optimize --resume`` names, added to its command line, resume
+    the run it stopped (the same scratches and log as the run uninterrupted), whatever
+    schedule flags the command gave."""
+    a, b = _twin_jobs(tmp_path)
+    options = OptimizeOptions(iterations=6, checkpoint_every=2, **made)
+    run_optimize(a, options)
+    assert run_optimize(b, options, should_stop=_stop_after(3)).iterations == 3
+    resume = ["optimize", str(b), "--iterations", "6", "--checkpoint-every", "2", *asked]
+    with pytest.raises(SystemExit):
+        main([*resume, "--resume"])
+    err = capsys.readouterr().err
+    found = re.search(r"it was made with (.*): give that to resume it", err)
+    assert found, err
+    if advice is not None:
+        assert found[1].startswith(advice.strip())
+    main([*resume, "--resume", *found[1].split()])
+    _same_run(a, b)
 
 
 @pytest.mark.parametrize(

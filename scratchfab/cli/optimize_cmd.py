@@ -127,16 +127,21 @@ def optimize(
     Ctrl-C stops after the current step, writes everything and exits with 130;
     --resume continues.
     """
-    if lr_schedule == "constant":
-        ctx = click.get_current_context()
-        for name in ("lr_start_scale", "lr_end_scale"):
-            if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT:
-                raise click.BadParameter(
-                    "a constant schedule keeps the base steps: give --lr-schedule linear or "
-                    "cosine with a scale (equal start and end scales: constant steps of that "
-                    "multiple)",
-                    param_hint=f"--{name.replace('_', '-')}",
-                )
+    ctx = click.get_current_context()
+    scaled = [
+        name
+        for name in ("lr_start_scale", "lr_end_scale")
+        if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT
+    ]
+    asked_constant = lr_schedule == "constant"
+    if asked_constant:
+        if scaled:
+            raise click.BadParameter(
+                "a constant schedule keeps the base steps: give --lr-schedule linear or "
+                "cosine with a scale (equal start and end scales: constant steps of that "
+                "multiple)",
+                param_hint=f"--{scaled[0].replace('_', '-')}",
+            )
         lr_schedule, lr_start_scale, lr_end_scale = _DEFAULTS.lr_schedule, 1.0, 1.0
     options = OptimizeOptions(
         iterations=iterations,
@@ -155,7 +160,9 @@ def optimize(
     try:
         result = run_optimize(job, options, progress=_bar())
     except ResumeRefused as exc:
-        raise ConfigError(exc.message(lambda made: _as_flags(made, options))) from None
+        raise ConfigError(
+            exc.message(lambda made: _as_flags(made, options, asked_constant, bool(scaled)))
+        ) from None
     views = result.quality["views"]
     for name, v in views.items():
         cross = ", ".join(f"x_{name},{j} = {x:.3f}" for j, x in v["crosstalk"].items())
@@ -180,26 +187,36 @@ def optimize(
         )
 
 
-def _as_flags(made_with: dict[str, Any], options: OptimizeOptions) -> str | None:
-    """A checkpoint's option values as this command's flags (None: one has no flag).
+def _as_flags(
+    made_with: dict[str, Any], options: OptimizeOptions, asked_constant: bool, scaled: bool
+) -> str | None:
+    """A checkpoint's option values as flags that, added to this command, resume it.
 
-    Scales that make the asked options constant are written ``--lr-schedule constant``.
+    None when one has no flag. A schedule of scales 1 is written ``--lr-schedule constant``
+    unless the command gave a scale (which constant refuses: then the scales); a command
+    that asked for constant steps (scales 1 under the default shape) gets the checkpoint's
+    schedule whole, as the scales it leaves out would take their defaults.
+
+    Args:
+        made_with: :attr:`ResumeRefused.made_with`, compared with ``options``.
+        options: The options this command ran with.
+        asked_constant: The command gave ``--lr-schedule constant``.
+        scaled: The command gave ``--lr-start-scale`` or ``--lr-end-scale``.
     """
     flags = {p.name: p.opts[0] for p in optimize.params if p.name}
     wanted = dict(made_with)
-    words = []
-    scales: dict[str, Any] = {
-        k: wanted.pop(k) for k in ("lr_start_scale", "lr_end_scale") if k in wanted
-    }
-    try:  # a checkpoint edited by hand may hold values out of bounds
-        constant = bool(scales) and replace(options, **scales).schedule() is None
-    except (TypeError, ValueError):
-        return None
-    if constant:
-        words.append("--lr-schedule constant")
-    else:
-        wanted.update(scales)
+    schedule: dict[str, Any] = {}
+    keys = ("lr_schedule", "lr_start_scale", "lr_end_scale")
+    if wanted.keys() & set(keys):
+        whole = {k: wanted.pop(k, getattr(options, k)) for k in keys}
+        try:  # a checkpoint edited by hand may hold values out of bounds
+            constant = replace(options, **whole).schedule() is None
+        except (TypeError, ValueError):
+            return None
+        if constant and not scaled:
+            schedule = {"lr_schedule": "constant"}
+        else:
+            schedule = {k: v for k, v in whole.items() if asked_constant or k in made_with}
     if not set(wanted) <= set(flags):
         return None
-    words += [f"{flags[k]} {v}" for k, v in wanted.items()]
-    return " ".join(words)
+    return " ".join(f"{flags[k]} {v}" for k, v in {**schedule, **wanted}.items())
