@@ -188,6 +188,30 @@ def test_a_jog_cancel_slows_down_then_flushes_the_jog_where_it_stood():
     assert machine.times("exec") == []
 
 
+@pytest.mark.parametrize(("line", "ends"), [(b"$J=G91X5F600\n", 20.0), (b"G1X0F600\n", 0.0)])
+def test_no_line_is_parsed_while_a_cancelled_jog_slows_down(line, ends):
+    """Grbl's jog cancel sets ``SUSPEND_JOG_CANCEL`` at once, so its main loop stays in the
+    suspend loop (``protocol_exec_rt_suspend``) until the jog stopped and was flushed: a
+    line sent at 1.6 s, while the jog of 20 mm at 10 mm/s cancelled at 1.5 s slows down
+    to x = 15 (until 2.5 s), is read only then, in Idle. So a new jog is not flushed with
+    the old one (x = 15 + 5) and a G1 runs, not refused (``error:9`` is for G-code during
+    a jog)."""
+    machine = _Machine({110: 1000.0})
+    machine.at(0.0, b"$J=G91X20F600\n")
+    machine.at(1.5, b"\x85")
+    assert machine.at(1.6, line) == ""  # waiting in the suspend loop
+    assert machine.report(2.4)[0] == "Jog"
+    machine.until_still()
+    stopped = min(t for t in machine.times("state", state="Idle") if t > 1.5)
+    assert stopped == pytest.approx(2.5, abs=1e-6)
+    answers = [(e["t"], e["r"]) for e in machine.sim.record if e["ev"] == "resp"]
+    assert answers[0] == (0.0, "ok") and answers[1][1] == "ok" and len(answers) == 2
+    assert answers[1][0] >= stopped
+    runs = [(e["frm"][0], e["to"][0]) for e in machine.sim.record if e["ev"] == "exec"]
+    assert runs == [(15.0, ends)]
+    assert machine.sim.mpos == pytest.approx((ends, 0.0, 0.0), abs=1e-6)
+
+
 def test_a_jog_takes_no_feed_override():
     """Grbl's ``jog_execute`` flags its moves ``PL_COND_FLAG_NO_FEED_OVERRIDE``: at 50 %
     a 20 mm jog at F600 ($120=10) still cruises at 10 mm/s (x = 5 + 10 (t - 1)); a G1 at

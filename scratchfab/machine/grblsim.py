@@ -34,7 +34,7 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   ``ok`` comes after the resume; a hold or door during a dwell is ``Hold:0``/``Door``
   at once and the dwell's time stands still until the resume, Idle again); a feed
   hold or jog cancel (``0x85``) during a jog cancels it instead: the machine slows down
-  (still ``Jog``), the jog blocks are flushed, Idle;
+  (still ``Jog``; no line is parsed meanwhile), the jog blocks are flushed, Idle;
 - the safety door (``0x84``, or :meth:`GrblSim.open_door` for the switch): the machine
   stops (``Door:2``; a jog is cancelled first and reports ``Jog`` until it stopped),
   spindle and coolant go off, ``Door:1`` while the door is open and
@@ -761,13 +761,18 @@ class GrblSim:
     def _main_loop(self, t: float) -> None:
         """Move characters into the line buffer and run lines until input or Grbl waits.
 
-        Grbl's suspend loop (``protocol_exec_rt_suspend``) runs while a door is handled or a
-        hold is complete (``Hold:0``, also M0's): no line is parsed or carried on meanwhile,
-        and M0's ``ok`` comes after the cycle start. While a hold decelerates (``Hold:1``)
-        lines are still read and planned, up to a full planner.
+        Grbl's suspend loop (``protocol_exec_rt_suspend``) runs while a door is handled, a
+        cancelled jog stops (``SUSPEND_JOG_CANCEL``, set at once) or a hold is complete
+        (``Hold:0``, also M0's): no line is parsed or carried on meanwhile, and M0's ``ok``
+        comes after the cycle start. While a hold decelerates (``Hold:1``) lines are still
+        read and planned, up to a full planner.
         """
         while not self._critical and self._reset_at == math.inf and self._boot_at == math.inf:
-            if self.state == "Door" or (self.state == "Hold" and self._hold_complete):
+            if (
+                self.state == "Door"
+                or self._jog_cancel
+                or (self.state == "Hold" and self._hold_complete)
+            ):
                 return
             if self._pending is not None:
                 if not self._step_pending(t):
