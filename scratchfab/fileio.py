@@ -51,11 +51,14 @@ def shown_path(path: str | os.PathLike[str]) -> str:
     return os.fspath(path).replace("\0", "\\0")
 
 
+_NUL = "a path cannot hold a NUL byte, \\0"
+
+
 def _reason(exc: OSError | ValueError) -> str:
     """Why a path could not be used, in words: the system's, or the NUL byte's."""
     if isinstance(exc, OSError):
         return str(exc.strerror or exc)
-    return "a path cannot hold a NUL byte, \\0"  # Python's "embedded null byte"
+    return _NUL  # Python's "embedded null byte"
 
 
 @contextlib.contextmanager
@@ -155,6 +158,16 @@ def file_sha256(path: str | os.PathLike[str], extra: bytes = b"") -> str:
     return digest.hexdigest()
 
 
+def _readable(path: str | os.PathLike[str]) -> None:
+    """Refuse a path to read that no system call takes (a NUL byte), naming it.
+
+    Python's open raises ValueError ('embedded null byte') for it, which a reader's
+    handling of its contents' ValueErrors would take for damage.
+    """
+    if "\0" in os.fspath(path):
+        raise ConfigError(f"{shown_path(path)}: cannot read ({_NUL})")
+
+
 def read_input(path: Path, expected: str, missing: str = "file not found") -> bytes:
     """The bytes of a user's input file, or a one-line ConfigError naming it.
 
@@ -163,10 +176,9 @@ def read_input(path: Path, expected: str, missing: str = "file not found") -> by
         expected: What it should be, for the folder case ("a TOML file").
         missing: The message when it does not exist.
     """
+    _readable(path)
     try:
         return path.read_bytes()
-    except ValueError as exc:  # the one ValueError of a read: a NUL in the path
-        raise ConfigError(f"{shown_path(path)}: cannot read ({_reason(exc)})") from None
     except FileNotFoundError:
         raise ConfigError(f"{path}: {missing}") from None
     except IsADirectoryError:
@@ -277,6 +289,7 @@ def load_numpy(path: str | os.PathLike[str]) -> Any:
             that kind, or a damaged one.
     """
     file = Path(path)
+    _readable(file)
     kind = ".npz" if file.suffix.lower() == ".npz" else ".npy"
     magic = b"PK" if kind == ".npz" else b"\x93NUMPY"
     try:

@@ -790,6 +790,10 @@ def test_a_nul_byte_in_a_path_given_in_code_is_named_when_read_or_written(tmp_pa
         read_input(bad, "a TOML file")
     with pytest.raises(ConfigError, match=rf"^{shown}: cannot read"):
         load_design(bad)
+    for suffix in (".npy", ".npz"):  # not "unreadable NumPy file (embedded null byte)"
+        npy = re.escape(str(bad.with_suffix(suffix)).replace("\0", "\\0"))
+        with pytest.raises(ConfigError, match=rf"^{npy}: cannot read \(a path cannot hold"):
+            load_numpy(bad.with_suffix(suffix))
     with pytest.raises(ScratchfabError, match=rf"^{shown}: cannot write \(a path cannot hold"):
         write_text(bad, "a = 1\n")
     with pytest.raises(ScratchfabError, match=r": cannot write \(a path cannot hold"):
