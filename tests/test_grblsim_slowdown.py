@@ -265,6 +265,23 @@ def test_a_move_of_no_steps_takes_no_planner_block():
     assert found and found[-1][0] == "Run" and found[-1][2:4] == ("14", "128")
 
 
+@pytest.mark.parametrize(
+    ("laser", "spindle", "waits"), [(1, "M3", True), (1, "M4", False), (0, "M3", False)]
+)
+def test_a_move_of_no_length_under_m3_in_laser_mode_waits_for_the_planner(laser, spindle, waits):
+    """Grbl's ``mc_line``: a move ``plan_buffer_line`` drops (``PLAN_EMPTY_BLOCK``) calls
+    ``spindle_sync`` in laser mode ($32=1) under M3 only, so its ``ok`` comes once the
+    planner emptied (the 10 mm move before it ended); under M4 or with $32=0 at once."""
+    machine = _Machine({32: laser, 110: 1000.0})
+    machine.at(0.0, f"{spindle}S500\nG1X10F600\nG1X10\n".encode())
+    machine.until_still()
+    answers = [(e["t"], e["r"]) for e in machine.sim.record if e["ev"] == "resp"]
+    assert [r for _, r in answers] == ["ok"] * 3
+    ended = machine.times("exec")[0]
+    assert ended > 1.0
+    assert answers[2][0] == (pytest.approx(ended, abs=1e-9) if waits else 0.0)
+
+
 _FUZZ_BYTES = [b"!", b"~", b"\x18", b"\x85", b"\x84", b"\x91", b"\x92", b"\x94", b"\x96"]
 
 

@@ -21,10 +21,12 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   (``0x90``-``0x97``) re-plans, the running block slowing down (through it into the next
   where it is too short) or speeding up at its acceleration; all times ``time_scale``.
   These wait for the planner to empty (so their ``ok`` comes after the motion before
-  them ended): spindle and coolant changes, dwells, M0/M2/M30, G10, G28.1/G30.1, G92/G92.1 and a change of G54-G59 or of the G43.1
-  offset (Grbl's default ``FORCE_BUFFER_SYNC_DURING_WCO_CHANGE``); not an S change in a
-  block that moves under laser mode (``$32=1``); in laser mode with M3 on, also a block
-  without motion that switches between G1-G3 and another motion mode;
+  them ended): spindle and coolant changes, dwells, M0/M2/M30, G10, G28.1/G30.1,
+  G92/G92.1 and a change of G54-G59 or of the G43.1 offset (Grbl's default
+  ``FORCE_BUFFER_SYNC_DURING_WCO_CHANGE``); not an S change in a block that moves under
+  laser mode (``$32=1``); in laser mode with M3 on, also a block without motion that
+  switches between G1-G3 and another motion mode, and a move of no whole step (Grbl's
+  ``mc_line`` syncs the spindle where ``plan_buffer_line`` drops a move);
 - ``$`` commands with their state rules (``error:8``/``error:9``), check mode ``$C`` with the
   soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset,
   feed hold ``Hold:1`` -> ``Hold:0`` and resume (a hold, door or jog cancel slows down
@@ -884,6 +886,9 @@ class GrblSim:
                 return False
             self._plan(t, act, p.line)
             p.index += 1
+            if self._planner[-1].length <= 0.0 and self.settings[32] and self._gc.spindle == "M3":
+                # mc_line: a dropped move under M3 in laser mode syncs (spindle_sync)
+                p.actions.insert(p.index, Action("sync"))
             if self.options.plan_time > 0.0:
                 p.until = t + self.options.plan_time
                 p.planning = True
