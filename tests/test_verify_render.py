@@ -705,6 +705,30 @@ def test_sweep_frames_go_on_past_the_end_views_at_their_distance_within_bounds(n
     assert (np.abs(got).max(axis=1) == MAX_MM).any() == (near[0] == -5e5)
 
 
+@pytest.mark.parametrize("shared", [0, 1])
+def test_sweep_through_views_that_share_a_camera_goes_on_past_the_ends(shared):
+    """Two views at one camera (lit otherwise) and a third elsewhere: the walk goes on past
+    each end along the segment between the two cameras (its first or last segment of no
+    length gave 0/0 and NaN cameras, a ValueError from View's bounds)."""
+    from scratchfab.verify.sweep import nearest_frames
+
+    tables = two_view_tables(resolution=16)
+    twin = {**tables["views"][shared], "name": "twin", "light_position_mm": [0.0, -150, 300]}
+    tables["views"].append(twin)
+    design = design_from_mapping(tables, "<test>", Path("."))
+    frames, view_params = sweep_path(design, 41)
+    pos = np.array([f.view.position_mm for f in frames])
+    # the two cameras as in test_sweep_frames_go_on_past_the_end_views_at_their_distance:
+    # +-21.8 degrees apart, the walk half that span past each
+    span = 2 * math.degrees(math.atan2(120.0, 300.0))
+    az = np.degrees(np.arctan2(pos[:, 0], pos[:, 2]))
+    np.testing.assert_allclose(az, np.linspace(-span, span, 41), atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(pos, axis=1), math.hypot(120.0, 300.0))
+    near = nearest_frames(frames, view_params)
+    assert near["twin"] == near[("left", "right")[shared]]
+    assert (near["left"], near["right"]) == (10, 30)
+
+
 @pytest.mark.parametrize("azimuth", [60.0, 85.0])
 def test_sweep_frames_stay_in_front_of_the_board(azimuth):
     """Views far to the sides: the walk past them turns no farther than 80 degrees from the

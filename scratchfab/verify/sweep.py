@@ -104,9 +104,14 @@ def sweep_path(design: Design, frames: int) -> tuple[list[SweepFrame], dict[str,
         lo, hi = 0.0, MIN_SPAN_DEG
     else:
         # Extend linearly along the end segments' directions, at the end views' distances
-        # (a change of distance carried on could put the camera behind the board).
-        first = (knots[1] - knots[0]) / (params[1] - params[0]) * [1, 1, 0]
-        last = (knots[-1] - knots[-2]) / (params[-1] - params[-2]) * [1, 1, 0]
+        # (a change of distance carried on could put the camera behind the board). An end
+        # segment is the first or last of any length: views may share a camera, lit
+        # otherwise, and one of none has no direction.
+        moved = np.flatnonzero(steps > 0)
+        first, last = (
+            (knots[k + 1] - knots[k]) / (params[k + 1] - params[k]) * [1, 1, 0]
+            for k in (moved[0], moved[-1])
+        )
         ext = EXTEND * span
         knots = np.vstack([knots[0] - ext * first, knots, knots[-1] + ext * last])
         fovs = np.concatenate([fovs[:1], fovs, fovs[-1:]])
