@@ -690,12 +690,15 @@ def test_sweep_frames_go_on_past_the_end_views_at_their_distance_within_bounds(n
     el = np.arctan2(ends[:, 1], np.hypot(ends[:, 0], ends[:, 2]))
     dist = np.linalg.norm(ends, axis=1)
     span = math.degrees(math.hypot(az[1] - az[0], el[1] - el[0]))
-    assert view_params == pytest.approx({"left": span / 2, "right": 1.5 * span})
+    # half the span past each view, or up to 80 degrees of azimuth (first reached here:
+    # the views turn outward, their elevations small)
+    turn = max(1.4, *np.abs(az))
+    before, after = (min(0.5, (turn - abs(a)) / (az[1] - az[0])) for a in az)
+    assert view_params == pytest.approx({"left": before * span, "right": (before + 1) * span})
     t = np.array([f.param for f in frames])
-    np.testing.assert_allclose(t, np.linspace(0.0, 2 * span, 41))
-    x = (t - span / 2) / span  # 0 at the first view, 1 at the second
+    np.testing.assert_allclose(t, np.linspace(0.0, (before + 1 + after) * span, 41))
+    x = t / span - before  # 0 at the first view, 1 at the second
     a, e = az[0] + x * (az[1] - az[0]), el[0] + x * (el[1] - el[0])
-    a = np.clip(a, -max(1.4, *np.abs(az)), max(1.4, *np.abs(az)))  # 80 degrees at most
     d = dist[0] + np.clip(x, 0, 1) * (dist[1] - dist[0])
     want = d[:, None] * np.stack([np.cos(e) * np.sin(a), np.sin(e), np.cos(e) * np.cos(a)], 1)
     want *= np.minimum(1.0, MAX_MM / np.abs(want).max(axis=1))[:, None]
@@ -733,7 +736,8 @@ def test_sweep_through_views_that_share_a_camera_goes_on_past_the_ends(shared):
 def test_sweep_frames_stay_in_front_of_the_board(azimuth):
     """Views far to the sides: the walk past them turns no farther than 80 degrees from the
     board's normal (the outermost view's azimuth if more), as the elevation does; carried
-    on, views at +-60 degrees put the first and last frames at +-120, behind the board."""
+    on, views at +-60 degrees put the first and last frames at +-120, behind the board.
+    Its frames spread evenly up to there (clipped, a third of them stood still at +-80)."""
     tables = two_view_tables(resolution=16)
     a = math.radians(azimuth)
     tables["views"][0]["position_mm"] = [-300 * math.sin(a), 0.0, 300 * math.cos(a)]
@@ -742,8 +746,23 @@ def test_sweep_frames_stay_in_front_of_the_board(azimuth):
     frames, view_params = sweep_path(design, 41)
     pos = np.array([f.view.position_mm for f in frames])
     got = np.degrees(np.arctan2(pos[:, 0], pos[:, 2]))
-    turn = max(math.degrees(1.4), azimuth)
-    unclipped = np.linspace(-2 * azimuth, 2 * azimuth, 41)  # half the span past each view
-    np.testing.assert_allclose(got, np.clip(unclipped, -turn, turn), atol=1e-9)
+    turn = min(max(math.degrees(1.4), azimuth), 2 * azimuth)  # half the span past a view
+    np.testing.assert_allclose(got, np.linspace(-turn, turn, 41), atol=1e-9)
+    assert view_params == pytest.approx({"left": turn - azimuth, "right": turn + azimuth})
     assert pos[:, 2].min() > 0
     np.testing.assert_allclose(np.linalg.norm(pos, axis=1), 300.0)
+
+
+def test_sweep_frames_spread_evenly_up_to_80_degrees_of_elevation():
+    """Views 50 degrees below and above the board's normal: the walk goes on to 80 degrees
+    past each (clipped, the frames from 80 to 100 degrees stood still at 80)."""
+    tables = two_view_tables(resolution=16)
+    for view, sign in zip(tables["views"], (-1, 1), strict=True):
+        el = math.radians(sign * 50.0)
+        view["position_mm"] = [0.0, 300 * math.sin(el), 300 * math.cos(el)]
+    design = design_from_mapping(tables, "<test>", Path("."))
+    frames, _ = sweep_path(design, 21)
+    pos = np.array([f.view.position_mm for f in frames])
+    got = np.degrees(np.arctan2(pos[:, 1], np.hypot(pos[:, 0], pos[:, 2])))
+    top = math.degrees(1.4)
+    np.testing.assert_allclose(got, np.linspace(-top, top, 21), atol=1e-9)

@@ -4,7 +4,8 @@ The path runs in spherical coordinates about the board centre (azimuth from +z t
 +x, elevation toward +y, distance), through the design views in order of azimuth, and
 goes on beyond the first and last view by a fraction of the whole span (at that view's
 distance), so the animation shows each image appear, hold near its own view and fade;
-it stays in front of the board (within 80 degrees of its normal, or the outermost view).
+it stops short of that where it would turn past 80 degrees from the board's normal (or
+the outermost view), so that it stays in front of the board.
 A frame that would lie beyond the design's coordinate limit (:data:`MAX_MM` on an axis,
 possible only for views near it) is drawn in to it along its direction.
 """
@@ -76,6 +77,22 @@ def _within_bounds(position: tuple[float, float, float]) -> tuple[float, float, 
     return float(p[0]), float(p[1]), float(p[2])
 
 
+def _room(end: np.ndarray, step: np.ndarray, limits: np.ndarray) -> float:
+    """How far the walk may go on from ``end`` by ``step`` before it passes ``limits``.
+
+    Args:
+        end: (azimuth, elevation) in radians.
+        step: Their change per degree of arc.
+        limits: Their largest magnitudes.
+
+    Returns:
+        Degrees of arc, 0 when one is already past its limit.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        room = np.where(step != 0, (np.sign(step) * limits - end) / step, np.inf)
+    return max(0.0, float(room.min()))
+
+
 def sweep_path(design: Design, frames: int) -> tuple[list[SweepFrame], dict[str, float]]:
     """The sweep's cameras and each design view's position along the path.
 
@@ -93,15 +110,13 @@ def sweep_path(design: Design, frames: int) -> tuple[list[SweepFrame], dict[str,
     steps = np.hypot(np.diff(knots[:, 0]), np.diff(knots[:, 1]))
     params = np.concatenate([[0.0], np.cumsum(np.degrees(steps))])
     span = params[-1]
+    own = params  # each view's place along the walk, before the part ahead of the first
     if span < 1e-6:
-        # One spot: sweep the azimuth across it.
-        half = math.radians(MIN_SPAN_DEG / 2)
-        knots = np.array([knots[0] - [half, 0, 0], knots[0], knots[0] + [half, 0, 0]])
-        fovs = np.repeat(fovs[:1], 3)
-        lights = np.repeat(lights[:1], 3, axis=0)
-        params = np.array([0.0, MIN_SPAN_DEG / 2, MIN_SPAN_DEG])
-        view_params = {v.name: MIN_SPAN_DEG / 2 for v in views}
-        lo, hi = 0.0, MIN_SPAN_DEG
+        # One spot: sweep the azimuth across it, half the minimum span each way.
+        knots, fovs, lights, params = knots[:1], fovs[:1], lights[:1], params[:1]
+        own = np.zeros(len(views))
+        first = last = np.array([math.radians(1.0), 0.0, 0.0])
+        ext = MIN_SPAN_DEG / 2
     else:
         # Extend linearly along the end segments' directions, at the end views' distances
         # (a change of distance carried on could put the camera behind the board). An end
@@ -113,22 +128,25 @@ def sweep_path(design: Design, frames: int) -> tuple[list[SweepFrame], dict[str,
             for k in (moved[0], moved[-1])
         )
         ext = EXTEND * span
-        knots = np.vstack([knots[0] - ext * first, knots, knots[-1] + ext * last])
-        fovs = np.concatenate([fovs[:1], fovs, fovs[-1:]])
-        lights = np.vstack([lights[:1], lights, lights[-1:]])
-        params = np.concatenate([[-ext], params, [span + ext]]) + ext
-        view_params = {v.name: float(p) for v, p in zip(views, params[1:-1], strict=True)}
-        lo, hi = 0.0, float(params[-1])
+    # In front of the board: each end goes on until the azimuth is 80 degrees (1.4 rad)
+    # from the board's normal (or the outermost view's), or the elevation 80 degrees,
+    # so that every frame shows the board from a place of its own.
+    limits = np.array([max(1.4, *np.abs(knots[:, 0])), 1.4])
+    before = min(ext, _room(knots[0, :2], -first[:2], limits))
+    after = min(ext, _room(knots[-1, :2], last[:2], limits))
+    knots = np.vstack([knots[0] - before * first, knots, knots[-1] + after * last])
+    fovs = np.concatenate([fovs[:1], fovs, fovs[-1:]])
+    lights = np.vstack([lights[:1], lights, lights[-1:]])
+    params = np.concatenate([[-before], params, [params[-1] + after]]) + before
+    view_params = {v.name: float(p + before) for v, p in zip(views, own, strict=True)}
+    lo, hi = 0.0, float(params[-1])
     res = views[0].resolution
     scale = min(1.0, MAX_SIDE / max(res))
     resolution = (max(1, round(res[0] * scale)), max(1, round(res[1] * scale)))
-    # In front of the board: the azimuth turns no farther than 80 degrees (1.4 rad) or the
-    # outermost view, as the elevation does no farther than 80 degrees.
-    turn = max(1.4, *(abs(_polar(v.camera_position)[0]) for v in views))
     out = []
     for i, t in enumerate(np.linspace(lo, hi, max(frames, 2))):
         az, el, dist = (float(np.interp(t, params, knots[:, k])) for k in range(3))
-        az, el = float(np.clip(az, -turn, turn)), float(np.clip(el, -1.4, 1.4))
+        el = float(np.clip(el, -1.4, 1.4))  # near a view above 80 degrees too
         lx, ly, lz = (float(np.interp(t, params, lights[:, k])) for k in range(3))
         view = View(
             name=f"frame{i:03d}",
