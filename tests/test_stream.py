@@ -878,7 +878,7 @@ def test_executed_guess_distances(tmp_path):
     job.write_text("G21G90\nG1X1F100\nG1X2\nG1X3\nG1X4\n")
     prog = load_program(job)
     s = Streamer.__new__(Streamer)
-    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None)
+    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None, settings={})
     s._program = prog
     s._acked_blocks = [0, 1, 2, 3, 4]
     s._acks_at_status = 5
@@ -895,7 +895,7 @@ def test_executed_guess_ignores_blocks_acknowledged_after_the_report(tmp_path):
     job.write_text("G21G90\n" + "".join(f"G1X{k}F100\n" for k in range(1, 31)) + "G1X0\n")
     prog = load_program(job)
     s = Streamer.__new__(Streamer)
-    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None)
+    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None, settings={})
     s._program = prog
     s._acked_blocks = list(range(len(prog.blocks)))
     s._acks_at_status = 2

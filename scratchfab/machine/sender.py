@@ -830,6 +830,7 @@ class Streamer:
             self.info.wco,
             self.info.g92,
             self.info.inch_reports,
+            self._step_mm(),
         )
         self._journal = journal
         self._program = program
@@ -907,7 +908,12 @@ class Streamer:
         first = next((it.block.index for it in items if it.block is not None), len(program.blocks))
         self._acked_through = first - 1
         self._left = TimeLeft(
-            program, first, self.info.planner_blocks, self.info.laser_mode, self._step_tol()
+            program,
+            first,
+            self.info.planner_blocks,
+            self.info.laser_mode,
+            self._step_tol(),
+            self._step_mm(),
         )
         self._acked_items = 0
         self._last_answer = time.monotonic()
@@ -1121,9 +1127,13 @@ class Streamer:
         GRBL's steps leave the ideal line by up to one step per axis (``$100``-``$102``
         steps/mm; unknown: none counted).
         """
+        return 0.01 + max(self._step_mm()) * math.sqrt(3.0)
+
+    def _step_mm(self) -> tuple[float, float, float]:
+        """GRBL's step per axis (mm, ``$100``-``$102``; 0 where not known)."""
         steps = [self.info.settings.get(100 + k) for k in range(3)]
-        step_mm = max((1.0 / s for s in steps if s and s > 0), default=0.0)
-        return 0.01 + step_mm * math.sqrt(3.0)
+        x, y, z = (1.0 / s if s and s > 0 else 0.0 for s in steps)
+        return x, y, z
 
     def _reset_fault(self, when: str) -> _Fault:
         """The fault of a controller that reset itself (its banner came) ``when``.
@@ -1653,7 +1663,9 @@ class Streamer:
         if self._all_ran:
             return acked[-1]
         blocks = self._program.blocks
-        surely = last_surely_run(blocks, acked, self.info.planner_blocks, self.info.laser_mode)
+        surely = last_surely_run(
+            blocks, acked, self.info.planner_blocks, self.info.laser_mode, self._step_mm()
+        )
         window = [i for i in acked if i > surely]
         if wpos is None or self._acks_at_status == 0:
             return surely

@@ -34,6 +34,7 @@ full, may never have run (:func:`last_surely_run`).
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 from collections.abc import Sequence
@@ -150,6 +151,7 @@ class Journal:
         wco: Sequence[float] | None = None,
         g92: Sequence[float] | None = None,
         inches: bool = False,
+        steps_mm: Sequence[float] | None = None,
     ) -> None:
         """Begin a run of ``program`` at block ``start`` (a fresh one, or a resume).
 
@@ -158,6 +160,8 @@ class Journal:
         S change is a sync point (:func:`last_surely_run`). ``wco`` and its ``g92`` part
         (mm, None: unknown) let a resume see that the work zero moved (:func:`run_zero`);
         ``inches``: they were read in GRBL's inch reports (``$13=1``), a coarser digit.
+        ``steps_mm``: GRBL's step per axis (mm, ``$100``-``$102``; 0 or None: not known),
+        for the moves it may drop (:func:`last_surely_run`).
         """
         self.write(
             "start",
@@ -174,6 +178,7 @@ class Journal:
             wco=None if wco is None else [round(float(v), 4) for v in wco],
             g92=None if g92 is None else [round(float(v), 4) for v in g92],
             inches=inches,
+            steps=None if steps_mm is None else [float(v) for v in steps_mm],
         )
 
     def recorded(self, file: str | os.PathLike[str]) -> str:
@@ -275,6 +280,9 @@ def check_event(ev: dict[str, Any], blocks: int | None, where: str) -> int | Non
         for key in ("wco", "g92"):
             if ev.get(key) is not None and _xyz_of(ev[key]) is None:
                 raise _expected(where, key, "null or [x, y, z] in mm", ev[key])
+        steps = ev.get("steps")
+        if steps is not None and not all(0.0 <= v < math.inf for v in _xyz_of(steps) or [-1.0]):
+            raise _expected(where, "steps", "null or [x, y, z] mm per step, each 0 or more", steps)
         return int(ev["blocks"])
     last = None if blocks is None else blocks - 1
     if kind == "ack":
@@ -441,6 +449,7 @@ def last_surely_run(
     acked: Sequence[int],
     planner_blocks: int,
     laser_mode: bool | None = None,
+    step_mm: Sequence[float] = (0.0, 0.0, 0.0),
 ) -> int:
     """The last of the ``acked`` blocks (in order) that surely ran, without a position.
 
@@ -448,7 +457,8 @@ def last_surely_run(
     motion blocks, and GRBL's stepper keeps running the last segments of a block after
     the planner has let it go; counting one more for that and one more as a margin, up to
     ``planner_blocks + 2`` acknowledged motion blocks count as unsure (a straight move of
-    no length holds no block, GRBL drops it: :func:`plans_nothing`). An acknowledged sync
+    at most a step per axis, ``step_mm``, may hold no block: GRBL drops a move of no whole
+    step, :func:`plans_nothing`; 0: not known, only moves of no length). An acknowledged sync
     block (a spindle change, G4, ...: ``Block.sync``) followed by later acknowledgements
     means everything before it ran; the last acknowledged block is unsure even when it is
     a sync block (a margin too). An S change in a block that moves (``Block.speed_sync``)
@@ -467,7 +477,7 @@ def last_surely_run(
         if synced and i != acked[-1]:
             return i - 1 if b.motion else earliest - 1
         earliest = i
-        if b.motion and not plans_nothing(blocks, i):
+        if b.motion and not plans_nothing(blocks, i, step_mm):
             motions += 1
             if motions > planner_blocks + 1:
                 break
@@ -513,12 +523,13 @@ def done_blocks(
     closed = True
     planner = PLANNER_BLOCKS
     laser: bool | None = None
+    steps: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def settled() -> set[int]:
         if closed or not recut_unclosed or not session:
             return set(session)
         if program is not None:
-            through = last_surely_run(program.blocks, session, planner, laser)
+            through = last_surely_run(program.blocks, session, planner, laser, steps)
         else:
             through = session[-planner - 2] if len(session) > planner + 1 else -1
         return {i for i in session if i <= through}
@@ -531,6 +542,7 @@ def done_blocks(
             closed = False
             planner = int(ev.get("planner", PLANNER_BLOCKS))
             laser = ev.get("laser")  # absent (older journals) or null: unknown
+            steps = _xyz_of(ev.get("steps")) or (0.0, 0.0, 0.0)  # absent or null: unknown
             if ev.get("sha256") != sha256:
                 raise ConfigError(
                     f"{path}: the journal was written for a different version of "

@@ -868,18 +868,27 @@ def straight_move(block: Block) -> bool:
     )
 
 
-def plans_nothing(blocks: Sequence[Block], i: int) -> bool:
-    """Whether block ``i`` is a straight move of no length, which GRBL drops.
+def plans_nothing(
+    blocks: Sequence[Block], i: int, step_mm: Sequence[float] = (0.0, 0.0, 0.0)
+) -> bool:
+    """Whether GRBL may plan nothing for block ``i``: a straight move of at most a step.
 
-    Grbl's ``mc_line`` waits for a free planner block, then plans nothing for a move of
-    no step, so such a move never holds a block: a bound on the blocks queued must not
-    count it.
+    Grbl's ``mc_line`` waits for a free planner block, then plans nothing for a move whose
+    target rounds to the steps it stands on (``PLAN_EMPTY_BLOCK``), so such a move never
+    holds a block: a bound on the blocks queued must not count it. Past moves GRBL
+    dropped, its point lies within half a step of the sender's on each axis, so a move it
+    drops moves at most one step (``step_mm``, ``$100``-``$102``; 0: not known, only a
+    move of no length counts) on each axis by the sender's count. Calling a real move so
+    is safe (the bound looks further back); the reverse would trust a queued move.
     """
     if not straight_move(blocks[i]):
         return False
     before = blocks[i - 1].modal if i > 0 else Modal()
     after = blocks[i].modal
-    return (before.x, before.y, before.z) == (after.x, after.y, after.z)
+    if (before.z is None) != (after.z is None):
+        return False
+    moved = (after.x - before.x, after.y - before.y, (after.z or 0.0) - (before.z or 0.0))
+    return all(abs(d) <= step for d, step in zip(moved, step_mm, strict=True))
 
 
 class TimeLeft:
@@ -914,6 +923,8 @@ class TimeLeft:
         laser_mode: ``$32`` (None: not known; only the syncs whatever ``$32`` says count).
         tol: How far (mm) a reported position may be off a move's line: report rounding
             plus a step (GRBL's steps leave the ideal line by up to one).
+        step_mm: GRBL's step per axis (mm, ``$100``-``$102``; 0: not known), for the
+            moves it may drop (:func:`plans_nothing`).
     """
 
     def __init__(
@@ -923,8 +934,10 @@ class TimeLeft:
         planner_blocks: int = 15,
         laser_mode: bool | None = None,
         tol: float = 0.01,
+        step_mm: Sequence[float] = (0.0, 0.0, 0.0),
     ) -> None:
         self._blocks = program.blocks
+        self._step_mm = tuple(step_mm)
         self._cum = np.concatenate(([0.0], np.cumsum([b.seconds for b in program.blocks])))
         self._planner = max(1, planner_blocks)
         self._laser = laser_mode
@@ -965,7 +978,7 @@ class TimeLeft:
         """
         for i in range(self._seen + 1, acked_through + 1):
             b = self._blocks[i]
-            if b.motion and not plans_nothing(self._blocks, i):
+            if b.motion and not plans_nothing(self._blocks, i, self._step_mm):
                 self._moves.append(i)
             if b.sync_after or (b.syncs_before(self._laser) if self._laser is not None else b.sync):
                 self._advance(i if b.motion and not b.sync_after else i + 1, 0.0)
