@@ -337,6 +337,13 @@ def test_job_mode_compares_with_the_optimize_renders(half_job, tmp_path):
     ):
         main(["verify-render", str(job), "--spp", "4", "--out", str(out)])
         assert json.loads((out / "metrics.json").read_text())["comparison"] == named
+    # renders of other views (the design's resolution changed since optimize) are not the
+    # board's: a fresh analytic render, not an error naming "optimize/renders", which is
+    # relative to the job and not to where the command runs
+    np.save(job / "optimize" / "renders" / "left.npy", np.zeros((4, 4), np.float32))
+    main(["verify-render", str(job), "--spp", "4"])
+    metrics = json.loads((job / "verify" / "metrics.json").read_text())
+    assert metrics["comparison"] == "render_scratches"
 
 
 @pytest.mark.parametrize(

@@ -656,7 +656,7 @@ def run_verify_job(
 
     The board is ``JOB/optimize/scratches.csv`` (else ``JOB/design/scratches.csv``, as
     ``render JOB`` picks it); the comparison is ``JOB/optimize/renders`` when that
-    belongs to the board verified, else a fresh analytic render. The metrics' ``comparison``
+    belongs to the board verified (and its views), else a fresh analytic render. The metrics' ``comparison``
     names those renders relative to the job folder (``optimize/renders``; absolute when
     ``out_dir`` lies outside the job), or ``render_scratches``.
 
@@ -677,6 +677,8 @@ def run_verify_job(
         (renders_dir / f"{v.name}.npy").is_file() for v in design.views
     ):
         analytic = {v.name: load_numpy(renders_dir / f"{v.name}.npy") for v in design.views}
+        if any(np.shape(analytic[v.name]) != (v.height, v.width) for v in design.views):
+            analytic = None  # renders of other views (a design changed since): not this board's
     out = layout.verify_dir if out_dir is None else Path(out_dir)
     source = "render_scratches"
     if analytic is not None:  # relative to the job when the metrics are in it: a copy's own
