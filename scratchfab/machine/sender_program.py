@@ -831,7 +831,10 @@ def resume_preamble(program: Program, start: int) -> list[str]:
 def end_point(
     modal: Modal | None, fallback: tuple[float, float, float]
 ) -> tuple[float, float, float]:
-    """A block's end position (work mm); an unknown Z (or no block: the origin) takes ``fallback``'s."""
+    """A block's end position (work mm).
+
+    An unknown Z takes ``fallback``'s; no block (None) is the origin at ``fallback``'s Z.
+    """
     if modal is None:
         return (0.0, 0.0, fallback[2])
     return (modal.x, modal.y, modal.z if modal.z is not None else fallback[2])
@@ -1002,7 +1005,9 @@ class TimeLeft:
         """Put the run point where the reported position lies, if it lies on a queued move.
 
         The first acknowledged straight move from the run point on that the position lies
-        on, not behind the run point (a path passing a point twice: the later pass); else, at the end point of the last block acknowledged before the report, all of
+        on, not behind the run point (where a path passes a point twice, a pass behind it
+        is skipped; of two ahead, the earlier counts, so the time left errs long);
+        else, at the end point of the last block acknowledged before the report, all of
         them ran (not when an arc or a move the sender cannot follow lies between: their
         paths are not checked).
         """
