@@ -24,6 +24,7 @@ from scratchfab.machine.sender_program import load_program, plans_nothing, strip
 
 STEPS_MM = 250.0  # Grbl's default $100-$102
 STEP = (1.0 / STEPS_MM,) * 3
+SEGMENT_BLOCKS = 6 - 1  # Grbl 1.1h's SEGMENT_BUFFER_SIZE, one slot kept free
 START = (3.0, 4.0, -2.0)  # where the machine is when the stream starts (machine mm)
 G55 = (10.0, 20.0, -5.0)
 G28_AT = (-1.0, -1.0, -1.0)
@@ -102,8 +103,7 @@ def _lround(x: float) -> int:
 
 @pytest.mark.parametrize("name", sorted(KNOWN))
 def test_a_repeated_point_the_sender_knows_is_of_no_length(tmp_path, name):
-    """Where the sender knows the position, each move GRBL drops is called of no length,
-    and only those."""
+    """Where the sender knows the position, each move GRBL drops is called of no length."""
     lines = KNOWN[name]
     blocks = _blocks(tmp_path, lines)
     moved, _ = _grbl_blocks(lines)
@@ -116,12 +116,13 @@ def test_a_repeated_point_the_sender_knows_is_of_no_length(tmp_path, name):
 def _surely_run_reference(
     moved: list[bool], syncs: list[bool], acked: list[int], planner: int
 ) -> int:
-    """Block by block: an acked block surely ran when at least ``planner + 1`` blocks that
-    GRBL planned were acked after it (the planner full, one more in the stepper), or a
+    """Block by block: an acked block surely ran when at least ``planner + 5`` blocks that
+    GRBL planned were acked after it (the planner full, five more in the stepper's segment
+    buffer), or a
     block that empties the planner first was acked after it (or is the block itself, and
     it plans no move after that)."""
     sure = [
-        sum(moved[j] for j in acked[p + 1 :]) >= planner + 1
+        sum(moved[j] for j in acked[p + 1 :]) >= planner + SEGMENT_BLOCKS
         or any(syncs[j] for j in acked[p + 1 :])
         or (syncs[acked[p]] and not moved[acked[p]])
         for p in range(len(acked))
@@ -163,7 +164,7 @@ def test_an_unclosed_session_reads_the_steps_its_start_recorded(tmp_path):
     path.write_text("\n".join(lines) + "\n")
     program = load_program(path)
     moved, syncs = _grbl_blocks(lines)
-    acked = list(range(7))  # through the second move back from X2.001
+    acked = list(range(len(program.blocks)))
     reference = _surely_run_reference(moved, syncs, acked, 1)
     for steps in (list(STEP), None):
         start = {"ev": "start", "sha256": program.sha256, "blocks": len(program.blocks)}
@@ -172,8 +173,9 @@ def test_an_unclosed_session_reads_the_steps_its_start_recorded(tmp_path):
         for ev in events:
             check_event(ev, len(program.blocks), "journal.jsonl:1")
         done = done_blocks(events, program.sha256, "journal.jsonl", program=program)
-        assert done == set(range(max(done) + 1))
-        assert (max(done) <= reference) == (steps is not None)
+        through = max(done, default=-1)
+        assert done == set(range(through + 1))
+        assert (through <= reference) == (steps is not None)
 
 
 @pytest.mark.parametrize("steps", [[-0.004, 0.004, 0.004], [0.004, 0.004], ["x", 1, 1]])
@@ -181,3 +183,21 @@ def test_a_journal_start_with_bad_steps_is_named(steps):
     start = {"ev": "start", "sha256": "ab", "blocks": 3, "resume": False, "steps": steps}
     with pytest.raises(ConfigError, match=r"journal.jsonl:1.*'steps'"):
         check_event(start, None, "journal.jsonl:1")
+
+
+def test_the_journal_leaves_unsure_what_grbls_planner_and_step_segments_may_hold(tmp_path):
+    """Grbl 1.1h holds 15 planner blocks (BLOCK_BUFFER_SIZE 16, one kept free), and its
+    stepper (stepper.c, st_prep_buffer) discards a block from the planner once all of its
+    steps are in the segment buffer (SEGMENT_BUFFER_SIZE 6, one kept free: 5 segments).
+    A move shorter than one segment (10 ms: 0.05 mm at F1000 takes 3 ms) is one segment,
+    so 5 such moves can still run after the planner let them go: 20 acked moves unrun,
+    and the journal trusts none of them (nor the one before, its margin)."""
+    lines = ["G21 G90", "G0 Z1", "G1 X0 Y0 F1000"]
+    lines += [f"G1 X{0.05 * k:.2f}" for k in range(1, 60)]
+    blocks = _blocks(tmp_path, lines)
+    acked = list(range(len(blocks)))
+    unrun = 15 + SEGMENT_BLOCKS
+    assert last_surely_run(blocks, acked, 15) <= acked[-unrun - 1] - 1
+    session = [{"ev": "start", "sha256": "x", "blocks": len(blocks), "resume": False}]
+    session += [{"ev": "ack", "i": i} for i in acked]
+    assert max(done_blocks(session, "x", "journal.jsonl")) <= acked[-unrun - 1] - 1

@@ -1647,12 +1647,13 @@ class Streamer:
     def _executed_guess(self, wpos: tuple[float, float, float] | None) -> int:
         """The last acknowledged block that surely ran, judged from the position at the stop.
 
-        The controller may still hold up to ``planner_blocks`` motion blocks (plus one line
-        being parsed) after the last acknowledgement; an acknowledged sync block (a spindle
-        change, G4, ...; an S change only with laser mode ``$32`` known off) means
-        everything before it ran. The first candidate block whose segment contains
-        the hold position is the interrupted one; without a match the earliest candidate is
-        taken as interrupted (a stroke is cut again rather than skipped). Only blocks
+        The controller may still hold up to ``planner_blocks`` motion blocks, and its
+        stepper a few more (:func:`last_surely_run`), after the last acknowledgement; an
+        acknowledged sync block (a spindle change, G4, ...; an S change only with laser
+        mode ``$32`` known off) means everything before it ran. The first candidate block
+        whose segment contains the hold position is the interrupted one; without a match
+        the earliest candidate is taken as interrupted (a stroke is cut again rather than
+        skipped). Only blocks
         acknowledged before the position report can match it: a later block passing
         through the same point (an old report) had not run. Once END_WAIT is acknowledged
         every acknowledged block ran.

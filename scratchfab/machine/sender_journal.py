@@ -28,7 +28,7 @@ only the sessions since the last fresh (non-resume) start count. A session with 
 event (``stop``, ``lost`` or ``end``: the sender was killed or crashed) is read like one
 that ended in a reset with no known position: the next connection resets the controller
 (our soft reset, an Arduino's DTR reset), so its last acknowledged blocks, up to a planner
-full, may never have run (:func:`last_surely_run`).
+full and the few its stepper still runs, may never have run (:func:`last_surely_run`).
 """
 
 from __future__ import annotations
@@ -48,6 +48,10 @@ from scratchfab.model.job import JobLayout
 
 #: GRBL 1.1's usable planner blocks, for a journal that does not record them.
 PLANNER_BLOCKS = 15
+#: Blocks GRBL 1.1's stepper may still run after its planner let them go: a block leaves
+#: the planner once all its steps are in the step segment buffer (``SEGMENT_BUFFER_SIZE``
+#: 6, one slot kept free), and a move shorter than a segment (10 ms) is one segment.
+STEPPER_BLOCKS = 5
 
 
 def default_journal_path(gcode: str | os.PathLike[str]) -> Path:
@@ -454,9 +458,10 @@ def last_surely_run(
     """The last of the ``acked`` blocks (in order) that surely ran, without a position.
 
     After its last acknowledgement the controller may still hold ``planner_blocks``
-    motion blocks, and GRBL's stepper keeps running the last segments of a block after
-    the planner has let it go; counting one more for that and one more as a margin, up to
-    ``planner_blocks + 2`` acknowledged motion blocks count as unsure (a straight move of
+    motion blocks, and GRBL's stepper keeps running the segments of up to
+    :data:`STEPPER_BLOCKS` blocks the planner has let go (short moves); counting those
+    and one more as a margin, up to ``planner_blocks + STEPPER_BLOCKS + 1`` acknowledged
+    motion blocks count as unsure (a straight move of
     at most a step per axis, ``step_mm``, may hold no block: GRBL drops a move of no whole
     step, :func:`plans_nothing`; 0: not known, only moves of no length). An acknowledged sync
     block (a spindle change, G4, ...: ``Block.sync``) followed by later acknowledgements
@@ -479,7 +484,7 @@ def last_surely_run(
         earliest = i
         if b.motion and not plans_nothing(blocks, i, step_mm):
             motions += 1
-            if motions > planner_blocks + 1:
+            if motions > planner_blocks + STEPPER_BLOCKS:
                 break
     return earliest - 1
 
@@ -531,7 +536,8 @@ def done_blocks(
         if program is not None:
             through = last_surely_run(program.blocks, session, planner, laser, steps)
         else:
-            through = session[-planner - 2] if len(session) > planner + 1 else -1
+            unsure = planner + STEPPER_BLOCKS + 1
+            through = session[-unsure - 1] if len(session) > unsure else -1
         return {i for i in session if i <= through}
 
     for k, ev in enumerate(events[first:], start=first):
