@@ -8,6 +8,10 @@ class ScratchfabError(Exception):
 
     exit_code = 2
 
+    def __str__(self) -> str:
+        # a path or name given in code may hold a NUL, which a terminal drops unseen
+        return super().__str__().replace("\0", "\\0")
+
 
 class Interrupted(ScratchfabError):
     """The person stopped the work (Ctrl-C) and what was done is saved; exit 130 as a shell."""

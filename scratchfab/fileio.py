@@ -46,11 +46,6 @@ def _umask() -> int:
 _UMASK = _umask()
 
 
-def shown_path(path: str | os.PathLike[str]) -> str:
-    r"""``path`` for a one-line message: a NUL byte, which no system call takes, shown as ``\0``."""
-    return os.fspath(path).replace("\0", "\\0")
-
-
 _NUL = "a path cannot hold a NUL byte, \\0"
 
 
@@ -79,7 +74,7 @@ def atomic_open(path: str | os.PathLike[str], mode: str = "w", **kwargs: Any) ->
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     except (OSError, ValueError) as exc:
-        raise ScratchfabError(f"{shown_path(target)}: cannot write ({_reason(exc)})") from None
+        raise ScratchfabError(f"{target}: cannot write ({_reason(exc)})") from None
     os.close(fd)
     os.chmod(tmp_name, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the usual permissions
     try:
@@ -113,7 +108,7 @@ def atomic_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
         target.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
     except (OSError, ValueError) as exc:
-        raise ScratchfabError(f"{shown_path(target)}: cannot write ({_reason(exc)})") from None
+        raise ScratchfabError(f"{target}: cannot write ({_reason(exc)})") from None
     os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp makes 0700; give the usual permissions
     try:
         yield tmp
@@ -165,7 +160,7 @@ def _readable(path: str | os.PathLike[str]) -> None:
     handling of its contents' ValueErrors would take for damage.
     """
     if "\0" in os.fspath(path):
-        raise ConfigError(f"{shown_path(path)}: cannot read ({_NUL})")
+        raise ConfigError(f"{path}: cannot read ({_NUL})")
 
 
 def read_input(path: Path, expected: str, missing: str = "file not found") -> bytes:

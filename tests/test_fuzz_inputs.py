@@ -782,10 +782,13 @@ def test_a_nul_character_in_a_toml_string_is_named_not_a_traceback(tmp_path, old
 def test_a_nul_byte_in_a_path_given_in_code_is_named_when_read_or_written(tmp_path):
     """Paths built in code reach the file layer, which names them (NUL shown as \\0)."""
     from scratchfab.fileio import read_input, write_text
-    from scratchfab.model.design import load_design
+    from scratchfab.model.design import ScratchTool, load_design
+    from scratchfab.model.scratches import load_scratches
+    from scratchfab.toolpath.plan import Toolpath
 
     bad = tmp_path / "a\0b.toml"
-    shown = re.escape(str(bad).replace("\0", "\\0"))
+    plain = str(bad).replace("\0", "\\0")
+    shown = re.escape(plain)
     with pytest.raises(ConfigError, match=rf"^{shown}: cannot read \(a path cannot hold a NUL"):
         read_input(bad, "a TOML file")
     with pytest.raises(ConfigError, match=rf"^{shown}: cannot read"):
@@ -798,4 +801,9 @@ def test_a_nul_byte_in_a_path_given_in_code_is_named_when_read_or_written(tmp_pa
         write_text(bad, "a = 1\n")
     with pytest.raises(ScratchfabError, match=r": cannot write \(a path cannot hold"):
         write_text(tmp_path / "a\0" / "b.toml", "a = 1\n")
+    for read in (lambda p: load_scratches(p, ScratchTool()), Toolpath.load):
+        with pytest.raises(ConfigError, match=rf"^{shown}: cannot read \(a path cannot hold"):
+            read(bad)
     assert list(tmp_path.iterdir()) == []
+    # any user-facing message shows a NUL it names (a job folder given in code, say)
+    assert str(ScratchfabError(f"{bad}: job folder not found")) == f"{plain}: job folder not found"

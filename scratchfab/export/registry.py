@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from scratchfab.errors import ScratchfabError
-from scratchfab.fileio import shown_path
 
 if TYPE_CHECKING:
     from scratchfab.machine.profile import MachineProfile
@@ -41,11 +40,11 @@ def format_for(path: str | Path, format: str | None = None) -> str:
     name = (format or extension).lower()
     if name not in WRITERS:
         known = ", ".join(sorted(WRITERS))
-        what = f"format '{format}'" if format else f"file extension of {shown_path(path)}"
+        what = f"format '{format}'" if format else f"file extension of {path}"
         raise ScratchfabError(f"unknown {what}; known: {known}")
     if extension in WRITERS and WRITERS[extension] != WRITERS[name]:
         raise ScratchfabError(
-            f"{shown_path(path)}: the extension says {extension} but the format asked for is {name}; "
+            f"{path}: the extension says {extension} but the format asked for is {name}; "
             f"name the file .{name} or leave the format out"
         )
     return name

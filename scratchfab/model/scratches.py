@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from scratchfab.errors import ConfigError
-from scratchfab.fileio import write_text
+from scratchfab.fileio import read_input, write_text
 from scratchfab.model.design import Board, ScratchTool, dent_problem
 
 REQUIRED_COLUMNS = ("x0", "y0", "x1", "y1")
@@ -140,10 +140,8 @@ def load_scratches(
     """
     file = Path(path)
     try:
-        text = file.read_text(encoding="utf-8-sig")  # a BOM (Excel's "CSV UTF-8") is dropped
-    except FileNotFoundError:
-        raise ConfigError(f"{file}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
+        text = read_input(file, "a CSV file").decode("utf-8-sig")  # a BOM (Excel's) is dropped
+    except UnicodeDecodeError as exc:
         raise ConfigError(f"{file}: cannot read as UTF-8 text ({exc})") from None
     reader = csv.reader(io.StringIO(text))
     try:

@@ -24,7 +24,7 @@ from PIL import Image, ImageDraw
 from scratchfab import figures
 from scratchfab.console import duration_text
 from scratchfab.errors import ConfigError, ScratchfabError
-from scratchfab.fileio import decode_json, save_png, write_text
+from scratchfab.fileio import decode_json, read_input, save_png, write_text
 from scratchfab.machine.profile import MachineProfile, profile_from_mapping
 from scratchfab.model.design import Board, ScratchTool
 from scratchfab.model.scratches import ScratchSet
@@ -94,11 +94,12 @@ class Toolpath:
             ConfigError: Naming the file and what is wrong.
         """
         file = Path(path)
+        raw = read_input(
+            file, "a toolpath JSON file", "file not found (run `scratchfab toolpath` first)"
+        )
         try:
-            data = decode_json(file.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ConfigError(f"{file}: file not found (run `scratchfab toolpath` first)") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            data = decode_json(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise ConfigError(f"{file}: not a toolpath JSON file ({exc})") from None
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise ConfigError(f"{file}: not a scratchfab toolpath (format != {FORMAT!r})")
