@@ -6,6 +6,7 @@ import os
 import re
 from collections import Counter
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -821,9 +822,9 @@ def test_toolpath_machine_is_a_name_or_a_file_beside_the_pipeline(tmp_path, ref,
     assert _machine_ref(ref, pipeline) == (str(tmp_path / ref) if is_file else ref)
 
 
-def test_damaged_checkpoint_of_an_interrupted_optimize_starts_it_afresh(
-    finished_job, tmp_path, monkeypatch
-):
+def _killed_optimize(finished_job, tmp_path, monkeypatch) -> tuple[Path, Path, Path]:
+    """A copy of the finished job whose optimize was killed midway (the manifest says
+    "running"): the pipeline, the copy and its checkpoint."""
     import shutil
 
     from scratchfab.pipeline import runner
@@ -835,12 +836,42 @@ def test_damaged_checkpoint_of_an_interrupted_optimize_starts_it_afresh(
     def killed(self):
         raise SystemExit("killed")
 
-    with monkeypatch.context() as mp:  # optimize killed midway: the manifest says "running"
+    with monkeypatch.context() as mp:
         mp.setattr(Manifest, "invalidate", lambda *a: None)
         mp.setattr(runner._Stages, "_run_optimize", killed)
         with pytest.raises(SystemExit):
             run_pipeline(load_pipeline(path), copy, start="optimize", until="optimize")
-    ckpt = copy / "optimize" / "checkpoint.npz"
+    return path, copy, copy / "optimize" / "checkpoint.npz"
+
+
+def test_a_checkpoint_made_otherwise_is_started_afresh_without_optimize_s_advice(
+    finished_job, tmp_path, monkeypatch
+):
+    """A checkpoint of other settings (here `scratchfab optimize` with another seed): the
+    pipeline says why it starts over, not the command's "give that to resume it" advice,
+    which editing the pipeline's [optimize] table could not follow."""
+    from scratchfab.optimize.stage import run_optimize
+
+    path, copy, ckpt = _killed_optimize(finished_job, tmp_path, monkeypatch)
+    options = load_pipeline(path).optimize
+    run_optimize(copy, replace(options, seed=options.seed + 1, iterations=2))
+    said: list[str] = []
+    result = run_pipeline(load_pipeline(path), copy, until="optimize", say=said.append)
+    assert result.ran == ["optimize"]
+    assert (
+        f"  cannot continue it ({ckpt}: made with other settings or inputs (seed)); "
+        "optimizing from the start"
+    ) in said
+    assert not any("--resume" in line or "give that" in line for line in said)
+    scratches = "optimize/scratches.csv"
+    assert (copy / scratches).read_bytes() == (finished_job[1] / scratches).read_bytes()
+
+
+def test_damaged_checkpoint_of_an_interrupted_optimize_starts_it_afresh(
+    finished_job, tmp_path, monkeypatch
+):
+    path, copy, ckpt = _killed_optimize(finished_job, tmp_path, monkeypatch)
+    job = finished_job[1]
     ckpt.write_bytes(b"garbage")
     said: list[str] = []
     result = run_pipeline(load_pipeline(path), copy, until="optimize", say=said.append)

@@ -177,7 +177,7 @@ class _Stages:
 
     def _run_optimize(self) -> Sequence[str]:
         from scratchfab.optimize.progress import progress_printer
-        from scratchfab.optimize.stage import run_optimize
+        from scratchfab.optimize.stage import ResumeRefused, run_optimize
 
         progress = progress_printer(lambda line: self.say(f"  {line}"))
         layout = self.layout
@@ -187,7 +187,12 @@ class _Stages:
             try:
                 result = run_optimize(self.job, replace(options, resume=True), progress=progress)
             except ConfigError as exc:
-                self.say(f"  cannot continue it ({exc}); optimizing from the start")
+                why = str(exc)
+                if isinstance(exc, ResumeRefused):  # its advice is for `optimize --resume`
+                    why = (
+                        f"{exc.path}: made with other settings or inputs ({', '.join(exc.changed)})"
+                    )
+                self.say(f"  cannot continue it ({why}); optimizing from the start")
                 result = run_optimize(self.job, options, progress=progress)
         else:
             result = run_optimize(self.job, options, progress=progress)
