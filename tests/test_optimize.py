@@ -24,7 +24,7 @@ from scratchfab.cli import main
 from scratchfab.errors import ScratchfabError
 from scratchfab.metrics import exposure, quality_report
 from scratchfab.model.scratches import ScratchSet, load_scratches
-from scratchfab.optimize.checkpoint import load_checkpoint
+from scratchfab.optimize.checkpoint import load_checkpoint, save_checkpoint
 from scratchfab.optimize.loss import neighbour_pairs, segment_distance_np, view_error
 from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
 from scratchfab.optimize.params import (
@@ -577,6 +577,20 @@ def test_resume_refuses_other_settings_and_missing_checkpoint(job: Path, capsys)
         main(["optimize", str(job), "--iterations", "4", "--resume", "--seed", "9"])
     err = capsys.readouterr().err
     assert "different settings" in err and "seed" in err
+
+
+def test_resume_refuses_a_checkpoint_of_the_earlier_merge_penalty(job: Path, capsys) -> None:
+    """A checkpoint's fingerprint without the penalty's form was made under the earlier
+    one (scratch ends, cos^16): same options, another loss, so it does not resume."""
+    main(["optimize", str(job), "--iterations", "2"])
+    ckpt = job / "optimize" / "checkpoint.npz"
+    state, meta, log_rows = load_checkpoint(ckpt)
+    assert meta["fingerprint"].pop("merge_penalty") == "length cut twice"
+    save_checkpoint(ckpt, state, meta, log_rows)
+    with pytest.raises(SystemExit):
+        main(["optimize", str(job), "--iterations", "4", "--resume"])
+    err = capsys.readouterr().err
+    assert "(merge_penalty); run without --resume to start over" in err
 
 
 @pytest.mark.parametrize("option", ["--time-budget", "--prune"])

@@ -60,6 +60,9 @@ import numpy as np
 Space = Literal["linear", "perceptual"]
 SPACES: tuple[str, ...] = ("linear", "perceptual")
 
+#: The merge penalty's form, kept in checkpoints: a run made under another form (the
+#: earlier one weighed the nearest scratch ends by ``cos^16`` of the angle) does not resume.
+MERGE_PENALTY = "length cut twice"
 #: Pairs more than this far from parallel are never merge candidates (radians).
 PARALLEL_LIMIT = math.radians(35.0)
 #: Longest piece :func:`neighbour_pairs` cuts a scratch into (longer than the 12 mm default

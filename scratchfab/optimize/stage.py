@@ -41,6 +41,7 @@ from scratchfab.model.design import Design
 from scratchfab.model.job import JobLayout, design_digest, load_job_design
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.checkpoint import load_checkpoint, save_checkpoint
+from scratchfab.optimize.loss import MERGE_PENALTY
 from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
 from scratchfab.optimize.options import OptimizeOptions, StepSchedule
 from scratchfab.optimize.plots import save_loss_plot, save_side_by_side
@@ -177,6 +178,7 @@ def _fingerprint(
         digest.update(np.ascontiguousarray(targets[name], dtype=np.float64).tobytes())
     out: dict[str, Any] = {k: getattr(options, k) for k in TRAJECTORY_KEYS}
     out["inputs_sha256"] = digest.hexdigest()
+    out["merge_penalty"] = MERGE_PENALTY  # a checkpoint of another penalty (or none) differs
     schedule = options.schedule()
     if schedule is not None:
         # its scales depend on the run's total, so a resume needs the same iterations;
