@@ -19,6 +19,7 @@ from scratchfab.cli import main
 from scratchfab.cli.optimize_cmd import optimize as optimize_command
 from scratchfab.errors import ConfigError
 from scratchfab.model.schema import parse_table
+from scratchfab.model.scratches import ScratchSet
 from scratchfab.optimize import optimizer as optimizer_module
 from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
 from scratchfab.optimize.options import OptimizeOptions, StepSchedule
@@ -55,6 +56,19 @@ def test_options_give_a_schedule_only_when_the_scales_differ_from_one() -> None:
     options = OptimizeOptions(iterations=50, lr_start_scale=2.0, lr_schedule="linear")
     assert options.schedule() == StepSchedule("linear", 2.0, 1.0, 50)
     assert OptimizeOptions(lr_start_scale=0.5, lr_end_scale=0.5).schedule() is not None
+
+
+def test_a_constant_schedule_in_a_table_is_the_constant_run_whatever_the_scales() -> None:
+    """``lr_schedule = "constant"`` (as the CLI's ``--lr-schedule constant``) leaves the
+    default scales unused: the run and its checkpoint's record are those of scales 1."""
+    from scratchfab.optimize.stage import _fingerprint
+
+    table = parse_table(OptimizeOptions, {"lr_schedule": "constant"}, "p.toml", "optimize")
+    assert table.lr_start_scale == 4.0 and table.schedule() is None
+    ones = OptimizeOptions(lr_start_scale=1.0)
+    scratches = ScratchSet.from_arrays(np.zeros((1, 2)), np.ones((1, 2)), 0.1, 0.01)
+    targets = {"v": np.zeros((2, 2))}
+    assert _fingerprint(table, scratches, targets) == _fingerprint(ones, scratches, targets)
 
 
 @pytest.mark.parametrize(

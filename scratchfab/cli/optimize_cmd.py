@@ -134,15 +134,13 @@ def optimize(
         if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT
     ]
     asked_constant = lr_schedule == "constant"
-    if asked_constant:
-        if scaled:
-            raise click.BadParameter(
-                "a constant schedule keeps the base steps: give --lr-schedule linear or "
-                "cosine with a scale (equal start and end scales: constant steps of that "
-                "multiple)",
-                param_hint=f"--{scaled[0].replace('_', '-')}",
-            )
-        lr_schedule, lr_start_scale, lr_end_scale = _DEFAULTS.lr_schedule, 1.0, 1.0
+    if asked_constant and scaled:
+        raise click.BadParameter(
+            "a constant schedule keeps the base steps: give --lr-schedule linear or "
+            "cosine with a scale (equal start and end scales: constant steps of that "
+            "multiple)",
+            param_hint=f"--{scaled[0].replace('_', '-')}",
+        )
     options = OptimizeOptions(
         iterations=iterations,
         time_budget_s=time_budget,
@@ -194,8 +192,8 @@ def _as_flags(
 
     None when one has no flag. A schedule of scales 1 is written ``--lr-schedule constant``
     unless the command gave a scale (which constant refuses: then the scales); a command
-    that asked for constant steps (scales 1 under the default shape) gets the checkpoint's
-    schedule whole, as the scales it leaves out would take their defaults.
+    that asked for constant steps gets the checkpoint's schedule whole, as the scales it
+    leaves out would take their defaults once another shape replaces constant.
 
     Args:
         made_with: :attr:`ResumeRefused.made_with`, compared with ``options``.

@@ -64,7 +64,8 @@ class OptimizeOptions:
         lr_angle_deg: Adam step size of the angles.
         lr_length_mm: Adam step size of the lengths.
         lr_schedule: Shape of the step sizes' change over the run, ``"linear"`` or
-            ``"cosine"`` (:class:`StepSchedule`).
+            ``"cosine"`` (:class:`StepSchedule`); ``"constant"`` keeps the ``lr_*``
+            throughout, whatever the scales say.
         lr_start_scale: The step sizes of the first step, as multiples of the ``lr_*``
             (4: at full size the images' error is 6 % lower after 300 steps than with
             constant steps, +0.2 dB mean PSNR, and 22 % less length is cut twice by
@@ -95,7 +96,7 @@ class OptimizeOptions:
     lr_position_mm: float = field(default=0.03, metadata=spec(gt=0))
     lr_angle_deg: float = field(default=0.25, metadata=spec(gt=0))
     lr_length_mm: float = field(default=0.03, metadata=spec(gt=0))
-    lr_schedule: Literal["linear", "cosine"] = "cosine"
+    lr_schedule: Literal["constant", "linear", "cosine"] = "cosine"
     lr_start_scale: float = field(default=4.0, metadata=spec(gt=0))
     lr_end_scale: float = field(default=1.0, metadata=spec(gt=0))
     refresh_every: int = field(default=8, metadata=spec(gt=0))
@@ -113,7 +114,7 @@ class OptimizeOptions:
 
     def schedule(self) -> StepSchedule | None:
         """The step-size schedule over ``iterations`` (None: the ``lr_*`` throughout)."""
-        if self.lr_start_scale == self.lr_end_scale == 1.0:
+        if self.lr_schedule == "constant" or self.lr_start_scale == self.lr_end_scale == 1.0:
             return None
         return StepSchedule(
             self.lr_schedule, self.lr_start_scale, self.lr_end_scale, self.iterations

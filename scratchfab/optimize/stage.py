@@ -288,6 +288,8 @@ def _made_with(
         value, now = fields[field], getattr(options, option)
         if value > now if option == "iterations" else value != now:
             out[option] = value
+    if options.lr_schedule == "constant" and "lr_schedule" in made:  # it overrides the scales
+        out.setdefault("lr_schedule", fields.get("shape", OptimizeOptions().lr_schedule))
     return out
 
 
