@@ -888,6 +888,24 @@ def test_executed_guess_distances(tmp_path):
     assert math.isclose(prog.total_seconds, 4 / 100 * 60)
 
 
+def test_executed_guess_does_not_look_past_a_move_whose_path_it_cannot_check(tmp_path):
+    # stopped at (15, 5), the top of the arc from (10, 0) to (20, 0) about (15, 0): the
+    # move after the arc, (20, 0) to (10, 10), passes there too, but had not run
+    job = tmp_path / "job.gcode"
+    job.write_text("G21G90\nG0Z1\nG0X0Y0\nG1X10F100\nG2X20Y0I5J0\nG1X10Y10\nG1X0Y10\n")
+    prog = load_program(job)
+    s = Streamer.__new__(Streamer)
+    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None, settings={})
+    s._program = prog
+    s._all_ran = False
+    s._acked_blocks = list(range(len(prog.blocks)))
+    s._acks_at_status = len(prog.blocks)
+    assert s._executed_guess((15.0, 5.0, 1.0)) == 3  # the arc (block 4) may not have run
+    assert s._executed_guess((15.0, 5.0 + 1e-9, 1.0)) == 3
+    assert s._executed_guess((5.0, 10.0, 1.0)) == 3  # past the arc: its path is not checked
+    assert s._executed_guess((5.0, 0.0, 1.0)) == 2  # before it: on the G1 X10
+
+
 def test_executed_guess_ignores_blocks_acknowledged_after_the_report(tmp_path):
     # 30 one-mm moves, then back over the same line: an old report at X0.5 lies on the 1st
     # move and on the last; only the 1st had been acknowledged when the report came

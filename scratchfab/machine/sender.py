@@ -94,6 +94,7 @@ from scratchfab.machine.sender_program import (
     block_words,
     dwell_seconds,
     end_point,
+    straight_move,
     strip_block,
     travel_height,
 )
@@ -1653,10 +1654,11 @@ class Streamer:
         mode ``$32`` known off) means everything before it ran. The first candidate block
         whose segment contains the hold position is the interrupted one; without a match
         the earliest candidate is taken as interrupted (a stroke is cut again rather than
-        skipped). Only blocks
-        acknowledged before the position report can match it: a later block passing
-        through the same point (an old report) had not run. Once END_WAIT is acknowledged
-        every acknowledged block ran.
+        skipped), and so is a candidate move whose path the sender does not follow (an
+        arc, G28, G53, ...: the machine may stand anywhere in it, even on a later move's
+        segment). Only blocks acknowledged before the position report can match it: a
+        later block passing through the same point (an old report) had not run. Once
+        END_WAIT is acknowledged every acknowledged block ran.
         """
         acked = self._acked_blocks
         if not acked:
@@ -1675,6 +1677,8 @@ class Streamer:
             b = blocks[i]
             if not b.motion:
                 continue
+            if not straight_move(b):  # an arc, G28, G53...: the machine may be anywhere in it
+                return i - 1
             start = end_point(blocks[i - 1].modal if i > 0 else None, wpos)
             if along_segment(wpos, start, end_point(b.modal, wpos), tol=0.01) is not None:
                 return i - 1
