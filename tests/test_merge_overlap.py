@@ -13,9 +13,17 @@ from scratchfab.optimize.loss import PARALLEL_LIMIT, merge_penalty, neighbour_pa
 
 def penalty(m, p0: np.ndarray, p1: np.ndarray, i, j, width: float) -> float:
     """merge_penalty of the pairs (i, j) as a float."""
-    F, U = m.Float64, m.UInt32
-    got = merge_penalty(F, F(p0[:, 0]), F(p0[:, 1]), F(p1[:, 0]), F(p1[:, 1]), U(i), U(j), width)
-    return float(got[0])
+    return with_gradient(m.Float64, m.UInt32, p0, p1, i, j, width)[0]
+
+
+def with_gradient(F, U, p0: np.ndarray, p1: np.ndarray, i, j, width: float):
+    """merge_penalty of the pairs (i, j) in float type F, and its gradient (4, n) by AD."""
+    ends = [F(p0[:, 0]), F(p0[:, 1]), F(p1[:, 0]), F(p1[:, 1])]
+    for a in ends:
+        dr.enable_grad(a)
+    total = merge_penalty(F, *ends, U(i), U(j), width)
+    dr.backward(total)
+    return float(total[0]), np.array([np.array(dr.grad(a), dtype=np.float64) for a in ends])
 
 
 def quadrature(p0: np.ndarray, p1: np.ndarray, i, j, width: float, n: int = 200_000) -> float:
@@ -132,3 +140,73 @@ def test_small_angle_crossings_are_merge_candidates() -> None:
     found = set(zip(i.tolist(), j.tolist(), strict=True))
     within = {(2 * k, 2 * k + 1) for k, d in enumerate(angles) if d < math.degrees(PARALLEL_LIMIT)}
     assert found == within
+
+
+def near_parallel_pairs(rng, n: int, width: float, offset: np.ndarray):
+    """n pairs side by side within ``width``, turned 1e-8 to 1e-2 width over their length.
+
+    Their ends' distances from the other's line then differ by 1e-8 to 1e-2 width,
+    where a difference quotient of the weight's antiderivative would cancel.
+    """
+    c = rng.uniform(-1, 1, (n, 2))
+    ang = rng.uniform(0, math.pi, n)
+    d = np.stack([np.cos(ang), np.sin(ang)], 1)
+    length = rng.uniform(2, 6, n)
+    turn = rng.choice([-1, 1], n) * 10 ** rng.uniform(-8, -2, n) * width / length
+    turned = np.stack([np.cos(ang + turn), np.sin(ang + turn)], 1)
+    side = rng.uniform(0.1, 0.9, n) * width * rng.choice([-1, 1], n)
+    c2 = c + side[:, None] * np.stack([-d[:, 1], d[:, 0]], 1) + rng.uniform(-1, 1, (n, 1)) * d
+    half, half2 = d * length[:, None] / 2, turned * length[:, None] / 2
+    p0 = np.concatenate([c - half, c2 - half2]) + offset
+    p1 = np.concatenate([c + half, c2 + half2]) + offset
+    return p0, p1, np.arange(n), np.arange(n) + n
+
+
+@pytest.mark.parametrize("offset", [(0.0, 0.0), (450.0, 310.0)])
+def test_near_parallel_pairs_keep_their_precision_in_float32(m, rng, offset) -> None:
+    """Float32 value and gradient agree with float64's, on a board at the origin or off it.
+
+    A 300 mm board centred at (450, 310) rounds its float32 ends by up to 3e-5 mm, which
+    bounds the agreement; the float64 values meet the quadrature.
+    """
+    width = 0.1
+    p0, p1, i, j = near_parallel_pairs(rng, 200, width, np.array(offset))
+    value, grad = with_gradient(m.Float64, m.UInt32, p0, p1, i, j, width)
+    assert value == pytest.approx(quadrature(p0, p1, i, j, width), rel=1e-6)
+    value32, grad32 = with_gradient(m.Float32, m.UInt32, p0, p1, i, j, width)
+    assert value32 == pytest.approx(value, rel=1e-3)
+    assert np.abs(grad32 - grad).max() < 1e-2 * np.abs(grad).max()
+
+
+@pytest.mark.parametrize("float_type", ["Float32", "Float64"])
+@pytest.mark.parametrize(
+    "ends",
+    [
+        ([[0, 0], [0, 0]], [[5, 0], [5, 0]]),  # identical
+        ([[0, 0], [5, 0]], [[5, 0], [0, 0]]),  # identical, one reversed
+        ([[0, 0], [2, 0]], [[5, 0], [7, 0]]),  # collinear, overlapping
+        ([[0, 0], [5, 0]], [[5, 0], [9, 0]]),  # collinear, end to end
+        ([[0, 0], [2, 0]], [[5, 0], [6, 0.5]]),  # T-junction: an end of one on the other
+        ([[0, 0], [2, 0.1]], [[5, 0], [7, 0.1]]),  # side by side at the width
+        ([[0, 0], [2, 0.03]], [[5, 0], [2 + 3e-7, 5.03]]),  # nearly perpendicular
+    ],
+)
+def test_degenerate_pairs_cost_their_definition(m, float_type: str, ends) -> None:
+    """Pairs at the closed form's edge cases: the quadrature's value, a finite gradient."""
+    p0, p1 = np.array(ends[0], float), np.array(ends[1], float)
+    value, grad = with_gradient(getattr(m, float_type), m.UInt32, p0, p1, [0], [1], 0.1)
+    tol = 1e-6 if float_type == "Float32" else 1e-9
+    assert value == pytest.approx(quadrature(p0, p1, [0], [1], 0.1), rel=1e-4, abs=tol)
+    assert np.isfinite(grad).all()
+
+
+@pytest.mark.parametrize("float_type", ["Float32", "Float64"])
+@pytest.mark.parametrize("length", [0.0, 1e-12])
+def test_a_scratch_of_no_length_overlaps_nothing(m, float_type: str, length: float) -> None:
+    """A point on or beside a scratch (either order) shares none of its length."""
+    p0 = np.array([[0.0, 0.0], [2.0, 0.02], [0.0, 1.0]])
+    p1 = np.array([[5.0, 0.0], [2.0 + length, 0.02], [5.0, 1.0]])
+    for i, j in (([0, 2], [1, 1]), ([1, 1], [0, 2])):
+        value, grad = with_gradient(getattr(m, float_type), m.UInt32, p0, p1, i, j, 0.1)
+        assert abs(value) < 1e-9
+        assert np.isfinite(grad).all()

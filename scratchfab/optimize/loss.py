@@ -32,11 +32,12 @@ mean over both orders of
 with q the distance of the point from scratch j's line, over the points of i that
 project onto j: the length of i within the tool width of j, weighted by how close. q
 is linear along i, so the integral is a difference quotient of an antiderivative of
-the weight, in closed form (its gradient jumps only where the overlap's limit passes
-from one end to another, as a distance's does). Side by side at distance d over a shared
-length L it is L (1 - d / width)^2; crossing at angle a away from the ends,
-(2 width / 3) / sin a (at the parallel limit 1.16 width: a small step when a pair
-leaves the candidates).
+the weight, in closed form, written so that nothing cancels as the pair nears parallel
+(:func:`_hat_mean`). It is continuous; its gradient jumps only where the overlap's
+limit passes from one end to another (an end of i past the perpendicular at an end of
+j), as a distance's does. Side by side at distance d over a shared length L it is
+L (1 - d / width)^2; crossing at angle a away from the ends, (2 width / 3) / sin a (at
+the parallel limit 1.16 width: a small step when a pair leaves the candidates).
 
 It replaced ``cos^16(angle) * relu(1 - d_ij / width)^2``, d_ij the least of the four
 endpoint-to-segment distances, which did not see crossings. Measured
@@ -152,7 +153,7 @@ def _overlap(
 
     The integral over t in [0, 1] of ``|u| * relu(1 - |q| / width)^2``, with q the signed
     distance of a + t u from the line of c + s v, over the points that project onto
-    the segment c + s v itself.
+    the segment c + s v itself (none onto a segment of no length, below 1e-10 mm).
     """
     nx, ny = -vy / lv, vx / lv
     wx, wy = ax - cx, ay - cy
@@ -166,24 +167,33 @@ def _overlap(
     t_b = (lv - p0) / dp
     lo = dr.maximum(dr.minimum(t_a, t_b), 0.0)
     hi = dr.maximum(dr.minimum(dr.maximum(t_a, t_b), 1.0), lo)
-    qa = q0 + lo * dq
-    qb = q0 + hi * dq
-    # the mean of relu(1 - |q| / w)^2 over [qa, qb]: a difference quotient of its
-    # antiderivative, or its value at the middle where qa and qb nearly meet
-    gap = qb - qa
-    apart = dr.abs(gap) > 1e-4 * width
-    mean = dr.select(
-        apart,
-        (_hat_integral(qb, width) - _hat_integral(qa, width)) / dr.select(apart, gap, 1.0),
-        dr.square(dr.maximum(1.0 - dr.abs(0.5 * (qa + qb)) / width, 0.0)),
-    )
-    return (hi - lo) * lu * mean
+    # lv is clamped at 1e-10: a shorter segment's normal (n) would be too short
+    hi = dr.select(vx * vx + vy * vy > 1e-20, hi, lo)
+    return (hi - lo) * lu * _hat_mean(q0 + lo * dq, q0 + hi * dq, width)
 
 
-def _hat_integral(q: Any, width: float) -> Any:
-    """An antiderivative of relu(1 - |q| / width)^2 in q (odd, +-width / 3 beyond +-width)."""
-    rest = dr.maximum(1.0 - dr.abs(q) / width, 0.0)
-    return dr.sign(q) * (width / 3.0) * (1.0 - rest * rest * rest)
+def _hat_mean(qa: Any, qb: Any, width: float) -> Any:
+    """The mean of relu(1 - |q| / width)^2 over q in [qa, qb] (either order), in closed form.
+
+    It is the difference quotient of the antiderivative F(q) = sign(q) (m / 3)
+    (1 + r + r^2), m = min(|q|, width), r = 1 - m / width, written so that nothing
+    cancels as qa and qb meet (a pair near parallel), in float32 too: across the line
+    (opposite signs) (|F(qa)| + |F(qb)|) / (|qa| + |qb|); on one side the fraction of
+    [qa, qb] within the width times (ra^2 + ra rb + rb^2) / 3, that fraction 1 when
+    both are within it.
+    """
+    aa, ab = dr.abs(qa), dr.abs(qb)
+    ma, mb = dr.minimum(aa, width), dr.minimum(ab, width)
+    ra, rb = 1.0 - ma / width, 1.0 - mb / width
+    opposite = qa * qb < 0.0
+    fa = ma * (1.0 + ra + ra * ra)
+    fb = mb * (1.0 + rb + rb * rb)
+    across = (fa + fb) / dr.select(opposite, 3.0 * (aa + ab), 1.0)
+    differ = ab != aa
+    within = (mb - ma) / dr.select(differ, ab - aa, 1.0)
+    within = dr.select((aa <= width) & (ab <= width), 1.0, dr.select(differ, within, 0.0))
+    side = within * (ra * ra + ra * rb + rb * rb) / 3.0
+    return dr.select(opposite, across, side)
 
 
 def segment_distance_np(p0: np.ndarray, p1: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
