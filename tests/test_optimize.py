@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import math
 import os
 import re
@@ -536,12 +537,21 @@ def test_ctrl_c_stops_after_the_step_with_outputs(job: Path) -> None:
     out = proc.stdout.read().decode() if proc.stdout else ""
     assert "iterations (interrupted)" in out
     err = proc.stderr.read().decode()
-    assert f"`scratchfab optimize {job} --resume` continues it" in err
+    found = re.search(r"`(.*)` continues it", err)
+    assert found
+    again = shlex.split(found.group(1))  # the options given, which the resume must repeat
+    assert again == [
+        *("scratchfab", "optimize", str(job)),
+        *("--iterations", "500", "--checkpoint-every", "1000", "--resume"),
+    ]
     assert "Traceback" not in err and "error" not in err
     state, _, rows = load_checkpoint(job / "optimize" / "checkpoint.npz")
     n = int(state["iteration"])
     assert 3 <= n < 500 and len(rows) == n
     assert (job / "optimize" / "scratches.csv").exists() and log.exists()
+    resumed = _run_cli(job, *again[3:])  # the advice, followed, resumes to the end
+    assert resumed.wait(timeout=300) == 0, resumed.stderr.read() if resumed.stderr else ""  # type: ignore[union-attr]
+    assert json.loads((job / "optimize" / "summary.json").read_text())["iterations"] == 500
 
 
 def test_non_finite_loss_stops_with_message_and_keeps_checkpoint(
@@ -839,7 +849,7 @@ def test_interrupted_resume_command_pastes_as_the_job_folder(tmp_path, monkeypat
     found = re.search(r"^interrupted after 3 of 9 iterations; `(.*)` continues it$", err.strip())
     assert found
     words = shlex.split(found.group(1))  # an independent reader of the quoting
-    assert words == ["scratchfab", "optimize", str(job), "--resume"]
+    assert words == ["scratchfab", "optimize", str(job), "--iterations", "9", "--resume"]
     assert pasted_words(found.group(1), tmp_path) == words  # and the shell agrees
     assert not list(tmp_path.rglob("PWNED*"))  # nothing ran
 

@@ -179,10 +179,27 @@ def optimize(
         f"wrote {result.out_dir}"
     )
     if result.stopped == "interrupted":  # exit 130: `optimize && toolpath` stops here
+        again: list[str | Path] = ["scratchfab", "optimize", job, *_given_flags(ctx), "--resume"]
         raise Interrupted(
             f"interrupted after {result.iterations} of {iterations} iterations; "
-            f"`{command_line(['scratchfab', 'optimize', job, '--resume'])}` continues it"
+            f"`{command_line(again)}` continues it"
         )
+
+
+def _given_flags(ctx: click.Context) -> list[str]:
+    """The options this command was given, as flags, less --resume.
+
+    A resume must repeat the options its checkpoint was made with (``--iterations`` among
+    them, whose total a schedule's steps follow), so the advice repeats what was given.
+    """
+    return [
+        word
+        for p in optimize.params
+        if isinstance(p, click.Option)
+        and p.name != "resume"
+        and ctx.get_parameter_source(p.name or "") is not click.core.ParameterSource.DEFAULT
+        for word in (p.opts[0], str(ctx.params[p.name or ""]))
+    ]
 
 
 def _as_flags(
