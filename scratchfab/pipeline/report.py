@@ -455,10 +455,10 @@ def _views_section(
                 f"feasibility map: {html.escape(maps_text)}",
             ),
         )
-        # the difference map at its own size (its key's text at full size)
-        wide = layout.verify_diff_png(name)
+        # the maps with a key at their own size (the key's text at full size)
+        wide = (layout.verify_diff_png(name), layout.design.feasibility_png(name))
         rows.append(
-            (name, [(png, f"{name} {label}", text, png == wide) for png, label, text in shown])
+            (name, [(png, f"{name} {label}", text, png in wide) for png, label, text in shown])
         )
     # every view's boxes as wide as the widest picture of any
     pictures = [(png, wide) for _, row in rows for png, _, _, wide in row if png.is_file()]
@@ -631,6 +631,8 @@ def _last_iteration(last: dict[str, str], names: list[str]) -> str:
 def _walk_section(job: Path, metrics: dict[str, Any] | None) -> str:
     gif = JobLayout(job).verify_dir / "sweep.gif"
     if not gif.is_file():
+        if metrics is None:
+            return "<p class='muted'>verify has not run: no walk-past animation.</p>"
         return "<p class='muted'>no walk-past animation ([verify] sweep = 0).</p>"
     sweep = (metrics or {}).get("sweep") if isinstance(metrics, dict) else None
     detail = ""
@@ -860,6 +862,16 @@ def _stream_state(job: Path, port: str | None) -> tuple[_Stream, str]:
     return state, text
 
 
+def _is_bundled(pipeline_file: Path) -> bool:
+    """Whether a pipeline file is one the package ships (``scratchfab run demo``)."""
+    from scratchfab.bundled import bundled_dir
+
+    try:
+        return pipeline_file.resolve().parent == bundled_dir("pipelines").resolve()
+    except OSError:
+        return False
+
+
 def _setup_step(job: Path) -> str:
     """How to set the machine up: the profile's placement, and README step 5."""
     text = (
@@ -886,7 +898,10 @@ def _setup_step(job: Path) -> str:
 
 def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: Path | None) -> str:
     """Steps chosen from the job's state: fix, resume, cut, or look at the cut board."""
-    if pipeline_file is not None:
+    bundled = pipeline_file is not None and _is_bundled(pipeline_file)
+    if pipeline_file is not None and bundled:
+        pipe = pipeline_file.stem  # `scratchfab run demo` finds it by name anywhere
+    elif pipeline_file is not None:
         # Whichever works from the job folder and is shorter to type (no relative path
         # between two Windows drives).
         absolute = str(pipeline_file.resolve())
@@ -944,8 +959,17 @@ def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: 
             + _code("scratchfab stream export/board.gcode --port PORT --check")
             + " runs the file through GRBL's check mode "
             "(nothing moves), then asks before it cuts.",
-            "Or set [stream] <code>port</code> in the pipeline file to your machine's port and "
-            f"run {rerun}. After a dropped cable, run the same command again "
+            (
+                "Or copy the bundled pipeline "
+                f"{_code(str(pipeline_file.resolve()) if pipeline_file else pipe)} to a file of "
+                "your own (the comment at its top says what to re-point), set [stream] "
+                "<code>port</code> in it to your machine's port and run "
+                f"{_code(command_line(['scratchfab', 'run', 'my.toml', '--out', '.']))}"
+                if bundled
+                else "Or set [stream] <code>port</code> in the pipeline file to your machine's "
+                f"port and run {rerun}"
+            )
+            + ". After a dropped cable, run the same command again "
             "(<code>scratchfab stream</code> needs <code>--resume</code>).",
         ]
     items = "".join(f"<li>{s}</li>" for s in steps)
