@@ -4,10 +4,15 @@ feasibility map's key at a readable size, and the walk-past section before verif
 from __future__ import annotations
 
 import html
+import json
 import re
 import shlex
+import subprocess
+from pathlib import Path
 
 import numpy as np
+import pytest
+from conftest import CHROMIUM
 from PIL import Image
 from test_report import fake_job
 
@@ -81,3 +86,65 @@ def test_walk_past_section_says_verify_has_not_run_before_it_ran(tmp_path):
     page = write_report(job).read_text()
     walk = re.search(r"<h2>Walking past the board</h2>(.*?)<h2>", page)
     assert walk and "verify has not run" in walk.group(1) and "sweep = 0" not in walk.group(1)
+
+
+def _toolpath_preview(job: Path) -> int:
+    """A toolpath preview as the toolpath stage draws one: 1500 px wide; its width."""
+    path = JobLayout(job).toolpath_preview
+    Image.fromarray(np.full((1270, 1500, 3), 255, np.uint8)).save(path)
+    return 1500
+
+
+def test_toolpath_preview_spans_the_page_smoothly_scaled(tmp_path):
+    job = fake_job(tmp_path)
+    _toolpath_preview(job)
+    page = write_report(job).read_text()
+    shown = re.search(r"<figure([^>]*)><img alt=\"toolpath preview\"", page)
+    assert shown and "class='full'" in shown.group(1)
+    style = re.search(r"<style>(.*?)</style>", page, re.S)
+    assert style
+    rules = {k.strip(): v for k, v in re.findall(r"([^{}]+)\{([^}]*)\}", style.group(1))}
+    full = rules["figure.full img"]
+    assert "width:100%" in full and "image-rendering:auto" in full  # not pixelated when shrunk
+    assert "image-rendering:auto" in rules["figure.wide img"]  # the loss plot's text too
+
+
+@pytest.mark.skipif(
+    CHROMIUM is None, reason="Debian's chromium is not installed (.ci/run installs it)"
+)
+def test_toolpath_preview_measured_in_chromium_is_wider_than_the_other_pictures(tmp_path):
+    """In a 1200 px window the preview fills the page's width (body at most 1200 px, 2em
+    margins), far past the 640 px of the other wide pictures, its legend readable."""
+    job = fake_job(tmp_path)
+    natural = _toolpath_preview(job)
+    report = write_report(job)
+    measure = """<script>
+window.addEventListener('load', function () {
+  var img = document.querySelector('img[alt="toolpath preview"]');
+  var r = img.getBoundingClientRect();
+  document.body.setAttribute('data-preview', JSON.stringify([r.width, img.naturalWidth,
+    document.body.getBoundingClientRect().width]));
+});
+</script></body>"""
+    report.write_text(report.read_text().replace("</body>", measure))
+    dom = subprocess.run(
+        [
+            str(CHROMIUM),
+            *("--headless", "--no-sandbox", "--disable-gpu", "--no-first-run"),
+            f"--user-data-dir={tmp_path / 'profile'}",
+            "--window-size=1200,900",
+            "--virtual-time-budget=5000",
+            "--dump-dom",
+            report.as_uri(),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    ).stdout
+    found = re.search(r'data-preview="([^"]*)"', dom)
+    assert found, dom[:2000]
+    width, seen_natural, body = json.loads(html.unescape(found.group(1)))
+    assert seen_natural == natural
+    assert 1000 < width <= body  # the body's width less the box's padding and border
+    assert body - width == pytest.approx(2 * 8 + 2, abs=1.0)

@@ -40,8 +40,10 @@ figure{border:1px solid #ddd;padding:.5em;border-radius:4px;margin:0;max-width:3
 """
     f"figure img{{image-rendering:pixelated;width:{PICTURE_PX}px;display:block}}\n"
     f"figure.wide{{max-width:{WIDE_PX + 20}px}}\n"
-    f"figure.wide img{{width:auto;max-width:{WIDE_PX}px}}\n"
+    f"figure.wide img{{width:auto;max-width:{WIDE_PX}px;image-rendering:auto}}\n"
     """.views figure{max-width:none}
+figure.full{max-width:none;width:100%}
+figure.full img{width:100%;max-width:none;image-rendering:auto}
 figcaption{font-size:.85em;color:#444;margin-top:.3em}
 table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
 th[scope=row],td.text{text-align:left}
@@ -105,14 +107,20 @@ def _img(path: Path, alt: str) -> str:
 
 
 def _figure(
-    path: Path, alt: str, caption: str, wide: bool = False, width: int | None = None
+    path: Path,
+    alt: str,
+    caption: str,
+    wide: bool = False,
+    width: int | None = None,
+    full: bool = False,
 ) -> str:
     """A picture and its caption in a box.
 
     ``wide``: the picture at its own size (up to WIDE_PX), else PICTURE_PX wide; ``width``:
-    the box's inner width in pixels (else as the picture and the caption ask).
+    the box's inner width in pixels (else as the picture and the caption ask); ``full``:
+    the page's width, smoothly scaled (a large drawing whose small text must stay legible).
     """
-    cls = " class='wide'" if wide else ""
+    cls = " class='full'" if full else " class='wide'" if wide else ""
     style = f" style='width:{width}px'" if width is not None else ""
     return f"<figure{cls}{style}>{_img(path, alt)}<figcaption>{caption}</figcaption></figure>"
 
@@ -709,7 +717,7 @@ def _toolpath_section(job: Path, data: Any) -> str:
                 "toolpath preview",
                 "toolpath seen from the front: the board's outline, the cuts, the travel "
                 "moves between them, the limits of the machine's travel and the start point",
-                wide=True,
+                full=True,  # its title and legend are small beside 1500 px of strokes
             )
         )
     stats = (data or {}).get("statistics") if isinstance(data, dict) else None
