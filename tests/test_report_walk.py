@@ -148,3 +148,17 @@ window.addEventListener('load', function () {
     assert seen_natural == natural
     assert 1000 < width <= body  # the body's width less the box's padding and border
     assert body - width == pytest.approx(2 * 8 + 2, abs=1.0)
+
+
+def test_a_view_below_min_rho_says_how_to_cut_the_board_anyway(tmp_path):
+    """The gate's fix names the key that lets a maker cut a board below the threshold,
+    with the value docs/files.md gives for never stopping."""
+    job = fake_job(tmp_path, rho=(0.5, 0.9))
+    page = write_report(job, min_rho=0.8).read_text()
+    steps = re.search(r"<ol data-next='fix'>(.*?)</ol>", page)
+    assert steps
+    text = html.unescape(re.sub(r"<[^>]+>", "", steps.group(1)))
+    assert "lower [verify] min_rho (-1 never stops the run)" in text
+    files_md = Path(__file__).parents[1] / "docs" / "files.md"
+    row = next(ln for ln in files_md.read_text().splitlines() if ln.startswith("| `min_rho`"))
+    assert "`-1` never stops" in row  # the documented value the advice repeats

@@ -310,7 +310,8 @@ def _rho_checks(
                     f"{name} rho {rho:.3f} below {min_rho:g}",
                     "A view looks too little like its target: run optimize longer "
                     "([optimize] iterations), add scratches ([scratch] count), or move the "
-                    "views further apart.",
+                    "views further apart. To cut the board as it is, lower [verify] "
+                    "<code>min_rho</code> (-1 never stops the run).",
                 )
             )
     return checks
