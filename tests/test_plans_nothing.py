@@ -68,6 +68,9 @@ UNKNOWN_START = {
     "after G10 L20": ["G21 G90", "G0 X1 Y1 Z5", "G10 L20 P1 X0", "G0 X1"],
     "after G43.1": ["G21 G90", "G0 X1 Y1 Z5", "G43.1 Z2", "G0 Z5"],
     "after M30 back to G54": ["G21 G90 G55", "G0 X1 Y1 Z5", "M30", "G0 X1 Y1 Z5"],
+    "after G10 L2 to the same offset": ["G21 G90", "G0 X1 Y1 Z5", "G10 L2 P1 X0", "G0 X1"],
+    "after G92.1 of no offset": ["G21 G90", "G0 X1 Y1 Z5", "G92 X1 Y1", "G92.1", "G0 X1 Y1"],
+    "G91 after G55": ["G21 G90", "G0 X1 Y1 Z5", "G55", "G91 G0 X0.001", "G0 X-0.001"],
 }
 
 #: Programs with moves of under a step ($100-$102 = 250: 0.004 mm), which GRBL drops (a

@@ -90,11 +90,11 @@ from scratchfab.machine.sender_program import (
     Block,
     Program,
     TimeLeft,
-    along_segment,
+    along_move,
     block_words,
     dwell_seconds,
-    end_point,
-    straight_move,
+    followed_move,
+    stands_at_end,
     strip_block,
     travel_height,
 )
@@ -1654,9 +1654,10 @@ class Streamer:
         mode ``$32`` known off) means everything before it ran. The first candidate block
         whose segment contains the hold position is the interrupted one; without a match
         the earliest candidate is taken as interrupted (a stroke is cut again rather than
-        skipped), and so is a candidate move whose path the sender does not follow (an
-        arc, G28, G53, ...: the machine may stand anywhere in it, even on a later move's
-        segment). Only blocks acknowledged before the position report can match it: a
+        skipped), and so is a candidate move whose path the sender does not follow
+        (:func:`followed_move`: an arc, G28, G53, a move whose start is not known after a
+        change of the work frame...: the machine may stand anywhere in it, even on a later
+        move's segment). Only blocks acknowledged before the position report can match it: a
         later block passing through the same point (an old report) had not run. Once
         END_WAIT is acknowledged every acknowledged block ran.
         """
@@ -1677,12 +1678,11 @@ class Streamer:
             b = blocks[i]
             if not b.motion:
                 continue
-            if not straight_move(b):  # an arc, G28, G53...: the machine may be anywhere in it
+            if not followed_move(blocks, i):  # an arc, G28, a move after G55...
                 return i - 1
-            start = end_point(blocks[i - 1].modal if i > 0 else None, wpos)
-            if along_segment(wpos, start, end_point(b.modal, wpos), tol=0.01) is not None:
+            if along_move(blocks, i, wpos, tol=0.01) is not None:
                 return i - 1
-        if reported and math.dist(wpos, end_point(blocks[reported[-1]].modal, wpos)) < 0.01:
+        if reported and stands_at_end(blocks[reported[-1]], wpos, 0.01):
             return reported[-1]
         return surely
 

@@ -9,7 +9,7 @@ from typing import Protocol
 
 from scratchfab.console import duration_text
 from scratchfab.machine.grbl_codes import MM_PER_INCH
-from scratchfab.machine.sender_program import Block, Modal, Program
+from scratchfab.machine.sender_program import Block, Modal, Program, work_xyz
 
 _AXES = "XYZ"
 #: One digit of GRBL's coordinate reports in mm: 3 decimals in mm, 4 in inches under
@@ -160,8 +160,10 @@ def axis_feeds(program: Program) -> list[float]:
     for b in program.blocks:
         m = b.modal
         if b.motion and not b.unfollowed and m.feed_mode == "G94" and m.motion != "G0":
-            dz = 0.0 if m.z is None or prev.z is None else m.z - prev.z
-            delta = (m.x - prev.x, m.y - prev.y, dz)
+            delta = [  # an axis whose position is unknown at an end: not known to move
+                0.0 if u is None or v is None else v - u
+                for u, v in zip(work_xyz(prev), work_xyz(m), strict=True)
+            ]
             length = math.hypot(*delta)
             share = [abs(d) / length if length > 0 else 0.0 for d in delta]
             if m.motion in ("G2", "G3"):

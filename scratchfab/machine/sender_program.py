@@ -75,9 +75,12 @@ class Modal:
     spindle: str = "M5"
     speed: float = 0.0
     coolant: str = "M9"
-    x: float = 0.0
-    y: float = 0.0
-    z: float | None = None  # unknown until the program sets it
+    # None: not known (Z until the program sets it; any axis after a change of the work
+    # frame until a block gives it in absolute mode: :func:`_frame_change`)
+    x: float | None = 0.0
+    y: float | None = 0.0
+    z: float | None = None
+    lost: str = ""  # the axes a change of the work frame left unknown (G91 keeps them so)
 
     @property
     def mm_per_unit(self) -> float:
@@ -183,11 +186,8 @@ class Program:
             straight = b.motion and not b.unfollowed and b.arc_box is None
             straight = straight and after.motion in ("G0", "G1")
             if straight:
-                d = (
-                    after.x - before.x,
-                    after.y - before.y,
-                    (after.z or 0.0) - (before.z or 0.0),
-                )
+                (ax, ay, az), (bx, by, bz) = _estimate_xyz(after), _estimate_xyz(before)
+                d = (ax - bx, ay - by, az - bz)
                 dist = math.hypot(*d)
                 if after.motion == "G0":
                     rate = math.inf
@@ -225,6 +225,17 @@ class Program:
             for i in range(a, b + 1):
                 out[i] = k
         return out
+
+
+def work_xyz(modal: Modal) -> tuple[float | None, float | None, float | None]:
+    """The work position (mm) after a block, None on an axis where it is not known."""
+    return (modal.x, modal.y, modal.z)
+
+
+def _estimate_xyz(modal: Modal) -> tuple[float, float, float]:
+    """The work position for time estimates: an unknown axis taken as 0."""
+    x, y, z = (v if v is not None else 0.0 for v in work_xyz(modal))
+    return x, y, z
 
 
 def block_words(text: str) -> list[tuple[str, float]]:
@@ -318,6 +329,45 @@ def _unfollowed(nonmodal: str, axes: dict[str, float], before: Modal, after: Mod
     return ""
 
 
+_WCS = ("G54", "G55", "G56", "G57", "G58", "G59")
+
+
+def _frame_change(s: Modal, state: Modal, nonmodal: str, words: list[tuple[str, float]]) -> Modal:
+    """The work position after a block's change of the work frame, before its motion.
+
+    GRBL changes the frame before the block's motion (``gc_execute_line``: G54-G59 at
+    step 12, G10, G53, G92 at step 19, the motion at step 20). Where the new frame's offset
+    is not known to the sender, so is not the machine's work position in it, on the axes
+    the offset changes: every axis after another G54-G59 system, G92.1, G28 or G30 (which
+    end at a stored machine position); the axes given after G10 L2 on the system in use
+    (P0, or its own P1-P6) and after G53 (a move in machine coordinates). G92, and G10
+    L20 on the system in use, set the axes given to the values given (in the block's
+    units, whatever G90/G91 says): known. A lost axis stays unknown until a block gives it
+    in absolute mode (G90). Not followed: G43.1, which shifts work Z by the change of the
+    tool length offset (its block is ``unfollowed``; Z is kept).
+    """
+    given = {letter: value * s.mm_per_unit for letter, value in words if letter in "XYZ"}
+    lost: set[str] = set()
+    found: dict[str, float] = {}
+    if s.wcs != state.wcs or nonmodal in ("G92.1", "G28", "G30"):
+        lost = {"X", "Y", "Z"}
+    elif nonmodal == "G53":
+        lost = set(given)
+    elif nonmodal in ("G10", "G92"):
+        level = next((v for letter, v in words if letter == "L"), None)
+        system = next((v for letter, v in words if letter == "P"), None)
+        current = system in (0.0, float(_WCS.index(s.wcs) + 1))
+        if nonmodal == "G92" or (level == 20.0 and current):
+            found = given
+        elif level == 2.0 and current:
+            lost = set(given)
+    x, y, z = (
+        None if a in lost else found.get(a, v) for a, v in zip("XYZ", work_xyz(s), strict=True)
+    )
+    still = "".join(a for a in "XYZ" if a in lost or (a in s.lost and a not in found))
+    return replace(s, x=x, y=y, z=z, lost=still)
+
+
 def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     """One block's effect: modal state after it, estimated seconds, motion and sync flags.
 
@@ -367,7 +417,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
                 s = replace(s, plane=code)
             elif code in ("G93", "G94"):
                 s = replace(s, feed_mode=code)
-            elif code in ("G54", "G55", "G56", "G57", "G58", "G59"):
+            elif code in _WCS:
                 s = replace(s, wcs=code)
             elif code in ("G4", "G10", "G28", "G30", "G53", "G92", "G28.1", "G30.1", "G92.1"):
                 nonmodal = code
@@ -415,13 +465,18 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     box = None
     rapid = None
     moving = not offset and nonmodal not in ("G10", "G92", "G28", "G30", "G53")
+    s = _frame_change(s, state, nonmodal, words)
     if axes and moving and s.motion != "G80":
-        start = (s.x, s.y, s.z if s.z is not None else 0.0)
+        # the estimate takes an unknown start as 0 (and so does G91 from a Z not yet set);
+        # a lost axis stays unknown
+        start = _estimate_xyz(s)
         end = list(start)
+        known = list(work_xyz(s))
         for k, a in enumerate("XYZ"):
             if a in axes:
                 v = axes[a] * scale
                 end[k] = start[k] + v if s.relative else v
+                known[k] = None if s.relative and a in s.lost else end[k]
         if s.motion == "G0":
             rapid = (abs(end[0] - start[0]), abs(end[1] - start[1]), abs(end[2] - start[2]))
             seconds += _rapid_seconds(rapid, rapid_mm_min)
@@ -431,15 +486,16 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
             seconds += dist / rate * 60.0 if rate > 0 and math.isfinite(rate) else 0.0
         if s.motion in ("G2", "G3") and s.plane == "G17":
             box = _arc_box(start[:2], (end[0], end[1]), arc, s.motion == "G2", scale)
-        z = end[2] if ("Z" in axes or s.z is not None) else None
-        s = replace(s, x=end[0], y=end[1], z=z)
+        still = "".join(a for a in s.lost if s.relative or a not in axes)
+        s = replace(s, x=known[0], y=known[1], z=known[2], lost=still)
         motion = True
-    elif axes and nonmodal in ("G28", "G30", "G53"):
-        motion = True  # position unknown to the sender; keep the old one
+    elif nonmodal in ("G28", "G30") or (axes and nonmodal == "G53"):
+        motion = True  # G28/G30 move to the stored position, through the point given
     unfollowed = _unfollowed(nonmodal, axes, state, s)
     if offset == "G43.1":
         unfollowed = unfollowed or "G43.1 changes the tool length offset (work Z)"
     if ending in ("M2", "M30"):  # after the motion
+        s = _frame_change(replace(s, wcs="G54"), s, "", [])
         s = replace(
             s, motion="G1", relative=False, plane="G17", feed_mode="G94", wcs="G54",
             spindle="M5", coolant="M9",
@@ -489,7 +545,7 @@ def auto_threshold(blocks: Sequence[Block]) -> float | None:
     """
     rapid_z: set[float] = set()
     feed_z: set[float] = set()
-    prev_xy = (0.0, 0.0)
+    prev_xy: tuple[float | None, float | None] = (0.0, 0.0)
     for b in blocks:
         m = b.modal
         xy = (m.x, m.y)
@@ -797,6 +853,16 @@ def resume_preamble(program: Program, start: int) -> list[str]:
     if start <= 0 or start > len(program.blocks):
         return []
     before = program.blocks[start - 1].modal
+    if before.x is None or before.y is None:
+        lost = start - 1  # the block that lost X or Y
+        while lost > 0 and None in work_xyz(program.blocks[lost - 1].modal)[:2]:
+            lost -= 1
+        raise ConfigError(
+            f"{program.path}:{program.blocks[start].lineno}: cannot resume here: after line "
+            f"{program.blocks[lost].lineno} ({program.blocks[lost].text!r}) changed the work "
+            "frame, the file has not given X and Y again in absolute mode (G90), so the "
+            "sender does not know where to bring the tool back to"
+        )
     zs = [b.modal.z for b in program.blocks[:start] if b.modal.z is not None]
     mode, feed = travel_move(program, start)
     move = mode if mode == "G0" else f"G1F{gcode_number(feed, 4)}"
@@ -828,37 +894,80 @@ def resume_preamble(program: Program, start: int) -> list[str]:
     return lines
 
 
-def end_point(
-    modal: Modal | None, fallback: tuple[float, float, float]
-) -> tuple[float, float, float]:
-    """A block's end position (work mm).
+def _ends(blocks: Sequence[Block], i: int) -> tuple[Modal, Modal]:
+    """The modal state before and after block ``i``."""
+    return (blocks[i - 1].modal if i > 0 else Modal()), blocks[i].modal
 
-    An unknown Z takes ``fallback``'s; no block (None) is the origin at ``fallback``'s Z.
+
+def _unknown_moves(blocks: Sequence[Block], i: int) -> list[int]:
+    """The axes (0-2) block ``i`` gives whose work position is unknown at one of its ends."""
+    before, after = _ends(blocks, i)
+    given = {letter for letter, _ in block_words(blocks[i].text)}
+    return [
+        k
+        for k, (a, u, v) in enumerate(zip("XYZ", work_xyz(before), work_xyz(after), strict=True))
+        if a in given and (u is None or v is None)
+    ]
+
+
+def followed_move(blocks: Sequence[Block], i: int) -> bool:
+    """Whether a position can be matched against block ``i``'s path (:func:`along_move`).
+
+    A straight move (:func:`straight_move`) with an axis whose work position the sender
+    knows at both ends. An axis unknown at an end (Z before the program sets it, any axis
+    after a change of the work frame) is left out of the match, so the match never misses
+    the machine on the move; a move known on no axis is not matched (the machine may be
+    anywhere on it, as in an arc).
     """
-    if modal is None:
-        return (0.0, 0.0, fallback[2])
-    return (modal.x, modal.y, modal.z if modal.z is not None else fallback[2])
+    before, after = _ends(blocks, i)
+    known = any(
+        u is not None and v is not None
+        for u, v in zip(work_xyz(before), work_xyz(after), strict=True)
+    )
+    return straight_move(blocks[i]) and known
 
 
-def along_segment(
-    p: Sequence[float],
-    a: Sequence[float],
-    b: Sequence[float],
-    tol: float,
-) -> float | None:
-    """How far ``p`` is along segment ``a``-``b`` (0 at ``a``), if within ``tol`` of it.
+def along_move(blocks: Sequence[Block], i: int, p: Sequence[float], tol: float) -> float | None:
+    """How far ``p`` (work mm) is along block ``i``'s move (0 at its start), if within ``tol``.
 
-    None when ``p`` is off the segment, at its very end, or the segment has no length.
+    Matched on the axes known at both ends of the move (:func:`followed_move`). None when
+    ``p`` is off the move, at its very end, the move is not followed or has no length. A
+    move whose known axes stand still while it moves an unknown one (a first Z move) has
+    ``p`` at 0 where ``p`` stands on those axes, unless ``p`` is exactly where the move
+    ends.
     """
-    ab = [b[k] - a[k] for k in range(3)]
-    length2 = sum(v * v for v in ab)
-    if length2 == 0.0:
+    if not followed_move(blocks, i):
         return None
-    t = sum(ab[k] * (p[k] - a[k]) for k in range(3)) / length2
+    before, after = _ends(blocks, i)
+    pairs = [
+        (u, v, float(p[k]))
+        for k, (u, v) in enumerate(zip(work_xyz(before), work_xyz(after), strict=True))
+        if u is not None and v is not None
+    ]
+    a = [u for u, _, _ in pairs]
+    ab = [v - u for u, v, _ in pairs]
+    q = [w for _, _, w in pairs]
+    length2 = sum(d * d for d in ab)
+    if length2 == 0.0:
+        unknown = _unknown_moves(blocks, i)
+        if not unknown or math.dist(q, a) > tol:
+            return None
+        ends = [work_xyz(after)[k] for k in unknown]
+        return None if ends == [float(p[k]) for k in unknown] else 0.0  # at its very end
+    t = sum(d * (w - u) for d, w, u in zip(ab, q, a, strict=True)) / length2
     if t < -1e-9 or t > 1.0 - 1e-6:
         return None
-    closest = [a[k] + t * ab[k] for k in range(3)]
-    return max(t, 0.0) if math.dist(p, closest) <= tol else None
+    closest = [u + t * d for u, d in zip(a, ab, strict=True)]
+    return max(t, 0.0) if math.dist(q, closest) <= tol else None
+
+
+def stands_at_end(block: Block, p: Sequence[float], tol: float) -> bool:
+    """Whether ``p`` (work mm) is within ``tol`` of where ``block`` ends, on the axes known there.
+
+    False where no axis is known.
+    """
+    known = [(v, float(p[k])) for k, v in enumerate(work_xyz(block.modal)) if v is not None]
+    return bool(known) and math.dist([v for v, _ in known], [w for _, w in known]) <= tol
 
 
 def straight_move(block: Block) -> bool:
@@ -882,15 +991,16 @@ def plans_nothing(
     dropped, its point lies within half a step of the sender's on each axis, so a move it
     drops moves at most one step (``step_mm``, ``$100``-``$102``; 0: not known, only a
     move of no length counts) on each axis by the sender's count. Calling a real move so
-    is safe (the bound looks further back); the reverse would trust a queued move.
+    is safe (the bound looks further back); the reverse would trust a queued move: an
+    axis whose work position is unknown at one of the move's ends may not move at all.
     """
     if not straight_move(blocks[i]):
         return False
-    before = blocks[i - 1].modal if i > 0 else Modal()
-    after = blocks[i].modal
-    if (before.z is None) != (after.z is None):
-        return False
-    moved = (after.x - before.x, after.y - before.y, (after.z or 0.0) - (before.z or 0.0))
+    before, after = _ends(blocks, i)
+    moved = [  # an axis unknown at an end may not move: only the known ones tell
+        0.0 if u is None or v is None else v - u
+        for u, v in zip(work_xyz(before), work_xyz(after), strict=True)
+    ]
     return all(abs(d) <= step for d, step in zip(moved, step_mm, strict=True))
 
 
@@ -1004,28 +1114,25 @@ class TimeLeft:
     def _follow(self, reported_through: int, wpos: Sequence[float]) -> None:
         """Put the run point where the reported position lies, if it lies on a queued move.
 
-        The first acknowledged straight move from the run point on that the position lies
-        on, not behind the run point (where a path passes a point twice, a pass behind it
-        is skipped; of two ahead, the earlier counts, so the time left errs long);
-        else, at the end point of the last block acknowledged before the report, all of
-        them ran (not when an arc or a move the sender cannot follow lies between: their
-        paths are not checked).
+        The first acknowledged followed move (:func:`followed_move`) from the run point on
+        that the position lies on, not behind the run point (where a path passes a point
+        twice, a pass behind it is skipped; of two ahead, the earlier counts, so the time
+        left errs long); else, at the end point of the last block acknowledged before the
+        report, all of them ran (not when an arc or another move the sender does not
+        follow lies between: their paths are not checked).
         """
-        here = (float(wpos[0]), float(wpos[1]), float(wpos[2]))
         unchecked = False
         for i in range(self._block, reported_through + 1):
             b = self._blocks[i]
-            if not straight_move(self._blocks[i]):
+            if not followed_move(self._blocks, i):
                 unchecked = unchecked or b.motion
                 continue
-            before = self._blocks[i - 1].modal if i > 0 else None
-            t = along_segment(here, end_point(before, here), end_point(b.modal, here), self._tol)
+            t = along_move(self._blocks, i, wpos, self._tol)
             if t is not None and (i > self._block or t * b.seconds >= self._into):
                 self._advance(i, t * b.seconds)
                 return
         if reported_through >= self._block and not unchecked:
-            end = end_point(self._blocks[reported_through].modal, here)
-            if math.dist(here, end) <= self._tol:
+            if stands_at_end(self._blocks[reported_through], wpos, self._tol):
                 self._advance(reported_through + 1, 0.0)
 
     def _advance(self, block: int, into: float) -> None:
