@@ -591,11 +591,15 @@ def test_failed_stage_keeps_earlier_outputs_and_next_run_resumes_there(tmp_path)
         run_pipeline(load_pipeline(path), job, say=lambda s: None)
     # Named as the pipeline file names it, not as verify-render's --min-rho option.
     assert "--min-rho" not in str(info.value)
-    assert re.search(r"rho_kk -?\d\.\d{3} is below \[verify\] min_rho = 0.9999", str(info.value))
+    assert re.search(
+        r"looks like its target only to rho -?\d\.\d{3}, below \[verify\] min_rho = 0.9999",
+        str(info.value),
+    )
     assert str(path) in str(info.value)
     manifest = Manifest.load(job)
     assert manifest.stages["optimize"]["status"] == "done"
     assert manifest.stages["verify"]["status"] == "failed"
+    assert manifest.stages["verify"]["reason"] == str(info.value)  # its words, no class name
     assert not (job / "toolpath").exists()  # the gate stopped the pipeline before toolpath
     assert (job / "report.html").is_file()
     before = (job / "optimize" / "scratches.csv").read_bytes()

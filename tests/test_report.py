@@ -451,7 +451,7 @@ def test_manifest_detects_changes_not_touches(tmp_path):
 
 def test_verdict_names_a_failed_stage_from_the_manifest(tmp_path):
     job = fake_job(tmp_path)
-    reason = "VerifyGateError: view right: rho_kk 0.700 is below min_rho 0.8"
+    reason = "view right looks like its target only to rho 0.700, below min_rho 0.8"
     stages = {
         "design": {"status": "done"},
         "verify": {"status": "failed", "reason": reason},

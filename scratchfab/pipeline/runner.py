@@ -428,7 +428,11 @@ def _run_stages(
                 manifest.interrupt(stage, inputs, str(exc))
                 raise
             except BaseException as exc:
-                manifest.invalidate(stage, f"{type(exc).__name__}: {exc}")
+                # a user's mistake in its own words; anything else with its kind
+                why = (
+                    str(exc) if isinstance(exc, ScratchfabError) else f"{type(exc).__name__}: {exc}"
+                )
+                manifest.invalidate(stage, why)
                 raise
             # Record what the stage read, as it was when the stage ran.
             manifest.record(stage, inputs, outputs, time.perf_counter() - began)

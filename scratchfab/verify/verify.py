@@ -78,8 +78,8 @@ class VerifyGateError(ScratchfabError):
         self.failing, self.views, self.metrics_file = failing, views, metrics_file
         where = f"{source}: " if source else ""
         super().__init__(
-            f"{where}view {view}: rho_kk {rho:.3f} is below {setting} {min_rho:g} "
-            f"({failing} of {views} views fail; see {metrics_file})"
+            f"{where}view {view} looks like its target only to rho {rho:.3f}, below "
+            f"{setting} {min_rho:g} ({failing} of {views} views fail; see {metrics_file})"
         )
 
     def named(self, setting: str, source: str) -> VerifyGateError:
