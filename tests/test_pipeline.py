@@ -966,3 +966,18 @@ def test_other_ports_load(tmp_path, port):
         tmp_path, edits={"grblsim://?time_scale=0&$130=300&$131=180&$132=45": port}
     )
     assert load_pipeline(path).stream.port == port
+
+
+@pytest.mark.parametrize(("width", "warned"), [(30.0, False), (400.0, True)])
+def test_a_board_the_machine_cannot_reach_whole_is_said_before_design(tmp_path, width, warned):
+    """The 3018's envelope is 300 x 180 mm: a 400 mm board is said at the start, and the
+    toolpath stage then finds scratches outside it, as the warning said it would."""
+    path = write_pipeline(tmp_path, edits={"width_mm = 30.0": f"width_mm = {width}"})
+    said: list[str] = []
+    result = run_pipeline(load_pipeline(path), tmp_path / "job", until="toolpath", say=said.append)
+    first = said[0].startswith(f"warning: the {width:g} x 30 mm board (corners ")
+    assert first is warned
+    assert any("reaches beyond machine 'GRBL 3018" in line for line in said) is warned
+    stats = json.loads((tmp_path / "job" / "toolpath" / "toolpath.json").read_text())["statistics"]
+    assert (stats["outside_count"] + stats["clipped_count"] > 0) is warned
+    assert result.ran[-1] == "toolpath"

@@ -371,6 +371,26 @@ def _job_lock(path: Path) -> Iterator[None]:
         yield
 
 
+def _say_board_overhang(pipe: Pipeline, say: Say) -> None:
+    """Warn before design and optimize run when the machine cannot reach the whole board.
+
+    The toolpath stage leaves out or clips the scratches beyond the envelope; said first,
+    a person can fix the board or the profile before minutes of optimizing.
+    """
+    board, profile = pipe.design.board, pipe.profile
+    corners = profile.board_outline((board.width_mm, board.height_mm))
+    if profile.envelope.contains_xy(corners).all():
+        return
+    env = profile.envelope
+    say(
+        f"warning: the {board.width_mm:g} x {board.height_mm:g} mm board (corners "
+        f"{corners.round(1).tolist()}) reaches beyond machine '{profile.name}''s envelope "
+        f"x {list(env.x_mm)}, y {list(env.y_mm)}: the toolpath stage will leave out or clip "
+        "the scratches there; check [board] and the profile's [board] offset_mm and "
+        "[envelope] (Ctrl-C now to change them)"
+    )
+
+
 def _run_stages(
     pipe: Pipeline,
     job: Path,
@@ -386,6 +406,8 @@ def _run_stages(
     stages = _Stages(pipe, job, say, confirm)
     result = RunResult(job)
     last = STAGES.index(until) if until else len(STAGES) - 1
+    if last >= STAGES.index("toolpath"):
+        _say_board_overhang(pipe, say)
     rerun = force
     try:
         for index, stage in enumerate(STAGES[: last + 1]):
