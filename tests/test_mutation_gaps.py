@@ -240,11 +240,16 @@ def _blocks(kinds: list[str]) -> list[SimpleNamespace]:
     x = 0.0
     for k, c in enumerate(kinds):
         x += c in "mx"
-        modal = SimpleNamespace(motion="G1", x=x, y=0.0, z=-0.1)
+        modal = SimpleNamespace(motion="G1", x=x, y=0.0, z=-0.1, assumed="")
         blocks.append(
             SimpleNamespace(
-                index=k, motion=c in "mxz", sync=c in "sx", text=c, modal=modal,
-                unfollowed="", arc_box=None,
+                index=k,
+                motion=c in "mxz",
+                sync=c in "sx",
+                text=c,
+                modal=modal,
+                unfollowed="",
+                arc_box=None,
             )  # fmt: skip
         )
     return blocks

@@ -876,7 +876,7 @@ def test_executed_guess_distances(tmp_path):
     # the hold position lies on the 3rd move: the two before ran, the 3rd did not finish
     job = tmp_path / "job.gcode"
     job.write_text("G21G90\nG1X1F100\nG1X2\nG1X3\nG1X4\n")
-    prog = load_program(job)
+    prog = load_program(job).placed_at((0.0, 0.0))  # streamed from work X0 Y0
     s = Streamer.__new__(Streamer)
     s.info = SimpleNamespace(planner_blocks=15, laser_mode=None, settings={})
     s._program = prog
@@ -886,6 +886,9 @@ def test_executed_guess_distances(tmp_path):
     assert s._executed_guess((4.0, 0.0, 0.0)) == 4
     assert s._executed_guess(None) == -1
     assert math.isclose(prog.total_seconds, 4 / 100 * 60)
+    # from a start the sender was not told, (2.5, 0) may lie on the first move
+    s._program = load_program(job)
+    assert s._executed_guess((2.5, 0.0, 0.0)) == 0
 
 
 def test_executed_guess_does_not_look_past_a_move_whose_path_it_cannot_check(tmp_path):
@@ -893,7 +896,7 @@ def test_executed_guess_does_not_look_past_a_move_whose_path_it_cannot_check(tmp
     # move after the arc, (20, 0) to (10, 10), passes there too, but had not run
     job = tmp_path / "job.gcode"
     job.write_text("G21G90\nG0Z1\nG0X0Y0\nG1X10F100\nG2X20Y0I5J0\nG1X10Y10\nG1X0Y10\n")
-    prog = load_program(job)
+    prog = load_program(job).placed_at((0.0, 0.0))
     s = Streamer.__new__(Streamer)
     s.info = SimpleNamespace(planner_blocks=15, laser_mode=None, settings={})
     s._program = prog

@@ -22,9 +22,10 @@ from scratchfab.machine.stream_job import progress_text
 
 
 def _program(tmp_path: Path, lines: list[str]) -> Program:
+    """The program as streamed from work X0 Y0."""
     path = tmp_path / "job.gcode"
     path.write_text("\n".join(lines) + "\n")
-    return load_program(path)
+    return load_program(path).placed_at((0.0, 0.0))
 
 
 def _row(n: int = 30, zero_after: tuple[int, ...] = ()) -> list[str]:

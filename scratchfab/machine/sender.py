@@ -814,9 +814,12 @@ class Streamer:
         """
         self._refuse_tool_change(program, start)
         try:  # the door may have opened since connect (the user setting up the board)
-            self._refuse_door(self._status_now().state)
+            now = self._status_now()
+            self._refuse_door(now.state)
         except _Fault as fault:
             raise StreamFault(str(fault)) from None
+        if start == 0 and now.wpos is not None:  # the job's first moves start from here
+            program = program.placed_at(now.wpos[:2])
         items = self._items(program, start, preamble)
         name = getattr(self.port, "port", None)  # a pyserial port's device or URL
         journal.start(

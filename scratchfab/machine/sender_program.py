@@ -81,6 +81,9 @@ class Modal:
     y: float | None = 0.0
     z: float | None = None
     lost: str = ""  # the axes a change of the work frame left unknown (G91 keeps them so)
+    # the axes still counted from the start the parse assumes (work X0 Y0) rather than
+    # where the machine stood: used for estimates and checks, never matched (:func:`_ends`)
+    assumed: str = "XY"
 
     @property
     def mm_per_unit(self) -> float:
@@ -154,6 +157,23 @@ class Program:
             for b in self.blocks
         ]
         return replace(self, blocks=blocks, rapid_mm_min=rates)
+
+    def placed_at(self, work_xy: Sequence[float]) -> Program:
+        """The program as streamed from work ``(x, y)`` (mm), its first moves drawn from there.
+
+        Where its blocks count X or Y from the start the parse assumes (work X0 Y0,
+        :attr:`Modal.assumed`), they count from ``(x, y)`` instead. The sender reads where the machine stands before it streams; a stop's position is
+        then matched against the job's first moves as they really run.
+        """
+        blocks = list(self.blocks)
+        for k, b in enumerate(blocks):
+            m = b.modal
+            if not m.assumed:
+                break  # an axis once given stays given
+            x = m.x + work_xy[0] if "X" in m.assumed and m.x is not None else m.x
+            y = m.y + work_xy[1] if "Y" in m.assumed and m.y is not None else m.y
+            blocks[k] = replace(b, modal=replace(m, x=x, y=y, assumed=""))
+        return replace(self, blocks=blocks)
 
     def timed_for(self, settings: Mapping[int, float]) -> Program:
         """The program timed as GRBL plans it with these ``$$`` settings.
@@ -365,7 +385,8 @@ def _frame_change(s: Modal, state: Modal, nonmodal: str, words: list[tuple[str, 
         None if a in lost else found.get(a, v) for a, v in zip("XYZ", work_xyz(s), strict=True)
     )
     still = "".join(a for a in "XYZ" if a in lost or (a in s.lost and a not in found))
-    return replace(s, x=x, y=y, z=z, lost=still)
+    assumed = "".join(a for a in s.assumed if a not in found and a not in lost)
+    return replace(s, x=x, y=y, z=z, lost=still, assumed=assumed)
 
 
 def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
@@ -487,7 +508,8 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
         if s.motion in ("G2", "G3") and s.plane == "G17":
             box = _arc_box(start[:2], (end[0], end[1]), arc, s.motion == "G2", scale)
         still = "".join(a for a in s.lost if s.relative or a not in axes)
-        s = replace(s, x=known[0], y=known[1], z=known[2], lost=still)
+        assumed = "".join(a for a in s.assumed if s.relative or a not in axes)
+        s = replace(s, x=known[0], y=known[1], z=known[2], lost=still, assumed=assumed)
         motion = True
     elif nonmodal in ("G28", "G30") or (axes and nonmodal == "G53"):
         motion = True  # G28/G30 move to the stored position, through the point given
@@ -895,8 +917,23 @@ def resume_preamble(program: Program, start: int) -> list[str]:
 
 
 def _ends(blocks: Sequence[Block], i: int) -> tuple[Modal, Modal]:
-    """The modal state before and after block ``i``."""
-    return (blocks[i - 1].modal if i > 0 else Modal()), blocks[i].modal
+    """The modal state before and after block ``i``, for matching a reported position.
+
+    An axis still counted from the assumed start (:attr:`Modal.assumed`: the job may begin
+    anywhere, a homed machine far from work X0 Y0) is not known there.
+    """
+    before, after = (blocks[i - 1].modal if i > 0 else Modal()), blocks[i].modal
+    return _placed(before), _placed(after)
+
+
+def _placed(modal: Modal) -> Modal:
+    """``modal`` with the axes it counts from the assumed start unknown."""
+    if not modal.assumed:
+        return modal
+    x, y, z = (
+        None if a in modal.assumed else v for a, v in zip("XYZ", work_xyz(modal), strict=True)
+    )
+    return replace(modal, x=x, y=y, z=z)
 
 
 def _unknown_moves(blocks: Sequence[Block], i: int) -> list[int]:
@@ -966,7 +1003,8 @@ def stands_at_end(block: Block, p: Sequence[float], tol: float) -> bool:
 
     False where no axis is known.
     """
-    known = [(v, float(p[k])) for k, v in enumerate(work_xyz(block.modal)) if v is not None]
+    ends = work_xyz(_placed(block.modal))
+    known = [(v, float(p[k])) for k, v in enumerate(ends) if v is not None]
     return bool(known) and math.dist([v for v, _ in known], [w for _, w in known]) <= tol
 
 
