@@ -981,3 +981,19 @@ def test_a_board_the_machine_cannot_reach_whole_is_said_before_design(tmp_path, 
     stats = json.loads((tmp_path / "job" / "toolpath" / "toolpath.json").read_text())["statistics"]
     assert (stats["outside_count"] + stats["clipped_count"] > 0) is warned
     assert result.ran[-1] == "toolpath"
+
+
+def test_a_stopped_stream_s_advice_says_how_a_pipeline_resumes(tmp_path):
+    """The sender's advice names `stream --resume`; in a pipeline, running it again is how
+    the stream resumes, and the message says so."""
+    from conftest import PIPELINE
+
+    port = next(line for line in PIPELINE.splitlines() if line.startswith("port ="))
+    path = write_pipeline(tmp_path, edits={port: port[:-1] + '&reset_after=30"'})
+    with pytest.raises(ScratchfabError) as info:
+        run_pipeline(load_pipeline(path), tmp_path / "job", say=lambda s: None)
+    text = str(info.value)
+    assert "the controller reset itself" in text and "--resume" in text
+    assert text.endswith(
+        "(here `scratchfab run` has no --resume: run it again and it resumes the stream)"
+    )

@@ -267,19 +267,28 @@ class _Stages:
         assert s.port is not None
         if not is_emulator(s.port):
             self._ask_before_a_partial_board()
-        run_stream_job(
-            self.job,
-            port=s.port,
-            protocol=s.protocol,
-            baud=s.baud,
-            check=s.check,
-            machine=self.pipe.profile,
-            recut_unsure=s.recut_unsure,
-            say=self.say,
-            confirm=self.confirm
-            if self.confirm is not None and not is_emulator(s.port)
-            else lambda _: True,
-        )
+        try:
+            run_stream_job(
+                self.job,
+                port=s.port,
+                protocol=s.protocol,
+                baud=s.baud,
+                check=s.check,
+                machine=self.pipe.profile,
+                recut_unsure=s.recut_unsure,
+                say=self.say,
+                confirm=self.confirm
+                if self.confirm is not None and not is_emulator(s.port)
+                else lambda _: True,
+            )
+        except ScratchfabError as exc:  # the sender's advice names `stream`'s option
+            if exc.args and "--resume" in str(exc.args[0]):
+                exc.args = (
+                    f"{exc.args[0]} (here `scratchfab run` has no --resume: run it again and "
+                    "it resumes the stream)",
+                    *exc.args[1:],
+                )
+            raise
         return self._relative(self.layout.journal)
 
     def _ask_before_a_partial_board(self) -> None:
