@@ -59,6 +59,28 @@ def _executed_blocks(record) -> set[int]:
     return {block_of[e["n"]] for e in record if e["ev"] == "exec"}
 
 
+def _stopped_after(tmp_path, prog, acks: int, query: str) -> tuple[dict, set[int]]:
+    """Stream ``prog`` to the emulator (``query`` added to its URL), stop it by Ctrl-C once
+    more than ``acks`` lines are acknowledged: the journal's stop and the blocks it ran."""
+    fired: list[int] = []
+
+    def progress(p):
+        if p.acked > acks and not fired:
+            fired.append(1)
+            raise KeyboardInterrupt
+
+    journal = tmp_path / "j.jsonl"
+    port = open_port(f"grblsim://?baud=0&time_scale=0.05{query}", 115200)
+    try:
+        with pytest.raises(StreamStopped):
+            stream_program(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
+    finally:
+        port.close()
+    stop = read_journal(journal)[-1]
+    assert stop["ev"] == "stop"
+    return stop, _executed_blocks(port.sim.record)
+
+
 @pytest.mark.parametrize("frame", list(FRAMES))
 def test_a_stop_after_a_frame_change_does_not_claim_the_interrupted_move(tmp_path, frame):
     """Stopped early in the slow move after the change, the journal's executed-through
@@ -68,23 +90,7 @@ def test_a_stop_after_a_frame_change_does_not_claim_the_interrupted_move(tmp_pat
     _job(job, *FRAMES[frame])
     prog = load_program(job)
     slow = next(b.index for b in prog.blocks if b.text == "G1X20F30")
-    fired: list[int] = []
-
-    def progress(p):
-        if p.acked > slow + 4 and not fired:
-            fired.append(1)
-            raise KeyboardInterrupt
-
-    journal = tmp_path / "j.jsonl"
-    port = open_port("grblsim://?baud=0&time_scale=0.05", 115200)
-    try:
-        with pytest.raises(StreamStopped):
-            stream_program(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
-    finally:
-        port.close()
-    stop = read_journal(journal)[-1]
-    assert stop["ev"] == "stop"
-    ran = _executed_blocks(port.sim.record)
+    stop, ran = _stopped_after(tmp_path, prog, slow + 4, "")
     assert slow not in ran  # the stop came in the slow move
     assert all(i in ran for i in range(slow) if prog.blocks[i].motion)
     assert stop["executed_through"] == slow - 1
@@ -260,21 +266,6 @@ def test_a_stop_in_the_first_travel_from_away_from_the_origin(tmp_path):
              "G0 X-5 Y35", "G0 X35 Y-5", "G1 Z-0.05 F200", "G1 X36 F600", "G0 Z2", "M2"]  # fmt: skip
     job.write_text("\n".join(lines) + "\n")
     prog = load_program(job)
-    fired: list[int] = []
-
-    def progress(p):
-        if p.acked > 8 and not fired:
-            fired.append(1)
-            raise KeyboardInterrupt
-
-    journal = tmp_path / "j.jsonl"
-    port = open_port("grblsim://?baud=0&time_scale=0.05&wco=0,-30,0", 115200)
-    try:
-        with pytest.raises(StreamStopped):
-            stream_program(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
-    finally:
-        port.close()
-    stop = read_journal(journal)[-1]
-    ran = _executed_blocks(port.sim.record)
+    stop, ran = _stopped_after(tmp_path, prog, 8, "&wco=0,-30,0")
     assert 2 not in ran  # stopped in the first travel
     assert all(i in ran for i in range(stop["executed_through"] + 1) if prog.blocks[i].motion)
