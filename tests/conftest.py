@@ -73,12 +73,14 @@ def small_design() -> Design:
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
-def chromium_dom(page: Path, profile_dir: Path) -> str:
-    """The DOM of ``page`` after its scripts ran, from Debian's headless Chromium."""
+def chromium_dom(page: Path, profile_dir: Path, window: str | None = None) -> str:
+    """The DOM of ``page`` after its scripts ran, from Debian's headless Chromium
+    (``window``: its size, e.g. ``"1200,900"``; None: Chromium's default)."""
     assert CHROMIUM is not None
     return subprocess.run(
         [
             CHROMIUM,
+            *([f"--window-size={window}"] if window else []),
             "--headless",
             "--no-sandbox",
             "--disable-gpu",

@@ -7,12 +7,11 @@ import html
 import json
 import re
 import shlex
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import CHROMIUM
+from conftest import CHROMIUM, chromium_dom
 from PIL import Image
 from test_report import fake_job
 
@@ -127,21 +126,7 @@ window.addEventListener('load', function () {
 });
 </script></body>"""
     report.write_text(report.read_text().replace("</body>", measure))
-    dom = subprocess.run(
-        [
-            str(CHROMIUM),
-            *("--headless", "--no-sandbox", "--disable-gpu", "--no-first-run"),
-            f"--user-data-dir={tmp_path / 'profile'}",
-            "--window-size=1200,900",
-            "--virtual-time-budget=5000",
-            "--dump-dom",
-            report.as_uri(),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=True,
-    ).stdout
+    dom = chromium_dom(report, tmp_path / "profile", window="1200,900")
     found = re.search(r'data-preview="([^"]*)"', dom)
     assert found, dom[:2000]
     width, seen_natural, body = json.loads(html.unescape(found.group(1)))
