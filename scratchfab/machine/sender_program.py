@@ -875,6 +875,14 @@ def resume_preamble(program: Program, start: int) -> list[str]:
     if start <= 0 or start > len(program.blocks):
         return []
     before = program.blocks[start - 1].modal
+    unknown = "".join(a for a in "XY" if a in before.assumed)
+    if unknown:  # counted from where the job began, which a resume does not know
+        raise ConfigError(
+            f"{program.path}:{program.blocks[start].lineno}: cannot resume here: the file "
+            f"has not given {' and '.join(unknown)} in absolute mode (G90) since it began, "
+            "so it counts them from where the machine stood when the job started, which "
+            "the sender does not know on a resume; stream the file from its start"
+        )
     if before.x is None or before.y is None:
         lost = start - 1  # the block that lost X or Y
         while lost > 0 and None in work_xyz(program.blocks[lost - 1].modal)[:2]:
