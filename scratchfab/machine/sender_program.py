@@ -162,8 +162,10 @@ class Program:
         """The program as streamed from work ``(x, y)`` (mm), its first moves drawn from there.
 
         Where its blocks count X or Y from the start the parse assumes (work X0 Y0,
-        :attr:`Modal.assumed`), they count from ``(x, y)`` instead. The sender reads where the machine stands before it streams; a stop's position is
-        then matched against the job's first moves as they really run.
+        :attr:`Modal.assumed`), they count from ``(x, y)`` instead. The sender reads where
+        the machine stands before it streams; a stop's position is then matched against
+        the job's first moves as they really run, except a move in the file's first block,
+        whose start stays unknown (:func:`_ends`).
         """
         blocks = list(self.blocks)
         for k, b in enumerate(blocks):
