@@ -32,3 +32,25 @@ def test_a_resume_after_x_and_y_given_absolute_goes_there(tmp_path):
     path.write_text("\n".join([*NO_Y[:2], "G0 X10 Y3", *NO_Y[3:]]) + "\n")
     prog = load_program(path)
     assert "G0X20Y3" in resume_preamble(prog, prog.strokes[1][0])
+
+
+@pytest.mark.parametrize(
+    ("header", "controller", "placed"),
+    [
+        ("G21 G90", "G55", True),  # the file runs in the controller's system
+        ("G21 G90 G54", "G54", True),
+        ("G21 G90 G54", "G55", False),  # the start was read in G55, the job runs in G54
+        ("G21 G90 G54", None, False),  # the controller's system is not known
+    ],
+)
+def test_a_job_is_placed_only_in_the_system_the_start_was_read_in(
+    tmp_path, header, controller, placed
+):
+    path = tmp_path / "job.gcode"
+    path.write_text(f"{header}\nG0 Z1\nG0 X10\nG1 Z-0.1 F100\nG1 X15\nG0 Z1\nG0 Y20\n")
+    prog = load_program(path).placed_at((5.0, 30.0), controller)
+    # Y is counted from the start until the last line gives it
+    ys = [b.modal.y for b in prog.blocks[:-1]]
+    assert ys == [30.0 if placed else 0.0] * len(ys)
+    assert all(b.modal.assumed == ("" if placed else "Y") for b in prog.blocks[2:-1])
+    assert prog.blocks[-1].modal.y == 20.0

@@ -273,6 +273,7 @@ class ControllerInfo:
     wco: tuple[float, float, float] | None = None  # work offset in mm (None: unknown)
     wco_source: str = ""  # how it was read: "$#" or "status"
     g92: tuple[float, float, float] | None = None  # the G92 part of it in mm (None: unknown)
+    wcs: str | None = None  # the active work system at connect ($G: "G54"...; None: unknown)
 
     @property
     def laser_mode(self) -> bool | None:
@@ -664,6 +665,7 @@ class Streamer:
                     continue
             words = next((ln[4:-1].split() for ln in modal if ln.startswith("[GC:")), [])
             wcs = next((w for w in words if w in ("G54", "G55", "G56", "G57", "G58", "G59")), "")
+            self.info.wcs = wcs or None
             base, g92, tlo = found.get(wcs), found.get("G92"), found.get("TLO", [0.0])
             if base is not None and g92 is not None and min(len(base), len(g92)) >= 3:
                 xyz = [base[k] + g92[k] for k in range(3)]
@@ -819,7 +821,7 @@ class Streamer:
         except _Fault as fault:
             raise StreamFault(str(fault)) from None
         if start == 0 and now.wpos is not None:  # the job's first moves start from here
-            program = program.placed_at(now.wpos[:2])
+            program = program.placed_at(now.wpos[:2], self.info.wcs)
         items = self._items(program, start, preamble)
         name = getattr(self.port, "port", None)  # a pyserial port's device or URL
         journal.start(

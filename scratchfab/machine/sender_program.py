@@ -158,20 +158,26 @@ class Program:
         ]
         return replace(self, blocks=blocks, rapid_mm_min=rates)
 
-    def placed_at(self, work_xy: Sequence[float]) -> Program:
+    def placed_at(self, work_xy: Sequence[float], wcs: str | None = "G54") -> Program:
         """The program as streamed from work ``(x, y)`` (mm), its first moves drawn from there.
 
         Where its blocks count X or Y from the start the parse assumes (work X0 Y0,
         :attr:`Modal.assumed`), they count from ``(x, y)`` instead. The sender reads where
         the machine stands before it streams; a stop's position is then matched against
         the job's first moves as they really run, except a move in the file's first block,
-        whose start stays unknown (:func:`_ends`).
+        whose start stays unknown (:func:`_ends`). ``(x, y)`` is in the controller's work
+        system ``wcs`` (``$G``; GRBL's G54 after a reset; None: not known): from a block
+        where the file has selected another, the rest stays unknown where matched.
         """
         blocks = list(self.blocks)
+        selected = False  # the file has selected a work system
         for k, b in enumerate(blocks):
             m = b.modal
             if not m.assumed:
                 break  # an axis once given stays given
+            selected = selected or _sets_wcs([b])
+            if selected and m.wcs != wcs:
+                break  # (x, y) is in another system than the file's from here
             x = m.x + work_xy[0] if "X" in m.assumed and m.x is not None else m.x
             y = m.y + work_xy[1] if "Y" in m.assumed and m.y is not None else m.y
             blocks[k] = replace(b, modal=replace(m, x=x, y=y, assumed=""))
