@@ -204,3 +204,21 @@ def test_the_journal_leaves_unsure_what_grbls_planner_and_step_segments_may_hold
     session = [{"ev": "start", "sha256": "x", "blocks": len(blocks), "resume": False}]
     session += [{"ev": "ack", "i": i} for i in acked]
     assert max(done_blocks(session, "x", "journal.jsonl")) <= acked[-unrun - 1] - 1
+
+
+def test_a_move_a_little_over_a_step_may_be_dropped_in_grbls_float32_rounding(tmp_path):
+    """Grbl rounds ``target * steps_per_mm`` to steps in float32: at X 291 mm and 800
+    steps/mm a move of 1.012 steps lands on the step it started on, and Grbl drops it. The
+    sender must count it as a move GRBL may drop (counting it as a block would trust one
+    too many); a move of 1.2 steps it counts."""
+    import numpy as np
+
+    a, b, c = 290.9868739, 290.9881393, 290.9896393
+    steps = np.float32(800.0)
+    assert np.rint(np.float32(a) * steps) == np.rint(np.float32(b) * steps)  # Grbl drops it
+    assert np.rint(np.float32(b) * steps) != np.rint(np.float32(c) * steps)
+    assert 1.0 < (b - a) * 800.0 < 1.02 and (c - b) * 800.0 > 1.15
+    lines = ["G21 G90", f"G0 X{a} Y0 Z0", f"G1 X{b} F100", f"G1 X{c}"]
+    blocks = _blocks(tmp_path, lines)
+    step = (1.0 / 800.0,) * 3
+    assert plans_nothing(blocks, 2, step) and not plans_nothing(blocks, 3, step)
