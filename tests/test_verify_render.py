@@ -773,3 +773,14 @@ def test_sweep_frames_spread_evenly_up_to_80_degrees_of_elevation():
     got = np.degrees(np.arctan2(pos[:, 1], np.hypot(pos[:, 0], pos[:, 2])))
     top = math.degrees(1.4)
     np.testing.assert_allclose(got, np.linspace(-top, top, 21), atol=1e-9)
+
+
+def test_a_failed_gate_never_shows_rho_rounded_up_to_the_gate():
+    """0.7996 is below a gate of 0.8: shown to 3 decimals it must not read 0.800."""
+    from scratchfab.verify.verify import VerifyGateError
+
+    text = str(VerifyGateError("right", 0.7996, 0.8, 1, 2, Path("m.json")))
+    assert text.startswith(
+        "view right looks like its target only to rho 0.799, below --min-rho 0.8"
+    )
+    assert "rho -0.101," in str(VerifyGateError("left", -0.1003, 0.8, 1, 2, Path("m.json")))

@@ -78,7 +78,7 @@ class VerifyGateError(ScratchfabError):
         self.failing, self.views, self.metrics_file = failing, views, metrics_file
         where = f"{source}: " if source else ""
         super().__init__(
-            f"{where}view {view} looks like its target only to rho {rho:.3f}, below "
+            f"{where}view {view} looks like its target only to rho {_shown_below(rho)}, below "
             f"{setting} {min_rho:g} ({failing} of {views} views fail; see {metrics_file})"
         )
 
@@ -94,6 +94,11 @@ class VerifyGateError(ScratchfabError):
             setting,
             source,
         )
+
+
+def _shown_below(rho: float) -> str:
+    """``rho`` to 3 decimals, rounded down: 0.7996 below a gate of 0.8 reads 0.799."""
+    return f"{math.floor(rho * 1000.0) / 1000.0:.3f}"
 
 
 def bad_sweep_frames(frames: int) -> str | None:
