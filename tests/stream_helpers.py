@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from scratchfab.machine.sender import Streamer, StreamOptions
 from scratchfab.machine.sender_journal import Journal
 from scratchfab.machine.sender_program import resume_preamble
@@ -28,3 +30,13 @@ def stream_program(port, prog, journal_path, options=FAST, resume_at=None, **kwa
     finally:
         journal.close()
     return streamer
+
+
+def executed_blocks(record, until: float = math.inf) -> set[int]:
+    """Program blocks (in received order) whose motion the emulator finished, at its
+    clock's ``until`` or before (its ``record``)."""
+    block_of: dict[int, int] = {}
+    for e in record:
+        if e["ev"] == "rx" and e["g"]:
+            block_of[e["n"]] = len(block_of)
+    return {block_of[e["n"]] for e in record if e["ev"] == "exec" and e["t"] <= until}

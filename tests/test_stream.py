@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import serial
-from stream_helpers import FAST, stream_program
+from stream_helpers import FAST, executed_blocks, stream_program
 
 from scratchfab.cli import main
 from scratchfab.errors import ConfigError, ScratchfabError
@@ -2020,11 +2020,7 @@ def test_resume_preamble_dwells_as_the_file_did(tmp_path, setup, dwell):
 def _executed_in_emulator(record, prog) -> int:
     """The last program block the emulator finished moving before its first reset."""
     reset = next(e["t"] for e in record if e["ev"] == "rt" and e["ch"] == 0x18)
-    block_of = {}
-    for e in record:
-        if e["ev"] == "rx" and e["g"]:
-            block_of[e["n"]] = len(block_of)
-    done = [block_of[e["n"]] for e in record if e["ev"] == "exec" and e["t"] <= reset]
+    done = executed_blocks(record, until=reset)
     last = max(done)
     assert sorted(done) == list(range(1, last + 1))  # block 0 (G21 G90 ...) does not move
     return last
@@ -2495,15 +2491,6 @@ def _laser_job(path: Path, strokes: int, seed: int = 5) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-def _executed_blocks(record) -> set[int]:
-    """Program blocks (in received order) whose motion the emulator finished."""
-    block_of = {}
-    for e in record:
-        if e["ev"] == "rx" and e["g"]:
-            block_of[e["n"]] = len(block_of)
-    return {block_of[e["n"]] for e in record if e["ev"] == "exec"}
-
-
 @pytest.mark.parametrize("laser", [1, 0])
 def test_laser_mode_s_changes_are_not_taken_as_sync_points(tmp_path, laser):
     """GRBL in laser mode ($32=1) moves on through an S change in a motion block, so a
@@ -2535,7 +2522,7 @@ def test_laser_mode_s_changes_are_not_taken_as_sync_points(tmp_path, laser):
     events = read_journal(journal)
     assert events[0]["laser"] is bool(laser)
     done = done_blocks(events, prog.sha256, journal, program=prog)
-    ran = _executed_blocks(port.sim.record)
+    ran = executed_blocks(port.sim.record)
     assert {i for i in done if prog.blocks[i].motion} <= ran
     acked = [e["i"] for e in events if e["ev"] == "ack"]
     if not laser:  # every cut syncs, but only for the moves before it: its own is unsure,
@@ -2783,7 +2770,7 @@ def test_an_alarm_whose_message_was_lost_stops_the_job_instead_of_waiting(tmp_pa
     assert time.monotonic() - t0 < 20
     stop = read_journal(journal)[-1]
     assert stop["ev"] == "stop"
-    ran = _executed_blocks(port.sim.record)
+    ran = executed_blocks(port.sim.record)
     assert all(i in ran for i in range(stop["executed_through"] + 1) if prog.blocks[i].motion)
 
 
@@ -2898,7 +2885,7 @@ def test_a_reset_while_held_at_the_prompt_is_not_resumed(tmp_path):
     assert not [e for e in sim.record if e["ev"] == "rt" and e["ch"] == ord("~")]
     assert not [e for e in sim.record if e["ev"] == "exec" and e["t"] > brown_out]
     stop = read_journal(journal)[-1]
-    ran = _executed_blocks(sim.record)
+    ran = executed_blocks(sim.record)
     assert stop["ev"] == "stop"
     assert all(i in ran for i in range(stop["executed_through"] + 1) if prog.blocks[i].motion)
 

@@ -12,7 +12,7 @@ from dataclasses import replace
 from types import SimpleNamespace
 
 import pytest
-from stream_helpers import stream_program
+from stream_helpers import executed_blocks, stream_program
 
 from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim_gcode import ModalState, Settings, interpret
@@ -50,15 +50,6 @@ def _job(path, header: str, change: str) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-def _executed_blocks(record) -> set[int]:
-    """Program blocks (in received order) whose motion the emulator finished."""
-    block_of: dict[int, int] = {}
-    for e in record:
-        if e["ev"] == "rx" and e["g"]:
-            block_of[e["n"]] = len(block_of)
-    return {block_of[e["n"]] for e in record if e["ev"] == "exec"}
-
-
 def _stopped_after(tmp_path, prog, acks: int, query: str) -> tuple[dict, set[int]]:
     """Stream ``prog`` to the emulator (``query`` added to its URL), stop it by Ctrl-C once
     more than ``acks`` lines are acknowledged: the journal's stop and the blocks it ran."""
@@ -78,7 +69,7 @@ def _stopped_after(tmp_path, prog, acks: int, query: str) -> tuple[dict, set[int
         port.close()
     stop = read_journal(journal)[-1]
     assert stop["ev"] == "stop"
-    return stop, _executed_blocks(port.sim.record)
+    return stop, executed_blocks(port.sim.record)
 
 
 @pytest.mark.parametrize("frame", list(FRAMES))
