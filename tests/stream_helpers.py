@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import math
 
-from scratchfab.machine.sender import Streamer, StreamOptions
-from scratchfab.machine.sender_journal import Journal
+import pytest
+
+from scratchfab.machine.sender import Streamer, StreamOptions, StreamStopped, open_port
+from scratchfab.machine.sender_journal import Journal, read_journal
 from scratchfab.machine.sender_program import resume_preamble
 
 #: Short timeouts for emulator ports (which send a banner's messages with it, at once).
@@ -40,3 +42,27 @@ def executed_blocks(record, until: float = math.inf) -> set[int]:
         if e["ev"] == "rx" and e["g"]:
             block_of[e["n"]] = len(block_of)
     return {block_of[e["n"]] for e in record if e["ev"] == "exec" and e["t"] <= until}
+
+
+def stopped_after(journal_path, prog, acks: int, url: str) -> tuple[list[dict], list[dict]]:
+    """Stream ``prog`` to the emulator at ``url``, stopped by Ctrl-C once more than ``acks``
+    lines are acknowledged (the user answers "stop"): the journal's events and the
+    emulator's record. The journal ends with the stop."""
+    fired: list[int] = []
+
+    def progress(p):
+        if p.acked > acks and not fired:
+            fired.append(1)
+            raise KeyboardInterrupt
+
+    port = open_port(url, 115200)
+    try:
+        with pytest.raises(StreamStopped):
+            stream_program(
+                port, prog, journal_path, on_progress=progress, ask_interrupt=lambda: "stop"
+            )
+    finally:
+        port.close()
+    events = read_journal(journal_path)
+    assert events[-1]["ev"] == "stop"
+    return events, port.sim.record

@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import serial
-from stream_helpers import FAST, executed_blocks, stream_program
+from stream_helpers import FAST, executed_blocks, stopped_after, stream_program
 
 from scratchfab.cli import main
 from scratchfab.errors import ConfigError, ScratchfabError
@@ -2044,24 +2044,10 @@ def test_stop_position_matches_the_emulator(tmp_path, query):
     job = tmp_path / "job.gcode"
     write_job(job, 40)
     prog = load_program(job)
-    journal = tmp_path / "j.jsonl"
-    fired = []
-
-    def progress(p):
-        if p.acked > 60 and not fired:
-            fired.append(1)
-            raise KeyboardInterrupt
-
-    port = open_port(f"grblsim://?baud=0&time_scale=0.01&{query}", 115200)
-    try:
-        with pytest.raises(StreamStopped):
-            stream_program(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
-    finally:
-        port.close()
-    events = read_journal(journal)
+    url = f"grblsim://?baud=0&time_scale=0.01&{query}"
+    events, record = stopped_after(tmp_path / "j.jsonl", prog, 60, url)
     stop = events[-1]
-    assert stop["ev"] == "stop"
-    truth = _executed_in_emulator(port.sim.record, prog)
+    truth = _executed_in_emulator(record, prog)
     acked = [e["i"] for e in events if e["ev"] == "ack" and "i" in e]
     assert last_surely_run(prog.blocks, acked, 15) < truth  # the position decides here
     assert stop["executed_through"] == truth

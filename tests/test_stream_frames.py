@@ -12,13 +12,12 @@ from dataclasses import replace
 from types import SimpleNamespace
 
 import pytest
-from stream_helpers import executed_blocks, stream_program
+from stream_helpers import executed_blocks, stopped_after
 
 from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim_gcode import ModalState, Settings, interpret
-from scratchfab.machine.sender import Streamer, StreamStopped, open_port
+from scratchfab.machine.sender import Streamer
 from scratchfab.machine.sender_checks import job_extent
-from scratchfab.machine.sender_journal import read_journal
 from scratchfab.machine.sender_program import (
     TimeLeft,
     followed_move,
@@ -53,23 +52,9 @@ def _job(path, header: str, change: str) -> None:
 def _stopped_after(tmp_path, prog, acks: int, query: str) -> tuple[dict, set[int]]:
     """Stream ``prog`` to the emulator (``query`` added to its URL), stop it by Ctrl-C once
     more than ``acks`` lines are acknowledged: the journal's stop and the blocks it ran."""
-    fired: list[int] = []
-
-    def progress(p):
-        if p.acked > acks and not fired:
-            fired.append(1)
-            raise KeyboardInterrupt
-
-    journal = tmp_path / "j.jsonl"
-    port = open_port(f"grblsim://?baud=0&time_scale=0.05{query}", 115200)
-    try:
-        with pytest.raises(StreamStopped):
-            stream_program(port, prog, journal, on_progress=progress, ask_interrupt=lambda: "stop")
-    finally:
-        port.close()
-    stop = read_journal(journal)[-1]
-    assert stop["ev"] == "stop"
-    return stop, executed_blocks(port.sim.record)
+    url = f"grblsim://?baud=0&time_scale=0.05{query}"
+    events, record = stopped_after(tmp_path / "j.jsonl", prog, acks, url)
+    return events[-1], executed_blocks(record)
 
 
 @pytest.mark.parametrize("frame", list(FRAMES))
