@@ -399,3 +399,18 @@ def test_quick_form_names_views_that_every_disk_keeps_apart(tmp_path, capsys):
     names = [v.name for v in design.views]
     assert names == ["Left", "left_2", "view_nul", "view_COM1", "left_2_2"]
     assert len({n.lower() for n in names}) == len(names)
+
+
+def test_quick_form_errors_name_the_image_as_typed(tmp_path, capsys, monkeypatch):
+    """No design file was written by the user: no ``views[i].target``, no resolved path."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "pics").mkdir()
+    (tmp_path / "pics" / "broken.png").write_bytes(b"not a picture")
+    Image.new("L", (8, 8), 200).save(tmp_path / "good.png")
+    for images, typed, why in (
+        (["good.png", "pics/broken.png"], "pics/broken.png", "not an image file Pillow can read"),
+        (["nope.png"], "nope.png", "image file not found"),
+    ):
+        err = _fail(["design", *images, "--board", "20x20", "--out", "job"], capsys)
+        assert err == f"error: {typed}: {why}"
+    assert not (tmp_path / "job" / "design").exists()

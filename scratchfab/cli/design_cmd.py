@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -108,16 +109,36 @@ def design(
     else:
         source = quick_design([Path(p) for p in inputs], board or (100.0, 100.0), count, res)
         res = None
-    result = run_design(
-        source,
-        out,
-        force=force or None,
-        fit=fit,
-        gamma=gamma,
-        contrast=contrast,
-        count=count,
-        resolution=res,
-        seed=seed,
-        progress=click.echo,
-    )
+    try:
+        result = run_design(
+            source,
+            out,
+            force=force or None,
+            fit=fit,
+            gamma=gamma,
+            contrast=contrast,
+            count=count,
+            resolution=res,
+            seed=seed,
+            progress=click.echo,
+        )
+    except ConfigError as exc:
+        if isinstance(source, str):
+            raise
+        raise _as_typed(exc, source, inputs) from None
     click.echo(f"design file: {result.design_file}")
+
+
+def _as_typed(exc: ConfigError, design: Design, images: Sequence[str]) -> ConfigError:
+    """A quick-form error about one view, naming the image as typed instead of ``views[i]``.
+
+    The user of the quick form wrote no design file, so ``<quick form>: views[0].target:
+    /abs/sun.png: ...`` names a key they never saw; ``sun.png: ...`` names what they typed.
+    """
+    message = str(exc)
+    for i, (view, typed) in enumerate(zip(design.views, images, strict=True)):
+        key = f"{design.source}: views[{i}]"
+        for prefix in (f"{key}.target: {design.target_path(view)}: ", f"{key} ('{view.name}'): "):
+            if message.startswith(prefix):
+                return ConfigError(f"{typed}: {message[len(prefix) :]}")
+    return exc
