@@ -247,3 +247,29 @@ def test_loss_plot_of_few_or_no_usable_rows_still_draws_framed_axes(tmp_path, it
     assert (frame.sum(axis=1) > 500).sum() >= 4  # both panels' top and bottom edges
     finite = [v for v in losses if v > 0]
     assert is_color(img, LOSS_RGB).any() == bool(finite)
+
+
+@pytest.mark.parametrize("n", [2, 3, 5])  # the sixth colour is black, as the frame
+def test_every_view_stays_visible_where_the_rho_curves_coincide(tmp_path, n):
+    """Identical rho curves: each view's colour still shows along the shared line."""
+    it = np.arange(0, 201, dtype=np.float64)
+    shared = 0.2 + 0.6 * it / 200  # a diagonal, away from the key's corners
+    rho = {f"v{k}": shared.copy() for k in range(n)}
+    save_loss_plot(tmp_path / "loss.png", it, 1.0 / (1 + it), rho)
+    img = pixels(tmp_path / "loss.png")
+    height = img.shape[0]
+    panel = img[height // 2 :]
+    # Pixels on the curve: near the line fitted through the coloured pixels, leaving out
+    # the rows of the key's swatches (horizontal runs the diagonal curve does not make).
+    drawn = np.zeros(panel.shape[:2], bool)
+    for k in range(n):
+        drawn |= is_color(panel, VIEW_RGB[k])
+    drawn[drawn.sum(axis=1) >= 15] = False
+    ys, xs = np.nonzero(drawn)
+    slope, icpt = np.polyfit(xs, ys, 1)
+    on_line = np.abs(ys - (slope * xs + icpt)) <= 3
+    assert on_line.sum() >= 0.9 * len(ys) >= 600  # the fit is the curve
+    total = on_line.sum()
+    for k in range(n):
+        mine = is_color(panel, VIEW_RGB[k])[ys[on_line], xs[on_line]].sum()
+        assert mine >= 0.5 * total / n, (k, mine, total)

@@ -35,6 +35,10 @@ VIEW_RGB = [
     OKABE_ITO[k]
     for k in ("vermillion", "bluish_green", "orange", "reddish_purple", "sky_blue", "black")
 ]
+#: Length in pixels of one view's dash when the quality panel has several views. View k
+#: of n draws the stretches k..n of each n-dash period over the solid first view, so that
+#: where curves coincide every view still shows its own dash.
+DASH_PX = 8.0
 #: Gridline colour.
 GRID_RGB = (215, 215, 215)
 #: Plot frame colour.
@@ -122,15 +126,53 @@ class _Axes:
             draw.text((x0 - 7, yi), _label(t), fill=AXIS_RGB, font=f, anchor="rm")
         draw.rectangle(self.box, outline=AXIS_RGB)
 
-    def curve(self, img: Image.Image, x: np.ndarray, y: np.ndarray, color: tuple) -> None:
+    def curve(
+        self,
+        img: Image.Image,
+        x: np.ndarray,
+        y: np.ndarray,
+        color: tuple,
+        dash: tuple[float, float, float] | None = None,
+    ) -> None:
+        """Draw ``y`` against ``x``; ``dash`` (start, stop, period): only those stretches.
+
+        The stretches are measured in pixels along the drawn line, so two curves that
+        coincide on screen share their dash phases whatever their data spacing.
+        """
         px, py = self.px(x, y)
         draw = ImageDraw.Draw(img)
-        points = list(zip(px.tolist(), py.tolist(), strict=True))
+        points = np.stack([px, py], axis=1)
         if len(points) == 1:
-            cx, cy = points[0]
+            cx, cy = points[0].tolist()
             draw.ellipse((cx - 3, cy - 3, cx + 3, cy + 3), fill=color)
-        else:
-            draw.line(points, fill=color, width=2)
+            return
+        for piece in [points] if dash is None else dash_pieces(points, *dash):
+            draw.line([tuple(p) for p in piece.tolist()], fill=color, width=2, joint="curve")
+
+
+def dash_pieces(points: np.ndarray, start: float, stop: float, period: float) -> list[np.ndarray]:
+    """The stretches of a polyline between arc lengths ``start`` and ``stop`` of each period.
+
+    Args:
+        points: (m, 2) vertices, m >= 2.
+        start: Where each drawn stretch begins within the period (pixels along the line).
+        stop: Where it ends (``start`` < ``stop`` <= ``period``).
+        period: Length of one dash pattern.
+
+    Returns:
+        (k, 2) polylines, each with its cut ends interpolated on the line.
+    """
+    seg = np.hypot(*np.diff(points, axis=0).T)
+    arc = np.concatenate([[0.0], np.cumsum(seg)])
+    pieces = []
+    for p in range(int(arc[-1] // period) + 1):
+        a, b = p * period + start, min(p * period + stop, arc[-1])
+        if b <= a:
+            continue
+        inside = (arc > a) & (arc < b)
+        ends = [np.interp(t, arc, points[:, i]) for t in (a, b) for i in (0, 1)]
+        pieces.append(np.vstack([ends[:2], points[inside], ends[2:]]))
+    return pieces
 
 
 _KEY_TITLE = "view: last rho"
@@ -226,7 +268,9 @@ def save_loss_plot(
             r = np.asarray(values, dtype=np.float64)
             keep = np.isfinite(r) & np.isfinite(it)
             if keep.any():
-                axes.curve(img, it[keep], np.clip(r[keep], 0.0, 1.0), color)
+                period = DASH_PX * len(views)
+                dash = (k * DASH_PX, period, period) if k else None
+                axes.curve(img, it[keep], np.clip(r[keep], 0.0, 1.0), color, dash)
                 final = f"{r[keep][-1]:.3f}"
             else:
                 final = "n/a"
