@@ -4,13 +4,16 @@ Each case changes a few settings from the pipeline's own (``[optimize]`` and the
 scratch count) and runs ``design`` (once per layout seed and count) then ``optimize`` on
 every layout seed. Per case and seed it records the final loss (fresh pairs) and its
 image part (the mean of the views' E_k, without the merge and bound penalties), each
-view's PSNR and rho_kk, the largest crosstalk x_kj, the scratches closer than the tool
-and nearly parallel (which both renderers add as if each were alone, while the machine
-cuts one wider dent: their count, how many of them cross, and the length cut twice, which
-weighs a pair by its shared length), the total cut length, the optimize stage's wall
-time and seconds per step, and the loss and mean PSNR along the way (from ``log.csv``: a
-loss still falling at the end asks for more iterations, a flat tail for fewer). Per case it gives
-the means over seeds and, against the first case, the paired differences (mean and
+view's PSNR and rho_kk, the largest crosstalk x_kj, the length cut twice as the merge
+penalty counts it (``length_cut_twice_mm``: pairs within 35 degrees of parallel, each
+weighed by how close, :func:`~scratchfab.optimize.loss.length_cut_twice`), the scratches
+closer than the tool and within 10 degrees of parallel (``within_10deg_*``: which both
+renderers add as if each were alone, while the machine cuts one wider dent: their count,
+how many of them cross, and their length cut twice unweighted), the total cut length
+(``cut_length_mm``) and the share of it cut twice (``cut_twice_share``), the optimize
+stage's wall time and seconds per step, and the loss and mean PSNR along the way (from
+``log.csv``: a loss still falling at the end asks for more iterations, a flat tail for
+fewer). Per case it gives the means over seeds and, against the first case, the paired differences (mean and
 sample standard deviation over seeds) in per cent or dB, among them the loss each case
 had reached when the first case's run ended (``loss_at_reference_time``: which setting
 is better in the same time). ``--verify SPP`` also renders each result in Mitsuba
@@ -57,7 +60,7 @@ import numpy as np
 
 from scratchfab.design.stage import run_design
 from scratchfab.model.job import JobLayout
-from scratchfab.optimize.loss import neighbour_pairs, segment_distance_np
+from scratchfab.optimize.loss import length_cut_twice, segment_distance_np
 from scratchfab.optimize.options import OptimizeOptions
 from scratchfab.optimize.stage import Progress, run_optimize
 from scratchfab.pipeline.config import load_pipeline
@@ -85,6 +88,16 @@ QUICK_CASES = ("default", "lr_scale=2")
 
 #: ``--pipeline`` names beyond the bundled ones: the repository's example pipelines.
 REPO_PIPELINES = {"full": Path(__file__).resolve().parents[1] / "pipelines" / "full-size.toml"}
+
+#: Pairs within this many degrees of parallel are the ``within_10deg_*`` figures.
+NEAR_PARALLEL_DEG = 10.0
+#: The figures of :func:`cut_twice`, averaged per case.
+CUT_TWICE_KEYS = (
+    "length_cut_twice_mm",
+    "within_10deg_pairs",
+    "within_10deg_crossing",
+    "within_10deg_length_mm",
+)
 
 #: Keys a case may set beyond OptimizeOptions' fields.
 EXTRA_KEYS = ("count", "lr_scale")
@@ -175,35 +188,42 @@ def image_error(job: Path, names: list[str]) -> float:
     return statistics.fmean(errors)
 
 
-def merged_pairs(scratches: Any, angle_deg: float = 10.0) -> dict[str, float]:
-    """Scratches closer than the tool's width and within ``angle_deg`` of parallel.
+def cut_twice(scratches: Any) -> dict[str, float]:
+    """The length the machine cuts twice: as the merge penalty counts it, and unweighted.
 
-    Both renderers add such scratches as if each were alone; the machine cuts them into
-    one wider dent. The merge penalty exists to keep them apart. Returns ``pairs`` (their
-    count), ``crossing`` (those that cross, whatever their ends' distances) and
-    ``length_mm``, the length cut twice: over each pair, the mean of the two scratches'
-    lengths that lie within the tool's width of the other. A pair side by side counts its
-    shared length, a crossing at angle a about 2 w / sin(a), so this weighs a pair by how
-    much of it the machine merges, where ``pairs`` counts every pair as one (the merge
-    penalty weighs the same length by how close: :mod:`scratchfab.optimize.loss`).
+    Returns ``length_cut_twice_mm``, the merge penalty's sum over the pairs the final
+    loss takes (within 35 degrees of parallel and closer than the tool's width, each the
+    mean of the two scratches' lengths within the width of the other weighted by
+    relu(1 - q / w)^2: :func:`~scratchfab.optimize.loss.length_cut_twice`), and of those
+    pairs the ones within NEAR_PARALLEL_DEG (10) of parallel, which both renderers add as if each
+    were alone where the machine cuts one wider dent: ``within_10deg_pairs`` (their
+    count), ``within_10deg_crossing`` (those that cross, whatever their ends' distances)
+    and ``within_10deg_length_mm`` (the same mean length, unweighted: side by side a
+    pair counts its shared length, crossing at angle a about 2 w / sin(a)).
     """
     tool = float(np.max(scratches.width))
     p0, p1 = scratches.p0, scratches.p1
-    i, j = neighbour_pairs(p0, p1, tool)
+    i, j, weighted = length_cut_twice(p0, p1, tool)
+    out = {
+        "length_cut_twice_mm": float(weighted.sum()),
+        "within_10deg_pairs": 0,
+        "within_10deg_crossing": 0,
+        "within_10deg_length_mm": 0.0,
+    }
     if len(i) == 0:
-        return {"pairs": 0, "crossing": 0, "length_mm": 0.0}
+        return out
+    i, j = i.astype(np.int64), j.astype(np.int64)
     d = segment_distance_np(p0, p1, i, j)
     u = p1 - p0
     u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-300)
     cos = np.abs(np.sum(u[i] * u[j], axis=1))
-    keep = (d < tool) & (cos >= math.cos(math.radians(angle_deg)))
+    keep = (d < tool) & (cos >= math.cos(math.radians(NEAR_PARALLEL_DEG)))
     i, j = i[keep], j[keep]
     length = 0.5 * (near_length(p0, p1, i, j, tool) + near_length(p0, p1, j, i, tool))
-    return {
-        "pairs": int(len(i)),
-        "crossing": int(np.count_nonzero(d[keep] == 0)),
-        "length_mm": float(length.sum()),
-    }
+    out["within_10deg_pairs"] = int(len(i))
+    out["within_10deg_crossing"] = int(np.count_nonzero(d[keep] == 0))
+    out["within_10deg_length_mm"] = float(length.sum())
+    return out
 
 
 def near_length(
@@ -282,20 +302,20 @@ def run_one(
     names = list(quality["names"])
     rows = read_log(JobLayout(work).optimize_log)
     crosstalk = [x for k in names for x in quality["views"][k]["crosstalk"].values()]
-    merged = merged_pairs(result.scratches)
+    cut_length = float(np.hypot(*(result.scratches.p1 - result.scratches.p0).T).sum())
+    twice = cut_twice(result.scratches)
     out: dict[str, Any] = {
         "loss": result.loss,
         "image_error": image_error(work, names),
-        "merged_pairs": merged["pairs"],
-        "merged_crossing": merged["crossing"],
-        "merged_length_mm": merged["length_mm"],
+        **twice,
+        "cut_twice_share": twice["length_cut_twice_mm"] / max(cut_length, 1e-300),
         "psnr": {k: quality["views"][k]["psnr"] for k in names},
         "rho": {k: quality["views"][k]["rho"] for k in names},
         "psnr_mean": statistics.fmean(quality["views"][k]["psnr"] for k in names),
         "rho_min": min(quality["views"][k]["rho"] for k in names),
         "crosstalk_max": max(crosstalk) if crosstalk else math.nan,
         "scratches": len(result.scratches),
-        "cut_length_mm": float(np.hypot(*(result.scratches.p1 - result.scratches.p0).T).sum()),
+        "cut_length_mm": cut_length,
         "seconds": wall,
         "seconds_per_iteration": result.seconds_per_iteration,
         "tail_drop": tail_drop(rows),
@@ -342,8 +362,9 @@ def paired(case: list[dict[str, Any]], ref: list[dict[str, Any]]) -> dict[str, A
         "loss_pct": stats("loss"),
         "image_error_pct": stats("image_error"),
         "psnr_mean_db": stats("psnr_mean", ratio=False),
-        "merged_pairs_pct": stats("merged_pairs"),
-        "merged_length_pct": stats("merged_length_mm"),
+        "length_cut_twice_pct": stats("length_cut_twice_mm"),
+        "within_10deg_pairs_pct": stats("within_10deg_pairs"),
+        "within_10deg_length_pct": stats("within_10deg_length_mm"),
         "seconds_pct": stats("seconds"),
         "seconds_per_iteration_pct": stats("seconds_per_iteration"),
         "loss_at_reference_time_pct": stats("loss_at_reference_time", "loss"),
@@ -414,7 +435,8 @@ def main(argv: list[str] | None = None) -> None:
                 runs.append(run)
                 print(
                     f"{text} seed {seed}: loss {run['loss']:.5f} psnr {run['psnr_mean']:.2f} "
-                    f"{run['seconds']:.1f} s",
+                    f"cut twice {run['length_cut_twice_mm']:.0f} of "
+                    f"{run['cut_length_mm']:.0f} mm, {run['seconds']:.1f} s",
                     file=sys.stderr,
                 )
             results[text] = runs
@@ -439,14 +461,13 @@ def main(argv: list[str] | None = None) -> None:
         entry: dict[str, Any] = {
             "loss": statistics.fmean(r["loss"] for r in runs),
             "image_error": statistics.fmean(r["image_error"] for r in runs),
-            "merged_pairs": statistics.fmean(r["merged_pairs"] for r in runs),
-            "merged_crossing": statistics.fmean(r["merged_crossing"] for r in runs),
-            "merged_length_mm": statistics.fmean(r["merged_length_mm"] for r in runs),
+            **{key: statistics.fmean(r[key] for r in runs) for key in CUT_TWICE_KEYS},
             "psnr_mean": statistics.fmean(r["psnr_mean"] for r in runs),
             "rho_min": statistics.fmean(r["rho_min"] for r in runs),
             "crosstalk_max": statistics.fmean(r["crosstalk_max"] for r in runs),
             "seconds": statistics.fmean(r["seconds"] for r in runs),
             "cut_length_mm": statistics.fmean(r["cut_length_mm"] for r in runs),
+            "cut_twice_share": statistics.fmean(r["cut_twice_share"] for r in runs),
             "tail_drop": statistics.fmean(r["tail_drop"] for r in runs),
             "vs_reference": paired(runs, ref),
             "runs": runs,

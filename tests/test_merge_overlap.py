@@ -8,7 +8,12 @@ import drjit as dr
 import numpy as np
 import pytest
 
-from scratchfab.optimize.loss import PARALLEL_LIMIT, merge_penalty, neighbour_pairs
+from scratchfab.optimize.loss import (
+    PARALLEL_LIMIT,
+    length_cut_twice,
+    merge_penalty,
+    neighbour_pairs,
+)
 
 
 def penalty(m, p0: np.ndarray, p1: np.ndarray, i, j, width: float) -> float:
@@ -210,3 +215,89 @@ def test_a_scratch_of_no_length_overlaps_nothing(m, float_type: str, length: flo
         value, grad = with_gradient(getattr(m, float_type), m.UInt32, p0, p1, i, j, 0.1)
         assert abs(value) < 1e-9
         assert np.isfinite(grad).all()
+
+
+def hand_made_layout() -> tuple[np.ndarray, np.ndarray]:
+    """Groups of scratches 30 mm apart, each a case of the measure (width 0.1 mm).
+
+    Side by side 0.03 mm apart over 3 mm; crossing at 20 and 34 degrees (counted) and
+    40 degrees (not); parallel 0.12 mm apart (too far); end to end on one line; three
+    side by side within the width (three pairs); a crossing at 5 degrees near an end.
+    """
+    groups = [
+        [((0, 0), (5, 0)), ((2, 0.03), (7, 0.03))],
+        [((-6, 0), (6, 0)), ((-6 * math.cos(0.349), -6 * math.sin(0.349)),
+                             (6 * math.cos(0.349), 6 * math.sin(0.349)))],
+        [((-6, 0), (6, 0)), ((-6 * math.cos(0.593), -6 * math.sin(0.593)),
+                             (6 * math.cos(0.593), 6 * math.sin(0.593)))],
+        [((-6, 0), (6, 0)), ((-6 * math.cos(0.698), -6 * math.sin(0.698)),
+                             (6 * math.cos(0.698), 6 * math.sin(0.698)))],
+        [((0, 0), (8, 0)), ((1, 0.12), (9, 0.12))],
+        [((0, 0), (4, 0)), ((4, 0), (9, 0))],
+        [((0, 0), (6, 0.01)), ((1, 0.04), (7, 0.05)), ((-1, 0.08), (4, 0.07))],
+        [((0, 0), (10, 0)), ((9.5, -0.02), (9.5 + 6 * math.cos(0.087), 6 * math.sin(0.087)))],
+    ]  # fmt: skip
+    p0, p1 = [], []
+    for g, group in enumerate(groups):
+        for a, b in group:
+            p0.append(np.add(a, (30.0 * g, 0.0)))
+            p1.append(np.add(b, (30.0 * g, 0.0)))
+    return np.array(p0, dtype=np.float64), np.array(p1, dtype=np.float64)
+
+
+def sampled_length_cut_twice(p0: np.ndarray, p1: np.ndarray, width: float, n: int = 100_000):
+    """Brute force over every pair within the parallel limit: points along each scratch.
+
+    Per pair, half the sum over both orders of: the points of scratch a within the width
+    of scratch b's line and projecting onto b, each counting its share of a's length
+    weighted by relu(1 - q / width)^2.
+    """
+    t = (np.arange(n) + 0.5) / n
+    out = {}
+    for a in range(len(p0)):
+        for b in range(a + 1, len(p0)):
+            e, f = p1[a] - p0[a], p1[b] - p0[b]
+            cos = abs(e @ f) / (np.linalg.norm(e) * np.linalg.norm(f))
+            if math.acos(min(cos, 1.0)) > PARALLEL_LIMIT:
+                continue
+            total = 0.0
+            for x, y in ((a, b), (b, a)):
+                u, v = p1[x] - p0[x], p1[y] - p0[y]
+                lv = np.linalg.norm(v)
+                rel = p0[x] + t[:, None] * u - p0[y]
+                along = rel @ v / lv
+                q = np.abs(rel @ np.array([-v[1], v[0]])) / lv
+                on = (along >= 0) & (along <= lv) & (q < width)
+                total += 0.5 * np.sum((1 - q[on] / width) ** 2) / n * np.linalg.norm(u)
+            if total > 0:
+                out[(a, b)] = total
+    return out
+
+
+def test_length_cut_twice_matches_sampling_of_hand_made_pairs() -> None:
+    """length_cut_twice of a layout: the same pairs and lengths as brute-force sampling.
+
+    The closed forms check the sampling: side by side 3 (1 - 0.3)^2 mm, crossing at a
+    far from the ends (2 w / 3) / sin a.
+    """
+    width = 0.1
+    p0, p1 = hand_made_layout()
+    i, j, mm = length_cut_twice(p0, p1, width)
+    got = {(int(a), int(b)): float(v) for a, b, v in zip(i, j, mm, strict=True) if v > 0}
+    want = sampled_length_cut_twice(p0, p1, width)
+    assert got.keys() == want.keys()
+    for key, value in want.items():
+        assert got[key] == pytest.approx(value, rel=1e-3, abs=1e-6), key
+    assert want[(0, 1)] == pytest.approx(3 * 0.7**2, rel=1e-3)
+    for pair, a in (((2, 3), 0.349), ((4, 5), 0.593)):
+        assert want[pair] == pytest.approx((2 * width / 3) / math.sin(a), rel=1e-3)
+    assert {(6, 7), (8, 9), (10, 11)}.isdisjoint(want)  # 40 degrees, too far, end to end
+    assert {(12, 13), (12, 14), (13, 14), (15, 16)} <= want.keys()
+    assert float(mm.sum()) == pytest.approx(sum(want.values()), rel=1e-3)
+
+
+def test_length_cut_twice_of_no_pairs() -> None:
+    """Scratches far apart: no pair and nothing cut twice."""
+    p0 = np.array([[0.0, 0.0], [0.0, 5.0]])
+    i, j, mm = length_cut_twice(p0, p0 + [4.0, 0.0], 0.1)
+    assert len(i) == len(j) == len(mm) == 0

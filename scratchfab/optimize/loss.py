@@ -58,6 +58,8 @@ from typing import Any, Literal
 import drjit as dr
 import numpy as np
 
+from scratchfab.backend import array_module, jit_array
+
 Space = Literal["linear", "perceptual"]
 SPACES: tuple[str, ...] = ("linear", "perceptual")
 
@@ -128,6 +130,25 @@ def merge_penalty(
     tool_width: float,
 ) -> Any:
     """Sum of the merge penalty over candidate pairs (mm, Dr.Jit scalar, not evaluated)."""
+    terms = pair_overlaps(Float, p0x, p0y, p1x, p1y, first, second, tool_width)
+    return dr.sum(terms, mode="symbolic")
+
+
+def pair_overlaps(
+    Float: type,
+    p0x: Any,
+    p0y: Any,
+    p1x: Any,
+    p1y: Any,
+    first: Any,
+    second: Any,
+    tool_width: float,
+) -> Any:
+    """The merge penalty of each candidate pair (mm, Dr.Jit array, not evaluated).
+
+    The mean over both orders of the length of one scratch within the tool width of the
+    other, weighted by relu(1 - q / width)^2 (the module's docstring).
+    """
     ax: Any = dr.gather(Float, p0x, first)
     ay: Any = dr.gather(Float, p0y, first)
     bx: Any = dr.gather(Float, p1x, first)
@@ -142,7 +163,37 @@ def merge_penalty(
     lv = dr.sqrt(dr.maximum(vx * vx + vy * vy, 1e-20))
     both = _overlap(ax, ay, ux, uy, lu, cx, cy, vx, vy, lv, tool_width)
     both = both + _overlap(cx, cy, vx, vy, lv, ax, ay, ux, uy, lu, tool_width)
-    return dr.sum(0.5 * both, mode="symbolic")
+    return 0.5 * both
+
+
+def length_cut_twice(
+    p0: np.ndarray, p1: np.ndarray, tool_width: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The merge penalty of a finished layout, pair by pair, as the optimizer counts it.
+
+    The candidates are :func:`neighbour_pairs` closer than the tool width (those the
+    final loss takes), each weighed by :func:`pair_overlaps` in float64 on the LLVM
+    backend; their sum is the length the machine cuts twice, weighted by how close.
+
+    Args:
+        p0: (n, 2) scratch starts (mm).
+        p1: (n, 2) scratch ends (mm).
+        tool_width: The tool's width (mm).
+
+    Returns:
+        (i, j, mm): the candidate pairs (i < j) and each one's weighted length cut twice.
+    """
+    p0, p1 = np.asarray(p0, dtype=np.float64), np.asarray(p1, dtype=np.float64)
+    i, j = neighbour_pairs(p0, p1, tool_width, dtype=np.uint32)
+    if len(i) == 0:
+        return i, j, np.zeros(0)
+    m = array_module("llvm")
+    F, U = m.Float64, m.UInt32
+    ax, ay, bx, by = (jit_array(F, c) for c in (p0[:, 0], p0[:, 1], p1[:, 0], p1[:, 1]))
+    first, second = jit_array(U, i, np.uint32), jit_array(U, j, np.uint32)
+    with dr.suspend_grad():
+        terms = pair_overlaps(F, ax, ay, bx, by, first, second, tool_width)
+        return i, j, np.array(terms, dtype=np.float64)
 
 
 def _overlap(
