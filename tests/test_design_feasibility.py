@@ -249,3 +249,119 @@ def test_more_scratches_than_fit_side_by_side_are_refused(count, crowded):
     if crowded:
         assert f"{count} scratches of at least 1 x 0.1 mm" in said[0]
         assert "count to at most 14440" in said[0]
+
+
+def _uniform_strokes_coverage(design, points: int = 240) -> float:
+    """Groove coverage of a uniformly bright target, from the layout's rule for strokes.
+
+    Centres spread evenly over the box min_length / 2 inside the margin where the view
+    is reachable (the target's brightness is 0 elsewhere); each end runs max_length / 2
+    along the scratch (across the view's half-vector) unless it leaves that box first,
+    but at least min_length / 2. The views share the count evenly.
+    """
+    board, tool = design.board, design.scratch
+    box = np.array(board.half_extent) - board.margin_mm
+    inner = box - tool.min_length_mm / 2
+    g = (np.arange(points) + 0.5) / points * 2 - 1
+    centre = np.stack(np.meshgrid(g * inner[0], g * inner[1]), axis=-1).reshape(-1, 2)
+    reach = check_feasibility(design, grid=8).steepest_wall_deg + lobe_deg(board.roughness)
+    total = 0.0
+    for view in design.views:
+        h = half_vectors(design, view, centre)
+        lit = tilt_deg(h) <= reach
+        c, h = centre[lit], h[lit]
+        along = np.stack([-h[:, 1], h[:, 0]], axis=1)
+        along /= np.linalg.norm(along, axis=1, keepdims=True)
+        length = 0.0
+        for sign in (-1.0, 1.0):
+            d = sign * along
+            with np.errstate(divide="ignore"):
+                room = np.min(np.where(d != 0, (inner - np.sign(d) * c) / np.abs(d), np.inf), 1)
+            length = length + np.maximum(
+                np.minimum(tool.max_length_mm / 2, room), tool.min_length_mm / 2
+            )
+        total += tool.count / len(design.views) * float(np.mean(length))
+    return total * tool.width_mm / ((2 * box[0]) * (2 * box[1]))
+
+
+def test_groove_coverage_of_a_uniform_target_warns_just_over_one():
+    """Coverage against the strokes' rule; a count 1 % under 1 passes, 1 % over warns."""
+    base = _design([("left", -22.0, 0.0), ("right", 22.0, 0.0)])
+    boards = {"left": np.ones((64, 64)), "right": np.ones((64, 64))}
+    at_one = base.scratch.count / _uniform_strokes_coverage(base)
+    for factor, over in ((0.99, False), (1.01, True)):
+        count = round(factor * at_one)
+        design = replace(base, scratch=replace(base.scratch, count=count))
+        report = check_feasibility(design, grid=16, boards=boards)
+        assert report.groove_coverage == pytest.approx(_uniform_strokes_coverage(design), rel=3e-3)
+        said = [w for w in report.warnings if "will overlap" in w]
+        assert bool(said) == over
+        assert report.ok  # a warning, not an error
+        data = report.to_json()
+        assert data["groove_coverage"] == pytest.approx(report.groove_coverage, abs=1e-4)
+        if over:
+            assert f"the {count} scratches' grooves" in said[0]
+            assert f"cover {report.groove_coverage:.2f} times the 1444 mm^2" in said[0]
+            # the counts and lengths it names bring the coverage to 1 or just under
+            fits = int(said[0].split("count to at most ")[1].split()[0])
+            longest = float(said[0].split("max_length_mm to at most ")[1])
+            under = replace(design, scratch=replace(design.scratch, count=fits))
+            assert _uniform_strokes_coverage(under) == pytest.approx(1.0, abs=3e-3)
+            for length, fits_in in ((longest, True), (longest + 0.1, False)):
+                tried = replace(design, scratch=replace(design.scratch, max_length_mm=length))
+                got = check_feasibility(tried, grid=16, boards=boards).groove_coverage
+                assert (got <= 1.0) == fits_in
+
+
+def test_groove_coverage_follows_the_layout_drawn():
+    """A bright disc on a dim ground: the coverage predicted is the layout's within 2 %.
+
+    The layout's lengths follow the brightness (longer in the disc, fewer there) and
+    stop at the disc's edge: the prediction weighs and stops them as the layout does.
+    """
+    from scratchfab.design.layout import initial_layout
+    from scratchfab.design.targets import warp_to_view
+
+    base = _design([("left", -22.0, 0.0), ("right", 22.0, 0.0)])
+    design = replace(base, scratch=replace(base.scratch, count=3000))
+    y, x = np.mgrid[-1:1:128j, -1:1:128j]
+    disc = np.where(x**2 + y**2 < 0.4, 1.0, 0.1)
+    boards = {"left": disc, "right": disc[:, ::-1] * 0.6}
+    report = check_feasibility(design, grid=16, boards=boards)
+    targets = {v.name: warp_to_view(boards[v.name], design.board, v) for v in design.views}
+    drawn = initial_layout(design, targets, seed=3)
+    length = float(np.hypot(*(drawn.p1 - drawn.p0).T).sum())
+    assert report.groove_coverage == pytest.approx(length * 0.1 / 1444, rel=0.02)
+    assert report.mean_length_mm == pytest.approx(length / 3000, rel=0.02)
+    assert report.groove_coverage < 1 and not [w for w in report.warnings if "overlap" in w]
+
+
+def test_design_reports_the_coverage_in_its_files(tmp_path, capsys):
+    """design writes the coverage to feasibility.json, and the warning to it, the
+    terminal and every map; without overlap the map is as tall as before."""
+    a = tmp_path / "a.png"
+    Image.new("L", (16, 16), 255).save(a)
+    heights = {}
+    for count, over in ((800, False), (3000, True)):
+        toml = tmp_path / f"scene{count}.toml"
+        toml.write_text(
+            "[board]\nwidth_mm = 40.0\nheight_mm = 40.0\nmargin_mm = 1.0\n"
+            "[light]\nposition_mm = [0.0, 187.3, 463.6]\n"
+            f"[scratch]\ncount = {count}\nmin_length_mm = 1.0\nmax_length_mm = 6.0\n"
+            + "".join(
+                f'[[views]]\nname = "{n}"\ntarget = "a.png"\nazimuth_deg = {az}\n'
+                'elevation_deg = 0.0\ndistance_mm = 500.0\nfov_deg = "auto"\n'
+                "resolution = [24, 24]\n"
+                for n, az in (("left", -22.0), ("right", 22.0))
+            )
+        )
+        job = tmp_path / f"job{count}"
+        main(["design", str(toml), "--out", str(job)])
+        out = capsys.readouterr()
+        report = json.loads((job / "design" / "feasibility.json").read_text())
+        assert (report["groove_coverage"] > 1) == over
+        said = [w for w in report["warnings"] if "will overlap" in w]
+        assert bool(said) == over
+        assert ("will overlap" in out.out + out.err) == over
+        heights[over] = Image.open(job / "design" / "feasibility_left.png").height
+    assert heights[True] > heights[False]

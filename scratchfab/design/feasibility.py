@@ -14,6 +14,7 @@ steepest wall 2 atan(2w / wbar) (SPEC section 3). Hence:
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from itertools import combinations
 from typing import Any
@@ -157,7 +158,12 @@ class PairFeasibility:
 
 @dataclass
 class FeasibilityReport:
-    """Everything the check found; ``errors`` stop ``design`` unless forced."""
+    """Everything the check found; ``errors`` stop ``design`` unless forced.
+
+    ``groove_coverage`` is the initial layout's groove area (expected length times the
+    tool's width) over the board inside the margin, and ``mean_length_mm`` the expected
+    scratch length; both None when the check had no target images.
+    """
 
     steepest_wall_deg: float
     lobe_deg: float
@@ -165,6 +171,8 @@ class FeasibilityReport:
     pairs: list[PairFeasibility]
     errors: list[str]
     warnings: list[str]
+    groove_coverage: float | None = None
+    mean_length_mm: float | None = None
 
     @property
     def ok(self) -> bool:
@@ -179,6 +187,8 @@ class FeasibilityReport:
             "reach_limit_deg": round(self.steepest_wall_deg + self.lobe_deg, 4),
             "views": {name: v.to_json() for name, v in self.views.items()},
             "pairs": [p.to_json() for p in self.pairs],
+            "groove_coverage": _rounded(self.groove_coverage, 4),
+            "mean_length_mm": _rounded(self.mean_length_mm, 4),
             "errors": list(self.errors),
             "warnings": list(self.warnings),
             "maps": (
@@ -228,18 +238,24 @@ class FeasibilityReport:
         return map_figure(self, name).image
 
 
-def check_feasibility(design: Design, grid: int = 96) -> FeasibilityReport:
+def check_feasibility(
+    design: Design, grid: int = 96, boards: Mapping[str, np.ndarray] | None = None
+) -> FeasibilityReport:
     """Check every view and every pair of views on a board grid.
 
     Args:
         design: The resolved design.
         grid: Points along the board's long side.
+        boards: View name -> its target as a board-space image
+            (:func:`scratchfab.design.targets.board_image`); with them the report gives
+            the initial layout's groove coverage, and warns when it is above 1.
 
     Returns:
         The report; ``errors`` name views no scratch can light on most of the board
-        (reachable share below :data:`MIN_REACHABLE_FRACTION`) and pairs of views whose
+        (reachable share below :data:`MIN_REACHABLE_FRACTION`), pairs of views whose
         half-vectors are less than one lobe width apart from each other's profile
-        normals (median over the board): what lights one lights the other.
+        normals (median over the board): what lights one lights the other, and more
+        scratches than fit at their shortest.
     """
     tool = design.scratch
     steepest = float(steepest_wall_deg(tool.width_mm, tool.depth_mm))
@@ -269,6 +285,10 @@ def check_feasibility(design: Design, grid: int = 96) -> FeasibilityReport:
                 f"(half-vector tilt up to {tilt.max():.1f} deg)"
             )
     errors += _crowding_errors(design)
+    coverage = mean_length = None
+    if boards:
+        coverage, mean_length, crowded = _coverage(design, boards)
+        warnings += crowded
     pairs: list[PairFeasibility] = []
     for k in design.views:
         across = across_directions(hs[k.name])
@@ -306,7 +326,7 @@ def check_feasibility(design: Design, grid: int = 96) -> FeasibilityReport:
                 f"{worst.expected_crosstalk:.2f} ({worst.separation_median_deg:.1f} deg apart, "
                 f"lobe {lobe:.1f} deg)"
             )
-    return FeasibilityReport(steepest, lobe, views, pairs, errors, warnings)
+    return FeasibilityReport(steepest, lobe, views, pairs, errors, warnings, coverage, mean_length)
 
 
 def _crowding_errors(design: Design) -> list[str]:
@@ -315,8 +335,8 @@ def _crowding_errors(design: Design) -> list[str]:
     Each cuts a dent ``width_mm`` wide along at least ``min_length_mm``; more dent than
     board means overlapping dents, which cut each other's walls away.
     """
-    tool, board = design.scratch, design.board
-    usable = (board.width_mm - 2 * board.margin_mm) * (board.height_mm - 2 * board.margin_mm)
+    tool = design.scratch
+    usable = usable_area(design.board)
     least = tool.count * tool.min_length_mm * tool.width_mm
     fits = math.floor(usable / (tool.min_length_mm * tool.width_mm) * (1 + 1e-12))
     if tool.count <= fits:
@@ -326,6 +346,54 @@ def _crowding_errors(design: Design) -> list[str]:
         f"cover {least:g} mm^2, more than the {usable:g} mm^2 of board inside the margin: "
         f"they would overlap; set [scratch] count to at most {fits} or shorten min_length_mm"
     ]
+
+
+def usable_area(board: Board) -> float:
+    """The board's area inside the margin (mm^2)."""
+    return (board.width_mm - 2 * board.margin_mm) * (board.height_mm - 2 * board.margin_mm)
+
+
+def _coverage(design: Design, boards: Mapping[str, np.ndarray]) -> tuple[float, float, list[str]]:
+    """The initial layout's groove coverage, its mean scratch length, and a warning above 1.
+
+    The layout's lengths follow the targets' brightness
+    (:func:`scratchfab.design.layout.expected_length`); grooves covering more than the
+    board inside the margin must overlap, and the machine cuts overlapping grooves into
+    one wider dent.
+    """
+    # imported here: the layout imports this module's geometry
+    from scratchfab.design.layout import board_densities, expected_length, longest_for_length
+
+    tool = design.scratch
+    usable = usable_area(design.board)
+    pts, dens = board_densities(design, boards)
+    total = expected_length(design, pts, dens)
+    coverage = total * tool.width_mm / usable
+    mean = total / tool.count
+    if coverage <= 1.0:
+        return coverage, mean, []
+    fits = math.floor(tool.count / coverage)
+    change = f"set [scratch] count to at most {fits}"
+    longest = longest_for_length(design, pts, dens, usable / tool.width_mm)
+    if longest is not None:
+        change += f" or max_length_mm to at most {longest:g}"
+    return (
+        coverage,
+        mean,
+        [
+            f"the {tool.count} scratches' grooves ({tool.width_mm:g} mm wide, "
+            f"{mean:.1f} mm long on average: the targets' brightness sets each length "
+            f"between min_length_mm {tool.min_length_mm:g} and max_length_mm "
+            f"{tool.max_length_mm:g}) cover {coverage:.2f} times the {usable:g} mm^2 of "
+            "board inside the margin, so they will overlap, and the machine cuts "
+            f"overlapping grooves as one wider dent; {change}"
+        ],
+    )
+
+
+def _rounded(value: float | None, digits: int) -> float | None:
+    """``value`` rounded, None kept."""
+    return None if value is None else round(value, digits)
 
 
 def tilt_colours(tilt: np.ndarray, reach_deg: float, limit_deg: float) -> np.ndarray:
@@ -407,10 +475,21 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
     ]
     lw, lh = figures.legend_size(items, size)
     bar_label = "half-vector tilt from the board normal (deg)"
+    note = f"{bar_label}\ntool: steepest wall {reach:.1f} + lobe {report.lobe_deg:.1f} deg"
+    # a warning of overlapping grooves under the note, the picture taller by its lines
+    warn = ""
+    if report.groove_coverage is not None and report.groove_coverage > 1.0:
+        warn = (
+            f"warning: the grooves cover {report.groove_coverage:.2f} times\n"
+            "the board inside the margin: they will overlap"
+        )
+    extra = figures.text_size(f"{note}\n{warn}", size)[1] - figures.text_size(note, size)[1]
     width = max(mw + side, lw, figures.text_size(bar_label, size)[0] + 10)
+    width = max(width, figures.text_size(warn, size)[0] + 10) if warn else width
     bar_h = 14
     tick_h = figures.text_size("0", size)[1]
     height = mh + 10 + tick_h + 10 + bar_h + 6 + tick_h + 6 + 2 * tick_h + 14 + lh
+    height += extra if warn else 0
     canvas = Image.new("RGB", (width + 2 * m, height + 2 * m), (255, 255, 255))
     canvas.paste(img, (m, m))
     cd = ImageDraw.Draw(canvas)
@@ -456,7 +535,7 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
             cd.text((tx, y + 4), text, fill=(0, 0, 0), font=figures.font(size))
             last_right = tx + tw
     y += 4 + tick_h + 6
-    note = f"{bar_label}\ntool: steepest wall {reach:.1f} + lobe {report.lobe_deg:.1f} deg"
+    note = f"{note}\n{warn}" if warn else note
     cd.multiline_text((bx0, y), note, fill=(0, 0, 0), font=figures.font(size), spacing=3)
     y += figures.text_size(note, size)[1] + 10
     legend_box = figures.draw_legend(canvas, items, (m, y), size)

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import replace
 
 import numpy as np
 from scipy import sparse
@@ -26,7 +27,7 @@ from scratchfab.design.feasibility import (
     lobe_deg,
     tilt_deg,
 )
-from scratchfab.design.targets import bilinear
+from scratchfab.design.targets import bilinear, sample_board
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.model.camera import Camera
 from scratchfab.model.design import Board, Design, View
@@ -39,6 +40,8 @@ CANDIDATES_PER_SAMPLE = 4
 ELIMINATION_ALPHA = 8.0
 #: Density grid points along the board's long side.
 DENSITY_GRID = 256
+#: Grid points :func:`expected_length` draws strokes at, a batch.
+EXPECTED_CHUNK = 8192
 
 
 def sample_view_target(target: np.ndarray, view: View, points: np.ndarray) -> np.ndarray:
@@ -187,18 +190,40 @@ def view_densities(
         ScratchfabError: As :func:`check_targets`.
     """
     check_targets(design, targets)
+    return _densities(
+        design, list(targets), lambda view, pts: sample_view_target(targets[view.name], view, pts)
+    )
+
+
+def board_densities(
+    design: Design, boards: Mapping[str, np.ndarray]
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """As :func:`view_densities` from board-space images, before they are warped to the views.
+
+    Args:
+        design: The resolved design.
+        boards: View name -> its target as a board-space image
+            (:func:`scratchfab.design.targets.board_image`).
+    """
+    return _densities(
+        design, list(boards), lambda view, pts: sample_board(boards[view.name], design.board, pts)
+    )
+
+
+def _densities(
+    design: Design, names: list[str], sample: Callable[[View, np.ndarray], np.ndarray]
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Board grid points and the brightness ``sample(view, points)`` of the views named."""
     pts = board_points(design.board, DENSITY_GRID)
-    hw, hh = design.board.half_extent
-    inset = design.board.margin_mm + design.scratch.min_length_mm / 2
-    usable = (np.abs(pts[..., 0]) <= hw - inset) & (np.abs(pts[..., 1]) <= hh - inset)
+    usable = np.all(np.abs(pts) <= _inner_box(design), axis=-1)
     reach = steepest_wall_deg(design.scratch.width_mm, design.scratch.depth_mm) + lobe_deg(
         design.board.roughness
     )
     out: dict[str, np.ndarray] = {}
     for view in design.views:
-        if view.name not in targets:
+        if view.name not in names:
             continue
-        b = sample_view_target(targets[view.name], view, pts)
+        b = sample(view, pts)
         lit = tilt_deg(half_vectors(design, view, pts)) <= reach
         out[view.name] = np.where(usable & lit, np.clip(b, 0.0, None), 0.0)
     return pts, out
@@ -254,33 +279,20 @@ def layout_by_view(
             f"inside the board's margin ({design.board.margin_mm:g} mm)"
         )
     pts, dens = view_densities(design, targets)
-    names = list(dens)
-    energy = np.array([dens[n].sum() for n in names])
-    box = (hw - design.board.margin_mm, hh - design.board.margin_mm)
-    inner = np.array([box[0] - tool.min_length_mm / 2, box[1] - tool.min_length_mm / 2])
-    if energy.sum() <= 0:
-        # Nothing bright anywhere: spread the scratches evenly over the usable board.
-        flat = np.all(np.abs(pts) <= inner, axis=-1).astype(float)
-        dens = {n: flat for n in names}
-        energy = np.ones(len(names))
-    counts = split_count(tool.count, energy)
+    dens, counts = _shares(design, pts, dens)
+    inner = _inner_box(design)
     rows, cols = pts.shape[:2]
     cell = np.array([design.board.width_mm / cols, design.board.height_mm / rows])
     cell_area = float(cell[0] * cell[1])
     out: dict[str, ScratchSet] = {}
-    for name, n in zip(names, counts, strict=True):
+    for name, n in counts.items():
         if n == 0:
             out[name] = ScratchSet.from_arrays(
                 np.zeros((0, 2)), np.zeros((0, 2)), tool.width_mm, tool.depth_mm
             )
             continue
         view = design.view(name)
-        b = dens[name].ravel()
-        rel = b / b.max()
-        length = _length_of(rel, tool.min_length_mm, tool.max_length_mm)
-        # Centre density proportional to brightness / length: the lit area per board
-        # area (scratch count x length x width) then follows the target's brightness.
-        q = np.where(b > 0, rel / length, 0.0)
+        rel, q = _centre_weights(dens[name].ravel(), design)
         prob = q / q.sum()
         m = CANDIDATES_PER_SAMPLE * int(n)
         idx = rng.choice(len(prob), size=m, p=prob)
@@ -290,26 +302,123 @@ def layout_by_view(
         local = n * prob[idx] / cell_area
         radius = np.sqrt(1.0 / (2.0 * math.sqrt(3.0) * local))
         kept = eliminate(cand, radius, int(n))
-        centre = cand[kept]
-        rel_c = rel[idx[kept]]
-        h = half_vectors(design, view, centre)
-        across = across_directions(h)
-        along = np.stack([-across[:, 1], across[:, 0]], axis=1)
-        # Each end runs up to half the length, stops where the target turns dark (so
-        # strokes do not bleed past edges), but never makes the scratch shorter than
-        # min_length; centres lie min_length/2 inside the margin, so that always fits.
-        half = _length_of(rel_c, tool.min_length_mm, tool.max_length_mm) / 2
-        ends = []
-        for sign in (-1.0, 1.0):
-            room = _room(centre, sign * along, box)
-            run = _bright_run(
-                dens[name], design.board, centre, sign * along, np.minimum(half, room)
-            )
-            ends.append(np.minimum(room, np.maximum(tool.min_length_mm / 2, np.minimum(half, run))))
-        out[name] = ScratchSet.from_arrays(
-            centre - ends[0][:, None] * along,
-            centre + ends[1][:, None] * along,
-            tool.width_mm,
-            tool.depth_mm,
-        )
+        p0, p1 = _strokes(design, view, dens[name], cand[kept], rel[idx[kept]])
+        out[name] = ScratchSet.from_arrays(p0, p1, tool.width_mm, tool.depth_mm)
     return out
+
+
+def _strokes(
+    design: Design, view: View, grid: np.ndarray, centre: np.ndarray, rel: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ends of scratches for ``view`` at ``centre`` of relative brightness ``rel``.
+
+    Each is turned so that its profile's normals contain the view's half-vector. Each end
+    runs up to half the length, stops where the density ``grid`` turns dark (so strokes
+    do not bleed past edges), but never makes the scratch shorter than min_length;
+    centres lie min_length/2 inside the margin, so that always fits.
+    """
+    tool = design.scratch
+    hw, hh = design.board.half_extent
+    box = (hw - design.board.margin_mm, hh - design.board.margin_mm)
+    across = across_directions(half_vectors(design, view, centre))
+    along = np.stack([-across[:, 1], across[:, 0]], axis=1)
+    half = _length_of(rel, tool.min_length_mm, tool.max_length_mm) / 2
+    ends = []
+    for sign in (-1.0, 1.0):
+        room = _room(centre, sign * along, box)
+        run = _bright_run(grid, design.board, centre, sign * along, np.minimum(half, room))
+        ends.append(np.minimum(room, np.maximum(tool.min_length_mm / 2, np.minimum(half, run))))
+    return centre - ends[0][:, None] * along, centre + ends[1][:, None] * along
+
+
+def _inner_box(design: Design) -> np.ndarray:
+    """Half extents (x, y) of the box scratch centres keep to: min_length_mm / 2 inside the margin."""
+    hw, hh = design.board.half_extent
+    inset = design.board.margin_mm + design.scratch.min_length_mm / 2
+    return np.array([hw - inset, hh - inset])
+
+
+def _shares(
+    design: Design, pts: np.ndarray, dens: dict[str, np.ndarray]
+) -> tuple[dict[str, np.ndarray], dict[str, int]]:
+    """Each view's centre density and scratch count (shares of ``count`` by the energy).
+
+    With nothing bright anywhere, the density is flat over the box of :func:`_inner_box`.
+    """
+    names = list(dens)
+    energy = np.array([dens[n].sum() for n in names])
+    if energy.sum() <= 0:
+        flat = np.all(np.abs(pts) <= _inner_box(design), axis=-1).astype(float)
+        dens = {n: flat for n in names}
+        energy = np.ones(len(names))
+    counts = split_count(design.scratch.count, energy)
+    return dens, {n: int(c) for n, c in zip(names, counts, strict=True)}
+
+
+def _centre_weights(b: np.ndarray, design: Design) -> tuple[np.ndarray, np.ndarray]:
+    """Relative brightness and centre weight at grid points of brightness ``b`` (some > 0).
+
+    Centre density proportional to brightness / length: the lit area per board area
+    (scratch count x length x width) then follows the target's brightness.
+    """
+    tool = design.scratch
+    rel = b / b.max()
+    length = _length_of(rel, tool.min_length_mm, tool.max_length_mm)
+    return rel, np.where(b > 0, rel / length, 0.0)
+
+
+def expected_length(design: Design, pts: np.ndarray, dens: dict[str, np.ndarray]) -> float:
+    """The total length (mm) :func:`layout_by_view` draws, expected, from the densities.
+
+    The layout draws a view's centres with probability proportional to
+    :func:`_centre_weights` (before the jitter within a grid cell and the thinning to
+    blue noise) and gives each the stroke :func:`_strokes` draws there, so the mean
+    length of a view's scratches is that of the strokes at the grid points, weighed so.
+
+    Args:
+        design: The resolved design.
+        pts: The density grid (:func:`view_densities` or :func:`board_densities`).
+        dens: View name -> density on that grid.
+    """
+    dens, counts = _shares(design, pts, dens)
+    inner = _inner_box(design)
+    total = 0.0
+    for name, n in counts.items():
+        if n == 0:
+            continue
+        rel, q = _centre_weights(dens[name].ravel(), design)
+        at = np.flatnonzero(q > 0)
+        drawn = 0.0
+        for part in np.array_split(at, -(-len(at) // EXPECTED_CHUNK)):
+            centre = np.clip(pts.reshape(-1, 2)[part], -inner, inner)
+            p0, p1 = _strokes(design, design.view(name), dens[name], centre, rel[part])
+            drawn += float(q[part] @ np.linalg.norm(p1 - p0, axis=1))
+        total += n * drawn / float(q[at].sum())
+    return total
+
+
+def longest_for_length(
+    design: Design, pts: np.ndarray, dens: dict[str, np.ndarray], total_mm: float
+) -> float | None:
+    """The largest ``max_length_mm`` (in 0.1 mm) whose :func:`expected_length` keeps to ``total_mm``.
+
+    None when even ``max_length_mm = min_length_mm`` exceeds it (the count must fall).
+    """
+    tool = design.scratch
+
+    def total(longest: float) -> float:
+        tried = replace(design, scratch=replace(tool, max_length_mm=longest))
+        return expected_length(tried, pts, dens)
+
+    # candidates min_length_mm, then whole tenths of a millimetre up to max_length_mm
+    tenths = np.arange(
+        math.floor(tool.min_length_mm * 10) + 1, math.floor(tool.max_length_mm * 10) + 1
+    )
+    candidates = [tool.min_length_mm, *(float(t) / 10 for t in tenths)]
+    if total(candidates[0]) > total_mm:
+        return None
+    lo, hi = 0, len(candidates)  # candidates[lo] fits; the first that does not is <= hi
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if total(candidates[mid]) <= total_mm else (lo, mid)
+    return candidates[lo]

@@ -205,7 +205,7 @@ def run_design(
         f"design: {len(design.views)} views, {design.scratch.count} scratches on a "
         f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
     )
-    report = check_feasibility(design)
+    report = check_feasibility(design, boards=boards)
     # Without --force the errors end the stage in one message of their own.
     for line in report.summary_lines(errors=force):
         progress(f"  {line}")
