@@ -310,7 +310,7 @@ def test_min_rho_gate_fails_after_writing_everything(half_job, tmp_path, capsys)
     assert json.loads((tmp_path / "pass" / "metrics.json").read_text())["gate"]["passed"]
 
 
-def test_job_mode_compares_with_the_optimize_renders(half_job, tmp_path):
+def test_job_mode_compares_with_the_optimize_renders(half_job, tmp_path, capsys, monkeypatch):
     _, design, scratches, _, _ = half_job
     job = tmp_path / "job"
     design.save(job / "design" / "design.toml")
@@ -340,8 +340,22 @@ def test_job_mode_compares_with_the_optimize_renders(half_job, tmp_path):
     # renders of other views (the design's resolution changed since optimize) are not the
     # board's: a fresh analytic render, not an error naming "optimize/renders", which is
     # relative to the job and not to where the command runs
+    # The progress line names the renders as they are found from where the command runs
+    # (a job named relative to another folder), not job-relative.
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    capsys.readouterr()
+    main(["verify-render", "../job", "--spp", "4", "--out", str(tmp_path / "o2")])
+    (line,) = [s for s in capsys.readouterr().out.splitlines() if "verifying" in s]
+    scratch_named, renders_named = re.fullmatch(
+        r"  verifying (\S+) \(\d+ scratches\) against the optimizer's renders in (\S+)", line
+    ).groups()
+    assert (cwd / scratch_named).resolve() == (job / "optimize" / "scratches.csv").resolve()
+    assert (cwd / renders_named).resolve() == (job / "optimize" / "renders").resolve()
     np.save(job / "optimize" / "renders" / "left.npy", np.zeros((4, 4), np.float32))
     main(["verify-render", str(job), "--spp", "4"])
+    assert "scratches) against a fresh analytic render" in capsys.readouterr().out
     metrics = json.loads((job / "verify" / "metrics.json").read_text())
     assert metrics["comparison"] == "render_scratches"
 

@@ -698,8 +698,13 @@ def run_verify_job(
             f"warning: no board pictures in {layout.design.boards_dir}: crosstalk is not "
             "measured (rerun design to write them)"
         )
-    if progress is not None:
-        progress(f"verifying {scratch_file} ({len(scratches)} scratches) against {source}")
+    if progress is not None:  # the renders by the path the job was named by, as scratch_file
+        against = (
+            f"the optimizer's renders in {renders_dir}"
+            if analytic is not None
+            else "a fresh analytic render"
+        )
+        progress(f"verifying {scratch_file} ({len(scratches)} scratches) against {against}")
     return run_verify(
         design,
         scratches,
