@@ -108,6 +108,21 @@ def test_optimize_progress_is_indented_under_its_stage(finished_job, said):
     assert re.fullmatch(r"  \[#{30}\] 4/4 loss \d\.\d{5}  elapsed \S+  eta 00:00", lines[-2])
 
 
+def test_every_stages_lines_are_indented_under_it(finished_job, said):
+    """What a stage says sits under its ``[stage] running``, as optimize's progress does."""
+    stage = None
+    seen = set()
+    for line in said:
+        if match := re.fullmatch(r"\[(\w+)\] running", line):
+            stage = match.group(1)
+        elif line.startswith(f"[{stage}] done"):
+            stage = None
+        elif stage is not None:
+            assert line.startswith("  "), (stage, line)
+            seen.add(stage)
+    assert seen == set(STAGES)  # each stage said something (design's header included)
+
+
 @pytest.mark.skipif(
     CHROMIUM is None, reason="Debian's chromium is not installed (.ci/run installs it)"
 )
@@ -981,6 +996,39 @@ def test_a_board_the_machine_cannot_reach_whole_is_said_before_design(tmp_path, 
     stats = json.loads((tmp_path / "job" / "toolpath" / "toolpath.json").read_text())["statistics"]
     assert (stats["outside_count"] + stats["clipped_count"] > 0) is warned
     assert result.ran[-1] == "toolpath"
+    # Said once: not again by a run with nothing to do, nor by one that starts at toolpath
+    # (which says what it left out itself).
+    for start in (None, "toolpath"):
+        said.clear()
+        run_pipeline(
+            load_pipeline(path), tmp_path / "job", start=start, until="toolpath", say=said.append
+        )
+        assert not any("board (corners" in line for line in said), said
+        assert any("outside the machine's envelope" in line for line in said) is (
+            warned and start == "toolpath"
+        )
+
+
+def test_a_board_wholly_off_the_machine_is_said_with_advice_that_works(tmp_path):
+    """Before design: the toolpath stage will refuse it (not "leave out or clip"), and what
+    to set; the toolpath stage then refuses it with the same advice."""
+    from scratchfab.bundled import bundled_dir
+
+    profile = (bundled_dir("machine_profiles") / "grbl-3018-diamond.toml").read_text()
+    old = "offset_mm = [-220.0, -150.0]"
+    (tmp_path / "off.toml").write_text(profile.replace(old, "offset_mm = [50.0, -150.0]"))
+    path = write_pipeline(tmp_path, edits={'machine = "grbl-3018-diamond"': 'machine = "off.toml"'})
+    said: list[str] = []
+    with pytest.raises(ScratchfabError) as info:
+        run_pipeline(load_pipeline(path), tmp_path / "job", until="toolpath", say=said.append)
+    warning = said[0]
+    assert warning.startswith("warning: the 30 x 30 mm board (corners [[50.0, -150.0]")
+    assert "lies wholly outside" in warning and "the toolpath stage will refuse it" in warning
+    assert "leave out" not in warning and "clip" not in warning
+    advice = "set the machine profile's [board] offset_mm to where the board lies on the bed"
+    assert advice in warning and advice in str(info.value)
+    assert "wholly outside the envelope" in str(info.value)
+    assert sum("board (corners" in line for line in said) == 1
 
 
 def test_a_stopped_stream_s_advice_says_how_a_pipeline_resumes(tmp_path):

@@ -156,6 +156,10 @@ class _Stages:
         """Run ``stage``; returns its outputs relative to the job folder."""
         return list(getattr(self, f"_run_{stage}")())
 
+    def _say_in(self, line: str) -> None:
+        """A stage's own line, indented under its ``[stage] running``."""
+        self.say(f"  {line}")
+
     def _relative(self, *paths: Path) -> list[str]:
         """``paths`` (in the job folder) as the manifest records outputs."""
         return [self.layout.relative(p) for p in paths]
@@ -170,7 +174,7 @@ class _Stages:
             force=opts.force,
             fit=opts.fit,
             seed=opts.seed,
-            progress=self.say,
+            progress=self._say_in,
         )
         design = self.layout.design
         return self._relative(design.design_toml, design.initial_scratches, design.targets_dir)
@@ -179,11 +183,11 @@ class _Stages:
         from scratchfab.optimize.progress import progress_printer
         from scratchfab.optimize.stage import ResumeRefused, run_optimize
 
-        progress = progress_printer(lambda line: self.say(f"  {line}"))
+        progress = progress_printer(self._say_in)
         layout = self.layout
         options = self.pipe.optimize
         if self.resume and layout.optimize_checkpoint.is_file():
-            self.say(f"  continuing the interrupted run from {layout.optimize_checkpoint}")
+            self._say_in(f"continuing the interrupted run from {layout.optimize_checkpoint}")
             try:
                 result = run_optimize(self.job, replace(options, resume=True), progress=progress)
             except ConfigError as exc:
@@ -192,7 +196,7 @@ class _Stages:
                     why = (
                         f"{exc.path}: made with other settings or inputs ({', '.join(exc.changed)})"
                     )
-                self.say(f"  cannot continue it ({why}); optimizing from the start")
+                self._say_in(f"cannot continue it ({why}); optimizing from the start")
                 result = run_optimize(self.job, options, progress=progress)
         else:
             result = run_optimize(self.job, options, progress=progress)
@@ -226,7 +230,7 @@ class _Stages:
 
             settings["jitter"] = Tolerance.from_profile(self.pipe.machine_ref(), self.pipe.profile)
         try:
-            metrics = run_verify_job(self.job, VerifySettings(**settings), progress=self.say)
+            metrics = run_verify_job(self.job, VerifySettings(**settings), progress=self._say_in)
         except VerifyGateError as exc:  # named as the pipeline file names it
             raise exc.named("[verify] min_rho =", str(self.pipe.path)) from None
         # The difference maps too (views with a target), so a deleted one reruns verify.
@@ -239,7 +243,7 @@ class _Stages:
 
         t = self.pipe.toolpath
         options = OrderOptions(passes=t.passes, kicks=t.kicks, seed=t.seed)
-        run_toolpath_job(self.job, self.pipe.profile, options, say=self.say)
+        run_toolpath_job(self.job, self.pipe.profile, options, say=self._say_in)
         return self._relative(self.layout.toolpath_json, self.layout.toolpath_preview)
 
     def _run_export(self) -> Sequence[str]:
@@ -251,12 +255,12 @@ class _Stages:
             stale = self.layout.export_file(fmt)
             if fmt not in self.pipe.export.formats and stale.is_file():
                 stale.unlink()
-                self.say(f"  removed {stale} (not in [export] formats)")
+                self._say_in(f"removed {stale} (not in [export] formats)")
         outputs = []
         for fmt in self.pipe.export.formats:
             out = self.layout.export_file(fmt)
             export(toolpath, None, out, fmt)
-            self.say(f"  wrote {out}")
+            self._say_in(f"wrote {out}")
             outputs.append(self.layout.relative(out))
         return outputs
 
@@ -276,7 +280,7 @@ class _Stages:
                 check=s.check,
                 machine=self.pipe.profile,
                 recut_unsure=s.recut_unsure,
-                say=self.say,
+                say=self._say_in,
                 confirm=self.confirm
                 if self.confirm is not None and not is_emulator(s.port)
                 else lambda _: True,
@@ -380,23 +384,40 @@ def _job_lock(path: Path) -> Iterator[None]:
         yield
 
 
-def _say_board_overhang(pipe: Pipeline, say: Say) -> None:
-    """Warn before design and optimize run when the machine cannot reach the whole board.
+def _board_overhang(pipe: Pipeline) -> str | None:
+    """The warning for a board the machine cannot reach whole, or None when it can.
 
-    The toolpath stage leaves out or clips the scratches beyond the envelope; said first,
-    a person can fix the board or the profile before minutes of optimizing.
+    The toolpath stage leaves out or clips the scratches of a board that overhangs the
+    envelope, and refuses one wholly outside it; said before design and optimize run, a
+    person can fix the board or the profile before minutes of work.
     """
+    from scratchfab.toolpath.plan import OUTSIDE_ADVICE
+
     board, profile = pipe.design.board, pipe.profile
     corners = profile.board_outline((board.width_mm, board.height_mm))
-    if profile.envelope.contains_xy(corners).all():
-        return
     env = profile.envelope
-    say(
+    if env.contains_xy(corners).all():
+        return None
+    where = (
         f"warning: the {board.width_mm:g} x {board.height_mm:g} mm board (corners "
-        f"{corners.round(1).tolist()}) reaches beyond machine '{profile.name}''s envelope "
-        f"x {list(env.x_mm)}, y {list(env.y_mm)}: the toolpath stage will leave out or clip "
-        "the scratches there; check [board] and the profile's [board] offset_mm and "
-        "[envelope] (Ctrl-C now to change them)"
+        f"{corners.round(1).tolist()})"
+    )
+    envelope = f"machine '{profile.name}''s envelope x {list(env.x_mm)}, y {list(env.y_mm)}"
+    # The board turns by quarter turns only: its outline is an axis-aligned rectangle.
+    lo, hi = corners.min(axis=0).tolist(), corners.max(axis=0).tolist()
+    if not all(
+        min(hi[i], span[1]) > max(lo[i], span[0]) for i, span in enumerate((env.x_mm, env.y_mm))
+    ):
+        return (
+            f"{where} lies wholly outside {envelope}: the toolpath stage will refuse it; "
+            f"{OUTSIDE_ADVICE} (design and optimize do not use the machine: their work is "
+            "kept for the next run)"
+        )
+    return (
+        f"{where} reaches beyond {envelope}: the toolpath stage will leave out the "
+        "scratches beyond it and clip those across its edge. To cut the whole board, make "
+        "[board] smaller or move it with the profile's [board] offset_mm (or correct "
+        "[envelope]); Ctrl-C now to change them"
     )
 
 
@@ -415,8 +436,9 @@ def _run_stages(
     stages = _Stages(pipe, job, say, confirm)
     result = RunResult(job)
     last = STAGES.index(until) if until else len(STAGES) - 1
-    if last >= STAGES.index("toolpath"):
-        _say_board_overhang(pipe, say)
+    # Said once, before the first stage of the run that comes ahead of toolpath (the
+    # toolpath stage says what it left out itself; a run with nothing to do says nothing).
+    overhang = _board_overhang(pipe) if last >= STAGES.index("toolpath") else None
     rerun = force
     try:
         for index, stage in enumerate(STAGES[: last + 1]):
@@ -449,6 +471,9 @@ def _run_stages(
                     "scratchfab recorded them (by absolute path and file time); they do not "
                     "match the files now: running it again"
                 )
+            if overhang is not None and index < STAGES.index("toolpath"):
+                say(overhang)
+            overhang = None
             say(f"[{stage}] running")
             began = time.perf_counter()
             stages.resume = not asked and manifest.unfinished(stage, inputs, legacy)

@@ -34,6 +34,12 @@ from scratchfab.toolpath.timing import path_times
 
 FORMAT = "scratchfab-toolpath"
 VERSION = 1
+#: What to do about a board wholly outside the machine's envelope (said by the toolpath
+#: stage, which refuses it, and by ``scratchfab run`` before design).
+OUTSIDE_ADVICE = (
+    "set the machine profile's [board] offset_mm to where the board lies on the bed "
+    "(inside the envelope), or correct the profile's [envelope]"
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -269,7 +275,8 @@ def plan_toolpath(
     if region.is_empty or region.area <= 0:
         raise ScratchfabError(
             f"machine '{profile.name}': the board (corners {outline.round(3).tolist()}) lies "
-            f"outside the envelope x {list(env.x_mm)}, y {list(env.y_mm)}; check [board] offset_mm"
+            f"wholly outside the envelope x {list(env.x_mm)}, y {list(env.y_mm)}, so nothing "
+            f"can be cut; {OUTSIDE_ADVICE}"
         )
     m0 = profile.board_to_machine(scratches.p0, size)
     m1 = profile.board_to_machine(scratches.p1, size)
