@@ -97,6 +97,7 @@ from scratchfab.machine.sender_program import (
     stands_at_end,
     strip_block,
     travel_height,
+    work_xyz,
 )
 
 if TYPE_CHECKING:
@@ -1656,10 +1657,14 @@ class Streamer:
         The controller may still hold up to ``planner_blocks`` motion blocks, and its
         stepper a few more (:func:`last_surely_run`), after the last acknowledgement; an
         acknowledged sync block (a spindle change, G4, ...; an S change only with laser
-        mode ``$32`` known off) means everything before it ran. The first candidate block
-        whose segment contains the hold position is the interrupted one; without a match
-        the earliest candidate is taken as interrupted (a stroke is cut again rather than
-        skipped), and so is a candidate move whose path the sender does not follow
+        mode ``$32`` known off) means everything before it ran. The first candidate move
+        the hold position may lie on is the interrupted one: within :meth:`_step_tol` of
+        its line (GRBL reports whole steps, up to a step off the sender's line on each
+        axis), of its start, or of its end short of where it surely ended
+        (:meth:`_at_end`); a wider match only finds an earlier move (cut again). Standing
+        at the end of the last candidate, every candidate ran. Without a position or a
+        match the earliest candidate is taken as interrupted (a stroke is cut again rather
+        than skipped), and so is a candidate move whose path the sender does not follow
         (:func:`followed_move`: an arc, G28, G53, a move whose start is not known after a
         change of the work frame...: the machine may stand anywhere in it, even on a later
         move's segment). Only blocks acknowledged before the position report can match it: a
@@ -1679,17 +1684,55 @@ class Streamer:
         if wpos is None or self._acks_at_status == 0:
             return surely
         reported = [i for i in window if i <= acked[self._acks_at_status - 1]]
-        for i in reported:
-            b = blocks[i]
-            if not b.motion:
-                continue
+        tol = self._step_tol()
+        moves = [i for i in reported if blocks[i].motion]
+        for i in moves:
             if not followed_move(blocks, i):  # an arc, G28, a move after G55...
                 return i - 1
-            if along_move(blocks, i, wpos, tol=0.01) is not None:
+            if (
+                along_move(blocks, i, wpos, tol) is not None
+                or (i > 0 and stands_at_end(blocks[i - 1], wpos, tol))  # at its start
+                or self._at_end(i, wpos) == "short"
+            ):
                 return i - 1
-        if reported and stands_at_end(blocks[reported[-1]], wpos, 0.01):
+        if moves and self._at_end(moves[-1], wpos) == "ran":
             return reported[-1]
         return surely
+
+    def _at_end(self, i: int, p: Sequence[float]) -> str:
+        """Where ``p`` (work mm) stands about move ``i``'s end, in GRBL's whole steps.
+
+        GRBL ends a move on whole steps (``$100``-``$102``), within half a step of the
+        sender's end on each axis, give or take the reports' rounding (0.001 mm: ``MPos``
+        less ``WCO``). A stop a step short of it stands a step back on an axis the move
+        moves, so at least half a step (less the rounding) off the sender's end there:
+        nearer than that on every moved axis the move ran (0.002 mm at least: with steps
+        of 0.006 mm or less, or unknown, a stop a step short may pass for the end, short
+        by less than the 0.01 mm a position's match allows for rounding). A stop short of
+        the end stands within :meth:`_step_tol` of it on the moved axes; on the others
+        (where it matters: the next move) within half a step and the rounding.
+
+        Returns:
+            ``"ran"`` (at its end), ``"short"`` (maybe stopped a step or so before it),
+            or ``""`` (neither).
+        """
+        blocks = self._program.blocks
+        end = work_xyz(blocks[i].modal)
+        before = work_xyz(blocks[i - 1].modal) if i > 0 else (None, None, None)
+        step = self._step_mm()
+        moved = [k for k in range(3) if before[k] != end[k]]
+        still = [k for k in range(3) if k not in moved]
+
+        def near(axes: list[int], tol: float) -> bool:
+            """Within ``tol`` of the end on ``axes`` (the others taken as at it)."""
+            q = [e if e is not None and k not in axes else p[k] for k, e in enumerate(end)]
+            return stands_at_end(blocks[i], q, tol)
+
+        if not near(still, 0.002 + max((step[k] for k in still), default=0.0) / 2.0):
+            return ""
+        if near(moved, max(0.002, min((step[k] for k in moved), default=0.0) / 2.0 - 0.001)):
+            return "ran"
+        return "short" if near(moved, self._step_tol()) else ""
 
 
 def _soft_limit_top(settings: dict[int, float]) -> tuple[float, str] | None:

@@ -1,0 +1,165 @@
+"""The stop's executed-through on a machine with coarse steps (``$100``-``$102``).
+
+GRBL reports its position in whole steps: its targets are rounded to steps (``lround``)
+and its Bresenham steps stay within half a step of the line between them, so a reported
+position lies up to a step off the sender's line on each axis. The positions here are
+the steps Grbl's own stepper takes (counted below, as its ``st_prep_buffer`` and
+``stepper_pulse`` do), not the sender's arithmetic.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from scratchfab.machine.sender import Streamer
+from scratchfab.machine.sender_program import load_program
+
+STEPS_PER_MM = 80.0  # a belt-driven X/Y: 0.0125 mm a step
+
+# Z up, to (-0.006, 0.006), down, then a cut to (9.994, 5.006): Grbl rounds both ends
+# to whole steps, (0, 0) and (800, 400); later a second cut along Y2.5 crosses the
+# first one's middle (block 8)
+JOB = (
+    "G21G90\nG0Z1\nG0X-0.006Y0.006\nG1Z-0.1F100\nG1X9.994Y5.006\n"
+    "G0Z1\nG0X0Y2.5\nG1Z-0.1\nG1X10Y2.5\nG0Z1\n"
+)
+CUT = 4  # the index of G1X9.994Y5.006 (block 0 is G21G90)
+
+
+def _lround(v: float) -> int:
+    """C's lround: halves away from zero."""
+    return int(v + 0.5) if v >= 0 else -int(-v + 0.5)
+
+
+def _grbl_steps(start, end, spm: float) -> list[tuple[float, float]]:
+    """Every position (mm) Grbl's Bresenham stepper passes from ``start`` to ``end`` (X, Y)."""
+    a = [_lround(v * spm) for v in start]
+    b = [_lround(v * spm) for v in end]
+    n = [abs(q - p) for p, q in zip(a, b, strict=True)]
+    sign = [1 if q >= p else -1 for p, q in zip(a, b, strict=True)]
+    events = max(n)
+    counter = [events >> 1] * 2  # Grbl: st.counter_x = st.exec_block->step_event_count >> 1
+    pos = list(a)
+    out = [(pos[0] / spm, pos[1] / spm)]
+    for _ in range(events):
+        for k in range(2):
+            counter[k] += n[k]
+            if counter[k] > events:
+                counter[k] -= events
+                pos[k] += sign[k]
+        out.append((pos[0] / spm, pos[1] / spm))
+    return out
+
+
+def _streamer(tmp_path, spm: float | None, text: str = JOB) -> Streamer:
+    """A Streamer whose every block was acknowledged before the stop's position report."""
+    job = tmp_path / "job.gcode"
+    job.write_text(text)
+    prog = load_program(job).placed_at((0.0, 0.0))
+    s = Streamer.__new__(Streamer)
+    settings = {} if spm is None else {100: spm, 101: spm, 102: 400.0}
+    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None, settings=settings)
+    s._program = prog
+    s._all_ran = False
+    s._acked_blocks = list(range(len(prog.blocks)))
+    s._acks_at_status = len(prog.blocks)
+    return s
+
+
+def _cut_path() -> list[tuple[float, float]]:
+    return _grbl_steps((-0.006, 0.006), (9.994, 5.006), STEPS_PER_MM)
+
+
+def test_the_cut_crosses_a_later_one_where_grbl_stands_off_the_senders_line(tmp_path):
+    # the setting of the tests below: Grbl at step (401, 200) on the cut, off its line
+    # by more than 0.01 mm, and on the later cut along Y2.5
+    path = _cut_path()
+    assert path[0] == (0.0, 0.0) and path[-1] == (10.0, 5.0)
+    assert (401 / STEPS_PER_MM, 200 / STEPS_PER_MM) in path
+    a, b = (-0.006, 0.006), (9.994, 5.006)
+    p = (5.0125, 2.5)
+    cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
+    assert abs(cross) / ((b[0] - a[0]) ** 2 + (b[1] - a[1]) ** 2) ** 0.5 > 0.013
+
+
+@pytest.mark.parametrize("spm", [STEPS_PER_MM, 40.0])
+def test_a_stop_anywhere_on_the_cut_is_not_taken_for_a_later_block(tmp_path, spm):
+    """Safety: stopped on any step Grbl takes along the cut before its end, the journal
+    never trusts the cut nor any block after it, although the later cut along Y2.5
+    passes through some of them; at its end (Grbl's, in whole steps) the cut ran."""
+    s = _streamer(tmp_path, spm)
+    path = _grbl_steps((-0.006, 0.006), (9.994, 5.006), spm)
+    for x, y in path[:-1]:
+        assert s._executed_guess((x, y, -0.1)) <= CUT - 1, (x, y)
+    assert s._executed_guess((*path[-1], -0.1)) <= CUT
+    for z in range(400, -41, -1):  # the plunge's steps, Z at 400 steps/mm: it may not end
+        assert s._executed_guess((0.0, 0.0, z / 400.0)) <= CUT - 2, z
+
+
+def test_a_stop_a_step_short_of_the_cuts_end_is_not_taken_for_its_end(tmp_path):
+    # the last acknowledged block, stopped a step short (within the match's tolerance of
+    # its end): it counts as interrupted, so a resume cuts it again
+    s = _streamer(tmp_path, STEPS_PER_MM)
+    s._acked_blocks = list(range(CUT + 1))
+    s._acks_at_status = CUT + 1
+    short = _cut_path()[-2]
+    assert short == (799 / STEPS_PER_MM, 399 / STEPS_PER_MM)
+    assert s._executed_guess((*short, -0.1)) == CUT - 1
+
+
+def test_a_move_ended_within_less_than_half_a_step_counts_as_run(tmp_path):
+    # at 40 steps/mm Grbl's end of the cut (10, 5) lies 0.0085 mm from the sender's, less
+    # than the 0.0115 mm a stop a step short cannot come nearer than: the cut ran; at 80
+    # steps/mm it is as far, more than the 0.00525 mm there: taken as interrupted
+    s = _streamer(tmp_path, 40.0)
+    assert s._executed_guess((10.0, 5.0, -0.1)) == CUT
+    s = _streamer(tmp_path, STEPS_PER_MM)
+    assert s._executed_guess((10.0, 5.0, -0.1)) == CUT - 1
+
+
+def test_a_move_that_ended_on_whole_steps_counts_as_run(tmp_path):
+    # precision kept: at the exact end of a move (on the step grid) the move ran, and so
+    # did the blocks up to the next move
+    s = _streamer(tmp_path, STEPS_PER_MM)
+    assert s._executed_guess((0.0, 2.5, 1.0)) == 6  # the end of G0X0Y2.5
+    assert s._executed_guess((10.0, 2.5, -0.1)) == 8  # the end of the second cut
+    s._acked_blocks = list(range(9))
+    s._acks_at_status = 9
+    assert s._executed_guess((10.0, 2.5, -0.1)) == 8  # the last acknowledged one
+
+
+def test_a_stop_at_a_corner_rounded_off_both_moves_is_not_taken_for_a_later_block(tmp_path):
+    # the plunge ends at (20.006, -0.006), Grbl's step (1600, 0); there the tool stands
+    # past the plunge's end and before the cut's start along its line (10, 5), on
+    # neither; the later cut along Y0 passes there
+    text = (
+        "G21G90\nG0Z1\nG0X20.006Y-0.006\nG1Z-0.1F100\nG1X30.006Y4.994\n"
+        "G0Z1\nG0X15Y0\nG1Z-0.1\nG1X25Y0\nG0Z1\n"
+    )
+    s = _streamer(tmp_path, STEPS_PER_MM, text)
+    assert _lround(20.006 * STEPS_PER_MM) == 1600 and _lround(-0.006 * STEPS_PER_MM) == 0
+    assert s._executed_guess((20.0, 0.0, -0.1)) <= CUT - 1
+    # a job resumed at the cut: the plunge is not a candidate, only the cut's start tells
+    s._acked_blocks = list(range(CUT, len(s._program.blocks)))
+    s._acks_at_status = len(s._acked_blocks)
+    assert s._executed_guess((20.0, 0.0, -0.1)) == CUT - 1
+
+
+def test_without_steps_only_a_position_within_the_reports_rounding_is_an_end(tmp_path):
+    # steps unknown: 0.002 mm (a report's rounding) counts as the end, 0.005 mm short not
+    s = _streamer(tmp_path, None)
+    s._acked_blocks = list(range(CUT + 1))
+    s._acks_at_status = CUT + 1
+    assert s._executed_guess((9.9945, 5.0055, -0.1)) == CUT
+    assert s._executed_guess((9.99, 5.004, -0.1)) == CUT - 1
+
+
+def test_a_stop_on_the_next_move_is_not_taken_for_one_short_of_the_end(tmp_path):
+    # the cut ended at Grbl's (10, 5), too far from the sender's end to tell it ran; Grbl
+    # then went 8 Z steps up the G0Z1: the cut ran, the G0Z1 did not end
+    s = _streamer(tmp_path, STEPS_PER_MM)
+    assert s._executed_guess((10.0, 5.0, -0.1 + 8 / 400.0)) == CUT
+    # 1 Z step up lies within Z's rounding: maybe the cut stopped short, it is cut again
+    assert s._executed_guess((10.0, 5.0, -0.1 + 1 / 400.0)) == CUT - 1
