@@ -9,13 +9,14 @@ from PIL import Image
 
 from scratchfab.bundled import bundled_dir
 from scratchfab.cli import main
-from scratchfab.design.feasibility import check_feasibility
-from scratchfab.design.quick import quick_design
+from scratchfab.design.feasibility import board_points, check_feasibility, half_vectors, tilt_deg
+from scratchfab.design.quick import TILT_SHARE, quick_design
 from scratchfab.design.stage import run_design
 from scratchfab.design.targets import view_targets
 from scratchfab.model.camera import Camera
 from scratchfab.model.design import load_design
 from scratchfab.model.scratches import load_scratches
+from scratchfab.render.profile import steepest_wall_deg
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "scratchfab" / "data" / "demo"
@@ -102,6 +103,22 @@ def test_quick_form_places_views_that_see_the_whole_board_and_are_feasible(n):
     report = check_feasibility(design)
     assert report.errors == []
     assert all(v.reachable_fraction == 1.0 for v in report.views.values())
+
+
+def test_quick_form_keeps_one_view_as_far_from_the_bare_board_gloss_as_two_views():
+    """One camera on the normal gets the light at twice the aimed tilt: its centre half-vector
+    tilts TILT_SHARE of the wall like the two-view layout's, and nowhere on the board does the
+    bare board's mirror direction come closer than the two-view layout lets it (a light at the
+    two-view elevation left the top edge 4.7 deg off the normal, lit by the board's gloss)."""
+    one = quick_design([DEMO / "sun.png"], (100.0, 100.0))
+    pts = board_points(one.board)
+    two = quick_design([DEMO / "sun.png", DEMO / "house.png"], (100.0, 100.0))
+    wall = float(steepest_wall_deg(one.scratch.width_mm, one.scratch.depth_mm))
+    centre = tilt_deg(half_vectors(one, one.views[0], np.zeros((1, 2))))[0]
+    assert centre == pytest.approx(TILT_SHARE * wall, abs=0.01)
+    least_one = tilt_deg(half_vectors(one, one.views[0], pts)).min()
+    least_two = min(tilt_deg(half_vectors(two, v, pts)).min() for v in two.views)
+    assert least_one >= least_two
 
 
 def test_demo_pipeline_designs(tmp_path, capsys):

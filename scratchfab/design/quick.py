@@ -6,7 +6,9 @@ elevation a, the half-vector at the board's centre tilts atan(sqrt(2) tan(a/2)) 
 the normal and its horizontal part points along the diagonal (+-1, 1): two views then
 need perpendicular scratches, which keeps them apart. The azimuth is chosen so that
 this tilt uses :data:`TILT_SHARE` of the tool's steepest wall, leaving room for the
-spread of half-vectors across the board.
+spread of half-vectors across the board. A single camera stands on the normal, and the
+light at twice that tilt above it: a light closer to the camera makes the bare board's
+own gloss light up the board's top edge, which only scratches turned away can darken.
 """
 
 from __future__ import annotations
@@ -57,9 +59,14 @@ def view_name(path: Path, taken: set[str]) -> str:
     return name
 
 
+def centre_tilt_deg(tool: ScratchTool) -> float:
+    """The half-vector tilt at the board's centre the quick form aims for: TILT_SHARE of the wall."""
+    return TILT_SHARE * float(steepest_wall_deg(tool.width_mm, tool.depth_mm))
+
+
 def camera_azimuth_deg(tool: ScratchTool) -> float:
     """Camera azimuth (= light elevation) whose centre half-vector tilts TILT_SHARE of the wall."""
-    tilt = math.radians(TILT_SHARE * float(steepest_wall_deg(tool.width_mm, tool.depth_mm)))
+    tilt = math.radians(centre_tilt_deg(tool))
     return math.degrees(2.0 * math.atan(math.tan(tilt) / math.sqrt(2.0)))
 
 
@@ -105,7 +112,8 @@ def quick_mapping(
                 "resolution": list(resolution),
             }
         )
-    el = math.radians(az)
+    # One camera on the normal: the half-vector tilts half the light's elevation.
+    el = math.radians(az if n > 1 else 2.0 * centre_tilt_deg(tool))
     return {
         "board": {"width_mm": board.width_mm, "height_mm": board.height_mm},
         "light": {
