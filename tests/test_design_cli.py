@@ -44,6 +44,9 @@ def test_quick_form_writes_a_job_that_the_next_run_can_start_from(tmp_path, caps
     )
     folder = job / "design"
     assert f"design file: {folder / 'design.toml'}" in out
+    lines = out.splitlines()
+    header = next(k for k, line in enumerate(lines) if line.startswith("design: 2 views"))
+    assert header < next(k for k, line in enumerate(lines) if "loaded 2 target image" in line)
     for rel in (
         "design.toml",
         "scratches.csv",

@@ -179,6 +179,10 @@ def run_design(
                 "board from less grazing a direction"
             )
 
+    progress(
+        f"design: {len(design.views)} views, {design.scratch.count} scratches on a "
+        f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
+    )
     boards: dict[str, np.ndarray] = {}
     cache: dict[Path, np.ndarray] = {}
     for i, view in enumerate(design.views):
@@ -201,10 +205,6 @@ def run_design(
             )
     progress(f"  loaded {len(cache)} target image(s)")
 
-    progress(
-        f"design: {len(design.views)} views, {design.scratch.count} scratches on a "
-        f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
-    )
     report = check_feasibility(design, boards=boards)
     # Without --force the errors end the stage in one message of their own.
     for line in report.summary_lines(errors=force):
