@@ -10,6 +10,7 @@ import pytest
 from PIL import Image, ImageSequence
 
 from scratchfab.optimize.plots import (
+    AXIS_RGB,
     GRID_RGB,
     LOSS_RGB,
     MIN_CELL_PX,
@@ -249,7 +250,7 @@ def test_loss_plot_of_few_or_no_usable_rows_still_draws_framed_axes(tmp_path, it
     assert is_color(img, LOSS_RGB).any() == bool(finite)
 
 
-@pytest.mark.parametrize("n", [2, 3, 5])  # the sixth colour is black, as the frame
+@pytest.mark.parametrize("n", [2, 3, 5, 6])
 def test_every_view_stays_visible_where_the_rho_curves_coincide(tmp_path, n):
     """Identical rho curves: each view's colour still shows along the shared line."""
     it = np.arange(0, 201, dtype=np.float64)
@@ -273,3 +274,4 @@ def test_every_view_stays_visible_where_the_rho_curves_coincide(tmp_path, n):
     for k in range(n):
         mine = is_color(panel, VIEW_RGB[k])[ys[on_line], xs[on_line]].sum()
         assert mine >= 0.5 * total / n, (k, mine, total)
+    assert AXIS_RGB not in VIEW_RGB[:n]  # a curve in the frame's colour would read as the frame

@@ -30,10 +30,11 @@ OFF_BOARD_CAPTION = "grey: off the board (not scratched, not scored)"
 MIN_CELL_PX = 160
 #: Loss curve colour.
 LOSS_RGB = OKABE_ITO["blue"]
-#: Per-view curve colours, in view order (repeating).
+#: Per-view curve colours, in view order (repeating); not black, the frame's colour (the
+#: loss curve's blue is in the other panel).
 VIEW_RGB = [
     OKABE_ITO[k]
-    for k in ("vermillion", "bluish_green", "orange", "reddish_purple", "sky_blue", "black")
+    for k in ("vermillion", "bluish_green", "orange", "reddish_purple", "sky_blue", "blue")
 ]
 #: Length in pixels of one view's dash when the quality panel has several views. View k
 #: of n draws the stretches k..n of each n-dash period over the solid first view, so that
