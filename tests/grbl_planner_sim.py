@@ -107,7 +107,7 @@ class Planner:
         self.s = settings
         self.rate = [r / 60.0 for r in settings.max_rate_mm_min]
         self.accel = list(settings.acceleration_mm_s2)
-        self.steps = [round(p * k) for p, k in zip(start, settings.steps_per_mm, strict=True)]
+        self.steps = [_lround(p * k) for p, k in zip(start, settings.steps_per_mm, strict=True)]
         self.target = list(map(float, start))
         self.buffer_blocks = buffer_blocks
         self.pending: list[Block] = []  # blocks since the planner last ran empty
@@ -176,7 +176,7 @@ class Planner:
     def move(self, target: list[float], rapid: bool) -> None:
         """Add a line to the planner (``plan_buffer_line``)."""
         self.target = target
-        steps = [round(p * k) for p, k in zip(target, self.s.steps_per_mm, strict=True)]
+        steps = [_lround(p * k) for p, k in zip(target, self.s.steps_per_mm, strict=True)]
         delta = [
             (b - a) / k for a, b, k in zip(self.steps, steps, self.s.steps_per_mm, strict=True)
         ]
@@ -386,3 +386,47 @@ class Stepper:
             pos = [p + u * run for p, u in zip(pos, b.unit, strict=True)]
             begin = end
         return (pos[0], pos[1], pos[2])
+
+
+def steps_taken(
+    start: Sequence[float],
+    end: Sequence[float],
+    done: float,
+    steps_per_mm: Sequence[float] = GRBL_STEPS_PER_MM,
+) -> tuple[float, float, float]:
+    """Where Grbl 1.1 reports a machine ``done`` mm into the line ``start`` -> ``end`` (mm).
+
+    Grbl counts whole steps (``sys_position``, shown as steps / ``$100``-``$102``). The line
+    runs between targets rounded to whole steps (``lround``); its step events are those of
+    its longest axis, and ``st_prep_buffer`` has run all but ``ceil(events x mm left /
+    length)`` of them. The stepper interrupt then steps each axis by its Bresenham counter
+    (``stepper.c``): the counter starts at half the events, adds the axis's steps per
+    event and steps the axis each time it exceeds the events (with AMASS, all scaled by 8).
+    """
+    a = [_lround(p * k) for p, k in zip(start, steps_per_mm, strict=True)]
+    b = [_lround(p * k) for p, k in zip(end, steps_per_mm, strict=True)]
+    delta = [j - i for i, j in zip(a, b, strict=True)]
+    events = max(abs(d) for d in delta)
+    length = math.sqrt(sum((d / k) ** 2 for d, k in zip(delta, steps_per_mm, strict=True)))
+    pos = list(a)
+    if events:
+        left = max(length - done, 0.0)
+        run = events - math.ceil(events * left / length - 1e-9)
+        scaled = events << 3
+        counters = [scaled >> 1] * 3
+        for _ in range(run):
+            for axis, d in enumerate(delta):
+                counters[axis] += abs(d) << 3
+                if counters[axis] > scaled:
+                    counters[axis] -= scaled
+                    pos[axis] += 1 if d > 0 else -1
+    return (
+        pos[0] / steps_per_mm[0],
+        pos[1] / steps_per_mm[1],
+        pos[2] / steps_per_mm[2],
+    )
+
+
+def _lround(x: float) -> int:
+    """C's ``lround``: halves away from zero."""
+    return int(math.floor(abs(x) + 0.5)) * (1 if x >= 0 else -1)

@@ -777,7 +777,8 @@ def test_a_move_that_comes_while_the_last_one_runs_joins_it():
 
 def test_position_and_rate_in_a_status_follow_the_acceleration():
     """Half a second into ``G1X10F600`` from rest at 10 mm/s^2: x = a t^2 / 2 = 1.25 mm,
-    at 5 mm/s (FS:300, the realtime rate Grbl 1.1 reports)."""
+    at 5 mm/s (FS:300, the realtime rate Grbl 1.1 reports); Grbl reports the whole steps
+    taken (312 of 312.5 at 250 steps/mm: 1.248)."""
     sim, clock = _sim_in_own_time(SimOptions(baud=0))
     sim.host_write(b"G1X10F600\n")
     sim.advance(0.0)
@@ -787,7 +788,53 @@ def test_position_and_rate_in_a_status_follow_the_acceleration():
     sim.host_write(b"?")
     sim.advance(0.5)
     report = sim.host_read(1 << 16, 0.0).decode()
-    assert report.startswith("<Run|MPos:1.250,0.000,0.000|") and "|FS:300,0" in report
+    x = planner_sim.steps_taken((0.0, 0.0, 0.0), (10.0, 0.0, 0.0), 1.25)[0]
+    assert report.startswith(f"<Run|MPos:{x:.3f},0.000,0.000|") and "|FS:300,0" in report
+    sim.close()
+
+
+def _report_at(sim: GrblSim, clock: list[float], t: float) -> str:
+    """The status report the emulator answers to a ``?`` at ``t`` (its own time)."""
+    clock[0] = t
+    sim.advance(t)
+    sim.host_read(1 << 16, 0.0)
+    sim.host_write(b"?")
+    sim.advance(t)
+    return sim.host_read(1 << 16, 0.0).decode()
+
+
+@pytest.mark.parametrize(("report", "shown"), [(1, "MPos"), (0, "WPos")])
+def test_a_target_off_the_step_grid_is_reported_at_its_whole_steps(report, shown):
+    """Grbl's planner moves to ``lround(target x $100)`` steps and reports its steps over
+    $100: X0.01 is 2.5 steps at 250 steps/mm, 3 steps (0.012); Y-0.007 is -1.75, -2
+    (-0.008); Z0.001 (0.25 step) does not move. WPos is that less the offset."""
+    sim, clock = _sim_in_own_time(SimOptions(baud=0, wco=(0.001, 0.0, 0.0), settings={10: report}))
+    sim.host_write(b"G53G1X0.01Y-0.007Z0.001F600\n")
+    _run_until_still(sim, clock)
+    want = planner_sim.steps_taken((0.0,) * 3, (0.01, -0.007, 0.001), 1.0)
+    assert want == (0.012, -0.008, 0.0)  # the reference's own rounding
+    if not report:
+        want = (want[0] - 0.001, want[1], want[2])
+    text = _report_at(sim, clock, clock[0] + 1.0)
+    assert text.startswith("<Idle|" + shown + ":" + ",".join(f"{v:.3f}" for v in want) + "|")
+    sim.close()
+
+
+def test_a_report_mid_move_counts_the_steps_each_axis_has_taken():
+    """Mid-move Grbl reports ``sys_position``: the step events run so far, shared out to
+    each axis by the stepper's Bresenham counters. G1X1Y0.3 at 10 mm/s ($120-$121 so high
+    that it is at speed within 10 us) is ``done = v t - v^2 / 2a`` mm in at ``t``;
+    against the reference's step-by-step counters at 40 random times."""
+    settings = {110: 1000.0, 111: 1000.0, 120: 1e6, 121: 1e6}
+    sim, clock = _sim_in_own_time(SimOptions(baud=0, settings=settings))
+    sim.host_write(b"G1X1Y0.3F600\n")
+    sim.advance(0.0)
+    accel = settings[120] * math.hypot(1.0, 0.3)  # X's, the larger share, limits it
+    for t in np.sort(np.random.default_rng(7).uniform(0.001, 0.1, 40)):
+        done = 10.0 * t - 10.0**2 / (2.0 * accel)
+        want = planner_sim.steps_taken((0.0,) * 3, (1.0, 0.3, 0.0), done)
+        text = _report_at(sim, clock, float(t))
+        assert text.startswith("<Run|MPos:" + ",".join(f"{v:.3f}" for v in want) + "|"), (t, text)
     sim.close()
 
 

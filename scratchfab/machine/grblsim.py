@@ -16,8 +16,10 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   junction speed of ``$11``, look-ahead over the blocks queued when it plans (the newest
   ends at rest, so a planner that runs short slows down; a block queued behind the running
   one re-plans it from its current speed), trapezoid profiles in the reported position and
-  realtime ``FS:`` rate; a move of no whole step (``$100``-``$102``), which Grbl drops,
-  passes at once and takes no block in ``Bf:``; a changed feed or rapid override
+  realtime ``FS:`` rate; moves run between targets rounded to whole steps (``$100``-``$102``)
+  and the reported position is the whole steps taken so far (each axis by Grbl's Bresenham
+  counters), so ``X0.01`` at 250 steps/mm ends at 0.012; a move of no whole step, which
+  Grbl drops, passes at once, takes no block in ``Bf:`` and no ``plan_time``; a changed feed or rapid override
   (``0x90``-``0x97``) re-plans, the running block slowing down (through it into the next
   where it is too short) or speeding up at its acceleration; all times ``time_scale``.
   These wait for the planner to empty (so their ``ok`` comes after the motion before
@@ -28,7 +30,9 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   switches between G1-G3 and another motion mode, and a move of no whole step (Grbl's
   ``mc_line`` syncs the spindle where ``plan_buffer_line`` drops a move);
 - ``$`` commands with their state rules (``error:8``/``error:9``), check mode ``$C`` with the
-  soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset,
+  soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset
+  (a target outside them in a cycle first holds: ``Hold:1``, no line read, the alarm once
+  the machine stands there, as Grbl's ``limits_soft_check``),
   feed hold ``Hold:1`` -> ``Hold:0`` and resume (a hold, door or jog cancel slows down
   at the acceleration of the block it is in, into the next one if it must, as Grbl's
   stepper does, and the reported position follows; the resume starts from rest; lines
@@ -278,8 +282,9 @@ def _lround(x: float) -> int:
 class _Block:
     """A planned motion and, once planned, its current velocity profile."""
 
-    start: tuple[float, float, float]
-    end: tuple[float, float, float]
+    start: tuple[float, float, float]  # mm, on the step grid (Grbl's planner position)
+    end: tuple[float, float, float]  # mm, on the step grid (the target's whole steps)
+    target: tuple[float, float, float]  # mm: the target as programmed (for the record)
     rate: float  # mm/min: the G1 feed, or the axis-limited rapid rate (before overrides)
     limit: float  # mm/min: the axis-limited rate along the move
     rapid: bool
@@ -340,7 +345,8 @@ class GrblSim:
         self._offsets[0] = self.options.wco
         self.g28 = (0.0, 0.0, 0.0)
         self.g30 = (0.0, 0.0, 0.0)
-        self.mpos: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.mpos: tuple[float, float, float] = (0.0, 0.0, 0.0)  # on the step grid
+        self._target = self.mpos  # the last finished block's target as programmed
         self.state = "Idle"
         self.overruns = 0
         self.link_up = True
@@ -360,6 +366,7 @@ class GrblSim:
         self._restore_until = math.inf  # Door:3: spindle/coolant restoring before resuming
         self._door_saved: tuple[str, float, frozenset[str]] = ("M5", 0.0, frozenset())
         self._critical = False
+        self._soft_limit = False  # a soft limit in a cycle: holding, then ALARM:2
         self._reset_at = math.inf
         self._boot_at = math.inf
         self._spindle = "M5"
@@ -771,7 +778,8 @@ class GrblSim:
         """
         while not self._critical and self._reset_at == math.inf and self._boot_at == math.inf:
             if (
-                self.state == "Door"
+                self._soft_limit
+                or self.state == "Door"
                 or self._jog_cancel
                 or (self.state == "Hold" and self._hold_complete)
             ):
@@ -849,7 +857,11 @@ class GrblSim:
             self._respond(t, n, gcode, f"error:{exc.code}")
             return
         if outcome.soft_limit:
-            self._soft_limit_alarm(t)
+            if self.state == "Run":  # limits_soft_check in a cycle: a feed hold first
+                self._soft_limit = True
+                self._decelerate(t, "Hold")
+            else:
+                self._soft_limit_alarm(t)
             return
         wco = self._wco()
         self._offsets = outcome.coord_offsets
@@ -889,7 +901,8 @@ class GrblSim:
             if self._planner[-1].length <= 0.0 and self.settings[32] and self._gc.spindle == "M3":
                 # mc_line: a dropped move under M3 in laser mode syncs (spindle_sync)
                 p.actions.insert(p.index, Action("sync"))
-            if self.options.plan_time > 0.0:
+            if self.options.plan_time > 0.0 and self._planner[-1].length > 0.0:
+                # plan_buffer_line returns PLAN_EMPTY_BLOCK before any planning
                 p.until = t + self.options.plan_time
                 p.planning = True
                 return False
@@ -922,7 +935,7 @@ class GrblSim:
             self._emit(t, "[MSG:Pgm End]\r\n")
         elif act.kind == "homed":
             pull = self.settings[27]
-            self.mpos = (-pull, -pull, -pull)
+            self.mpos = self._on_grid((-pull, -pull, -pull))  # limits_go_home: lround
             self._gc.position = self.mpos
             self._set_state(t, "Idle")
         p.index += 1
@@ -935,14 +948,13 @@ class GrblSim:
         (none when the planner is empty: it starts from rest) are fixed here, as in Grbl.
         """
         start = self._planner[-1].end if self._planner else self.mpos
-        end = act.target
+        end = self._on_grid(act.target)
         s = self.settings
         rates = (s[110], s[111], s[112])
         accels = (s[120], s[121], s[122])
-        delta = np.subtract(end, start)
+        delta = np.subtract(end, start)  # plan_buffer_line: from whole steps
         length, unit, limit, accel = move_limits(delta, np.inf, rates, accels)
-        steps = (s[100], s[101], s[102])
-        if all(_lround(a * k) == _lround(b * k) for a, b, k in zip(start, end, steps, strict=True)):
+        if end == start:
             length[0] = 0.0  # no step on any axis: Grbl drops it (PLAN_EMPTY_BLOCK)
         u = (float(unit[0, 0]), float(unit[0, 1]), float(unit[0, 2]))
         before = next((b for b in reversed(self._planner) if b.length > 0), None)
@@ -950,17 +962,19 @@ class GrblSim:
         if before is not None and length[0] > 0:
             corner_sq = float(corner_speed_sq(before.unit, unit, accels, s[11])[0])
         wco = self._wco()
+        frm = self._planner[-1].target if self._planner else self._resting_target()
         self._planner.append(
             _Block(
                 start=start,
                 end=end,
+                target=act.target,
                 rate=float(limit[0]) * 60.0 if act.rapid else act.rate,
                 limit=float(limit[0]) * 60.0,
                 rapid=act.rapid,
                 jog=self._jogging,
                 line=line,
-                work_start=(start[0] - wco[0], start[1] - wco[1], start[2] - wco[2]),
-                work_end=(end[0] - wco[0], end[1] - wco[1], end[2] - wco[2]),
+                work_start=(frm[0] - wco[0], frm[1] - wco[1], frm[2] - wco[2]),
+                work_end=tuple(a - w for a, w in zip(act.target, wco, strict=True)),  # type: ignore[arg-type]
                 spindle=self._spindle,
                 length=float(length[0]),
                 unit=u,
@@ -1076,6 +1090,7 @@ class GrblSim:
             return
         block = self._planner.popleft()
         self.mpos = block.end
+        self._target = block.target
         self._head_start = t
         self._log(
             t,
@@ -1123,6 +1138,11 @@ class GrblSim:
         if self._jog_cancel:
             self._end_jog(t)
             return
+        if self._soft_limit:  # protocol.c's cycle stop with sys.soft_limit: Idle, then reset
+            self._stop_head(t)
+            self._set_state(t, "Idle")
+            self._soft_limit_alarm(t)
+            return
         self._hold_complete = True
         if self._planner:
             self._plan_head(0.0)
@@ -1131,20 +1151,57 @@ class GrblSim:
         elif self.state == "Hold":
             self._set_state(t, "Hold")
 
+    def _steps_per_mm(self) -> tuple[float, float, float]:
+        s = self.settings
+        return (s[100], s[101], s[102])
+
+    def _to_steps(self, p: tuple[float, float, float]) -> tuple[int, int, int]:
+        """A position in whole steps (``plan_buffer_line``'s ``lround(target * steps_per_mm)``)."""
+        k = self._steps_per_mm()
+        return (_lround(p[0] * k[0]), _lround(p[1] * k[1]), _lround(p[2] * k[2]))
+
+    def _from_steps(self, n: tuple[int, int, int]) -> tuple[float, float, float]:
+        """Steps in mm (``system_convert_axis_steps_to_mpos``; an axis of no steps/mm: 0)."""
+        k = self._steps_per_mm()
+        return tuple(a / b if b > 0 else 0.0 for a, b in zip(n, k, strict=True))  # type: ignore[return-value]
+
+    def _on_grid(self, p: tuple[float, float, float]) -> tuple[float, float, float]:
+        """``p`` rounded to whole steps on each axis: where Grbl's motors can stand."""
+        return self._from_steps(self._to_steps(p))
+
+    def _resting_target(self) -> tuple[float, float, float]:
+        """Where the machine stands as programmed: the last target, unless it since moved."""
+        return self._target if self._on_grid(self._target) == self.mpos else self.mpos
+
     def _position(self, t: float) -> tuple[float, float, float]:
+        """Grbl's ``sys_position``: the whole steps taken so far, in mm.
+
+        The head block has run ``n`` of its ``count`` step events (the most steps of an
+        axis) where it is, as ``st_prep_buffer`` counts them (``count - ceil(steps left)``);
+        each axis has stepped as Grbl's Bresenham counters do (``stepper.c``'s ISR: a
+        counter starting at half the events, a step each time it exceeds them).
+        """
         if not self._planner:
             return self.mpos
         head = self._planner[0]
         done = head.done + self._head_progress(t)[0]
-        frac = 1.0 if head.length <= 0 else min(1.0, max(0.0, done / head.length))
-        return tuple(a + (b - a) * frac for a, b in zip(head.start, head.end, strict=True))  # type: ignore[return-value]
+        a, b = self._to_steps(head.start), self._to_steps(head.end)
+        count = max(abs(j - i) for i, j in zip(a, b, strict=True))
+        if count == 0 or head.length <= 0.0:
+            return head.start
+        n = min(count, max(0, math.floor(done / head.length * count + 1e-9)))
+        now = tuple(
+            i + int(math.copysign((count + 2 * n * abs(j - i) - 1) // (2 * count), j - i))
+            for i, j in zip(a, b, strict=True)
+        )
+        return self._from_steps(now)  # type: ignore[arg-type]
 
     # ------------------------------------------------------------------ resets and alarms
 
     def _power_up(self, t: float) -> None:
         if self.settings[22] and self.settings[20] and self.options.homed:
             pull = self.settings[27]
-            self.mpos = (-pull, -pull, -pull)
+            self.mpos = self._on_grid((-pull, -pull, -pull))
             self.state = "Idle"
         elif self.settings[22]:
             self.state = "Alarm"
@@ -1222,6 +1279,7 @@ class GrblSim:
         self._pending = None
         self._report_due = False
         self._stopping = False
+        self._soft_limit = False
         self._hold_complete = False
         self._restore_until = math.inf
         self._door_saved = ("M5", 0.0, frozenset())
@@ -1245,10 +1303,16 @@ class GrblSim:
         self._restart(t)
 
     def _soft_limit_alarm(self, t: float) -> None:
-        if self.state in ("Run", "Jog", "Hold"):
-            self.mpos = self._position(t)
+        """Grbl's ``limits_soft_check`` after any hold: ``mc_reset``, then ``ALARM:2``, locked.
+
+        Not in a cycle (a hold decelerating, blocks queued but not started) the machine
+        stops where it is (``mc_reset`` kills the steppers); the queued blocks are lost.
+        """
+        if self.state in ("Run", "Jog", "Hold", "Door"):
+            self._stop_head(t)
         self._planner.clear()
         self._stopping = False
+        self._soft_limit = False
         self._pending = None
         self._spindle = "M5"
         self._spindle_speed = 0.0
