@@ -12,13 +12,16 @@ import json
 import re
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from stream_helpers import FAST, stream_program
 
 from scratchfab.cli import main
-from scratchfab.machine.profile import load_profile, profile_from_mapping
+from scratchfab.machine.grblsim import DEFAULT_SETTINGS
+from scratchfab.machine.profile import Z_UNLIMITED_MM, load_profile, profile_from_mapping
 from scratchfab.machine.sender import (
+    Status,
     Streamer,
     StreamFault,
     StreamStopped,
@@ -29,6 +32,8 @@ from scratchfab.machine.sender_program import load_program, resume_point
 
 LIFT = replace(FAST, lift=True)
 SEGMENTS = 60
+#: Half the emulator's Z step ($102): Grbl stands on whole steps, so at -0.05 it reports -0.052.
+HALF_STEP = 0.5 / DEFAULT_SETTINGS[102] + 1e-6
 
 
 def z_job(
@@ -114,14 +119,17 @@ def lift_record(journal: Path) -> dict:
 
 
 def assert_raised_z_only(sim, work_z: float, machine_z: float, depth: float) -> None:
-    """One rapid after the reset, from depth straight up to ``work_z``; ends at ``machine_z``."""
+    """One rapid after the reset, from depth straight up to ``work_z``; ends at ``machine_z``.
+
+    Heights within :data:`HALF_STEP`: Grbl stands on whole steps.
+    """
     moves = after_reset(sim, "exec")
     assert len(moves) == 1, moves
     move = moves[0]
     assert move["rapid"] and move["frm"][:2] == move["to"][:2]  # no other axis moved
-    assert move["frm"][2] == pytest.approx(depth, abs=1e-6)  # it was at depth
-    assert move["to"][2] == pytest.approx(work_z, abs=1e-6)
-    assert sim.mpos[2] == pytest.approx(machine_z, abs=1e-6)
+    assert move["frm"][2] == pytest.approx(depth, abs=HALF_STEP)  # it was at depth
+    assert move["to"][2] == pytest.approx(work_z, abs=HALF_STEP)
+    assert sim.mpos[2] == pytest.approx(machine_z, abs=HALF_STEP)
     assert not any(e["ev"] == "alarm" for e in sim.record)
 
 
@@ -147,7 +155,7 @@ def test_an_error_mid_stroke_raises_the_tool_to_the_travel_height(tmp_path, wco)
         "result": "raised",
         "z": 2.0,
         "machine_z": 2.0 + wco[2],
-        "from_machine_z": pytest.approx(-0.05 + wco[2]),
+        "from_machine_z": pytest.approx(-0.05 + wco[2], abs=HALF_STEP),
     }
 
 
@@ -313,6 +321,49 @@ def test_with_hard_limits_the_lift_stays_the_pull_off_below_the_z_switch(tmp_pat
     assert_raised_z_only(sim, 1.5, -1.5, -2.0)
 
 
+@pytest.mark.parametrize(
+    ("safe", "envelope", "machine_z", "capped"),
+    [
+        (9.0, (-40.0, 5.0), -5.0, True),  # above the top: capped there
+        (3.0, (-40.0, 5.0), -7.0, False),
+        (9.0, Z_UNLIMITED_MM, -1.0, False),  # no Z range: nothing to cap at
+    ],
+)
+def test_the_lift_stays_under_the_profiles_envelope_top(
+    tmp_path, safe, envelope, machine_z, capped
+):
+    """The envelope's top Z caps the travel height. No valid profile travels above it
+    (load_profile refuses one), so the lift is driven directly, under a work offset Z -10,
+    with a controller that goes where it is sent."""
+    job = tmp_path / "job.gcode"
+    z_job(job)
+    s = Streamer.__new__(Streamer)
+    s._program = load_program(job)
+    s.info = SimpleNamespace(settings={})  # soft limits off
+    s.options = SimpleNamespace(command_timeout=1.0)
+    messages: list[str] = []
+    s.on_message = messages.append
+    sent: list[str] = []
+
+    def send_lift(lines, timeout):
+        sent.extend(lines)
+        s.status = Status(state="Idle", mpos=(0.0, 0.0, float(lines[0].partition("Z")[2])))
+        return ""
+
+    s._send_lift = send_lift
+    profile = SimpleNamespace(
+        z=SimpleNamespace(safe_mm=safe), envelope=SimpleNamespace(z_mm=envelope)
+    )
+    lifted = s._lift_z(Status(state="Idle", mpos=(0.0, 0.0, -12.0)), (0.0, 0.0, -10.0), profile)
+    assert sent == [f"G21G53G0Z{machine_z:g}", "G4P0"]
+    work_z = machine_z + 10.0
+    told = f"raising the tool to Z {work_z:.3f} (machine Z {machine_z:.3f})"
+    assert (told + f", capped at the envelope's top Z {work_z:.3f}" if capped else told) in messages
+    assert lifted.record == {
+        "result": "raised", "z": work_z, "machine_z": machine_z, "from_machine_z": -12.0
+    }  # fmt: skip
+
+
 def test_a_file_that_changes_its_work_offset_is_not_raised(tmp_path):
     """Past a G92 in the file the sender cannot tell which frame its travel height is in
     (a build without the WCO field never says): the lift is refused, and says why."""
@@ -375,7 +426,7 @@ def test_an_open_safety_door_is_told_not_lifted(tmp_path):
         port.close()
     assert "the tool was NOT raised (the safety door is open (Door:1)" in str(exc.value)
     assert after_reset(port.sim, "rx") == [] and after_reset(port.sim, "exec") == []
-    assert port.sim.mpos[2] == pytest.approx(-0.05)
+    assert port.sim.mpos[2] == pytest.approx(-0.05, abs=HALF_STEP)
 
 
 def test_the_lift_can_be_turned_off(tmp_path):
@@ -384,7 +435,7 @@ def test_the_lift_can_be_turned_off(tmp_path):
     prog = load_program(job)
     exc, messages, sim = run(tmp_path, prog, "time_scale=0.2", FAST, segment_index(prog, 20))
     assert isinstance(exc, StreamStopped) and "tool" not in str(exc)
-    assert after_reset(sim, "rx") == [] and sim.mpos[2] == pytest.approx(-0.05)
+    assert after_reset(sim, "rx") == [] and sim.mpos[2] == pytest.approx(-0.05, abs=HALF_STEP)
     assert "lift" not in read_journal(tmp_path / "j.jsonl")[-1]
 
 
@@ -500,7 +551,7 @@ def test_a_door_opened_during_the_lift_is_told_and_nothing_more_is_sent(tmp_path
     # GRBL parses no line while the door is open: the move waits in its buffer for the
     # cycle start, and the sender sent nothing after it
     assert "G4P0" not in [e["text"] for e in after_reset(sim, "rx")]
-    assert after_reset(sim, "exec") == [] and sim.mpos[2] == pytest.approx(-0.05)
+    assert after_reset(sim, "exec") == [] and sim.mpos[2] == pytest.approx(-0.05, abs=HALF_STEP)
     assert lift_record(tmp_path / "j.jsonl")["result"] == "failed"
     assert not any(e["ev"] == "alarm" for e in sim.record)
 
@@ -521,7 +572,7 @@ def test_a_lift_that_does_not_finish_in_time_is_held_and_reset_not_retried(tmp_p
     resets = [e for e in sim.record if e["ev"] == "reset"]
     assert len(resets) == 2  # the stop's and the one ending the lift
     assert not any(e["ev"] == "alarm" for e in sim.record)  # reset from Hold:0
-    assert -0.05 < sim.mpos[2] < 2.0  # part-way up
+    assert -0.05 - HALF_STEP <= sim.mpos[2] < 2.0  # stopped on the way up, maybe in its first step
     assert lift_record(tmp_path / "j.jsonl")["result"] == "failed"
 
 
@@ -551,8 +602,17 @@ def test_work_position_reports_are_placed_by_the_reports_own_offset(tmp_path):
     exc, messages, sim = run(
         tmp_path, prog, "time_scale=0.2&$10=0&wco=5,7,-10&wco_field=0", stop_at=stop
     )
-    assert "the tool was NOT raised (the status reports after the reset gave no machine" in str(exc)
-    assert after_reset(sim, "rx") == [] and sim.mpos[2] == pytest.approx(-10.05)
+    assert (
+        "the tool was NOT raised (the status reports after the reset give the work position "
+        "(WPos, $10=0) without the WCO field (a build without it), so the machine position is "
+        "unknown; jog Z up (with $10=1, MPos reports, the tool is raised))"
+    ) in str(exc)
+    assert after_reset(sim, "rx") == [] and sim.mpos[2] == pytest.approx(-10.05, abs=HALF_STEP)
+    assert lift_record(tmp_path / "j.jsonl")["result"] == "skipped"
+    # the same build with MPos reports ($10=1): the frame is the $# offset read at connect
+    exc, messages, sim = run(tmp_path, prog, "time_scale=0.2&wco=5,7,-10&wco_field=0", stop_at=stop)
+    assert isinstance(exc, StreamStopped)
+    assert_raised_z_only(sim, 2.0, -8.0, -0.05)
 
 
 @pytest.mark.parametrize("flag", [None, "--no-lift"])
@@ -578,6 +638,36 @@ def test_the_stream_command_lifts_by_default_and_not_with_no_lift(tmp_path, caps
     else:
         assert "raised" not in err
         assert moves == []
+
+
+def test_a_startup_line_in_inches_does_not_turn_the_lift_into_inches(tmp_path):
+    """A startup line ``$N0=G20`` runs after every reset, the stop's too: GRBL is in inches
+    when the lift comes. The lift states G21, so the 2 mm travel height is not taken as
+    2 inches (machine Z 50.8, above the job by 48.8 mm)."""
+    job = tmp_path / "job.gcode"
+    z_job(job)
+    prog = load_program(job)
+    port = open_port("grblsim://?baud=0&time_scale=0.2&wco=5,7,-10", 115200)
+    port.sim.startup_lines[0] = "G20"
+    stop = segment_index(prog, 20)
+    fired: list[int] = []
+
+    def progress(p):
+        if p.acked > stop and not fired:
+            fired.append(1)
+            raise KeyboardInterrupt
+
+    try:
+        with pytest.raises(StreamStopped):
+            stream_program(
+                port, prog, tmp_path / "j.jsonl", LIFT, on_progress=progress,
+                ask_interrupt=lambda: "stop",
+            )  # fmt: skip
+    finally:
+        port.close()
+    sim = port.sim
+    assert [e["text"] for e in after_reset(sim, "rx")] == ["G21G53G0Z-8", "G4P0"]
+    assert_raised_z_only(sim, 2.0, -8.0, -0.05)
 
 
 def test_an_inch_file_on_a_controller_reporting_inches_is_raised_in_mm(tmp_path):

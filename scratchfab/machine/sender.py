@@ -1528,6 +1528,12 @@ class Streamer:
             z = mz - frame[2]
         now = status.mpos
         if now is None:
+            if status.wpos is not None:
+                return self._not_raised(
+                    "the status reports after the reset give the work position (WPos, $10=0) "
+                    "without the WCO field (a build without it), so the machine position is "
+                    "unknown; jog Z up (with $10=1, MPos reports, the tool is raised)"
+                )
             return self._not_raised(
                 "the status reports after the reset gave no machine position (MPos, or "
                 "WPos with WCO); jog Z up"
