@@ -18,7 +18,7 @@ def test_a_resume_where_the_file_counts_from_its_start_is_refused(tmp_path, line
     path = tmp_path / "job.gcode"
     path.write_text("\n".join(lines) + "\n")
     prog = load_program(path)
-    start = prog.strokes[1][0]
+    start = [b.index for b in prog.blocks if b.text.startswith("G1Z-")][1]  # the 2nd plunge
     with pytest.raises(ConfigError) as err:
         resume_preamble(prog, start)
     text = str(err.value)

@@ -306,13 +306,19 @@ def test_no_junction_warning_where_11_does_not_move_the_time(tmp_path):
 
 
 def test_a_tool_length_offset_is_not_a_move(tmp_path):
-    """G43.1's Z word is the offset (Grbl: AXIS_COMMAND_TOOL_LENGTH_OFFSET, no motion); the
-    work Z it shifts is not followed. G49, common in program headers, is taken as a reset."""
+    """G43.1's Z word is the offset (Grbl: AXIS_COMMAND_TOOL_LENGTH_OFFSET, no motion). A
+    change of the offset shifts work Z (the machine stands still): Z is unknown after it
+    until a block gives Z in absolute mode, and the block is not followed. G49 cancels an
+    offset the file set (Grbl then empties its planner: the offset is known to change);
+    G49 in a header, with no offset set by the file, is taken as GRBL's reset state."""
     lines = ["G21 G90 G94", "G0 Z5", "G43.1 Z1.5", "G49", "G17 G21 G40 G49 G80 G90", "G0 Z4"]
     blocks = load_program(write(tmp_path, lines)).blocks
-    assert not blocks[2].motion and blocks[2].modal.z == 5.0
+    assert not any(b.motion for b in blocks[2:5])
+    assert blocks[1].modal.z == 5.0 and [b.modal.z for b in blocks[2:5]] == [None] * 3
     assert blocks[2].unfollowed == "G43.1 changes the tool length offset (work Z)"
-    assert not any(b.motion or b.unfollowed for b in blocks[3:5])
+    assert blocks[3].unfollowed == "G49 cancels the tool length offset (work Z)"
+    assert [b.sync for b in blocks[2:5]] == [False, True, False]  # the first: not known
+    assert not blocks[4].unfollowed
     assert blocks[5].motion and blocks[5].modal.z == 4.0
 
 

@@ -20,7 +20,6 @@ from scratchfab.machine.sender import Streamer
 from scratchfab.machine.sender_checks import job_extent
 from scratchfab.machine.sender_program import (
     TimeLeft,
-    followed_move,
     load_program,
     resume_preamble,
     strip_block,
@@ -104,26 +103,31 @@ FOREIGN = {
     "G43.1": ["G21 G90", "G0 Z5", "G0 X1 Y1", "G43.1 Z2", "G1 X3 F600", "G1 Z3", "G1 X1"],
     "G20 G92": ["G21 G90", "G0 Z5", "G0 X1 Y1", "G20 G92 X1", "G1 Y1 F20", "G21 G1 X30"],
     "M2 back to G54": ["G21 G90 G55", "G0 X1 Y1 Z5", "M2", "G0 X2 F600", "G0 X3 Y3 Z5"],
+    # the offset the file set again (no change), then G49 cancelling it (a change)
+    "G43.1 again, G49": ["G21 G90", "G43.1 Z2", "G0 Z5", "G0 X1 Y1", "G43.1 Z2", "G1 X3 F600",
+                         "G1 Z3", "G49", "G1 X1", "G91 G1 Z-1", "G90 G1 Z4", "G1 X2"],
+    "G20 G43.1": ["G21 G90", "G0 Z5", "G0 X1 Y1", "G20 G43.1 Z0.1", "G21 G1 X3 F600", "G1 Z3",
+                  "G1 X1"],
+    # Z is not known at the start (the machine stands at work Z 7): an increment from it
+    "G91 Z from the start": ["G21 G91", "G0 Z1", "G90 G0 X1 Y1", "G91 G1 Z-2 F600",
+                             "G90 G1 X3", "G1 Z2", "G1 X1"],
 }  # fmt: skip
+#: The programs among them that leave X and Y known throughout.
+_XY_KEPT = ("G92", "G10 L20 on the system in use", "G20 G92", "G53", "G43.1", "G43.1 again, G49",
+            "G20 G43.1", "G91 Z from the start")  # fmt: skip
 
 
-#: Not followed yet: G43.1 shifts work Z by the change of the tool length offset, and the
-#: sender keeps Z (test_stream_eta.py's test_a_tool_length_offset_is_not_a_move asks so).
-_CASES = [
-    pytest.param(name, marks=pytest.mark.xfail(strict=True, reason="G43.1 keeps a stale Z"))
-    if name == "G43.1"
-    else name
-    for name in sorted(FOREIGN)
-]
+_CASES = sorted(FOREIGN)
 
 
 def _grbl_work(lines: list[str]):
-    """Per block, Grbl's work position after it and its motions' paths (work mm, each as
-    (start, end)), by the emulator's interpreter (``gc_execute_line``)."""
+    """Per block, Grbl's work position after it, its motions' paths (work mm, each as
+    (start, end)) and whether it empties the planner, by the emulator's interpreter
+    (``gc_execute_line``)."""
     offsets = [G54, G55, *[(0.0, 0.0, 0.0)] * 4]
     settings = Settings(coord_offsets=offsets, g28=G28_AT, g30=G28_AT)
     state = ModalState(position=START)
-    after, paths = [], []
+    after, paths, syncs = [], [], []
     for raw in lines:
         at = state.position
         out = interpret(strip_block(raw), state, replace(settings, coord_offsets=offsets))
@@ -141,7 +145,8 @@ def _grbl_work(lines: list[str]):
                 at = act.target
         after.append(work(state.position))
         paths.append(segs)
-    return after, paths
+        syncs.append(any(act.kind == "sync" for act in out.actions))
+    return after, paths, syncs
 
 
 def _program(tmp_path, lines):
@@ -157,15 +162,14 @@ def test_a_known_work_position_is_grbls(tmp_path, name):
     change of frame each axis is known again once the file gives it in absolute mode."""
     lines = FOREIGN[name]
     prog = _program(tmp_path, lines)
-    truth, _ = _grbl_work(lines)
+    truth, _, syncs = _grbl_work(lines)
     assert len(prog.blocks) == len(truth)
-    for b, grbl in zip(prog.blocks, truth, strict=True):
+    for b, grbl, sync in zip(prog.blocks, truth, syncs, strict=True):
         for k, v in enumerate(work_xyz(b.modal)):
             assert v is None or abs(v - grbl[k]) < 1e-9, (b.lineno, "XYZ"[k], v, grbl[k])
-    assert None not in work_xyz(prog.blocks[-1].modal)[:2]  # the file gave X and Y again
-    assert any(None in work_xyz(b.modal)[:2] for b in prog.blocks) == (
-        name not in ("G92", "G10 L20 on the system in use", "G20 G92", "G53")
-    )
+        assert sync or not b.sync_before, b.lineno  # a wait the sender counts on is Grbl's
+    assert None not in work_xyz(prog.blocks[-1].modal)  # the file gave X, Y and Z again
+    assert any(None in work_xyz(b.modal)[:2] for b in prog.blocks) == (name not in _XY_KEPT)
 
 
 def _guesser(prog, acked: int) -> Streamer:
@@ -184,25 +188,22 @@ def test_a_stop_on_any_move_is_not_taken_for_a_later_one(tmp_path, name):
     """Safety, block by block: stopped anywhere on a move's real path (Grbl's, in the
     frame of the moment), with every block acknowledged that Grbl acknowledges before that
     move ends (up to the next one that empties the planner first), the executed-through
-    the journal records ends before that move; the time left's run point does not pass
-    it unless a move the sender does not follow lies up to it (display only: it looks
-    past such a move)."""
+    the journal records ends before that move, and so does the time left's run point
+    (neither looks past a move the sender does not follow)."""
     lines = FOREIGN[name]
     prog = _program(tmp_path, lines)
-    _, paths = _grbl_work(lines)
+    _, paths, _ = _grbl_work(lines)
     for k, segs in enumerate(paths):
         acked = next((i - 1 for i in range(k + 1, len(prog.blocks)) if prog.blocks[i].sync),
                      len(prog.blocks) - 1)  # fmt: skip
         s = _guesser(prog, acked)
-        unchecked = [i for i in range(k + 1) if prog.blocks[i].motion
-                     and not followed_move(prog.blocks, i)]  # fmt: skip
         for a, b in (seg for seg in segs if seg[0] != seg[1]):  # Grbl drops a null move
             for f in (0.0, 0.1, 0.5, 0.9):
                 p = tuple(a[j] + f * (b[j] - a[j]) for j in range(3))
                 assert s._executed_guess(p) <= k - 1, (prog.blocks[k].lineno, f, p)
                 left = TimeLeft(prog)
                 left.update(acked, acked, p)
-                assert left.ran <= k or unchecked, (prog.blocks[k].lineno, f, p, left.ran)
+                assert left.ran <= k, (prog.blocks[k].lineno, f, p, left.ran)
 
 
 def test_a_resume_where_the_work_position_is_unknown_is_refused(tmp_path):

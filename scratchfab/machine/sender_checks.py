@@ -9,7 +9,7 @@ from typing import Protocol
 
 from scratchfab.console import duration_text
 from scratchfab.machine.grbl_codes import MM_PER_INCH
-from scratchfab.machine.sender_program import Block, Modal, Program, work_xyz
+from scratchfab.machine.sender_program import Block, Modal, Program, known_xyz, work_xyz
 
 _AXES = "XYZ"
 #: One digit of GRBL's coordinate reports in mm: 3 decimals in mm, 4 in inches under
@@ -98,33 +98,34 @@ class Findings:
 def job_extent(program: Program) -> tuple[list[float], list[float]]:
     """Per-axis [min], [max] of the programmed positions and arc sweeps (work mm).
 
-    Z only where known. Positions after a block the sender cannot follow
-    (``Block.unfollowed``) are not trustworthy; :func:`compare` refuses such jobs.
+    Only where the sender knows them (:func:`_axis_values`). Positions after a block the
+    sender cannot follow (``Block.unfollowed``) are not trustworthy; :func:`compare`
+    refuses such jobs.
     """
-    lo = [float("inf")] * 3
-    hi = [float("-inf")] * 3
-    for b in program.blocks:
-        if not b.motion:
-            continue
-        for k, v in enumerate((b.modal.x, b.modal.y, b.modal.z)):
-            if v is not None:
-                lo[k] = min(lo[k], v)
-                hi[k] = max(hi[k], v)
-        if b.arc_box is not None:
-            x_lo, x_hi, y_lo, y_hi = b.arc_box
-            lo[0], hi[0] = min(lo[0], x_lo), max(hi[0], x_hi)
-            lo[1], hi[1] = min(lo[1], y_lo), max(hi[1], y_hi)
+    lo = [math.inf] * 3
+    hi = [-math.inf] * 3
+    for k in range(3):
+        for _, values in _axis_values(program, k):
+            lo[k], hi[k] = min(lo[k], *values), max(hi[k], *values)
     return lo, hi
 
 
 def _axis_values(program: Program, k: int) -> Iterator[tuple[Block, list[float]]]:
-    """Per motion block, the values axis ``k`` reaches there (its end, an arc's sweep)."""
+    """Per motion block, the values axis ``k`` reaches there (its end, an arc's sweep).
+
+    Where known wherever the job began (:func:`known_xyz`): not Z before the file sets
+    it, nor an axis still counted from the start the parse assumes (work X0 Y0, until
+    :meth:`Program.placed_at` puts it where the machine stands), nor an arc's sweep from
+    or to an X or Y so unknown.
+    """
+    before = known_xyz(Modal())
     for b in program.blocks:
+        start, before = before, known_xyz(b.modal)
         if not b.motion:
             continue
-        v = (b.modal.x, b.modal.y, b.modal.z)[k]
+        v = before[k]
         values = [] if v is None else [v]
-        if b.arc_box is not None and k < 2:
+        if b.arc_box is not None and k < 2 and None not in (*start[:2], *before[:2]):
             values += list(b.arc_box[2 * k : 2 * k + 2])
         if values:
             yield b, values
@@ -160,9 +161,13 @@ def axis_feeds(program: Program) -> list[float]:
     for b in program.blocks:
         m = b.modal
         if b.motion and not b.unfollowed and m.feed_mode == "G94" and m.motion != "G0":
-            delta = [  # an axis whose position is unknown at an end: not known to move
-                0.0 if u is None or v is None else v - u
-                for u, v in zip(work_xyz(prev), work_xyz(m), strict=True)
+            # an axis whose position is unknown at an end is not known to move; one counted
+            # from the assumed start at both ends moves as counted (wherever the job began)
+            delta = [
+                v - u
+                if u is not None and v is not None and (a in prev.assumed) == (a in m.assumed)
+                else 0.0
+                for a, u, v in zip("XYZ", work_xyz(prev), work_xyz(m), strict=True)
             ]
             length = math.hypot(*delta)
             share = [abs(d) / length if length > 0 else 0.0 for d in delta]
@@ -181,6 +186,8 @@ def compare(
     profile: MachineLike | None = None,
     tolerance: float = 0.01,
     grbl_seconds: float | None = None,
+    start_xy: Sequence[float] | None = None,
+    wcs: str | None = "G54",
 ) -> Findings:
     """Compare GRBL's settings, the job and (optionally) the machine profile.
 
@@ -192,17 +199,26 @@ def compare(
     limits on, and a profile written in machine coordinates (``coordinates = "machine"``)
     unless the work offset is known to be zero. With any of those checks to make, refuses
     a job holding a block whose position the sender cannot follow (G92, G10, another work
-    coordinate system, G43.1, G53, G28/G30, arcs outside G17): past it every check would
-    be wrong. Warns about GRBL max rates slower than the profile's or the job's feeds,
-    accelerations lower than the profile's, a junction deviation ``$11`` other than the
-    profile's that moves the job's time (:func:`junction_time_change`), and soft limits
-    or homing being off. Every refusal starts with the G-code file (``file:line:`` at the
-    first line that goes too far, where one does).
+    coordinate system, a change of the tool length offset (G43.1, G49), G53, G28/G30,
+    arcs outside G17): past it every check would be wrong. Warns about GRBL max rates
+    slower than the profile's or the job's feeds, accelerations lower than the profile's,
+    a junction deviation ``$11`` other than the profile's that moves the job's time
+    (:func:`junction_time_change`), and soft limits or homing being off. Every refusal
+    starts with the G-code file (``file:line:`` at the first line that goes too far,
+    where one does).
 
     ``grbl_seconds``: the job's time with ``settings``, where already computed (the
     ETA's, :func:`eta_settings`); the ``$11`` check then times the job only at the
     profile's ``$11``, and not at all when both are the same.
+
+    ``start_xy``: where a fresh stream starts, work X and Y (mm) in the controller's work
+    system ``wcs`` (the status report's ``WPos`` and ``$G``, as the stream reads them): the
+    job's first moves are checked from there (:meth:`Program.placed_at`), as the machine
+    runs them. None (a resume, or not known): the positions the file counts from where
+    its job began (work X0 Y0 until it gives X or Y in absolute mode) are left out.
     """
+    if start_xy is not None:
+        program = program.placed_at(start_xy, wcs)
     out = Findings()
     path = program.path
     travel = [settings.get(130 + k) for k in range(3)]

@@ -76,11 +76,16 @@ class Modal:
     speed: float = 0.0
     coolant: str = "M9"
     # None: not known (Z until the program sets it; any axis after a change of the work
-    # frame until a block gives it in absolute mode: :func:`_frame_change`)
+    # frame until a block gives it in absolute mode, :func:`_frame_change`; a G91 move keeps
+    # an unknown axis unknown)
     x: float | None = 0.0
     y: float | None = 0.0
     z: float | None = None
-    lost: str = ""  # the axes a change of the work frame left unknown (G91 keeps them so)
+    # the tool length offset (mm) the file set (G43.1; G49: 0); None: the file has not set
+    # one (GRBL's after a reset is 0, what was set before the job is not known)
+    tlo: float | None = None
+    z_frame: int = 0  # how many times the frame work Z is counted in has changed
+    g92: str = ""  # the axes the file's own G92 offsets (a reset clears them, and G92.1)
     # the axes still counted from the start the parse assumes (work X0 Y0) rather than
     # where the machine stood: used for estimates and checks, never matched (:func:`_ends`)
     assumed: str = "XY"
@@ -162,7 +167,8 @@ class Program:
         """The program as streamed from work ``(x, y)`` (mm), its first moves drawn from there.
 
         Where its blocks count X or Y from the start the parse assumes (work X0 Y0,
-        :attr:`Modal.assumed`), they count from ``(x, y)`` instead. The sender reads where
+        :attr:`Modal.assumed`), they count from ``(x, y)`` instead, and an arc from there
+        sweeps from there (:attr:`Block.arc_box`). The sender reads where
         the machine stands before it streams; a stop's position is then matched against
         the job's first moves as they really run, except a move in the file's first block,
         whose start stays unknown (:func:`_ends`). ``(x, y)`` is in the controller's work
@@ -171,16 +177,21 @@ class Program:
         """
         blocks = list(self.blocks)
         selected = False  # the file has selected a work system
+        before = Modal()  # as parsed, and as placed:
+        placed = replace(before, x=float(work_xy[0]), y=float(work_xy[1]), assumed="")
         for k, b in enumerate(blocks):
-            m = b.modal
-            if not m.assumed:
+            if not before.assumed:
                 break  # an axis once given stays given
+            m = b.modal
             selected = selected or _sets_wcs([b])
             if selected and m.wcs != wcs:
                 break  # (x, y) is in another system than the file's from here
             x = m.x + work_xy[0] if "X" in m.assumed and m.x is not None else m.x
             y = m.y + work_xy[1] if "Y" in m.assumed and m.y is not None else m.y
-            blocks[k] = replace(b, modal=replace(m, x=x, y=y, assumed=""))
+            after = replace(m, x=x, y=y, assumed="")
+            box = None if b.arc_box is None else _block_arc_box(b.text, placed, after)
+            blocks[k] = replace(b, modal=after, arc_box=box)
+            before, placed = m, after
         return replace(self, blocks=blocks)
 
     def timed_for(self, settings: Mapping[int, float]) -> Program:
@@ -342,6 +353,15 @@ def _arc_box(
     return min(xs), max(xs), min(ys), max(ys)
 
 
+def _block_arc_box(
+    text: str, before: Modal, after: Modal
+) -> tuple[float, float, float, float] | None:
+    """:func:`_arc_box` of an arc block (stripped ``text``) run from ``before`` to ``after``."""
+    arc = {letter: v for letter, v in block_words(text) if letter in "IJKR"}
+    start, end = _estimate_xyz(before), _estimate_xyz(after)
+    return _arc_box(start[:2], end[:2], arc, after.motion == "G2", after.mm_per_unit)
+
+
 def _unfollowed(nonmodal: str, axes: dict[str, float], before: Modal, after: Modal) -> str:
     """Why the sender loses the position or the coordinate frame at a block ("" if not)."""
     if nonmodal == "G92.1" or (nonmodal in ("G92", "G10") and axes):
@@ -360,23 +380,40 @@ def _unfollowed(nonmodal: str, axes: dict[str, float], before: Modal, after: Mod
 _WCS = ("G54", "G55", "G56", "G57", "G58", "G59")
 
 
-def _frame_change(s: Modal, state: Modal, nonmodal: str, words: list[tuple[str, float]]) -> Modal:
+def _changes_tlo(s: Modal, tlo: float | None) -> bool:
+    """Whether setting the tool length offset to ``tlo`` (mm; None: not set) may move work Z.
+
+    Where the file has set no offset (:attr:`Modal.tlo` None) a 0 (G49, common in
+    headers) is taken for GRBL's own after a reset: no change.
+    """
+    return tlo is not None and tlo != (s.tlo or 0.0)
+
+
+def _frame_change(
+    s: Modal,
+    state: Modal,
+    nonmodal: str,
+    words: list[tuple[str, float]],
+    tlo: float | None = None,
+) -> Modal:
     """The work position after a block's change of the work frame, before its motion.
 
     GRBL changes the frame before the block's motion (``gc_execute_line``: G54-G59 at
-    step 12, G10, G53, G92 at step 19, the motion at step 20). Where the new frame's offset
-    is not known to the sender, so is not the machine's work position in it, on the axes
-    the offset changes: every axis after another G54-G59 system, G92.1, G28 or G30 (which
-    end at a stored machine position); the axes given after G10 L2 on the system in use
-    (P0, or its own P1-P6) and after G53 (a move in machine coordinates). G92, and G10
-    L20 on the system in use, set the axes given to the values given (in the block's
-    units, whatever G90/G91 says): known. A lost axis stays unknown until a block gives it
-    in absolute mode (G90). Not followed: G43.1, which shifts work Z by the change of the
-    tool length offset (its block is ``unfollowed``; Z is kept).
+    step 12, G43.1/G49 at step 14, G10, G53, G92 at step 19, the motion at step 20). Where
+    the new frame's offset is not known to the sender, so is not the machine's work
+    position in it, on the axes the offset changes: every axis after another G54-G59
+    system, G92.1, G28 or G30 (which end at a stored machine position); the axes given
+    after G10 L2 on the system in use (P0, or its own P1-P6) and after G53 (a move in
+    machine coordinates); Z after a tool length offset ``tlo`` (mm, set by G43.1 or G49)
+    other than the file's (:attr:`Modal.tlo`; where the file has set none, any but G49's
+    0). G92, and G10 L20 on the system in use, set the axes given to the values given (in
+    the block's units, whatever G90/G91 says): known. A lost axis stays unknown until a
+    block gives it in absolute mode (G90).
     """
     given = {letter: value * s.mm_per_unit for letter, value in words if letter in "XYZ"}
     lost: set[str] = set()
     found: dict[str, float] = {}
+    g92 = "" if nonmodal == "G92.1" else s.g92
     if s.wcs != state.wcs or nonmodal in ("G92.1", "G28", "G30"):
         lost = {"X", "Y", "Z"}
     elif nonmodal == "G53":
@@ -389,12 +426,24 @@ def _frame_change(s: Modal, state: Modal, nonmodal: str, words: list[tuple[str, 
             found = given
         elif level == 2.0 and current:
             lost = set(given)
+        if nonmodal == "G92":
+            g92 = "".join(a for a in "XYZ" if a in g92 or a in given)
+    if _changes_tlo(s, tlo):
+        lost.add("Z")
     x, y, z = (
         None if a in lost else found.get(a, v) for a, v in zip("XYZ", work_xyz(s), strict=True)
     )
-    still = "".join(a for a in "XYZ" if a in lost or (a in s.lost and a not in found))
     assumed = "".join(a for a in s.assumed if a not in found and a not in lost)
-    return replace(s, x=x, y=y, z=z, lost=still, assumed=assumed)
+    return replace(
+        s,
+        x=x,
+        y=y,
+        z=z,
+        assumed=assumed,
+        tlo=s.tlo if tlo is None else tlo,
+        z_frame=s.z_frame + ("Z" in lost or "Z" in found),
+        g92=g92,
+    )
 
 
 def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
@@ -411,13 +460,12 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     switches between G1/G2/G3 and another motion mode also syncs, ``LASER_FORCE_SYNC``), a
     spindle state *change* (M3/M4/M5, step 7, even in laser mode), a coolant change (step
     8), G4 (``mc_dwell``), a work offset change (``FORCE_BUFFER_SYNC_DURING_WCO_CHANGE``:
-    G54-G59 to another system, G92, G92.1, G10 L2/L20) and the EEPROM writes G10,
+    G54-G59 to another system, G92, G92.1, G10 L2/L20, G43.1/G49 to another tool length
+    offset, claimed only where the file set the one before) and the EEPROM writes G10,
     G28.1/G30.1 (``FORCE_BUFFER_SYNC_DURING_EEPROM_WRITE``). After it: M0, M2 and M30
     (step 21, program flow). No sync: a repeated M3 or M5, M9 with coolant off, M1
     (ignored by Grbl 1.1), G28/G30 (an EEPROM read), ``$`` lines (run at once, or refused
-    while moving). Not known: whether G43.1/G49 sync (they do where the tool length offset
-    changes, which the sender does not track; a G43.1 is not followed, G49 is taken for a
-    header's reset). The flags: ``before`` whatever ``$32`` says,
+    while moving). The flags: ``before`` whatever ``$32`` says,
     ``speed`` only with ``$32=0`` (an S change in a block that moves), ``laser`` only with
     ``$32=1`` (the forced sync), ``after``.
     """
@@ -429,6 +477,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     arc: dict[str, float] = {}
     nonmodal = ""
     offset = ""
+    tlo: float | None = None  # the tool length offset the block sets (mm)
     sync = False
     ending = ""
     speed_changed = False
@@ -452,6 +501,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
                 nonmodal = code
             elif code in ("G43.1", "G49"):
                 offset = code  # its axis word is the offset, not a move
+                tlo = 0.0 if code == "G49" else None
         elif letter == "M":
             code = f"M{value:g}"
             if code in ("M3", "M4", "M5"):
@@ -476,7 +526,9 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
             arc[letter] = value
     if nonmodal in ("G4", "G10", "G28.1", "G30.1", "G92.1") or (nonmodal == "G92" and axes):
         sync = True
-    sync = sync or s.wcs != state.wcs
+    if offset == "G43.1":  # Z only, else error:37
+        tlo = next((v * s.mm_per_unit for letter, v in words if letter == "Z"), None)
+    sync = sync or s.wcs != state.wcs or (state.tlo is not None and _changes_tlo(state, tlo))
     # GRBL's laser mode passes an S change in a block whose axis words drive a motion mode
     drives = bool(axes) and not offset and nonmodal not in ("G10", "G28", "G30", "G92")
     feeding, was_feeding = (m.motion in ("G1", "G2", "G3") for m in (s, state))
@@ -494,10 +546,9 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     box = None
     rapid = None
     moving = not offset and nonmodal not in ("G10", "G92", "G28", "G30", "G53")
-    s = _frame_change(s, state, nonmodal, words)
+    s = _frame_change(s, state, nonmodal, words, tlo)
     if axes and moving and s.motion != "G80":
-        # the estimate takes an unknown start as 0 (and so does G91 from a Z not yet set);
-        # a lost axis stays unknown
+        # the estimate takes an unknown start as 0; a G91 move from it stays unknown
         start = _estimate_xyz(s)
         end = list(start)
         known = list(work_xyz(s))
@@ -505,7 +556,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
             if a in axes:
                 v = axes[a] * scale
                 end[k] = start[k] + v if s.relative else v
-                known[k] = None if s.relative and a in s.lost else end[k]
+                known[k] = None if s.relative and known[k] is None else end[k]
         if s.motion == "G0":
             rapid = (abs(end[0] - start[0]), abs(end[1] - start[1]), abs(end[2] - start[2]))
             seconds += _rapid_seconds(rapid, rapid_mm_min)
@@ -515,15 +566,15 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
             seconds += dist / rate * 60.0 if rate > 0 and math.isfinite(rate) else 0.0
         if s.motion in ("G2", "G3") and s.plane == "G17":
             box = _arc_box(start[:2], (end[0], end[1]), arc, s.motion == "G2", scale)
-        still = "".join(a for a in s.lost if s.relative or a not in axes)
         assumed = "".join(a for a in s.assumed if s.relative or a not in axes)
-        s = replace(s, x=known[0], y=known[1], z=known[2], lost=still, assumed=assumed)
+        s = replace(s, x=known[0], y=known[1], z=known[2], assumed=assumed)
         motion = True
     elif nonmodal in ("G28", "G30") or (axes and nonmodal == "G53"):
         motion = True  # G28/G30 move to the stored position, through the point given
     unfollowed = _unfollowed(nonmodal, axes, state, s)
-    if offset == "G43.1":
-        unfollowed = unfollowed or "G43.1 changes the tool length offset (work Z)"
+    if _changes_tlo(state, tlo):
+        what = "changes" if offset == "G43.1" else "cancels"
+        unfollowed = unfollowed or f"{offset} {what} the tool length offset (work Z)"
     if ending in ("M2", "M30"):  # after the motion
         s = _frame_change(replace(s, wcs="G54"), s, "", [])
         s = replace(
@@ -692,14 +743,17 @@ def load_program(
                 laser_sync=step.sync.laser,
             )
         )
-    uses_spindle = any(b.modal.spindle in ("M3", "M4") for b in blocks)
+    # the tool output may be the tool state: the job switches it, and moves Z nowhere the
+    # sender does not know (a G91 Z move from an unknown Z may cut at any height)
+    servo = any(b.modal.spindle in ("M3", "M4") for b in blocks)
+    servo = servo and not any(_gives_z(b) and b.modal.z is None for b in blocks)
     if z_threshold is None:
         z_threshold = auto_threshold(blocks)
     if z_threshold is None:
-        pen_mode = uses_spindle and len(z_levels(blocks)) <= 1
+        pen_mode = servo and len(z_levels(blocks)) <= 1
     else:
         goes_below = any(b.modal.z is not None and b.modal.z < z_threshold - 1e-9 for b in blocks)
-        pen_mode = not goes_below and uses_spindle
+        pen_mode = not goes_below and servo
     strokes: list[tuple[int, int]] = []  # no strokes where the program does not show them
     if z_threshold is not None or pen_mode:
         strokes = stroke_spans(blocks, z_threshold or 0.0, pen_mode)
@@ -728,14 +782,15 @@ def check_tool_up_at_end(program: Program) -> None:
     if program.z_threshold is None and not program.pen_mode and program.blocks:
         plunge = _final_plunge(program.blocks)
         if plunge is not None:
-            block, travel = plunge
+            block, z, travel, counted = plunge
             last = program.blocks[-1]
             at = "" if block is last else f" (line {block.lineno})"
             raise ConfigError(
                 f"{program.path}:{last.lineno}: the program ends by feeding the tool down to "
-                f"Z {block.modal.z:g} mm{at}, below its travel height {travel:g}, and never "
-                "lifts it; the file may be cut short: expected a lift after the plunge (if "
-                "the file is whole, give --machine or a --z-threshold below that Z)"
+                f"Z {z:g} mm{at}, below its travel height {travel:g}"
+                + (" (both counted from the Z the job began at)" if counted else "")
+                + ", and never lifts it; the file may be cut short: expected a lift after the "
+                "plunge (if the file is whole, give --machine or a --z-threshold below that Z)"
             )
     if not program.strokes or program.strokes[-1][1] != len(program.blocks) - 1:
         return
@@ -754,33 +809,54 @@ def check_tool_up_at_end(program: Program) -> None:
     )
 
 
-def _final_plunge(blocks: Sequence[Block]) -> tuple[Block, float] | None:
-    """The program's last move and its travel height, if that move feeds the tool down.
+def _z_trace(blocks: Sequence[Block]) -> tuple[list[float | None], bool]:
+    """Per block its work Z, or its Z counted from where the job began; and whether so.
+
+    Counted so in a file that never gives Z in absolute mode: the sum of its G91 Z
+    increments so far.
+    """
+    zs = [b.modal.z for b in blocks]
+    if any(z is not None for z in zs):
+        return zs, False
+    counted: list[float | None] = []
+    z = 0.0
+    for b in blocks:
+        if b.motion and b.modal.relative:
+            z += sum(v for letter, v in block_words(b.text) if letter == "Z") * b.modal.mm_per_unit
+        counted.append(z)
+    return counted, True
+
+
+def _final_plunge(blocks: Sequence[Block]) -> tuple[Block, float, float, bool] | None:
+    """The program's last move, its Z and its travel height, if that move feeds the tool down.
 
     The travel height is the lowest Z a rapid reaches, else (a job without rapids at a
     known Z) the highest Z reached before. A complete job never ends by lowering the tool
     with a Z-only feed move to below it: that is a plunge whose cut and lift are missing.
     Not taken for one: a last move that lifts (even to below the travel height) or also
-    moves in X or Y, and a lowering after the spindle or laser was switched off (M5).
+    moves in X or Y, and a lowering after the spindle or laser was switched off (M5). In a
+    file that moves Z only by G91 increments, both Zs are counted from where the job began
+    (:func:`_z_trace`; the last item says so): they compare all the same.
     """
     moves = [b for b in blocks if b.motion]
     if not moves or any(b.unfollowed for b in moves):
         return None
+    zs, counted = _z_trace(blocks)
     last = moves[-1]
-    z = last.modal.z
+    z = zs[last.index]
     if last.modal.motion == "G0" or z is None:
         return None
     if last.modal.spindle == "M5" and any(b.modal.spindle in ("M3", "M4") for b in blocks):
         return None
     if len(moves) > 1 and (moves[-2].modal.x, moves[-2].modal.y) != (last.modal.x, last.modal.y):
         return None
-    before = moves[-2].modal.z if len(moves) > 1 else None
-    rapid_z = [b.modal.z for b in moves if b.modal.motion == "G0" and b.modal.z is not None]
-    earlier = [b.modal.z for b in moves[:-1] if b.modal.z is not None]
+    before = zs[moves[-2].index] if len(moves) > 1 else None
+    rapid_z = [v for b in moves if b.modal.motion == "G0" and (v := zs[b.index]) is not None]
+    earlier = [v for b in moves[:-1] if (v := zs[b.index]) is not None]
     travel = min(rapid_z) if rapid_z else max(earlier, default=None)
     if travel is None or (before is not None and z >= before - 1e-9) or z >= travel - 1e-9:
         return None
-    return last, travel
+    return last, z, travel, counted
 
 
 def resume_point(program: Program, done: set[int]) -> int:
@@ -866,19 +942,60 @@ def _sets_wcs(blocks: Sequence[Block]) -> bool:
     )
 
 
+def _gives_z(block: Block) -> bool:
+    """Whether ``block`` moves and gives Z (a move on Z, or G28/G30 through a Z)."""
+    return block.motion and any(letter == "Z" for letter, _ in block_words(block.text))
+
+
+def _refuse_reset_offsets(program: Program, start: int) -> None:
+    """Refuse a resume at block ``start`` where the file set a G92 or tool length offset.
+
+    The stop's soft reset cleared both (Grbl keeps neither over a reset), and a preamble
+    cannot set a G92 again (it counts from where the machine stood) nor knows the length
+    offset the user had: the positions the file gives after it would land elsewhere.
+
+    Raises:
+        ConfigError: Naming the line that set the offset still in force.
+    """
+    before = program.blocks[start - 1].modal
+    if not before.g92 and not before.tlo:
+        return
+    codes = {92.0} if before.g92 else set()
+    codes |= {43.1} if before.tlo else set()
+    setting = next(
+        b
+        for b in reversed(program.blocks[:start])
+        if any(letter == "G" and value in codes for letter, value in block_words(b.text))
+    )
+    what = "a tool length offset" if ("G", 43.1) in block_words(setting.text) else "a G92 offset"
+    raise ConfigError(
+        f"{program.path}:{program.blocks[start].lineno}: cannot resume here: line "
+        f"{setting.lineno} ({setting.text!r}) set {what}, which the stop's soft reset "
+        "cleared and a preamble cannot set again, so the file's positions from there on "
+        "would land elsewhere; stream the file from its start"
+    )
+
+
 def resume_preamble(program: Program, start: int) -> list[str]:
     """Blocks that restore the state the file had before block ``start``, safely.
 
     Order: mm and absolute (G21 G90, plane, G94, and the work coordinates where the file
-    selected them); Z up to the highest Z
-    the file used so far (a stop may have left the bit in the board: the spindle must not
-    start there), or, in a job without Z (a servo), the tool output off (pen up) before any
-    move; then spindle/servo and coolant as the file had them, with the spin-up dwell the
-    file used after its spindle start (:func:`spin_up_dwell`; the tool is up before a stroke
-    by definition); XY to where the file was, Z down to the file's travel height there, then
-    the file's units, distance mode, feed mode, feed and motion mode. The moves travel as
-    the file does (:func:`travel_move`: G0, or G1 at its travel feed). The stroke's own
-    first block then plunges.
+    selected them); Z up to the highest Z the file used so far in the frame Z is counted
+    in there (a stop may have left the bit in the board: the spindle must not start
+    there; a Z of an earlier frame may lie anywhere in this one), or, in a job without Z
+    (a servo), the tool output off (pen up) before any move; then spindle/servo and
+    coolant as the file had them, with the spin-up dwell the file used after its spindle
+    start (:func:`spin_up_dwell`; the tool is up before a stroke by definition); XY to
+    where the file was, Z down to the file's travel height there, then the file's units,
+    distance mode, feed mode, feed and motion mode. The moves travel as the file does
+    (:func:`travel_move`: G0, or G1 at its travel feed). The stroke's own first block then
+    plunges.
+
+    Raises:
+        ConfigError: Where the sender does not know where to bring the tool back to: X or
+            Y not given in absolute mode since the job began or the frame changed, Z
+            likewise in a job that moves Z (no height is guessed), or a G92 or tool length
+            offset set by the file that the stop's reset cleared.
     """
     if start <= 0 or start > len(program.blocks):
         return []
@@ -901,7 +1018,20 @@ def resume_preamble(program: Program, start: int) -> list[str]:
             "frame, the file has not given X and Y again in absolute mode (G90), so the "
             "sender does not know where to bring the tool back to"
         )
-    zs = [b.modal.z for b in program.blocks[:start] if b.modal.z is not None]
+    _refuse_reset_offsets(program, start)
+    blocks = program.blocks[:start]
+    if before.z is None and any(_gives_z(b) for b in blocks):
+        first = start - 1  # the block that changed the frame Z is counted in, if any
+        while first > 0 and blocks[first - 1].modal.z_frame == before.z_frame:
+            first -= 1
+        since = f"line {blocks[first].lineno} ({blocks[first].text!r})" if before.z_frame else ""
+        raise ConfigError(
+            f"{program.path}:{program.blocks[start].lineno}: cannot resume here: the file "
+            f"has not given Z in absolute mode (G90) since {since or 'it began'}, so the "
+            "sender does not know the height to travel at here (and will not guess one); "
+            "stream the file from its start"
+        )
+    zs = [b.modal.z for b in blocks if b.modal.z is not None and b.modal.z_frame == before.z_frame]
     mode, feed = travel_move(program, start)
     move = mode if mode == "G0" else f"G1F{gcode_number(feed, 4)}"
     wcs = before.wcs if _sets_wcs(program.blocks[:start]) else ""
@@ -940,6 +1070,15 @@ def _ends(blocks: Sequence[Block], i: int) -> tuple[Modal, Modal]:
     """
     before, after = (blocks[i - 1].modal if i > 0 else Modal()), blocks[i].modal
     return _placed(before), _placed(after)
+
+
+def known_xyz(modal: Modal) -> tuple[float | None, float | None, float | None]:
+    """The work position after a block where the sender knows it wherever the job began.
+
+    As :func:`work_xyz`, with None also on the axes still counted from the start the
+    parse assumes (:attr:`Modal.assumed`; :meth:`Program.placed_at` places them).
+    """
+    return work_xyz(_placed(modal))
 
 
 def _placed(modal: Modal) -> Modal:
@@ -1178,20 +1317,23 @@ class TimeLeft:
         that the position lies on, not behind the run point (where a path passes a point
         twice, a pass behind it is skipped; of two ahead, the earlier counts, so the time
         left errs long); else, at the end point of the last block acknowledged before the
-        report, all of them ran (not when an arc or another move the sender does not
-        follow lies between: their paths are not checked).
+        report, all of them ran. Not past a move the sender does not follow (an arc, a move
+        after a change of the work frame...): the machine may stand anywhere on it, even on
+        a later move's path, so the run point goes no further than its start, as the
+        journal's executed-through (``Streamer._executed_guess``) does.
         """
-        unchecked = False
         for i in range(self._block, reported_through + 1):
             b = self._blocks[i]
             if not followed_move(self._blocks, i):
-                unchecked = unchecked or b.motion
+                if b.motion:
+                    self._advance(i, 0.0)
+                    return
                 continue
             t = along_move(self._blocks, i, wpos, self._tol)
             if t is not None and (i > self._block or t * b.seconds >= self._into):
                 self._advance(i, t * b.seconds)
                 return
-        if reported_through >= self._block and not unchecked:
+        if reported_through >= self._block:
             if stands_at_end(self._blocks[reported_through], wpos, self._tol):
                 self._advance(reported_through + 1, 0.0)
 
