@@ -21,11 +21,16 @@ Say = Callable[[str], Any]
 Confirm = Callable[[str], bool]
 
 
-def clock(seconds: float) -> str:
-    """``mm:ss``, or ``h:mm:ss`` from an hour on; ``--:--`` when not known."""
+def clock(seconds: float, up: bool = False) -> str:
+    """``mm:ss``, or ``h:mm:ss`` from an hour on; ``--:--`` when not known.
+
+    Rounded to the nearest second, or with ``up`` (a time still left) up to the next
+    one (a millionth over a whole second taken for float noise), so that it reads
+    ``00:00`` only when nothing is left.
+    """
     if not math.isfinite(seconds):
         return "--:--"
-    s = int(round(seconds))
+    s = max(0, math.ceil(seconds - 1e-6) if up else round(seconds))
     return (
         f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
         if s >= 3600

@@ -266,3 +266,24 @@ def test_the_eta_streamed_to_the_emulator_follows_its_clock(tmp_path):
 )
 def test_a_status_report_gives_the_planner_blocks_free(line, free):
     assert parse_status(line, None).planner_free == free
+
+
+@pytest.mark.parametrize(
+    ("seconds", "nearest", "left"),
+    [
+        (0.0, "00:00", "00:00"),
+        (0.4, "00:00", "00:01"),
+        (1.0, "00:01", "00:01"),
+        (59.2, "00:59", "01:00"),
+        (3599.5, "1:00:00", "1:00:00"),
+        (3600.0001, "1:00:00", "1:00:01"),
+        (7322.0 + 3e-9, "2:02:02", "2:02:02"),
+    ],  # fmt: skip
+)
+def test_a_time_left_reads_00_00_only_when_nothing_is_left(seconds, nearest, left):
+    """A time taken reads to the nearest second, a time left rounded up (float noise of a
+    few nanoseconds over a whole second apart)."""
+    from scratchfab.console import clock
+
+    assert clock(seconds) == nearest
+    assert clock(seconds, up=True) == left
