@@ -163,3 +163,60 @@ def test_a_stop_on_the_next_move_is_not_taken_for_one_short_of_the_end(tmp_path)
     assert s._executed_guess((10.0, 5.0, -0.1 + 8 / 400.0)) == CUT
     # 1 Z step up lies within Z's rounding: maybe the cut stopped short, it is cut again
     assert s._executed_guess((10.0, 5.0, -0.1 + 1 / 400.0)) == CUT - 1
+
+
+@pytest.mark.parametrize(
+    ("x", "spm", "through"),
+    [
+        (10.006, 40.0, CUT),
+        (10.006, STEPS_PER_MM, CUT - 1),
+        (9.994, 40.0, CUT),
+        (9.994, STEPS_PER_MM, CUT),
+    ],
+)
+def test_a_move_grbl_ended_off_the_senders_end_counts_as_run_unless_a_step_short_may_be_there(
+    tmp_path, x, spm, through
+):
+    # Grbl ends G1X10.006 and G1X9.994 on X 10 (steps rounded). 0.006 mm before the
+    # sender's end: at 40 steps/mm a stop a step short stands 0.0115 mm behind it at
+    # least, so there the cut ran; at 80 steps/mm 0.00525 mm: it may not have. Past the
+    # end no stop on the move stands: it ran
+    text = f"G21G90\nG0Z1\nG0X0Y0\nG1Z-0.1F100\nG1X{x}\nG0Z1\n"
+    s = _streamer(tmp_path, spm, text)
+    assert _lround(x * spm) / spm == 10.0
+    assert s._executed_guess((10.0, 0.0, -0.1)) == through
+    assert s._executed_guess((10.0, 0.0, -0.1 + 4 / 400.0)) == through  # 4 Z steps up
+    s._acked_blocks = list(range(CUT + 1))  # the cut acknowledged last
+    s._acks_at_status = CUT + 1
+    assert s._executed_guess((10.0, 0.0, -0.1)) == through
+
+
+def test_a_position_off_every_acknowledged_move_trusts_only_the_planner_bound(tmp_path):
+    # at the cut's end in X and Y but 0.6 mm above it: on no acknowledged move (an old
+    # or garbled report), so nothing after the blocks the planner bound says ran counts
+    s = _streamer(tmp_path, STEPS_PER_MM)
+    s._acked_blocks = list(range(CUT + 1))
+    s._acks_at_status = CUT + 1
+    assert s._executed_guess((9.994, 5.006, 0.5)) == -1
+
+
+def test_a_move_on_an_axis_of_unknown_position_never_counts_as_ended(tmp_path):
+    # streamed from a start the sender was not told: X counts from an assumed start, so
+    # the machine may stand anywhere along G91 X5 (Z known, resumed there): it is the
+    # interrupted move, whichever of the later ones passes where it stands
+    text = "G21G90\nG0Z2\nG0Z1\nG91G0X5\nG90\nG0X-5Y0\nG0X10\n"
+    s = _streamer(tmp_path, STEPS_PER_MM, text)
+    s._program = load_program(tmp_path / "job.gcode")  # not placed
+    s._acked_blocks = list(range(3, len(s._program.blocks)))
+    s._acks_at_status = len(s._acked_blocks)
+    assert s._executed_guess((2.0, 0.0, 1.0)) == 2
+    assert s._executed_guess((5.0, 0.0, 1.0)) == 2  # X5 read from an unknown start
+
+
+def test_an_increment_from_an_unknown_z_never_counts_as_ended(tmp_path):
+    # G91 Z1 from a Z the sender does not know (the machine stands at work Z 7): the
+    # move's Z is unknown at both ends, yet it moves: a stop at its start is on it
+    text = "G21G91\nG0Z1\nG90G0X1Y1\nG1X5F100\n"
+    s = _streamer(tmp_path, STEPS_PER_MM, text)
+    assert s._executed_guess((0.0, 0.0, 7.0)) == 0
+    assert s._executed_guess((0.0, 0.0, 8.0)) == 0  # or at its end: unknown, it may not be

@@ -1695,13 +1695,21 @@ class Streamer:
         for i in moves:
             if not followed_move(blocks, i):  # an arc, G28, a move after G55...
                 return i - 1
+            end = self._at_end(i, wpos)
+            if end == "ran":
+                continue  # the next move's start, or the check below, takes it
             if (
-                along_move(blocks, i, wpos, tol) is not None
+                end == "short"
+                or along_move(blocks, i, wpos, tol) is not None
                 or (i > 0 and stands_at_end(blocks[i - 1], wpos, tol))  # at its start
-                or self._at_end(i, wpos) == "short"
             ):
                 return i - 1
-        if moves and self._at_end(moves[-1], wpos) == "ran":
+        last = moves[-1] if moves else -1
+        if (
+            last >= 0
+            and self._at_end(last, wpos) == "ran"
+            and stands_at_end(blocks[last], wpos, tol)
+        ):
             return reported[-1]
         return surely
 
@@ -1709,14 +1717,16 @@ class Streamer:
         """Where ``p`` (work mm) stands about move ``i``'s end, in GRBL's whole steps.
 
         GRBL ends a move on whole steps (``$100``-``$102``), within half a step of the
-        sender's end on each axis, give or take the reports' rounding (0.001 mm: ``MPos``
-        less ``WCO``). A stop a step short of it stands a step back on an axis the move
-        moves, so at least half a step (less the rounding) off the sender's end there:
-        nearer than that on every moved axis the move ran (0.002 mm at least: with steps
-        of 0.006 mm or less, or unknown, a stop a step short may pass for the end, short
-        by less than the 0.01 mm a position's match allows for rounding). A stop short of
-        the end stands within :meth:`_step_tol` of it on the moved axes; on the others
-        (where it matters: the next move) within half a step and the rounding.
+        sender's end on each axis. Anywhere else on the move it stands at least a step
+        behind that end (in the move's direction) on the axis with the most steps, so at
+        least half a step behind the sender's end there, less the reports' rounding (0.001
+        mm: ``MPos`` less ``WCO``). The move ran where ``p`` stands less far behind on
+        every axis it moves, each known at its end (ahead, the machine went on); where an
+        axis's start is unknown, less far either way. 0.002 mm at least: with steps of
+        0.006 mm or less, or unknown, a stop a step short may pass for the end, short by
+        less than the 0.01 mm a match allows for rounding. A stop short of the end stands
+        within :meth:`_step_tol` of it on the moved axes, and within half a step and the
+        rounding on the others.
 
         Returns:
             ``"ran"`` (at its end), ``"short"`` (maybe stopped a step or so before it),
@@ -1726,19 +1736,45 @@ class Streamer:
         end = work_xyz(blocks[i].modal)
         before = work_xyz(blocks[i - 1].modal) if i > 0 else (None, None, None)
         step = self._step_mm()
-        moved = [k for k in range(3) if before[k] != end[k]]
+        given = {letter for letter, _ in block_words(blocks[i].text)}
+        moved = [  # an axis the block gives, unknown at an end, may move too
+            k
+            for k, (a, u, v) in enumerate(zip("XYZ", before, end, strict=True))
+            if u != v or (a in given and None in (u, v))
+        ]
         still = [k for k in range(3) if k not in moved]
+        if all(self._behind(i, k, p[k], max(0.002, step[k] / 2.0 - 0.001)) for k in moved):
+            return "ran"
 
         def near(axes: list[int], tol: float) -> bool:
             """Within ``tol`` of the end on ``axes`` (the others taken as at it)."""
             q = [e if e is not None and k not in axes else p[k] for k, e in enumerate(end)]
             return stands_at_end(blocks[i], q, tol)
 
-        if not near(still, 0.002 + max((step[k] for k in still), default=0.0) / 2.0):
-            return ""
-        if near(moved, max(0.002, min((step[k] for k in moved), default=0.0) / 2.0 - 0.001)):
-            return "ran"
-        return "short" if near(moved, self._step_tol()) else ""
+        off = 0.002 + max((step[k] for k in still), default=0.0) / 2.0
+        return "short" if near(moved, self._step_tol()) and near(still, off) else ""
+
+    def _behind(self, i: int, k: int, v: float, tol: float) -> bool:
+        """Whether axis ``k`` at ``v`` is less than ``tol`` behind move ``i``'s end there.
+
+        Behind in the move's direction; either way where its start is not known. False
+        where the end is not known (an axis counted from the assumed start, as
+        ``sender_program``'s placement counts it).
+        """
+        blocks = self._program.blocks
+
+        def known(j: int) -> float | None:
+            if j < 0:
+                return None
+            modal = blocks[j].modal
+            return None if "XYZ"[k] in modal.assumed else work_xyz(modal)[k]
+
+        end, start = known(i), known(i - 1)
+        if end is None:
+            return False
+        if start is None:
+            return abs(v - end) < tol
+        return (v - end) * math.copysign(1.0, end - start) > -tol
 
 
 def _soft_limit_top(settings: dict[int, float]) -> tuple[float, str] | None:
