@@ -339,7 +339,8 @@ def test_compare_warns_of_axis_speeds_above_grbl_max_rates(tmp_path, text, clamp
     """Each axis' speed in mm/min, whatever the file's units, against its own ``$11x``."""
     job = tmp_path / "j.gcode"
     job.write_text(text)
-    found = compare({20: 0, 22: 1, 110: 800, 111: 800, 112: 300}, None, load_program(job))
+    settings = {20: 0, 22: 1, 110: 800, 111: 800, 112: 300}
+    found = compare(settings, None, load_program(job), start_xy=(0.0, 0.0))  # from X0 Y0
     rates = {"X": 800, "Y": 800, "Z": 300}
     assert [w for w in found.warnings if "GRBL clamps it" in w] == [
         f"the job moves {axis} at up to {speed:g} mm/min but GRBL's ${110 + 'XYZ'.index(axis)}="

@@ -29,13 +29,13 @@ TABLE = [
     (
         (1000, 1000, 5.2, "Run", (1.0, 2.0, -0.1), False, 875),
         65.2,
-        " 87.5% 875/1000 lines  elapsed 01:05  ETA 00:05  Run X1.00 Y2.00 Z-0.10",
+        " 87.5% 875/1000 lines  elapsed 01:05  ETA 00:06  Run X1.00 Y2.00 Z-0.10",
     ),
     ((8, 8, 0.0, "Idle", None, True, 8), 6.0, "100.0% 8/8 lines  elapsed 00:06  ETA 00:00  Idle"),
     (
         (420, 1000, 184.4, "Run", (1.0, 2.0, -0.1), False),
         65.2,
-        " 42.0% 420/1000 lines  elapsed 01:05  ETA 03:04  Run X1.00 Y2.00 Z-0.10",
+        " 42.0% 420/1000 lines  elapsed 01:05  ETA 03:05  Run X1.00 Y2.00 Z-0.10",
     ),
     (
         (0, 80000, math.inf, "Idle", None, False),
@@ -51,7 +51,7 @@ TABLE = [
     (
         (999, 1000, 0.4, "Hold:0", (-12.346, 100.0, -0.004), False),
         59.6,
-        " 99.9% 999/1000 lines  elapsed 01:00  ETA 00:00  Hold:0 X-12.35 Y100.00 Z0.00",
+        " 99.9% 999/1000 lines  elapsed 01:00  ETA 00:01  Hold:0 X-12.35 Y100.00 Z0.00",
     ),
     # cut, not rounded: 99.99 % is not done, 2/3 is not yet 66.7 %
     (

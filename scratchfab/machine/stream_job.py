@@ -143,7 +143,7 @@ def progress_text(p: StreamProgress, elapsed_s: float) -> str:
         pos = f" X{x:.2f} Y{y:.2f} Z{z:.2f}"
     return (
         f"{tenths / 10:5.1f}% {p.done}/{p.total} lines  elapsed {clock(elapsed_s)}  "
-        f"ETA {clock(p.eta_s)}  {p.state}{pos}"
+        f"ETA {clock(p.eta_s, up=True)}  {p.state}{pos}"
     )
 
 
@@ -405,8 +405,15 @@ def _stream_locked(
             inches = info.inch_reports
             _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
         program = program.timed_for(eta_settings(info.settings, profile))  # the ETA's times
+        wpos = info.status.wpos if start == 0 else None  # a fresh stream starts there
         findings = compare(
-            info.settings, info.wco, program, profile, grbl_seconds=program.total_seconds
+            info.settings,
+            info.wco,
+            program,
+            profile,
+            grbl_seconds=program.total_seconds,
+            start_xy=None if wpos is None else wpos[:2],
+            wcs=info.wcs,
         )
         for text in findings.warnings:
             cb.say(f"warning: {text}")
