@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from test_stream import _arc_samples, _bench_profile
 
-from scratchfab.errors import ConfigError
+from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.sender_checks import axis_feeds, compare, job_extent
 from scratchfab.machine.sender_program import (
     check_tool_up_at_end,
@@ -20,6 +20,7 @@ from scratchfab.machine.sender_program import (
     resume_preamble,
     travel_height,
 )
+from scratchfab.machine.stream_job import _check_strokes
 
 
 def _load(tmp_path, lines, **kw):
@@ -149,3 +150,11 @@ def test_an_arc_from_the_start_sweeps_from_where_the_machine_stands(tmp_path, st
     s = np.asarray(start)
     pts = _arc_samples(s, s + (10.0, 0.0), cw, ij=(5.0, 0.0))
     assert np.allclose((lo[0], lo[1], hi[0], hi[1]), (*pts.min(0), *pts.max(0)), atol=1e-6)
+
+
+def test_a_resume_of_a_job_without_absolute_z_says_why_it_cannot_tell_what_cuts(tmp_path):
+    """No Z level to list: the refusal says the file gives Z only as increments."""
+    prog = _load(tmp_path, RELATIVE_Z)
+    with pytest.raises(ScratchfabError) as err:
+        _check_strokes(prog, prog.path)
+    assert "(it gives Z only as G91 increments from where Z stood, or not at all)" in str(err.value)

@@ -490,11 +490,15 @@ def _check_strokes(program: Program, gcode: Path) -> None:
         return
     if program.z_threshold is None:
         levels = ", ".join(f"{z:g}" for z in z_levels(program.blocks)[:8])
+        heights = (
+            f"its moves end at Z {levels}; no rapid shows a travel height"
+            if levels
+            else "it gives Z only as G91 increments from where Z stood, or not at all"
+        )
         raise ScratchfabError(
-            f"{gcode}: cannot tell from the program which Z cuts and which travels (its moves "
-            f"end at Z {levels or 'none'}; no rapid shows a travel height); resuming could "
-            "restart in the middle of a cut (give --machine, or a --z-threshold between the "
-            "cutting and the travel heights)"
+            f"{gcode}: cannot tell from the program which Z cuts and which travels "
+            f"({heights}); resuming could restart in the middle of a cut (give --machine, or "
+            "a --z-threshold between the cutting and the travel heights)"
         )
     zs = [b.modal.z for b in program.blocks if b.modal.z is not None]
     span = f"Z {min(zs):g}..{max(zs):g}" if zs else "no Z"
