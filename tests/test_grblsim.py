@@ -838,6 +838,40 @@ def test_a_report_mid_move_counts_the_steps_each_axis_has_taken():
     sim.close()
 
 
+def test_idle_mid_job_at_a_small_time_scale_only_with_the_planner_empty():
+    """At ``time_scale=0.001`` short moves run 1000 times faster than 115200 baud brings
+    their lines, so the planner runs dry and Grbl goes Idle between lines (its stepper's
+    cycle stop) as it would at that speed: a report says Idle mid-job only with no block
+    queued (``Bf:15``), nothing moving (``FS:0``) and the RX buffer empty (no line waits
+    to be read: ``protocol_auto_cycle_start`` runs when the serial input runs dry)."""
+    rng = np.random.default_rng(3)
+    path = np.cumsum(rng.uniform(-0.1, 0.2, (300, 2)), axis=0) + 1.0
+    lines = ["G21G90", "G1F1200"] + [f"G1X{x:.3f}Y{y:.3f}" for x, y in path]
+    sim, clock = _sim_in_own_time(SimOptions(time_scale=0.001, settings={10: 3}))
+    todo = collections.deque((ln + "\n").encode() for ln in lines)
+    waiting: collections.deque[int] = collections.deque()  # bytes of lines awaiting an ok
+    buf, poll, idle = b"", 0.0, []
+    while todo or waiting:
+        while todo and sum(waiting) + len(todo[0]) <= 127:  # character counting
+            waiting.append(sim.host_write(todo.popleft()))
+        sim.advance(clock[0])
+        if clock[0] >= poll:  # a report every 8 ms (one takes 4 ms on the line)
+            sim.host_write(b"?")
+            poll += 0.008
+        buf += sim.host_read(1 << 16, 0.0)
+        *answers, buf = buf.split(b"\n")
+        for a in (a.strip().decode() for a in answers):
+            if a == "ok":
+                waiting.popleft()
+            elif a.startswith("<Idle") and (todo or waiting):
+                idle.append(a)
+        if "ok" not in (a.strip().decode() for a in answers):
+            clock[0] = min(sim.next_event(), poll)
+    sim.close()
+    assert len(idle) >= 2  # it does happen
+    assert all("|Bf:15,128|FS:0,0" in report for report in idle), idle
+
+
 @pytest.mark.parametrize(
     ("before", "line", "laser", "waits"),
     [
