@@ -340,6 +340,22 @@ def test_a_soft_limit_before_the_cycle_starts_alarms_at_once():
     assert machine.sim.mpos == (-1.0, -1.0, -1.0) and machine.times("exec") == []
 
 
+def test_a_soft_limit_after_a_spindle_change_alarms_once_the_motion_before_ended():
+    """``gc_execute_line`` syncs a spindle change (``protocol_buffer_synchronize``) before
+    ``mc_line`` checks the soft limits, so a line ``M3S1000G1X10`` (outside) sent while
+    G1X-20F600 runs from x = -1 waits for that move to end (19 mm at 10 mm/s^2 from rest
+    to rest: 2.9 s), Idle, then alarms at once there: no hold."""
+    machine = _Machine({110: 1000.0}, soft_limits=True, homed=True)
+    machine.at(0.0, b"G1X-20F600\n")
+    machine.at(1.0, b"M3S1000G1X10\n")
+    assert machine.report(2.0)[0] == "Run"
+    machine.until_still()
+    assert machine.times("alarm", code=2) == pytest.approx([2.9], abs=1e-6)
+    assert machine.times("exec") == pytest.approx([2.9], abs=1e-6)
+    assert machine.times("state", state="Hold:1") == []
+    assert machine.sim.mpos == (-20.0, -1.0, -1.0)
+
+
 _FUZZ_BYTES = [b"!", b"~", b"\x18", b"\x85", b"\x84", b"\x91", b"\x92", b"\x94", b"\x96"]
 
 

@@ -856,12 +856,8 @@ class GrblSim:
         except GcodeError as exc:
             self._respond(t, n, gcode, f"error:{exc.code}")
             return
-        if outcome.soft_limit:
-            if self.state == "Run":  # limits_soft_check in a cycle: a feed hold first
-                self._soft_limit = True
-                self._decelerate(t, "Hold")
-            else:
-                self._soft_limit_alarm(t)
+        if outcome.soft_limit and self.state == "Check":
+            self._soft_limit_alarm(t)  # mc_line checks soft limits even in check mode
             return
         wco = self._wco()
         self._offsets = outcome.coord_offsets
@@ -891,6 +887,15 @@ class GrblSim:
             self._serve_due_report(t)  # the next realtime point: after the ok
             return True
         act = p.actions[p.index]
+        if act.outside and not self._jogging:
+            # mc_line's limits_soft_check, before it waits for a free block: in a cycle a
+            # feed hold first (the alarm once stopped, _stopped), else the alarm at once
+            if self.state == "Run":
+                self._soft_limit = True
+                self._decelerate(t, "Hold")
+            else:
+                self._soft_limit_alarm(t)
+            return False
         if act.kind == "motion":
             # Grbl's mc_line waits for a free block, then drops a move of no step, which so
             # takes none

@@ -60,7 +60,8 @@ class Action:
     ``kind`` is ``motion`` (``target`` machine mm, ``rate`` mm/min, ``rapid``), ``dwell``
     (``seconds``), ``spindle``, ``coolant``, ``sync`` (wait for the planner to empty),
     ``pause`` (M0) or ``end`` (M2/M30). Spindle and coolant actions wait for the planner
-    to empty, except a spindle one marked ``free``.
+    to empty, except a spindle one marked ``free``. A motion marked ``outside`` has its
+    target beyond the soft limits (``$20=1``): Grbl's ``mc_line`` alarms when it comes to it.
     """
 
     kind: str
@@ -71,6 +72,7 @@ class Action:
     spindle: str = "M5"
     speed: float = 0.0
     free: bool = False  # a spindle speed change that does not wait for the planner
+    outside: bool = False  # a motion whose target is beyond the soft limits
 
 
 @dataclass
@@ -374,9 +376,9 @@ def interpret(line: str, state: ModalState, settings: Settings) -> Outcome:
 
     def add_motion(target: tuple[float, float, float], rapid: bool, rate: float) -> None:
         nonlocal soft
-        if check_limits(target):
-            soft = True
-        actions.append(Action("motion", target=target, rapid=rapid, rate=rate))
+        outside = check_limits(target)
+        soft = soft or outside
+        actions.append(Action("motion", target=target, rapid=rapid, rate=rate, outside=outside))
 
     # gc_execute_line steps 4, 7 and 8: only a change acts (and syncs). An S change with
     # the spindle on syncs too, except in laser mode ($32=1) in a block that moves
