@@ -16,12 +16,13 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   junction speed of ``$11``, look-ahead over the blocks queued when it plans (the newest
   ends at rest, so a planner that runs short slows down; a block queued behind the running
   one re-plans it from its current speed), trapezoid profiles in the reported position and
-  realtime ``FS:`` rate; moves run between targets rounded to whole steps (``$100``-``$102``)
-  and the reported position is the whole steps taken so far (each axis by Grbl's Bresenham
-  counters), so ``X0.01`` at 250 steps/mm ends at 0.012; a move of no whole step, which
-  Grbl drops, passes at once, takes no block in ``Bf:`` and no ``plan_time``; a changed feed or rapid override
-  (``0x90``-``0x97``) re-plans, the running block slowing down (through it into the next
-  where it is too short) or speeding up at its acceleration; all times ``time_scale``.
+  realtime ``FS:`` rate; moves run between targets rounded to whole steps
+  (``$100``-``$102``) and the reported position is the whole steps taken so far (each axis
+  by Grbl's Bresenham counters), so ``X0.01`` at 250 steps/mm ends at 0.012; a move of no
+  whole step, which Grbl drops, passes at once, takes no block in ``Bf:`` and no
+  ``plan_time``; a changed feed or rapid override (``0x90``-``0x97``) re-plans, the
+  running block slowing down (through it into the next where it is too short) or
+  speeding up at its acceleration; all times ``time_scale``.
   These wait for the planner to empty (so their ``ok`` comes after the motion before
   them ended): spindle and coolant changes, dwells, M0/M2/M30, G10, G28.1/G30.1,
   G92/G92.1 and a change of G54-G59 or of the G43.1 offset (Grbl's default
@@ -31,8 +32,9 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   ``mc_line`` syncs the spindle where ``plan_buffer_line`` drops a move);
 - ``$`` commands with their state rules (``error:8``/``error:9``), check mode ``$C`` with the
   soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset
-  (a target outside them in a cycle first holds: ``Hold:1``, no line read, the alarm once
-  the machine stands there, as Grbl's ``limits_soft_check``),
+  (checked as Grbl's ``mc_line`` comes to each motion, so after a line's spindle sync or
+  an arc's earlier segments; in a cycle it holds first: ``Hold:1``, no line read, the
+  alarm once the machine stands, as Grbl's ``limits_soft_check``),
   feed hold ``Hold:1`` -> ``Hold:0`` and resume (a hold, door or jog cancel slows down
   at the acceleration of the block it is in, into the next one if it must, as Grbl's
   stepper does, and the reported position follows; the resume starts from rest; lines
