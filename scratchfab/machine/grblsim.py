@@ -970,6 +970,7 @@ class GrblSim:
             corner_sq = float(corner_speed_sq(before.unit, unit, accels, s[11])[0])
         wco = self._wco()
         frm = self._planner[-1].target if self._planner else self._resting_target()
+        to = act.target
         self._planner.append(
             _Block(
                 start=start,
@@ -981,7 +982,7 @@ class GrblSim:
                 jog=self._jogging,
                 line=line,
                 work_start=(frm[0] - wco[0], frm[1] - wco[1], frm[2] - wco[2]),
-                work_end=tuple(a - w for a, w in zip(act.target, wco, strict=True)),  # type: ignore[arg-type]
+                work_end=(to[0] - wco[0], to[1] - wco[1], to[2] - wco[2]),
                 spindle=self._spindle,
                 length=float(length[0]),
                 unit=u,
@@ -1170,7 +1171,8 @@ class GrblSim:
     def _from_steps(self, n: tuple[int, int, int]) -> tuple[float, float, float]:
         """Steps in mm (``system_convert_axis_steps_to_mpos``; an axis of no steps/mm: 0)."""
         k = self._steps_per_mm()
-        return tuple(a / b if b > 0 else 0.0 for a, b in zip(n, k, strict=True))  # type: ignore[return-value]
+        x, y, z = (a / b if b > 0 else 0.0 for a, b in zip(n, k, strict=True))
+        return (x, y, z)
 
     def _on_grid(self, p: tuple[float, float, float]) -> tuple[float, float, float]:
         """``p`` rounded to whole steps on each axis: where Grbl's motors can stand."""
