@@ -205,7 +205,7 @@ def test_the_senders_work_position_is_the_emulators(mpos, inches, wco_field):
     try:
         s = Streamer(port, StreamOptions(banner_timeout=0.5, banner_settle=0.02))
         s.connect()
-        s._command("G21G90G0X12.345Y-6.789Z3.21")
+        s._command("G21G90G0X12.344Y-6.788Z3.212")  # on the 250 steps/mm grid, with the offset
         deadline = time.monotonic() + 3.0
         while s._status_now().state != "Idle" and time.monotonic() < deadline:
             time.sleep(0.02)
@@ -214,7 +214,7 @@ def test_the_senders_work_position_is_the_emulators(mpos, inches, wco_field):
         port.close()
     assert status.wpos is not None
     # inch reports carry 4 decimals of an inch: 1.3 um per number, twice with WCO
-    assert status.wpos == pytest.approx([12.345, -6.789, 3.21], abs=3e-3)
+    assert status.wpos == pytest.approx([12.344, -6.788, 3.212], abs=3e-3)
 
 
 @pytest.mark.parametrize("inches", [0, 1])

@@ -223,7 +223,8 @@ def test_a_tool_already_at_travel_height_is_not_moved(tmp_path):
         re.match(r"the tool is at machine Z 2\.000, already at or above", m) for m in messages
     )
     assert after_reset(sim, "rx") == [] and after_reset(sim, "exec") == []
-    assert sim.mpos[2] == pytest.approx(2.0) and 0.0 < sim.mpos[0] < 60.0  # stopped mid-rapid
+    # stopped before the rapid's end: the reset may come before its first whole step (X 0)
+    assert sim.mpos[2] == pytest.approx(2.0) and 0.0 <= sim.mpos[0] < 60.0
     assert lift_record(tmp_path / "j.jsonl")["result"] == "up"
 
 
