@@ -179,8 +179,9 @@ def run_design(
                 "board from less grazing a direction"
             )
 
+    views = len(design.views)
     progress(
-        f"design: {len(design.views)} views, {design.scratch.count} scratches on a "
+        f"design: {views} view{'' if views == 1 else 's'}, {design.scratch.count} scratches on a "
         f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
     )
     boards: dict[str, np.ndarray] = {}
