@@ -463,6 +463,35 @@ def test_verdict_names_a_failed_stage_from_the_manifest(tmp_path):
     assert any(s == "fail" and reason in t for s, t in lines)
 
 
+@pytest.mark.parametrize(
+    ("status", "words"),
+    [("failed", "failed"), ("interrupted", "was interrupted"), ("running", "did not finish")],
+)
+def test_a_stage_that_did_not_finish_reads_as_the_answer_to_a_claim(tmp_path, status, words):
+    """Under "✘ no" the line states what should hold, as every other line does.
+
+    "✘ no stage verify failed" read as "no stage failed"; a stage a kill left "running"
+    was reported as running after the run had ended.
+    """
+    job = fake_job(tmp_path)
+    stages = {"design": {"status": "done"}, "toolpath": {"status": status}}
+    (job / "manifest.json").write_text(json.dumps({"stages": stages}))
+    _, head, lines = _verdict(write_report(job).read_text())
+    assert head == f"Not ready: stage toolpath {words}"
+    assert (
+        "fail",
+        f"✘ no every stage finished: stage toolpath {words} "
+        "(files after it may be from an earlier run)",
+    ) in lines
+
+
+def test_views_line_before_verify_names_its_subject(tmp_path):
+    job = fake_job(tmp_path)
+    (job / "verify" / "metrics.json").unlink()
+    _, _, lines = _verdict(write_report(job).read_text())
+    assert ("fail", "✘ no the views look like their targets: verify has not run") in lines
+
+
 def test_rerun_command_names_the_pipeline_even_across_windows_drives(tmp_path, monkeypatch):
     job = fake_job(tmp_path)
     pipeline = tmp_path / "board.toml"

@@ -70,6 +70,9 @@ window.addEventListener('load', function () {
 # Symbol and word of each check status: readable without colour.
 _MARK = {"ok": "✔ ok", "fail": "✘ no", "warn": "⚠ check", "info": "ℹ info"}
 _CSS = {"ok": "ok", "fail": "bad", "warn": "warn", "info": "muted"}
+# A stage's manifest status as the verdict says it.
+# "running" after the run ended: the process died (killed) before it could say.
+_STAGE_STATUS = {"interrupted": "was interrupted", "running": "did not finish"}
 
 Status = Literal["ok", "fail", "warn", "info"]
 
@@ -244,13 +247,15 @@ def _stage_checks(job: Path) -> list[_Check]:
             continue
         status = str(entry.get("status"))
         why = str(entry.get("reason") or "")
+        said = _STAGE_STATUS.get(status, status)
         checks.append(
             _Check(
                 "fail",
-                f"stage {html.escape(stage)} {html.escape(status)}"
+                # Phrased as a claim like every other line, so that "✘ no" reads as its answer.
+                f"every stage finished: stage {html.escape(stage)} {html.escape(said)}"
                 + (f": {html.escape(why)}" if why else "")
                 + " (files after it may be from an earlier run)",
-                f"stage {stage} {status}",
+                f"stage {stage} {said}",
                 f"Fix what stage {html.escape(stage)} reports above, then run again.",
             )
         )
@@ -286,7 +291,13 @@ def _rho_checks(
 ) -> list[_Check]:
     views = (metrics or {}).get("views")
     if not isinstance(views, dict):
-        return [_Check("fail", "looks like its target: verify has not run", "verify has not run")]
+        return [
+            _Check(
+                "fail",
+                "the views look like their targets: verify has not run",
+                "verify has not run",
+            )
+        ]
     checks = []
     for name in names:
         rho = views.get(name, {}).get("rho")
