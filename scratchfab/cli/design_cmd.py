@@ -132,7 +132,7 @@ def design(
 def _as_typed(exc: ConfigError, design: Design, images: Sequence[str]) -> ConfigError:
     """A quick-form error about one view, naming the image as typed instead of ``views[i]``.
 
-    The user of the quick form wrote no design file, so ``<quick form>: views[0].target:
+    The user of the quick form wrote no design file, so ``quick form: views[0].target:
     /abs/sun.png: ...`` names a key they never saw; ``sun.png: ...`` names what they typed.
     """
     message = str(exc)

@@ -23,6 +23,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from scratchfab import figures
+from scratchfab.design import quick
 from scratchfab.errors import ConfigError
 from scratchfab.model.design import Board, Design, View
 from scratchfab.render.profile import steepest_wall_deg
@@ -318,7 +319,8 @@ def check_feasibility(
                 f"views '{a.name}' and '{b.name}' are indistinguishable: scratches that "
                 f"light '{worst.lit}' also light '{worst.other}' (its half-vector lies "
                 f"{worst.separation_median_deg:.2f} deg from their normals, within the "
-                f"{lobe:.1f} deg roughness lobe); move one of the views"
+                f"{lobe:.1f} deg roughness lobe); "
+                + ("give fewer images" if _quick(design) else "move one of the views")
             )
         elif worst.separation_median_deg < WARN_SEPARATION_LOBES * lobe:
             warnings.append(
@@ -344,8 +346,18 @@ def _crowding_errors(design: Design) -> list[str]:
     return [
         f"{tool.count} scratches of at least {tool.min_length_mm:g} x {tool.width_mm:g} mm "
         f"cover {least:g} mm^2, more than the {usable:g} mm^2 of board inside the margin: "
-        f"they would overlap; set [scratch] count to at most {fits} or shorten min_length_mm"
+        "they would overlap; "
+        + (
+            f"give --count at most {fits} or a larger --board"
+            if _quick(design)
+            else f"set [scratch] count to at most {fits} or shorten min_length_mm"
+        )
     ]
+
+
+def _quick(design: Design) -> bool:
+    """Whether ``design`` is the quick form's: its user changes options, not a file's keys."""
+    return design.source == quick.SOURCE
 
 
 def usable_area(board: Board) -> float:
@@ -373,10 +385,18 @@ def _coverage(design: Design, boards: Mapping[str, np.ndarray]) -> tuple[float, 
     if coverage <= 1.0:
         return coverage, mean, []
     fits = math.floor(tool.count / coverage)
-    change = f"set [scratch] count to at most {fits}"
     longest = longest_for_length(design, pts, dens, usable / tool.width_mm)
-    if longest is not None:
-        change += f" or max_length_mm to at most {longest:g}"
+    if _quick(design):
+        change = f"give --count at most {fits}"
+        if longest is not None:
+            change += (
+                f", or set [scratch] max_length_mm to at most {longest:g} in the design.toml "
+                "it writes and design from that file"
+            )
+    else:
+        change = f"set [scratch] count to at most {fits}"
+        if longest is not None:
+            change += f" or max_length_mm to at most {longest:g}"
     return (
         coverage,
         mean,

@@ -39,6 +39,9 @@ COUNT_PER_MM2 = 0.5
 BASE_DISTANCE_MM = 500.0
 #: Quick-form camera resolution (pixels along the long side).
 DEFAULT_RESOLUTION = 128
+#: The quick form's :attr:`Design.source`, which its messages start with (the user wrote
+#: no design file to name).
+SOURCE = "quick form"
 
 
 def view_name(path: Path, taken: set[str]) -> str:
@@ -138,4 +141,4 @@ def quick_design(
 ) -> Design:
     """A resolved design placing one view per image (see the module docstring)."""
     data = quick_mapping(images, board_mm, count, resolution)
-    return design_from_mapping(data, "<quick form>", Path.cwd())
+    return design_from_mapping(data, SOURCE, Path.cwd())
