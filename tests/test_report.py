@@ -331,6 +331,22 @@ def test_a_view_with_its_own_light_is_told_that_light(tmp_path):
     assert f"light straight in front of the board, {LIGHT[1]:.0f}° above" in _text(stands[other])
 
 
+def test_a_view_straight_in_front_says_so_once(tmp_path):
+    job = fake_job(tmp_path)
+    design = job / "design" / "design.toml"
+    ahead = (0.3, 4.0, 450.0)  # azimuth rounds to 0°
+    name, place = next(iter(PLACES.items()))
+    design.write_text(
+        design.read_text().replace(_vec(_cartesian(*place)), _vec(_cartesian(*ahead)))
+    )
+    stands = dict(
+        re.findall(r"<li data-stand='(\w+)'[^>]*>(.*?)</li>", write_report(job).read_text())
+    )
+    assert _text(stands[name]).startswith(
+        f"{name}: stand straight in front of the board, 4° above its centre, 45 cm away; "
+    )
+
+
 def test_views_follow_the_design_order_everywhere(tmp_path):
     job = fake_job(tmp_path)
     page = write_report(job).read_text()

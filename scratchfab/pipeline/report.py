@@ -191,7 +191,8 @@ def _vec3(values: Any) -> Vec3:
 def _place(position: Vec3, subject: str) -> str:
     """``22° to the left of the board's front, level with its centre, 50 cm away``."""
     azimuth, elevation, distance = polar_from_position(position)
-    parts = [f"{_side(azimuth)} of {subject}"]
+    # Straight ahead, "of the board's front" would say the front twice.
+    parts = [f"{_side(azimuth)} of {'the board' if round(abs(azimuth)) == 0 else subject}"]
     if round(abs(elevation)) == 0:
         parts.append("level with its centre")
     else:
