@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ from scratchfab.design.stage import run_design
 from scratchfab.design.targets import view_targets
 from scratchfab.model.camera import Camera
 from scratchfab.model.design import load_design
+from scratchfab.model.job import JobLayout, design_digest
 from scratchfab.model.scratches import load_scratches
 from scratchfab.render.profile import steepest_wall_deg
 
@@ -122,6 +124,25 @@ def test_quick_form_keeps_one_view_as_far_from_the_bare_board_gloss_as_two_views
     least_one = tilt_deg(half_vectors(one, one.views[0], pts)).min()
     least_two = min(tilt_deg(half_vectors(two, v, pts)).min() for v in two.views)
     assert least_one >= least_two
+
+
+def test_a_design_rerun_over_an_optimized_job_says_what_to_rerun(tmp_path, capsys):
+    """Optimize records the design's digests; a design that changes them says the optimized
+    layout (and toolpath, G-code) is now the earlier design's; the same design says nothing."""
+    job = tmp_path / "job"
+    args = [str(DEMO / "sun.png"), "--board", "30x30", "--resolution", "16x16", "--out", str(job)]
+    _run(["design", *args, "--count", "40"], capsys)
+    layout = JobLayout(job)
+    layout.optimize_dir.mkdir()
+    shutil.copy(layout.design.initial_scratches, layout.optimized_scratches)
+    layout.optimize_summary.write_text(json.dumps({"design_sha256": design_digest(job)}))
+    assert "note:" not in _run(["design", *args, "--count", "40"], capsys)
+    out = _run(["design", *args, "--count", "41"], capsys)
+    assert (
+        f"note: {layout.optimized_scratches} (and any toolpath or G-code made from it) comes "
+        "from the earlier design; rerun `scratchfab optimize "
+    ) in out
+    assert "before toolpath and export" in out
 
 
 def test_demo_pipeline_designs(tmp_path, capsys):

@@ -95,6 +95,7 @@ def design(
     # Imported here, not for --help: the design stage loads scipy (~0.2 s).
     from scratchfab.design.quick import quick_design
     from scratchfab.design.stage import run_design
+    from scratchfab.model.job import redesigned_note
 
     res = resolution
     toml = [p for p in inputs if p.lower().endswith(".toml")]
@@ -127,6 +128,9 @@ def design(
             raise
         raise _as_typed(exc, source, inputs) from None
     click.echo(f"design file: {result.design_file}")
+    note = redesigned_note(result.folder.parent)
+    if note:
+        click.echo(note)
 
 
 def _as_typed(exc: ConfigError, design: Design, images: Sequence[str]) -> ConfigError:

@@ -250,36 +250,61 @@ def design_digest(job: str | Path) -> dict[str, str]:
     return {path.name: file_sha256(path) for path in JobLayout(Path(job)).design.digested}
 
 
-def stale_layout_warning(job: str | Path) -> str | None:
-    """A warning when ``JOB/optimize/scratches.csv`` was made from another design.
+def design_changed_since_optimize(job: str | Path) -> list[str]:
+    """The design files (job-relative) changed since ``JOB/optimize/scratches.csv`` was made.
 
-    Optimize records :func:`design_digest` in ``optimize/summary.json``; rerunning
-    design afterwards (README step 1's edit loop) leaves an optimized layout of the old
-    design behind, which toolpath, verify and render would otherwise use without a word.
-    None when the layout is current, or when there is no record to tell by.
+    Optimize records :func:`design_digest` in ``optimize/summary.json``. Empty when the
+    layout is current, when there is none, or when there is no record to tell by.
     """
-    folder = Path(job)
-    layout = JobLayout(folder)
+    layout = JobLayout(Path(job))
     if not layout.optimized_scratches.is_file():
-        return None
+        return []
     try:
         summary = decode_json(layout.optimize_summary.read_text(encoding="utf-8"))
         recorded = summary["design_sha256"]
     except (OSError, ValueError, TypeError, KeyError):
-        return None
+        return []
     if not isinstance(recorded, dict):
-        return None
-    changed = [
+        return []
+    return [
         layout.relative(path)
         for path in layout.design.digested
         if recorded.get(path.name) != file_sha256(path)
     ]
+
+
+def stale_layout_warning(job: str | Path) -> str | None:
+    """A warning when ``JOB/optimize/scratches.csv`` was made from another design.
+
+    Rerunning design after optimize (README step 1's edit loop) leaves an optimized
+    layout of the old design behind, which toolpath, verify and render would otherwise
+    use without a word. None when the layout is current, or when there is no record.
+    """
+    folder = Path(job)
+    layout = JobLayout(folder)
+    changed = design_changed_since_optimize(folder)
     if not changed:
         return None
     return (
         f"warning: {layout.optimized_scratches} was optimized from an earlier "
         f"design ({', '.join(changed)} changed since): it is used as it is; rerun "
         f"`{command_line(['scratchfab', 'optimize', folder])}` for the current design"
+    )
+
+
+def redesigned_note(job: str | Path) -> str | None:
+    """After design wrote over a job that was optimized from another design: what to rerun.
+
+    The optimized layout and what toolpath and export made from it stay until optimize
+    runs again; toolpath warns then, but a maker editing design.toml should hear it now.
+    """
+    folder = Path(job)
+    if not design_changed_since_optimize(folder):
+        return None
+    return (
+        f"note: {JobLayout(folder).optimized_scratches} (and any toolpath or G-code made "
+        "from it) comes from the earlier design; rerun "
+        f"`{command_line(['scratchfab', 'optimize', folder])}` before toolpath and export"
     )
 
 
