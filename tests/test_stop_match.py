@@ -220,3 +220,16 @@ def test_an_increment_from_an_unknown_z_never_counts_as_ended(tmp_path):
     s = _streamer(tmp_path, STEPS_PER_MM, text)
     assert s._executed_guess((0.0, 0.0, 7.0)) == 0
     assert s._executed_guess((0.0, 0.0, 8.0)) == 0  # or at its end: unknown, it may not be
+
+
+@pytest.mark.parametrize("real_spm", [STEPS_PER_MM, 40.0])
+def test_without_steps_a_stop_anywhere_on_the_cut_of_a_coarse_machine_is_not_taken_for_later(
+    tmp_path, real_spm
+):
+    """Safety where ``$100``-``$102`` are not known: Grbl's steps on a coarse machine stand
+    off the cut's line by more than a report's rounding (at step (401, 200), 0.013 mm), on
+    the later cut along Y2.5; the journal still never trusts the cut nor a later block."""
+    s = _streamer(tmp_path, None)
+    path = _grbl_steps((-0.006, 0.006), (9.994, 5.006), real_spm)
+    for x, y in path[:-1]:
+        assert s._executed_guess((x, y, -0.1)) <= CUT - 1, (x, y)

@@ -118,6 +118,10 @@ BANNERS = {"Grbl ": "Grbl", "GrblHAL ": "grblHAL"}
 _IDLE_ONLY = frozenset({"$$", "$#", "$I", "$N"})
 #: Sent after the file's last line: GRBL answers a dwell once every move before it ran.
 END_WAIT = "G4P0"
+#: The step (mm) a stop's position is matched with on an axis whose ``$100``-``$102`` is
+#: not known: 40 steps/mm, a coarse belt drive. Wider only matches an earlier move (cut
+#: again); never used to tell a move ended (there an unknown step counts as none).
+COARSE_STEP_MM = 0.025
 
 
 class StreamFault(ScratchfabError):
@@ -1128,18 +1132,18 @@ class Streamer:
             )
         )
 
-    def _step_tol(self) -> float:
+    def _step_tol(self, unknown: float = 0.0) -> float:
         """How far (mm) a reported position may lie off a move's line: rounding and a step.
 
         GRBL's steps leave the ideal line by up to one step per axis (``$100``-``$102``
-        steps/mm; unknown: none counted).
+        steps/mm; unknown: ``unknown`` mm counted).
         """
-        return 0.01 + max(self._step_mm()) * math.sqrt(3.0)
+        return 0.01 + max(self._step_mm(unknown)) * math.sqrt(3.0)
 
-    def _step_mm(self) -> tuple[float, float, float]:
-        """GRBL's step per axis (mm, ``$100``-``$102``; 0 where not known)."""
+    def _step_mm(self, unknown: float = 0.0) -> tuple[float, float, float]:
+        """GRBL's step per axis (mm, ``$100``-``$102``; ``unknown`` where not known)."""
         steps = [self.info.settings.get(100 + k) for k in range(3)]
-        x, y, z = (1.0 / s if s and s > 0 else 0.0 for s in steps)
+        x, y, z = (1.0 / s if s and s > 0 else unknown for s in steps)
         return x, y, z
 
     def _reset_fault(self, when: str) -> _Fault:
@@ -1666,8 +1670,9 @@ class Streamer:
         mode ``$32`` known off) means everything before it ran. The first candidate move
         the hold position may lie on is the interrupted one: within :meth:`_step_tol` of
         its line (GRBL reports whole steps, up to a step off the sender's line on each
-        axis), of its start, or of its end short of where it surely ended
-        (:meth:`_at_end`); a wider match only finds an earlier move (cut again). Standing
+        axis; an unknown step counted as COARSE_STEP_MM), of its start, or of its end short
+        of where it surely ended (:meth:`_at_end`); a wider match only finds an earlier
+        move (cut again). Standing
         at the end of the last candidate, every candidate ran. Without a position or a
         match the earliest candidate is taken as interrupted (a stroke is cut again rather
         than skipped), and so is a candidate move whose path the sender does not follow
@@ -1690,7 +1695,7 @@ class Streamer:
         if wpos is None or self._acks_at_status == 0:
             return surely
         reported = [i for i in window if i <= acked[self._acks_at_status - 1]]
-        tol = self._step_tol()
+        tol = self._step_tol(COARSE_STEP_MM)
         moves = [i for i in reported if blocks[i].motion]
         for i in moves:
             if not followed_move(blocks, i):  # an arc, G28, a move after G55...
@@ -1751,8 +1756,9 @@ class Streamer:
             q = [e if e is not None and k not in axes else p[k] for k, e in enumerate(end)]
             return stands_at_end(blocks[i], q, tol)
 
-        off = 0.002 + max((step[k] for k in still), default=0.0) / 2.0
-        return "short" if near(moved, self._step_tol()) and near(still, off) else ""
+        coarse = self._step_mm(COARSE_STEP_MM)
+        off = 0.002 + max((coarse[k] for k in still), default=0.0) / 2.0
+        return "short" if near(moved, self._step_tol(COARSE_STEP_MM)) and near(still, off) else ""
 
     def _behind(self, i: int, k: int, v: float, tol: float) -> bool:
         """Whether axis ``k`` at ``v`` is less than ``tol`` behind move ``i``'s end there.
