@@ -992,7 +992,20 @@ def test_a_board_the_machine_cannot_reach_whole_is_said_before_design(tmp_path, 
     result = run_pipeline(load_pipeline(path), tmp_path / "job", until="toolpath", say=said.append)
     first = said[0].startswith(f"warning: the {width:g} x 30 mm board (corners ")
     assert first is warned
-    assert any("reaches beyond machine 'GRBL 3018" in line for line in said) is warned
+    envelope = (
+        "the envelope of machine 'GRBL 3018 engraver, diamond drag bit' (X -300 to 0, Y -180 to 0)"
+    )
+    assert any(f"reaches beyond {envelope}" in line for line in said) is warned
+    if warned:
+        # Prose, not Python: the corners as points from offset_mm (-220, -150) and the size;
+        # no moving helps a board wider than the travel.
+        assert "(corners (-220, -150), (180, -150), (180, -120), (-220, -120))" in said[0]
+        assert (
+            "400 mm in X (the design's [board] width_mm) but the machine's X travel is 300 mm"
+            in said[0]
+        )
+        assert "no offset_mm in the profile's [board] can fit it" in said[0]
+        assert "''" not in said[0] and "[[" not in said[0]
     stats = json.loads((tmp_path / "job" / "toolpath" / "toolpath.json").read_text())["statistics"]
     assert (stats["outside_count"] + stats["clipped_count"] > 0) is warned
     assert result.ran[-1] == "toolpath"
@@ -1022,7 +1035,10 @@ def test_a_board_wholly_off_the_machine_is_said_with_advice_that_works(tmp_path)
     with pytest.raises(ScratchfabError) as info:
         run_pipeline(load_pipeline(path), tmp_path / "job", until="toolpath", say=said.append)
     warning = said[0]
-    assert warning.startswith("warning: the 30 x 30 mm board (corners [[50.0, -150.0]")
+    assert warning.startswith(
+        "warning: the 30 x 30 mm board (corners (50, -150), (80, -150), (80, -120), (50, -120))"
+    )
+    assert "can fit it" not in warning  # 30 mm fits the travel: moving it is the fix
     assert "lies wholly outside" in warning and "the toolpath stage will refuse it" in warning
     assert "leave out" not in warning and "clip" not in warning
     advice = "set the machine profile's [board] offset_mm to where the board lies on the bed"

@@ -391,18 +391,20 @@ def _board_overhang(pipe: Pipeline) -> str | None:
     envelope, and refuses one wholly outside it; said before design and optimize run, a
     person can fix the board or the profile before minutes of work.
     """
-    from scratchfab.toolpath.plan import OUTSIDE_ADVICE
+    from scratchfab.toolpath.plan import OUTSIDE_ADVICE, envelope_text, oversize_text, xy_text
 
     board, profile = pipe.design.board, pipe.profile
-    corners = profile.board_outline((board.width_mm, board.height_mm))
+    size = (board.width_mm, board.height_mm)
+    corners = profile.board_outline(size)
     env = profile.envelope
     if env.contains_xy(corners).all():
         return None
     where = (
         f"warning: the {board.width_mm:g} x {board.height_mm:g} mm board (corners "
-        f"{corners.round(1).tolist()})"
+        f"{xy_text(corners)})"
     )
-    envelope = f"machine '{profile.name}''s envelope x {list(env.x_mm)}, y {list(env.y_mm)}"
+    envelope = envelope_text(profile)
+    oversize = oversize_text(profile, size)
     # The board turns by quarter turns only: its outline is an axis-aligned rectangle.
     lo, hi = corners.min(axis=0).tolist(), corners.max(axis=0).tolist()
     if not all(
@@ -410,14 +412,19 @@ def _board_overhang(pipe: Pipeline) -> str | None:
     ):
         return (
             f"{where} lies wholly outside {envelope}: the toolpath stage will refuse it; "
-            f"{OUTSIDE_ADVICE} (design and optimize do not use the machine: their work is "
-            "kept for the next run)"
+            f"{OUTSIDE_ADVICE}{f' ({oversize})' if oversize else ''} (design and optimize "
+            "do not use the machine: their work is kept for the next run)"
         )
+    fix = (
+        oversize[0].upper() + oversize[1:]
+        if oversize
+        else "To cut the whole board, make [board] smaller or move it with the profile's "
+        "[board] offset_mm (or correct [envelope])"
+    )
     return (
         f"{where} reaches beyond {envelope}: the toolpath stage will leave out the "
-        "scratches beyond it and clip those across its edge. To cut the whole board, make "
-        "[board] smaller or move it with the profile's [board] offset_mm (or correct "
-        "[envelope]); Ctrl-C now to change them"
+        f"scratches beyond it and clip those across its edge. {fix}; Ctrl-C now to make "
+        "the change"
     )
 
 

@@ -42,6 +42,53 @@ OUTSIDE_ADVICE = (
 )
 
 
+def xy_text(points: np.ndarray) -> str:
+    """Machine XY points as prose, to 0.1 mm: ``"(-220, -150), (-190, -150)"``."""
+    rounded = np.asarray(points, dtype=np.float64).reshape(-1, 2).round(1) + 0.0  # no -0
+    return ", ".join(f"({x:g}, {y:g})" for x, y in rounded.tolist())
+
+
+def envelope_text(profile: MachineProfile) -> str:
+    """``"the envelope of machine 'NAME' (X -300 to 0, Y -180 to 0)"``."""
+    env = profile.envelope
+    return (
+        f"the envelope of machine '{profile.name}' (X {env.x_mm[0]:g} to {env.x_mm[1]:g}, "
+        f"Y {env.y_mm[0]:g} to {env.y_mm[1]:g})"
+    )
+
+
+def oversize_text(profile: MachineProfile, board_size: tuple[float, float]) -> str | None:
+    """Why no ``[board] offset_mm`` can put the whole board in the envelope, or None.
+
+    The board is larger than the machine's travel on an axis (after the profile's quarter
+    turns); the text names the spans, the design key to shrink and, when the board would
+    fit turned a quarter, the profile's ``rotation_deg`` that does it.
+    """
+    turned = profile.board.rotation_deg % 180 == 90
+    spans = (board_size[1], board_size[0]) if turned else board_size
+    keys = ("height_mm", "width_mm") if turned else ("width_mm", "height_mm")
+    travel = profile.envelope.max_travel_mm[:2]
+    over = [
+        f"the board spans {span:g} mm in {axis} (the design's [board] {key}) but the "
+        f"machine's {axis} travel is {room:g} mm"
+        for axis, span, key, room in zip("XY", spans, keys, travel, strict=True)
+        if span > room
+    ]
+    if not over:
+        return None
+    text = (
+        f"{' and '.join(over)}: no offset_mm in the profile's [board] can fit it; make the "
+        "board smaller"
+    )
+    if spans[1] <= travel[0] and spans[0] <= travel[1]:
+        other = (profile.board.rotation_deg + 90) % 360
+        text += (
+            f" or turn it a quarter (the profile's [board] rotation_deg = {other}, and "
+            "offset_mm to match)"
+        )
+    return text
+
+
 @dataclass(frozen=True, eq=False)
 class Toolpath:
     """Ordered strokes in machine coordinates.
@@ -274,9 +321,8 @@ def plan_toolpath(
     )
     if region.is_empty or region.area <= 0:
         raise ScratchfabError(
-            f"machine '{profile.name}': the board (corners {outline.round(3).tolist()}) lies "
-            f"wholly outside the envelope x {list(env.x_mm)}, y {list(env.y_mm)}, so nothing "
-            f"can be cut; {OUTSIDE_ADVICE}"
+            f"the board (corners {xy_text(outline)}) lies wholly outside "
+            f"{envelope_text(profile)}, so nothing can be cut; {OUTSIDE_ADVICE}"
         )
     m0 = profile.board_to_machine(scratches.p0, size)
     m1 = profile.board_to_machine(scratches.p1, size)
