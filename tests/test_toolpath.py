@@ -682,3 +682,48 @@ def test_the_board_top_is_marked_in_the_preview_and_the_gcode(rng, rotation):
         )
         < 40
     )  # at the edge's middle
+
+
+def test_a_board_larger_than_the_travel_is_said_to_fit_no_offset(rng, tmp_path, capsys):
+    """A 40 mm board on a machine with 30 mm of Y travel: moving it cannot help, and the
+    warning says so with both spans, instead of "check offset_mm and [envelope]"."""
+    import tomli_w
+
+    job = make_job(tmp_path, rng, optimize=True)
+    table = load_profile("grbl-3018-diamond").to_table()
+    offset = table["board"]["offset_mm"]
+    table["envelope"]["y_mm"] = [offset[1] - 5.0, offset[1] + 25.0]
+    table["start_mm"] = [offset[0] - 5.0, offset[1] - 5.0]
+    short = tmp_path / "short.toml"
+    short.write_text(tomli_w.dumps(table))
+    main(["toolpath", str(job), "--machine", str(short)])
+    said = capsys.readouterr().out
+    assert "the board spans 40 mm in Y (the design's [board] height_mm)" in said
+    assert "Y travel is 30 mm: no offset_mm in the profile's [board] can fit it" in said
+    assert "in X" not in said and "rotation_deg" not in said  # 40 mm fits neither way
+    assert "check the profile's" not in said
+
+
+@pytest.mark.parametrize(
+    ("size", "rotation", "said"),
+    [
+        ((30.0, 30.0), 0, None),
+        ((300.0, 180.0), 0, None),  # exactly the 3018's travel
+        ((200.0, 200.0), 0, ["200 mm in Y (the design's [board] height_mm)", "travel is 180"]),
+        ((100.0, 200.0), 0, ["200 mm in Y", "rotation_deg = 90, and offset_mm to match"]),
+        ((100.0, 200.0), 90, None),  # turned, its 200 mm lie along X's 300 mm
+        ((250.0, 170.0), 90, ["250 mm in Y (the design's [board] width_mm)", "rotation_deg = 180"]),
+        ((400.0, 200.0), 0, ["400 mm in X", "and the board spans 200 mm in Y"]),
+    ],
+)
+def test_oversize_text_names_the_axis_the_key_and_a_turn_that_fits(size, rotation, said):
+    from scratchfab.toolpath.plan import oversize_text
+
+    table = load_profile("grbl-3018-diamond").to_table()  # travel X 300, Y 180 mm
+    table["board"]["rotation_deg"] = rotation
+    text = oversize_text(profile_from_mapping(table, "<p>"), size)
+    if said is None:
+        assert text is None
+    else:
+        assert text is not None and all(part in text for part in said), text
+        assert ("rotation_deg" in text) is any("rotation_deg" in part for part in said)

@@ -10,7 +10,7 @@ from scratchfab.model.design import load_design
 from scratchfab.model.job import JobLayout, job_inputs, stale_layout_warning
 from scratchfab.model.scratches import load_scratches
 from scratchfab.toolpath.order import OrderOptions
-from scratchfab.toolpath.plan import Toolpath, plan_toolpath, write_preview
+from scratchfab.toolpath.plan import Toolpath, oversize_text, plan_toolpath, write_preview
 
 
 def summary(toolpath: Toolpath) -> str:
@@ -51,11 +51,13 @@ def run_toolpath(
     say(summary(result))
     s = result.stats
     if s["outside_count"] or s["clipped_count"]:
+        fix = oversize_text(profile, (design.board.width_mm, design.board.height_mm)) or (
+            "check the profile's [board] offset_mm and [envelope]"
+        )
         say(
             f"warning: {s['outside_count']} of {s['input_count']} scratches lie outside the "
-            "machine's envelope (not cut) and "
-            f"{s['clipped_count']} were clipped to it: check the profile's [board] offset_mm "
-            "and [envelope] (see preview.png)"
+            f"machine's envelope (not cut) and {s['clipped_count']} were clipped to it: "
+            f"{fix} (see preview.png)"
         )
     return result
 
