@@ -200,7 +200,18 @@ def stream(
         return "resume" if answer == "r" else "stop"
 
     def confirm(question: str) -> bool:
-        return yes or click.confirm(question, default=False, err=True)
+        if yes:
+            return True
+        try:
+            return click.confirm(question, default=False, err=True)
+        except click.exceptions.Abort as exc:
+            if not isinstance(exc.__context__, EOFError):
+                raise  # Ctrl-C at the question: "aborted", exit 130
+            click.echo("", err=True)  # end the question's line
+            raise ScratchfabError(
+                "no answer came to the question (stdin closed): answer y, or pass --yes to "
+                "stream without asking; nothing was sent"
+            ) from None
 
     try:
         progress = emulator_progress(port, baud, gcode, bar, message)
