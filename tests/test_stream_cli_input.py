@@ -35,3 +35,30 @@ def test_a_closed_stdin_at_the_question_says_no_answer_came(tmp_path):
     assert "answer y, or pass --yes" in last and "nothing was sent" in last
     assert "aborted" not in err
     assert not _gcode_received(read_record(rec))
+
+
+def test_a_job_folder_streams_its_exported_gcode_and_says_so(tmp_path):
+    """`stream JOB` is `stream JOB/export/board.gcode`, its journal in JOB/stream/."""
+    job = tmp_path / "job"
+    (job / "export").mkdir(parents=True)
+    write_job(job / "export" / "board.gcode", 2)
+    rec = tmp_path / "rec.jsonl"
+    port = f"grblsim://?baud=0&time_scale=0.001&record={rec}"
+    code, out, err = _stream([str(job), "--port", port, "--yes"], "")
+    assert code == 0, err
+    assert f"{job} is a job folder: streaming {job / 'export' / 'board.gcode'}" in err
+    assert "done:" in out and (job / "stream" / "journal.jsonl").is_file()
+    assert _gcode_received(read_record(rec))
+
+
+def test_a_folder_without_gcode_says_where_it_would_be_and_to_export(tmp_path):
+    job = tmp_path / "job"
+    (job / "toolpath").mkdir(parents=True)
+    rec = tmp_path / "rec.jsonl"
+    code, _, err = _stream([str(job), "--port", f"grblsim://?baud=0&record={rec}"], "")
+    assert code == 2
+    last = err.rstrip().splitlines()[-1]
+    assert last.startswith(f"error: {job} is a folder")
+    assert f"{job / 'export' / 'board.gcode'}, which does not exist" in last
+    assert f"scratchfab export {job} --format gcode" in last
+    assert "is a directory" not in err and not rec.exists()

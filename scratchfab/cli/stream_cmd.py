@@ -19,6 +19,7 @@ from scratchfab.machine.stream_job import (
     emulator_progress,
     stream_file,
 )
+from scratchfab.model.job import JobLayout
 
 
 class _ProgressLine:
@@ -52,8 +53,26 @@ class _ProgressLine:
             self._open = False
 
 
+def _job_gcode(path: Path) -> Path:
+    """``path``, or for a job folder its ``export/board.gcode`` (said on stderr).
+
+    Raises:
+        ScratchfabError: A folder without that file: where it would be and how to make it.
+    """
+    if not path.is_dir():
+        return path
+    board = JobLayout(path).export_file("gcode")
+    if not board.is_file():
+        raise ScratchfabError(
+            f"{path} is a folder: as a job folder its G-code would be {board}, which does not "
+            f"exist; run `scratchfab export {path} --format gcode` first, or give a G-code file"
+        )
+    click.echo(f"{path} is a job folder: streaming {board}", err=True)
+    return board
+
+
 @click.command("stream")
-@click.argument("gcode", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("gcode", metavar="GCODE|JOB", type=click.Path(path_type=Path))
 @click.option(
     "--port", required=True, help="Serial device, pty path or pyserial URL (grblsim://...)."
 )
@@ -159,10 +178,12 @@ def stream(
 
     Character counting by default; stops and holds on any error or alarm, aborts on a
     controller reset or a stall, journals every acknowledged line so that --resume can
-    continue after a disconnect or a stop without skipping a stroke.
+    continue after a disconnect or a stop without skipping a stroke. A job folder JOB
+    streams its export/board.gcode.
     """
     if recut_unsure and not resume:
         raise click.UsageError("--recut-unsure only applies with --resume")
+    gcode = _job_gcode(gcode)
     request = StreamRequest(
         gcode=gcode,
         port=port,
