@@ -279,6 +279,7 @@ class ControllerInfo:
     wco_source: str = ""  # how it was read: "$#" or "status"
     g92: tuple[float, float, float] | None = None  # the G92 part of it in mm (None: unknown)
     wcs: str | None = None  # the active work system at connect ($G: "G54"...; None: unknown)
+    tlo: float = 0.0  # the tool length offset on Z at connect (mm, $#'s [TLO:]; 0: unknown)
 
     @property
     def laser_mode(self) -> bool | None:
@@ -679,6 +680,7 @@ class Streamer:
                 else:
                     xyz[2] += tlo[0]
                 self.info.wco = (xyz[0] * scale, xyz[1] * scale, xyz[2] * scale)
+                self.info.tlo = (tlo[2] if len(tlo) >= 3 else tlo[0]) * scale
                 self.info.g92 = (g92[0] * scale, g92[1] * scale, g92[2] * scale)
                 self.info.wco_source = "$#"
                 # Status reports without WCO: (most of them) derive positions from it too.

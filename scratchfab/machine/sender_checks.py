@@ -188,6 +188,7 @@ def compare(
     grbl_seconds: float | None = None,
     start_xy: Sequence[float] | None = None,
     wcs: str | None = "G54",
+    tlo: float = 0.0,
 ) -> Findings:
     """Compare GRBL's settings, the job and (optionally) the machine profile.
 
@@ -216,6 +217,10 @@ def compare(
     job's first moves are checked from there (:meth:`Program.placed_at`), as the machine
     runs them. None (a resume, or not known): the positions the file counts from where
     its job began (work X0 Y0 until it gives X or Y in absolute mode) are left out.
+
+    ``tlo``: the tool length offset on Z the machine has (mm, ``$#``'s ``[TLO:]``). The
+    parse takes the file's first G49 (or G43.1 Z0) for GRBL's 0 after a reset, no change;
+    with an offset set on the machine it moves work Z by it: refused as not followed.
     """
     if start_xy is not None:
         program = program.placed_at(start_xy, wcs)
@@ -234,6 +239,14 @@ def compare(
     lo, hi = job_extent(program)
     if profile is not None or settings:
         unfollowed = [block for block in program.blocks if block.unfollowed]
+        first = next((b for b in program.blocks if b.modal.tlo is not None), None)
+        if first is not None and not first.unfollowed and tlo != 0.0:
+            out.refusals.append(
+                f"{path}:{first.lineno}: {first.text!r} cancels the tool length offset the "
+                f"machine has ([TLO:] {tlo:.3f} mm, read with $#), moving work Z by it; the "
+                "sender cannot follow the position past it, so the envelope cannot be "
+                "checked: clear the offset (send G49) before streaming"
+            )
         for block in unfollowed[:3]:
             out.refusals.append(
                 f"{program.path}:{block.lineno}: {block.unfollowed} ({block.text!r}); the "

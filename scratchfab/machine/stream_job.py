@@ -414,6 +414,7 @@ def _stream_locked(
             grbl_seconds=program.total_seconds,
             start_xy=None if wpos is None else wpos[:2],
             wcs=info.wcs,
+            tlo=info.tlo,
         )
         for text in findings.warnings:
             cb.say(f"warning: {text}")
