@@ -295,13 +295,26 @@ def test_min_rho_gate_fails_after_writing_everything(half_job, tmp_path, capsys)
     out = tmp_path / "gate"
     args = ["verify-render", "--design", str(design_file), "--scratches", str(scratch_file)]
     with pytest.raises(SystemExit) as exc:
-        main([*args, "--out", str(out), "--spp", "64", "--min-rho", "0.999"])
+        main([*args, "--out", str(out), "--spp", "64", "--min-rho", "0.99999"])
     assert exc.value.code == 3
-    err = capsys.readouterr().err.strip().splitlines()
+    said = capsys.readouterr()
+    err = said.err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: view ") and "--min-rho" in err[0]
-    gate = json.loads((out / "metrics.json").read_text())["gate"]
+    metrics = json.loads((out / "metrics.json").read_text())
+    # The progress line and the gate show a rho alike: rounded down (truncated) to the
+    # gate's 5 decimals, never rounded up to reach it.
+    worst = min(("left", "right"), key=lambda n: metrics["views"][n]["rho"])
+    for name in ("left", "right"):
+        rho = metrics["views"][name]["rho"]
+        assert 0 < rho < 0.99999
+        shown = f"{rho:.12f}"[:7]
+        assert f"verify {name}: relative L2 vs render " in said.out
+        assert f", rho vs target {shown}" in said.out
+        if name == worst:
+            assert f"view {name} looks like its target only to rho {shown}, below" in err[0]
+    gate = metrics["gate"]
     assert gate == {
-        "min_rho": 0.999,
+        "min_rho": 0.99999,
         "passed": False,
         "failing": ["left", "right"],
         "unchecked": [],

@@ -16,6 +16,7 @@ import os
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
+from decimal import ROUND_FLOOR, Decimal
 from pathlib import Path
 from typing import Any
 
@@ -78,7 +79,7 @@ class VerifyGateError(ScratchfabError):
         self.failing, self.views, self.metrics_file = failing, views, metrics_file
         where = f"{source}: " if source else ""
         super().__init__(
-            f"{where}view {view} looks like its target only to rho {_shown_below(rho)}, below "
+            f"{where}view {view} looks like its target only to rho {rho_text(rho, min_rho)}, below "
             f"{setting} {min_rho:g} ({failing} of {views} views fail; see {metrics_file})"
         )
 
@@ -96,9 +97,20 @@ class VerifyGateError(ScratchfabError):
         )
 
 
-def _shown_below(rho: float) -> str:
-    """``rho`` to 3 decimals, rounded down: 0.7996 below a gate of 0.8 reads 0.799."""
-    return f"{math.floor(rho * 1000.0) / 1000.0:.3f}"
+def rho_text(rho: float, min_rho: float | None = None) -> str:
+    """``rho`` rounded down to 3 decimals, or to as many as ``min_rho`` is written with.
+
+    One rule for every line that shows a rho next to a gate: rounded down, a rho below
+    ``min_rho`` never reads as reaching it (0.7996 below 0.8 reads 0.799; 0.99894 below
+    0.99999 reads 0.99894, not 0.999). Digits come from the shortest form of the number,
+    so a rho written 0.99894 is not floored to 0.99893 by binary rounding.
+    """
+    decimals = 3
+    if min_rho is not None:
+        exponent = Decimal(repr(float(min_rho))).normalize().as_tuple().exponent
+        decimals = min(max(3, -int(exponent)), 9)
+    step = Decimal(1).scaleb(-decimals)
+    return str(Decimal(repr(float(rho))).quantize(step, rounding=ROUND_FLOOR))
 
 
 def bad_sweep_frames(frames: int) -> str | None:
@@ -430,7 +442,11 @@ def run_verify(
         say(
             f"verify {view.name}: relative L2 vs render "
             + (f"{100 * rel:.2f} %" if rel is not None else "n/a")
-            + (f", rho {entry['rho']:.3f}" if "rho" in entry else "")
+            + (
+                f", rho vs target {rho_text(entry['rho'], settings.min_rho)}"
+                if "rho" in entry
+                else ""
+            )
         )
 
     names = [v.name for v in design.views]
@@ -556,7 +572,7 @@ def _run_jitter(
             entry["psnr_drop"] = base[name]["psnr"] - q["psnr"]
         views[name] = entry
         say(
-            f"jitter {name}: rho {q['rho']:.3f}"
+            f"jitter {name}: rho vs target {rho_text(q['rho'], settings.min_rho)}"
             + (f" (drop {entry['rho_drop']:+.3f})" if "rho_drop" in entry else "")
         )
     return {"tolerance": settings.jitter.as_dict(), "views": views}
