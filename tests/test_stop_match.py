@@ -9,9 +9,11 @@ the steps Grbl's own stepper takes (counted below, as its ``st_prep_buffer`` and
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import pytest
+from grbl_planner_sim import steps_taken
 
 from scratchfab.machine.sender import Streamer
 from scratchfab.machine.sender_program import load_program
@@ -40,14 +42,17 @@ def _grbl_steps(start, end, spm: float) -> list[tuple[float, float]]:
     n = [abs(q - p) for p, q in zip(a, b, strict=True)]
     sign = [1 if q >= p else -1 for p, q in zip(a, b, strict=True)]
     events = max(n)
-    counter = [events >> 1] * 2  # Grbl: st.counter_x = st.exec_block->step_event_count >> 1
+    # Grbl (AMASS on, its default): the block's counts scaled by 8 (<< MAX_AMASS_LEVEL),
+    # st.counter_x = st.exec_block->step_event_count >> 1
+    scaled = events << 3
+    counter = [scaled >> 1] * 2
     pos = list(a)
     out = [(pos[0] / spm, pos[1] / spm)]
     for _ in range(events):
         for k in range(2):
-            counter[k] += n[k]
-            if counter[k] > events:
-                counter[k] -= events
+            counter[k] += n[k] << 3
+            if counter[k] > scaled:
+                counter[k] -= scaled
                 pos[k] += sign[k]
         out.append((pos[0] / spm, pos[1] / spm))
     return out
@@ -233,3 +238,18 @@ def test_without_steps_a_stop_anywhere_on_the_cut_of_a_coarse_machine_is_not_tak
     path = _grbl_steps((-0.006, 0.006), (9.994, 5.006), real_spm)
     for x, y in path[:-1]:
         assert s._executed_guess((x, y, -0.1)) <= CUT - 1, (x, y)
+
+
+def test_the_step_reference_is_grbls_amass_stepper():
+    # an odd count of events (3, the minor axis 2 steps): Grbl's AMASS-scaled counters
+    # step the minor axis at the first event, as grbl_planner_sim's stepper does
+    spm = 40.0
+    end = (3 / spm, 2 / spm)
+    path = _grbl_steps((0.0, 0.0), end, spm)
+    length = math.hypot(*end)
+    want = [
+        steps_taken((0.0, 0.0, 0.0), (*end, 0.0), length * k / 3, (spm, spm, spm))[:2]
+        for k in range(4)
+    ]
+    assert path == want
+    assert path[1] == (1 / spm, 1 / spm)
