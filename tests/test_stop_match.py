@@ -10,12 +10,11 @@ the steps Grbl's own stepper takes (counted below, as its ``st_prep_buffer`` and
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
 
 import pytest
 from grbl_planner_sim import steps_taken
 
-from scratchfab.machine.sender import Streamer
+from scratchfab.machine.sender import ControllerInfo, Streamer
 from scratchfab.machine.sender_program import load_program
 
 STEPS_PER_MM = 80.0  # a belt-driven X/Y: 0.0125 mm a step
@@ -65,7 +64,7 @@ def _streamer(tmp_path, spm: float | None, text: str = JOB) -> Streamer:
     prog = load_program(job).placed_at((0.0, 0.0))
     s = Streamer.__new__(Streamer)
     settings = {} if spm is None else {100: spm, 101: spm, 102: 400.0}
-    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None, settings=settings)
+    s.info = ControllerInfo(settings=settings)
     s._program = prog
     s._all_ran = False
     s._acked_blocks = list(range(len(prog.blocks)))
@@ -253,3 +252,29 @@ def test_the_step_reference_is_grbls_amass_stepper():
     ]
     assert path == want
     assert path[1] == (1 / spm, 1 / spm)
+
+
+def _inch_report(mm: float) -> float:
+    """A coordinate as GRBL prints it under ``$13=1`` (4 decimals of an inch), in mm."""
+    return round(mm / 25.4, 4) * 25.4
+
+
+def test_under_inch_reports_a_stop_a_step_short_is_not_taken_for_the_end(tmp_path):
+    # G1X9.99385 ends on Grbl's step 800 (799.508 rounded); a step short, X 9.9875, lies
+    # 0.00635 mm behind the sender's end. Inch reports round MPos and WCO to 0.00254 mm
+    # each: at the worst offset the reported X comes 0.0025 mm nearer, within the 0.00525
+    # mm (half a step, less a mm report's rounding) a stop can no longer be short by
+    text = "G21G90\nG0Z1\nG0X0Y0\nG1Z-0.1F100\nG1X9.99385\nG0Z1\n"
+    s = _streamer(tmp_path, STEPS_PER_MM, text)
+    s.info.settings[13] = 1.0
+    assert _lround(9.99385 * STEPS_PER_MM) == 800
+    short = 799 / STEPS_PER_MM
+    wco = max(
+        (k / 1000.0 for k in range(-30000, 0)),
+        key=lambda w: _inch_report(short + w) - _inch_report(w),
+    )
+    x = _inch_report(short + wco) - _inch_report(wco)
+    assert 9.99385 - x < STEPS_PER_MM**-1 / 2 - 0.001
+    assert s._executed_guess((x, 0.0, -0.1)) == CUT - 1
+    s.info.settings[13] = 0.0  # in mm reports that X cannot be a step short: the cut ran
+    assert s._executed_guess((x, 0.0, -0.1)) == CUT

@@ -22,6 +22,7 @@ from scratchfab.machine.grblsim import SimOptions
 from scratchfab.machine.grblsim_pty import GrblPty
 from scratchfab.machine.profile import Z_UNLIMITED_MM, load_profile
 from scratchfab.machine.sender import (
+    ControllerInfo,
     Streamer,
     StreamFault,
     StreamOptions,
@@ -879,7 +880,7 @@ def test_executed_guess_distances(tmp_path):
     job.write_text("G21G90\nG1X1F100\nG1X2\nG1X3\nG1X4\n")
     prog = load_program(job).placed_at((0.0, 0.0))  # streamed from work X0 Y0
     s = Streamer.__new__(Streamer)
-    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None, settings={})
+    s.info = ControllerInfo()
     s._program = prog
     s._acked_blocks = [0, 1, 2, 3, 4]
     s._acks_at_status = 5
@@ -899,7 +900,7 @@ def test_executed_guess_does_not_look_past_a_move_whose_path_it_cannot_check(tmp
     job.write_text("G21G90\nG0Z1\nG0X0Y0\nG1X10F100\nG2X20Y0I5J0\nG1X10Y10\nG1X0Y10\n")
     prog = load_program(job).placed_at((0.0, 0.0))
     s = Streamer.__new__(Streamer)
-    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None, settings={})
+    s.info = ControllerInfo()
     s._program = prog
     s._all_ran = False
     s._acked_blocks = list(range(len(prog.blocks)))
@@ -917,7 +918,7 @@ def test_executed_guess_ignores_blocks_acknowledged_after_the_report(tmp_path):
     job.write_text("G21G90\n" + "".join(f"G1X{k}F100\n" for k in range(1, 31)) + "G1X0\n")
     prog = load_program(job)
     s = Streamer.__new__(Streamer)
-    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None, settings={})
+    s.info = ControllerInfo()
     s._program = prog
     s._acked_blocks = list(range(len(prog.blocks)))
     s._acks_at_status = 2

@@ -9,14 +9,13 @@ segments drawn in the old frame. The emulator is the reference: it knows the off
 from __future__ import annotations
 
 from dataclasses import replace
-from types import SimpleNamespace
 
 import pytest
 from stream_helpers import executed_blocks, stopped_after
 
 from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim_gcode import ModalState, Settings, interpret
-from scratchfab.machine.sender import Streamer
+from scratchfab.machine.sender import ControllerInfo, Streamer
 from scratchfab.machine.sender_checks import job_extent
 from scratchfab.machine.sender_program import (
     TimeLeft,
@@ -175,7 +174,7 @@ def test_a_known_work_position_is_grbls(tmp_path, name):
 def _guesser(prog, acked: int) -> Streamer:
     """A Streamer that has sent and seen acknowledged blocks 0 to ``acked`` before the report."""
     s = Streamer.__new__(Streamer)
-    s.info = SimpleNamespace(planner_blocks=15, laser_mode=None, settings={})
+    s.info = ControllerInfo()
     s._program = prog
     s._all_ran = False
     s._acked_blocks = list(range(acked + 1))

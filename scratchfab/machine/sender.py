@@ -83,7 +83,7 @@ import serial
 from scratchfab.errors import Interrupted, ScratchfabError
 from scratchfab.machine.grbl_codes import MM_PER_INCH, alarm_meaning, error_meaning
 from scratchfab.machine.profile import Z_UNLIMITED_MM, gcode_number
-from scratchfab.machine.sender_checks import same_offset
+from scratchfab.machine.sender_checks import REPORT_DIGIT_MM, same_offset
 from scratchfab.machine.sender_journal import Journal, last_surely_run
 from scratchfab.machine.sender_program import (
     DEFAULT_RAPID_MM_MIN,
@@ -1726,8 +1726,8 @@ class Streamer:
         GRBL ends a move on whole steps (``$100``-``$102``), within half a step of the
         sender's end on each axis. Anywhere else on the move it stands at least a step
         behind that end (in the move's direction) on the axis with the most steps, so at
-        least half a step behind the sender's end there, less the reports' rounding (0.001
-        mm: ``MPos`` less ``WCO``). The move ran where ``p`` stands less far behind on
+        least half a step behind the sender's end there, less the reports' rounding (a
+        digit, ``MPos`` less ``WCO``: 0.001 mm, 0.00254 mm in inch reports). The move ran where ``p`` stands less far behind on
         every axis it moves, each known at its end (ahead, the machine went on); where an
         axis's start is unknown, less far either way. 0.002 mm at least: with steps of
         0.006 mm or less, or unknown, a stop a step short may pass for the end, short by
@@ -1750,7 +1750,8 @@ class Streamer:
             if u != v or (a in given and None in (u, v))
         ]
         still = [k for k in range(3) if k not in moved]
-        if all(self._behind(i, k, p[k], max(0.002, step[k] / 2.0 - 0.001)) for k in moved):
+        digit = REPORT_DIGIT_MM[self.info.inch_reports]
+        if all(self._behind(i, k, p[k], max(0.002, step[k] / 2.0 - digit)) for k in moved):
             return "ran"
 
         def near(axes: list[int], tol: float) -> bool:
