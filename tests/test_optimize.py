@@ -871,3 +871,36 @@ def test_non_finite_names_the_render_then_the_loss_then_the_gradient() -> None:
     what, advice = _non_finite(0.5, {"a": ok}, grads)  # type: ignore[misc]
     assert what == "non-finite gradient of theta for 2 scratches (first: row 4)"
     assert "learning rates" in advice
+
+
+def test_resume_goes_on_to_the_runs_own_total_and_a_finished_run_has_nothing_to_do(
+    job: Path, capsys
+) -> None:
+    """`--resume` alone continues to the total the run was given (not the default 300);
+    on a finished run it says so and neither compiles nor rewrites anything; a larger
+    --iterations extends it."""
+    folder = job / "optimize"
+    main(["optimize", str(job), "--iterations", "5", "--time-budget", "0.001"])
+    assert json.loads((folder / "summary.json").read_text())["iterations"] == 1
+    capsys.readouterr()
+    main(["optimize", str(job), "--resume"])
+    assert "5 iterations (done)" in capsys.readouterr().out
+    assert json.loads((folder / "summary.json").read_text())["iterations"] == 5
+
+    def outputs() -> dict[Path, tuple[bytes, int]]:
+        files = sorted(p for p in folder.rglob("*") if p.is_file())
+        return {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in files}
+
+    for total in (5, 7):
+        before = outputs()
+        main(["optimize", str(job), "--resume"])
+        said = capsys.readouterr()
+        assert said.out.startswith(f"nothing to do: the run had done its {total} iterations")
+        assert f"give --iterations N (more than {total}) with --resume" in said.out
+        assert "compiling kernels" not in said.err
+        assert outputs() == before
+        if total == 5:
+            main(["optimize", str(job), "--resume", "--iterations", "7"])
+            assert "7 iterations (done)" in capsys.readouterr().out
+            state, _, rows = load_checkpoint(folder / "checkpoint.npz")
+            assert int(state["iteration"]) == 7 and len(rows) == 7

@@ -14,7 +14,14 @@ from scratchfab.cli.options import FiniteFloat, RedrawnLine, backend_option
 from scratchfab.console import command_line
 from scratchfab.errors import ConfigError, Interrupted
 from scratchfab.optimize.progress import clock, progress_printer
-from scratchfab.optimize.stage import OptimizeOptions, Progress, ResumeRefused, run_optimize
+from scratchfab.optimize.stage import (
+    NOTHING_TO_DO,
+    OptimizeOptions,
+    Progress,
+    ResumeRefused,
+    checkpoint_total,
+    run_optimize,
+)
 
 _DEFAULTS = OptimizeOptions()
 
@@ -33,7 +40,8 @@ def _bar() -> Callable[[Progress], None]:
     type=click.IntRange(min=0),
     default=300,
     show_default=True,
-    help="Total Adam steps (a resumed run continues up to this count).",
+    help="Total Adam steps (a resumed run continues up to this count; with --resume "
+    "alone, the run's own total).",
 )
 @click.option(
     "--time-budget",
@@ -141,6 +149,8 @@ def optimize(
             "multiple)",
             param_hint=f"--{scaled[0].replace('_', '-')}",
         )
+    if resume and ctx.get_parameter_source("iterations") is click.core.ParameterSource.DEFAULT:
+        iterations = checkpoint_total(job) or iterations  # go on to the run's own total
     options = OptimizeOptions(
         iterations=iterations,
         time_budget_s=time_budget,
@@ -161,6 +171,13 @@ def optimize(
         raise ConfigError(
             exc.message(lambda made: _as_flags(made, options, asked_constant, bool(scaled)))
         ) from None
+    if result.stopped == NOTHING_TO_DO:
+        click.echo(
+            f"nothing to do: the run had done its {result.iterations} iterations and "
+            f"{result.out_dir} holds its outputs; give --iterations N (more than "
+            f"{result.iterations}) with --resume to go on"
+        )
+        return
     views = result.quality["views"]
     for name, v in views.items():
         cross = ", ".join(f"x_{name},{j} = {x:.3f}" for j, x in v["crosstalk"].items())

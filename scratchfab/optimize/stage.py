@@ -92,7 +92,8 @@ class OptimizeResult:
         out_dir: ``JOB/optimize``.
         scratches: The final (pruned, if asked) layout.
         iterations: Steps done in total.
-        stopped: Why the loop ended: ``"done"``, ``"interrupted"`` or ``"time budget"``.
+        stopped: Why the loop ended: ``"done"``, ``"interrupted"`` or ``"time budget"``;
+            :data:`NOTHING_TO_DO` for a resume of a run that had finished (outputs kept).
         loss: Final loss (fresh pairs).
         quality: :func:`scratchfab.metrics.quality_report` of the final renders.
         seconds_per_iteration: Mean over this session's steps (NaN without steps).
@@ -107,6 +108,65 @@ class OptimizeResult:
     quality: dict[str, Any]
     seconds_per_iteration: float
     prune: PruneReport | None = None
+
+
+#: ``OptimizeResult.stopped`` of a resume whose checkpoint had done every step asked
+#: for, its outputs written: nothing compiled, nothing rewritten.
+NOTHING_TO_DO = "nothing to do"
+
+
+def checkpoint_total(job: str | Path) -> int | None:
+    """The steps the run in ``JOB/optimize/checkpoint.npz`` was asked for in all.
+
+    A resume without ``--iterations`` goes on to this total. None without a readable
+    checkpoint (the resume then says what is wrong) or for one that keeps no total (made
+    before totals were kept, with constant steps).
+    """
+    try:
+        _, meta, _ = load_checkpoint(JobLayout(Path(job)).optimize_checkpoint)
+    except ConfigError:
+        return None
+    schedule = meta.get("fingerprint", {}).get("lr_schedule")
+    total = meta.get(
+        "iterations", schedule.get("iterations") if isinstance(schedule, dict) else None
+    )
+    return total if type(total) is int and total >= 0 else None
+
+
+def _finished(
+    paths: JobLayout,
+    design: Design,
+    design_files: dict[str, str],
+    done: int,
+    options: OptimizeOptions,
+) -> OptimizeResult | None:
+    """The outputs of a run that did ``done`` steps, when they are this resume's result.
+
+    They are when the summary written with them counts ``done`` steps, was made from this
+    design, and pruned as ``options`` ask; else None (the resume writes them again).
+    """
+    try:
+        summary = json.loads(paths.optimize_summary.read_text(encoding="utf-8"))
+        pruned = summary["options"]["prune_tolerance"]
+        if (
+            summary["iterations"] != done
+            or summary["design_sha256"] != design_files
+            or pruned != options.prune_tolerance
+            or (pruned is not None and "prune" not in summary)
+        ):
+            return None
+        scratches = load_scratches(paths.optimized_scratches, design.scratch, design.board)
+        return OptimizeResult(
+            out_dir=paths.optimize_dir,
+            scratches=scratches,
+            iterations=done,
+            stopped=NOTHING_TO_DO,
+            loss=float(summary["loss"]),
+            quality=summary["quality"],
+            seconds_per_iteration=math.nan,
+        )
+    except (OSError, ValueError, KeyError, TypeError, ConfigError):
+        return None
 
 
 @contextlib.contextmanager
@@ -430,6 +490,11 @@ def _run(
         differ = _changed_keys(made, fingerprint)
         if differ:
             raise ResumeRefused(ckpt, differ, _made_with(made, differ, options))
+        done = int(state["iteration"])
+        if done >= options.iterations and (
+            kept := _finished(paths, design, design_files, done, options)
+        ):
+            return kept
     settings = Settings(
         lr=options.learning_rates(),
         refresh_every=options.refresh_every,
@@ -456,6 +521,7 @@ def _run(
             "rng": rng.bit_generator.state,
             "elapsed_s": elapsed,
             "columns": columns,
+            "iterations": options.iterations,  # the total a resume goes on to
         }
         save_checkpoint(
             ckpt, opt.state(), meta, np.asarray(rows, dtype=np.float64).reshape(-1, len(columns))
