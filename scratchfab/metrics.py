@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from decimal import ROUND_FLOOR, Decimal
 from typing import Any
 
 import numpy as np
@@ -106,3 +107,19 @@ def quality_report(
         views[k] = entry
     matrix = [[views[k]["crosstalk"].get(j, math.nan) for j in names] for k in names]
     return {"names": names, "views": views, "crosstalk_matrix": matrix}
+
+
+def rho_text(rho: float, min_rho: float | None = None) -> str:
+    """``rho`` rounded down to 3 decimals, or to as many as ``min_rho`` is written with.
+
+    One rule for every line that shows a rho next to a gate: rounded down, a rho below
+    ``min_rho`` never reads as reaching it (0.7996 below 0.8 reads 0.799; 0.99894 below
+    0.99999 reads 0.99894, not 0.999). Digits come from the shortest form of the number,
+    so a rho written 0.99894 is not floored to 0.99893 by binary rounding.
+    """
+    decimals = 3
+    if min_rho is not None:
+        exponent = Decimal(repr(float(min_rho))).normalize().as_tuple().exponent
+        decimals = min(max(3, -int(exponent)), 9)
+    step = Decimal(1).scaleb(-decimals)
+    return str(Decimal(repr(float(rho))).quantize(step, rounding=ROUND_FLOOR))

@@ -225,6 +225,18 @@ def test_verdict_not_ready_when_a_view_falls_below_min_rho(tmp_path):
     assert _verdict(write_report(job).read_text())[1] == "Not ready: right rho 0.750 below 0.76"
 
 
+def test_a_rho_just_below_min_rho_never_reads_as_reaching_it(tmp_path):
+    """Rounded, 0.7996 read '0.800 below 0.8'; rounded down as verify's gate says it."""
+    job = fake_job(tmp_path, rho=(0.91234, 0.7996))
+    verdict, head, lines = _verdict(write_report(job, min_rho=0.8).read_text())
+    assert verdict == "not-ready" and "right rho 0.799 below 0.8" in head
+    assert any(
+        text.startswith("✘ no right looks like its target: rho_kk 0.799 < 0.8") for _, text in lines
+    )
+    _, _, lines = _verdict(write_report(job, min_rho=0.79955).read_text())
+    assert any("rho_kk 0.79960 ≥ 0.79955" in text for _, text in lines)
+
+
 def test_verdict_not_ready_on_feasibility_errors_envelope_and_missing_stages(tmp_path):
     job = fake_job(tmp_path)
     feasibility = json.loads((job / "design" / "feasibility.json").read_text())

@@ -22,6 +22,7 @@ from typing import Any, Literal
 from scratchfab.console import command_line, duration_text
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, write_text
+from scratchfab.metrics import rho_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
 from scratchfab.model.job import JobLayout
 
@@ -311,15 +312,17 @@ def _rho_checks(
             checks.append(
                 _Check(
                     "ok",
-                    f"{label} {rho:.3f} ≥ {min_rho:g} ([verify] min_rho; 1 = perfect)",
+                    f"{label} {rho_text(rho, min_rho)} ≥ {min_rho:g} ([verify] min_rho; "
+                    "1 = perfect)",
                 )
             )
         else:
             checks.append(
                 _Check(
                     "fail",
-                    f"{label} {rho:.3f} &lt; {min_rho:g} ([verify] min_rho; 1 = perfect)",
-                    f"{name} rho {rho:.3f} below {min_rho:g}",
+                    f"{label} {rho_text(rho, min_rho)} &lt; {min_rho:g} ([verify] min_rho; "
+                    "1 = perfect)",
+                    f"{name} rho {rho_text(rho, min_rho)} below {min_rho:g}",
                     "A view looks too little like its target: run optimize longer "
                     "([optimize] iterations), add scratches ([scratch] count), or move the "
                     "views further apart. To cut the board as it is, lower [verify] "

@@ -16,7 +16,6 @@ import os
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
-from decimal import ROUND_FLOOR, Decimal
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +26,7 @@ from scratchfab.console import Say, clock
 from scratchfab.design.targets import cross_targets, job_cross_targets
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import load_numpy, write_bytes, write_json
-from scratchfab.metrics import quality_report
+from scratchfab.metrics import quality_report, rho_text
 from scratchfab.model.design import Design, View, load_design
 from scratchfab.model.job import (
     JobLayout,
@@ -95,22 +94,6 @@ class VerifyGateError(ScratchfabError):
             setting,
             source,
         )
-
-
-def rho_text(rho: float, min_rho: float | None = None) -> str:
-    """``rho`` rounded down to 3 decimals, or to as many as ``min_rho`` is written with.
-
-    One rule for every line that shows a rho next to a gate: rounded down, a rho below
-    ``min_rho`` never reads as reaching it (0.7996 below 0.8 reads 0.799; 0.99894 below
-    0.99999 reads 0.99894, not 0.999). Digits come from the shortest form of the number,
-    so a rho written 0.99894 is not floored to 0.99893 by binary rounding.
-    """
-    decimals = 3
-    if min_rho is not None:
-        exponent = Decimal(repr(float(min_rho))).normalize().as_tuple().exponent
-        decimals = min(max(3, -int(exponent)), 9)
-    step = Decimal(1).scaleb(-decimals)
-    return str(Decimal(repr(float(rho))).quantize(step, rounding=ROUND_FLOOR))
 
 
 def bad_sweep_frames(frames: int) -> str | None:
