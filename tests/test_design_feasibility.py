@@ -216,7 +216,7 @@ def test_map_scale_bar_and_key_show_the_map_colours():
     bx0, by0, bx1, by1 = fig.bar_box
     row = rgb[(by0 + by1) // 2, bx0 : bx1 + 1]
     deg = (np.arange(bx1 - bx0 + 1) + 0.5) * fig.bar_deg / (bx1 - bx0 + 1)
-    want = tilt_colours(deg, reach, limit).astype(int)
+    want = tilt_colours(deg, reach, limit, report.glint_deg).astype(int)
     plain = np.all(row != fz.HATCH, axis=-1)
     assert np.all(row[plain] == want[plain])
     # The bar's yellow starts at the steepest wall and its orange at wall + lobe.

@@ -8,7 +8,11 @@ steepest wall 2 atan(2w / wbar) (SPEC section 3). Hence:
 - view k is reachable at p when tilt(h_k) = atan(|h_xy| / h_z) <= steepest wall + lobe;
 - a scratch turned to light view k at p (across-direction along h_k's horizontal
   part) carries the arc of normals {cos(t) z + sin(t) a_k : |t| <= steepest}; it also
-  lights view j by the angle between h_j and that arc compared with the lobe.
+  lights view j by the angle between h_j and that arc compared with the lobe;
+- the bare board glints into view k at p when its own microfacets, turned up (D(h_z)),
+  return more than a scratch covering the pixel can at best (D averaged across the
+  profile): there every scratch only darkens the pixel, so no layout shows the image.
+  That happens where tilt(h_k) is below :func:`glint_limit_deg`, about 1.5 lobe widths.
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ from scratchfab import figures
 from scratchfab.design import quick
 from scratchfab.errors import ConfigError
 from scratchfab.model.design import Board, Design, View
-from scratchfab.render.profile import steepest_wall_deg
+from scratchfab.render.profile import profile_normal, solve_wbar, steepest_wall_deg
 
 #: A view must be able to light at least this share of the board.
 MIN_REACHABLE_FRACTION = 0.5
@@ -39,6 +43,8 @@ REACH_LIGHT = (166, 206, 227)
 REACH_DARK = (31, 90, 160)
 LOBE_ONLY = figures.OKABE_ITO["yellow"]
 UNREACHABLE = figures.OKABE_ITO["vermillion"]
+#: The bare board's glint (hatched too: no layout shows the image there).
+GLINT = figures.OKABE_ITO["reddish_purple"]
 HATCH = figures.HATCH_RGB
 #: The map is drawn at least this wide (pixels), each grid cell a square block.
 MAP_MIN_PX = 384
@@ -54,6 +60,53 @@ def ggx_ratio(angle_deg: np.ndarray, roughness: float) -> np.ndarray:
     c = np.cos(np.radians(angle_deg))
     a2 = roughness * roughness
     return a2 * a2 / (1.0 + (a2 - 1.0) * c * c) ** 2
+
+
+def scratch_response(
+    tilt: np.ndarray | float, width_mm: float, depth_mm: float, roughness: float
+) -> np.ndarray:
+    """What a scratch covering a pixel returns at best, over the flat board's peak D(1).
+
+    The footprint NDF (SPEC section 4) of a footprint that a scratch's width fills: D(h . n(x))
+    averaged across the profile, for h tilted ``tilt`` degrees in the plane of the profile's
+    normals (the scratch's across-direction along h's horizontal part, its brightest turn).
+    Trapezoid rule over x, 64 nodes per lobe width of the profile's normals.
+    """
+    w = 0.5 * width_mm
+    wbar = float(solve_wbar(width_mm, depth_mm))
+    # The normal turns 4 / wbar radians per mm at the centre (fastest): a lobe is alpha wbar / 4.
+    nodes = max(2001, math.ceil(64 * 2 * w / (roughness * wbar / 4)) + 1)
+    nx, nz = profile_normal(np.linspace(-w, w, nodes), wbar)
+    t = np.radians(np.asarray(tilt, dtype=np.float64))[..., None]
+    c = np.sin(t) * nx + np.cos(t) * nz
+    a2 = roughness * roughness
+    ratio = a2 * a2 / (1.0 + (a2 - 1.0) * c * c) ** 2  # D(c) / D(1), c > 0 on the profile
+    inner = ratio[..., 1:-1].sum(axis=-1) + 0.5 * (ratio[..., 0] + ratio[..., -1])
+    return np.asarray(inner / (nodes - 1))
+
+
+def glint_limit_deg(width_mm: float, depth_mm: float, roughness: float) -> float:
+    """Half-vector tilt below which the bare board outshines any scratch (the glint).
+
+    Where tilt(h) < this, the flat board's D(h_z) exceeds :func:`scratch_response`: a pixel
+    grows darker the more scratches cover it, so no layout can show a bright pixel on a
+    dark one there. The flat board's D falls from its peak within a lobe width while a
+    scratch's average stays about flat up to the steepest wall, so the two cross once
+    below it (bisection); the steepest wall itself when they do not.
+    """
+    top = float(steepest_wall_deg(width_mm, depth_mm))
+
+    def brighter(t: float) -> bool:
+        flat = ggx_ratio(np.asarray(t), roughness)
+        return bool(flat > scratch_response(t, width_mm, depth_mm, roughness))
+
+    if brighter(top):
+        return top
+    lo, hi = 0.0, top
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if brighter(mid) else (lo, mid)
+    return 0.5 * (lo + hi)
 
 
 def board_points(board: Board, long_side: int = 96) -> np.ndarray:
@@ -116,7 +169,11 @@ def arc_distance_deg(h: np.ndarray, across: np.ndarray, max_tilt_deg: float) -> 
 
 @dataclass
 class ViewFeasibility:
-    """Per-view result: tilt of the half-vector against what the profile reaches."""
+    """Per-view result: tilt of the half-vector against what the profile reaches.
+
+    ``glint_fraction`` is the share of the board where the bare board glints into the view
+    (tilt below :func:`glint_limit_deg`).
+    """
 
     name: str
     tilt_min_deg: float
@@ -124,6 +181,7 @@ class ViewFeasibility:
     tilt_max_deg: float
     reachable_fraction: float
     tilt_map: np.ndarray = field(repr=False)
+    glint_fraction: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready summary (the map is written as a PNG)."""
@@ -132,6 +190,7 @@ class ViewFeasibility:
             "tilt_median_deg": round(self.tilt_median_deg, 4),
             "tilt_max_deg": round(self.tilt_max_deg, 4),
             "reachable_fraction": round(self.reachable_fraction, 6),
+            "glint_fraction": round(self.glint_fraction, 6),
         }
 
 
@@ -163,7 +222,8 @@ class FeasibilityReport:
 
     ``groove_coverage`` is the initial layout's groove area (expected length times the
     tool's width) over the board inside the margin, and ``mean_length_mm`` the expected
-    scratch length; both None when the check had no target images.
+    scratch length; both None when the check had no target images. ``glint_deg`` is
+    :func:`glint_limit_deg` of the design's tool and board.
     """
 
     steepest_wall_deg: float
@@ -174,6 +234,7 @@ class FeasibilityReport:
     warnings: list[str]
     groove_coverage: float | None = None
     mean_length_mm: float | None = None
+    glint_deg: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -186,6 +247,7 @@ class FeasibilityReport:
             "steepest_wall_deg": round(self.steepest_wall_deg, 4),
             "lobe_deg": round(self.lobe_deg, 4),
             "reach_limit_deg": round(self.steepest_wall_deg + self.lobe_deg, 4),
+            "glint_limit_deg": round(self.glint_deg, 4),
             "views": {name: v.to_json() for name, v in self.views.items()},
             "pairs": [p.to_json() for p in self.pairs],
             "groove_coverage": _rounded(self.groove_coverage, 4),
@@ -195,7 +257,10 @@ class FeasibilityReport:
             "maps": (
                 "feasibility_<view>.png: board seen from the front (top = +y); blue: the "
                 "profile reaches the half-vector (darker: tilted closer to the steepest wall), "
-                "yellow: only through the roughness lobe, orange with hatching: unreachable; "
+                "yellow: only through the roughness lobe, orange with hatching: unreachable, "
+                "purple with hatching: the bare board glints (half-vector tilt below "
+                "glint_limit_deg: the polished board mirrors the light into the view brighter "
+                "than a scratch can shine there); "
                 f"black dots: expected crosstalk with another view at least {CROSSTALK_DOTS:g} "
                 "of the peak (within one lobe width); the key under the map gives the tilt "
                 "scale in degrees"
@@ -211,12 +276,14 @@ class FeasibilityReport:
         """
         lines = [
             f"tool reaches half-vectors tilted up to {self.steepest_wall_deg:.1f} deg "
-            f"(+{self.lobe_deg:.1f} deg roughness lobe)"
+            f"(+{self.lobe_deg:.1f} deg roughness lobe); the bare board glints brighter than "
+            f"a scratch where they tilt less than {self.glint_deg:.1f} deg"
         ]
         for name, v in self.views.items():
+            glint = f", {100 * v.glint_fraction:.1f}% glints" if v.glint_fraction else ""
             lines.append(
                 f"view '{name}': half-vector tilt {v.tilt_min_deg:.1f}-{v.tilt_max_deg:.1f} deg, "
-                f"{100 * v.reachable_fraction:.0f}% of the board reachable"
+                f"{100 * v.reachable_fraction:.0f}% of the board reachable{glint}"
             )
         for p in self.pairs:
             lines.append(
@@ -253,7 +320,9 @@ def check_feasibility(
 
     Returns:
         The report; ``errors`` name views no scratch can light on most of the board
-        (reachable share below :data:`MIN_REACHABLE_FRACTION`), pairs of views whose
+        (reachable share below :data:`MIN_REACHABLE_FRACTION`), views that can show their
+        image on less than that share because the bare board glints on the rest (any
+        glint is a warning: the glint outshines the image), pairs of views whose
         half-vectors are less than one lobe width apart from each other's profile
         normals (median over the board): what lights one lights the other, and more
         scratches than fit at their shortest.
@@ -261,6 +330,7 @@ def check_feasibility(
     tool = design.scratch
     steepest = float(steepest_wall_deg(tool.width_mm, tool.depth_mm))
     lobe = lobe_deg(design.board.roughness)
+    glint_deg = glint_limit_deg(tool.width_mm, tool.depth_mm, design.board.roughness)
     pts = board_points(design.board, grid)
     hs = {v.name: half_vectors(design, v, pts) for v in design.views}
     errors: list[str] = []
@@ -269,9 +339,14 @@ def check_feasibility(
     for v in design.views:
         tilt = tilt_deg(hs[v.name])
         frac = float(np.mean(tilt <= steepest + lobe))
+        glint = float(np.mean(tilt < glint_deg))
         views[v.name] = ViewFeasibility(
-            v.name, float(tilt.min()), float(np.median(tilt)), float(tilt.max()), frac, tilt
+            v.name, float(tilt.min()), float(np.median(tilt)), float(tilt.max()), frac, tilt, glint
         )
+        if frac >= MIN_REACHABLE_FRACTION and glint:
+            shows = frac - glint  # glint (low tilt) and unreachable (high) never overlap
+            problem = _glint_problem(design, v, pts, tilt, glint_deg, glint, shows)
+            (errors if shows < MIN_REACHABLE_FRACTION else warnings).append(problem)
         if frac < MIN_REACHABLE_FRACTION:
             errors.append(
                 f"view '{v.name}' is unreachable: its half-vector tilts "
@@ -328,7 +403,53 @@ def check_feasibility(
                 f"{worst.expected_crosstalk:.2f} ({worst.separation_median_deg:.1f} deg apart, "
                 f"lobe {lobe:.1f} deg)"
             )
-    return FeasibilityReport(steepest, lobe, views, pairs, errors, warnings, coverage, mean_length)
+    return FeasibilityReport(
+        steepest, lobe, views, pairs, errors, warnings, coverage, mean_length, glint_deg
+    )
+
+
+def _glint_problem(
+    design: Design,
+    view: View,
+    pts: np.ndarray,
+    tilt: np.ndarray,
+    glint_deg: float,
+    share: float,
+    shows: float,
+) -> str:
+    """The message for a view into which the bare board glints on ``share`` of the board.
+
+    ``shows`` is the share where the view can show its image (reachable, no glint); below
+    :data:`MIN_REACHABLE_FRACTION` the message says so.
+    """
+    tool = design.scratch
+    peak = float(ggx_ratio(np.asarray(tilt.min()), design.board.roughness))
+    times = peak / float(
+        scratch_response(tilt.min(), tool.width_mm, tool.depth_mm, design.board.roughness)
+    )
+    x, y = pts[np.unravel_index(np.argmin(tilt), tilt.shape)]
+    if _quick(design):
+        change = "give a smaller --board"
+    else:
+        change = (
+            "move the camera or the light so that the light's mirror image leaves the board "
+            f"(every half-vector tilted at least {glint_deg:.1f} deg), stand both farther "
+            "away in proportion to the board (its half-vectors then spread less), or use a "
+            "smaller board"
+        )
+    return (
+        f"view '{view.name}': the bare board mirrors the light into it on "
+        f"{100 * share:.1f}% of the board, around ({x:.0f}, {y:.0f}) mm, where its "
+        f"half-vector tilts less than {glint_deg:.1f} deg (down to {tilt.min():.1f}): the "
+        f"polished board shines there up to {times:.0f} times brighter than a scratch "
+        "covering it can, so scratches only darken it and the glint outshines the image"
+        + (
+            f" (shown on only {100 * shows:.0f}% of the board)"
+            if shows < MIN_REACHABLE_FRACTION
+            else ""
+        )
+        + f"; {change}"
+    )
 
 
 def _crowding_errors(design: Design) -> list[str]:
@@ -416,17 +537,21 @@ def _rounded(value: float | None, digits: int) -> float | None:
     return None if value is None else round(value, digits)
 
 
-def tilt_colours(tilt: np.ndarray, reach_deg: float, limit_deg: float) -> np.ndarray:
+def tilt_colours(
+    tilt: np.ndarray, reach_deg: float, limit_deg: float, glint_deg: float = 0.0
+) -> np.ndarray:
     """Map colour (uint8 RGB, (..., 3)) of half-vector tilts in degrees.
 
-    Blue, lighter toward 0 and darker toward the steepest wall ``reach_deg``; yellow up
-    to ``limit_deg`` (steepest wall + lobe); orange beyond (hatched on the map).
+    Purple below ``glint_deg`` (the bare board's glint, hatched on the map); blue, lighter
+    toward 0 and darker toward the steepest wall ``reach_deg``; yellow up to ``limit_deg``
+    (steepest wall + lobe); orange beyond (hatched on the map).
     """
     t = np.asarray(tilt, dtype=np.float64)
     f = np.clip(t / max(reach_deg, 1e-9), 0.0, 1.0)[..., None]
     rgb = (1.0 - f) * np.array(REACH_LIGHT) + f * np.array(REACH_DARK)
     rgb = np.where((t > reach_deg)[..., None], np.array(LOBE_ONLY, dtype=np.float64), rgb)
     rgb = np.where((t > limit_deg)[..., None], np.array(UNREACHABLE, dtype=np.float64), rgb)
+    rgb = np.where((t < glint_deg)[..., None], np.array(GLINT, dtype=np.float64), rgb)
     return np.round(rgb).astype(np.uint8)
 
 
@@ -456,9 +581,10 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
     """Draw one view's feasibility map with its title, tilt scale and key.
 
     The map shows the board from the front (row 0 at +y), each grid cell as a square
-    block of pixels (nearest neighbour). Unreachable cells are hatched as well as
-    orange, so they stay apart in grey too; cells where a scratch for this view lights
-    another one (or back) at :data:`CROSSTALK_DOTS` of the peak or more carry dots.
+    block of pixels (nearest neighbour). Unreachable cells are hatched as well as orange,
+    glint cells as well as purple, so they stay apart in grey too; cells where a scratch
+    for this view lights another one (or back) at :data:`CROSSTALK_DOTS` of the peak or
+    more carry dots.
     """
     v = report.views[name]
     reach = report.steepest_wall_deg
@@ -467,9 +593,10 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
     rows, cols = tilt.shape
     cell = max(1, -(-MAP_MIN_PX // cols))
     mw, mh = cols * cell, rows * cell
-    cells = tilt_colours(tilt, reach, limit)
+    glint = report.glint_deg
+    cells = tilt_colours(tilt, reach, limit, glint)
     big = figures.enlarge(cells, cell)
-    figures.hatch_cells(big, figures.enlarge(tilt > limit, cell), HATCH)
+    figures.hatch_cells(big, figures.enlarge((tilt > limit) | (tilt < glint), cell), HATCH)
     img = Image.fromarray(big)
     draw = ImageDraw.Draw(img)
     cross = np.zeros(tilt.shape)
@@ -491,11 +618,15 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
         figures.LegendItem("profile reaches it (darker: steeper)", REACH_DARK, "box"),
         figures.LegendItem("only through the roughness lobe", LOBE_ONLY, "box"),
         figures.LegendItem("unreachable", UNREACHABLE, "hatch"),
+        figures.LegendItem("bare board glints brighter than a scratch", GLINT, "hatch"),
         figures.LegendItem(f"crosstalk >= {CROSSTALK_DOTS:g} of peak", (0, 0, 0), "dots"),
     ]
     lw, lh = figures.legend_size(items, size)
     bar_label = "half-vector tilt from the board normal (deg)"
-    note = f"{bar_label}\ntool: steepest wall {reach:.1f} + lobe {report.lobe_deg:.1f} deg"
+    note = (
+        f"{bar_label}\ntool: steepest wall {reach:.1f} + lobe {report.lobe_deg:.1f} deg; "
+        f"glint below {glint:.1f}"
+    )
     # a warning of overlapping grooves under the note, the picture taller by its lines
     warn = ""
     if report.groove_coverage is not None and report.groove_coverage > 1.0:
@@ -504,7 +635,7 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
             "the board inside the margin: they will overlap"
         )
     extra = figures.text_size(f"{note}\n{warn}", size)[1] - figures.text_size(note, size)[1]
-    width = max(mw + side, lw, figures.text_size(bar_label, size)[0] + 10)
+    width = max(mw + side, lw, figures.text_size(note, size)[0] + 10)
     width = max(width, figures.text_size(warn, size)[0] + 10) if warn else width
     bar_h = 14
     tick_h = figures.text_size("0", size)[1]
@@ -533,17 +664,20 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
     y += tick_h + 10
     cd.line([(r0, y - 4), (r1, y - 4)], fill=(0, 0, 0), width=3)
     degs = (np.arange(span + 1) + 0.5) * bar_deg / (span + 1)
-    strip = np.repeat(tilt_colours(degs, reach, limit)[None], bar_h, axis=0)
+    strip = np.repeat(tilt_colours(degs, reach, limit, glint)[None], bar_h, axis=0)
     strip_img = Image.fromarray(strip)
     sd = ImageDraw.Draw(strip_img)
     lim_x = xdeg(limit) - bx0
     if lim_x < span:
         figures.hatch(sd, (lim_x + 1, 0, span, bar_h - 1), HATCH, step=6)
+    glint_x = int(np.searchsorted(degs, glint))  # the strip's first column at or past it
+    if glint_x > 0:
+        figures.hatch(sd, (0, 0, glint_x - 1, bar_h - 1), HATCH, step=6)
     canvas.paste(strip_img, (bx0, y))
     bar_box = (bx0, y, bx1, y + bar_h - 1)
     cd.rectangle((bx0 - 1, y - 1, bx1 + 1, y + bar_h), outline=figures.FRAME)
     y += bar_h + 2
-    ticks = [(0.0, "0"), (reach, f"{reach:.1f}"), (limit, f"{limit:.1f}")]
+    ticks = [(0.0, "0"), (glint, f"{glint:.1f}"), (reach, f"{reach:.1f}"), (limit, f"{limit:.1f}")]
     ticks.append((bar_deg, f"{bar_deg:.0f}"))
     last_right = -999
     for d, text in ticks:
