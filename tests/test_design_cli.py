@@ -313,7 +313,7 @@ def test_missing_target_names_the_view_key_and_the_file(tmp_path, capsys):
     assert info.value.code == 2
     assert (
         err.strip()
-        == f"error: {design}: views[0].target: {tmp_path / 'nope.png'}: image file not found"
+        == f"error: {design}: views[0].target ('a'): {tmp_path / 'nope.png'}: image file not found"
     )
     assert not (tmp_path / "job" / "design").exists()
 

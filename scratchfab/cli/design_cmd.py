@@ -142,7 +142,8 @@ def _as_typed(exc: ConfigError, design: Design, images: Sequence[str]) -> Config
     message = str(exc)
     for i, (view, typed) in enumerate(zip(design.views, images, strict=True)):
         key = f"{design.source}: views[{i}]"
-        for prefix in (f"{key}.target: {design.target_path(view)}: ", f"{key} ('{view.name}'): "):
+        target = f"{key}.target ('{view.name}'): {design.target_path(view)}: "
+        for prefix in (target, f"{key} ('{view.name}'): "):
             if message.startswith(prefix):
                 return ConfigError(f"{typed}: {message[len(prefix) :]}")
     return exc

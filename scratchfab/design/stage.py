@@ -194,7 +194,9 @@ def run_design(
                 image = board_image(path, design.board, fit, gamma, contrast)
             except ConfigError as exc:
                 # The image's own message names the file; say which key pointed at it.
-                raise ConfigError(f"{design.source}: views[{i}].target: {exc}") from None
+                raise ConfigError(
+                    f"{design.source}: views[{i}].target ('{view.name}'): {exc}"
+                ) from None
             cache[path] = quantize_like_png(image)
         boards[view.name] = cache[path]
         spread = float(np.ptp(boards[view.name]))
