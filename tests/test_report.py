@@ -237,6 +237,19 @@ def test_a_rho_just_below_min_rho_never_reads_as_reaching_it(tmp_path):
     assert any("rho_kk 0.79960 ≥ 0.79955" in text for _, text in lines)
 
 
+def test_min_rho_minus_one_marks_no_view_as_passing(tmp_path):
+    """-1 turns the gate off: a view that shows nothing gets no tick, only its figure."""
+    job = fake_job(tmp_path, rho=(0.91234, -0.072))
+    _, _, lines = _verdict(write_report(job, min_rho=-1.0).read_text())
+    right = [(status, text) for status, text in lines if "right looks like" in text]
+    assert right == [
+        (
+            "info",
+            "ℹ info right looks like its target: rho_kk -0.072 (1 = perfect; min_rho -1: no gate)",
+        )
+    ]
+
+
 def test_verdict_not_ready_on_feasibility_errors_envelope_and_missing_stages(tmp_path):
     job = fake_job(tmp_path)
     feasibility = json.loads((job / "design" / "feasibility.json").read_text())
