@@ -283,7 +283,11 @@ def _feasibility_checks(data: Any) -> list[_Check]:
     checks += [_Check("warn", f"feasibility: {html.escape(w)}") for w in warnings]
     if not errors and not warnings:
         checks.append(
-            _Check("ok", "feasibility: the tool reaches every view, no view too close to another")
+            _Check(
+                "ok",
+                "feasibility: the tool reaches every view, no view too close to another, "
+                "no glint of the bare board",
+            )
         )
     return checks
 
