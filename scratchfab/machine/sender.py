@@ -1549,13 +1549,15 @@ class Streamer:
             "machine_z": mz,
             "from_machine_z": round(now[2], 4),
         }
+        # the work Z, and the machine Z where the work offset makes it another number
+        height = f"Z {z:.3f}" + (f" (machine Z {mz:.3f})" if f"{z:.3f}" != f"{mz:.3f}" else "")
         if now[2] >= mz - 0.001:
             self._tell(
                 f"the tool is at machine Z {now[2]:.3f}, already at or above the travel "
-                f"height Z {z:.3f} (machine Z {mz:.3f}){capped}: not moved"
+                f"height {height}{capped}: not moved"
             )
             return _Lifted("; the tool was already up", {"result": "up", **record})
-        self._tell(f"raising the tool to Z {z:.3f} (machine Z {mz:.3f}){capped}")
+        self._tell(f"raising the tool to {height}{capped}")
         rate = self.info.settings.get(112) or DEFAULT_RAPID_MM_MIN[2]
         timeout = self.options.command_timeout + 3.0 * 60.0 * (mz - now[2]) / rate
         failure = self._send_lift([f"G21G53G0Z{gcode_number(mz, 3)}", END_WAIT], timeout)
@@ -1568,10 +1570,8 @@ class Streamer:
                 f"after the lift the controller reports machine Z {where}, not {mz:.3f}",
                 "failed",
             )
-        self._tell(f"tool raised to Z {z:.3f} (machine Z {mz:.3f})")
-        return _Lifted(
-            f"; tool raised to Z {z:.3f} (machine Z {mz:.3f})", {"result": "raised", **record}
-        )
+        self._tell(f"tool raised to {height}")
+        return _Lifted(f"; tool raised to {height}", {"result": "raised", **record})
 
     def _send_lift(self, lines: Sequence[str], timeout: float) -> str:
         """Send the lift's lines one at a time, then wait for Idle; "" or why it failed.
