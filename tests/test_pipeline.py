@@ -1058,6 +1058,27 @@ def test_a_stopped_stream_s_advice_says_how_a_pipeline_resumes(tmp_path):
         run_pipeline(load_pipeline(path), tmp_path / "job", say=lambda s: None)
     text = str(info.value)
     assert "the controller reset itself" in text and "--resume" in text
-    assert text.endswith(
-        "(here `scratchfab run` has no --resume: run it again and it resumes the stream)"
-    )
+    assert text.endswith("(here `scratchfab run` has no --resume: run it again and it resumes)")
+
+
+@pytest.mark.parametrize(
+    ("sender", "in_run"),
+    [
+        (
+            "stopped by Ctrl-C after line 12; machine held, then soft-reset (spindle off); "
+            "continue later with --resume",
+            "stopped by Ctrl-C after line 12; machine held, then soft-reset (spindle off); "
+            "run the same command again later: it resumes",
+        ),
+        (
+            "connection lost: reconnect, re-home, then --resume",
+            "connection lost: reconnect, re-home, then --resume (here `scratchfab run` has no "
+            "--resume: run it again and it resumes)",
+        ),
+        ("error:20 at line 3", "error:20 at line 3"),
+    ],
+)
+def test_the_senders_resume_advice_reads_as_run_resumes(sender, in_run):
+    from scratchfab.pipeline.runner import as_run_advice
+
+    assert as_run_advice(sender) == in_run

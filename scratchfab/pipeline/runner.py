@@ -41,6 +41,16 @@ def is_emulator(port: str) -> bool:
     return grblsim_query(port) is not None
 
 
+def as_run_advice(text: str) -> str:
+    """The sender's advice as it applies in ``run``, which resumes a stream by running again."""
+    later = "continue later with --resume"
+    if later in text:
+        return text.replace(later, "run the same command again later: it resumes")
+    if "--resume" in text:
+        return text + " (here `scratchfab run` has no --resume: run it again and it resumes)"
+    return text
+
+
 @dataclass
 class RunResult:
     """What a pipeline run did.
@@ -286,12 +296,8 @@ class _Stages:
                 else lambda _: True,
             )
         except ScratchfabError as exc:  # the sender's advice names `stream`'s option
-            if exc.args and "--resume" in str(exc.args[0]):
-                exc.args = (
-                    f"{exc.args[0]} (here `scratchfab run` has no --resume: run it again and "
-                    "it resumes the stream)",
-                    *exc.args[1:],
-                )
+            if exc.args:
+                exc.args = (as_run_advice(str(exc.args[0])), *exc.args[1:])
             raise
         return self._relative(self.layout.journal)
 
