@@ -345,9 +345,10 @@ class MachineProfile:
         if not self.name.isprintable():
             raise ValueError(f"name: {self.name!r} holds control characters (one printable line)")
         if not self.envelope.contains_xy(np.asarray(self.start_mm))[0]:
+            (x0, x1), (y0, y1) = self.envelope.x_mm, self.envelope.y_mm
             raise ValueError(
-                f"start_mm {list(self.start_mm)} is outside the envelope "
-                f"x {list(self.envelope.x_mm)}, y {list(self.envelope.y_mm)}"
+                f"start_mm ({self.start_mm[0]:g}, {self.start_mm[1]:g}) is outside the "
+                f"envelope (X {x0:g} to {x1:g}, Y {y0:g} to {y1:g})"
             )
         rounding = 0.5 * 10.0**-self.gcode.decimals
         if rounding > self.tool.tolerance_mm * (1 + 1e-9):
@@ -389,7 +390,7 @@ class MachineProfile:
             value = getattr(self.z, key)
             if not lo <= value <= hi:
                 raise ValueError(
-                    f"z.{key} ({value}) is outside the envelope's z_mm {list(self.envelope.z_mm)}"
+                    f"z.{key} ({value:g}) is outside the envelope's Z {lo:g} to {hi:g} (z_mm)"
                 )
             written[key] = float(gcode_number(value, dec))
             if not lo <= written[key] <= hi:
