@@ -205,3 +205,21 @@ def pasted_words(command: str, cwd: Path) -> list[str]:
     done = subprocess.run(["sh", "-c", script], cwd=cwd, capture_output=True, check=True)
     assert done.stderr == b"", done.stderr
     return ["scratchfab", *done.stdout.decode().split("\0")[:-1]]
+
+
+def assert_views_see_the_whole_board_and_are_feasible(design: Design) -> None:
+    """Every camera of ``design`` sees the whole board, and the feasibility check finds no
+    error and every view reachable on the whole board (the quick form's promise)."""
+    from scratchfab.design.feasibility import check_feasibility
+    from scratchfab.model.camera import Camera
+
+    hw, hh = design.board.half_extent
+    corners = np.array([[x, y, 0.0] for x in (-hw, hw) for y in (-hh, hh)])
+    for view in design.views:
+        st, front = Camera.from_view(view).project(corners)
+        assert np.all(front)
+        assert np.all((st[:, 0] > 0) & (st[:, 0] < view.width))
+        assert np.all((st[:, 1] > 0) & (st[:, 1] < view.height))
+    report = check_feasibility(design)
+    assert report.errors == []
+    assert all(v.reachable_fraction == 1.0 for v in report.views.values())

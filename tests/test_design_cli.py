@@ -6,15 +6,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import assert_views_see_the_whole_board_and_are_feasible
 from PIL import Image
 
 from scratchfab.bundled import bundled_dir
 from scratchfab.cli import main
-from scratchfab.design.feasibility import board_points, check_feasibility, half_vectors, tilt_deg
+from scratchfab.design.feasibility import board_points, half_vectors, tilt_deg
 from scratchfab.design.quick import TILT_SHARE, quick_design
 from scratchfab.design.stage import run_design
 from scratchfab.design.targets import view_targets
-from scratchfab.model.camera import Camera
 from scratchfab.model.design import load_design
 from scratchfab.model.job import JobLayout, design_digest
 from scratchfab.model.scratches import load_scratches
@@ -98,16 +98,7 @@ def test_quick_form_places_views_that_see_the_whole_board_and_are_feasible(n):
     design = quick_design(images, (100.0, 60.0))
     names = [v.name for v in design.views]
     assert len(set(names)) == n
-    hw, hh = design.board.half_extent
-    corners = np.array([[x, y, 0.0] for x in (-hw, hw) for y in (-hh, hh)])
-    for view in design.views:
-        st, front = Camera.from_view(view).project(corners)
-        assert np.all(front)
-        assert np.all((st[:, 0] > 0) & (st[:, 0] < view.width))
-        assert np.all((st[:, 1] > 0) & (st[:, 1] < view.height))
-    report = check_feasibility(design)
-    assert report.errors == []
-    assert all(v.reachable_fraction == 1.0 for v in report.views.values())
+    assert_views_see_the_whole_board_and_are_feasible(design)
 
 
 def test_quick_form_keeps_one_view_as_far_from_the_bare_board_gloss_as_two_views():

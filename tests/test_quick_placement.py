@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import assert_views_see_the_whole_board_and_are_feasible
 
 from scratchfab.design.feasibility import board_points, check_feasibility, half_vectors, tilt_deg
 from scratchfab.design.quick import quick_design
-from scratchfab.model.camera import Camera
 
 DEMO = Path(__file__).resolve().parents[1] / "scratchfab" / "data" / "demo"
 
@@ -47,15 +47,7 @@ def test_more_views_see_the_whole_board_and_stay_apart(n):
     """Every camera sees the whole board, and seven images pass the feasibility check
     (on the arc the middle ones were within a lobe of each other)."""
     design = quick_design([DEMO / "sun.png"] * n, (100.0, 60.0))
-    hw, hh = design.board.half_extent
-    corners = np.array([[x, y, 0.0] for x in (-hw, hw) for y in (-hh, hh)])
-    for view in design.views:
-        st, front = Camera.from_view(view).project(corners)
-        assert np.all(front)
-        assert np.all((st[:, 0] > 0) & (st[:, 0] < view.width))
-        assert np.all((st[:, 1] > 0) & (st[:, 1] < view.height))
+    assert_views_see_the_whole_board_and_are_feasible(design)
     report = check_feasibility(design)
-    assert report.errors == []
-    assert all(v.reachable_fraction == 1.0 for v in report.views.values())
     lobe = math.degrees(math.atan(design.board.roughness))
     assert min(p.separation_median_deg for p in report.pairs) > lobe
