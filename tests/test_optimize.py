@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import drjit as dr
@@ -904,3 +905,29 @@ def test_resume_goes_on_to_the_runs_own_total_and_a_finished_run_has_nothing_to_
             assert "7 iterations (done)" in capsys.readouterr().out
             state, _, rows = load_checkpoint(folder / "checkpoint.npz")
             assert int(state["iteration"]) == 7 and len(rows) == 7
+
+
+def test_resume_of_a_run_killed_while_writing_its_outputs_writes_them_over_another_runs(
+    job: Path,
+) -> None:
+    """A finished run's summary does not stand for another run of the same total that
+    was killed after its last checkpoint and before its own summary: resuming that one
+    writes its outputs (a stale summary of the same iteration count is not 'nothing to do')."""
+    csv_file = job / "optimize" / "scratches.csv"
+    run_optimize(job, OptimizeOptions(iterations=3, seed=0, jitter_deg=2.0))
+    tool = make_design().scratch
+    old = load_scratches(csv_file, tool)
+
+    def killed(p) -> None:  # type: ignore[no-untyped-def]
+        if p.message == "writing outputs":  # after the last checkpoint
+            raise KeyboardInterrupt
+
+    other = OptimizeOptions(iterations=3, seed=1, jitter_deg=2.0)
+    with pytest.raises(KeyboardInterrupt):
+        run_optimize(job, other, progress=killed)
+    assert load_scratches(csv_file, tool).p0.tolist() == old.p0.tolist()  # seed 0's still
+    result = run_optimize(job, replace(other, resume=True))
+    assert result.stopped == "done"
+    made = load_scratches(csv_file, tool)
+    assert not np.allclose(made.p0, old.p0)  # seed 1's layout, not seed 0's
+    np.testing.assert_allclose(made.p0, result.scratches.p0, atol=1e-5)

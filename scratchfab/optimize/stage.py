@@ -138,18 +138,22 @@ def _finished(
     design: Design,
     design_files: dict[str, str],
     done: int,
+    elapsed_s: Any,
     options: OptimizeOptions,
 ) -> OptimizeResult | None:
     """The outputs of a run that did ``done`` steps, when they are this resume's result.
 
-    They are when the summary written with them counts ``done`` steps, was made from this
-    design, and pruned as ``options`` ask; else None (the resume writes them again).
+    They are when the summary written with them was written from this checkpoint (its
+    ``done`` steps and ``elapsed_s``, the time saved with the last checkpoint, which
+    another run of as many steps killed before its summary does not share), was made from
+    this design, and pruned as ``options`` ask; else None (the resume writes them again).
     """
     try:
         summary = json.loads(paths.optimize_summary.read_text(encoding="utf-8"))
         pruned = summary["options"]["prune_tolerance"]
         if (
             summary["iterations"] != done
+            or summary["elapsed_s"] != elapsed_s
             or summary["design_sha256"] != design_files
             or pruned != options.prune_tolerance
             or (pruned is not None and "prune" not in summary)
@@ -492,7 +496,7 @@ def _run(
             raise ResumeRefused(ckpt, differ, _made_with(made, differ, options))
         done = int(state["iteration"])
         if done >= options.iterations and (
-            kept := _finished(paths, design, design_files, done, options)
+            kept := _finished(paths, design, design_files, done, meta.get("elapsed_s"), options)
         ):
             return kept
     settings = Settings(
