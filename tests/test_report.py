@@ -250,6 +250,16 @@ def test_min_rho_minus_one_marks_no_view_as_passing(tmp_path):
     ]
 
 
+def test_an_ungated_rho_is_rounded_down_as_verify_shows_it(tmp_path):
+    """With the gate off (or none set) the report's rho still reads as verify's line reads
+    it (rounded down: 0.7996 is 0.799 there), not rounded to 0.800."""
+    job = fake_job(tmp_path, rho=(0.91234, 0.7996))
+    for min_rho, why in ((-1.0, "min_rho -1: no gate"), (None, "no min_rho set")):
+        _, _, lines = _verdict(write_report(job, min_rho=min_rho).read_text())
+        right = [text for _, text in lines if "right looks like" in text]
+        assert right == [f"ℹ info right looks like its target: rho_kk 0.799 (1 = perfect; {why})"]
+
+
 def test_verdict_not_ready_on_feasibility_errors_envelope_and_missing_stages(tmp_path):
     job = fake_job(tmp_path)
     feasibility = json.loads((job / "design" / "feasibility.json").read_text())

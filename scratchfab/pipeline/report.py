@@ -312,7 +312,7 @@ def _rho_checks(
             checks.append(_Check("fail", f"{label} missing", f"{name}: no rho"))
         elif min_rho is None or min_rho <= -1.0:  # -1: the gate is off, nothing passes it
             why = "no min_rho set" if min_rho is None else "min_rho -1: no gate"
-            checks.append(_Check("info", f"{label} {rho:.3f} (1 = perfect; {why})"))
+            checks.append(_Check("info", f"{label} {rho_text(rho)} (1 = perfect; {why})"))
         elif rho >= min_rho:
             checks.append(
                 _Check(
