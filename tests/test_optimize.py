@@ -931,3 +931,26 @@ def test_resume_of_a_run_killed_while_writing_its_outputs_writes_them_over_anoth
     made = load_scratches(csv_file, tool)
     assert not np.allclose(made.p0, old.p0)  # seed 1's layout, not seed 0's
     np.testing.assert_allclose(made.p0, result.scratches.p0, atol=1e-5)
+
+
+def test_resume_alone_of_a_pruned_run_keeps_its_prune(job: Path, capsys) -> None:
+    """`--resume` alone goes on with the run's own --prune as with its own total: on a
+    finished pruned run there is nothing to do (it rewrote the layout unpruned), and an
+    extension prunes again; a run of --iterations 0 has its own total too."""
+    folder = job / "optimize"
+    main(["optimize", str(job), "--iterations", "2", "--prune", "0.5"])
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["prune"]["removed"] > 0
+    pruned = (folder / "scratches.csv").read_bytes()
+    capsys.readouterr()
+    main(["optimize", str(job), "--resume"])
+    assert capsys.readouterr().out.startswith("nothing to do: the run had done its 2 iterations")
+    assert (folder / "scratches.csv").read_bytes() == pruned
+    main(["optimize", str(job), "--resume", "--iterations", "3"])
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["iterations"] == 3 and summary["options"]["prune_tolerance"] == 0.5
+    assert "prune" in summary
+    main(["optimize", str(job), "--iterations", "0"])
+    capsys.readouterr()
+    main(["optimize", str(job), "--resume"])
+    assert capsys.readouterr().out.startswith("nothing to do: the run had done its 0 iterations")

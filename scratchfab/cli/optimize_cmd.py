@@ -19,7 +19,7 @@ from scratchfab.optimize.stage import (
     OptimizeOptions,
     Progress,
     ResumeRefused,
-    checkpoint_total,
+    checkpoint_request,
     run_optimize,
 )
 
@@ -106,7 +106,7 @@ def _bar() -> Callable[[Progress], None]:
     flag_value=0.01,
     metavar="[FRACTION]",
     help="After optimizing, drop scratches while the loss rises by at most this fraction "
-    "(--prune alone: 0.01; put it after JOB).",
+    "(--prune alone: 0.01; put it after JOB; --resume without it: the run's own).",
 )
 @click.option(
     "--checkpoint-every",
@@ -149,10 +149,13 @@ def optimize(
             "multiple)",
             param_hint=f"--{scaled[0].replace('_', '-')}",
         )
-    if resume and ctx.get_parameter_source("iterations") is click.core.ParameterSource.DEFAULT:
-        iterations = checkpoint_total(job) or iterations  # go on to the run's own total
+    asked: dict[str, Any] = {"iterations": iterations, "prune_tolerance": prune_tolerance}
+    if resume:  # what the command does not give, the run's own (its total, its prune)
+        for name, value in checkpoint_request(job).items():
+            if ctx.get_parameter_source(name) is click.core.ParameterSource.DEFAULT:
+                asked[name] = value
     options = OptimizeOptions(
-        iterations=iterations,
+        iterations=asked["iterations"],
         time_budget_s=time_budget,
         seed=seed,
         backend=backend,  # type: ignore[arg-type]
@@ -162,7 +165,7 @@ def optimize(
         lr_start_scale=lr_start_scale,
         lr_end_scale=lr_end_scale,
         resume=resume,
-        prune_tolerance=prune_tolerance,
+        prune_tolerance=asked["prune_tolerance"],
         checkpoint_every=checkpoint_every,
     )
     try:
@@ -198,7 +201,7 @@ def optimize(
     if result.stopped == "interrupted":  # exit 130: `optimize && toolpath` stops here
         again: list[str | Path] = ["scratchfab", "optimize", job, *_given_flags(ctx), "--resume"]
         raise Interrupted(
-            f"interrupted after {result.iterations} of {iterations} iterations; "
+            f"interrupted after {result.iterations} of {options.iterations} iterations; "
             f"`{command_line(again)}` continues it"
         )
 

@@ -115,22 +115,29 @@ class OptimizeResult:
 NOTHING_TO_DO = "nothing to do"
 
 
-def checkpoint_total(job: str | Path) -> int | None:
-    """The steps the run in ``JOB/optimize/checkpoint.npz`` was asked for in all.
+def checkpoint_request(job: str | Path) -> dict[str, Any]:
+    """What the run in ``JOB/optimize/checkpoint.npz`` was asked for, that a resume keeps.
 
-    A resume without ``--iterations`` goes on to this total. None without a readable
-    checkpoint (the resume then says what is wrong) or for one that keeps no total (made
-    before totals were kept, with constant steps).
+    A resume that does not give them goes on with the run's own ``iterations`` (its total)
+    and ``prune_tolerance``. Each is left out where the checkpoint does not keep it (made
+    before it was kept; a total then from a scheduled run's fingerprint) and all without a
+    readable checkpoint (the resume then says what is wrong).
     """
     try:
         _, meta, _ = load_checkpoint(JobLayout(Path(job)).optimize_checkpoint)
     except ConfigError:
-        return None
+        return {}
     schedule = meta.get("fingerprint", {}).get("lr_schedule")
     total = meta.get(
         "iterations", schedule.get("iterations") if isinstance(schedule, dict) else None
     )
-    return total if type(total) is int and total >= 0 else None
+    asked: dict[str, Any] = {}
+    if type(total) is int and total >= 0:
+        asked["iterations"] = total
+    prune = meta.get("prune_tolerance", math.nan)
+    if prune is None or (type(prune) in (int, float) and math.isfinite(prune) and prune >= 0):
+        asked["prune_tolerance"] = prune
+    return asked
 
 
 def _finished(
@@ -525,7 +532,9 @@ def _run(
             "rng": rng.bit_generator.state,
             "elapsed_s": elapsed,
             "columns": columns,
-            "iterations": options.iterations,  # the total a resume goes on to
+            # what a resume that does not give them goes on with
+            "iterations": options.iterations,
+            "prune_tolerance": options.prune_tolerance,
         }
         save_checkpoint(
             ckpt, opt.state(), meta, np.asarray(rows, dtype=np.float64).reshape(-1, len(columns))
