@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import re
 from collections import Counter
@@ -606,10 +607,15 @@ def test_failed_stage_keeps_earlier_outputs_and_next_run_resumes_there(tmp_path)
         run_pipeline(load_pipeline(path), job, say=lambda s: None)
     # Named as the pipeline file names it, not as verify-render's --min-rho option.
     assert "--min-rho" not in str(info.value)
-    assert re.search(
-        r"looks like its target only to rho -?\d\.\d{3}, below \[verify\] min_rho = 0.9999",
+    shown = re.search(
+        r"view (\w+) looks like its target only to rho (-?\d\.\d+), below \[verify\] "
+        r"min_rho = 0.9999",
         str(info.value),
     )
+    assert shown
+    # as many decimals as min_rho has, rounded down (verify's gate rule)
+    rho = json.loads((job / "verify" / "metrics.json").read_text())["views"][shown[1]]["rho"]
+    assert shown[2] == f"{math.floor(rho * 10**4) / 10**4:.4f}"
     assert str(path) in str(info.value)
     manifest = Manifest.load(job)
     assert manifest.stages["optimize"]["status"] == "done"
