@@ -150,6 +150,25 @@ def test_scratch_csv_errors(tmp_path, small_design, text, message):
     assert message in str(info.value)
 
 
+def test_design_toml_writes_each_point_on_one_line_and_reads_back_the_same(tmp_path, monkeypatch):
+    """A point reads as a person writes it, ``[x, y, z]``, and every value reads back as
+    tomli_w's own (one item per line) text of the same design reads."""
+    import tomllib
+
+    import scratchfab.model.design as design_module
+
+    data = _with("light", {"position_mm": [-0.0, 1e-7, 123456.789012345], "intensity": 1.0})
+    design = design_from_mapping(data, "scene.toml", tmp_path)
+    text = design.to_toml()
+    points = [line for line in text.splitlines() if line.startswith(("position_mm", "up ="))]
+    assert len(points) >= 3 and all(p.endswith("]") and p.count(",") == 2 for p in points)
+    monkeypatch.setattr(design_module, "_numbers_on_one_line", lambda t: t)
+    spread = design.to_toml()
+    assert "position_mm = [\n" in spread  # what tomli_w writes
+    assert tomllib.loads(text) == tomllib.loads(spread)
+    assert tomllib.loads(text)["light"]["position_mm"] == [-0.0, 1e-7, 123456.789012345]
+
+
 def test_scratch_csv_roundtrip(tmp_path, small_design, rng):
     p0 = rng.uniform(-10, 10, (20, 2))
     s = ScratchSet.from_arrays(p0, p0 + 1.5, rng.uniform(0.05, 0.2, 20), 0.01)

@@ -290,11 +290,25 @@ class Design:
             "scratch": to_table(self.scratch),
             "views": views,
         }
-        return tomli_w.dumps(data)
+        return _numbers_on_one_line(tomli_w.dumps(data))
 
     def save(self, path: str | Path) -> None:
         """Write the resolved design atomically."""
         write_text(path, self.to_toml())
+
+
+#: An array of numbers as tomli_w writes it: one item per line.
+_NUMBER_ARRAY = re.compile(r"\[\n((?:[ \t]+[-+0-9.eEinfa]+,\n)+)\]")
+
+
+def _numbers_on_one_line(text: str) -> str:
+    """``[x, y, z]`` on one line, as a person writes a point (tomli_w spreads it over five)."""
+
+    def join(match: re.Match[str]) -> str:
+        items = [item.strip().rstrip(",") for item in match.group(1).splitlines()]
+        return "[" + ", ".join(items) + "]"
+
+    return _NUMBER_ARRAY.sub(join, text)
 
 
 def position_from_polar(
