@@ -37,16 +37,19 @@ def test_a_closed_stdin_at_the_question_says_no_answer_came(tmp_path):
     assert not _gcode_received(read_record(rec))
 
 
-def test_a_job_folder_streams_its_exported_gcode_and_says_so(tmp_path):
-    """`stream JOB` is `stream JOB/export/board.gcode`, its journal in JOB/stream/."""
+@pytest.mark.parametrize("given", ["job", "job/export"])
+def test_a_job_folder_streams_its_exported_gcode_and_says_so(tmp_path, given):
+    """`stream JOB` (or `stream JOB/export`) is `stream JOB/export/board.gcode`, its journal
+    in JOB/stream/."""
     job = tmp_path / "job"
     (job / "export").mkdir(parents=True)
     write_job(job / "export" / "board.gcode", 2)
     rec = tmp_path / "rec.jsonl"
     port = f"grblsim://?baud=0&time_scale=0.001&record={rec}"
-    code, out, err = _stream([str(job), "--port", port, "--yes"], "")
+    code, out, err = _stream([str(tmp_path / given), "--port", port, "--yes"], "")
     assert code == 0, err
-    assert f"{job} is a job folder: streaming {job / 'export' / 'board.gcode'}" in err
+    what = "a job's export folder" if given.endswith("export") else "a job folder"
+    assert f"{tmp_path / given} is {what}: streaming {job / 'export' / 'board.gcode'}" in err
     assert "done:" in out and (job / "stream" / "journal.jsonl").is_file()
     assert _gcode_received(read_record(rec))
 

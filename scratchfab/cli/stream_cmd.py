@@ -62,12 +62,16 @@ def _job_gcode(path: Path) -> Path:
     if not path.is_dir():
         return path
     board = JobLayout(path).export_file("gcode")
+    inside = JobLayout(path.parent).export_file("gcode")  # given JOB/export itself
+    if not board.is_file() and path.name == inside.parent.name and inside.is_file():
+        board = inside
     if not board.is_file():
         raise ScratchfabError(
             f"{path} is a folder: as a job folder its G-code would be {board}, which does not "
             f"exist; run `scratchfab export {path} --format gcode` first, or give a G-code file"
         )
-    click.echo(f"{path} is a job folder: streaming {board}", err=True)
+    what = "a job's export folder" if board == inside else "a job folder"
+    click.echo(f"{path} is {what}: streaming {board}", err=True)
     return board
 
 
