@@ -18,6 +18,7 @@ from scratchfab.optimize.plots import (
     VIEW_RGB,
     linear_ticks,
     log_ticks,
+    rho_axis_floor,
     save_loss_plot,
     save_side_by_side,
 )
@@ -156,6 +157,36 @@ def test_quality_panel_draws_each_views_rho_on_a_0_to_1_axis_with_a_key(tmp_path
         x1 = int(row[ends[longest]])
         text = np.all(img[wide.min() - 4 : wide.max() + 5, x1 + 1 : x1 + 80] < 90, axis=2)
         assert text.sum() > 20, color
+
+
+@pytest.mark.parametrize(
+    ("lows", "floor"),
+    [((0.0, 0.3), 0.0), ((0.93, -0.2), 0.0), ((0.55, 0.9), 0.5), ((0.85, 0.99), 0.8),
+     ((0.93, 0.95), 0.9), ((0.999, 1.0), 0.9), ((float("nan"), 0.95), 0.9), ((), 0.0),
+     ((0.9, 0.95), 0.8), ((0.5,), 0.0)],  # a curve never on the frame's bottom edge
+)  # fmt: skip
+def test_the_rho_axis_starts_at_the_highest_floor_under_every_view(lows, floor):
+    views = {f"v{k}": [low, np.nan, 1.0] for k, low in enumerate(lows)}
+    assert rho_axis_floor(views) == floor
+
+
+def test_a_run_near_1_is_drawn_on_an_axis_from_0_9_not_flat_at_the_top(tmp_path):
+    """Rho between 0.93 and 0.99 used the panel's top tenth; from 0.9, gridlines every 0.02
+    and a value of 0.95 halfway between those of 0.94 and 0.96."""
+    it = np.arange(0, 61, dtype=np.float64)
+    save_loss_plot(tmp_path / "loss.png", it, 1.0 / (1 + it), {"sun": np.full(it.shape, 0.95)})
+    img = pixels(tmp_path / "loss.png")
+    panel = img.shape[0] // 2
+    rows = [r for r in grid_rows(img) if r > panel]
+    assert len(rows) == 4  # 0.92, 0.94, 0.96, 0.98 (0.9 and 1 are the frame)
+    r098, r096, r094, r092 = rows
+    step = r094 - r096
+    assert r092 - r094 == pytest.approx(step, abs=1.5) and r096 - r098 == pytest.approx(
+        step, abs=1.5
+    )
+    cols = grid_cols(img, int(r098), int(r092))
+    curve = np.flatnonzero(is_color(img, VIEW_RGB[0])[:, round(cols[0])])
+    assert curve.size and abs(curve.mean() - (r094 + r096) / 2) <= 2.0
 
 
 def test_side_by_side_shows_off_board_in_the_documented_grey_and_explains_it(tmp_path):

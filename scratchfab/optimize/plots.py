@@ -90,6 +90,20 @@ def linear_ticks(lo: float, hi: float, target: int = 6) -> list[float]:
     return [k * step for k in range(start, math.floor(hi / step + 1e-9) + 1)]
 
 
+#: Where the rho panel's axis may start: the highest of these below every view's lowest
+#: rho (never on the frame's edge), so a run that stays near 1 is not drawn as a flat
+#: line at the top.
+RHO_AXIS_FLOORS = (0.0, 0.5, 0.8, 0.9)
+
+
+def rho_axis_floor(views: Mapping[str, Sequence[float]]) -> float:
+    """The bottom of the rho panel's axis (its top is 1) for these views' rho curves."""
+    finite = [np.asarray(v, dtype=np.float64) for v in views.values()]
+    lows = [float(r[np.isfinite(r)].min()) for r in finite if np.isfinite(r).any()]
+    low = min(lows, default=0.0)
+    return max((f for f in RHO_AXIS_FLOORS if f < low), default=0.0)
+
+
 def _label(value: float) -> str:
     return f"{value:.3g}"
 
@@ -261,8 +275,9 @@ def save_loss_plot(
     if views:
         top = box[3] + _XLABEL_H
         box2 = (_LEFT, top + _TITLE_H, _WIDTH - _RIGHT, top + _TITLE_H + _PANEL_H)
-        axes = _Axes(box2, x_range, (0.0, 1.0), log=False)
-        axes.frame(img, x_ticks, linear_ticks(0.0, 1.0, 5))
+        floor = rho_axis_floor(views)
+        axes = _Axes(box2, x_range, (floor, 1.0), log=False)
+        axes.frame(img, x_ticks, linear_ticks(floor, 1.0, 5))
         items = []
         for k, (name, values) in enumerate(views.items()):
             color = VIEW_RGB[k % len(VIEW_RGB)]
@@ -271,7 +286,7 @@ def save_loss_plot(
             if keep.any():
                 period = DASH_PX * len(views)
                 dash = (k * DASH_PX, period, period) if k else None
-                axes.curve(img, it[keep], np.clip(r[keep], 0.0, 1.0), color, dash)
+                axes.curve(img, it[keep], np.clip(r[keep], floor, 1.0), color, dash)
                 final = f"{r[keep][-1]:.3f}"
             else:
                 final = "n/a"
@@ -281,7 +296,8 @@ def save_loss_plot(
             draw,
             top,
             "How well each view shows its picture",
-            "correlation rho of the render with the view's target: 1 = perfect, 0 = unrelated",
+            "correlation rho of the render with the view's target: 1 = perfect, 0 = unrelated"
+            + (f" (axis from {floor:g})" if floor > 0 else ""),
         )
         _iteration_label(draw, box2)
     save_png(path, img)
