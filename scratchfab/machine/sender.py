@@ -94,6 +94,7 @@ from scratchfab.machine.sender_program import (
     block_words,
     dwell_seconds,
     followed_move,
+    known_xyz,
     stands_at_end,
     strip_block,
     travel_height,
@@ -1773,10 +1774,7 @@ class Streamer:
         blocks = self._program.blocks
 
         def known(j: int) -> float | None:
-            if j < 0:
-                return None
-            modal = blocks[j].modal
-            return None if "XYZ"[k] in modal.assumed else work_xyz(modal)[k]
+            return known_xyz(blocks[j].modal)[k] if j >= 0 else None
 
         end, start = known(i), known(i - 1)
         if end is None:

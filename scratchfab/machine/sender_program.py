@@ -1158,7 +1158,7 @@ def stands_at_end(block: Block, p: Sequence[float], tol: float) -> bool:
 
     False where no axis is known.
     """
-    ends = work_xyz(_placed(block.modal))
+    ends = known_xyz(block.modal)
     known = [(v, float(p[k])) for k, v in enumerate(ends) if v is not None]
     return bool(known) and math.dist([v for v, _ in known], [w for _, w in known]) <= tol
 
