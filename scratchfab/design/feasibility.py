@@ -57,7 +57,11 @@ def lobe_deg(roughness: float) -> float:
 
 def ggx_ratio(angle_deg: np.ndarray, roughness: float) -> np.ndarray:
     """D(cos angle) / D(1) for GGX (SPEC section 4): the relative response off the lobe's peak."""
-    c = np.cos(np.radians(angle_deg))
+    return ggx_ratio_cos(np.cos(np.radians(angle_deg)), roughness)
+
+
+def ggx_ratio_cos(c: np.ndarray, roughness: float) -> np.ndarray:
+    """:func:`ggx_ratio` of the angle whose cosine is ``c`` (> 0)."""
     a2 = roughness * roughness
     return a2 * a2 / (1.0 + (a2 - 1.0) * c * c) ** 2
 
@@ -79,8 +83,7 @@ def scratch_response(
     nx, nz = profile_normal(np.linspace(-w, w, nodes), wbar)
     t = np.radians(np.asarray(tilt, dtype=np.float64))[..., None]
     c = np.sin(t) * nx + np.cos(t) * nz
-    a2 = roughness * roughness
-    ratio = a2 * a2 / (1.0 + (a2 - 1.0) * c * c) ** 2  # D(c) / D(1), c > 0 on the profile
+    ratio = ggx_ratio_cos(c, roughness)  # c > 0 on the profile
     inner = ratio[..., 1:-1].sum(axis=-1) + 0.5 * (ratio[..., 0] + ratio[..., -1])
     return np.asarray(inner / (nodes - 1))
 
