@@ -35,7 +35,7 @@ import numpy as np
 from scratchfab.backend import array_module
 from scratchfab.design.targets import job_cross_targets
 from scratchfab.errors import ConfigError
-from scratchfab.fileio import load_numpy, write_json, write_text
+from scratchfab.fileio import decode_json, load_numpy, write_json, write_text
 from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design
 from scratchfab.model.job import JobLayout, design_digest, load_job_design
@@ -156,7 +156,7 @@ def _finished(
     this design, and pruned as ``options`` ask; else None (the resume writes them again).
     """
     try:
-        summary = json.loads(paths.optimize_summary.read_text(encoding="utf-8"))
+        summary = decode_json(paths.optimize_summary.read_text(encoding="utf-8"))
         pruned = summary["options"]["prune_tolerance"]
         if (
             summary["iterations"] != done
