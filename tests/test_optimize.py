@@ -933,6 +933,19 @@ def test_resume_of_a_run_killed_while_writing_its_outputs_writes_them_over_anoth
     np.testing.assert_allclose(made.p0, result.scratches.p0, atol=1e-5)
 
 
+def test_resume_of_a_finished_run_with_a_damaged_summary_writes_the_outputs_again(
+    job: Path,
+) -> None:
+    """A summary too deeply nested for Python's parser (RecursionError, not a ValueError)
+    is damage like any other: the resume writes the outputs again instead of failing."""
+    run_optimize(job, OptimizeOptions(iterations=2, seed=0, jitter_deg=2.0))
+    summary = job / "optimize" / "summary.json"
+    summary.write_text("[" * 100_000 + "]" * 100_000)
+    result = run_optimize(job, OptimizeOptions(iterations=2, seed=0, jitter_deg=2.0, resume=True))
+    assert result.stopped == "done"
+    assert json.loads(summary.read_text())["iterations"] == 2
+
+
 def test_resume_alone_of_a_pruned_run_keeps_its_prune(job: Path, capsys) -> None:
     """`--resume` alone goes on with the run's own --prune as with its own total: on a
     finished pruned run there is nothing to do (it rewrote the layout unpruned), and an
