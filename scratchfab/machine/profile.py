@@ -138,6 +138,10 @@ class Envelope:
         z = None if self.z_mm == Z_UNLIMITED_MM else self.z_mm[1] - self.z_mm[0]
         return (self.x_mm[1] - self.x_mm[0], self.y_mm[1] - self.y_mm[0], z)
 
+    def xy_text(self) -> str:
+        """The XY envelope as prose for messages: ``"X -300 to 0, Y -180 to 0"``."""
+        return f"X {self.x_mm[0]:g} to {self.x_mm[1]:g}, Y {self.y_mm[0]:g} to {self.y_mm[1]:g}"
+
     def contains_xy(self, points: np.ndarray, slack: float = 0.0) -> np.ndarray:
         """(N,) mask of (N, 2) points inside the XY envelope (closed, widened by ``slack``)."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
@@ -345,10 +349,9 @@ class MachineProfile:
         if not self.name.isprintable():
             raise ValueError(f"name: {self.name!r} holds control characters (one printable line)")
         if not self.envelope.contains_xy(np.asarray(self.start_mm))[0]:
-            (x0, x1), (y0, y1) = self.envelope.x_mm, self.envelope.y_mm
             raise ValueError(
                 f"start_mm ({self.start_mm[0]:g}, {self.start_mm[1]:g}) is outside the "
-                f"envelope (X {x0:g} to {x1:g}, Y {y0:g} to {y1:g})"
+                f"envelope ({self.envelope.xy_text()})"
             )
         rounding = 0.5 * 10.0**-self.gcode.decimals
         if rounding > self.tool.tolerance_mm * (1 + 1e-9):

@@ -50,11 +50,7 @@ def xy_text(points: np.ndarray) -> str:
 
 def envelope_text(profile: MachineProfile) -> str:
     """``"the envelope of machine 'NAME' (X -300 to 0, Y -180 to 0)"``."""
-    env = profile.envelope
-    return (
-        f"the envelope of machine '{profile.name}' (X {env.x_mm[0]:g} to {env.x_mm[1]:g}, "
-        f"Y {env.y_mm[0]:g} to {env.y_mm[1]:g})"
-    )
+    return f"the envelope of machine '{profile.name}' ({profile.envelope.xy_text()})"
 
 
 def oversize_text(profile: MachineProfile, board_size: tuple[float, float]) -> str | None:
