@@ -1,6 +1,7 @@
 """The objective: per-view image error with closed-form exposure, plus layout penalties.
 
-Image term, per view k over its board pixels M_k (finite target):
+Image term, per view k over its pixels M_k (finite target: on the board, and not where
+the bare board glints, :mod:`scratchfab.optimize.glint`):
 
     s_k = sum(R T) / sum(R^2)                  (the exposure of SPEC section 7)
     E_k = sum((g(s_k R) - g(T))^2) / sum(g(T)^2)
@@ -99,8 +100,9 @@ def view_error(render: Any, target: Any, mask: Any, space: Space) -> tuple[Any, 
 
     Args:
         render: R_k (H * W,) Float.
-        target: T_k (H * W,) Float, 0 off the board.
-        mask: (H * W,) Float, 1 on the board and 0 off it.
+        target: T_k (H * W,) Float, 0 where ``mask`` is.
+        mask: (H * W,) Float, 1 on the pixels the error counts (on the board, no glint),
+            0 elsewhere.
         space: ``"linear"`` or ``"perceptual"``.
     """
     r = render * mask

@@ -51,6 +51,7 @@ from scratchfab.backend import jit_array
 from scratchfab.errors import ScratchfabError
 from scratchfab.model.design import Design
 from scratchfab.model.scratches import ScratchSet
+from scratchfab.optimize.glint import design_glint_deg, view_glint
 from scratchfab.optimize.loss import Space, merge_penalty, neighbour_pairs, view_error
 from scratchfab.optimize.options import StepSchedule
 from scratchfab.optimize.params import (
@@ -195,6 +196,9 @@ def _hold(entry: tuple[Any, ...]) -> tuple[Any, ...]:
 class LayoutOptimizer:
     """Multi-view Adam optimization of a scratch layout.
 
+    The image error leaves out each view's pixels where the bare board glints
+    (:mod:`scratchfab.optimize.glint`), as it does those off the board.
+
     Args:
         design: The resolved design.
         targets: Linear (H, W) target per view name (NaN off the board); views without
@@ -239,15 +243,22 @@ class LayoutOptimizer:
         self.Float = m.Float64
         self.dtype = np.float64
         F = self.Float
-        self.target_np = {v.name: np.asarray(targets[v.name], dtype=np.float64) for v in self.views}
+        limit = design_glint_deg(design)
+        #: Per view, the bare board's glint (:mod:`scratchfab.optimize.glint`).
+        self.glint = [view_glint(r, limit) for r in self.renderers]
+        #: Per view, the target the image error sees: NaN off the board and where the bare
+        #: board glints (those pixels are left out of s_k and E_k; pruning reads it too).
+        self.target_np: dict[str, np.ndarray] = {}
         self._targets = []
-        for v in self.views:
-            t = self.target_np[v.name]
+        for v, glint in zip(self.views, self.glint, strict=True):
+            t = np.asarray(targets[v.name], dtype=np.float64)
             if t.shape != (v.height, v.width):
                 raise ScratchfabError(
                     f"target of view '{v.name}' is {t.shape[1]}x{t.shape[0]} pixels, "
                     f"the view is {v.width}x{v.height}"
                 )
+            t = np.where(glint.mask, np.nan, t)
+            self.target_np[v.name] = t
             ok = np.isfinite(t).ravel()
             self._targets.append((jit_array(F, np.where(ok, t.ravel(), 0.0)), jit_array(F, ok)))
         self.count = len(initial)
@@ -289,6 +300,10 @@ class LayoutOptimizer:
         )
         self.neighbours: tuple[Any, Any] | None = None
         self._neighbour_count = 0
+
+    def glint_notes(self) -> list[str]:
+        """A line for the user per view whose glinting pixels the image error leaves out."""
+        return [note for g in self.glint if (note := g.note())]
 
     # ------------------------------------------------------------------ state
     def _ends_np(self) -> np.ndarray:

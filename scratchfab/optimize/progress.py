@@ -29,6 +29,15 @@ def progress_text(p: Progress, width: int = 30) -> str:
     return f"[{'#' * filled}{'.' * (width - filled)}] {step_text(p)}"
 
 
+def message_text(message: str) -> str:
+    """A status message as printed: an activity gets "...", a note stays as it is.
+
+    A note is a sentence ending in a full stop (e.g. the glint left out of a view's image
+    error).
+    """
+    return message if message.endswith(".") else f"{message}..."
+
+
 def _fraction(p: Progress) -> float:
     """The fraction of the steps done."""
     return p.iteration / p.total if p.total else 1.0
@@ -42,8 +51,9 @@ def progress_printer(
     """A ``progress`` callback for :func:`scratchfab.optimize.stage.run_optimize`.
 
     Args:
-        say: Writes one line. Without ``redraw`` (a log) it gets every status message and
-            a step line (:func:`progress_text`) per 10 % of the steps and at least every 5 s.
+        say: Writes one line. Without ``redraw`` (a log) it gets every status message
+            (:func:`message_text`) and a step line (:func:`progress_text`) per 10 % of the
+            steps and at least every 5 s.
         redraw: ``redraw(text, done, fraction)`` replaces the current line (a terminal),
             with a bar ``fraction`` full before ``text`` unless ``fraction`` is None (a
             terminal fits the two to its width). It then gets every message (no bar) and
@@ -56,9 +66,9 @@ def progress_printer(
     def report(p: Progress) -> None:
         if p.message:
             if redraw is not None:
-                redraw(f"{p.message}...", True, None)
+                redraw(message_text(p.message), True, None)
             else:
-                say(f"{p.message}...")
+                say(message_text(p.message))
             return
         if redraw is not None:
             redraw(step_text(p), p.iteration >= p.total, _fraction(p))
