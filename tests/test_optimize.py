@@ -14,6 +14,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import drjit as dr
 import numpy as np
@@ -844,13 +845,15 @@ def test_interrupted_resume_command_pastes_as_the_job_folder(tmp_path, monkeypat
     )
     monkeypatch.setattr("scratchfab.cli.optimize_cmd.run_optimize", lambda *a, **k: stopped)
     with pytest.raises(SystemExit) as info:
-        main(["optimize", str(job), "--iterations", "9"])
+        main(["optimize", str(job), "--iterations", "9", "--no-prune"])
     assert info.value.code == 130
     err = capsys.readouterr().err
     found = re.search(r"^interrupted after 3 of 9 iterations; `(.*)` continues it$", err.strip())
     assert found
     words = shlex.split(found.group(1))  # an independent reader of the quoting
-    assert words == ["scratchfab", "optimize", str(job), "--iterations", "9", "--resume"]
+    assert words == [
+        *("scratchfab", "optimize", str(job), "--iterations", "9", "--no-prune", "--resume")
+    ]  # a flag without its value
     assert pasted_words(found.group(1), tmp_path) == words  # and the shell agrees
     assert not list(tmp_path.rglob("PWNED*"))  # nothing ran
 
@@ -967,3 +970,155 @@ def test_resume_alone_of_a_pruned_run_keeps_its_prune(job: Path, capsys) -> None
     capsys.readouterr()
     main(["optimize", str(job), "--resume"])
     assert capsys.readouterr().out.startswith("nothing to do: the run had done its 0 iterations")
+
+
+def _edit_design(job: Path, **tables: Any) -> None:
+    """Rewrite ``JOB/design/design.toml`` with some of its tables' keys changed.
+
+    ``board={"roughness": 0.08}``; ``views={"left": {"position_mm": ...}}``.
+    """
+    from scratchfab.model.job import load_job_design
+
+    file = job / "design" / "design.toml"
+    design = load_job_design(file)
+    views = tables.pop("views", {})
+    design = replace(
+        design,
+        **{name: replace(getattr(design, name), **keys) for name, keys in tables.items()},
+        views=tuple(replace(v, **views.get(v.name, {})) for v in design.views),
+    )
+    design.save(file)
+
+
+@pytest.mark.parametrize(
+    ("edit", "said"),
+    [
+        ({"board": {"roughness": 0.08}}, "[board] roughness 0.05 -> 0.08"),
+        ({"light": {"intensity": 2.0}}, "[light] intensity 1 -> 2"),
+        (
+            {"views": {"left": {"position_mm": (-100.0, 0.0, 300.0)}}},
+            "[[views]] 'left' position_mm [-120, 0, 300] -> [-100, 0, 300]",
+        ),
+    ],
+)
+def test_resume_refuses_a_design_changed_since_its_checkpoint_naming_the_keys(
+    job: Path, capsys, edit: dict[str, Any], said: str
+) -> None:
+    """A design change that leaves the layout and targets alone (the board's finish, the
+    light, a camera) changes the renders the steps follow: the resume names it and its
+    values then and now (make_design's), and a pipeline's resume starts over."""
+    main(["optimize", str(job), "--iterations", "2"])
+    _edit_design(job, **edit)
+    with pytest.raises(SystemExit) as info:
+        main(["optimize", str(job), "--iterations", "3", "--resume"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    toml = job / "design" / "design.toml"
+    assert f"{toml} changed since it was made ({said}): its steps so far fit the old design" in err
+    assert err.rstrip().endswith("; run without --resume to start over")
+    assert "different settings" not in err and "give that" not in err
+    main(["optimize", str(job), "--iterations", "3"])  # what it says to do works
+    assert "3 iterations (done)" in capsys.readouterr().out
+
+
+def test_resume_names_options_and_design_changed_together(job: Path) -> None:
+    """Both kinds of change are named; no options can resume it then."""
+    from scratchfab.optimize.stage import ResumeRefused
+
+    run_optimize(job, OptimizeOptions(iterations=2))
+    _edit_design(job, board={"f0": 0.5}, views={"right": {"fov_deg": 10.0}})
+    with pytest.raises(ResumeRefused) as info:
+        run_optimize(job, OptimizeOptions(iterations=2, seed=3, resume=True))
+    exc = info.value
+    assert exc.made_with is None
+    assert exc.changed == ["seed", "[board] f0", "[[views]] 'right' fov_deg"]
+    assert exc.design["[board] f0"] == "0.91 -> 0.5"
+    assert str(exc).startswith(
+        f"{job / 'optimize' / 'checkpoint.npz'}: made with different settings or inputs (seed); "
+        f"{job / 'design' / 'design.toml'} changed since it was made ([board] f0 0.91 -> 0.5, "
+        "[[views]] 'right' fov_deg "
+    )
+
+
+def test_a_checkpoint_that_records_no_design_resumes_as_an_unbroken_run(tmp_path: Path) -> None:
+    """A checkpoint of the scratchfab before (no design in its fingerprint) resumes, in a
+    job moved since too (its pictures' paths differ), on the trajectory of a run that was
+    not stopped; the checkpoint it writes records the design."""
+    design = make_design(resolution=24, size_mm=30.0)
+    a = make_job(tmp_path / "a", design, count=150)
+    b = make_job(tmp_path / "b", design, count=150)
+    options = OptimizeOptions(iterations=4, seed=2)
+    run_optimize(a, options)
+    steps: list[int] = []
+    run_optimize(
+        b,
+        options,
+        progress=lambda p: steps.append(p.iteration) if not p.message else None,
+        should_stop=lambda: len(steps) == 2,
+    )
+    ckpt = b / "optimize" / "checkpoint.npz"
+    state, meta, rows = load_checkpoint(ckpt)
+    del meta["fingerprint"]["design"]
+    save_checkpoint(ckpt, state, meta, rows)
+    moved = b.rename(tmp_path / "moved")
+    result = run_optimize(moved, replace(options, resume=True))
+    assert steps == [1, 2] and result.stopped == "done"
+    done = (moved / "optimize" / "scratches.csv").read_bytes()
+    assert done == (a / "optimize" / "scratches.csv").read_bytes()
+    _, meta, _ = load_checkpoint(moved / "optimize" / "checkpoint.npz")
+    assert meta["fingerprint"]["design"]["board"]["roughness"] == design.board.roughness
+
+
+def test_resume_alone_of_an_extended_run_goes_on_to_its_extended_total(job: Path, capsys) -> None:
+    """A run of 2 steps extended to 4 and stopped at 3 goes on to 4, also from a checkpoint
+    of the scratchfab before (that kept no total: its schedule's is 2), which takes the total
+    from the summary written from it; without that summary the total is not known."""
+    from scratchfab.optimize.stage import checkpoint_request
+
+    main(["optimize", str(job), "--iterations", "2"])
+    steps: list[int] = []
+    run_optimize(
+        job,
+        OptimizeOptions(iterations=4, resume=True),
+        progress=lambda p: steps.append(p.iteration) if not p.message else None,
+        should_stop=lambda: True,
+    )
+    assert steps == [3]
+    ckpt = job / "optimize" / "checkpoint.npz"
+    state, meta, rows = load_checkpoint(ckpt)
+    assert meta["fingerprint"]["lr_schedule"]["iterations"] == 2
+    assert checkpoint_request(job) == {"iterations": 4, "prune_tolerance": None}
+    del meta["iterations"], meta["prune_tolerance"]  # as the scratchfab before wrote it
+    save_checkpoint(ckpt, state, meta, rows)
+    assert checkpoint_request(job) == {"iterations": 4, "prune_tolerance": None}
+    summary = (job / "optimize" / "summary.json").read_bytes()
+    (job / "optimize" / "summary.json").unlink()  # killed, not stopped: no summary of it
+    assert checkpoint_request(job) == {}
+    (job / "optimize" / "summary.json").write_bytes(summary)
+    capsys.readouterr()
+    main(["optimize", str(job), "--resume"])
+    assert "4 iterations (done)" in capsys.readouterr().out
+
+
+def test_resume_with_no_prune_drops_the_runs_prune(job: Path, capsys) -> None:
+    """Pruning follows the steps, so a resume may drop it: a finished pruned run's outputs
+    are written again unpruned, the layout the pruned run kept as its layout before
+    pruning; a bare resume then has nothing to do. --prune with --no-prune is refused."""
+    folder = job / "optimize"
+    main(["optimize", str(job), "--iterations", "2", "--prune", "0.5"])
+    unpruned = (folder / "scratches_unpruned.csv").read_bytes()
+    assert unpruned != (folder / "scratches.csv").read_bytes()
+    capsys.readouterr()
+    main(["optimize", str(job), "--resume", "--no-prune"])
+    out = capsys.readouterr().out
+    assert "2 iterations (done)" in out and "pruned" not in out
+    assert (folder / "scratches.csv").read_bytes() == unpruned
+    assert not (folder / "scratches_unpruned.csv").exists()
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["options"]["prune_tolerance"] is None and "prune" not in summary
+    main(["optimize", str(job), "--resume"])
+    assert capsys.readouterr().out.startswith("nothing to do: the run had done its 2 iterations")
+    with pytest.raises(SystemExit) as info:
+        main(["optimize", str(job), "--resume", "--prune", "0.1", "--no-prune"])
+    assert info.value.code == 2
+    assert "give --prune or --no-prune, not both" in capsys.readouterr().err

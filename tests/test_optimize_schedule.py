@@ -68,7 +68,10 @@ def test_a_constant_schedule_in_a_table_is_the_constant_run_whatever_the_scales(
     ones = OptimizeOptions(lr_start_scale=1.0)
     scratches = ScratchSet.from_arrays(np.zeros((1, 2)), np.ones((1, 2)), 0.1, 0.01)
     targets = {"v": np.zeros((2, 2))}
-    assert _fingerprint(table, scratches, targets) == _fingerprint(ones, scratches, targets)
+    design = make_design()
+    assert _fingerprint(table, scratches, targets, design) == _fingerprint(
+        ones, scratches, targets, design
+    )
 
 
 @pytest.mark.parametrize(

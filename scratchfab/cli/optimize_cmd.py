@@ -109,6 +109,12 @@ def _bar() -> Callable[[Progress], None]:
     "(--prune alone: 0.01; put it after JOB; --resume without it: the run's own).",
 )
 @click.option(
+    "--no-prune",
+    is_flag=True,
+    help="Keep every scratch: with --resume, drop the run's own --prune (it runs after "
+    "the steps, so they are the same).",
+)
+@click.option(
     "--checkpoint-every",
     type=click.IntRange(min=1),
     default=25,
@@ -128,6 +134,7 @@ def optimize(
     lr_end_scale: float,
     resume: bool,
     prune_tolerance: float | None,
+    no_prune: bool,
     checkpoint_every: int,
 ) -> None:
     """Optimize the scratch layout of JOB (reads JOB/design, writes JOB/optimize).
@@ -136,11 +143,7 @@ def optimize(
     --resume continues.
     """
     ctx = click.get_current_context()
-    scaled = [
-        name
-        for name in ("lr_start_scale", "lr_end_scale")
-        if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT
-    ]
+    scaled = [name for name in ("lr_start_scale", "lr_end_scale") if _given(ctx, name)]
     asked_constant = lr_schedule == "constant"
     if asked_constant and scaled:
         raise click.BadParameter(
@@ -149,10 +152,15 @@ def optimize(
             "multiple)",
             param_hint=f"--{scaled[0].replace('_', '-')}",
         )
+    if no_prune and prune_tolerance is not None:
+        raise click.BadParameter("give --prune or --no-prune, not both", param_hint="--no-prune")
     asked: dict[str, Any] = {"iterations": iterations, "prune_tolerance": prune_tolerance}
+    given = {
+        name for name in asked if _given(ctx, name) or (no_prune and name == "prune_tolerance")
+    }
     if resume:  # what the command does not give, the run's own (its total, its prune)
         for name, value in checkpoint_request(job).items():
-            if ctx.get_parameter_source(name) is click.core.ParameterSource.DEFAULT:
+            if name not in given:
                 asked[name] = value
     options = OptimizeOptions(
         iterations=asked["iterations"],
@@ -215,11 +223,14 @@ def _given_flags(ctx: click.Context) -> list[str]:
     return [
         word
         for p in optimize.params
-        if isinstance(p, click.Option)
-        and p.name != "resume"
-        and ctx.get_parameter_source(p.name or "") is not click.core.ParameterSource.DEFAULT
-        for word in (p.opts[0], str(ctx.params[p.name or ""]))
+        if isinstance(p, click.Option) and p.name != "resume" and _given(ctx, p.name or "")
+        for word in ([p.opts[0]] if p.is_flag else [p.opts[0], str(ctx.params[p.name or ""])])
     ]
+
+
+def _given(ctx: click.Context, name: str) -> bool:
+    """Whether this command was given the option of parameter ``name``."""
+    return ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT
 
 
 def _as_flags(

@@ -25,7 +25,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -118,26 +118,61 @@ NOTHING_TO_DO = "nothing to do"
 def checkpoint_request(job: str | Path) -> dict[str, Any]:
     """What the run in ``JOB/optimize/checkpoint.npz`` was asked for, that a resume keeps.
 
-    A resume that does not give them goes on with the run's own ``iterations`` (its total)
-    and ``prune_tolerance``. Each is left out where the checkpoint does not keep it (made
-    before it was kept; a total then from a scheduled run's fingerprint) and all without a
-    readable checkpoint (the resume then says what is wrong).
+    A resume that does not give them goes on with the run's own ``iterations`` (its total,
+    as it was started or extended) and ``prune_tolerance``. A checkpoint made before it
+    kept them takes them from the summary written from it (a run stopped by Ctrl-C or its
+    time budget), else its total from a scheduled run's fingerprint while it has not done
+    more steps (a run extended past that total went on to a total it did not keep). Each
+    is left out where none of these tells, and all without a readable checkpoint (the
+    resume then says what is wrong).
     """
+    paths = JobLayout(Path(job))
     try:
-        _, meta, _ = load_checkpoint(JobLayout(Path(job)).optimize_checkpoint)
+        state, meta, _ = load_checkpoint(paths.optimize_checkpoint)
     except ConfigError:
         return {}
+    step = state.get("iteration")
+    done = int(step) if isinstance(step, np.ndarray) and step.shape == () else None
+    keys = ("iterations", "prune_tolerance")
+    own = {k: meta[k] for k in keys if k in meta}
+    if len(own) < len(keys) and done is not None:
+        summary = _summary_of(paths, done, meta.get("elapsed_s"))
+        made = summary.get("options") if summary is not None else None
+        for k in keys:
+            if isinstance(made, dict) and k in made:
+                own.setdefault(k, made[k])
     schedule = meta.get("fingerprint", {}).get("lr_schedule")
-    total = meta.get(
-        "iterations", schedule.get("iterations") if isinstance(schedule, dict) else None
-    )
+    total = schedule.get("iterations") if isinstance(schedule, dict) else None
+    if "iterations" not in own and type(total) is int and done is not None and done <= total:
+        own["iterations"] = total
     asked: dict[str, Any] = {}
+    total = own.get("iterations")
     if type(total) is int and total >= 0:
         asked["iterations"] = total
-    prune = meta.get("prune_tolerance", math.nan)
+    prune = own.get("prune_tolerance", math.nan)
     if prune is None or (type(prune) in (int, float) and math.isfinite(prune) and prune >= 0):
         asked["prune_tolerance"] = prune
     return asked
+
+
+def _summary_of(paths: JobLayout, done: int, elapsed_s: Any) -> dict[str, Any] | None:
+    """``JOB/optimize/summary.json`` when it was written from the checkpoint at ``done`` steps.
+
+    It was when it counts ``done`` steps and ``elapsed_s``, the time saved with the last
+    checkpoint, which another run of as many steps killed before its summary does not
+    share; else (or unreadable) None.
+    """
+    try:
+        summary = decode_json(paths.optimize_summary.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if (
+        not isinstance(summary, dict)
+        or summary.get("iterations") != done
+        or summary.get("elapsed_s") != elapsed_s
+    ):
+        return None
+    return summary
 
 
 def _finished(
@@ -150,18 +185,17 @@ def _finished(
 ) -> OptimizeResult | None:
     """The outputs of a run that did ``done`` steps, when they are this resume's result.
 
-    They are when the summary written with them was written from this checkpoint (its
-    ``done`` steps and ``elapsed_s``, the time saved with the last checkpoint, which
-    another run of as many steps killed before its summary does not share), was made from
-    this design, and pruned as ``options`` ask; else None (the resume writes them again).
+    They are when the summary written with them was written from this checkpoint
+    (:func:`_summary_of`), was made from this design, and pruned as ``options`` ask; else
+    None (the resume writes them again).
     """
+    summary = _summary_of(paths, done, elapsed_s)
+    if summary is None:
+        return None
     try:
-        summary = decode_json(paths.optimize_summary.read_text(encoding="utf-8"))
         pruned = summary["options"]["prune_tolerance"]
         if (
-            summary["iterations"] != done
-            or summary["elapsed_s"] != elapsed_s
-            or summary["design_sha256"] != design_files
+            summary["design_sha256"] != design_files
             or pruned != options.prune_tolerance
             or (pruned is not None and "prune" not in summary)
         ):
@@ -238,8 +272,33 @@ def load_job_inputs(job: Path) -> tuple[Design, dict[str, np.ndarray], ScratchSe
     return design, targets, scratches
 
 
+#: Design fields that no step depends on: the tool's count (the design stage's; the
+#: layout is ``scratches.csv``), a view's name (its key), target picture (its
+#: ``targets/<view>.npy`` counts) and polar position (resolved into ``position_mm``).
+_NOT_IN_RUN = frozenset({"count", "name", "target", "azimuth_deg", "elevation_deg", "distance_mm"})
+
+
+def _design_fields(design: Design) -> dict[str, Any]:
+    """The design a run's steps depend on, by table as ``design.toml`` holds it.
+
+    The renderer's board (size, roughness, f0), light and views (camera, resolution,
+    light), the layout's bounds (the board's margin, the tool's lengths) and the tool's
+    dent (the scratches' width and depth where ``scratches.csv`` gives none).
+    """
+
+    def table(obj: Any) -> dict[str, Any]:
+        return {f.name: getattr(obj, f.name) for f in fields(obj) if f.name not in _NOT_IN_RUN}
+
+    return {
+        "board": table(design.board),
+        "light": table(design.light),
+        "scratch": table(design.scratch),
+        "views": {v.name: table(v) for v in design.views},
+    }
+
+
 def _fingerprint(
-    options: OptimizeOptions, scratches: ScratchSet, targets: dict[str, Any]
+    options: OptimizeOptions, scratches: ScratchSet, targets: dict[str, Any], design: Design
 ) -> dict[str, Any]:
     digest = hashlib.sha256()
     for arr in (scratches.p0, scratches.p1, scratches.width, scratches.depth):
@@ -250,11 +309,72 @@ def _fingerprint(
     out: dict[str, Any] = {k: getattr(options, k) for k in TRAJECTORY_KEYS}
     out["inputs_sha256"] = digest.hexdigest()
     out["merge_penalty"] = MERGE_PENALTY  # a checkpoint of another penalty (or none) differs
+    # a checkpoint without it (an earlier scratchfab's) resumes unchecked: _changed_keys
+    out["design"] = _design_fields(design)
     schedule = options.schedule()
     if schedule is not None:
         # its scales depend on the run's total, so a resume needs the same iterations;
         # only present with a schedule, so a constant run may still be extended
         out["lr_schedule"] = _schedule_fields(asdict(schedule))
+    return out
+
+
+def _differences(made: Any, now: Any) -> Iterator[tuple[tuple[str, ...], Any, Any]]:
+    """(path, made's value, now's value) of each value where two JSON trees differ.
+
+    A key that one tree lacks differs as a whole, its value None in that tree.
+    """
+    if isinstance(made, dict) and isinstance(now, dict):
+        for key in dict.fromkeys([*now, *made]):
+            if key in made and key in now:
+                for path, a, b in _differences(made[key], now[key]):
+                    yield (key, *path), a, b
+            else:
+                yield (key,), made.get(key), now.get(key)
+    elif json.dumps(made, sort_keys=True) != json.dumps(now, sort_keys=True):
+        yield (), made, now
+
+
+def _shown(value: Any) -> str:
+    """A design value as a person reads it: floats to 6 digits, lists in brackets."""
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(map(_shown, value)) + "]"
+    return "not set" if value is None else str(value)
+
+
+def _design_key(path: tuple[str, ...]) -> str:
+    """A path in the design fingerprint as ``design.toml`` names it.
+
+    ``("board", "roughness")``: ``[board] roughness``; ``("views", "left", "up")``:
+    ``[[views]] 'left' up``; the empty path (a fingerprint that is no table): ``design``.
+    """
+    if not path:
+        return "design"
+    table, *rest = path
+    if table != "views":
+        return " ".join([f"[{table}]", *rest])
+    return " ".join(["[[views]]", *(f"'{name}'" for name in rest[:1]), *rest[1:]])
+
+
+def _design_changes(made: Any, now: Any) -> dict[str, str]:
+    """How the design changed since a checkpoint, by key in ``design.toml``'s terms.
+
+    ``{"[board] roughness": "0.05 -> 0.08", "[[views]] 'top'": "added"}``: from the
+    checkpoint's ``design`` fingerprint (:func:`_design_fields`, as JSON) to ``now``.
+    """
+    out: dict[str, str] = {}
+    for path, a, b in _differences(made, now):
+        if not path:
+            out[_design_key(path)] = "not readable in the checkpoint"
+        elif path[0] == "views" and len(path) == 2:
+            out[_design_key(path)] = "added" if a is None else "removed"
+        else:
+            was, is_ = _shown(a), _shown(b)
+            if was == is_:  # they differ past the digits shown
+                was, is_ = json.dumps(a), json.dumps(b)
+            out[_design_key(path)] = f"{was} -> {is_}"
     return out
 
 
@@ -301,15 +421,20 @@ SCHEDULE_OPTIONS = {
 
 
 def _changed_keys(made: dict[str, Any], now: dict[str, Any]) -> list[str]:
-    """Option names (or "inputs_sha256") whose fingerprint values differ.
+    """Option names (or "inputs_sha256", or design keys) whose fingerprint values differ.
 
     A schedule's change is named by the options that changed (its total, ``iterations``,
     rather than ``lr_schedule``); a constant run has no schedule: scales 1, no total. A
-    schedule of equal scales depends on neither its shape nor its total.
+    schedule of equal scales depends on neither its shape nor its total. A design change
+    is named by its keys (:func:`_design_changes`); a checkpoint that does not record the
+    design (an earlier scratchfab's) is not compared there.
     """
     out: list[str] = []
     for k in dict.fromkeys([*now, *made]):
         a, b = made.get(k), now.get(k)
+        if k == "design":
+            out.extend(_design_changes(a, b) if k in made else [])
+            continue
         if k == "lr_schedule":  # a checkpoint may keep a constant scale's shape and total
             a, b = (_schedule_fields(v) if isinstance(v, dict) else v for v in (a, b))
         if json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True):
@@ -365,21 +490,33 @@ def _made_with(
 
 
 class ResumeRefused(ConfigError):
-    """A checkpoint made with other settings or inputs than the resume asks for.
+    """A checkpoint made with other settings, inputs or design than the resume has.
 
     Its message names the options that differ and the values to give to resume it
     (``lr_start_scale = 1.0``: a pipeline's ``[optimize]`` key and an
-    :class:`OptimizeOptions` field); :meth:`message` spells those values another way.
+    :class:`OptimizeOptions` field), and the design keys that changed since, with their
+    values then and now; :meth:`message` spells the options' values another way.
 
     Attributes:
         path: The checkpoint.
-        changed: The options (or ``"inputs_sha256"``) whose values differ.
+        changed: The options (or ``"inputs_sha256"``, or design keys) whose values differ.
         made_with: The checkpoint's values of the options to give to resume it; None when
-            none can (its inputs differ).
+            none can (its inputs or design differ).
+        design: How each changed design key changed (``{"[board] roughness": "0.05 ->
+            0.08"}``: :func:`_design_changes`).
+        design_file: The design file those keys are in.
     """
 
-    def __init__(self, path: Path, changed: list[str], made_with: dict[str, Any] | None) -> None:
+    def __init__(
+        self,
+        path: Path,
+        changed: list[str],
+        made_with: dict[str, Any] | None,
+        design: dict[str, str] | None = None,
+        design_file: Path | None = None,
+    ) -> None:
         self.path, self.changed, self.made_with = path, changed, made_with
+        self.design, self.design_file = design or {}, design_file
         super().__init__(self.message(self.as_keys))
 
     @staticmethod
@@ -394,13 +531,20 @@ class ResumeRefused(ConfigError):
             spell: Writes :attr:`made_with` as its caller's user gives them; None when
                 that user cannot give them all.
         """
-        total = "; a scheduled run's step sizes follow its total" * ("iterations" in self.changed)
+        settings = [k for k in self.changed if k not in self.design]
+        total = "; a scheduled run's step sizes follow its total" * ("iterations" in settings)
+        why = [f"made with different settings or inputs ({', '.join(settings)}{total})"] * bool(
+            settings
+        )
+        if self.design:
+            changes = ", ".join(f"{k} {v}" for k, v in self.design.items())
+            why.append(
+                f"{self.design_file or 'the design'} changed since it was made ({changes}): "
+                "its steps so far fit the old design"
+            )
         given = spell(self.made_with) if self.made_with else None
         fix = f"it was made with {given}: give that to resume it, or " if given else ""
-        return (
-            f"{self.path}: made with different settings or inputs "
-            f"({', '.join(self.changed)}{total}); {fix}run without --resume to start over"
-        )
+        return f"{self.path}: {'; '.join(why)}; {fix}run without --resume to start over"
 
 
 def log_columns(names: list[str]) -> list[str]:
@@ -479,7 +623,7 @@ def _run(
     should_stop: Callable[[], bool] | None,
 ) -> OptimizeResult:
     rng = np.random.default_rng(options.seed)
-    fingerprint = _fingerprint(options, initial, targets)
+    fingerprint = _fingerprint(options, initial, targets, design)
     start_layout = initial
     if options.jitter_deg > 0:
         turn = rng.normal(0.0, math.radians(options.jitter_deg), len(initial))
@@ -500,7 +644,16 @@ def _run(
             fingerprint = {**fingerprint, "lr_schedule": made["lr_schedule"]}
         differ = _changed_keys(made, fingerprint)
         if differ:
-            raise ResumeRefused(ckpt, differ, _made_with(made, differ, options))
+            design_changed = (
+                _design_changes(made["design"], fingerprint["design"]) if "design" in made else {}
+            )
+            raise ResumeRefused(
+                ckpt,
+                differ,
+                _made_with(made, differ, options),
+                design_changed,
+                paths.design.design_toml,
+            )
         done = int(state["iteration"])
         if done >= options.iterations and (
             kept := _finished(paths, design, design_files, done, meta.get("elapsed_s"), options)
@@ -598,6 +751,8 @@ def _run(
             layout = pruned.kept
             final = opt.evaluate(layout)
             quality = quality_report(final.renders, targets, cross)
+        else:  # an earlier run's layout before its pruning is not this layout's
+            paths.unpruned_scratches.unlink(missing_ok=True)
         final_rows = rows + [_log_row(opt.iteration, final.loss, elapsed, quality)]
         layout.save(paths.optimized_scratches, design.scratch)
         write_render_layout(paths.optimize_renders, final.renders)
