@@ -8,6 +8,7 @@ folder (or none) and never half of a new one.
 from __future__ import annotations
 
 import os
+import re
 import time
 import unicodedata
 from dataclasses import dataclass, replace
@@ -107,15 +108,62 @@ def load_source(
     return design, parse_stage_tables(data, str(file)).pipeline
 
 
+#: The origin comment's first line, by which a later design knows its own design.toml.
+ORIGIN_HEADER = "# Resolved by `scratchfab design`. Each target is the board-space image made from"
+#: Starts the line under a view's picture that names what an earlier design made it from.
+EARLIER = "#   the board picture an earlier design made from "
+
+
 def _origin_comment(design: Design, fit: str, gamma: float, contrast: float, seed: int) -> str:
+    """The comment heading ``design.toml``: each view's picture and the options applied to it.
+
+    A picture that is an earlier design's board picture (a rerun from ``JOB/design/
+    design.toml``) gets a second line naming the image that design started from, as its
+    own comment named it.
+    """
+    options = f"fit = {fit}, gamma = {gamma:g}, contrast = {contrast:g}"
     lines = [
-        "# Resolved by `scratchfab design`. Each target is the board-space image made from",
-        f"# the picture named below (fit = {fit}, gamma = {gamma:g}, contrast = {contrast:g}),",
+        ORIGIN_HEADER,
+        f"# the picture named below ({options}),",
         "# so a run from this file reproduces targets/*.npy; layout seed = " + str(seed) + ".",
     ]
     for view in design.views:
-        lines.append(f"# {view.name}: {_comment_safe(str(design.target_path(view)))}")
+        path = design.target_path(view)
+        assert path is not None
+        lines.append(f"# {view.name}: {_comment_safe(str(path))}")
+        earlier = _earlier_origin(path)
+        if earlier:
+            lines.append(EARLIER + earlier)
     return "\n".join(lines) + "\n"
+
+
+def _earlier_origin(picture: Path) -> str | None:
+    """What an earlier design made ``picture`` from, when it is that design's board picture.
+
+    Read from the comment heading the design.toml beside ``board/`` (written by
+    :func:`_origin_comment`): the image its line names with that design's options, or,
+    when that was a rerun too, the image its own second line names. None for any other
+    picture, or a design.toml without the comment.
+    """
+    if picture.parent.name != DesignFolder(picture.parent.parent).boards_dir.name:
+        return None
+    try:
+        text = DesignFolder(picture.parent.parent).design_toml.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return None
+    lines = text.splitlines()
+    if len(lines) < 2 or lines[0] != ORIGIN_HEADER:
+        return None
+    options = re.search(r"\((fit = [^)]*)\)", lines[1])
+    own = f"# {picture.stem}: "
+    for line, after in zip(lines, [*lines[1:], ""], strict=True):
+        if not line.startswith("#"):
+            break
+        if line.startswith(own):
+            if after.startswith(EARLIER):
+                return after[len(EARLIER) :]
+            return line[len(own) :] + (f" ({options.group(1)})" if options else "")
+    return None
 
 
 def _comment_safe(text: str) -> str:
@@ -236,12 +284,11 @@ def run_design(
     )
     resolved = replace(resolved, base_dir=folder, source=str(files.design_toml))
 
+    # read before the new folder replaces the old one, whose design.toml it may read
+    comment = _origin_comment(design, fit, gamma, contrast, seed)
     with atomic_folder(folder) as tmp:
         staged = DesignFolder(tmp)
-        write_text(
-            staged.design_toml,
-            _origin_comment(design, fit, gamma, contrast, seed) + resolved.to_toml(),
-        )
+        write_text(staged.design_toml, comment + resolved.to_toml())
         for view in design.views:
             save_png(staged.board_png(view.name), board_image_png(boards[view.name]))
             save_npy(staged.target_npy(view.name), targets[view.name])

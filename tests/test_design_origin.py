@@ -1,0 +1,78 @@
+"""design.toml's heading comment names the images the user gave, through reruns of it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from scratchfab.cli import main
+from scratchfab.model.design import load_design
+
+
+def _comment(toml: Path) -> list[str]:
+    """The comment lines heading a design.toml."""
+    lines = toml.read_text(encoding="utf-8").splitlines()
+    return lines[: next(i for i, line in enumerate(lines) if not line.startswith("#"))]
+
+
+@pytest.fixture()
+def pictures(tmp_path: Path) -> list[Path]:
+    out = []
+    for name, value in (("sun", 230), ("moon", 90)):
+        path = tmp_path / "in" / f"{name}.png"
+        path.parent.mkdir(exist_ok=True)
+        image = Image.new("L", (20, 20), 0)
+        image.paste(value, (4, 4, 16, 16))
+        image.save(path)
+        out.append(path)
+    return out
+
+
+def test_a_rerun_from_the_jobs_design_toml_still_names_the_images_first_given(
+    pictures, tmp_path, capsys
+):
+    job = tmp_path / "job"
+    quick = [str(p) for p in pictures] + ["--board", "30x30", "--count", "60", "--resolution", "12"]
+    main(["design", *quick, "--gamma", "2", "--out", str(job)])
+    toml = job / "design" / "design.toml"
+    first = _comment(toml)
+    for picture in pictures:
+        assert f"# {picture.stem}: {picture.resolve()}" in first
+    assert "(fit = contain, gamma = 2, contrast = 1)," in first[1]
+    assert not [line for line in first if "earlier design" in line]
+
+    # Rerun in place (it reads its own board pictures), then from there into a second job.
+    main(["design", str(toml), "--out", str(job)])
+    main(["design", str(toml), "--out", str(tmp_path / "job2")])
+    capsys.readouterr()
+    for again in (toml, tmp_path / "job2" / "design" / "design.toml"):
+        comment = _comment(again)
+        design = load_design(again)
+        for view, picture in zip(design.views, pictures, strict=True):
+            line = comment.index(f"# {view.name}: {job / 'design' / 'board' / picture.name}")
+            assert comment[line + 1] == (
+                f"#   the board picture an earlier design made from {picture.resolve()} "
+                "(fit = contain, gamma = 2, contrast = 1)"
+            )
+        # the comment's options are this run's, applied to the board picture
+        assert "(fit = contain, gamma = 1, contrast = 1)," in comment[1]
+
+
+def test_a_picture_named_board_without_a_design_beside_it_is_named_alone(
+    pictures, tmp_path, capsys
+):
+    """Only a design's own board folder (a design.toml with the heading beside it) counts."""
+    board = tmp_path / "elsewhere" / "board"
+    board.mkdir(parents=True)
+    picture = board / "sun.png"
+    picture.write_bytes(pictures[0].read_bytes())
+    (board.parent / "design.toml").write_text("# a note of mine\n[board]\n", encoding="utf-8")
+    job = tmp_path / "job"
+    main(["design", str(picture), "--board", "30x30", "--count", "40", "--resolution", "12",
+          "--out", str(job)])  # fmt: skip
+    capsys.readouterr()
+    comment = _comment(job / "design" / "design.toml")
+    assert f"# sun: {picture.resolve()}" in comment
+    assert not [line for line in comment if "earlier design" in line]
