@@ -53,7 +53,7 @@ if TYPE_CHECKING:
     "--count",
     type=click.IntRange(min=1),
     default=None,
-    show_default="the file's scratch.count; quick form: 0.5 per mm^2",
+    show_default="the file's scratch.count; quick form: 0.5 per mm^2, at most 20000",
     help="Number of scratches.",
 )
 @click.option(
@@ -93,7 +93,7 @@ def design(
     feasibility report; the quick form's design.toml can start the next run.
     """
     # Imported here, not for --help: the design stage loads scipy (~0.2 s).
-    from scratchfab.design.quick import quick_design
+    from scratchfab.design.quick import count_note, quick_design
     from scratchfab.design.stage import run_design
     from scratchfab.model.job import redesigned_note
 
@@ -108,8 +108,12 @@ def design(
             )
         source: str | Design = inputs[0]
     else:
-        source = quick_design([Path(p) for p in inputs], board or (100.0, 100.0), count, res)
+        board = board or (100.0, 100.0)
+        source = quick_design([Path(p) for p in inputs], board, count, res)
         res = None
+        note = count_note(board) if count is None else None
+        if note:
+            click.echo(note)
     try:
         result = run_design(
             source,

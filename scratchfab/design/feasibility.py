@@ -363,11 +363,39 @@ def check_feasibility(
                 f"view '{v.name}': only {100 * frac:.1f}% of the board can light up "
                 f"(half-vector tilt up to {tilt.max():.1f} deg)"
             )
-    errors += _crowding_errors(design)
     coverage = mean_length = None
+    drawn: tuple[int, float] | None = None
     if boards:
-        coverage, mean_length, crowded = _coverage(design, boards)
+        coverage, mean_length, fits, crowded = _coverage(design, boards)
         warnings += crowded
+        drawn = (fits, mean_length)
+    errors += _crowding_errors(design, drawn)
+    pairs = _pairs(design, hs, steepest)
+    apart: list[tuple[str, str, PairFeasibility]] = []  # (a, b, the worse direction)
+    for a, b, worst in _worst_pairs(design, pairs):
+        if worst.separation_median_deg < lobe:
+            apart.append((a, b, worst))
+        elif worst.separation_median_deg < WARN_SEPARATION_LOBES * lobe:
+            warnings.append(
+                f"views '{a}' and '{b}' are close: expected crosstalk "
+                f"{worst.expected_crosstalk:.2f} ({worst.separation_median_deg:.1f} deg apart, "
+                f"lobe {lobe:.1f} deg)"
+            )
+    if apart:
+        errors.append(_indistinguishable(design, apart, lobe, steepest, grid))
+    return FeasibilityReport(
+        steepest, lobe, views, pairs, errors, warnings, coverage, mean_length, glint_deg
+    )
+
+
+def _pairs(design: Design, hs: Mapping[str, np.ndarray], steepest: float) -> list[PairFeasibility]:
+    """Every ordered pair of views: how scratches turned for one light the other.
+
+    Args:
+        design: The resolved design.
+        hs: View name -> its half-vectors on the board grid (:func:`half_vectors`).
+        steepest: The tool's steepest wall (degrees).
+    """
     pairs: list[PairFeasibility] = []
     for k in design.views:
         across = across_directions(hs[k.name])
@@ -386,29 +414,94 @@ def check_feasibility(
                     cross,
                 )
             )
-    for a, b in combinations(design.views, 2):
-        # The worse of the two directions decides: scratches for a seen by b, or back.
-        worst = min(
-            (p for p in pairs if {p.lit, p.other} == {a.name, b.name}),
-            key=lambda p: p.separation_median_deg,
+    return pairs
+
+
+def _worst_pairs(
+    design: Design, pairs: list[PairFeasibility]
+) -> list[tuple[str, str, PairFeasibility]]:
+    """Each unordered pair of views (in the design's order) with its worse direction.
+
+    The worse of the two directions decides: scratches for a seen by b, or back.
+    """
+    return [
+        (
+            a.name,
+            b.name,
+            min(
+                (p for p in pairs if {p.lit, p.other} == {a.name, b.name}),
+                key=lambda p: p.separation_median_deg,
+            ),
         )
-        if worst.separation_median_deg < lobe:
-            errors.append(
-                f"views '{a.name}' and '{b.name}' are indistinguishable: scratches that "
-                f"light '{worst.lit}' also light '{worst.other}' (its half-vector lies "
-                f"{worst.separation_median_deg:.2f} deg from their normals, within the "
-                f"{lobe:.1f} deg roughness lobe); "
-                + ("give fewer images" if _quick(design) else "move one of the views")
-            )
-        elif worst.separation_median_deg < WARN_SEPARATION_LOBES * lobe:
-            warnings.append(
-                f"views '{a.name}' and '{b.name}' are close: expected crosstalk "
-                f"{worst.expected_crosstalk:.2f} ({worst.separation_median_deg:.1f} deg apart, "
-                f"lobe {lobe:.1f} deg)"
-            )
-    return FeasibilityReport(
-        steepest, lobe, views, pairs, errors, warnings, coverage, mean_length, glint_deg
+        for a, b in combinations(design.views, 2)
+    ]
+
+
+#: Pairs of views an "indistinguishable" error names before counting the rest.
+NAMED_PAIRS = 4
+
+
+def _indistinguishable(
+    design: Design,
+    apart: list[tuple[str, str, PairFeasibility]],
+    lobe: float,
+    steepest: float,
+    grid: int,
+) -> str:
+    """One error for every pair of views whose scratches light each other, with one piece of advice.
+
+    The quick form's advice names how many images it can keep apart
+    (:func:`quick_images_apart`).
+    """
+    (a, b, worst), rest = apart[0], apart[1:]
+    seps = [p.separation_median_deg for _, _, p in apart]
+    lo, hi = min(seps), max(seps)
+    if not rest:
+        what = (
+            f"views '{a}' and '{b}' are indistinguishable: scratches that light '{worst.lit}' "
+            f"also light '{worst.other}' (its half-vector lies {lo:.2f} deg"
+        )
+    else:
+        named = ", ".join(f"'{x}' and '{y}'" for x, y, _ in rest[: NAMED_PAIRS - 1])
+        more = len(rest) - (NAMED_PAIRS - 1)
+        named += f" and {more} more pair{'s' if more > 1 else ''}" if more > 0 else ""
+        spread = f"{lo:.2f} deg" if f"{lo:.2f}" == f"{hi:.2f}" else f"{lo:.2f}-{hi:.2f} deg"
+        what = (
+            f"views '{a}' and '{b}' are indistinguishable, as are {named} ({len(apart)} pairs): "
+            "scratches that light one view of a pair also light the other (its half-vector "
+            f"lies {spread}"
+        )
+    if _quick(design):
+        most = quick_images_apart(design, lobe, steepest, grid)
+        change = f"give fewer images (at most {most})"
+    else:
+        change = "move one of the views" if not rest else "move the views of each pair apart"
+    return (
+        f"{what} from their normals, median over the board, within the {lobe:.1f} deg "
+        f"roughness lobe); {change}"
     )
+
+
+def quick_images_apart(design: Design, lobe: float, steepest: float, grid: int = 96) -> int:
+    """How many images the quick form keeps apart on ``design``'s board (at least 1).
+
+    Judged as :func:`check_feasibility` judges, on a board grid of ``grid`` points along
+    the long side.
+
+    Places 2, 3, ... views as the quick form does until a pair's median separation falls
+    within the lobe (the views draw closer with each one added); at most one fewer than
+    ``design`` has, which the caller found too close.
+    """
+    for n in range(1, len(design.views)):
+        tried = quick.quick_design(
+            [f"view{i}.png" for i in range(n + 1)], (design.board.width_mm, design.board.height_mm)
+        )
+        pts = board_points(tried.board, grid)
+        hs = {v.name: half_vectors(tried, v, pts) for v in tried.views}
+        pairs = _worst_pairs(tried, _pairs(tried, hs, steepest))
+        if any(p.separation_median_deg < lobe for _, _, p in pairs):
+            return n
+    return max(1, len(design.views) - 1)
 
 
 def _glint_problem(
@@ -431,14 +524,19 @@ def _glint_problem(
         scratch_response(tilt.min(), tool.width_mm, tool.depth_mm, design.board.roughness)
     )
     x, y = pts[np.unravel_index(np.argmin(tilt), tilt.shape)]
+    change = (
+        "move the camera or the light so that the light's mirror image leaves the board "
+        f"(every half-vector tilted at least {glint_deg:.1f} deg), stand both farther "
+        "away in proportion to the board (its half-vectors then spread less), or use a "
+        "smaller board"
+    )
     if _quick(design):
-        change = "give a smaller --board"
-    else:
+        # No option helps: the quick form stands its cameras and light farther away in
+        # proportion to a board above 100 mm, and places them for its one tool.
         change = (
-            "move the camera or the light so that the light's mirror image leaves the board "
-            f"(every half-vector tilted at least {glint_deg:.1f} deg), stand both farther "
-            "away in proportion to the board (its half-vectors then spread less), or use a "
-            "smaller board"
+            "the quick form places the cameras and the light itself, and no option of it "
+            "moves them: design from a design.toml instead (with --force the quick form "
+            f"writes one in JOB/design to start from) and there {change}"
         )
     return (
         f"view '{view.name}': the bare board mirrors the light into it on "
@@ -455,28 +553,47 @@ def _glint_problem(
     )
 
 
-def _crowding_errors(design: Design) -> list[str]:
+def _crowding_errors(design: Design, drawn: tuple[int, float] | None = None) -> list[str]:
     """Refuse more scratches than fit side by side, even at their shortest, inside the margin.
 
     Each cuts a dent ``width_mm`` wide along at least ``min_length_mm``; more dent than
     board means overlapping dents, which cut each other's walls away.
+
+    Args:
+        design: The resolved design.
+        drawn: How many fit at the lengths the targets give them (the coverage warning's
+            count, smaller) and their mean length; the error then says why the two differ.
     """
     tool = design.scratch
     usable = usable_area(design.board)
     least = tool.count * tool.min_length_mm * tool.width_mm
-    fits = math.floor(usable / (tool.min_length_mm * tool.width_mm) * (1 + 1e-12))
+    fits = _fit_at_shortest(design)
     if tool.count <= fits:
         return []
+    why = (
+        f" (at the {drawn[1]:.1f} mm the targets' brightness gives them on average, "
+        f"{drawn[0]} fit: the overlap warning's count)"
+        if drawn is not None
+        else ""
+    )
     return [
         f"{tool.count} scratches of at least {tool.min_length_mm:g} x {tool.width_mm:g} mm "
         f"cover {least:g} mm^2, more than the {usable:g} mm^2 of board inside the margin: "
-        "they would overlap; "
+        f"they would overlap even at their shortest{why}; "
         + (
             f"give --count at most {fits} or a larger --board"
             if _quick(design)
             else f"set [scratch] count to at most {fits} or shorten min_length_mm"
         )
     ]
+
+
+def _fit_at_shortest(design: Design) -> int:
+    """How many scratches fit side by side inside the margin at ``min_length_mm``."""
+    tool = design.scratch
+    return math.floor(
+        usable_area(design.board) / (tool.min_length_mm * tool.width_mm) * (1 + 1e-12)
+    )
 
 
 def _quick(design: Design) -> bool:
@@ -489,8 +606,12 @@ def usable_area(board: Board) -> float:
     return (board.width_mm - 2 * board.margin_mm) * (board.height_mm - 2 * board.margin_mm)
 
 
-def _coverage(design: Design, boards: Mapping[str, np.ndarray]) -> tuple[float, float, list[str]]:
-    """The initial layout's groove coverage, its mean scratch length, and a warning above 1.
+def _coverage(
+    design: Design, boards: Mapping[str, np.ndarray]
+) -> tuple[float, float, int, list[str]]:
+    """Groove coverage, mean length, the count keeping it to 1, and a warning above 1.
+
+    All of the initial layout's.
 
     The layout's lengths follow the targets' brightness
     (:func:`scratchfab.design.layout.expected_length`); grooves covering more than the
@@ -506,24 +627,31 @@ def _coverage(design: Design, boards: Mapping[str, np.ndarray]) -> tuple[float, 
     total = expected_length(design, pts, dens)
     coverage = total * tool.width_mm / usable
     mean = total / tool.count
+    fits = math.floor(tool.count / coverage) if coverage > 0 else tool.count
     if coverage <= 1.0:
-        return coverage, mean, []
-    fits = math.floor(tool.count / coverage)
+        return coverage, mean, fits, []
+    shortest = _fit_at_shortest(design)
+    crowded = (
+        f" (the crowding error's {shortest} counts every scratch at min_length_mm)"
+        if tool.count > shortest
+        else ""
+    )
     longest = longest_for_length(design, pts, dens, usable / tool.width_mm)
     if _quick(design):
-        change = f"give --count at most {fits}"
+        change = f"give --count at most {fits}{crowded}"
         if longest is not None:
             change += (
                 f", or set [scratch] max_length_mm to at most {longest:g} in the design.toml "
                 "it writes and design from that file"
             )
     else:
-        change = f"set [scratch] count to at most {fits}"
+        change = f"set [scratch] count to at most {fits}{crowded}"
         if longest is not None:
             change += f" or max_length_mm to at most {longest:g}"
     return (
         coverage,
         mean,
+        fits,
         [
             f"the {tool.count} scratches' grooves ({tool.width_mm:g} mm wide, "
             f"{mean:.1f} mm long on average: the targets' brightness sets each length "

@@ -43,6 +43,9 @@ from scratchfab.render.profile import steepest_wall_deg
 TILT_SHARE = 0.65
 #: Scratches per mm^2 of board for the default count (5000 on 100 x 100 mm).
 COUNT_PER_MM2 = 0.5
+#: The default count's most (0.5 per mm^2 up to 200 x 200 mm): optimize's time grows with
+#: the count, and the views' 128 pixels do not grow with the board.
+COUNT_CAP = 20_000
 #: Camera and light distance for boards up to 100 mm; larger boards scale it.
 BASE_DISTANCE_MM = 500.0
 #: Quick-form camera resolution (pixels along the long side).
@@ -99,6 +102,29 @@ def placement(tool: ScratchTool, n: int) -> tuple[float, list[tuple[float, float
     return math.degrees(el), [(az, up) for az, up, _ in polar]
 
 
+def default_count(board_mm: tuple[float, float]) -> int:
+    """The quick form's scratch count without --count: COUNT_PER_MM2 of the board, at most COUNT_CAP."""
+    return min(COUNT_CAP, _count_for_area(board_mm))
+
+
+def count_note(board_mm: tuple[float, float]) -> str | None:
+    """The line saying the default count was capped on this board, and how to ask for more."""
+    wanted = _count_for_area(board_mm)
+    if wanted <= COUNT_CAP:
+        return None
+    width, height = board_mm
+    return (
+        f"{SOURCE}: {COUNT_CAP} scratches, the default's most ({COUNT_PER_MM2:g} per mm^2 "
+        f"would be {wanted} on a {width:g} x {height:g} mm board, and optimize takes longer "
+        f"a step the more there are); give --count {wanted} for all of them"
+    )
+
+
+def _count_for_area(board_mm: tuple[float, float]) -> int:
+    """COUNT_PER_MM2 scratches on the board's area (at least 1)."""
+    return max(1, round(COUNT_PER_MM2 * board_mm[0] * board_mm[1]))
+
+
 def quick_mapping(
     images: Sequence[str | Path],
     board_mm: tuple[float, float] = (100.0, 100.0),
@@ -149,9 +175,7 @@ def quick_mapping(
                 round(distance * math.cos(el), 4),
             ]
         },
-        "scratch": {
-            "count": count if count is not None else max(1, round(COUNT_PER_MM2 * width * height))
-        },
+        "scratch": {"count": count if count is not None else default_count((width, height))},
         "views": views,
     }
 
