@@ -1122,3 +1122,21 @@ def test_resume_with_no_prune_drops_the_runs_prune(job: Path, capsys) -> None:
         main(["optimize", str(job), "--resume", "--prune", "0.1", "--no-prune"])
     assert info.value.code == 2
     assert "give --prune or --no-prune, not both" in capsys.readouterr().err
+
+
+def test_resume_after_a_design_rerun_says_so_in_the_users_terms(job: Path, capsys) -> None:
+    """A changed target (as a design rerun writes) is named as the design's outputs, not
+    as the fingerprint's digest key, by optimize and by the pipeline's restart line."""
+    from scratchfab.optimize.stage import ResumeRefused
+
+    main(["optimize", str(job), "--iterations", "2"])
+    target = sorted((job / "design" / "targets").glob("*.npy"))[0]
+    np.save(target, np.load(target) * 0.5)
+    with pytest.raises(ResumeRefused) as info:
+        run_optimize(job, OptimizeOptions(iterations=2, resume=True))
+    assert info.value.changed == ["inputs_sha256"]
+    assert "inputs_sha256" not in str(info.value)
+    assert info.value.reasons() == (
+        "made with different settings or inputs "
+        "(the design's initial scratches or targets: design was rerun)"
+    )

@@ -489,6 +489,10 @@ def _made_with(
     return out
 
 
+#: The fingerprint's digest of the design stage's outputs, as a refusal names it.
+INPUTS_SAID = {"inputs_sha256": "the design's initial scratches or targets: design was rerun"}
+
+
 class ResumeRefused(ConfigError):
     """A checkpoint made with other settings, inputs or design than the resume has.
 
@@ -531,7 +535,13 @@ class ResumeRefused(ConfigError):
             spell: Writes :attr:`made_with` as its caller's user gives them; None when
                 that user cannot give them all.
         """
-        settings = [k for k in self.changed if k not in self.design]
+        given = spell(self.made_with) if self.made_with else None
+        fix = f"it was made with {given}: give that to resume it, or " if given else ""
+        return f"{self.path}: {self.reasons()}; {fix}run without --resume to start over"
+
+    def reasons(self) -> str:
+        """What changed since the checkpoint was made, in the user's terms, without advice."""
+        settings = [INPUTS_SAID.get(k, k) for k in self.changed if k not in self.design]
         total = "; a scheduled run's step sizes follow its total" * ("iterations" in settings)
         why = [f"made with different settings or inputs ({', '.join(settings)}{total})"] * bool(
             settings
@@ -542,9 +552,7 @@ class ResumeRefused(ConfigError):
                 f"{self.design_file or 'the design'} changed since it was made ({changes}): "
                 "its steps so far fit the old design"
             )
-        given = spell(self.made_with) if self.made_with else None
-        fix = f"it was made with {given}: give that to resume it, or " if given else ""
-        return f"{self.path}: {'; '.join(why)}; {fix}run without --resume to start over"
+        return "; ".join(why)
 
 
 def log_columns(names: list[str]) -> list[str]:

@@ -203,9 +203,7 @@ class _Stages:
             except ConfigError as exc:
                 why = str(exc)
                 if isinstance(exc, ResumeRefused):  # its advice is for `optimize --resume`
-                    why = (
-                        f"{exc.path}: made with other settings or inputs ({', '.join(exc.changed)})"
-                    )
+                    why = f"{exc.path}: {exc.reasons()}"
                 self._say_in(f"cannot continue it ({why}); optimizing from the start")
                 result = run_optimize(self.job, options, progress=progress)
         else:
