@@ -208,3 +208,28 @@ def test_the_note_names_the_view_and_its_share_and_prints_as_is(m, small) -> Non
     report(Progress(0, 10, math.nan, 0.0, math.nan, "compiling kernels"))
     assert lines == [note, "compiling kernels..."]
     assert message_text("pruning") == "pruning..."
+
+
+def test_a_view_that_glints_everywhere_adds_no_error_and_no_nan(m) -> None:
+    """A forced design whose camera sees the light's mirror image over the whole board:
+    the view is left out whole (error 0), the other view still optimizes."""
+    tables = {
+        "board": {"width_mm": 12.0, "height_mm": 12.0, "roughness": 0.05, "margin_mm": 1.0},
+        "light": {"position_mm": [0.0, 60.0, 300.0]},
+        "scratch": {"width_mm": 0.1, "depth_mm": 0.01, "count": 60},
+        "views": [
+            {"name": name, "position_mm": pos, "fov_deg": "auto", "resolution": [16, 16]}
+            for name, pos in [("left", [0.0, -60.0, 300.0]), ("right", [120.0, 0.0, 300.0])]
+        ],
+    }
+    design = design_from_mapping(tables, "<all glint>", Path("."))
+    targets, _ = cross_of(design)
+    opt = LayoutOptimizer(design, targets, make_layout(design, 60, seed=4), Settings(lr=LR), m)
+    assert opt.glint[0].mask[np.isfinite(targets["left"])].all()
+    assert np.isnan(opt.target_np["left"]).all()
+    assert opt.glint_notes()[0].startswith("view 'left': the bare board glints on all of")
+    first = opt.step()
+    for _ in range(3):
+        last = opt.step()
+    assert first.view_errors["left"] == 0.0 and last.view_errors["left"] == 0.0
+    assert math.isfinite(last.loss) and last.view_errors["right"] < first.view_errors["right"]

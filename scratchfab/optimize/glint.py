@@ -10,9 +10,16 @@ leaves the glinting pixels out of both s_k and E_k: their target mask is 0, as o
 board. The mask depends on the design alone (camera, light, tool, roughness), so a run
 and its resume compute the same one. Verify still counts every pixel.
 
-Measured on the maker's case (the demo on a 200 x 200 mm board, 3.6 % of it glinting,
-300 steps): see the report of the change; the demo has no glint and its layout stays
-bit for bit the same.
+Measured on a maker's case, the demo on a 200 x 200 mm board (3.6 % of it glints, holding
+79 % of the bare board's light; the demo's 2000 scratches and 300 steps): outside the
+glint rho rose from 0.13 / 0.08 to 0.24 / 0.19 (sun / house), and to 0.88 / 0.89 from
+0.83 / 0.81 where the half-vector tilts 10 degrees or more; Mitsuba's figures over the
+whole view barely move (rho -0.07 / -0.11 to -0.06 / -0.10, PSNR 7.4 / 6.5 dB): the glint
+still outshines the image. Past the limit the glint fades over a few lobe widths: up to
+about twice the limit (8 % of that board) the bare board still gives about half of a
+pixel's light against sparse scratches, which holds rho there down; a mask at 8 degrees
+instead raised rho past 10 degrees to 0.95 / 0.94. The demo has no glint: its layout
+stays bit for bit the same.
 """
 
 from __future__ import annotations
