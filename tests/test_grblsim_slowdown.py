@@ -5,8 +5,11 @@ is in, into the next block if it must (``STEP_CONTROL_EXECUTE_HOLD``), reporting
 until it stands (``Hold:0``); a resume starts from rest (``plan_cycle_reinitialize``). A
 changed feed or rapid override re-plans, and a head block left faster than its new speed
 slows down at its acceleration (``RAMP_DECEL_OVERRIDE``; through the block where it is too
-short, ``PREP_FLAG_DECEL_OVERRIDE``). References: the closed form ``v^2 / 2a`` and the
-tests' time-stepped controller (:class:`grbl_planner_sim.Stepper`).
+short, ``PREP_FLAG_DECEL_OVERRIDE``). Both act only once the stepper has run the segments
+it had prepared (``st_prep_buffer``: 5 of 10 ms, the running one included, each block's
+last one shorter), 40-50 ms after they came. References: the closed form ``v^2 / 2a`` and
+the tests' time-stepped controller (:class:`grbl_planner_sim.Stepper`) with those segments
+counted as it runs (:class:`_Prepared`).
 """
 
 from __future__ import annotations
@@ -68,28 +71,74 @@ class _Machine:
         ]
 
 
-def _stepper(settings: dict[int, float], lines: list[str]) -> planner_sim.Stepper:
+SEGMENT_S = 0.01  # Grbl's DT_SEGMENT: 1 / ACCELERATION_TICKS_PER_SECOND (100)
+PREPARED = 5  # SEGMENT_BUFFER_SIZE 6: a ring of 6 holds 5, the running one included
+
+
+class _Prepared(planner_sim.Stepper):
+    """The time-stepped reference, with Grbl's segment buffer counted as it runs.
+
+    Segments of 10 ms run from where a block starts (or the motion starts), the last one
+    of a block ending with it. A hold or override sent during a segment acts at the end
+    of the 5th segment from that one (the 4 prepared behind it run as they were).
+    """
+
+    def __init__(self, blocks: list[planner_sim.Block]) -> None:
+        super().__init__(blocks)
+        self.segment_ends = SEGMENT_S
+        self.block = 0
+        self.waiting: list[list] = []  # [segments left, realtime byte]
+
+    def step(self, dt: float) -> None:
+        super().step(dt)
+        block = self._index(self.s)
+        if block != self.block:  # a block ended within this step, its last segment too
+            self.block = block
+            self.segment_ends = self.t + SEGMENT_S
+            self._segment_ended()
+        elif self.t >= self.segment_ends - 1e-9:
+            self.segment_ends += SEGMENT_S
+            self._segment_ended()
+
+    def _segment_ended(self) -> None:
+        for item in self.waiting:
+            item[0] -= 1
+        for _, byte in [item for item in self.waiting if item[0] == 0]:
+            self.act(byte)
+        self.waiting = [item for item in self.waiting if item[0] > 0]
+
+    def send(self, data: bytes) -> None:
+        """Realtime bytes sent now: a resume acts at once, a hold or override later."""
+        for byte in data:
+            if byte == ord("~"):
+                self.act(byte)
+                self.segment_ends = self.t + SEGMENT_S  # segments from the resume
+            elif self.v > 0.0:
+                self.waiting.append([PREPARED, byte])
+            else:
+                self.act(byte)
+
+    def act(self, byte: int) -> None:
+        """A realtime byte takes effect."""
+        if byte == ord("!"):
+            self.held = True
+        elif byte == ord("~"):
+            self.held = False
+        elif byte == 0x90:
+            self.feed_override = 100
+        elif byte == 0x92:
+            self.feed_override = max(10, self.feed_override - 10)
+        elif 0x95 <= byte <= 0x97:
+            self.rapid_override = (100, 50, 25)[byte - 0x95]
+
+
+def _stepper(settings: dict[int, float], lines: list[str]) -> _Prepared:
     reference = planner_sim.Settings(
         tuple(settings.get(110 + k, 500.0) for k in range(3)),  # type: ignore[arg-type]
         tuple(settings.get(120 + k, 10.0) for k in range(3)),  # type: ignore[arg-type]
         settings.get(11, 0.01),
     )
-    return planner_sim.Stepper(planner_sim.queued_blocks(lines, reference))
-
-
-def _apply(stepper: planner_sim.Stepper, data: bytes) -> None:
-    """The realtime bytes the tests send, as the reference takes them."""
-    for byte in data:
-        if byte == ord("!"):
-            stepper.held = True
-        elif byte == ord("~"):
-            stepper.held = False
-        elif byte == 0x90:
-            stepper.feed_override = 100
-        elif byte == 0x92:
-            stepper.feed_override = max(10, stepper.feed_override - 10)
-        elif 0x95 <= byte <= 0x97:
-            stepper.rapid_override = (100, 50, 25)[byte - 0x95]
+    return _Prepared(planner_sim.queued_blocks(lines, reference))
 
 
 def _run_both(settings, lines, events, samples):
@@ -104,7 +153,7 @@ def _run_both(settings, lines, events, samples):
         stepper.run_until(t)
         if kind == "event":
             machine.at(t, data)
-            _apply(stepper, data)
+            stepper.send(data)
         else:
             got.append(machine.report(t))
             want.append((stepper.position(), stepper.v * 60.0))
@@ -127,50 +176,57 @@ def _assert_follows(got, want) -> None:
 
 
 def test_a_feed_hold_slows_down_over_v2_over_2a_then_resumes_from_rest():
-    """G1X50F600 at $120=10: 1 s up to 10 mm/s over 5 mm. A hold at 2 s (x = 15 mm)
-    slows down for v/a = 1 s over v^2/2a = 5 mm: x = 15 + 10 t - 5 t^2, Hold:1, then
-    Hold:0 at x = 20 from 3 s on. The resume at 4 s starts from rest: 30 mm to go take
-    1 s up, 2 s at 10 mm/s and 1 s down, so the move ends at 8 s."""
+    """G1X50F600 at $120=10: 1 s up to 10 mm/s over 5 mm. A hold at 2.005 s is Hold:1 at
+    once, but the segments prepared up to 2.05 s (the one from 2.00 s and 4 more) run
+    first: at x = 15.5 it slows down for v/a = 1 s over v^2/2a = 5 mm
+    (x = 15.5 + 10 t - 5 t^2), then Hold:0 at x = 20.5 from 3.05 s on. The resume at 4 s
+    starts from rest: 29.5 mm to go take 1 s up, 1.95 s at 10 mm/s and 1 s down, so the
+    move ends at 7.95 s."""
     settings = {110: 1000.0}
-    samples = [2.0, 2.25, 2.5, 2.9, 3.1, 3.9, 4.5, 6.0, 7.9]
+    samples = [2.0, 2.03, 2.25, 2.5, 2.9, 3.1, 3.9, 4.5, 6.0, 7.9]
     machine, got, want, stepper = _run_both(
-        settings, ["G1X50F600"], [(2.0, b"!"), (4.0, b"~")], samples
+        settings, ["G1X50F600"], [(2.005, b"!"), (4.0, b"~")], samples
     )
     for t, (state, (x, _, _), rate) in zip(samples, got, strict=True):
-        if 2.0 <= t < 3.0:
-            tau = t - 2.0
+        if 2.005 <= t < 2.05:
             assert state == "Hold:1"
-            assert x == pytest.approx(_taken_x(15.0 + 10.0 * tau - 5.0 * tau * tau), abs=6e-4)
+            assert (x, rate) == (_taken_x(10.0 * t - 5.0), 600.0)
+        elif 2.05 <= t < 3.05:
+            tau = t - 2.05
+            assert state == "Hold:1"
+            assert x == pytest.approx(_taken_x(15.5 + 10.0 * tau - 5.0 * tau * tau), abs=6e-4)
             assert rate == pytest.approx(60.0 * (10.0 - 10.0 * tau), abs=0.6)
-        elif 3.0 < t < 4.0:
-            assert (state, x, rate) == ("Hold:0", 20.0, 0.0)
+        elif 3.05 < t < 4.0:
+            assert (state, x, rate) == ("Hold:0", 20.5, 0.0)
         else:
             assert state == "Run"
     _assert_follows(got, want)
-    assert machine.times("state", state="Hold:0") == pytest.approx([3.0], abs=1e-6)
-    assert machine.times("exec") == pytest.approx([8.0], abs=1e-6)
-    assert stepper.t == pytest.approx(8.0, abs=2e-3)  # the reference agrees
+    assert machine.times("state", state="Hold:1") == [2.005]
+    assert machine.times("state", state="Hold:0") == pytest.approx([3.05], abs=1e-6)
+    assert machine.times("exec") == pytest.approx([7.95], abs=1e-6)
+    assert stepper.t == pytest.approx(7.95, abs=2e-3)  # the reference agrees
     assert machine.sim.mpos == (50.0, 0.0, 0.0)
 
 
 def test_a_feed_hold_slows_down_into_the_next_block_at_its_acceleration():
-    """A hold at x = 18, 2 mm before a shallow corner ($11=0.5: passed at full speed),
-    cannot stop in the X block: it leaves it at v^2 = 10^2 - 2 a 2 and slows down on along
-    the next block at that block's acceleration ($121=2 makes it 8.25 mm/s^2, not 10), to
+    """A hold sent at 2.303 s acts at 2.35 s (the prepared segments run first), at
+    x = 18.5, 1.5 mm before a shallow corner ($11=0.5: passed at full speed): it cannot
+    stop in the X block, leaves it at v^2 = 10^2 - 2 a 1.5 and slows down on along the
+    next block at that block's acceleration ($121=2 makes it 8.25 mm/s^2, not 10), to
     stand v^2 / 2a into it. Against that and the time-stepped reference, as are the resume
     and where and when the move ends."""
     settings = {110: 1000.0, 111: 1000.0, 121: 2.0, 11: 0.5}
     lines = ["G1X20F600", "G1X40Y5"]
-    samples = [2.3, 2.4, 2.5, 2.7, 3.0, 3.3, 3.6, 3.9, 4.5, 5.0, 6.0]
-    machine, got, want, stepper = _run_both(settings, lines, [(2.3, b"!"), (4.0, b"~")], samples)
+    samples = [2.31, 2.4, 2.5, 2.7, 3.0, 3.3, 3.6, 3.9, 4.5, 5.0, 6.0]
+    machine, got, want, stepper = _run_both(settings, lines, [(2.303, b"!"), (4.0, b"~")], samples)
     _assert_follows(got, want)
     states = [state for state, _, _ in got]
     assert states == ["Hold:1"] * 6 + ["Hold:0"] * 2 + ["Run"] * 3
     unit = np.array([20.0, 5.0]) / math.hypot(20.0, 5.0)
     accel = min(10.0 / unit[0], 2.0 / unit[1])
-    corner_sq = 10.0**2 - 2.0 * 10.0 * 2.0
+    corner_sq = 10.0**2 - 2.0 * 10.0 * 1.5
     block_end = machine.times("exec")[0]
-    assert block_end == pytest.approx(2.3 + (10.0 - math.sqrt(corner_sq)) / 10.0, abs=1e-6)
+    assert block_end == pytest.approx(2.35 + (10.0 - math.sqrt(corner_sq)) / 10.0, abs=1e-6)
     stop = machine.times("state", state="Hold:0")[0]
     assert stop == pytest.approx(block_end + math.sqrt(corner_sq) / accel, abs=1e-6)
     stood = planner_sim.steps_taken((20.0, 0.0, 0.0), (40.0, 5.0, 0.0), corner_sq / (2.0 * accel))
@@ -180,42 +236,43 @@ def test_a_feed_hold_slows_down_into_the_next_block_at_its_acceleration():
 
 
 def test_a_jog_cancel_slows_down_then_flushes_the_jog_where_it_stood():
-    """0x85 at 1.5 s into a 20 mm jog at 10 mm/s (x = 10 mm): the state stays Jog while it
-    slows down over 1 s and 5 mm, then Idle at x = 15 with the jog's rest flushed."""
+    """0x85 at 1.505 s into a 20 mm jog at 10 mm/s acts at 1.55 s (x = 10.5 mm), once the
+    prepared segments ran: the state stays Jog while it slows down over 1 s and 5 mm, then
+    Idle at x = 15.5 with the jog's rest flushed."""
     machine = _Machine({110: 1000.0})
     machine.at(0.0, b"$J=G91X20F600\n")
-    machine.at(1.5, b"\x85")
+    machine.at(1.505, b"\x85")
     state, (x, _, _), rate = machine.report(2.2)
-    assert state == "Jog" and x == pytest.approx(_taken_x(10.0 + 7.0 - 5.0 * 0.49), abs=6e-4)
-    assert rate == pytest.approx(60.0 * 3.0, abs=0.6)
-    assert machine.report(2.6) == ("Idle", (15.0, 0.0, 0.0), 0.0)
+    assert state == "Jog" and x == pytest.approx(_taken_x(10.5 + 6.5 - 5.0 * 0.65**2), abs=6e-4)
+    assert rate == pytest.approx(60.0 * 3.5, abs=0.6)
+    assert machine.report(2.6) == ("Idle", (15.5, 0.0, 0.0), 0.0)
     machine.until_still()
-    assert machine.times("state", state="Idle")[-1] == pytest.approx(2.5, abs=1e-6)
-    assert machine.sim.mpos == pytest.approx((15.0, 0.0, 0.0), abs=1e-6)
+    assert machine.times("state", state="Idle")[-1] == pytest.approx(2.55, abs=1e-6)
+    assert machine.sim.mpos == pytest.approx((15.5, 0.0, 0.0), abs=1e-6)
     assert machine.times("exec") == []
 
 
-@pytest.mark.parametrize(("line", "ends"), [(b"$J=G91X5F600\n", 20.0), (b"G1X0F600\n", 0.0)])
+@pytest.mark.parametrize(("line", "ends"), [(b"$J=G91X5F600\n", 20.5), (b"G1X0F600\n", 0.0)])
 def test_no_line_is_parsed_while_a_cancelled_jog_slows_down(line, ends):
     """Grbl's jog cancel sets ``SUSPEND_JOG_CANCEL`` at once, so its main loop stays in the
     suspend loop (``protocol_exec_rt_suspend``) until the jog stopped and was flushed: a
-    line sent at 1.6 s, while the jog of 20 mm at 10 mm/s cancelled at 1.5 s slows down
-    to x = 15 (until 2.5 s), is read only then, in Idle. So a new jog is not flushed with
-    the old one (x = 15 + 5) and a G1 runs, not refused (``error:9`` is for G-code during
-    a jog)."""
+    line sent at 1.6 s, while the jog of 20 mm at 10 mm/s cancelled at 1.505 s slows down
+    to x = 15.5 (from 1.55 s, once its prepared segments ran, until 2.55 s), is read only
+    then, in Idle. So a new jog is not flushed with the old one (x = 15.5 + 5) and a G1
+    runs, not refused (``error:9`` is for G-code during a jog)."""
     machine = _Machine({110: 1000.0})
     machine.at(0.0, b"$J=G91X20F600\n")
-    machine.at(1.5, b"\x85")
+    machine.at(1.505, b"\x85")
     assert machine.at(1.6, line) == ""  # waiting in the suspend loop
-    assert machine.report(2.4)[0] == "Jog"
+    assert machine.report(2.5)[0] == "Jog"
     machine.until_still()
     stopped = min(t for t in machine.times("state", state="Idle") if t > 1.5)
-    assert stopped == pytest.approx(2.5, abs=1e-6)
+    assert stopped == pytest.approx(2.55, abs=1e-6)
     answers = [(e["t"], e["r"]) for e in machine.sim.record if e["ev"] == "resp"]
     assert answers[0] == (0.0, "ok") and answers[1][1] == "ok" and len(answers) == 2
     assert answers[1][0] >= stopped
     runs = [(e["frm"][0], e["to"][0]) for e in machine.sim.record if e["ev"] == "exec"]
-    assert runs == [(15.0, ends)]
+    assert runs == [(15.5, ends)]
     assert machine.sim.mpos == pytest.approx((ends, 0.0, 0.0), abs=1e-6)
 
 
@@ -306,26 +363,27 @@ def test_a_soft_limit_in_a_cycle_holds_first_then_alarms_where_it_stood():
     """Grbl's ``limits_soft_check`` in a cycle feeds a hold and waits for it (``Hold:1``,
     no line read, no ``ok``), then resets and raises ``ALARM:2`` at rest. Homed at x = -1,
     G1X-100F600 at $120=10 is at 10 mm/s after 1 s (5 mm); G1X10 (outside -$130..0) comes
-    at 2 s (x = -16): the hold slows down over v/a = 1 s and v^2/2a = 5 mm, so ALARM:2
-    comes at 3 s at x = -21, where the position stays over the reset."""
+    at 2.005 s: the hold acts at 2.05 s once the prepared segments ran (x = -16.5) and
+    slows down over v/a = 1 s and v^2/2a = 5 mm, so ALARM:2 comes at 3.05 s at
+    x = -21.5, where the position stays over the reset."""
     machine = _Machine({110: 1000.0}, soft_limits=True, homed=True)
     machine.at(0.0, b"G1X-100F600\n")
-    machine.at(2.0, b"G1X10\nG1X-50\n")
-    state, (x, _, _), _ = machine.report(2.5)
-    ran = 15.0 + 10.0 * 0.5 - 5.0 * 0.5**2
+    machine.at(2.005, b"G1X10\nG1X-50\n")
+    state, (x, _, _), _ = machine.report(2.55)
+    ran = 15.5 + 10.0 * 0.5 - 5.0 * 0.5**2
     assert state == "Hold:1"
     assert x == planner_sim.steps_taken((-1.0, -1.0, -1.0), (-100.0, -1.0, -1.0), ran)[0]
     assert "ALARM" not in machine.text
-    machine.at(2.999)
+    machine.at(3.049)
     assert "ALARM" not in machine.text
-    machine.at(3.001)
+    machine.at(3.051)
     assert machine.text.endswith("ALARM:2\r\n[MSG:Reset to continue]\r\n")
-    assert machine.times("alarm", code=2) == pytest.approx([3.0], abs=1e-6)
+    assert machine.times("alarm", code=2) == pytest.approx([3.05], abs=1e-6)
     assert [e["r"] for e in machine.sim.record if e["ev"] == "resp"] == ["ok"]
     assert [e["text"] for e in machine.sim.record if e["ev"] == "rx"][-1] == "G1X10"
     machine.at(3.5, b"\x18")
     state, pos, _ = machine.report(3.6)
-    assert state == "Alarm" and pos == (-21.0, -1.0, -1.0)
+    assert state == "Alarm" and pos == (-21.5, -1.0, -1.0)
     assert "ALARM:3" not in machine.text
     machine.until_still()
 

@@ -22,7 +22,10 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   whole step, which Grbl drops, passes at once, takes no block in ``Bf:`` and no
   ``plan_time``; a changed feed or rapid override (``0x90``-``0x97``) re-plans, the
   running block slowing down (through it into the next where it is too short) or
-  speeding up at its acceleration; all times ``time_scale``.
+  speeding up at its acceleration; a hold or override acts once the stepper has run
+  the segments it had prepared (5 of 10 ms, the running one included, each block's last
+  one shorter: 40-50 ms); a ``$100``-``$102`` change keeps the step counts, so the
+  reported position moves; all times ``time_scale``.
   These wait for the planner to empty (so their ``ok`` comes after the motion before
   them ended): spindle and coolant changes, dwells, M0/M2/M30, G10, G28.1/G30.1,
   G92/G92.1 and a change of G54-G59 or of the G43.1 offset (Grbl's default
@@ -34,7 +37,8 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   soft reset on leaving it, soft limits (``$20``) raising ``ALARM:2`` and locking until reset
   (checked as Grbl's ``mc_line`` comes to each motion, so after a line's spindle sync or
   an arc's earlier segments; in a cycle it holds first: ``Hold:1``, no line read, the
-  alarm once the machine stands, as Grbl's ``limits_soft_check``),
+  alarm once the machine stands, as Grbl's ``limits_soft_check``; during a hold that
+  still slows down, ``ALARM:2`` at once with the machine stopped at speed),
   feed hold ``Hold:1`` -> ``Hold:0`` and resume (a hold, door or jog cancel slows down
   at the acceleration of the block it is in, into the next one if it must, as Grbl's
   stepper does, and the reported position follows; the resume starts from rest; lines
@@ -106,6 +110,11 @@ CMD_START = 0x7E  # ~
 CMD_RESET = 0x18
 CMD_DOOR = 0x84
 CMD_JOG_CANCEL = 0x85
+#: Grbl's stepper segments (``stepper.c``): ``DT_SEGMENT`` is 1 / ``ACCELERATION_TICKS_PER_SECOND``
+#: (100), and the ring of ``SEGMENT_BUFFER_SIZE`` 6 holds 5 prepared segments, the one the
+#: stepper interrupt runs included: the 40-50 ms a hold or an override comes after.
+SEGMENT_SECONDS = 0.01
+SEGMENTS_PREPARED = 5
 #: Grbl 1.1's ``SAFETY_DOOR_SPINDLE_DELAY`` and ``SAFETY_DOOR_COOLANT_DELAY`` (seconds).
 DOOR_SPINDLE_DELAY = 4.0
 DOOR_COOLANT_DELAY = 1.0
@@ -364,6 +373,11 @@ class GrblSim:
         self._head_start = 0.0  # when the head block's current profile started
         self._hold_complete = False
         self._stopping = False  # a hold, door or jog cancel decelerates the machine to a stop
+        self._stop_due = False  # such a stop is commanded, the prepared segments still run
+        self._seg_origin = 0.0  # where the segments of the head block's run start (s)
+        self._seg_next = math.inf  # the end of the next segment, while something is deferred
+        self._seg_last = -math.inf  # the last segment end counted
+        self._deferred: list[list[Any]] = []  # [segments left, "stop" or "replan"]
         self._door_ajar = False  # the door switch
         self._restore_until = math.inf  # Door:3: spindle/coolant restoring before resuming
         self._door_saved: tuple[str, float, frozenset[str]] = ("M5", 0.0, frozenset())
@@ -552,6 +566,8 @@ class GrblSim:
 
     def _next_event(self) -> float:
         t = min(self._head_end(), self._reset_at, self._boot_at, self._restore_until)
+        if self._deferred:
+            t = min(t, self._seg_next)
         if self._wire:
             t = min(t, self._wire[0][0])
         if self._pending is not None and self._pending.until > 0.0:
@@ -578,6 +594,8 @@ class GrblSim:
             elif t == self._restore_until:
                 self._restore_until = math.inf
                 self._door_resume(t)
+            elif self._deferred and t == self._seg_next:
+                self._segment_end(t)
             elif t == self._head_end():
                 self._finish_head(t)
             elif self._pending is not None and t == self._pending.until:
@@ -626,7 +644,7 @@ class GrblSim:
             elif self.state == "Hold" and self._hold_complete:
                 self._hold_complete = False
                 if self._planner:
-                    self._head_start = t  # from rest: planned so when the hold stopped it
+                    self._start_motion(t)  # from rest: planned so when the hold stopped it
                     self._set_state(t, "Run")
                 else:
                     self._set_state(t, "Idle")
@@ -634,11 +652,11 @@ class GrblSim:
         elif 0x90 <= byte <= 0x94:
             self._overrides[0] = _override(self._overrides[0], byte - 0x90)
             self._ovr_counter = 0
-            self._replan(t)  # plan_update_velocity_profile_parameters
+            self._defer(t, "replan")  # plan_update_velocity_profile_parameters
         elif 0x95 <= byte <= 0x97:
             self._overrides[1] = (100, 50, 25)[byte - 0x95]
             self._ovr_counter = 0
-            self._replan(t)
+            self._defer(t, "replan")
         elif 0x99 <= byte <= 0x9D:
             self._overrides[2] = _override(self._overrides[2], byte - 0x99)
             self._ovr_counter = 0
@@ -720,7 +738,7 @@ class GrblSim:
             self._log(t, "spindle", spindle=spindle, s=speed)
         self._hold_complete = False
         if self._planner:
-            self._head_start = t
+            self._start_motion(t)
             self._set_state(t, "Jog" if self._jogging else "Run")
         else:
             self._set_state(t, "Idle")
@@ -765,8 +783,10 @@ class GrblSim:
                 self._emit(t, self._status_report(t))
 
     def _auto_cycle_start(self, t: float) -> None:
+        if self._wire and self._wire[0][0] <= t:
+            return  # bytes arriving at this instant are in the RX buffer: not run dry yet
         if self.state == "Idle" and self._planner and not self._critical:
-            self._head_start = t
+            self._start_motion(t)
             self._set_state(t, "Jog" if self._jogging else "Run")
 
     def _main_loop(self, t: float) -> None:
@@ -990,15 +1010,18 @@ class GrblSim:
                 corner_sq=corner_sq,
             )
         )
-        self._replan(t)
+        if not self._deferred:  # else the deferred re-plan or stop takes it in
+            self._replan(t)
         if self.state == "Idle" and self._jogging:
             # a jog starts at once (jog_execute); other motion waits for the auto cycle start
-            self._head_start = t
+            self._start_motion(t)
             self._set_state(t, "Jog")
 
     def _running(self) -> bool:
         """The head block moves: a cycle or jog, or a hold, door or jog cancel stopping it."""
-        return bool(self._planner) and (self._stopping or self.state in ("Run", "Jog"))
+        return bool(self._planner) and (
+            self._stopping or self._stop_due or self.state in ("Run", "Jog")
+        )
 
     def _blocks(self) -> int:
         """Planner blocks in use (``Bf:``); a move of no whole step takes none (Grbl drops it)."""
@@ -1099,7 +1122,9 @@ class GrblSim:
         block = self._planner.popleft()
         self.mpos = block.end
         self._target = block.target
-        self._head_start = t
+        if block.length > 0.0 and t > self._seg_last:
+            self._segment_end(t)  # a block's last segment ends with it (st_prep_buffer)
+        self._start_motion(t)
         self._log(
             t,
             "exec",
@@ -1111,31 +1136,87 @@ class GrblSim:
         )
         if self._planner:
             self._plan_head(block.v1)
-        elif self._stopping:
+        elif self._stopping or self._stop_due:
             self._stopped(t)  # stopped at the end of the last block
         else:
             self._jogging = False
+            self._clear_deferred()
             self._set_state(t, "Idle")
 
-    def _decelerate(self, t: float, state: str) -> None:
-        """A hold, door or jog cancel: the head slows down from where it is to a stop.
+    def _start_motion(self, t: float) -> None:
+        """The head block starts to run at ``t``: its profile and its segments start there."""
+        self._head_start = t
+        self._seg_origin = t
+        if self._deferred:
+            self._seg_next = t + SEGMENT_SECONDS * self.options.time_scale
 
-        Grbl's ``st_update_plan_block_parameters`` then ``STEP_CONTROL_EXECUTE_HOLD``; the
-        ``state`` (``Hold:1``, ``Door:2`` or ``Jog``) holds until :meth:`_stopped`.
+    def _defer(self, t: float, kind: str) -> None:
+        """A stop or re-plan that takes effect once the prepared segments have run.
+
+        Grbl's ``st_update_plan_block_parameters`` re-plans from the end of the segment
+        buffer (``prep.current_speed``): the segments already prepared (``st_prep_buffer``
+        keeps 5, the one running included; 10 ms each, shorter where a block ends) run as
+        they were, so a hold or override acts 40-50 ms later than it came. Not moving, or
+        with no time passing (``time_scale`` 0), it acts at once.
         """
+        dt = SEGMENT_SECONDS * self.options.time_scale
+        if not self._running() or dt <= 0.0:
+            self._apply_deferred(t, kind)
+            return
+        if not self._deferred:
+            k = math.floor((t - self._seg_origin) / dt + 1e-9) + 1
+            self._seg_next = self._seg_origin + k * dt
+            if self._seg_next <= t:
+                self._seg_next += dt
+        self._deferred.append([SEGMENTS_PREPARED, kind])
+
+    def _segment_end(self, t: float) -> None:
+        """A stepper segment ended at ``t``: deferred changes whose segments have run act."""
+        self._seg_last = t
+        self._seg_next = t + SEGMENT_SECONDS * self.options.time_scale
+        due = []
+        for item in self._deferred:
+            item[0] -= 1
+            if item[0] <= 0:
+                due.append(item[1])
+        self._deferred = [item for item in self._deferred if item[0] > 0]
+        for kind in due:
+            self._apply_deferred(t, kind)
+
+    def _apply_deferred(self, t: float, kind: str) -> None:
+        if kind == "replan":
+            self._replan(t)
+            return
         moving = self._running()
         ran, speed = self._head_progress(t)
+        self._stop_due = False
         if moving:
             head = self._planner[0]
             head.done = min(head.done + ran, head.length)
             self._head_start = t
-        self._hold_complete = False
-        self._set_state(t, state)
         self._stopping = True
         if moving:
             self._plan_head(speed)
         else:
             self._stopped(t)  # nothing moves
+
+    def _clear_deferred(self) -> None:
+        self._deferred = []
+        self._stop_due = False
+        self._seg_next = math.inf
+
+    def _decelerate(self, t: float, state: str) -> None:
+        """A hold, door or jog cancel: the head slows down to a stop (:meth:`_defer`).
+
+        Grbl's protocol sets the state and ``STEP_CONTROL_EXECUTE_HOLD`` at once, and its
+        stepper decelerates from the end of the segments already prepared; the ``state``
+        (``Hold:1``, ``Door:2`` or ``Jog``) holds until :meth:`_stopped`.
+        """
+        moving = self._running()
+        self._hold_complete = False
+        self._set_state(t, state)
+        self._stop_due = moving
+        self._defer(t, "stop")
 
     def _stopped(self, t: float) -> None:
         """The hold's deceleration ended: ``Hold:0``, the door's stop or the jog's flush.
@@ -1143,6 +1224,7 @@ class GrblSim:
         Grbl's ``plan_cycle_reinitialize``: the rest of the head is planned from rest.
         """
         self._stopping = False
+        self._clear_deferred()
         if self._jog_cancel:
             self._end_jog(t)
             return
@@ -1163,9 +1245,14 @@ class GrblSim:
         s = self.settings
         return (s[100], s[101], s[102])
 
-    def _to_steps(self, p: tuple[float, float, float]) -> tuple[int, int, int]:
-        """A position in whole steps (``plan_buffer_line``'s ``lround(target * steps_per_mm)``)."""
-        k = self._steps_per_mm()
+    def _to_steps(
+        self, p: tuple[float, float, float], per_mm: tuple[float, float, float] | None = None
+    ) -> tuple[int, int, int]:
+        """A position in whole steps (``plan_buffer_line``'s ``lround(target * steps_per_mm)``).
+
+        ``per_mm``: other steps/mm than ``$100``-``$102`` (those the position was counted in).
+        """
+        k = per_mm or self._steps_per_mm()
         return (_lround(p[0] * k[0]), _lround(p[1] * k[1]), _lround(p[2] * k[2]))
 
     def _from_steps(self, n: tuple[int, int, int]) -> tuple[float, float, float]:
@@ -1253,6 +1340,7 @@ class GrblSim:
         self._pending = None
         self._boot_at = self._reset_at = self._restore_until = math.inf
         self._stopping = False
+        self._clear_deferred()
         self._spindle = "M5"
         self._set_state(t, "Idle")
         self._log(t, "power_off")
@@ -1288,6 +1376,7 @@ class GrblSim:
         self._pending = None
         self._report_due = False
         self._stopping = False
+        self._clear_deferred()
         self._soft_limit = False
         self._hold_complete = False
         self._restore_until = math.inf
@@ -1315,12 +1404,19 @@ class GrblSim:
         """Grbl's ``limits_soft_check`` after any hold: ``mc_reset``, then ``ALARM:2``, locked.
 
         Not in a cycle (a hold decelerating, blocks queued but not started) the machine
-        stops where it is (``mc_reset`` kills the steppers); the queued blocks are lost.
+        stops where it is: ``mc_reset`` sees ``STEP_CONTROL_EXECUTE_HOLD``, kills the
+        steppers (``st_go_idle``, "position has likely been lost") and sets
+        ``EXEC_ALARM_ABORT_CYCLE``, which ``limits_soft_check`` then overwrites with
+        ``EXEC_ALARM_SOFT_LIMIT`` (``system_set_exec_alarm`` assigns): the sender sees
+        ``ALARM:2`` only, though the machine stopped at speed. The record's alarm says so
+        (``lost``: the speed in mm/min it was stopped from). The queued blocks are lost.
         """
+        speed = self._head_progress(t)[1] * 60.0
         if self.state in ("Run", "Jog", "Hold", "Door"):
             self._stop_head(t)
         self._planner.clear()
         self._stopping = False
+        self._clear_deferred()
         self._soft_limit = False
         self._pending = None
         self._spindle = "M5"
@@ -1329,7 +1425,10 @@ class GrblSim:
         self.state = "Alarm"
         self._emit(t, "ALARM:2\r\n")
         self._emit(t, "[MSG:Reset to continue]\r\n")
-        self._log(t, "alarm", code=2)
+        if speed > 0.0:
+            self._log(t, "alarm", code=2, lost=round(speed, 3))
+        else:
+            self._log(t, "alarm", code=2)
 
     def _set_state(self, t: float, state: str, force: bool = False) -> None:
         name = self._state_name()
@@ -1484,7 +1583,9 @@ class GrblSim:
                 reply = "error:3"
             else:
                 if what in ("$", "*"):
+                    steps = self._steps_per_mm()
                     self.settings = dict(DEFAULT_SETTINGS)
+                    self._keep_steps(steps)
                 if what in ("#", "*"):
                     self._offsets = [(0.0, 0.0, 0.0)] * 6
                     self.g28 = self.g30 = (0.0, 0.0, 0.0)
@@ -1514,8 +1615,25 @@ class GrblSim:
             return "error:6"
         if k == 20 and value and not self.settings[22]:
             return "error:10"
+        steps = self._steps_per_mm()
         self.settings[k] = int(value) if k in _INT_SETTINGS else value
+        self._keep_steps(steps)
         return "ok"
+
+    def _keep_steps(self, before: tuple[float, float, float]) -> None:
+        """A ``$100``-``$102`` change keeps the step counts, so the positions in mm move.
+
+        Grbl's ``settings_store_global_setting`` only stores the new steps/mm: the machine
+        position (``sys_position``) and the planner's (``pl.position``) stay in steps and are
+        reported as steps / ``$100`` (``system_convert_axis_steps_to_mpos``); the parser's
+        position (``gc_state.position``, mm) stays as it was.
+        """
+        if before == self._steps_per_mm():
+            return
+        self.mpos = self._from_steps(self._to_steps(self.mpos, before))
+        for block in self._planner:
+            block.start = self._from_steps(self._to_steps(block.start, before))
+            block.end = self._from_steps(self._to_steps(block.end, before))
 
     def _jog(self, t: float, n: int, body: str) -> str:
         if self.state not in ("Idle", "Jog"):

@@ -1,0 +1,117 @@
+"""The GRBL emulator where Grbl 1.1h's source decides what a sender sees.
+
+Each test names the place in gnea/grbl (v1.1h) it follows. References are closed forms
+and the time-stepped controller of :mod:`test_grblsim_slowdown` (with Grbl's prepared
+segments counted as it runs), never the emulator's own profiles.
+"""
+
+from __future__ import annotations
+
+import grbl_planner_sim as planner_sim
+import pytest
+from test_grblsim_slowdown import _Machine, _Prepared
+
+# $100=1000 steps/mm and $120=1000 mm/s^2: 10 mm/s is reached in 0.05 mm, so 15 blocks of
+# 0.02 mm are look-ahead enough and each takes 2 ms, less than one 10 ms segment.
+_FAST = {100: 1000.0, 110: 1000.0, 120: 1000.0}
+_SHORT = ["G1X1F600"] + [f"G1X{1.0 + 0.02 * k:.2f}" for k in range(1, 101)]
+
+
+def test_a_hold_among_blocks_shorter_than_a_segment_acts_after_five_of_them():
+    """``st_prep_buffer`` ends a segment with its block, so among 2 ms blocks the 5
+    prepared segments are 5 blocks: a hold acts at the end of the 4th block after the one
+    running (about 10 ms later, not 40-50 ms), then stops v^2 / 2a = 0.05 mm further. As
+    the time-stepped reference with the same segments."""
+    machine = _Machine(_FAST)
+    machine.at(0.0, "".join(f"{line}\n" for line in _SHORT).encode())
+    sent = 0.1503
+    machine.at(sent, b"!")
+    state, (x, _, _), _ = machine.report(1.0)
+    ends = machine.times("exec")
+    running = sum(1 for t in ends if t <= sent)  # blocks finished before the hold
+    acts = ends[running + 4]  # that block's end, then 4 more blocks
+    stood = 0.02 * (running + 5) + 0.05  # from x = 0: G1X1 is block 0, 1 mm long
+    assert running > 20 and acts - sent < 0.012
+    assert state == "Hold:0" and x == pytest.approx(1.0 - 0.02 + stood, abs=1e-3)
+    reference = planner_sim.queued_blocks(
+        _SHORT, planner_sim.Settings((1000.0,) * 3, (1000.0,) * 3, 0.01, (1000.0,) * 3)
+    )
+    stepper = _Prepared(reference)
+    stepper.run_until(sent)
+    stepper.send(b"!")
+    stepper.run_to_stop()
+    assert x == pytest.approx(stepper.position()[0], abs=2e-3)
+
+
+def test_an_override_acts_once_the_prepared_segments_ran():
+    """A feed override sent at 2.005 s into a 10 mm/s cruise changes nothing before 2.05 s
+    (``st_update_plan_block_parameters`` re-plans from the end of the segment buffer),
+    then slows down at $120: at 2.15 s it is 1 mm/s slower, not 1.45."""
+    machine = _Machine({110: 1000.0})
+    machine.at(0.0, b"G1X100F600\n")
+    machine.at(2.005, b"\x92" * 5)
+    assert machine.report(2.04)[2] == 600.0
+    assert machine.report(2.15)[2] == pytest.approx(600.0 - 60.0 * 10.0 * 0.1, abs=0.6)
+    machine.until_still()
+
+
+def test_steps_per_mm_changed_at_rest_keeps_the_step_count():
+    """``settings_store_global_setting`` only stores ``$100``: ``sys_position`` stays 2500
+    steps, reported as 2500 / 100 = 25 mm (``system_convert_axis_steps_to_mpos``), and the
+    planner's position too, so G1X20 then runs from step 2500 to 2000 (5 mm at 100/mm:
+    1 s up and 1 s down at 10 mm/s^2). Y's -501 steps read -4.008 mm at 125/mm and
+    -2.004 again at 250/mm; ``$RST=$`` (250/mm) shows X's 2000 steps as 8 mm."""
+    machine = _Machine({110: 1000.0})
+    machine.at(0.0, b"G1X10Y-2.004F600\n")
+    assert machine.report(5.0) == ("Idle", (10.0, -2.004, 0.0), 0.0)
+    machine.at(5.1, b"$100=100\n$101=125\n")
+    assert machine.report(5.2) == ("Idle", (25.0, -4.008, 0.0), 0.0)
+    machine.at(5.25, b"$101=250\n")
+    assert machine.report(5.3) == ("Idle", (25.0, -2.004, 0.0), 0.0)
+    machine.at(5.3, b"G1X20\n")
+    machine.until_still()
+    assert machine.times("exec")[-1] == pytest.approx(5.3 + 2.0 * (5.0 / 10.0) ** 0.5, abs=1e-6)
+    assert machine.sim.mpos == pytest.approx((20.0, -2.004, 0.0), abs=1e-9)
+    machine.at(machine.clock[0] + 0.1, b"$RST=$\n")
+    assert machine.report(machine.clock[0] + 0.2)[1] == pytest.approx((8.0, -2.004, 0.0))
+
+
+def test_a_soft_limit_in_the_users_own_hold_kills_the_steppers_with_alarm_2():
+    """A line outside the soft limits read while the user's hold slows down: not in a
+    cycle, so ``limits_soft_check`` calls ``mc_reset`` at once, which kills the steppers
+    (``STEP_CONTROL_EXECUTE_HOLD``: "position has likely been lost") and sets ALARM:3, but
+    ``system_set_exec_alarm(EXEC_ALARM_SOFT_LIMIT)`` then overwrites it: the sender sees
+    ALARM:2 only, with the machine stopped at speed where it was, not where the hold would
+    have stood. The record says the speed it was stopped from."""
+    machine = _Machine({110: 1000.0}, soft_limits=True, homed=True)
+    machine.at(0.0, b"G1X-100F600\n")
+    machine.at(2.005, b"!")  # acts at 2.05 s at x = -16.5, would stand at -21.5 at 3.05 s
+    machine.at(2.55, b"G1X10\n")
+    ran = 15.5 + 10.0 * 0.5 - 5.0 * 0.5**2
+    x = planner_sim.steps_taken((-1.0, -1.0, -1.0), (-100.0, -1.0, -1.0), ran)[0]
+    assert machine.text.endswith("ALARM:2\r\n[MSG:Reset to continue]\r\n")
+    assert "ALARM:3" not in machine.text
+    alarms = [e for e in machine.sim.record if e["ev"] == "alarm"]
+    assert alarms == [{"t": 2.55, "ev": "alarm", "code": 2, "lost": pytest.approx(300.0)}]
+    machine.at(3.0, b"\x18")
+    machine.until_still()
+    assert machine.sim.state == "Alarm" and machine.sim.mpos == (x, -1.0, -1.0)
+    assert "ALARM:3" not in machine.text
+
+
+def test_a_resume_runs_the_exact_distance_left_from_the_whole_steps_it_stood_on():
+    """After a hold Grbl keeps the exact mm left (``pl_block->millimeters = mm_remaining``
+    at the forced deceleration's end) and the whole steps left (``prep.steps_remaining``);
+    the resume's profile covers the mm (``plan_cycle_reinitialize``), the steps run are
+    the whole ones. A hold at 0.5025 s into G1X20F600 ($120=10) acts at 0.55 s
+    (v = 5.5 mm/s, x = 1.5125) and stands v^2/2a = 1.5125 mm on: x = 3.025, on no step
+    (3.025 x 250 = 756.25), reported at step 756 (3.024). The resume at 2 s runs the
+    16.975 mm left: 1 s up, 0.6975 s at 10 mm/s, 1 s down."""
+    machine = _Machine({110: 1000.0})
+    machine.at(0.0, b"G1X20F600\n")
+    machine.at(0.5025, b"!")
+    assert machine.report(1.9) == ("Hold:0", (3.024, 0.0, 0.0), 0.0)
+    machine.at(2.0, b"~")
+    machine.until_still()
+    assert machine.times("exec") == pytest.approx([2.0 + 2.0 + 6.975 / 10.0], abs=1e-6)
+    assert machine.sim.mpos == (20.0, 0.0, 0.0)
