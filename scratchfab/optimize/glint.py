@@ -64,13 +64,16 @@ class ViewGlint:
         """A line for the user; empty without glint."""
         if not self.mask.any():
             return ""
-        left_out = "left out of the image error (verify still counts them)."
         if self.board_share >= 1.0:
-            return f"view '{self.name}': the bare board glints on all of the board, {left_out}"
+            return (
+                f"view '{self.name}': the bare board glints on all of the board; its pixels "
+                "are left out of the image error, so nothing optimizes this view (verify "
+                "still counts them)."
+            )
         return (
             f"view '{self.name}': the bare board glints on {100 * self.board_share:.1f}% of "
-            f"the board ({100 * self.light_share:.0f}% of the bare board's light there), "
-            + left_out
+            f"the board ({100 * self.light_share:.0f}% of its light in this view); those "
+            "pixels are left out of the image error (verify still counts them)."
         )
 
 
