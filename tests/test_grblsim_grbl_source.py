@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import grbl_planner_sim as planner_sim
 import pytest
-from test_grblsim_slowdown import _Machine, _Prepared
+from test_grblsim_slowdown import _assert_follows, _Machine, _Prepared, _run_both
 
 # $100=1000 steps/mm and $120=1000 mm/s^2: 10 mm/s is reached in 0.05 mm, so 15 blocks of
 # 0.02 mm are look-ahead enough and each takes 2 ms, less than one 10 ms segment.
@@ -53,6 +53,21 @@ def test_an_override_acts_once_the_prepared_segments_ran():
     assert machine.report(2.04)[2] == 600.0
     assert machine.report(2.15)[2] == pytest.approx(600.0 - 60.0 * 10.0 * 0.1, abs=0.6)
     machine.until_still()
+
+
+def test_an_override_just_before_a_block_ends_leaves_the_next_block_its_prepared_start():
+    """A 50 % override at 1.48 s, 25 ms before G1X10.05 ends (at 1.505 s, x = 10.05): the
+    segments prepared until then include the next block's first two (to 1.525 s), at the
+    old speed; the slowdown starts there, in the next block, not where it begins. Against
+    the time-stepped reference with the same segments."""
+    samples = [1.5, 1.52, 1.55, 1.6, 1.8, 2.0, 2.5, 3.0]
+    machine, got, want, stepper = _run_both(
+        {110: 1000.0}, ["G1X10.05F600", "G1X30"], [(1.48, b"\x92" * 5)], samples
+    )
+    _assert_follows(got, want)
+    assert [rate for _, _, rate in got[:2]] == [600.0, 600.0]
+    assert got[2][2] == pytest.approx(600.0 - 60.0 * 10.0 * 0.025, abs=0.6)
+    assert machine.times("exec")[-1] == pytest.approx(stepper.t, abs=2e-3)
 
 
 def test_steps_per_mm_changed_at_rest_keeps_the_step_count():

@@ -397,6 +397,7 @@ class GrblSim:
         self._wco_counter = 0
         self._ovr_counter = 0
         self._overrides = [100, 100, 100]
+        self._planned_overrides = [100, 100]  # feed and rapid as the stepper runs them
         self._jogging = False
         self._jog_cancel = False  # stopping a jog that is then flushed (``!`` or 0x85)
         self._door_after_jog = False  # the door opened during the jog: Door once it stopped
@@ -1045,9 +1046,9 @@ class GrblSim:
         At least Grbl's ``MINIMUM_FEED_RATE`` (1 mm/min); a jog takes no feed override.
         """
         if block.rapid:
-            rate = block.limit * self._overrides[1] / 100.0
+            rate = block.limit * self._planned_overrides[1] / 100.0
         else:
-            feed = 100 if block.jog else self._overrides[0]
+            feed = 100 if block.jog else self._planned_overrides[0]
             rate = min(block.rate * feed / 100.0, block.limit)
         return max(rate, 1.0) / 60.0
 
@@ -1185,6 +1186,7 @@ class GrblSim:
 
     def _apply_deferred(self, t: float, kind: str) -> None:
         if kind == "replan":
+            self._planned_overrides = self._overrides[:2]
             self._replan(t)
             return
         moving = self._running()
@@ -1201,6 +1203,7 @@ class GrblSim:
             self._stopped(t)  # nothing moves
 
     def _clear_deferred(self) -> None:
+        self._planned_overrides = self._overrides[:2]
         self._deferred = []
         self._stop_due = False
         self._seg_next = math.inf
@@ -1376,7 +1379,6 @@ class GrblSim:
         self._pending = None
         self._report_due = False
         self._stopping = False
-        self._clear_deferred()
         self._soft_limit = False
         self._hold_complete = False
         self._restore_until = math.inf
@@ -1388,6 +1390,7 @@ class GrblSim:
         self._spindle_speed = 0.0
         self._coolant = frozenset()
         self._overrides = [100, 100, 100]
+        self._clear_deferred()
         self._log(t, "reset", command=from_command)
         if self._critical:
             self._critical = False
