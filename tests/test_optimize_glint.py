@@ -9,13 +9,14 @@ finite differences.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
 import drjit as dr
 import numpy as np
 import pytest
-from test_optimize_helpers import cross_of, make_layout
+from test_optimize_helpers import cross_of, make_job, make_layout
 
 import scratchfab.optimize.optimizer as optimizer_module
 from scratchfab import metrics
@@ -233,3 +234,33 @@ def test_a_view_that_glints_everywhere_adds_no_error_and_no_nan(m) -> None:
         last = opt.step()
     assert first.view_errors["left"] == 0.0 and last.view_errors["left"] == 0.0
     assert math.isfinite(last.loss) and last.view_errors["right"] < first.view_errors["right"]
+
+
+def test_a_glinting_run_says_so_and_an_earlier_checkpoint_of_it_does_not_resume(
+    tmp_path: Path,
+) -> None:
+    """The stage prints the note and records the share; a checkpoint made while the glint
+    still counted (no ``image_error`` in its fingerprint) followed another objective."""
+    from scratchfab.optimize.checkpoint import load_checkpoint, save_checkpoint
+    from scratchfab.optimize.options import OptimizeOptions
+    from scratchfab.optimize.stage import ResumeRefused, run_optimize
+
+    design = glint_design(resolution=24)
+    job = make_job(tmp_path / "job", design, count=100)
+    said: list[str] = []
+    run_optimize(job, OptimizeOptions(iterations=2), progress=lambda p: said.append(p.message))
+    (note,) = [s for s in said if "glint" in s]
+    assert note.startswith("view 'left': the bare board glints on ")
+    summary = json.loads((job / "optimize" / "summary.json").read_text())
+    share = check_feasibility(design).views["left"].glint_fraction
+    assert list(summary["glint_left_out"]) == ["left"]
+    assert summary["glint_left_out"]["left"] == pytest.approx(share, abs=0.02)
+    ckpt = job / "optimize" / "checkpoint.npz"
+    run_optimize(job, OptimizeOptions(iterations=3, resume=True))  # its own: resumes
+    state, meta, rows = load_checkpoint(ckpt)
+    assert meta["fingerprint"].pop("image_error") == "glint left out"
+    save_checkpoint(ckpt, state, meta, rows)
+    with pytest.raises(ResumeRefused) as info:
+        run_optimize(job, OptimizeOptions(iterations=4, resume=True))
+    assert info.value.changed == ["image_error"]
+    assert "leaves the bare board's glint out" in str(info.value)

@@ -41,7 +41,7 @@ from scratchfab.model.design import Design
 from scratchfab.model.job import JobLayout, design_digest, load_job_design
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.checkpoint import load_checkpoint, save_checkpoint
-from scratchfab.optimize.loss import MERGE_PENALTY
+from scratchfab.optimize.loss import IMAGE_ERROR, MERGE_PENALTY
 from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
 from scratchfab.optimize.options import OptimizeOptions, StepSchedule
 from scratchfab.optimize.plots import save_loss_plot, save_side_by_side
@@ -490,7 +490,10 @@ def _made_with(
 
 
 #: The fingerprint's digest of the design stage's outputs, as a refusal names it.
-INPUTS_SAID = {"inputs_sha256": "the design's initial scratches or targets: design was rerun"}
+INPUTS_SAID = {
+    "inputs_sha256": "the design's initial scratches or targets: design was rerun",
+    "image_error": "the image error, which now leaves the bare board's glint out",
+}
 
 
 class ResumeRefused(ConfigError):
@@ -650,7 +653,8 @@ def _run(
         if (extended := _extended_schedule(made, fingerprint, options)) is not None:
             schedule = extended
             fingerprint = {**fingerprint, "lr_schedule": made["lr_schedule"]}
-        differ = _changed_keys(made, fingerprint)
+        # image_error: checked once the views are set up (below)
+        differ = [k for k in _changed_keys(made, fingerprint) if k != "image_error"]
         if differ:
             design_changed = (
                 _design_changes(made["design"], fingerprint["design"]) if "design" in made else {}
@@ -676,6 +680,14 @@ def _run(
     )
     report(Progress(0, options.iterations, math.nan, 0.0, math.nan, "compiling kernels"))
     opt = LayoutOptimizer(design, targets, start_layout, settings, m)
+    if any(g.mask.any() for g in opt.glint):
+        # A glinting design's objective changed (its image error leaves the glint out): its
+        # checkpoints say so. Known only once the views are set up, so checked here.
+        fingerprint["image_error"] = IMAGE_ERROR
+    if options.resume and made.get("image_error") != fingerprint.get("image_error"):
+        raise ResumeRefused(ckpt, ["image_error"], None)
+    for note in opt.glint_notes():
+        report(Progress(0, options.iterations, math.nan, 0.0, math.nan, note))
     cross = job_cross_targets(design) or {(k, k): t for k, t in targets.items()}
     names = [v.name for v in opt.views]
     columns = log_columns(names)
@@ -782,6 +794,7 @@ def _run(
             "scratches": len(layout),
             "pairs_per_view": dict(zip(names, opt.pair_counts(), strict=False)),
             "pair_margin_mm": opt.margin,
+            "glint_left_out": {g.name: g.board_share for g in opt.glint if g.mask.any()},
             "options": asdict(options),
             "quality": quality,
             # What toolpath, verify and render check the layout against.
