@@ -1123,8 +1123,6 @@ class GrblSim:
         block = self._planner.popleft()
         self.mpos = block.end
         self._target = block.target
-        if block.length > 0.0 and t > self._seg_last:
-            self._segment_end(t)  # a block's last segment ends with it (st_prep_buffer)
         self._start_motion(t)
         self._log(
             t,
@@ -1137,6 +1135,8 @@ class GrblSim:
         )
         if self._planner:
             self._plan_head(block.v1)
+            if block.length > 0.0 and t > self._seg_last:
+                self._segment_end(t)  # a block's last segment ends with it (st_prep_buffer)
         elif self._stopping or self._stop_due:
             self._stopped(t)  # stopped at the end of the last block
         else:
