@@ -161,3 +161,9 @@ def test_crowding_error_and_overlap_warning_name_each_others_count(white, tmp_pa
     assert soft < hard < 1400
     code, said = _design([*common, "--count", str(soft), "--out", str(tmp_path / "b")], capsys)
     assert code == 0 and "will overlap" not in said and "error:" not in said
+
+
+def test_help_names_the_default_counts_cap(capsys):
+    main(["design", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"quick form: {COUNT_PER_MM2:g} per mm^2, at most {COUNT_CAP})" in text
