@@ -23,6 +23,7 @@ from scratchfab.machine.grblsim_pty import GrblPty
 from scratchfab.machine.profile import Z_UNLIMITED_MM, load_profile
 from scratchfab.machine.sender import (
     ControllerInfo,
+    Status,
     Streamer,
     StreamFault,
     StreamOptions,
@@ -884,13 +885,13 @@ def test_executed_guess_distances(tmp_path):
     s._program = prog
     s._acked_blocks = [0, 1, 2, 3, 4]
     s._acks_at_status = 5
-    assert s._executed_guess((2.5, 0.0, 0.0)) == 2
-    assert s._executed_guess((4.0, 0.0, 0.0)) == 4
+    assert s._executed_guess(Status(wpos=(2.5, 0.0, 0.0))) == 2
+    assert s._executed_guess(Status(wpos=(4.0, 0.0, 0.0))) == 4
     assert s._executed_guess(None) == -1
     assert math.isclose(prog.total_seconds, 4 / 100 * 60)
     # from a start the sender was not told, (2.5, 0) may lie on the first move
     s._program = load_program(job)
-    assert s._executed_guess((2.5, 0.0, 0.0)) == 0
+    assert s._executed_guess(Status(wpos=(2.5, 0.0, 0.0))) == 0
 
 
 def test_executed_guess_does_not_look_past_a_move_whose_path_it_cannot_check(tmp_path):
@@ -905,10 +906,12 @@ def test_executed_guess_does_not_look_past_a_move_whose_path_it_cannot_check(tmp
     s._all_ran = False
     s._acked_blocks = list(range(len(prog.blocks)))
     s._acks_at_status = len(prog.blocks)
-    assert s._executed_guess((15.0, 5.0, 1.0)) == 3  # the arc (block 4) may not have run
-    assert s._executed_guess((15.0, 5.0 + 1e-9, 1.0)) == 3
-    assert s._executed_guess((5.0, 10.0, 1.0)) == 3  # past the arc: its path is not checked
-    assert s._executed_guess((5.0, 0.0, 1.0)) == 2  # before it: on the G1 X10
+    # the arc (block 4) may not have run
+    assert s._executed_guess(Status(wpos=(15.0, 5.0, 1.0))) == 3
+    assert s._executed_guess(Status(wpos=(15.0, 5.0 + 1e-9, 1.0))) == 3
+    # past the arc: its path is not checked
+    assert s._executed_guess(Status(wpos=(5.0, 10.0, 1.0))) == 3
+    assert s._executed_guess(Status(wpos=(5.0, 0.0, 1.0))) == 2  # before it: on the G1 X10
 
 
 def test_executed_guess_ignores_blocks_acknowledged_after_the_report(tmp_path):
@@ -924,9 +927,10 @@ def test_executed_guess_ignores_blocks_acknowledged_after_the_report(tmp_path):
     s._acks_at_status = 2
     window_start = s._executed_guess(None)
     assert window_start < 31
-    assert s._executed_guess((0.5, 0.0, 0.0)) == window_start  # no match: earliest candidate
+    # no match: the earliest candidate
+    assert s._executed_guess(Status(wpos=(0.5, 0.0, 0.0))) == window_start
     s._acks_at_status = len(prog.blocks)  # a fresh report: the return move is the match
-    assert s._executed_guess((0.5, 0.0, 0.0)) == 30
+    assert s._executed_guess(Status(wpos=(0.5, 0.0, 0.0))) == 30
 
 
 def test_rapid_time_estimate_per_axis_and_retimed(tmp_path):

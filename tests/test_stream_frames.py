@@ -15,7 +15,7 @@ from stream_helpers import executed_blocks, stopped_after
 
 from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim_gcode import ModalState, Settings, interpret
-from scratchfab.machine.sender import ControllerInfo, Streamer
+from scratchfab.machine.sender import ControllerInfo, Status, Streamer
 from scratchfab.machine.sender_checks import job_extent
 from scratchfab.machine.sender_program import (
     TimeLeft,
@@ -199,7 +199,7 @@ def test_a_stop_on_any_move_is_not_taken_for_a_later_one(tmp_path, name):
         for a, b in (seg for seg in segs if seg[0] != seg[1]):  # Grbl drops a null move
             for f in (0.0, 0.1, 0.5, 0.9):
                 p = tuple(a[j] + f * (b[j] - a[j]) for j in range(3))
-                assert s._executed_guess(p) <= k - 1, (prog.blocks[k].lineno, f, p)
+                assert s._executed_guess(Status(wpos=p)) <= k - 1, (prog.blocks[k].lineno, f, p)
                 left = TimeLeft(prog)
                 left.update(acked, acked, p)
                 assert left.ran <= k, (prog.blocks[k].lineno, f, p, left.ran)

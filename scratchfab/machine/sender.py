@@ -71,12 +71,13 @@ import collections
 import contextlib
 import math
 import os
+import re
 import signal
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import serial
 
@@ -88,6 +89,7 @@ from scratchfab.machine.sender_journal import Journal, last_surely_run
 from scratchfab.machine.sender_program import (
     DEFAULT_RAPID_MM_MIN,
     Block,
+    Modal,
     Program,
     TimeLeft,
     along_move,
@@ -98,7 +100,6 @@ from scratchfab.machine.sender_program import (
     stands_at_end,
     strip_block,
     travel_height,
-    work_xyz,
 )
 
 if TYPE_CHECKING:
@@ -203,6 +204,7 @@ class Status:
     feed: float = 0.0
     time: float = 0.0
     planner_free: int | None = None  # ``Bf:``'s planner blocks free (``$10`` value 2 on)
+    mpos_given: bool = False  # the report gave ``MPos`` itself (else WPos was given, or none)
 
 
 def parse_status(line: str, wco: tuple[float, float, float] | None, scale: float = 1.0) -> Status:
@@ -224,7 +226,7 @@ def parse_status(line: str, wco: tuple[float, float, float] | None, scale: float
             if key in ("MPos", "WPos", "WCO"):
                 xyz = (float(nums[0]) * scale, float(nums[1]) * scale, float(nums[2]) * scale)
                 if key == "MPos":
-                    st.mpos = xyz
+                    st.mpos, st.mpos_given = xyz, True
                 elif key == "WPos":
                     st.wpos = xyz
                 else:
@@ -1241,13 +1243,12 @@ class Streamer:
             held = self._hold_briefly_then_reset()
         except _Fault:
             self._journal_quietly(
-                "lost", reason=reason, executed_through=self._executed_guess(self.status.wpos)
+                "lost", reason=reason, executed_through=self._executed_guess(self.status)
             )
             return
-        wpos = held.wpos if held is not None else None
         lifted = self._no_lift(f"{reason} cut the stop short; jog Z up")
         self._journal_quietly(
-            "stop", reason=reason, executed_through=self._executed_guess(wpos), **_journaled(lifted)
+            "stop", reason=reason, executed_through=self._executed_guess(held), **_journaled(lifted)
         )
         self._tell("machine held, then soft-reset (spindle off)")
 
@@ -1286,7 +1287,7 @@ class Streamer:
                     "after an alarm GRBL is locked and the sender never unlocks it; check the "
                     "machine, home it ($H) or unlock it ($X) yourself, then jog Z up"
                 )
-                self._reset(str(fault), self.status.wpos, lifted)
+                self._reset(str(fault), self.status, lifted)
                 fault.args = (str(fault) + _clause(lifted),)
             elif fault.kind == "lock":
                 lifted = self._no_lift(
@@ -1314,7 +1315,7 @@ class Streamer:
                 self._journal.write(
                     "lost",
                     reason=str(fault),
-                    executed_through=self._executed_guess(self.status.wpos),
+                    executed_through=self._executed_guess(self.status),
                     **_journaled(lifted),
                 )
                 fault.args = (
@@ -1373,10 +1374,9 @@ class Streamer:
         self._stopping = True
         held = self._wait_held(wait)
         frame = self._wco  # the work offset the job ran under (a reset may clear G92)
-        wpos = held.wpos if held is not None else None
         self._write(REALTIME_RESET)
         banner = self._wait_banner(self.options.banner_timeout) is not None
-        through = self._executed_guess(wpos)
+        through = self._executed_guess(held)
         lifted = self._lift(held, banner, frame)
         self._journal.write("stop", reason=reason, executed_through=through, **_journaled(lifted))
         return _clause(lifted)
@@ -1656,34 +1656,35 @@ class Streamer:
     def _reset(
         self,
         reason: str,
-        wpos: tuple[float, float, float] | None,
+        report: Status | None,
         lifted: _Lifted | None = None,
     ) -> None:
         self._write(REALTIME_RESET)
         self._wait_banner(self.options.banner_timeout)
-        through = self._executed_guess(wpos)
+        through = self._executed_guess(report)
         self._journal.write("stop", reason=reason, executed_through=through, **_journaled(lifted))
 
-    def _executed_guess(self, wpos: tuple[float, float, float] | None) -> int:
+    def _executed_guess(self, report: Status | None) -> int:
         """The last acknowledged block that surely ran, judged from the position at the stop.
 
         The controller may still hold up to ``planner_blocks`` motion blocks, and its
         stepper a few more (:func:`last_surely_run`), after the last acknowledgement; an
         acknowledged sync block (a spindle change, G4, ...; an S change only with laser
         mode ``$32`` known off) means everything before it ran. The first candidate move
-        the hold position may lie on is the interrupted one: within :meth:`_step_tol` of
-        its line (GRBL reports whole steps, up to a step off the sender's line on each
-        axis; an unknown step counted as COARSE_STEP_MM), of its start, or of its end short
-        of where it surely ended (:meth:`_at_end`); a wider match only finds an earlier
-        move (cut again). Standing
-        at the end of the last candidate, every candidate ran. Without a position or a
-        match the earliest candidate is taken as interrupted (a stroke is cut again rather
-        than skipped), and so is a candidate move whose path the sender does not follow
-        (:func:`followed_move`: an arc, G28, G53, a move whose start is not known after a
-        change of the work frame...: the machine may stand anywhere in it, even on a later
-        move's segment). Only blocks acknowledged before the position report can match it: a
-        later block passing through the same point (an old report) had not run. Once
-        END_WAIT is acknowledged every acknowledged block ran.
+        the hold position (``report``'s work position) may lie on is the interrupted one:
+        within :meth:`_step_tol` of its line (GRBL reports whole steps, up to a step off
+        the sender's line on each axis; an unknown step counted as COARSE_STEP_MM), of its
+        start, or of its end short of where it surely ended (:meth:`_at_end`), unless its
+        steps show the machine is not on it (:meth:`_off_move`); a wider match only finds
+        an earlier move (cut again). Standing at the end of the last candidate, every
+        candidate ran. Without a position or a match the earliest candidate is taken as
+        interrupted (a stroke is cut again rather than skipped), and so is a candidate
+        move whose path the sender does not follow (:func:`followed_move`: an arc, G28,
+        G53, a move whose start is not known after a change of the work frame...: the
+        machine may stand anywhere in it, even on a later move's segment). Only blocks
+        acknowledged before the position report can match it: a later block passing
+        through the same point (an old report) had not run. Once END_WAIT is acknowledged
+        every acknowledged block ran.
         """
         acked = self._acked_blocks
         if not acked:
@@ -1695,16 +1696,19 @@ class Streamer:
             blocks, acked, self.info.planner_blocks, self.info.laser_mode, self._step_mm()
         )
         window = [i for i in acked if i > surely]
-        if wpos is None or self._acks_at_status == 0:
+        wpos = None if report is None else report.wpos
+        if report is None or wpos is None or self._acks_at_status == 0:
             return surely
         reported = [i for i in window if i <= acked[self._acks_at_status - 1]]
         tol = self._step_tol(COARSE_STEP_MM)
         moves = [i for i in reported if blocks[i].motion]
+        counted = steps_counted_until(blocks)
         for i in moves:
             if not followed_move(blocks, i):  # an arc, G28, a move after G55...
                 return i - 1
-            end = self._at_end(i, wpos)
-            if end == "ran":
+            steps = self._move_steps(i, report) if i < counted else None
+            end = self._at_end(i, report, steps)
+            if end == "ran" or _off_move(steps):
                 continue  # the next move's start, or the check below, takes it
             if (
                 end == "short"
@@ -1713,37 +1717,66 @@ class Streamer:
             ):
                 return i - 1
         last = moves[-1] if moves else -1
-        if (
-            last >= 0
-            and self._at_end(last, wpos) == "ran"
-            and stands_at_end(blocks[last], wpos, tol)
-        ):
-            return reported[-1]
+        if last >= 0:
+            steps = self._move_steps(last, report) if last < counted else None
+            if self._at_end(last, report, steps) == "ran" and stands_at_end(
+                blocks[last], wpos, tol
+            ):
+                return reported[-1]
         return surely
 
-    def _at_end(self, i: int, p: Sequence[float]) -> str:
-        """Where ``p`` (work mm) stands about move ``i``'s end, in GRBL's whole steps.
+    def _move_steps(self, i: int, report: Status) -> list[_AxisSteps] | None:
+        """Move ``i`` and ``report``'s position per axis in GRBL's whole steps.
 
-        GRBL ends a move on whole steps (``$100``-``$102``), within half a step of the
-        sender's end on each axis. Anywhere else on the move it stands at least a step
-        behind that end (in the move's direction) on the axis with the most steps, so at
-        least half a step behind the sender's end there, less the reports' rounding (a
-        digit, ``MPos`` less ``WCO``: 0.001 mm, 0.00254 mm in inch reports). The move ran where ``p`` stands less far behind on
-        every axis it moves, each known at its end (ahead, the machine went on); where an
-        axis's start is unknown, less far either way. 0.002 mm at least: with steps of
-        0.006 mm or less, or unknown, a stop a step short may pass for the end, short by
-        less than the 0.01 mm a match allows for rounding. A stop short of the end stands
-        within :meth:`_step_tol` of it on the moved axes, and within half a step and the
-        rounding on the others.
+        GRBL ends a move on whole steps: its target in machine mm (work plus the work
+        offset ``WCO``) times ``$100``-``$102``, rounded (``lround``), and reports the steps
+        it stands on. Each is known to a span of steps (:func:`step_span`): the report's
+        ``WCO`` and ``MPos`` are rounded to a digit (0.001 mm; 0.00254 mm in inch reports),
+        a machine position counted as ``WPos`` plus ``WCO`` to two. None where a step or
+        the report's offset is not known, or the position lies on no step (the offset is
+        not the one the machine ran under).
+        """
+        step = self._step_mm()
+        p = report.wpos
+        if report.wco is None or p is None or min(step) <= 0.0:
+            return None
+        digit = REPORT_DIGIT_MM[self.info.inch_reports]
+        blocks = self._program.blocks
+        end = known_xyz(blocks[i].modal)
+        start = known_xyz(blocks[i - 1].modal) if i > 0 else (None, None, None)
+        out = []
+        for k, w in enumerate(report.wco):
+            at = step_span(p[k] + w, digit / 2.0 if report.mpos_given else digit, step[k])
+            if at[0] > at[1]:
+                return None
+            u, v = start[k], end[k]
+            ends = [
+                None if e is None else step_span(e + w, digit / 2.0, step[k], True) for e in (u, v)
+            ]
+            way = 0 if u is None or v is None else (v > u) - (v < u)
+            out.append(_AxisSteps(at, ends[0], ends[1], way))
+        return out
+
+    def _at_end(self, i: int, report: Status, steps: list[_AxisSteps] | None = None) -> str:
+        """Where ``report``'s work position stands about move ``i``'s end.
+
+        In whole steps where they are known (``steps``, :meth:`_move_steps`): GRBL's
+        stepper steps the axis with the most steps at every step of a move, so the move
+        ran where that axis stands at its end, or has gone on past it (each of the axes
+        that may have the most, where rounding leaves that open; an axis whose position is
+        unknown at an end never has). Elsewhere by mm on every axis the move moves
+        (:meth:`_reached`). A stop short of the end stands within :meth:`_step_tol` of it
+        on the moved axes, and within half a step and a report's rounding on the others.
 
         Returns:
             ``"ran"`` (at its end), ``"short"`` (maybe stopped a step or so before it),
             or ``""`` (neither).
         """
         blocks = self._program.blocks
-        end = work_xyz(blocks[i].modal)
-        before = work_xyz(blocks[i - 1].modal) if i > 0 else (None, None, None)
-        step = self._step_mm()
+        p = report.wpos
+        assert p is not None
+        end = known_xyz(blocks[i].modal)
+        before = known_xyz(blocks[i - 1].modal) if i > 0 else (None, None, None)
         given = {letter for letter, _ in block_words(blocks[i].text)}
         moved = [  # an axis the block gives, unknown at an end, may move too
             k
@@ -1751,8 +1784,10 @@ class Streamer:
             if u != v or (a in given and None in (u, v))
         ]
         still = [k for k in range(3) if k not in moved]
-        digit = REPORT_DIGIT_MM[self.info.inch_reports]
-        if all(self._behind(i, k, p[k], max(0.002, step[k] / 2.0 - digit)) for k in moved):
+        if steps is not None:
+            if all(_step_reached(steps[k]) for k in _most_steps(steps, moved)):
+                return "ran"
+        elif all(self._reached(i, k, p[k]) for k in moved):
             return "ran"
 
         def near(axes: list[int], tol: float) -> bool:
@@ -1764,12 +1799,19 @@ class Streamer:
         off = 0.002 + max((coarse[k] for k in still), default=0.0) / 2.0
         return "short" if near(moved, self._step_tol(COARSE_STEP_MM)) and near(still, off) else ""
 
-    def _behind(self, i: int, k: int, v: float, tol: float) -> bool:
-        """Whether axis ``k`` at ``v`` is less than ``tol`` behind move ``i``'s end there.
+    def _reached(self, i: int, k: int, v: float) -> bool:
+        """Whether axis ``k`` at ``v`` (work mm) is at move ``i``'s end there, or past it.
 
-        Behind in the move's direction; either way where its start is not known. False
-        where the end is not known (an axis counted from the assumed start, as
-        ``sender_program``'s placement counts it).
+        By mm, where the steps are not known (:meth:`_move_steps`). Past it in the move's
+        direction; either way where its start is not known. Never where the end is not
+        known (an axis counted from the assumed start, as ``sender_program``'s placement
+        counts it). GRBL ends a move within half a step of the sender's end; anywhere
+        else on the move it stands at least a step behind that end on the axis with the
+        most steps, so at least half a step behind the sender's end there, less the
+        reports' rounding (a digit, ``MPos`` less ``WCO``: 0.001 mm, 0.00254 mm in inch
+        reports). 0.002 mm at least: with steps of 0.006 mm or less, or unknown, a stop a
+        step short may pass for the end here, short by less than the 0.01 mm a match
+        allows for rounding.
         """
         blocks = self._program.blocks
 
@@ -1779,9 +1821,124 @@ class Streamer:
         end, start = known(i), known(i - 1)
         if end is None:
             return False
+        digit = REPORT_DIGIT_MM[self.info.inch_reports]
+        tol = max(0.002, self._step_mm()[k] / 2.0 - digit)
         if start is None:
             return abs(v - end) < tol
         return (v - end) * math.copysign(1.0, end - start) > -tol
+
+
+#: Relative error allowed for GRBL's single-precision arithmetic (a float's 6e-8, a few
+#: operations, a margin): a position or target's step is counted from it.
+FLOAT32_SLACK = 1e-6
+
+
+class _AxisSteps(NamedTuple):
+    """One axis of a move in whole steps, each a span (first, last) of the steps it may be."""
+
+    at: tuple[int, int]  # where the report puts the machine
+    start: tuple[int, int] | None  # GRBL's end of the move before (None: not known)
+    end: tuple[int, int] | None  # GRBL's end of the move (None: not known)
+    way: int  # the sender's direction (1, -1; 0: one target, no step, or not known)
+
+
+def step_span(mm: float, slack: float, step: float, rounded: bool = False) -> tuple[int, int]:
+    """The whole steps (first, last) a machine coordinate known to ``slack`` mm may stand for.
+
+    Args:
+        mm: The machine coordinate (mm).
+        slack: How far the true coordinate may lie from ``mm`` (a report's rounding).
+        step: The axis's step (mm, ``1 / $10x``; > 0).
+        rounded: ``mm`` is a target GRBL rounds to its nearest step (``lround``, in
+            single precision); else a position on a step, reported to ``slack``.
+
+    Returns:
+        The span of steps; first > last where no step lies within ``slack`` of ``mm``.
+    """
+    margin = slack + FLOAT32_SLACK * (abs(mm) + 1.0)
+    lo, hi = (mm - margin) / step, (mm + margin) / step
+    if rounded:
+        return math.ceil(lo - 0.5), math.floor(hi + 0.5)  # a half: either step
+    return math.ceil(lo), math.floor(hi)
+
+
+def _step_count(axis: _AxisSteps) -> tuple[float, float]:
+    """The fewest and most steps the move may take on ``axis`` (unknown: up to inf)."""
+    if axis.start is None or axis.end is None:
+        return 0.0, math.inf
+    if axis.way == 0:  # one target: one step
+        return 0.0, 0.0
+    (s0, s1), (e0, e1) = axis.start, axis.end
+    return float(max(e0 - s1, s0 - e1, 0)), float(max(e1 - s0, s1 - e0))
+
+
+def _most_steps(steps: list[_AxisSteps], moved: list[int]) -> list[int]:
+    """The moved axes that may take the most steps of the move (GRBL steps them every time).
+
+    Empty where the move takes no step on any axis (GRBL drops it: nothing to run), so it
+    ran wherever the machine stands.
+    """
+    counts = [_step_count(a) if k in moved else (0.0, 0.0) for k, a in enumerate(steps)]
+    least = max(lo for lo, _ in counts)
+    return [k for k in moved if counts[k][1] > 0 and counts[k][1] >= least]
+
+
+def _step_reached(axis: _AxisSteps) -> bool:
+    """Whether ``axis`` stands at the move's end, or past it in its direction, in whole steps.
+
+    Either way where the start is not known: only surely at it. Never where the end is
+    not known.
+    """
+    if axis.end is None:
+        return False
+    (a0, a1), (e0, e1) = axis.at, axis.end
+    if axis.start is None:
+        return a0 == a1 == e0 == e1
+    return a0 >= e1 if axis.way > 0 else a1 <= e0
+
+
+def _off_move(steps: list[_AxisSteps] | None) -> bool:
+    """Whether the steps show the machine is off the move: on an axis, beyond both ends.
+
+    GRBL's stepper moves each axis from the move's start step to its end step, one way.
+    False where the steps are not known.
+    """
+    if steps is None:
+        return False
+    for axis in steps:
+        if axis.start is not None and axis.end is not None:
+            lo, hi = min(axis.start[0], axis.end[0]), max(axis.start[1], axis.end[1])
+            if axis.at[1] < lo or axis.at[0] > hi:
+                return True
+    return False
+
+
+def steps_counted_until(blocks: Sequence[Block]) -> int:
+    """The first block from which a stop's steps are not matched (:meth:`Streamer._move_steps`).
+
+    Where a block changes the work offset (G10, G92, G92.1, another G54-G59 system, a tool
+    length offset) a report's ``WCO`` may be an older frame's than the move's where a
+    build does not report it (every change makes Grbl 1.1 send it). From a G91 block on
+    GRBL sums increments in single precision, which may drift by more than the match
+    allows. Before any of these, whole steps tell.
+    """
+    before = Modal()
+    for j, b in enumerate(blocks):
+        m = b.modal
+        if (
+            m.relative
+            or m.wcs != before.wcs
+            or m.z_frame != before.z_frame
+            or m.tlo != before.tlo
+            or _SETS_OFFSET.search(b.text)
+        ):
+            return j
+        before = m
+    return len(blocks)
+
+
+#: G10 and G92 (G92.1 too) in a block's text (upper case, no spaces).
+_SETS_OFFSET = re.compile(r"G0*(?:10|92)(?![0-9])")
 
 
 def _soft_limit_top(settings: dict[int, float]) -> tuple[float, str] | None:

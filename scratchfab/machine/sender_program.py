@@ -1314,7 +1314,8 @@ class TimeLeft:
         """Put the run point where the reported position lies, if it lies on a queued move.
 
         The first acknowledged followed move (:func:`followed_move`) from the run point on
-        that the position lies on, not behind the run point (where a path passes a point
+        that the position lies on, or stands at the start of, not its end (a corner GRBL's
+        steps round off both lines), not behind the run point (where a path passes a point
         twice, a pass behind it is skipped; of two ahead, the earlier counts, so the time
         left errs long); else, at the end point of the last block acknowledged before the
         report, all of them ran. Not past a move the sender does not follow (an arc, a move
@@ -1330,6 +1331,13 @@ class TimeLeft:
                     return
                 continue
             t = along_move(self._blocks, i, wpos, self._tol)
+            if (
+                t is None
+                and i > self._block
+                and stands_at_end(self._blocks[i - 1], wpos, self._tol)
+                and not stands_at_end(b, wpos, self._tol)
+            ):
+                t = 0.0  # at its start, off both lines: the corner GRBL rounded to its steps
             if t is not None and (i > self._block or t * b.seconds >= self._into):
                 self._advance(i, t * b.seconds)
                 return
