@@ -13,6 +13,7 @@ import grbl_planner_sim as planner_sim
 import numpy as np
 import pytest
 import serial
+from grbl_stepper_ticks import ticks_taken
 from test_export import random_scratches
 
 import scratchfab.machine.sender  # noqa: F401  (registers grblsim://)
@@ -777,8 +778,9 @@ def test_a_move_that_comes_while_the_last_one_runs_joins_it():
 
 def test_position_and_rate_in_a_status_follow_the_acceleration():
     """Half a second into ``G1X10F600`` from rest at 10 mm/s^2: x = a t^2 / 2 = 1.25 mm,
-    at 5 mm/s (FS:300, the realtime rate Grbl 1.1 reports); Grbl reports the whole steps
-    taken (312 of 312.5 at 250 steps/mm: 1.248)."""
+    at 5 mm/s (FS:300, the realtime rate Grbl 1.1 reports); Grbl reports the steps its
+    interrupt took: at 1250 steps/s AMASS runs 8 ticks an event and the 313th event's
+    step comes on its 5th tick, from 312.5 events on (313 steps at 250 steps/mm: 1.252)."""
     sim, clock = _sim_in_own_time(SimOptions(baud=0))
     sim.host_write(b"G1X10F600\n")
     sim.advance(0.0)
@@ -788,7 +790,8 @@ def test_position_and_rate_in_a_status_follow_the_acceleration():
     sim.host_write(b"?")
     sim.advance(0.5)
     report = sim.host_read(1 << 16, 0.0).decode()
-    x = planner_sim.steps_taken((0.0, 0.0, 0.0), (10.0, 0.0, 0.0), 1.25)[0]
+    x = ticks_taken((0.0, 0.0, 0.0), (10.0, 0.0, 0.0), 1.25, 5.0)[0]
+    assert x == 1.252
     assert report.startswith(f"<Run|MPos:{x:.3f},0.000,0.000|") and "|FS:300,0" in report
     sim.close()
 
@@ -822,9 +825,11 @@ def test_a_target_off_the_step_grid_is_reported_at_its_whole_steps(report, shown
 
 def test_a_report_mid_move_counts_the_steps_each_axis_has_taken():
     """Mid-move Grbl reports ``sys_position``: the step events run so far, shared out to
-    each axis by the stepper's Bresenham counters. G1X1Y0.3 at 10 mm/s ($120-$121 so high
-    that it is at speed within 10 us) is ``done = v t - v^2 / 2a`` mm in at ``t``;
-    against the reference's step-by-step counters at 40 random times."""
+    each axis by the stepper's Bresenham counters, tick by tick (at 10 mm/s X steps at
+    2.5 kHz: AMASS level 2, 4 ticks an event, so Y may step within an event before X).
+    G1X1Y0.3 at 10 mm/s ($120-$121 so high that it is at speed within 10 us) is
+    ``done = v t - v^2 / 2a`` mm in at ``t``; against the reference's interrupt ticks
+    (:mod:`grbl_stepper_ticks`) at 40 random times."""
     settings = {110: 1000.0, 111: 1000.0, 120: 1e6, 121: 1e6}
     sim, clock = _sim_in_own_time(SimOptions(baud=0, settings=settings))
     sim.host_write(b"G1X1Y0.3F600\n")
@@ -832,7 +837,7 @@ def test_a_report_mid_move_counts_the_steps_each_axis_has_taken():
     accel = settings[120] * math.hypot(1.0, 0.3)  # X's, the larger share, limits it
     for t in np.sort(np.random.default_rng(7).uniform(0.001, 0.1, 40)):
         done = 10.0 * t - 10.0**2 / (2.0 * accel)
-        want = planner_sim.steps_taken((0.0,) * 3, (1.0, 0.3, 0.0), done)
+        want = ticks_taken((0.0,) * 3, (1.0, 0.3, 0.0), done, 10.0)
         text = _report_at(sim, clock, float(t))
         assert text.startswith("<Run|MPos:" + ",".join(f"{v:.3f}" for v in want) + "|"), (t, text)
     sim.close()

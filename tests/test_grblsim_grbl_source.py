@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import grbl_planner_sim as planner_sim
 import pytest
+from grbl_stepper_ticks import ticks_taken
 from test_grblsim_slowdown import _assert_follows, _Machine, _Prepared, _run_both
 
 # $100=1000 steps/mm and $120=1000 mm/s^2: 10 mm/s is reached in 0.05 mm, so 15 blocks of
@@ -103,7 +104,7 @@ def test_a_soft_limit_in_the_users_own_hold_kills_the_steppers_with_alarm_2():
     machine.at(2.005, b"!")  # acts at 2.05 s at x = -16.5, would stand at -21.5 at 3.05 s
     machine.at(2.55, b"G1X10\n")
     ran = 15.5 + 10.0 * 0.5 - 5.0 * 0.5**2
-    x = planner_sim.steps_taken((-1.0, -1.0, -1.0), (-100.0, -1.0, -1.0), ran)[0]
+    x = ticks_taken((-1.0, -1.0, -1.0), (-100.0, -1.0, -1.0), ran, 5.0)[0]
     assert machine.text.endswith("ALARM:2\r\n[MSG:Reset to continue]\r\n")
     assert "ALARM:3" not in machine.text
     alarms = [e for e in machine.sim.record if e["ev"] == "alarm"]
@@ -130,3 +131,31 @@ def test_a_resume_runs_the_exact_distance_left_from_the_whole_steps_it_stood_on(
     machine.until_still()
     assert machine.times("exec") == pytest.approx([2.0 + 2.0 + 6.975 / 10.0], abs=1e-6)
     assert machine.sim.mpos == (20.0, 0.0, 0.0)
+
+
+def test_a_minor_axis_steps_within_an_event_and_a_reset_there_keeps_that_position():
+    """G1X0.012Y0.008F6: 3 events, Y steps on 2 of them. At 0.1 mm/s (21 events/s) AMASS
+    runs 8 ticks an event; Y's counter, left at 20 of 24 after event 2, steps on the 3rd
+    tick of event 3, X (at 12) only on its 5th: between 2.25 and 2.5 events Grbl reports
+    (2, 2) steps, a position no whole event stands on ((2, 1), then (3, 2)). A reset there
+    (ALARM:3) stops the machine on it. Against the reference's ticks every 2.5 ms; the
+    move (a = 10 / 0.83 mm/s^2, X's share limits it) is at speed after v/a = 8 ms, so
+    ``done = v t - v^2 / 2a``."""
+    machine = _Machine({})
+    machine.at(0.0, b"G1X0.012Y0.008F6\n")
+    end = (0.012, 0.008, 0.0)
+    length = (0.012**2 + 0.008**2) ** 0.5
+    shed = 0.1**2 / (2.0 * 10.0 / (0.012 / length))
+    stop = (2.375 / 3.0 * length + shed) / 0.1
+    for t in [0.02 + 0.0025 * k for k in range(40)] + [stop]:
+        if t <= stop:
+            want = ticks_taken((0.0, 0.0, 0.0), end, 0.1 * t - shed, 0.1)
+            assert machine.report(t)[1] == pytest.approx(want, abs=1e-9), t
+    assert machine.report(stop)[1] == (0.008, 0.008, 0.0)
+    assert (0.008, 0.008, 0.0) not in [
+        planner_sim.steps_taken((0.0, 0.0, 0.0), end, length * k / 3.0) for k in range(4)
+    ]
+    machine.at(stop, b"\x18")
+    assert "ALARM:3" in machine.text
+    machine.until_still()
+    assert machine.sim.mpos == pytest.approx((0.008, 0.008, 0.0), abs=1e-12)

@@ -21,6 +21,7 @@ import threading
 import grbl_planner_sim as planner_sim
 import numpy as np
 import pytest
+from grbl_stepper_ticks import ticks_taken
 
 from scratchfab.machine.grblsim import GrblSim, SimOptions
 
@@ -162,9 +163,10 @@ def _run_both(settings, lines, events, samples):
     return machine, got, want, stepper
 
 
-def _taken_x(x: float) -> float:
-    """What Grbl reports at ``x`` mm into a move along +X from 0: its whole steps."""
-    return planner_sim.steps_taken((0.0, 0.0, 0.0), (50.0, 0.0, 0.0), x)[0]
+def _taken_x(x: float, speed: float) -> float:
+    """What Grbl reports at ``x`` mm into a move along +X from 0 at ``speed`` mm/s: the
+    steps its interrupt has taken (:mod:`grbl_stepper_ticks`)."""
+    return ticks_taken((0.0, 0.0, 0.0), (50.0, 0.0, 0.0), x, speed)[0]
 
 
 def _assert_follows(got, want) -> None:
@@ -190,11 +192,14 @@ def test_a_feed_hold_slows_down_over_v2_over_2a_then_resumes_from_rest():
     for t, (state, (x, _, _), rate) in zip(samples, got, strict=True):
         if 2.005 <= t < 2.05:
             assert state == "Hold:1"
-            assert (x, rate) == (_taken_x(10.0 * t - 5.0), 600.0)
+            assert (x, rate) == (_taken_x(10.0 * t - 5.0, 10.0), 600.0)
         elif 2.05 <= t < 3.05:
             tau = t - 2.05
             assert state == "Hold:1"
-            assert x == pytest.approx(_taken_x(15.5 + 10.0 * tau - 5.0 * tau * tau), abs=6e-4)
+            speed = 10.0 - 10.0 * tau
+            assert x == pytest.approx(
+                _taken_x(15.5 + 10.0 * tau - 5.0 * tau * tau, speed), abs=6e-4
+            )
             assert rate == pytest.approx(60.0 * (10.0 - 10.0 * tau), abs=0.6)
         elif 3.05 < t < 4.0:
             assert (state, x, rate) == ("Hold:0", 20.5, 0.0)
@@ -243,7 +248,9 @@ def test_a_jog_cancel_slows_down_then_flushes_the_jog_where_it_stood():
     machine.at(0.0, b"$J=G91X20F600\n")
     machine.at(1.505, b"\x85")
     state, (x, _, _), rate = machine.report(2.2)
-    assert state == "Jog" and x == pytest.approx(_taken_x(10.5 + 6.5 - 5.0 * 0.65**2), abs=6e-4)
+    assert state == "Jog" and x == pytest.approx(
+        _taken_x(10.5 + 6.5 - 5.0 * 0.65**2, 3.5), abs=6e-4
+    )
     assert rate == pytest.approx(60.0 * 3.5, abs=0.6)
     assert machine.report(2.6) == ("Idle", (15.5, 0.0, 0.0), 0.0)
     machine.until_still()
@@ -286,7 +293,7 @@ def test_a_jog_takes_no_feed_override():
     assert machine.report(1.5) == ("Jog", (10.0, 0.0, 0.0), 600.0)
     assert machine.report(3.5) == ("Idle", (20.0, 0.0, 0.0), 0.0)
     machine.at(4.0, b"G1X0F600\n")
-    x = planner_sim.steps_taken((20.0, 0.0, 0.0), (0.0, 0.0, 0.0), 1.25 + 5.0 * 1.5)[0]
+    x = ticks_taken((20.0, 0.0, 0.0), (0.0, 0.0, 0.0), 1.25 + 5.0 * 1.5, 5.0)[0]
     assert machine.report(6.0) == ("Run", (x, 0.0, 0.0), 300.0)
     machine.until_still()
 
@@ -372,7 +379,7 @@ def test_a_soft_limit_in_a_cycle_holds_first_then_alarms_where_it_stood():
     state, (x, _, _), _ = machine.report(2.55)
     ran = 15.5 + 10.0 * 0.5 - 5.0 * 0.5**2
     assert state == "Hold:1"
-    assert x == planner_sim.steps_taken((-1.0, -1.0, -1.0), (-100.0, -1.0, -1.0), ran)[0]
+    assert x == ticks_taken((-1.0, -1.0, -1.0), (-100.0, -1.0, -1.0), ran, 5.0)[0]
     assert "ALARM" not in machine.text
     machine.at(3.049)
     assert "ALARM" not in machine.text

@@ -17,9 +17,10 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   ends at rest, so a planner that runs short slows down; a block queued behind the running
   one re-plans it from its current speed), trapezoid profiles in the reported position and
   realtime ``FS:`` rate; moves run between targets rounded to whole steps
-  (``$100``-``$102``) and the reported position is the whole steps taken so far (each axis
-  by Grbl's Bresenham counters), so ``X0.01`` at 250 steps/mm ends at 0.012; a move of no
-  whole step, which Grbl drops, passes at once, takes no block in ``Bf:`` and no
+  (``$100``-``$102``) and the reported position is the steps taken so far (each axis
+  by Grbl's Bresenham counters, tick by tick under AMASS, an event's ticks from one
+  event's distance before it ends), so ``X0.01`` at 250 steps/mm ends at 0.012; a move
+  of no whole step, which Grbl drops, passes at once, takes no block in ``Bf:`` and no
   ``plan_time``; a changed feed or rapid override (``0x90``-``0x97``) re-plans, the
   running block slowing down (through it into the next where it is too short) or
   speeding up at its acceleration; a hold or override acts once the stepper has run
@@ -1273,25 +1274,49 @@ class GrblSim:
         return self._target if self._on_grid(self._target) == self.mpos else self.mpos
 
     def _position(self, t: float) -> tuple[float, float, float]:
-        """Grbl's ``sys_position``: the whole steps taken so far, in mm.
+        """Grbl's ``sys_position``: the steps its stepper interrupt has taken so far, in mm.
 
-        The head block has run ``n`` of its ``count`` step events (the most steps of an
-        axis) where it is, as ``st_prep_buffer`` counts them (``count - ceil(steps left)``);
-        each axis has stepped as Grbl's Bresenham counters do (``stepper.c``'s ISR: a
-        counter starting at half the events, a step each time it exceeds them).
+        The head block's ``count`` step events (the most steps of an axis) run in segments
+        whose first interrupt tick comes where the exact distance left is a whole number of
+        steps (``st_prep_buffer`` carries the partial step's time, ``dt_remainder``) and runs
+        an event at once: while moving, event ``k`` has run from ``k - 1`` events' distance
+        on, up to the events the stepper gets (``count``, or ``count - ceil(steps left)``
+        where a hold ends inside the block); at rest ``count - ceil(steps left)`` have run.
+        Below 8 kHz AMASS splits an event into 2, 4 or 8 ticks (:func:`_amass_level`), its
+        Bresenham counters scaled by 8 (``stepper.c``'s ISR: each axis's counter starts at
+        half the events, adds its steps each tick and steps the axis when it exceeds the
+        events), so a minor axis may step within an event before the major one does.
         """
         if not self._planner:
             return self.mpos
         head = self._planner[0]
-        done = head.done + self._head_progress(t)[0]
+        ran, speed = self._head_progress(t)
         a, b = self._to_steps(head.start), self._to_steps(head.end)
-        count = max(abs(j - i) for i, j in zip(a, b, strict=True))
+        count = max(abs(q - p) for p, q in zip(a, b, strict=True))
         if count == 0 or head.length <= 0.0:
             return head.start
-        n = min(count, max(0, math.floor(done / head.length * count + 1e-9)))
+        per_mm = count / head.length
+        events = (head.done + ran) * per_mm
+        whole = min(count, max(0, math.floor(events + 1e-9)))
+        level, ticks = 0, whole
+        if speed > 0.0 and self._running() and self.options.time_scale > 0.0:
+            left = head.length - head.done
+            last = count if head.span >= left else math.floor((head.done + head.span) * per_mm)
+            level = _amass_level(speed * per_mm)
+            ticks = max(
+                whole << level,
+                min(math.floor(events * (1 << level) + 1e-9) + 1, max(last, 0) << level),
+            )
+        n, j = divmod(ticks, 1 << level)
         now = tuple(
-            i + int(math.copysign((count + 2 * n * abs(j - i) - 1) // (2 * count), j - i))
-            for i, j in zip(a, b, strict=True)
+            p
+            + int(
+                math.copysign(
+                    (4 * count + (8 * n + (j << (3 - level))) * abs(q - p) - 1) // (8 * count),
+                    q - p,
+                )
+            )
+            for p, q in zip(a, b, strict=True)
         )
         return self._from_steps(now)  # type: ignore[arg-type]
 
@@ -1680,6 +1705,16 @@ def _override(value: int, k: int) -> int:
     if k == 0:
         return 100
     return min(200, max(10, value + (10, -10, 1, -1)[k - 1]))
+
+
+def _amass_level(events_per_s: float) -> int:
+    """Grbl's AMASS level at a step rate: 0 above 8 kHz, then 1, 2, 3 below 4 and 2 kHz.
+
+    ``st_prep_buffer`` compares a segment's cycles per step at 16 MHz with ``AMASS_LEVEL1``
+    to ``3`` (``F_CPU`` / 8000, / 4000, / 2000); level ``L`` runs ``2^L`` ticks an event.
+    """
+    cycles = 16e6 / events_per_s
+    return 0 if cycles < 2000 else 1 if cycles < 4000 else 2 if cycles < 8000 else 3
 
 
 def _g_words(body: str) -> list[str]:
