@@ -116,14 +116,16 @@ def test_a_file_design_with_several_close_pairs_says_move_them_once():
 def test_default_count_is_capped_on_large_boards_with_a_line_saying_how_to_ask_for_more(
     white, tmp_path, capsys, monkeypatch
 ):
-    """0.5 per mm^2 stays for boards up to the cap (100 x 100 mm: 5000, as before); a
-    600 x 600 mm board gets the cap and a line naming the --count that lays them all."""
+    """0.5 per mm^2 stays for boards up to the cap (100 x 100 mm: 5000, 600 x 600 mm:
+    180000, as before); a larger board gets the cap and a line naming the --count that
+    lays them all."""
     assert quick_design([white], (100.0, 100.0)).scratch.count == 5000
     assert quick_design([white], (30.0, 20.0)).scratch.count == round(COUNT_PER_MM2 * 600)
     side = math.sqrt(COUNT_CAP / COUNT_PER_MM2)
     assert quick_design([white], (side, side)).scratch.count == COUNT_CAP
-    assert quick_design([white], (600.0, 600.0)).scratch.count == COUNT_CAP
-    assert quick_design([white], (600.0, 600.0), count=30).scratch.count == 30
+    assert quick_design([white], (600.0, 600.0)).scratch.count == 180_000 < COUNT_CAP
+    assert quick_design([white], (1000.0, 1000.0)).scratch.count == COUNT_CAP
+    assert quick_design([white], (1000.0, 1000.0), count=30).scratch.count == 30
     # 10 m square: 50 million at 0.5 per mm^2 was refused (scratch.count's most is 1e7)
     assert quick_design([white], (10000.0, 10000.0)).scratch.count == COUNT_CAP
 

@@ -53,7 +53,7 @@ if TYPE_CHECKING:
     "--count",
     type=click.IntRange(min=1),
     default=None,
-    show_default="the file's scratch.count; quick form: 0.5 per mm^2, at most 20000",
+    show_default="the file's scratch.count; quick form: 0.5 per mm^2, at most 200000",
     help="Number of scratches.",
 )
 @click.option(
