@@ -1186,6 +1186,7 @@ class GrblSim:
             self._apply_deferred(t, kind)
 
     def _apply_deferred(self, t: float, kind: str) -> None:
+        """A deferred change acts: an override's re-plan, or the stop from where it is."""
         if kind == "replan":
             self._planned_overrides = self._overrides[:2]
             self._replan(t)
@@ -1204,6 +1205,7 @@ class GrblSim:
             self._stopped(t)  # nothing moves
 
     def _clear_deferred(self) -> None:
+        """Nothing waits on the segments (stopped, reset): the overrides plan from now on."""
         self._planned_overrides = self._overrides[:2]
         self._deferred = []
         self._stop_due = False
@@ -1225,7 +1227,11 @@ class GrblSim:
     def _stopped(self, t: float) -> None:
         """The hold's deceleration ended: ``Hold:0``, the door's stop or the jog's flush.
 
-        Grbl's ``plan_cycle_reinitialize``: the rest of the head is planned from rest.
+        Grbl's ``plan_cycle_reinitialize``: the rest of the head is planned from rest. It
+        keeps the exact mm left (``st_prep_buffer`` sets ``pl_block->millimeters`` to where
+        the forced deceleration ended, on no step) and the whole steps left
+        (``prep.steps_remaining``): the resume's profile covers those mm, the position
+        counts the steps (:meth:`_position`).
         """
         self._stopping = False
         self._clear_deferred()
