@@ -20,10 +20,10 @@ from test_optimize_helpers import cross_of, make_job, make_layout
 
 import scratchfab.optimize.optimizer as optimizer_module
 from scratchfab import metrics
-from scratchfab.design.feasibility import check_feasibility, glint_limit_deg
+from scratchfab.design.feasibility import check_feasibility, design_glint_deg, glint_limit_deg
 from scratchfab.model.camera import Camera
 from scratchfab.model.design import Design, design_from_mapping
-from scratchfab.optimize.glint import ViewGlint, design_glint_deg
+from scratchfab.optimize.glint import ViewGlint
 from scratchfab.optimize.loss import view_error
 from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
 from scratchfab.optimize.progress import message_text, progress_printer

@@ -88,6 +88,12 @@ def scratch_response(
     return np.asarray(inner / (nodes - 1))
 
 
+def design_glint_deg(design: Design) -> float:
+    """The glint limit (degrees of half-vector tilt) of the design's tool and board."""
+    tool = design.scratch
+    return glint_limit_deg(tool.width_mm, tool.depth_mm, design.board.roughness)
+
+
 def glint_limit_deg(width_mm: float, depth_mm: float, roughness: float) -> float:
     """Half-vector tilt below which the bare board outshines any scratch (the glint).
 
@@ -333,7 +339,7 @@ def check_feasibility(
     tool = design.scratch
     steepest = float(steepest_wall_deg(tool.width_mm, tool.depth_mm))
     lobe = lobe_deg(design.board.roughness)
-    glint_deg = glint_limit_deg(tool.width_mm, tool.depth_mm, design.board.roughness)
+    glint_deg = design_glint_deg(design)
     pts = board_points(design.board, grid)
     hs = {v.name: half_vectors(design, v, pts) for v in design.views}
     errors: list[str] = []

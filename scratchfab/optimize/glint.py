@@ -28,15 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scratchfab.design.feasibility import glint_limit_deg, tilt_deg
-from scratchfab.model.design import Design
+from scratchfab.design.feasibility import tilt_deg
 from scratchfab.render.renderer import ViewRenderer
-
-
-def design_glint_deg(design: Design) -> float:
-    """The glint limit (degrees of half-vector tilt) of the design's tool and board."""
-    tool = design.scratch
-    return glint_limit_deg(tool.width_mm, tool.depth_mm, design.board.roughness)
 
 
 def glints(h: np.ndarray, limit_deg: float) -> np.ndarray:
@@ -82,7 +75,7 @@ def view_glint(renderer: ViewRenderer, limit_deg: float) -> ViewGlint:
 
     Args:
         renderer: The view's renderer (its half-vectors, footprints and bare board).
-        limit_deg: :func:`design_glint_deg`.
+        limit_deg: :func:`scratchfab.design.feasibility.design_glint_deg`.
     """
     area_on_board = renderer.area_on_board
     bare = renderer.factor * area_on_board * renderer.d_flat  # the render without scratches

@@ -48,10 +48,11 @@ import drjit as dr
 import numpy as np
 
 from scratchfab.backend import jit_array
+from scratchfab.design.feasibility import design_glint_deg
 from scratchfab.errors import ScratchfabError
 from scratchfab.model.design import Design
 from scratchfab.model.scratches import ScratchSet
-from scratchfab.optimize.glint import design_glint_deg, view_glint
+from scratchfab.optimize.glint import view_glint
 from scratchfab.optimize.loss import Space, merge_penalty, neighbour_pairs, view_error
 from scratchfab.optimize.options import StepSchedule
 from scratchfab.optimize.params import (
