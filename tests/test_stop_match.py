@@ -35,26 +35,33 @@ def _lround(v: float) -> int:
     return int(v + 0.5) if v >= 0 else -int(-v + 0.5)
 
 
-def _grbl_steps(start, end, spm: float) -> list[tuple[float, float]]:
-    """Every position (mm) Grbl's Bresenham stepper passes from ``start`` to ``end`` (X, Y)."""
-    a = [_lround(v * spm) for v in start]
-    b = [_lround(v * spm) for v in end]
+def _grbl_steps(start, end, spm: float) -> list[tuple[float, ...]]:
+    """Every position (mm) Grbl's Bresenham stepper passes from ``start`` to ``end``."""
+    zero, k = (0.0,) * len(start), (spm,) * len(start)
+    path = _stepper(_machine_steps(start, zero, k), _machine_steps(end, zero, k))
+    return [_work_at(q, zero, k) for q in path]
+
+
+def _stepper(a, b) -> list[tuple[int, ...]]:
+    """Every step position (counts) Grbl's stepper passes from step ``a`` to step ``b``.
+
+    Grbl (AMASS on, its default): the block's counts scaled by 8 (<< MAX_AMASS_LEVEL),
+    st.counter_x = st.exec_block->step_event_count >> 1.
+    """
     n = [abs(q - p) for p, q in zip(a, b, strict=True)]
     sign = [1 if q >= p else -1 for p, q in zip(a, b, strict=True)]
     events = max(n)
-    # Grbl (AMASS on, its default): the block's counts scaled by 8 (<< MAX_AMASS_LEVEL),
-    # st.counter_x = st.exec_block->step_event_count >> 1
     scaled = events << 3
-    counter = [scaled >> 1] * 2
+    counter = [scaled >> 1] * len(a)
     pos = list(a)
-    out = [(pos[0] / spm, pos[1] / spm)]
+    out = [tuple(pos)]
     for _ in range(events):
-        for k in range(2):
+        for k in range(len(a)):
             counter[k] += n[k] << 3
             if counter[k] > scaled:
                 counter[k] -= scaled
                 pos[k] += sign[k]
-        out.append((pos[0] / spm, pos[1] / spm))
+        out.append(tuple(pos))
     return out
 
 
@@ -307,25 +314,6 @@ def _machine_steps(work, wco, spm_xyz) -> tuple[int, ...]:
 
 def _work_at(steps, wco, spm_xyz) -> tuple[float, ...]:
     return tuple(n / k - o for n, o, k in zip(steps, wco, spm_xyz, strict=True))
-
-
-def _stepper(a, b) -> list[tuple[int, ...]]:
-    """Every step position (counts) Grbl's AMASS Bresenham passes from ``a`` to ``b``."""
-    n = [abs(q - p) for p, q in zip(a, b, strict=True)]
-    sign = [1 if q >= p else -1 for p, q in zip(a, b, strict=True)]
-    events = max(n)
-    scaled = events << 3
-    counter = [scaled >> 1] * len(a)
-    pos = list(a)
-    out = [tuple(pos)]
-    for _ in range(events):
-        for k in range(len(a)):
-            counter[k] += n[k] << 3
-            if counter[k] > scaled:
-                counter[k] -= scaled
-                pos[k] += sign[k]
-        out.append(tuple(pos))
-    return out
 
 
 def _streamer_spm(tmp_path, text: str, spm_xyz) -> Streamer:
