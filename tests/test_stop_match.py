@@ -473,6 +473,7 @@ def test_the_time_left_takes_a_corner_rounded_off_both_moves_for_the_next_ones_s
         ("G10L20P1X0", 2),
         ("G55", 2),
         ("G43.1Z0.5", 2),
+        ("G49", 4),  # no offset set before: GRBL's own 0 after a reset, no change
         ("G91G1X1", 2),  # increments summed in single precision
         ("G54G1X2", 4),  # the system already in use
         ("G1X2(G92)", 4),  # a comment is no block

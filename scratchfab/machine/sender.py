@@ -1929,7 +1929,7 @@ def steps_counted_until(blocks: Sequence[Block]) -> int:
             m.relative
             or m.wcs != before.wcs
             or m.z_frame != before.z_frame
-            or m.tlo != before.tlo
+            or (m.tlo or 0.0) != (before.tlo or 0.0)  # a header's G49: GRBL's 0 kept
             or _SETS_OFFSET.search(b.text)
         ):
             return j
