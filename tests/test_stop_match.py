@@ -297,14 +297,19 @@ def test_under_inch_reports_a_stop_a_step_short_is_not_taken_for_the_end(tmp_pat
 # ------------------------------------------------------------------ in whole steps
 
 
-def _report(work, wco, spm_xyz, digits: int = 3):
+def _report(work, wco, spm_xyz, digits: int = 3, wpos_given: bool = False):
     """Grbl's hold report at work position ``work`` (its steps) under offset ``wco``: MPos
     and WCO each rounded to the report's digits; the sender's work position is their
-    difference (as ``parse_status`` computes it)."""
-    mpos = [round(w + o, digits) for w, o in zip(work, wco, strict=True)]
+    difference (as ``parse_status`` computes it). ``wpos_given`` (``$10=0``): WPos
+    rounded instead, MPos counted from it."""
     wco_r = tuple(round(o, digits) for o in wco)
+    if wpos_given:
+        wpos = tuple(round(w, digits) for w in work)
+        mpos = tuple(w + o for w, o in zip(wpos, wco_r, strict=True))
+        return Status(state="Hold:0", mpos=mpos, wpos=wpos, wco=wco_r)
+    mpos = tuple(round(w + o, digits) for w, o in zip(work, wco, strict=True))
     wpos = tuple(m - o for m, o in zip(mpos, wco_r, strict=True))
-    return Status(state="Hold:0", mpos=tuple(mpos), wpos=wpos, wco=wco_r, mpos_given=True)
+    return Status(state="Hold:0", mpos=mpos, wpos=wpos, wco=wco_r, mpos_given=True)
 
 
 def _machine_steps(work, wco, spm_xyz) -> tuple[int, ...]:
@@ -414,14 +419,19 @@ def _random_job(rng) -> tuple[str, list[tuple[float, float, float]]]:
 @pytest.mark.parametrize("seed", range(8))
 def test_fuzz_random_jobs_never_trust_a_move_that_had_not_run(tmp_path, seed):
     """Random jobs, steps/mm and offsets (below a report's digit too): stopped on any step
-    Grbl passes on a move (lround targets, AMASS Bresenham, MPos and WCO rounded to 3
-    decimals, a planner's worth acknowledged past it), the executed-through never counts
+    Grbl passes on a move (lround targets, AMASS Bresenham, MPos or WPos and WCO rounded
+    to 3 decimals, a planner's worth acknowledged past it), the executed-through never counts
     that move; at its last step it counts it where the steps tell (most of them)."""
     rng = np.random.default_rng(seed)
     text, pts = _random_job(rng)
     spm = float(rng.choice([40.0, 80.0, 250.0, 800.0]))
     spm_xyz = (spm, spm, float(rng.choice([spm, 400.0])))
     wco = tuple(round(float(v), 5) for v in rng.uniform(-20, 20, 3))
+    given = bool(seed % 2)  # WPos reported ($10=0): the machine position to two digits
+
+    def report(q):
+        return _report(_work_at(q, wco, spm_xyz), wco, spm_xyz, wpos_given=given)
+
     s = _streamer_spm(tmp_path, text, spm_xyz)
     machine = [_machine_steps((0.0, 0.0, 5.0), wco, spm_xyz)]  # Z where the job starts
     machine += [_machine_steps(p, wco, spm_xyz) for p in pts]
@@ -432,13 +442,12 @@ def test_fuzz_random_jobs_never_trust_a_move_that_had_not_run(tmp_path, seed):
         path = _stepper(machine[k - 1], machine[k])
         inside = path[1:-1]  # on the move, its first step taken: it had not ended
         for q in inside[:: max(1, len(inside) // 16)] + inside[-3:]:
-            report = _report(_work_at(q, wco, spm_xyz), wco, spm_xyz)
-            assert s._executed_guess(report) <= k - 1, (k, q)
+            assert s._executed_guess(report(q)) <= k - 1, (k, q)
         if len(path) > 1:
             ran = k  # and the moves after it Grbl drops (no step: nothing to run)
             while ran + 1 < len(machine) and machine[ran + 1] == machine[k]:
                 ran += 1
-            got = s._executed_guess(_report(_work_at(path[-1], wco, spm_xyz), wco, spm_xyz))
+            got = s._executed_guess(report(path[-1]))
             assert got <= ran, (k, path[-1])
             ends += got >= k
             total += 1
