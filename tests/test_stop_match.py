@@ -42,11 +42,13 @@ def _grbl_steps(start, end, spm: float) -> list[tuple[float, ...]]:
     return [_work_at(q, zero, k) for q in path]
 
 
-def _stepper(a, b) -> list[tuple[int, ...]]:
+def _stepper(a, b, level: int = 0) -> list[tuple[int, ...]]:
     """Every step position (counts) Grbl's stepper passes from step ``a`` to step ``b``.
 
     Grbl (AMASS on, its default): the block's counts scaled by 8 (<< MAX_AMASS_LEVEL),
-    st.counter_x = st.exec_block->step_event_count >> 1.
+    st.counter_x = st.exec_block->step_event_count >> 1; at AMASS ``level`` the interrupt
+    ticks 2**level times a step event, adding the counts >> level (a minor axis may step
+    between two steps of the major one): every tick's position.
     """
     n = [abs(q - p) for p, q in zip(a, b, strict=True)]
     sign = [1 if q >= p else -1 for p, q in zip(a, b, strict=True)]
@@ -55,13 +57,14 @@ def _stepper(a, b) -> list[tuple[int, ...]]:
     counter = [scaled >> 1] * len(a)
     pos = list(a)
     out = [tuple(pos)]
-    for _ in range(events):
+    for _ in range(events << level):
         for k in range(len(a)):
-            counter[k] += n[k] << 3
+            counter[k] += (n[k] << 3) >> level
             if counter[k] > scaled:
                 counter[k] -= scaled
                 pos[k] += sign[k]
-        out.append(tuple(pos))
+        if tuple(pos) != out[-1]:
+            out.append(tuple(pos))
     return out
 
 
@@ -439,7 +442,7 @@ def test_fuzz_random_jobs_never_trust_a_move_that_had_not_run(tmp_path, seed):
     for k in range(1, len(machine)):  # block k moves from machine[k - 1] to machine[k]
         s._acked_blocks = list(range(min(len(machine), k + 12)))
         s._acks_at_status = len(s._acked_blocks)
-        path = _stepper(machine[k - 1], machine[k])
+        path = _stepper(machine[k - 1], machine[k], level=seed % 4)
         inside = path[1:-1]  # on the move, its first step taken: it had not ended
         for q in inside[:: max(1, len(inside) // 16)] + inside[-3:]:
             assert s._executed_guess(report(q)) <= k - 1, (k, q)
