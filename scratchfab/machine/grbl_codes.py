@@ -50,7 +50,10 @@ ERROR_CODES: dict[int, str] = {
 #: ``ALARM:N`` -> meaning.
 ALARM_CODES: dict[int, str] = {
     1: "hard limit triggered; machine position is likely lost, re-home",
-    2: "soft limit: the target exceeds the machine travel; position kept, reset then unlock",
+    2: (
+        "soft limit: the target exceeds the machine travel; position kept unless a feed hold "
+        "was slowing the machine down, reset then unlock"
+    ),
     3: "reset while in motion; position is likely lost, re-home",
     4: "probe fail: the probe is not in the expected initial state",
     5: "probe fail: the probe did not contact the workpiece",

@@ -427,6 +427,8 @@ class Streamer:
     # ------------------------------------------------------------------ I/O
 
     def _write(self, data: bytes) -> None:
+        if data == REALTIME_HOLD:
+            self._hold_unseen = True  # until a report shows the machine standing
         try:
             self.port.write(data)
         except (serial.SerialException, OSError) as exc:
@@ -475,6 +477,8 @@ class Streamer:
         self._acks_at_status = len(self._acked_blocks)
         if self.status.wco is not None:
             self._wco = self.status.wco
+        if self.status.state in ("Hold:0", "Idle") or self.status.state.startswith("Door"):
+            self._hold_unseen = False  # stood still (a door's suspend reads no line either)
 
     def _command(self, text: str) -> list[str]:
         """Send a line alone and collect the lines before its ``ok``; error:N raises."""
@@ -852,6 +856,8 @@ class Streamer:
         self._program = program
         self._acked_blocks = []
         self._acks_at_status = 0
+        self._hold_alarm = None
+        self._hold_unseen = False  # a hold before the connect's reset is over
         self._all_ran = False  # END_WAIT acknowledged: every acknowledged block ran
         try:
             with _signals_stop(self):
@@ -995,13 +1001,7 @@ class Streamer:
                             paused_since = None
                         door = self._tell_door(door, self.status.state)
                     elif line.startswith("ALARM:"):
-                        code = _code(line)
-                        journal.write("alarm", code=code)
-                        raise _Fault(
-                            f"ALARM:{code} ({alarm_meaning(code)}) after line "
-                            f"{self._last_acked_line()}; the controller stopped the job",
-                            kind="alarm",
-                        )
+                        raise self._alarm_fault(_code(line))
                     elif banner_firmware(line):
                         raise self._reset_fault("mid-job")
                     elif line.startswith("[MSG:"):
@@ -1101,6 +1101,48 @@ class Streamer:
 
     _stopping = False
     _all_ran = False
+    _hold_unseen = False  # a feed hold was sent and no report since shows the machine still
+    _alarm_lost = False  # the last alarm stopped the machine at speed: position likely lost
+    _hold_alarm: _Fault | None = None  # an alarm that came while waiting for a hold
+
+    def _alarm_fault(self, code: int) -> _Fault:
+        """The fault of GRBL's ``ALARM:code`` mid-job, journaled (``lost``: see below).
+
+        A soft limit (``ALARM:2``) keeps the position where GRBL raises it in a cycle
+        (``limits_soft_check`` feeds a hold, ``Hold:1``, waits for it, then resets) or
+        standing still. But GRBL reads lines while a feed hold still slows the machine down
+        (``Hold:1``), and one whose target lies outside resets at once: ``mc_reset`` sees
+        the hold running, kills the steppers at speed ("position has likely been lost") and
+        only ``ALARM:2`` is reported. The sender takes the position as likely lost where it
+        sent a feed hold that no report since showed complete, and as unsure where the last
+        report said ``Hold:1`` without one (GRBL's own soft-limit hold, or the controller's
+        feed hold button).
+        """
+        own = self._hold_unseen
+        self._alarm_lost = code == 2 and (own or self.status.state == "Hold:1")
+        meaning = alarm_meaning(code)
+        if self._alarm_lost and own:
+            meaning = (
+                "soft limit: a target beyond the machine travel, read while the feed hold "
+                "the sender sent was still slowing the machine down, so GRBL stopped the "
+                "motors at speed: its position is likely lost, home it ($H) before --resume"
+            )
+        elif self._alarm_lost:
+            meaning = (
+                "soft limit: a target beyond the machine travel, while the machine was "
+                "slowing down (Hold:1): the position is kept if that was GRBL's own "
+                "soft-limit hold, but likely lost if the controller's feed hold button "
+                "was slowing it (GRBL then stopped the motors at speed); home it ($H) "
+                "before --resume unless you know which"
+            )
+        self._journal.write(
+            "alarm", code=code, **({"lost": True} if own and self._alarm_lost else {})
+        )
+        return _Fault(
+            f"ALARM:{code} ({meaning}) after line {self._last_acked_line()}; the controller "
+            "stopped the job",
+            kind="alarm",
+        )
 
     def _finished(self) -> bool:
         """After the last ack: done once a status report after it says Idle.
@@ -1204,6 +1246,8 @@ class Streamer:
         if choice == "resume":
             # GRBL ignores ~ until the hold is complete (Hold:0)
             held = self._wait_held(self.options.hold_timeout)
+            if self._hold_alarm is not None:
+                raise self._hold_alarm  # GRBL is locked: the alarm's stop
             if held is not None and held.state == "Door:1":
                 self.on_message(
                     "the safety door is open: close it, then press cycle start on the "
@@ -1285,7 +1329,13 @@ class Streamer:
                 # answers nothing until reset
                 lifted = self._no_lift(
                     "after an alarm GRBL is locked and the sender never unlocks it; check the "
-                    "machine, home it ($H) or unlock it ($X) yourself, then jog Z up"
+                    "machine, home it ($H)"
+                    + (
+                        " (its position may be lost: not just unlock it)"
+                        if self._alarm_lost
+                        else " or unlock it ($X)"
+                    )
+                    + " yourself, then jog Z up"
                 )
                 self._reset(str(fault), self.status, lifted)
                 fault.args = (str(fault) + _clause(lifted),)
@@ -1354,6 +1404,7 @@ class Streamer:
                         self._write(REALTIME_HOLD)  # the door resumed the cycle: hold it
                         door = False
                 elif line.startswith("ALARM:"):
+                    self._hold_alarm = self._alarm_fault(_code(line))
                     return None
                 elif banner_firmware(line):
                     # a reset while held: its Idle and position are not the hold's
@@ -1379,7 +1430,8 @@ class Streamer:
         through = self._executed_guess(held)
         lifted = self._lift(held, banner, frame)
         self._journal.write("stop", reason=reason, executed_through=through, **_journaled(lifted))
-        return _clause(lifted)
+        alarm = "" if self._hold_alarm is None else f"; {self._hold_alarm}"
+        return alarm + _clause(lifted)
 
     # ------------------------------------------------------------------ lifting the tool
 

@@ -9,6 +9,8 @@ line, which the reader skips). Events:
 - ``{"ev": "ack", "i": block, "line": file_line}`` for each ``ok`` of a file block
   (``{"ev": "ack", "pre": k}`` for the k-th resume preamble block)
 - ``{"ev": "error", "i": block, "line": file_line, "code": N}`` / ``{"ev": "alarm", "code": N}``
+  (with ``"lost": true`` where GRBL stopped the machine at speed: a soft limit during a
+  feed hold still slowing down; the position is likely lost)
 - ``{"ev": "stop", "reason": ..., "executed_through": i|null}``: the controller was reset and
   its queue flushed; blocks after ``executed_through`` may not have run although acknowledged.
   With the sender's lift on it also holds ``"lift"``: ``{"result": "raised"|"up", "z":
