@@ -76,3 +76,26 @@ def test_a_picture_named_board_without_a_design_beside_it_is_named_alone(
     comment = _comment(job / "design" / "design.toml")
     assert f"# sun: {picture.resolve()}" in comment
     assert not [line for line in comment if "earlier design" in line]
+
+
+def test_an_earlier_reruns_own_options_stay_in_the_chain(pictures, tmp_path, capsys):
+    """A rerun that changed the board picture (gamma 2) is named after the first image: a
+    design made from its board picture says both steps, not only the first one's options."""
+    quick = [str(pictures[0]), "--board", "30x30", "--count", "40", "--resolution", "12"]
+    first, second, third = (tmp_path / f"job{i}" for i in (1, 2, 3))
+    main(["design", *quick, "--out", str(first)])
+    main(["design", str(first / "design" / "design.toml"), "--gamma", "2", "--out", str(second)])
+    main(["design", str(second / "design" / "design.toml"), "--out", str(third)])
+    capsys.readouterr()
+    comment = _comment(third / "design" / "design.toml")
+    line = comment.index(f"# sun: {second / 'design' / 'board' / 'sun.png'}")
+    assert comment[line + 1] == (
+        f"#   the board picture an earlier design made from {pictures[0].resolve()} "
+        "(fit = contain, gamma = 1, contrast = 1), then (fit = contain, gamma = 2, contrast = 1)"
+    )
+    # a plain rerun (gamma and contrast 1) adds no step
+    main(["design", str(third / "design" / "design.toml"), "--out", str(tmp_path / "job4")])
+    capsys.readouterr()
+    again = _comment(tmp_path / "job4" / "design" / "design.toml")
+    named = again.index(f"# sun: {third / 'design' / 'board' / 'sun.png'}")
+    assert again[named + 1] == comment[line + 1]

@@ -142,8 +142,10 @@ def _earlier_origin(picture: Path) -> str | None:
 
     Read from the comment heading the design.toml beside ``board/`` (written by
     :func:`_origin_comment`): the image its line names with that design's options, or,
-    when that was a rerun too, the image its own second line names. None for any other
-    picture, or a design.toml without the comment.
+    when that was a rerun too, what its own second line names, followed by that design's
+    options where they changed the picture (gamma or contrast other than 1; the fit of a
+    board picture changes nothing). None for any other picture, or a design.toml without
+    the comment.
     """
     if picture.parent.name != DesignFolder(picture.parent.parent).boards_dir.name:
         return None
@@ -154,15 +156,19 @@ def _earlier_origin(picture: Path) -> str | None:
     lines = text.splitlines()
     if len(lines) < 2 or lines[0] != ORIGIN_HEADER:
         return None
-    options = re.search(r"\((fit = [^)]*)\)", lines[1])
+    found = re.search(r"\((fit = [^)]*)\)", lines[1])
+    options = f"({found.group(1)})" if found else ""
     own = f"# {picture.stem}: "
     for line, after in zip(lines, [*lines[1:], ""], strict=True):
         if not line.startswith("#"):
             break
         if line.startswith(own):
-            if after.startswith(EARLIER):
-                return after[len(EARLIER) :]
-            return line[len(own) :] + (f" ({options.group(1)})" if options else "")
+            if not after.startswith(EARLIER):
+                return " ".join(filter(None, [line[len(own) :], options]))
+            earlier = after[len(EARLIER) :]
+            if not options or options.endswith("gamma = 1, contrast = 1)"):
+                return earlier
+            return f"{earlier}, then {options}"
     return None
 
 
