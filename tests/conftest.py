@@ -223,3 +223,24 @@ def assert_views_see_the_whole_board_and_are_feasible(design: Design) -> None:
     report = check_feasibility(design)
     assert report.errors == []
     assert all(v.reachable_fraction == 1.0 for v in report.views.values())
+
+
+@pytest.fixture()
+def white(tmp_path: Path) -> Path:
+    """A 16 x 16 white PNG: a target image for the quick form."""
+    path = tmp_path / "w.png"
+    Image.new("L", (16, 16), 255).save(path)
+    return path
+
+
+def cli_said(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    """Run ``scratchfab ARGV``: its exit code (0: ran through) and everything it said."""
+    from scratchfab.cli import main
+
+    try:
+        main(argv)
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out = capsys.readouterr()
+    return code, out.out + out.err

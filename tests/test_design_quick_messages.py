@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PIL import Image
+from conftest import cli_said
 
 from scratchfab.cli import main
 from scratchfab.design import quick
@@ -23,22 +23,9 @@ from scratchfab.model.design import design_from_mapping
 GLINT_WORDS = "mirrors the light"
 
 
-@pytest.fixture()
-def white(tmp_path: Path) -> Path:
-    path = tmp_path / "w.png"
-    Image.new("L", (16, 16), 255).save(path)
-    return path
-
-
 def _design(args: list[str], capsys) -> tuple[int, str]:
     """Exit code (0: ran through) and everything said."""
-    try:
-        main(["design", *args])
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    out = capsys.readouterr()
-    return code, out.out + out.err
+    return cli_said(["design", *args], capsys)
 
 
 def _least_tilt_deg(design, samples: int = 121) -> float:

@@ -4,32 +4,16 @@ from __future__ import annotations
 
 import math
 import re
-from pathlib import Path
 
-import pytest
-from PIL import Image
+from conftest import cli_said
 
-from scratchfab.cli import main
 from scratchfab.design.feasibility import usable_area
 from scratchfab.model.design import Board
 
 
-@pytest.fixture()
-def white(tmp_path: Path) -> Path:
-    path = tmp_path / "w.png"
-    Image.new("L", (16, 16), 255).save(path)
-    return path
-
-
 def _design(args: list[str], capsys) -> tuple[int, str]:
     """Exit code (0: ran through) and everything said."""
-    try:
-        main(["design", *args, "--resolution", "16"])
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    out = capsys.readouterr()
-    return code, out.out + out.err
+    return cli_said(["design", *args, "--resolution", "16"], capsys)
 
 
 def test_crowding_advises_count_and_board_options(tmp_path, white, capsys):
