@@ -490,9 +490,12 @@ def _made_with(
 
 
 #: The fingerprint's digest of the design stage's outputs, as a refusal names it.
-INPUTS_SAID = {
-    "inputs_sha256": "the design's initial scratches or targets: design was rerun",
-    "image_error": "the image error, which now leaves the bare board's glint out",
+INPUTS_SAID = {"inputs_sha256": "the design's initial scratches or targets: design was rerun"}
+#: The fingerprint's forms of the objective, as a refusal names a checkpoint of another
+#: (an earlier scratchfab's): no option resumes it.
+FORM_SAID = {
+    "merge_penalty": "merge penalty had another form",
+    "image_error": "image error counted the bare board's glint (this one leaves it out)",
 }
 
 
@@ -544,11 +547,17 @@ class ResumeRefused(ConfigError):
 
     def reasons(self) -> str:
         """What changed since the checkpoint was made, in the user's terms, without advice."""
-        settings = [INPUTS_SAID.get(k, k) for k in self.changed if k not in self.design]
+        settings = [
+            INPUTS_SAID.get(k, k)
+            for k in self.changed
+            if k not in self.design and k not in FORM_SAID
+        ]
         total = "; a scheduled run's step sizes follow its total" * ("iterations" in settings)
         why = [f"made with different settings or inputs ({', '.join(settings)}{total})"] * bool(
             settings
         )
+        if forms := [FORM_SAID[k] for k in self.changed if k in FORM_SAID]:
+            why.append(f"made by an earlier scratchfab, whose {' and whose '.join(forms)}")
         if self.design:
             changes = ", ".join(f"{k} {v}" for k, v in self.design.items())
             why.append(
