@@ -309,10 +309,12 @@ def _report(work, wco, spm_xyz, digits: int = 3, wpos_given: bool = False):
     if wpos_given:
         wpos = tuple(round(w, digits) for w in work)
         mpos = tuple(w + o for w, o in zip(wpos, wco_r, strict=True))
-        return Status(state="Hold:0", mpos=mpos, wpos=wpos, wco=wco_r)
+        return Status(state="Hold:0", mpos=mpos, wpos=wpos, wco=wco_r, wco_printed=True)
     mpos = tuple(round(w + o, digits) for w, o in zip(work, wco, strict=True))
     wpos = tuple(m - o for m, o in zip(mpos, wco_r, strict=True))
-    return Status(state="Hold:0", mpos=mpos, wpos=wpos, wco=wco_r, mpos_given=True)
+    return Status(
+        state="Hold:0", mpos=mpos, wpos=wpos, wco=wco_r, mpos_given=True, wco_printed=True
+    )
 
 
 def _machine_steps(work, wco, spm_xyz) -> tuple[int, ...]:
@@ -495,3 +497,42 @@ def test_steps_are_matched_until_the_first_change_of_the_work_offset(tmp_path, l
     job = tmp_path / "job.gcode"
     job.write_text(f"G21G90\nG0Z1X1\n{line}\nG1X3F100\n")
     assert steps_counted_until(load_program(job).blocks) == counted
+
+
+def test_an_offset_summed_from_the_parameters_is_not_taken_for_grbls_own(tmp_path):
+    """Safety: before any report printed ``WCO:`` (a build without the field, or early in
+    a job) the sender's offset is ``$#``'s G54 plus G92, each rounded to a digit: here
+    0.000 + 0.000 for Grbl's 0.0008 mm. At 800 steps/mm Grbl's X for the cut along Y at
+    X0 is step 1 (lround(0.64)); stopped on it, the cut is never taken for a move the
+    machine is off (which would skip it for the later cut through the same point)."""
+    text = "G21G90\nG0Z1\nG0X0Y0\nG1Z-0.1F100\nG1X0Y10\nG0Z1\nG0X-5Y5\nG1Z-0.1\nG1X5Y5\nG0Z1\n"
+    spm = (800.0, 800.0, 800.0)
+    s = _streamer_spm(tmp_path, text, spm)
+    g54, g92 = (0.0004, 0.0, 0.0), (0.0004, 0.0, 0.0)
+    grbl = tuple(a + b for a, b in zip(g54, g92, strict=True))
+    summed = tuple(round(a, 3) + round(b, 3) for a, b in zip(g54, g92, strict=True))
+    for y in (0.5, 5.0, 9.5):  # stopped on the cut (block 4)
+        q = _machine_steps((0.0, y, -0.1), grbl, spm)
+        assert q[0] == 1
+        mpos = tuple(round(n / k, 3) for n, k in zip(q, spm, strict=True))
+        wpos = tuple(m - o for m, o in zip(mpos, summed, strict=True))
+        report = Status(state="Hold:0", mpos=mpos, wpos=wpos, wco=summed, mpos_given=True)
+        assert s._executed_guess(report) <= CUT - 1, y
+    # the same offset as a report printed it (WCO:0.001): matched in whole steps
+    printed = tuple(round(o, 3) for o in grbl)
+    end = _machine_steps((0.0, 10.0, -0.1), grbl, spm)
+    report = _report(_work_at(end, grbl, spm), grbl, spm)
+    assert report.wco == printed and s._executed_guess(report) == CUT
+
+
+def test_a_reports_wco_is_marked_printed_and_kept_so_for_later_reports():
+    s = Streamer.__new__(Streamer)
+    s.info = ControllerInfo(settings={})
+    s._wco, s._wco_printed, s._acked_blocks = (1.0, 2.0, 3.0), False, []
+    s._hold_unseen = False
+    s._note_status("<Idle|MPos:1.000,2.000,3.000|FS:0,0>")
+    assert s.status.wco == (1.0, 2.0, 3.0) and not s.status.wco_printed  # $#'s sum
+    s._note_status("<Idle|MPos:1.000,2.000,3.000|FS:0,0|WCO:1.001,2.000,3.000>")
+    assert s.status.wco_printed
+    s._note_status("<Idle|MPos:1.000,2.000,3.000|FS:0,0>")
+    assert s.status.wco == (1.001, 2.0, 3.0) and s.status.wco_printed

@@ -205,6 +205,9 @@ class Status:
     time: float = 0.0
     planner_free: int | None = None  # ``Bf:``'s planner blocks free (``$10`` value 2 on)
     mpos_given: bool = False  # the report gave ``MPos`` itself (else WPos was given, or none)
+    #: ``wco`` is as a report printed it (``WCO:``, here or earlier), not summed from
+    #: ``$#``'s offsets, each rounded to a digit
+    wco_printed: bool = False
 
 
 def parse_status(line: str, wco: tuple[float, float, float] | None, scale: float = 1.0) -> Status:
@@ -230,7 +233,7 @@ def parse_status(line: str, wco: tuple[float, float, float] | None, scale: float
                 elif key == "WPos":
                     st.wpos = xyz
                 else:
-                    st.wco = xyz
+                    st.wco, st.wco_printed = xyz, True
             elif key in ("FS", "F"):
                 st.feed = float(nums[0]) * scale
             elif key == "Bf":
@@ -418,6 +421,7 @@ class Streamer:
         self._last_rx = time.monotonic()
         self._last_poll = 0.0
         self._wco: tuple[float, float, float] | None = None
+        self._wco_printed = False  # ``_wco`` came from a report's ``WCO:`` (else ``$#``)
         self._acked_blocks: list[int] = []  # file blocks acknowledged, in order
         self._acks_at_status = 0  # how many of them were acknowledged before the last report
         self.sent_log: list[str] = []
@@ -477,6 +481,10 @@ class Streamer:
         self._acks_at_status = len(self._acked_blocks)
         if self.status.wco is not None:
             self._wco = self.status.wco
+        if self.status.wco_printed:
+            self._wco_printed = True
+        else:
+            self.status.wco_printed = self._wco_printed and self._wco is not None
         if self.status.state in ("Hold:0", "Idle") or self.status.state.startswith("Door"):
             self._hold_unseen = False  # stood still (a door's suspend reads no line either)
 
@@ -691,7 +699,7 @@ class Streamer:
                 self.info.g92 = (g92[0] * scale, g92[1] * scale, g92[2] * scale)
                 self.info.wco_source = "$#"
                 # Status reports without WCO: (most of them) derive positions from it too.
-                self._wco = self.info.wco
+                self._wco, self._wco_printed = self.info.wco, False
                 return
             self.on_message(f"$# or $G did not name the active work offset ({wcs or '?'})")
         period = 1.0 / min(self.options.poll_hz, 5.0)
@@ -796,6 +804,7 @@ class Streamer:
         """
         before = self.info.wco
         self.info.wco, self.info.g92, self._wco = None, None, None
+        self._wco_printed = False
         self._read_work_offset()
         after = self.info.wco
         inches = self.info.inch_reports
@@ -1516,7 +1525,7 @@ class Streamer:
         no longer turns a ``WPos`` into a machine position: only a report's own ``WCO``
         does (Grbl sends one in the first report after a reset). ``MPos`` needs none.
         """
-        self._wco = None
+        self._wco, self._wco_printed = None, False
         period = 1.0 / min(self.options.poll_hz, 5.0)
         status = self._status_now()
         for _ in range(11):  # Grbl adds WCO to every 10th report while Idle
@@ -1784,27 +1793,28 @@ class Streamer:
         offset ``WCO``) times ``$100``-``$102``, rounded (``lround``), and reports the steps
         it stands on. Each is known to a span of steps (:func:`step_span`): the report's
         ``WCO`` and ``MPos`` are rounded to a digit (0.001 mm; 0.00254 mm in inch reports),
-        a machine position counted as ``WPos`` plus ``WCO`` to two. None where a step or
-        the report's offset is not known, or the position lies on no step (the offset is
-        not the one the machine ran under).
+        a machine position counted as ``WPos`` plus ``WCO`` to two. An offset summed from
+        ``$#`` (no report printed ``WCO:`` yet: a build without the field, or early in a
+        job) adds up to three rounded parts (the system's, G92, the tool length offset).
+        None where a step or the report's offset is not known, or the position lies on no
+        step (the offset is not the one the machine ran under).
         """
         step = self._step_mm()
         p = report.wpos
         if report.wco is None or p is None or min(step) <= 0.0:
             return None
         digit = REPORT_DIGIT_MM[self.info.inch_reports]
+        off = digit / 2.0 if report.wco_printed else 1.5 * digit  # how far WCO may be off
         blocks = self._program.blocks
         end = known_xyz(blocks[i].modal)
         start = known_xyz(blocks[i - 1].modal) if i > 0 else (None, None, None)
         out = []
         for k, w in enumerate(report.wco):
-            at = step_span(p[k] + w, digit / 2.0 if report.mpos_given else digit, step[k])
+            at = step_span(p[k] + w, digit / 2.0 + (0.0 if report.mpos_given else off), step[k])
             if at[0] > at[1]:
                 return None
             u, v = start[k], end[k]
-            ends = [
-                None if e is None else step_span(e + w, digit / 2.0, step[k], True) for e in (u, v)
-            ]
+            ends = [None if e is None else step_span(e + w, off, step[k], True) for e in (u, v)]
             way = 0 if u is None or v is None else (v > u) - (v < u)
             out.append(_AxisSteps(at, ends[0], ends[1], way))
         return out
