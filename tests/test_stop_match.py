@@ -16,7 +16,7 @@ import pytest
 from grbl_planner_sim import steps_taken
 
 from scratchfab.machine.sender import ControllerInfo, Status, Streamer, steps_counted_until
-from scratchfab.machine.sender_program import TimeLeft, load_program
+from scratchfab.machine.sender_program import TimeLeft, load_program, resume_preamble
 
 STEPS_PER_MM = 80.0  # a belt-driven X/Y: 0.0125 mm a step
 
@@ -536,3 +536,29 @@ def test_a_reports_wco_is_marked_printed_and_kept_so_for_later_reports():
     assert s.status.wco_printed
     s._note_status("<Idle|MPos:1.000,2.000,3.000|FS:0,0>")
     assert s.status.wco == (1.001, 2.0, 3.0) and s.status.wco_printed
+
+
+def test_a_resumed_sessions_first_move_starts_where_the_preamble_left_the_machine(tmp_path):
+    """Safety: a resume preamble writes its numbers to 4 decimals, so X0.00006 becomes
+    X0.0001. Under Grbl's offset 0.00049 (printed WCO:0.000) at 850 steps/mm that is
+    step 1, while the file's X is step 0: the resumed plunge also steps X back. Stopped
+    on it before that step, the machine stands a step beyond where the file's numbers put
+    the plunge on X; the plunge is still the interrupted move (not one the machine is
+    off), although a later plunge passes there."""
+    text = "G21G90\nG0Z1\nG0X0.00006Y0\nG1Z-0.1F100\nG1Y10\nG0Z1\nG0X0.001Y0\nG1Z-0.1\nG1X5\nG0Z1\n"
+    spm = (850.0, 850.0, 800.0)
+    s = _streamer_spm(tmp_path, text, spm)
+    plunge = 3
+    preamble = resume_preamble(s._program, plunge)
+    assert "G0X0.0001Y0" in preamble
+    s._acked_blocks = list(range(plunge, len(s._program.blocks)))
+    s._acks_at_status = len(s._acked_blocks)
+    wco = (0.00049, 0.0, 0.0)
+    left = _machine_steps((0.0001, 0.0, 1.0), wco, spm)  # the preamble's end
+    end = _machine_steps((0.00006, 0.0, -0.1), wco, spm)
+    assert left[0] == 1 and end[0] == 0
+    path = _stepper(left, end)
+    assert path[1][0] == 1  # Z steps first
+    for q in path[1:-1]:
+        report = _report(_work_at(q, wco, spm), wco, spm)
+        assert s._executed_guess(report) <= plunge - 1, q

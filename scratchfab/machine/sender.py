@@ -1793,7 +1793,8 @@ class Streamer:
         offset ``WCO``) times ``$100``-``$102``, rounded (``lround``), and reports the steps
         it stands on. Each is known to a span of steps (:func:`step_span`): the report's
         ``WCO`` and ``MPos`` are rounded to a digit (0.001 mm; 0.00254 mm in inch reports),
-        a machine position counted as ``WPos`` plus ``WCO`` to two. An offset summed from
+        a machine position counted as ``WPos`` plus ``WCO`` to two. The start of the
+        session's first move is not counted (a resume preamble's end). An offset summed from
         ``$#`` (no report printed ``WCO:`` yet: a build without the field, or early in a
         job) adds up to three rounded parts (the system's, G92, the tool length offset).
         None where a step or the report's offset is not known, or the position lies on no
@@ -1807,7 +1808,10 @@ class Streamer:
         off = digit / 2.0 if report.wco_printed else 1.5 * digit  # how far WCO may be off
         blocks = self._program.blocks
         end = known_xyz(blocks[i].modal)
-        start = known_xyz(blocks[i - 1].modal) if i > 0 else (None, None, None)
+        # a session's first move starts where the resume preamble took the machine, its
+        # numbers rounded to 4 decimals: maybe not block i - 1's step
+        first = i == self._acked_blocks[0]
+        start = known_xyz(blocks[i - 1].modal) if i > 0 and not first else (None, None, None)
         out = []
         for k, w in enumerate(report.wco):
             at = step_span(p[k] + w, digit / 2.0 + (0.0 if report.mpos_given else off), step[k])
