@@ -1144,3 +1144,26 @@ def test_resume_after_a_design_rerun_says_so_in_the_users_terms(job: Path, capsy
         "made with different settings or inputs "
         "(the design's initial scratches or targets: design was rerun)"
     )
+
+
+def test_resume_refuses_views_given_in_another_order(job: Path) -> None:
+    """The views' order sets the order of the loss's terms and of log.csv's columns: a
+    checkpoint's steps (and its log rows) follow its own order, so reordered views are named
+    as a change; a checkpoint that records no order (made before it was kept) resumes."""
+    from scratchfab.model.job import load_job_design
+    from scratchfab.optimize.stage import ResumeRefused
+
+    run_optimize(job, OptimizeOptions(iterations=2))
+    file = job / "design" / "design.toml"
+    design = load_job_design(file)
+    names = [v.name for v in design.views]
+    replace(design, views=design.views[::-1]).save(file)
+    with pytest.raises(ResumeRefused) as info:
+        run_optimize(job, OptimizeOptions(iterations=3, resume=True))
+    first, second = names
+    assert info.value.design == {"[[views]] order": f"[{first}, {second}] -> [{second}, {first}]"}
+    ckpt = job / "optimize" / "checkpoint.npz"
+    state, meta, rows = load_checkpoint(ckpt)
+    del meta["fingerprint"]["design"]["view_order"]
+    save_checkpoint(ckpt, state, meta, rows)
+    assert run_optimize(job, OptimizeOptions(iterations=3, resume=True)).iterations == 3

@@ -283,7 +283,8 @@ def _design_fields(design: Design) -> dict[str, Any]:
 
     The renderer's board (size, roughness, f0), light and views (camera, resolution,
     light), the layout's bounds (the board's margin, the tool's lengths) and the tool's
-    dent (the scratches' width and depth where ``scratches.csv`` gives none).
+    dent (the scratches' width and depth where ``scratches.csv`` gives none), and the
+    views' order (the order of the loss's terms and of ``log.csv``'s columns).
     """
 
     def table(obj: Any) -> dict[str, Any]:
@@ -294,6 +295,7 @@ def _design_fields(design: Design) -> dict[str, Any]:
         "light": table(design.light),
         "scratch": table(design.scratch),
         "views": {v.name: table(v) for v in design.views},
+        "view_order": [v.name for v in design.views],
     }
 
 
@@ -370,6 +372,11 @@ def _design_changes(made: Any, now: Any) -> dict[str, str]:
             out[_design_key(path)] = "not readable in the checkpoint"
         elif path[0] == "views" and len(path) == 2:
             out[_design_key(path)] = "added" if a is None else "removed"
+        elif path == ("view_order",):
+            # A checkpoint made before the order was kept has none; views added or removed
+            # are named as such.
+            if a is not None and (not isinstance(a, list) or sorted(map(str, a)) == sorted(b)):
+                out["[[views]] order"] = f"{_shown(a)} -> {_shown(b)}"
         else:
             was, is_ = _shown(a), _shown(b)
             if was == is_:  # they differ past the digits shown
