@@ -260,6 +260,75 @@ def test_an_ungated_rho_is_rounded_down_as_verify_shows_it(tmp_path):
         assert right == [f"ℹ info right looks like its target: rho_kk 0.799 (1 = perfect; {why})"]
 
 
+def _steps(page: str) -> list[str]:
+    """The numbered next steps, as text."""
+    steps = re.search(r"<ol data-next='[\w-]+'>(.*?)</ol>", page)
+    assert steps, page[:2000]
+    return [_text(s) for s in re.findall(r"<li>(.*?)</li>", steps.group(1))]
+
+
+def test_a_view_short_where_the_bare_board_glints_is_told_the_glint_not_more_steps(tmp_path):
+    """Where design found the bare board glinting into a failing view, more iterations or
+    scratches cannot help (the glint outshines the image): the verdict names the glint and
+    the next step says to move the camera or the light. A failing view without glint keeps
+    the usual advice."""
+    job = fake_job(tmp_path, rho=(-0.06, 0.5))
+    path = job / "design" / "feasibility.json"
+    feasibility = json.loads(path.read_text())
+    share = 0.035699
+    feasibility["views"] = {
+        "left": {"glint_fraction": share, "reachable_fraction": 0.91},
+        "right": {"glint_fraction": 0.0, "reachable_fraction": 1.0},
+    }
+    path.write_text(json.dumps(feasibility))
+    page = write_report(job, min_rho=0.8).read_text()
+    _, head, lines = _verdict(page)
+    said = f"(the bare board glints into it on {100 * share:.1f}% of the board)"
+    assert f"left rho -0.060 below 0.8 {said}" in head
+    assert "right rho 0.500 below 0.8;" in head + ";" and head.count("glints") == 1
+    left = [t for _, t in lines if "left looks like" in t]
+    assert left == [
+        f"✘ no left looks like its target: rho_kk -0.060 < 0.8 ([verify] min_rho; "
+        f"1 = perfect) {said}"
+    ]
+    steps = _steps(page)
+    glint = [s for s in steps if s.startswith("The bare board glints")]
+    assert len(glint) == 1 and "Move the camera or the light" in glint[0]
+    assert "does not help" in glint[0]
+    assert sum("run optimize longer" in s for s in steps) == 1  # right's, once
+    # Only the glinting view failing: no step sends anyone to optimize longer.
+    job2 = fake_job(tmp_path / "two", rho=(-0.06, 0.9))
+    (job2 / "design" / "feasibility.json").write_text(json.dumps(feasibility))
+    steps = _steps(write_report(job2, min_rho=0.8).read_text())
+    assert not any("run optimize longer" in s for s in steps)
+    assert any(s.startswith("The bare board glints") for s in steps)
+
+
+def test_optimization_section_says_which_views_glint_was_left_out(tmp_path):
+    """summary.json's glint_left_out (optimize left the glint out of its image error) is
+    said in the Optimization section, views in the design's order, with the share of the
+    board; a summary without it (or with none left out) says nothing of glint."""
+    job = fake_job(tmp_path)
+    summary = {"iterations": 60, "stopped": "done", "elapsed_s": 3.0, "scratches": 2000}
+    path = job / "optimize" / "summary.json"
+    path.write_text(json.dumps(summary))
+    assert "data-glint-left-out" not in write_report(job).read_text()
+    path.write_text(json.dumps({**summary, "glint_left_out": {}}))
+    assert "data-glint-left-out" not in write_report(job).read_text()
+    left_out = {"left": 0.0123, "right": 0.25}
+    path.write_text(json.dumps({**summary, "glint_left_out": left_out}))
+    page = write_report(job).read_text()
+    found = re.search(r"<p data-glint-left-out='(\d+)'>(.*?)</p>", page)
+    assert found and found.group(1) == str(len(left_out))
+    text = _text(found.group(2))
+    listed = ", ".join(f"{n} ({100 * left_out[n]:.1f}% of the board)" for n in PLACES)
+    assert text.startswith(f"The bare board glints into views {listed}: ")
+    assert "left those pixels out of its image error" in text and "verify's count" in text
+    path.write_text(json.dumps({**summary, "glint_left_out": {"left": 0.5}}))
+    found = re.search(r"<p data-glint-left-out='1'>(.*?)</p>", write_report(job).read_text())
+    assert found and _text(found.group(1)).startswith("The bare board glints into view left (50.0%")
+
+
 def test_verdict_not_ready_on_feasibility_errors_envelope_and_missing_stages(tmp_path):
     job = fake_job(tmp_path)
     feasibility = json.loads((job / "design" / "feasibility.json").read_text())

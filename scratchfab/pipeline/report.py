@@ -292,9 +292,37 @@ def _feasibility_checks(data: Any) -> list[_Check]:
     return checks
 
 
+def _glint_shares(data: Any) -> dict[str, float]:
+    """Per view, the share of the board where the bare board glints (``feasibility.json``)."""
+    views = data.get("views") if isinstance(data, dict) else None
+    if not isinstance(views, dict):
+        return {}
+    shares = {}
+    for name, entry in views.items():
+        share = entry.get("glint_fraction") if isinstance(entry, dict) else None
+        if isinstance(share, int | float) and share > 0:
+            shares[str(name)] = float(share)
+    return shares
+
+
+#: The next step for a view that falls short where the bare board glints into it.
+_GLINT_FIX = (
+    "The bare board glints into a view that looks too little like its target (the "
+    "feasibility warning above says where): no scratch shows the image there and the glint "
+    "outshines the rest, so optimizing longer or adding scratches does not help. Move the "
+    "camera or the light as that warning says (or stand both farther away in proportion to "
+    "the board), then run again."
+)
+
+
 def _rho_checks(
-    names: list[str], metrics: dict[str, Any] | None, min_rho: float | None
+    names: list[str],
+    metrics: dict[str, Any] | None,
+    min_rho: float | None,
+    glint: dict[str, float] | None = None,
 ) -> list[_Check]:
+    """One line per view on its rho; ``glint``: :func:`_glint_shares`, for the advice."""
+    glint = glint or {}
     views = (metrics or {}).get("views")
     if not isinstance(views, dict):
         return [
@@ -322,13 +350,21 @@ def _rho_checks(
                 )
             )
         else:
+            share = glint.get(name)
+            glints = (
+                f" (the bare board glints into it on {100 * share:.1f}% of the board)"
+                if share
+                else ""
+            )
             checks.append(
                 _Check(
                     "fail",
                     f"{label} {rho_text(rho, min_rho)} &lt; {min_rho:g} ([verify] min_rho; "
-                    "1 = perfect)",
-                    f"{name} rho {rho_text(rho, min_rho)} below {min_rho:g}",
-                    "A view looks too little like its target: run optimize longer "
+                    f"1 = perfect){glints}",
+                    f"{name} rho {rho_text(rho, min_rho)} below {min_rho:g}{glints}",
+                    _GLINT_FIX
+                    if share
+                    else "A view looks too little like its target: run optimize longer "
                     "([optimize] iterations), add scratches ([scratch] count), or move the "
                     "views further apart. To cut the board as it is, lower [verify] "
                     "<code>min_rho</code> (-1 never stops the run).",
@@ -604,7 +640,7 @@ def _optimize_section(job: Path, names: list[str]) -> str:
                 else f" (stopped: {html.escape(str(summary.get('stopped')))})"
             )
             + ".</p>"
-        )
+        ) + _glint_left_out(summary.get("glint_left_out"), names)
     log = layout.optimize_log
     if log.is_file():
         with log.open(encoding="utf-8") as handle:
@@ -614,6 +650,23 @@ def _optimize_section(job: Path, names: list[str]) -> str:
     if not out and not intro:
         return "<p class='muted'>optimize has not run.</p>"
     return f"{intro}<div class='row'>{''.join(out)}</div>"
+
+
+def _glint_left_out(left_out: Any, names: list[str]) -> str:
+    """A paragraph on the views whose glint optimize left out (summary.json's record)."""
+    if not isinstance(left_out, dict):
+        return ""
+    shares = {str(k): float(v) for k, v in left_out.items() if isinstance(v, int | float) and v > 0}
+    order = [n for n in names if n in shares] + sorted(set(shares) - set(names))
+    if not order:
+        return ""
+    listed = ", ".join(f"{html.escape(n)} ({100 * shares[n]:.1f}% of the board)" for n in order)
+    return (
+        f"<p data-glint-left-out='{len(order)}'>The bare board glints into "
+        f"{'views' if len(order) > 1 else 'view'} {listed}: no scratch can show the image "
+        "there, so optimize left those pixels out of its image error (its loss). The rho and "
+        "PSNR below and verify's count every pixel, the glint too.</p>"
+    )
 
 
 def _last_iteration(last: dict[str, str], names: list[str]) -> str:
@@ -1037,7 +1090,7 @@ def write_report(
     checks = (
         _stage_checks(job)
         + _feasibility_checks(feasibility)
-        + _rho_checks(names, metrics, min_rho)
+        + _rho_checks(names, metrics, min_rho, _glint_shares(feasibility))
         + _crosstalk_check(names, metrics)
         + _toolpath_checks(toolpath)
         + _gcode_check(job)
