@@ -44,7 +44,7 @@ OFF_BOARD_RGB: RGB = (128, 128, 128)
 #: Hatch lines: cells a map marks as not usable (unreachable, off the board) and their keys.
 HATCH_RGB: RGB = (40, 40, 40)
 
-LegendKind = Literal["line", "box", "ring", "hatch", "dots", "arrow"]
+LegendKind = Literal["line", "box", "ring", "hatch", "dots", "arrow", "outline"]
 
 
 @dataclass(frozen=True)
@@ -56,8 +56,10 @@ class LegendItem:
         color: Swatch colour.
         kind: ``line`` (a stroke), ``box`` (filled square), ``ring`` (circle outline),
             ``hatch`` (square in ``color`` with dark diagonal lines), ``dots`` (white square with
-            dots) or ``arrow``.
-        fill: Background of ``hatch``/``dots`` swatches (default: ``color`` / white).
+            dots), ``arrow`` or ``outline`` (square framed in ``color``, as
+            :func:`outline_cells` marks a region).
+        fill: Background of ``hatch``/``dots``/``outline`` swatches (default: ``color`` /
+            white / white).
     """
 
     label: str
@@ -120,6 +122,8 @@ def _swatch(draw: ImageDraw.ImageDraw, box: Box, item: LegendItem) -> None:
         draw.rectangle(box, fill=item.fill or item.color)
         hatch(draw, box, HATCH_RGB, step=5)
         draw.rectangle(box, outline=FRAME)
+    elif item.kind == "outline":
+        draw.rectangle(box, fill=item.fill or (255, 255, 255), outline=item.color, width=2)
     elif item.kind == "dots":
         draw.rectangle(box, fill=item.fill or (255, 255, 255))
         for y in range(y0 + 2, y1, 4):
@@ -152,6 +156,19 @@ def hatch_cells(rgb: np.ndarray, mask: np.ndarray, color: RGB = HATCH_RGB, step:
     lines = Image.new("RGB", (w, h), (255, 255, 255))
     hatch(ImageDraw.Draw(lines), (0, 0, w - 1, h - 1), color, step)
     rgb[mask & np.all(np.asarray(lines) == color, axis=-1)] = color
+
+
+def outline_cells(rgb: np.ndarray, mask: np.ndarray, color: RGB, width: int = 2) -> None:
+    """Draw the inner edge of the region ``mask`` in ``rgb`` (H, W, 3), ``width`` px wide.
+
+    A pixel of the region is on its edge when one within ``width`` steps (up, down, left,
+    right) lies outside it or off the picture.
+    """
+    inner = mask.astype(bool)
+    for _ in range(width):
+        padded = np.pad(inner, 1, constant_values=False)
+        inner = inner & padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:]
+    rgb[mask & ~inner] = color
 
 
 def legend_size(items: list[LegendItem], size: int = TEXT_PX, title: str = "") -> tuple[int, int]:

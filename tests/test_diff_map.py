@@ -30,11 +30,13 @@ from scratchfab.verify.diffmap import (
     DARKER_RGB,
     DIFF_SCALE,
     EQUAL_RGB,
+    GLINT_RGB,
     HATCH_RGB,
     diff_colours,
+    diff_figure,
     write_diff_map,
 )
-from scratchfab.verify.verify import VerifySettings, run_verify
+from scratchfab.verify.verify import VerifyGateError, VerifySettings, run_verify
 
 NAN = math.nan
 
@@ -201,6 +203,116 @@ def test_verify_draws_the_map_of_its_own_render_on_the_metrics_footing(tmp_path)
         for j in range(16):
             block = _block(img, fig.map_box, fig.factor, i, j)
             assert np.all(block == want[i, j]), (i, j)
+
+
+def test_the_glint_is_outlined_on_the_map_and_named_in_its_title_and_key():
+    """Where the bare board glints, the map outlines the region on its own colours (the
+    cells inside keep theirs), the title gives the glint's share of the board and the key
+    its colour; an empty glint draws the map exactly as none."""
+    from scratchfab.optimize.glint import ViewGlint
+
+    rng = np.random.default_rng(3)
+    diff = rng.uniform(-0.3, 0.3, (12, 10))
+    diff[:, -1] = NAN  # off the board
+    mask = np.zeros(diff.shape, bool)
+    mask[0:5, 0:4] = True  # a corner, as a glint lies
+    plain = diff_figure(diff, "v", 2.0)
+    fig = diff_figure(diff, "v", 2.0, glint=ViewGlint("v", mask, 0.0734, 0.8))
+    img = np.asarray(fig.image.convert("RGB"))
+    f = fig.factor
+    assert f >= 4
+    x0, y0 = fig.map_box[:2]
+    drawn = np.all(img[y0 : y0 + 12 * f, x0 : x0 + 10 * f] == GLINT_RGB, axis=-1)
+    cells = drawn.reshape(12, f, 10, f).any(axis=(1, 3))
+    # Exactly the region's border cells: those with a neighbour outside it or off the map
+    # (a 2 px line inside cells of at least 4 px).
+    padded = np.pad(mask, 1, constant_values=False)
+    inner = mask & padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:]
+    assert np.array_equal(cells, mask & ~inner)
+    want = diff_colours(diff)
+    inside = [(i, j) for i in range(1, 4) for j in range(1, 3)]  # away from the outline
+    for i, j in inside:
+        centre = img[y0 + i * f + f // 2, x0 + j * f + f // 2]
+        assert tuple(centre) == tuple(want[i, j]), (i, j)
+    # The title's last line says it; the key shows the outline colour.
+    assert fig.image.height > plain.image.height
+    lx0, ly0, lx1, ly1 = fig.legend_box
+    assert np.any(np.all(img[ly0 : ly1 + 1, lx0 : lx1 + 1] == GLINT_RGB, axis=-1))
+    plain_img = np.asarray(plain.image.convert("RGB"))
+    assert not np.any(np.all(plain_img == GLINT_RGB, axis=-1))
+    none = diff_figure(diff, "v", 2.0, glint=ViewGlint("v", np.zeros_like(mask), 0.0, 0.0))
+    assert np.array_equal(np.asarray(none.image), np.asarray(plain.image))
+    with pytest.raises(ValueError, match="glint mask"):
+        diff_figure(diff, "v", 2.0, glint=ViewGlint("v", mask[:-1], 0.07, 0.8))
+
+
+def test_verify_outlines_the_glint_design_predicts_and_its_gate_names_it(tmp_path):
+    """The test design on a 200 mm board glints (design's check says where): verify
+    records each view's glint share as the check predicts it, outlines on the maps the
+    pixels whose half-vector tilts below the glint limit and, when the views fall short,
+    says the glint is why and what to move."""
+    from scratchfab.backend import array_module
+    from scratchfab.design.feasibility import (
+        check_feasibility,
+        design_glint_deg,
+        half_vectors,
+        tilt_deg,
+    )
+    from scratchfab.optimize.glint import ViewGlint
+    from scratchfab.render.renderer import ViewRenderer
+
+    design = make_design(resolution=24, size_mm=200.0)
+    report = check_feasibility(design)
+    assert all(report.views[v.name].glint_fraction > 0.02 for v in design.views)
+    rng = np.random.default_rng(7)
+    p0 = rng.uniform(-90, 90, (300, 2))
+    angle = rng.uniform(0, np.pi, 300)
+    p1 = np.clip(p0 + 8 * np.column_stack([np.cos(angle), np.sin(angle)]), -95, 95)
+    board = ScratchSet.from_arrays(p0, p1, design.scratch.width_mm, design.scratch.depth_mm)
+    targets = {v.name: rng.uniform(0, 1, (24, 24)) for v in design.views}
+    out = tmp_path / "v"
+    with pytest.raises(VerifyGateError) as caught:
+        run_verify(design, board, out, VerifySettings(spp=16, min_rho=0.99), targets=targets)
+    said = str(caught.value)
+    names = [v.name for v in design.views]
+    assert f"; the bare board glints into {', '.join(names)} (design warned" in said
+    assert "optimizing longer does not help: move the camera or the light" in said
+    assert caught.value.named("[verify] min_rho =", "p.toml").glinting == tuple(names)
+    metrics = json.loads((out / "metrics.json").read_text())
+    limit = design_glint_deg(design)
+    for view in design.views:
+        share = metrics["views"][view.name]["glint_share"]
+        assert share == pytest.approx(report.views[view.name].glint_fraction, abs=0.01)
+        # The outline: the pixels whose centre's half-vector (the check's own function)
+        # tilts below the limit, on the board.
+        vr = ViewRenderer(design, view, array_module("llvm"))
+        tilt = tilt_deg(half_vectors(design, view, vr.center))
+        mask = (tilt < limit) & (vr.area_on_board > 0)
+        assert 0 < mask.sum() < mask.size
+        render = np.load(out / f"{view.name}.npy")
+        want = write_diff_map(
+            tmp_path / f"{view.name}.png",
+            render,
+            targets[view.name],
+            view.name,
+            glint=ViewGlint(view.name, mask, share, 0.0),
+        )
+        got = np.asarray(Image.open(out / "diff" / f"{view.name}.png").convert("RGB"))
+        assert np.array_equal(got, np.asarray(want.image))
+    # A board without glint: no share, no outline.
+    small = make_design(resolution=16)
+    plain = run_verify(
+        small,
+        ScratchSet.from_arrays(
+            0.18 * p0, 0.18 * p1, design.scratch.width_mm, design.scratch.depth_mm
+        ),
+        tmp_path / "w",
+        VerifySettings(spp=16),
+        targets={"left": rng.uniform(0, 1, (16, 16))},
+    )
+    assert all(v["glint_share"] == 0.0 for v in plain["views"].values())
+    img = np.asarray(Image.open(tmp_path / "w" / "diff" / "left.png").convert("RGB"))
+    assert not np.any(np.all(img == GLINT_RGB, axis=-1))
 
 
 def _tiny_job(tmp_path: Path) -> Path:

@@ -149,3 +149,36 @@ def test_lightness_matches_cie_reference_points():
     assert figures.linear_to_srgb(figures.srgb_to_linear(np.linspace(0, 1, 11))) == pytest.approx(
         np.linspace(0, 1, 11)
     )
+
+
+@pytest.mark.parametrize("width", [1, 2, 3])
+def test_outline_marks_the_pixels_of_a_region_near_its_border(width, rng):
+    """Against the definition: a region pixel is drawn when a pixel outside the region (or
+    off the picture) lies within ``width`` steps up, down, left or right (city-block)."""
+    mask = np.zeros((14, 17), bool)
+    mask[3:11, 4:13] = True
+    mask[0:5, 0:3] = True  # touching the picture's corner
+    mask[6, 8] = False  # a hole
+    mask |= rng.uniform(size=mask.shape) < 0.05  # specks
+    rgb = np.zeros((*mask.shape, 3), np.uint8)
+    figures.outline_cells(rgb, mask, (1, 2, 3), width)
+    drawn = np.all(rgb == (1, 2, 3), axis=-1)
+    h, w = mask.shape
+    for i in range(h):
+        for j in range(w):
+            near_outside = any(
+                not (0 <= i + di < h and 0 <= j + dj < w) or not mask[i + di, j + dj]
+                for di in range(-width, width + 1)
+                for dj in range(-width, width + 1)
+                if abs(di) + abs(dj) <= width
+            )
+            assert drawn[i, j] == (mask[i, j] and near_outside), (i, j)
+    assert np.all(rgb[~drawn] == 0)  # nothing else touched
+
+
+def test_outline_swatch_is_framed_in_its_colour_around_white():
+    img = Image.new("RGB", (400, 120), (200, 200, 200))
+    colour = (204, 121, 167)
+    box = figures.draw_legend(img, [LegendItem("glint", colour, "outline")], (5, 5))
+    rgb = _rgb(img)[box[1] : box[3] + 1, box[0] : box[2] + 1]
+    assert _has(rgb, colour) and _has(rgb, (255, 255, 255))

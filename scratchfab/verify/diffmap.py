@@ -10,7 +10,10 @@ Colours run from white (equal) to Okabe and Ito's blue (darker) or to their verm
 darkened to the blue's lightness (brighter): under protanopia and deuteranopia the two
 sides stay blue and yellow-brown, and at equal sizes they are equally light, their
 lightness falling with the size of the difference, so the magnitude reads in grey too.
-Pixels off the board are grey and hatched.
+Pixels off the board are grey and hatched. Where the bare board glints into the view
+(:mod:`scratchfab.optimize.glint`) the map outlines the region in the feasibility map's
+glint colour and its title says so: there no scratch can show the image, and the glint's
+light sets the exposure, so the rest of the board reads darker.
 """
 
 from __future__ import annotations
@@ -23,8 +26,10 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from scratchfab import figures
+from scratchfab.design.feasibility import GLINT
 from scratchfab.fileio import save_png
 from scratchfab.metrics import exposed_difference
+from scratchfab.optimize.glint import ViewGlint
 
 #: Half-width of the colour scale in the target's linear units: differences of this
 #: size or more get the full colour.
@@ -38,6 +43,8 @@ DARKER_RGB: figures.RGB = figures.OKABE_ITO["blue"]
 EQUAL_RGB: figures.RGB = (255, 255, 255)
 #: The hatch lines over pixels off the board (as in a ``hatch`` legend swatch).
 HATCH_RGB: figures.RGB = figures.HATCH_RGB
+#: The outline around the pixels where the bare board glints (the feasibility map's colour).
+GLINT_RGB: figures.RGB = GLINT
 #: The map is enlarged (nearest neighbour) to at least this width.
 MAP_MIN_PX = 256
 _BAR_H = 14
@@ -84,7 +91,11 @@ class DiffFigure:
 
 
 def diff_figure(
-    diff: np.ndarray, view: str, exposure_value: float, scale: float = DIFF_SCALE
+    diff: np.ndarray,
+    view: str,
+    exposure_value: float,
+    scale: float = DIFF_SCALE,
+    glint: ViewGlint | None = None,
 ) -> DiffFigure:
     """Draw ``view``'s difference map with its title, colour bar and key.
 
@@ -93,12 +104,19 @@ def diff_figure(
         view: The view's name (for the title).
         exposure_value: The exposure ``s`` the render was scaled by.
         scale: The colour scale's half-width in the target's linear units.
+        glint: Where the bare board glints into the view, outlined (None or an empty
+            mask: no glint).
     """
     rows, cols = diff.shape
     factor = max(1, -(-MAP_MIN_PX // cols))
     mw, mh = cols * factor, rows * factor
     big = figures.enlarge(diff_colours(diff, scale), factor)
     figures.hatch_cells(big, figures.enlarge(~np.isfinite(diff), factor), HATCH_RGB)
+    if glint is not None and glint.mask.shape != diff.shape:
+        raise ValueError(f"glint mask {glint.mask.shape} and map {diff.shape} differ")
+    shown = glint if glint is not None and glint.mask.any() else None
+    if shown is not None:
+        figures.outline_cells(big, figures.enlarge(shown.mask, factor), GLINT_RGB)
 
     size = figures.TEXT_PX
     m = 12
@@ -109,6 +127,12 @@ def diff_figure(
             "off the board: not compared", HATCH_RGB, "hatch", fill=figures.OFF_BOARD_RGB
         ),
     ]
+    if shown is not None:
+        items.append(
+            figures.LegendItem(
+                "the bare board glints: no scratch shows the image", GLINT_RGB, "outline"
+            )
+        )
     note = (
         "verify render x exposure - target, in the target's linear\n"
         f"brightness (0 black, 1 white); beyond ±{scale:g} clipped"
@@ -156,6 +180,10 @@ def diff_figure(
         if math.isfinite(beyond)
         else "no board pixels",
     ]
+    if shown is not None:
+        title.append(
+            f"the bare board glints on {100 * shown.board_share:.1f} % of the board (outlined)"
+        )
     out = figures.add_title(canvas, title, size + 1, margin=m)
     dy = out.height - canvas.height
 
@@ -178,12 +206,16 @@ def write_diff_map(
     target: np.ndarray,
     view: str,
     scale: float = DIFF_SCALE,
+    glint: ViewGlint | None = None,
 ) -> DiffFigure:
-    """Draw ``view``'s map of ``s R - T`` and save it (atomically) as the PNG ``path``."""
+    """Draw ``view``'s map of ``s R - T`` and save it (atomically) as the PNG ``path``.
+
+    ``glint``: where the bare board glints into the view, as :func:`diff_figure` takes it.
+    """
     if render.shape != target.shape:
         raise ValueError(f"view {view}: render {render.shape} and target {target.shape} differ")
     diff, s = exposed_difference(render, target)
-    fig = diff_figure(diff, view, s, scale)
+    fig = diff_figure(diff, view, s, scale, glint)
     save_png(path, fig.image)
     return fig
 

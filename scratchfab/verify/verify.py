@@ -36,6 +36,7 @@ from scratchfab.model.job import (
     stale_layout_warning,
 )
 from scratchfab.model.scratches import ScratchSet, load_scratches
+from scratchfab.optimize.glint import ViewGlint, view_glint
 from scratchfab.verify.diffmap import write_diff_map
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
 from scratchfab.verify.scene import Sky, board_bsdf, render_view, scene_dict, use_variant
@@ -73,13 +74,23 @@ class VerifyGateError(ScratchfabError):
         metrics_file: Path,
         setting: str = "--min-rho",
         source: str | None = None,
+        glinting: tuple[str, ...] = (),
     ) -> None:
         self.view, self.rho, self.min_rho = view, rho, min_rho
         self.failing, self.views, self.metrics_file = failing, views, metrics_file
+        self.glinting = glinting
         where = f"{source}: " if source else ""
+        glint = (
+            f"; the bare board glints into {', '.join(glinting)} (design warned; outlined in "
+            f"{metrics_file.parent / 'diff'}): no scratch shows the image there and the glint "
+            "outshines the rest, so optimizing longer does not help: move the camera or the "
+            "light as design's warning says"
+            if glinting
+            else ""
+        )
         super().__init__(
             f"{where}view {view} looks like its target only to rho {rho_text(rho, min_rho)}, below "
-            f"{setting} {min_rho:g} ({failing} of {views} views fail; see {metrics_file})"
+            f"{setting} {min_rho:g} ({failing} of {views} views fail; see {metrics_file}){glint}"
         )
 
     def named(self, setting: str, source: str) -> VerifyGateError:
@@ -93,6 +104,7 @@ class VerifyGateError(ScratchfabError):
             self.metrics_file,
             setting,
             source,
+            self.glinting,
         )
 
 
@@ -299,17 +311,31 @@ def _write_layout(out_dir: Path, images: Mapping[str, np.ndarray]) -> None:
     write_render_layout(out_dir, dict(images))
 
 
+def view_glints(design: Design, backend: BackendName = "llvm") -> dict[str, ViewGlint]:
+    """Per view, where the bare board glints into it, as optimize finds it and leaves it out."""
+    from scratchfab.backend import array_module
+    from scratchfab.design.feasibility import design_glint_deg
+    from scratchfab.render.renderer import ViewRenderer
+
+    m = array_module(backend)
+    limit = design_glint_deg(design)
+    return {v.name: view_glint(ViewRenderer(design, v, m), limit) for v in design.views}
+
+
 def _write_diff_maps(
-    out_dir: Path, images: Mapping[str, np.ndarray], targets: Mapping[str, np.ndarray]
+    out_dir: Path,
+    images: Mapping[str, np.ndarray],
+    targets: Mapping[str, np.ndarray],
+    glints: Mapping[str, ViewGlint],
 ) -> None:
-    """Write ``diff/<view>.png`` for each view with a target.
+    """Write ``diff/<view>.png`` for each view with a target, its glint outlined.
 
     An earlier run's map of a view without a target now is removed: it showed another board.
     """
     for name, image in images.items():
         path = diff_map_png(out_dir, name)
         if name in targets:
-            write_diff_map(path, image, targets[name], name)
+            write_diff_map(path, image, targets[name], name, glint=glints.get(name))
         else:
             path.unlink(missing_ok=True)
 
@@ -382,6 +408,7 @@ def run_verify(
                 f"{reference.shape}, the view is {(view.height, view.width)}"
             )
 
+    glints = view_glints(design, settings.backend)
     renderer = BoardRenderer(design, scratches, settings.backend)
     results: dict[str, ViewRender] = {}
     n = len(design.views)
@@ -406,6 +433,7 @@ def run_verify(
             "noise": r.noise,
             "rel_l2": None,
             "resolution": [view.width, view.height],
+            "glint_share": glints[view.name].board_share,
         }
         reference = analytic.get(view.name)
         if reference is not None:
@@ -422,6 +450,7 @@ def run_verify(
             )
         views[view.name] = entry
         rel = entry["rel_l2"]
+        share = entry["glint_share"]
         say(
             f"verify {view.name}: relative L2 vs render "
             + (f"{100 * rel:.2f} %" if rel is not None else "n/a")
@@ -430,6 +459,7 @@ def run_verify(
                 if "rho" in entry
                 else ""
             )
+            + (f", the bare board glints on {100 * share:.1f} % of the board" if share else "")
         )
 
     names = [v.name for v in design.views]
@@ -470,7 +500,7 @@ def run_verify(
         }
 
     _write_layout(out, images)
-    _write_diff_maps(out, images, targets)
+    _write_diff_maps(out, images, targets, glints)
     if sweep_gif is not None:
         write_bytes(out / "sweep.gif", sweep_gif)
     write_json(out / "metrics.json", metrics)
@@ -483,6 +513,7 @@ def run_verify(
             len(failing),
             len(names),
             out / "metrics.json",
+            glinting=tuple(n for n in failing if views[n]["glint_share"] > 0),
         )
     return metrics
 
