@@ -329,6 +329,34 @@ def test_optimization_section_says_which_views_glint_was_left_out(tmp_path):
     assert found and _text(found.group(1)).startswith("The bare board glints into view left (50.0%")
 
 
+def test_difference_map_caption_says_the_outline_where_verify_found_glint(tmp_path):
+    """verify outlines the glint on a view's map (metrics.json's glint_share > 0): that
+    view's caption says what the outline means; the other view's and a map without glint
+    (or from before glint_share) do not."""
+    job = fake_job(tmp_path)
+    for name in PLACES:
+        _png(job / "verify" / "diff" / f"{name}.png", 30)
+    path = job / "verify" / "metrics.json"
+    metrics = json.loads(path.read_text())
+    outline = "a purple outline marks where the bare board glints"
+
+    def captions() -> dict[str, str]:
+        page = write_report(job).read_text()
+        found = re.findall(
+            r'<img alt="(\w+) difference map".*?<figcaption>(.*?)</figcaption>', page
+        )
+        return {name: _text(text) for name, text in found}
+
+    assert not any(outline in c for c in captions().values())  # an older metrics.json
+    metrics["views"]["left"]["glint_share"] = 0.036
+    metrics["views"]["right"]["glint_share"] = 0.0
+    path.write_text(json.dumps(metrics))
+    said = captions()
+    assert set(said) == set(PLACES)
+    assert outline in said["left"] and "the rest reads darker" in said["left"]
+    assert outline not in said["right"]
+
+
 def test_verdict_not_ready_on_feasibility_errors_envelope_and_missing_stages(tmp_path):
     job = fake_job(tmp_path)
     feasibility = json.loads((job / "design" / "feasibility.json").read_text())

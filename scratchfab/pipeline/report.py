@@ -491,9 +491,18 @@ def _views_section(
         if isinstance(maps, dict)
         else "where the tool reaches this view"
     )
+    verified = (metrics or {}).get("views")
     rows = []
     for name in names:
         n = html.escape(name)
+        entry = verified.get(name) if isinstance(verified, dict) else None
+        share = entry.get("glint_share") if isinstance(entry, dict) else None
+        glint = (
+            "; a purple outline marks where the bare board glints: no scratch shows the "
+            "image there, and its light sets the exposure, so the rest reads darker"
+            if isinstance(share, int | float) and share > 0
+            else ""
+        )
         shown = (
             (layout.design.target_png(name), "target", f"target: what {n} should look like"),
             (
@@ -512,7 +521,7 @@ def _views_section(
                 "difference map",
                 "difference map: where the verified board is brighter (orange) or darker "
                 "(blue) than the target, measured as the PSNR below measures it; the "
-                "colour scale is the same for every view and run",
+                f"colour scale is the same for every view and run{glint}",
             ),
             (
                 layout.design.feasibility_png(name),
