@@ -1088,3 +1088,18 @@ def test_the_senders_resume_advice_reads_as_run_resumes(sender, in_run):
     from scratchfab.pipeline.runner import as_run_advice
 
     assert as_run_advice(sender) == in_run
+
+
+def test_an_interrupted_optimize_whose_design_changed_says_why_it_starts_over(
+    finished_job, tmp_path, monkeypatch
+):
+    """The pipeline file's roughness edited after an interrupted optimize: the run says
+    what changed since the checkpoint, rather than starting over without a word."""
+    path, copy, ckpt = _killed_optimize(finished_job, tmp_path, monkeypatch)
+    said: list[str] = []
+    with _edited(path, "[board]\n", "[board]\nroughness = 0.06\n"):
+        result = run_pipeline(load_pipeline(path), copy, until="optimize", say=said.append)
+    assert result.ran == ["design", "optimize"]
+    (line,) = [s for s in said if "cannot continue it" in s]
+    assert f"{ckpt}: " in line and "[board] roughness 0.05 -> 0.06" in line
+    assert line.endswith("optimizing from the start")

@@ -246,8 +246,11 @@ class Manifest:
         ``legacy`` as for :meth:`is_current`.
         """
         entry = self.stages.get(stage) or {}
-        unfinished = entry.get("status") in ("running", "interrupted")
-        return unfinished and self._same_inputs(entry, inputs, legacy)
+        return self.stopped(stage) and self._same_inputs(entry, inputs, legacy)
+
+    def stopped(self, stage: str) -> bool:
+        """True when ``stage`` last started and did not finish, whatever its inputs."""
+        return (self.stages.get(stage) or {}).get("status") in ("running", "interrupted")
 
     def invalidate(self, stage: str, reason: str) -> None:
         """Mark ``stage`` as not done (it failed or its inputs changed)."""

@@ -487,7 +487,9 @@ def _run_stages(
             overhang = None
             say(f"[{stage}] running")
             began = time.perf_counter()
-            stages.resume = not asked and manifest.unfinished(stage, inputs, legacy)
+            # Whatever changed since: optimize's checkpoint knows what its steps depend on,
+            # and says what changed when it cannot go on (then it starts over).
+            stages.resume = not asked and manifest.stopped(stage)
             manifest.start(stage, inputs)
             try:
                 outputs = stages.run(stage)
