@@ -5,6 +5,7 @@ import json
 import math
 import os
 import re
+import shutil
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import replace
@@ -170,8 +171,6 @@ def test_rerun_skips_everything_then_a_changed_target_reruns_downstream(finished
 
 
 def test_moved_job_is_still_up_to_date(finished_job, tmp_path, monkeypatch):
-    import shutil
-
     path, job, _ = finished_job
     moved = tmp_path / "elsewhere"
     shutil.copytree(job, moved)
@@ -181,8 +180,6 @@ def test_moved_job_is_still_up_to_date(finished_job, tmp_path, monkeypatch):
 
 
 def test_moved_job_reads_its_own_board_pictures(finished_job, tmp_path):
-    import shutil
-
     import numpy as np
 
     from scratchfab.design.targets import cross_targets, job_cross_targets
@@ -212,8 +209,6 @@ def test_moved_job_reads_its_own_board_pictures(finished_job, tmp_path):
 
 
 def test_job_without_board_pictures_falls_back_to_its_view_targets(finished_job, tmp_path):
-    import shutil
-
     import numpy as np
 
     from scratchfab.design.targets import job_cross_targets
@@ -333,8 +328,6 @@ def test_interrupted_stream_of_the_same_gcode_is_resumed(finished_job):
 
 def test_report_counts_the_acknowledgements_of_a_killed_stream(finished_job, tmp_path):
     """A session with no closing event: every ack counts as acknowledged in the report."""
-    import shutil
-
     from scratchfab.pipeline.report import write_report
 
     path, job, _ = finished_job
@@ -419,7 +412,6 @@ def test_real_port_asks_before_streaming(
 ):
     import io
     import json
-    import shutil
 
     import scratchfab.cli.run_cmd as run_cmd
     import scratchfab.pipeline.runner as runner
@@ -633,8 +625,6 @@ def test_failed_stage_keeps_earlier_outputs_and_next_run_resumes_there(tmp_path)
 
 def test_stage_killed_midway_runs_again(finished_job, tmp_path, monkeypatch):
     """A stage that never got to say it failed (kill -9) is not left marked done."""
-    import shutil
-
     from scratchfab.pipeline import runner
 
     path, job, _ = finished_job
@@ -850,8 +840,6 @@ def test_toolpath_machine_is_a_name_or_a_file_beside_the_pipeline(tmp_path, ref,
 def _killed_optimize(finished_job, tmp_path, monkeypatch) -> tuple[Path, Path, Path]:
     """A copy of the finished job whose optimize was killed midway (the manifest says
     "running"): the pipeline, the copy and its checkpoint."""
-    import shutil
-
     from scratchfab.pipeline import runner
 
     path, job, _ = finished_job
@@ -1103,3 +1091,26 @@ def test_an_interrupted_optimize_whose_design_changed_says_why_it_starts_over(
     (line,) = [s for s in said if "cannot continue it" in s]
     assert f"{ckpt}: " in line and "[board] roughness 0.05 -> 0.06" in line
     assert line.endswith("optimizing from the start")
+
+
+def test_a_hand_edited_design_toml_in_a_pipeline_job_is_named_with_where_to_edit(
+    finished_job, tmp_path
+):
+    """The design stage is up to date (the pipeline file did not change), yet the job's
+    design.toml was edited: the run says the edit holds only until design runs again."""
+    path, job, _ = finished_job
+    copy = tmp_path / "job"
+    shutil.copytree(job, copy)
+    toml = copy / "design" / "design.toml"
+    said: list[str] = []
+    run_pipeline(load_pipeline(path), copy, until="design", say=said.append)
+    assert said == ["[design] up to date, skipped"]  # untouched: nothing more
+    toml.write_text(toml.read_text().replace("roughness = 0.05", "roughness = 0.06"))
+    said.clear()
+    run_pipeline(load_pipeline(path), copy, until="design", say=said.append)
+    assert said[0] == "[design] up to date, skipped"
+    assert said[1] == (
+        f"  {toml} was edited since optimize read it: the stages after design use it as it "
+        f"is now, but this job's design comes from {path}, and the design stage writes it "
+        "over whenever that file changes: make the edit there"
+    )

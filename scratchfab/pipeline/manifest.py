@@ -248,6 +248,12 @@ class Manifest:
         entry = self.stages.get(stage) or {}
         return self.stopped(stage) and self._same_inputs(entry, inputs, legacy)
 
+    def recorded_digest(self, stage: str, file: Path) -> str | None:
+        """The digest of the job's ``file`` as ``stage`` last read it (None: not recorded)."""
+        inputs = (self.stages.get(stage) or {}).get("inputs") or {}
+        files = inputs.get("files") if isinstance(inputs, dict) else None
+        return files.get(_key(file, self.job)) if isinstance(files, dict) else None
+
     def stopped(self, stage: str) -> bool:
         """True when ``stage`` last started and did not finish, whatever its inputs."""
         return (self.stages.get(stage) or {}).get("status") in ("running", "interrupted")

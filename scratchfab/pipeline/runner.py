@@ -124,6 +124,22 @@ class _Stages:
         files, sources, options = self._spec(stage)
         return fingerprint(files, sources, options, self.job)
 
+    def design_edited(self, manifest: Manifest) -> str | None:
+        """A line when ``JOB/design/design.toml`` changed since optimize last read it.
+
+        In a pipeline job the design stage writes that file from the pipeline file, so an
+        edit by hand holds only until the design stage runs again.
+        """
+        file = self.layout.design.design_toml
+        was = manifest.recorded_digest("optimize", file)
+        if was is None or not file.is_file() or file_digest(file) == was:
+            return None
+        return (
+            f"  {file} was edited since optimize read it: the stages after design use it "
+            f"as it is now, but this job's design comes from {self.pipe.path}, and the "
+            "design stage writes it over whenever that file changes: make the edit there"
+        )
+
     def legacy(self, stage: str) -> Legacy:
         """Whether a format-1 fingerprint (an earlier scratchfab's) matches ``stage`` now."""
         files, sources, options = self._spec(stage)
@@ -475,6 +491,8 @@ def _run_stages(
                 if checked and manifest.is_current(stage, inputs, legacy):
                     result.skipped.append(stage)
                     say(f"[{stage}] up to date, skipped")
+                    if stage == "design" and (edited := stages.design_edited(manifest)):
+                        say(edited)
                     continue
             if checked and manifest.recorded_in_format_1(stage):
                 say(
