@@ -562,3 +562,11 @@ def test_a_resumed_sessions_first_move_starts_where_the_preamble_left_the_machin
     for q in path[1:-1]:
         report = _report(_work_at(q, wco, spm), wco, spm)
         assert s._executed_guess(report) <= plunge - 1, q
+    # resumed at a block that moves nothing (M3 before the plunge): the plunge is still
+    # the session's first move, started where the preamble left the machine
+    s = _streamer_spm(tmp_path, text.replace("G1Z-0.1F100\n", "M3S1000\nG1Z-0.1F100\n"), spm)
+    s._acked_blocks = list(range(plunge, len(s._program.blocks)))
+    s._acks_at_status = len(s._acked_blocks)
+    for q in path[1:-1]:
+        report = _report(_work_at(q, wco, spm), wco, spm)
+        assert s._executed_guess(report) <= plunge, q

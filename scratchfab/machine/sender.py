@@ -1810,7 +1810,7 @@ class Streamer:
         end = known_xyz(blocks[i].modal)
         # a session's first move starts where the resume preamble took the machine, its
         # numbers rounded to 4 decimals: maybe not block i - 1's step
-        first = i == self._acked_blocks[0]
+        first = i == next((j for j in self._acked_blocks if blocks[j].motion), i)
         start = known_xyz(blocks[i - 1].modal) if i > 0 and not first else (None, None, None)
         out = []
         for k, w in enumerate(report.wco):
