@@ -16,6 +16,7 @@ from stream_helpers import FAST, executed_blocks, stream_program
 from scratchfab.machine.sender import Streamer, StreamFault, StreamStopped, open_port
 from scratchfab.machine.sender_journal import read_journal
 from scratchfab.machine.sender_program import load_program
+from scratchfab.machine.stream_job import _say_lost_position
 
 #: Homed at machine X -1 (``$27``), soft limits on: X travels -200..0. 2 mm moves down X
 #: at 20 mm/s fill the planner, so a line waits in the RX buffer for a block to end;
@@ -69,6 +70,9 @@ def test_a_soft_limit_read_during_a_slowing_hold_is_told_as_a_lost_position(tmp_
     assert "ALARM:2" in str(exc) and _LOST in str(exc)
     assert "unlock it ($X)" not in str(exc)
     assert [(e["code"], e.get("lost")) for e in events if e["ev"] == "alarm"] == [(2, True)]
+    said: list[str] = []
+    _say_lost_position(events, said.append)  # what a later --resume says once connected
+    assert len(said) == 1 and "homed ($H) since" in said[0]
     through = events[-1]["executed_through"]
     assert events[-1]["ev"] == "stop" and through < 22
     assert set(range(1, through + 1)) <= executed_blocks(record)  # the moves surely ran
@@ -86,6 +90,12 @@ def test_a_soft_limit_read_in_a_cycle_is_not_told_as_surely_lost(tmp_path):
     assert "ALARM:2" in str(exc) and _LOST not in str(exc)
     assert "position is kept if that was GRBL's own soft-limit hold" in str(exc)
     assert [(e["code"], e.get("lost")) for e in events if e["ev"] == "alarm"] == [(2, None)]
+    said: list[str] = []
+    _say_lost_position(events, said.append)
+    assert said == []
+    # an earlier session's lost position is not this run's: only the last session counts
+    _say_lost_position([{"ev": "alarm", "code": 2, "lost": True}, *events], said.append)
+    assert said == []
 
 
 def test_after_the_alarm_at_speed_a_resume_is_refused_until_homed(tmp_path):

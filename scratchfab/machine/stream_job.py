@@ -404,6 +404,7 @@ def _stream_locked(
         if resume and events is not None:
             inches = info.inch_reports
             _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
+            _say_lost_position(events, cb.say)
         program = program.timed_for(eta_settings(info.settings, profile))  # the ETA's times
         wpos = info.status.wpos if start == 0 else None  # a fresh stream starts there
         findings = compare(
@@ -508,6 +509,25 @@ def _check_strokes(program: Program, gcode: Path) -> None:
         f"job uses {span}); resuming could restart in the middle of a cut (give a "
         "--z-threshold between the cutting and the travel heights)"
     )
+
+
+def _say_lost_position(events: list[dict[str, Any]], say: Say) -> None:
+    """Warn where the interrupted run ended with an alarm that likely lost the position.
+
+    The journal's ``alarm`` with ``lost`` (an ``ALARM:2`` while the sender's feed hold
+    still slowed the machine: GRBL stopped the motors at speed). GRBL stays locked until
+    homed or unlocked, and the sender cannot tell which was done: an unlock keeps the lost
+    position, so the resumed strokes would land off.
+    """
+    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
+    last = events[starts[-1] :] if starts else events
+    if any(ev.get("ev") == "alarm" and ev.get("lost") is True for ev in last):
+        say(
+            "warning: the interrupted run ended with an alarm that stopped the motors at "
+            "speed (a soft limit while a feed hold slowed the machine down), so its position "
+            "was likely lost: go on only if the machine was homed ($H) since; after an "
+            "unlock ($X) alone the strokes would land off"
+        )
 
 
 def _say_unclosed(program: Program, unsure_blocks: set[int], say: Say) -> None:
