@@ -1115,6 +1115,10 @@ def test_resume_with_no_prune_drops_the_runs_prune(job: Path, capsys) -> None:
     capsys.readouterr()
     main(["optimize", str(job), "--resume", "--no-prune"])
     out = capsys.readouterr().out
+    assert out.startswith(
+        "--no-prune: the run's own --prune 0.5 is dropped; its outputs are written without "
+        "pruning\n"
+    )
     assert "2 iterations (done)" in out and "pruned" not in out
     assert (folder / "scratches.csv").read_bytes() == unpruned
     assert not (folder / "scratches_unpruned.csv").exists()

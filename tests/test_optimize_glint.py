@@ -267,3 +267,18 @@ def test_a_glinting_run_says_so_and_an_earlier_checkpoint_of_it_does_not_resume(
         "made by an earlier scratchfab, whose image error counted the bare board's glint "
         "(this one leaves it out)"
     )
+
+
+def test_the_cli_says_its_final_figures_count_the_glint(tmp_path: Path, capsys) -> None:
+    """optimize's closing figures are over every pixel: a glinting view says so, with the
+    share the summary records; a view without glint says nothing of it."""
+    from scratchfab.cli import main
+
+    job = make_job(tmp_path / "job", glint_design(resolution=24), count=100)
+    main(["optimize", str(job), "--iterations", "2"])
+    out = capsys.readouterr().out.splitlines()
+    share = json.loads((job / "optimize" / "summary.json").read_text())["glint_left_out"]
+    (left,) = [line for line in out if line.startswith("left: ")]
+    assert left.endswith(f" (its glint on {100 * share['left']:.1f}% of the board counted)")
+    (right,) = [line for line in out if line.startswith("right: ")]
+    assert "glint" not in right

@@ -159,9 +159,15 @@ def optimize(
         name for name in asked if _given(ctx, name) or (no_prune and name == "prune_tolerance")
     }
     if resume:  # what the command does not give, the run's own (its total, its prune)
-        for name, value in checkpoint_request(job).items():
+        own = checkpoint_request(job)
+        for name, value in own.items():
             if name not in given:
                 asked[name] = value
+        if no_prune and own.get("prune_tolerance") is not None:
+            click.echo(
+                f"--no-prune: the run's own --prune {own['prune_tolerance']:g} is dropped; "
+                "its outputs are written without pruning"
+            )
     options = OptimizeOptions(
         iterations=asked["iterations"],
         time_budget_s=time_budget,
@@ -192,8 +198,15 @@ def optimize(
     views = result.quality["views"]
     for name, v in views.items():
         cross = ", ".join(f"x_{name},{j} = {x:.3f}" for j, x in v["crosstalk"].items())
+        glint = (
+            f" (its glint on {100 * result.glint[name]:.1f}% of the board counted)"
+            if name in result.glint
+            else ""
+        )
         click.echo(
-            f"{name}: PSNR {v['psnr']:.2f} dB, rho {v['rho']:.3f}" + (f", {cross}" if cross else "")
+            f"{name}: PSNR {v['psnr']:.2f} dB, rho {v['rho']:.3f}"
+            + (f", {cross}" if cross else "")
+            + glint
         )
     if result.prune is not None:
         p = result.prune

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import hashlib
 import io
 import json
@@ -98,6 +99,8 @@ class OptimizeResult:
         quality: :func:`scratchfab.metrics.quality_report` of the final renders.
         seconds_per_iteration: Mean over this session's steps (NaN without steps).
         prune: The pruning report, if pruning ran.
+        glint: Per view whose image error left the bare board's glint out, its share of the
+            board (``quality`` counts those pixels).
     """
 
     out_dir: Path
@@ -108,6 +111,7 @@ class OptimizeResult:
     quality: dict[str, Any]
     seconds_per_iteration: float
     prune: PruneReport | None = None
+    glint: dict[str, float] = dataclasses.field(default_factory=dict)
 
 
 #: ``OptimizeResult.stopped`` of a resume whose checkpoint had done every step asked
@@ -209,6 +213,7 @@ def _finished(
             loss=float(summary["loss"]),
             quality=summary["quality"],
             seconds_per_iteration=math.nan,
+            glint=g if isinstance(g := summary.get("glint_left_out"), dict) else {},
         )
     except (OSError, ValueError, KeyError, TypeError, ConfigError):
         return None
@@ -838,4 +843,5 @@ def _run(
         quality=quality,
         seconds_per_iteration=per_iter,
         prune=pruned,
+        glint=summary["glint_left_out"],
     )
