@@ -36,6 +36,8 @@ from scratchfab.render.profile import profile_normal, solve_wbar, steepest_wall_
 MIN_REACHABLE_FRACTION = 0.5
 #: Pairs closer than this many lobe widths (median over the board) get a warning.
 WARN_SEPARATION_LOBES = 3.0
+#: Pairs of views the terminal summary lists (the closest; three views make six).
+PAIR_LINES = 6
 #: Map dots where another view sees at least this share of the GGX peak (one lobe width).
 CROSSTALK_DOTS = 0.25
 #: Map colours (Okabe-Ito based; blue against yellow/orange survives red-green blindness).
@@ -294,10 +296,18 @@ class FeasibilityReport:
                 f"view '{name}': half-vector tilt {v.tilt_min_deg:.1f}-{v.tilt_max_deg:.1f} deg, "
                 f"{100 * v.reachable_fraction:.0f}% of the board reachable{glint}"
             )
-        for p in self.pairs:
+        # Many views make many pairs: the terminal gets those most likely to show crosstalk.
+        order = sorted(range(len(self.pairs)), key=lambda i: self.pairs[i].separation_median_deg)
+        shown = sorted(order[:PAIR_LINES])
+        for p in (self.pairs[i] for i in shown):
             lines.append(
                 f"scratches for '{p.lit}' seen by '{p.other}': {p.separation_median_deg:.1f} deg "
                 f"off their normals (median), expected crosstalk {p.expected_crosstalk:.3f}"
+            )
+        if len(self.pairs) > len(shown):
+            lines.append(
+                f"... and {len(self.pairs) - len(shown)} more pairs of views, farther apart "
+                "(every pair in feasibility.json)"
             )
         lines += [f"warning: {w}" for w in self.warnings]
         lines += [f"error: {e}" for e in self.errors] if errors else []
