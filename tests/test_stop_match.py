@@ -570,3 +570,29 @@ def test_a_resumed_sessions_first_move_starts_where_the_preamble_left_the_machin
     for q in path[1:-1]:
         report = _report(_work_at(q, wco, spm), wco, spm)
         assert s._executed_guess(report) <= plunge, q
+
+
+def test_a_resumed_sessions_later_moves_keep_the_preambles_numbers_on_axes_not_given_again(
+    tmp_path,
+):
+    """Safety: after the resume preamble's X0.0001 (the file's X0.00006 to 4 decimals) the
+    machine stays on X step 1 through every block that does not give X again: Grbl keeps
+    the preamble's X for the plunge and the cut along Y (G1Y10), not the file's (step 0).
+    Stopped at the plunge's end, before the cut's first step, or a few steps into the
+    cut, the cut has not run: it is never taken for a move the machine is off, which let
+    the later plunge at X0.001 (step 1) and the cut along Y0 claim the stop and skip it."""
+    text = "G21G90\nG0Z1\nG0X0.00006Y0\nG1Z-0.1F100\nG1Y10\nG0Z1\nG0X0.001Y0\nG1Z-0.1\nG1X5\nG0Z1\n"
+    spm = (850.0, 850.0, 800.0)
+    s = _streamer_spm(tmp_path, text, spm)
+    plunge, cut = 3, 4
+    s._acked_blocks = list(range(plunge, len(s._program.blocks)))
+    s._acks_at_status = len(s._acked_blocks)
+    wco = (0.00049, 0.0, 0.0)
+    left = _machine_steps((0.0001, 0.0, -0.1), wco, spm)  # the plunge's end on Grbl
+    assert left[0] == 1 and _machine_steps((0.00006, 0.0, -0.1), wco, spm)[0] == 0
+    cut_end = _machine_steps((0.0001, 10.0, -0.1), wco, spm)
+    path = _stepper(left, cut_end)
+    assert all(q[0] == 1 for q in path)  # the cut keeps the preamble's X step
+    for q in path[:-1]:
+        report = _report(_work_at(q, wco, spm), wco, spm)
+        assert s._executed_guess(report) <= cut - 1, q

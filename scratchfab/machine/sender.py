@@ -1807,11 +1807,11 @@ class Streamer:
         digit = REPORT_DIGIT_MM[self.info.inch_reports]
         off = digit / 2.0 if report.wco_printed else 1.5 * digit  # how far WCO may be off
         blocks = self._program.blocks
-        end = known_xyz(blocks[i].modal)
+        end = self._session_xyz(i)
         # a session's first move starts where the resume preamble took the machine, its
         # numbers rounded to 4 decimals: maybe not block i - 1's step
         first = i == next((j for j in self._acked_blocks if blocks[j].motion), i)
-        start = known_xyz(blocks[i - 1].modal) if i > 0 and not first else (None, None, None)
+        start = self._session_xyz(i - 1) if i > 0 and not first else (None, None, None)
         out = []
         for k, w in enumerate(report.wco):
             at = step_span(p[k] + w, digit / 2.0 + (0.0 if report.mpos_given else off), step[k])
@@ -1822,6 +1822,29 @@ class Streamer:
             way = 0 if u is None or v is None else (v > u) - (v < u)
             out.append(_AxisSteps(at, ends[0], ends[1], way))
         return out
+
+    def _session_xyz(self, j: int) -> tuple[float | None, float | None, float | None]:
+        """Where block ``j`` leaves the machine (work mm) in this session, where known.
+
+        As :func:`known_xyz`, but a resumed session starts where the resume preamble took
+        the machine, its numbers written to 4 decimals, and GRBL keeps them on each axis no
+        block of the session has given since (a plunge's X and Y, a cut along Y's X): where
+        the file's number has more decimals (X0.00006 written X0.0001, maybe another step)
+        that axis is not known there.
+        """
+        blocks = self._program.blocks
+        xyz = list(known_xyz(blocks[j].modal))
+        first = self._acked_blocks[0] if self._acked_blocks else 0
+        if first == 0:  # a stream from the top: no preamble
+            return xyz[0], xyz[1], xyz[2]
+        for k, (axis, v) in enumerate(zip("XYZ", xyz, strict=True)):
+            if v is None or float(gcode_number(v, 4)) == v:
+                continue
+            given = any(
+                a == axis for b in blocks[j : first - 1 : -1] for a, _ in block_words(b.text)
+            )
+            xyz[k] = v if given else None
+        return xyz[0], xyz[1], xyz[2]
 
     def _at_end(self, i: int, report: Status, steps: list[_AxisSteps] | None = None) -> str:
         """Where ``report``'s work position stands about move ``i``'s end.
