@@ -88,12 +88,18 @@ def _tiling(
     return ScratchSet.from_arrays(np.array(p0), np.array(p1), width, depth)
 
 
-def _strip_design(roughness: float) -> Design:
-    """A 120 x 4 mm strip under a camera on its normal and a light above it: the half-vector
-    stays near the x-z plane and tilts from 0 at the centre to about 9.5 deg at the ends,
-    0.16 deg a pixel; 1 mm pixels, each wide enough for ten scratches."""
+def _strip_design(roughness: float, width_mm: int = 120) -> Design:
+    """A 120 x 4 mm strip (or ``width_mm`` long) under a camera on its normal and a light
+    above it: the half-vector stays near the x-z plane and tilts from 0 at the centre to
+    about 9.5 deg at the ends (12.5 at 170 mm), 0.16 deg a pixel; 1 mm pixels, each wide
+    enough for ten scratches."""
     tables = {
-        "board": {"width_mm": 120.0, "height_mm": 4.0, "roughness": roughness, "margin_mm": 0.1},
+        "board": {
+            "width_mm": float(width_mm),
+            "height_mm": 4.0,
+            "roughness": roughness,
+            "margin_mm": 0.1,
+        },
         "light": {"position_mm": [0.0, 0.0, 450.0]},
         "scratch": {"count": 10, "min_length_mm": 0.2, "max_length_mm": 0.5},
         "views": [
@@ -103,7 +109,7 @@ def _strip_design(roughness: float) -> Design:
                 "elevation_deg": 0.0,
                 "distance_mm": 300.0,
                 "fov_deg": "auto",
-                "resolution": [120, 4],
+                "resolution": [width_mm, 4],
             }
         ],
     }

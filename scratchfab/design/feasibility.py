@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import combinations
 from typing import Any
 
@@ -101,15 +101,42 @@ def glint_limit_deg(width_mm: float, depth_mm: float, roughness: float) -> float
 
     Where tilt(h) < this, the flat board's D(h_z) exceeds :func:`scratch_response`: a pixel
     grows darker the more scratches cover it, so no layout can show a bright pixel on a
-    dark one there. The flat board's D falls from its peak within a lobe width while a
-    scratch's average stays about flat up to the steepest wall, so the two cross once
-    below it (bisection); the steepest wall itself when they do not.
+    dark one there. :func:`outshine_limit_deg` at full coverage.
+    """
+    return outshine_limit_deg(width_mm, depth_mm, roughness, 1.0)
+
+
+def outshine_ratio(
+    tilt: np.ndarray | float, width_mm: float, depth_mm: float, roughness: float
+) -> np.ndarray:
+    """The groove coverage whose light equals the bare board's at half-vector ``tilt`` (deg).
+
+    A pixel a share c of which grooves turned toward h cover returns c S(t) + (1 - c) D(t)
+    over D(1) (SPEC section 4, S = :func:`scratch_response`, D(t) = :func:`ggx_ratio`): the
+    grooves' light c S(t) outshines the bare board's D(t) where c exceeds D(t) / S(t),
+    which this returns (above 1 inside the glint).
+    """
+    flat = ggx_ratio(np.asarray(tilt, dtype=np.float64), roughness)
+    return np.asarray(flat / scratch_response(tilt, width_mm, depth_mm, roughness))
+
+
+def outshine_limit_deg(
+    width_mm: float, depth_mm: float, roughness: float, coverage: float
+) -> float:
+    """Half-vector tilt below which the bare board outshines grooves covering ``coverage``.
+
+    Below it :func:`outshine_ratio` exceeds ``coverage``: the polished board mirrors more
+    light into the view than grooves covering that share of a pixel return at their
+    brightest turn. At coverage 1 it is the glint (:func:`glint_limit_deg`); a sparser
+    layout pushes it out along the GGX lobe's shoulder (10.4 deg at coverage 0.05 for the
+    default tool). The flat board's D falls from its peak within a lobe width while a
+    scratch's average stays about flat up to the steepest wall, so the ratio falls once
+    below it (bisection); the steepest wall itself when it does not get there.
     """
     top = float(steepest_wall_deg(width_mm, depth_mm))
 
     def brighter(t: float) -> bool:
-        flat = ggx_ratio(np.asarray(t), roughness)
-        return bool(flat > scratch_response(t, width_mm, depth_mm, roughness))
+        return bool(outshine_ratio(t, width_mm, depth_mm, roughness) > coverage)
 
     if brighter(top):
         return top
@@ -183,7 +210,9 @@ class ViewFeasibility:
     """Per-view result: tilt of the half-vector against what the profile reaches.
 
     ``glint_fraction`` is the share of the board where the bare board glints into the view
-    (tilt below :func:`glint_limit_deg`).
+    (tilt below :func:`glint_limit_deg`); ``shoulder_fraction`` the share past it where
+    the bare board still outshines the initial layout's grooves (tilt below
+    :attr:`FeasibilityReport.shoulder_deg`), None when the check had no target images.
     """
 
     name: str
@@ -193,6 +222,7 @@ class ViewFeasibility:
     reachable_fraction: float
     tilt_map: np.ndarray = field(repr=False)
     glint_fraction: float = 0.0
+    shoulder_fraction: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready summary (the map is written as a PNG)."""
@@ -202,6 +232,7 @@ class ViewFeasibility:
             "tilt_max_deg": round(self.tilt_max_deg, 4),
             "reachable_fraction": round(self.reachable_fraction, 6),
             "glint_fraction": round(self.glint_fraction, 6),
+            "shoulder_fraction": _rounded(self.shoulder_fraction, 6),
         }
 
 
@@ -234,7 +265,11 @@ class FeasibilityReport:
     ``groove_coverage`` is the initial layout's groove area (expected length times the
     tool's width) over the board inside the margin, and ``mean_length_mm`` the expected
     scratch length; both None when the check had no target images. ``glint_deg`` is
-    :func:`glint_limit_deg` of the design's tool and board.
+    :func:`glint_limit_deg` of the design's tool and board; ``shoulder_deg``
+    :func:`outshine_limit_deg` at the groove coverage (capped at 1), the tilt below which
+    the bare board outshines the layout's grooves, and ``shoulder_count`` the
+    ``[scratch] count`` whose grooves outshine it wherever it does not glint (None when
+    they already do, or without target images).
     """
 
     steepest_wall_deg: float
@@ -246,6 +281,8 @@ class FeasibilityReport:
     groove_coverage: float | None = None
     mean_length_mm: float | None = None
     glint_deg: float = 0.0
+    shoulder_deg: float | None = None
+    shoulder_count: int | None = None
 
     @property
     def ok(self) -> bool:
@@ -259,6 +296,8 @@ class FeasibilityReport:
             "lobe_deg": round(self.lobe_deg, 4),
             "reach_limit_deg": round(self.steepest_wall_deg + self.lobe_deg, 4),
             "glint_limit_deg": round(self.glint_deg, 4),
+            "shoulder_limit_deg": _rounded(self.shoulder_deg, 4),
+            "shoulder_count": self.shoulder_count,
             "views": {name: v.to_json() for name, v in self.views.items()},
             "pairs": [p.to_json() for p in self.pairs],
             "groove_coverage": _rounded(self.groove_coverage, 4),
@@ -381,10 +420,28 @@ def check_feasibility(
             )
     coverage = mean_length = None
     drawn: tuple[int, float] | None = None
+    shoulder_deg = shoulder_count = None
     if boards:
-        coverage, mean_length, fits, crowded = _coverage(design, boards)
+        # imported here: the layout imports this module's geometry
+        from scratchfab.design.layout import board_densities
+
+        dpts, dens = board_densities(design, boards)
+        coverage, mean_length, fits, crowded = _coverage(design, dpts, dens)
         warnings += crowded
         drawn = (fits, mean_length)
+        shoulder_deg = outshine_limit_deg(
+            tool.width_mm, tool.depth_mm, design.board.roughness, min(coverage, 1.0)
+        )
+        for found in views.values():
+            tilt = found.tilt_map
+            found.shoulder_fraction = float(np.mean((tilt >= glint_deg) & (tilt < shoulder_deg)))
+        if any(found.shoulder_fraction for found in views.values()):
+            shoulder_count = _outshining_count(design, views, glint_deg, dpts, dens, coverage)
+            warnings.append(
+                _shoulder_problem(
+                    design, views, pts, glint_deg, shoulder_deg, coverage, shoulder_count
+                )
+            )
     errors += _crowding_errors(design, drawn)
     pairs = _pairs(design, hs, steepest)
     apart: list[tuple[str, str, PairFeasibility]] = []  # (a, b, the worse direction)
@@ -400,7 +457,17 @@ def check_feasibility(
     if apart:
         errors.append(_indistinguishable(design, apart, lobe, steepest, grid))
     return FeasibilityReport(
-        steepest, lobe, views, pairs, errors, warnings, coverage, mean_length, glint_deg
+        steepest,
+        lobe,
+        views,
+        pairs,
+        errors,
+        warnings,
+        coverage,
+        mean_length,
+        glint_deg,
+        shoulder_deg,
+        shoulder_count,
     )
 
 
@@ -569,6 +636,97 @@ def _glint_problem(
     )
 
 
+def _outshining_count(
+    design: Design,
+    views: Mapping[str, ViewFeasibility],
+    glint_deg: float,
+    dpts: np.ndarray,
+    dens: dict[str, np.ndarray],
+    coverage: float,
+) -> int:
+    """The least ``[scratch] count`` whose grooves outshine the bare board past the glint.
+
+    The groove coverage must exceed :func:`outshine_ratio` at the smallest tilt past
+    ``glint_deg`` on the check's grid (at most 1 there, so the grooves need not overlap);
+    the coverage grows with the count in proportion, bar the rounding of the views' shares,
+    which the search settles on the layout's own expected length.
+
+    Args:
+        design: The resolved design.
+        views: The views' results (their tilt maps).
+        glint_deg: :func:`glint_limit_deg` of the design.
+        dpts: The layout's density grid and ``dens`` the views' densities on it
+            (:func:`scratchfab.design.layout.board_densities`).
+        dens: See ``dpts``.
+        coverage: The groove coverage at the design's count.
+    """
+    from scratchfab.design.layout import expected_length
+
+    tool = design.scratch
+    roughness = design.board.roughness
+    least = min(float(v.tilt_map[v.tilt_map >= glint_deg].min()) for v in views.values())
+    need = float(outshine_ratio(least, tool.width_mm, tool.depth_mm, roughness))
+
+    def clears(count: int) -> bool:
+        tried = replace(design, scratch=replace(tool, count=count))
+        cov = expected_length(tried, dpts, dens) * tool.width_mm / usable_area(design.board)
+        return outshine_limit_deg(tool.width_mm, tool.depth_mm, roughness, min(cov, 1.0)) <= least
+
+    count = max(tool.count + 1, math.ceil(tool.count * need / coverage))
+    while not clears(count):
+        count += max(1, count // 1000)
+    return count
+
+
+def _shoulder_problem(
+    design: Design,
+    views: Mapping[str, ViewFeasibility],
+    pts: np.ndarray,
+    glint_deg: float,
+    shoulder_deg: float,
+    coverage: float,
+    count: int,
+) -> str:
+    """The warning for views where the bare board outshines the layout's grooves past the glint.
+
+    Names each such view with its share of the board and where it is worst (the smallest
+    tilt past the glint), and ``count``, which makes the grooves outshine it.
+    """
+    tool = design.scratch
+    where = []
+    worst = 0.0
+    for v in views.values():
+        if not v.shoulder_fraction:
+            continue
+        tilt = np.where(v.tilt_map >= glint_deg, v.tilt_map, np.inf)
+        x, y = pts[np.unravel_index(np.argmin(tilt), tilt.shape)]
+        where.append(
+            f"'{v.name}' on {100 * v.shoulder_fraction:.1f}% of the board from ({x:.0f}, {y:.0f}) mm"
+        )
+        ratio = outshine_ratio(tilt.min(), tool.width_mm, tool.depth_mm, design.board.roughness)
+        worst = max(worst, float(ratio))
+    views_said = "view " + ", ".join(where) if len(where) == 1 else "views " + ", ".join(where)
+    if _quick(design):
+        change = (
+            f"give --count {count} or more so that the grooves outshine it wherever the board "
+            "does not glint (the quick form places the cameras and the light itself: to move "
+            "them, design from a design.toml)"
+        )
+    else:
+        change = (
+            f"set [scratch] count to at least {count} so that the grooves outshine it "
+            "wherever the board does not glint, or move the cameras or the light so that "
+            f"every half-vector tilts at least {shoulder_deg:.1f} deg"
+        )
+    return (
+        f"past the glint, the bare board still outshines the scratches where the half-vector "
+        f"tilts {glint_deg:.1f}-{shoulder_deg:.1f} deg: {views_said}; there the polished "
+        "board's gloss mirrors more light into the view than the grooves return at the "
+        f"layout's groove coverage of {coverage:.2f} (up to {worst / coverage:.0f} times), so "
+        f"the image shows only faintly over a bright haze; {change}"
+    )
+
+
 def _crowding_errors(design: Design, drawn: tuple[int, float] | None = None) -> list[str]:
     """Refuse more scratches than fit side by side, even at their shortest, inside the margin.
 
@@ -623,11 +781,12 @@ def usable_area(board: Board) -> float:
 
 
 def _coverage(
-    design: Design, boards: Mapping[str, np.ndarray]
+    design: Design, pts: np.ndarray, dens: dict[str, np.ndarray]
 ) -> tuple[float, float, int, list[str]]:
     """Groove coverage, mean length, the count keeping it to 1, and a warning above 1.
 
-    All of the initial layout's.
+    All of the initial layout's, from its density grid ``pts`` and the views' densities
+    ``dens`` (:func:`scratchfab.design.layout.board_densities`).
 
     The layout's lengths follow the targets' brightness
     (:func:`scratchfab.design.layout.expected_length`); grooves covering more than the
@@ -635,11 +794,10 @@ def _coverage(
     one wider dent.
     """
     # imported here: the layout imports this module's geometry
-    from scratchfab.design.layout import board_densities, expected_length, longest_for_length
+    from scratchfab.design.layout import expected_length, longest_for_length
 
     tool = design.scratch
     usable = usable_area(design.board)
-    pts, dens = board_densities(design, boards)
     total = expected_length(design, pts, dens)
     coverage = total * tool.width_mm / usable
     mean = total / tool.count
