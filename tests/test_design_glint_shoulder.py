@@ -125,11 +125,13 @@ def test_the_maker_warns_with_the_share_and_a_count_that_clears_it(maker):
     for name in ("sun", "house"):
         share = report.views[name].shoulder_fraction
         assert share is not None and 0.08 < share < 0.25
-        assert f"'{name}' on {100 * share:.1f}% of the board" in said[0]
-        assert report.to_json()["views"][name]["shoulder_fraction"] == pytest.approx(share, abs=1e-6)
+        assert f"'{name}' on {100 * share:.1f}% of the board, around its glint" in said[0]
+        assert report.to_json()["views"][name]["shoulder_fraction"] == pytest.approx(
+            share, abs=1e-6
+        )
     count = report.shoulder_count
     assert count is not None and count > design.scratch.count
-    assert f"set [scratch] count to at least {count} " in said[0]
+    assert f"set [scratch] count to at least {count} (groove coverage " in said[0]
     assert f"tilts at least {report.shoulder_deg:.1f} deg" in said[0]
     data = report.to_json()
     assert data["shoulder_limit_deg"] == pytest.approx(report.shoulder_deg, abs=1e-4)
@@ -155,7 +157,7 @@ def test_the_quick_form_says_which_count_to_give():
     said = _said(report)
     assert len(said) == 1
     assert f"give --count {report.shoulder_count} or more" in said[0]
-    assert "[scratch]" not in said[0]
+    assert "[scratch]" not in said[0] and "worst around (" in said[0]
     again = _checked(
         quick_design(
             [DEMO / "sun.png", DEMO / "house.png"], (200.0, 200.0), count=report.shoulder_count

@@ -436,11 +436,10 @@ def check_feasibility(
             tilt = found.tilt_map
             found.shoulder_fraction = float(np.mean((tilt >= glint_deg) & (tilt < shoulder_deg)))
         if any(found.shoulder_fraction for found in views.values()):
-            shoulder_count = _outshining_count(design, views, glint_deg, dpts, dens, coverage)
+            advised = _outshining_count(design, views, glint_deg, dpts, dens, coverage)
+            shoulder_count = advised[0]
             warnings.append(
-                _shoulder_problem(
-                    design, views, pts, glint_deg, shoulder_deg, coverage, shoulder_count
-                )
+                _shoulder_problem(design, views, pts, glint_deg, shoulder_deg, coverage, advised)
             )
     errors += _crowding_errors(design, drawn)
     pairs = _pairs(design, hs, steepest)
@@ -643,8 +642,10 @@ def _outshining_count(
     dpts: np.ndarray,
     dens: dict[str, np.ndarray],
     coverage: float,
-) -> int:
+) -> tuple[int, float]:
     """The least ``[scratch] count`` whose grooves outshine the bare board past the glint.
+
+    Returns the count and the groove coverage it gives.
 
     The groove coverage must exceed :func:`outshine_ratio` at the smallest tilt past
     ``glint_deg`` on the check's grid (at most 1 there, so the grooves need not overlap);
@@ -667,15 +668,16 @@ def _outshining_count(
     least = min(float(v.tilt_map[v.tilt_map >= glint_deg].min()) for v in views.values())
     need = float(outshine_ratio(least, tool.width_mm, tool.depth_mm, roughness))
 
-    def clears(count: int) -> bool:
+    def covers(count: int) -> float:
         tried = replace(design, scratch=replace(tool, count=count))
-        cov = expected_length(tried, dpts, dens) * tool.width_mm / usable_area(design.board)
-        return outshine_limit_deg(tool.width_mm, tool.depth_mm, roughness, min(cov, 1.0)) <= least
+        return expected_length(tried, dpts, dens) * tool.width_mm / usable_area(design.board)
 
     count = max(tool.count + 1, math.ceil(tool.count * need / coverage))
-    while not clears(count):
+    cov = covers(count)
+    while outshine_limit_deg(tool.width_mm, tool.depth_mm, roughness, min(cov, 1.0)) > least:
         count += max(1, count // 1000)
-    return count
+        cov = covers(count)
+    return count, cov
 
 
 def _shoulder_problem(
@@ -685,13 +687,15 @@ def _shoulder_problem(
     glint_deg: float,
     shoulder_deg: float,
     coverage: float,
-    count: int,
+    advised: tuple[int, float],
 ) -> str:
     """The warning for views where the bare board outshines the layout's grooves past the glint.
 
     Names each such view with its share of the board and where it is worst (the smallest
-    tilt past the glint), and ``count``, which makes the grooves outshine it.
+    tilt past the glint), and the count that makes the grooves outshine it with the
+    coverage it gives (``advised``, :func:`_outshining_count`).
     """
+    count, covered = advised
     tool = design.scratch
     where = []
     worst = 0.0
@@ -700,22 +704,22 @@ def _shoulder_problem(
             continue
         tilt = np.where(v.tilt_map >= glint_deg, v.tilt_map, np.inf)
         x, y = pts[np.unravel_index(np.argmin(tilt), tilt.shape)]
-        where.append(
-            f"'{v.name}' on {100 * v.shoulder_fraction:.1f}% of the board from ({x:.0f}, {y:.0f}) mm"
-        )
+        # the band rings a glint; elsewhere its worst point is its smallest tilt
+        near = "around its glint" if v.glint_fraction else f"worst around ({x:.0f}, {y:.0f}) mm"
+        where.append(f"'{v.name}' on {100 * v.shoulder_fraction:.1f}% of the board, {near}")
         ratio = outshine_ratio(tilt.min(), tool.width_mm, tool.depth_mm, design.board.roughness)
         worst = max(worst, float(ratio))
     views_said = "view " + ", ".join(where) if len(where) == 1 else "views " + ", ".join(where)
     if _quick(design):
         change = (
-            f"give --count {count} or more so that the grooves outshine it wherever the board "
-            "does not glint (the quick form places the cameras and the light itself: to move "
-            "them, design from a design.toml)"
+            f"give --count {count} or more (groove coverage {covered:.2f}) so that the grooves "
+            "outshine it wherever the board does not glint (the quick form places the cameras "
+            "and the light itself: to move them, design from a design.toml)"
         )
     else:
         change = (
-            f"set [scratch] count to at least {count} so that the grooves outshine it "
-            "wherever the board does not glint, or move the cameras or the light so that "
+            f"set [scratch] count to at least {count} (groove coverage {covered:.2f}) so that "
+            "the grooves outshine it wherever the board does not glint, or move the cameras or the light so that "
             f"every half-vector tilts at least {shoulder_deg:.1f} deg"
         )
     return (
