@@ -2265,7 +2265,11 @@ def test_sigterm_stops_the_cli_stream_and_resume_finishes(tmp_path, capsys):
             proc.kill()
     assert proc.returncode == 130, err
     assert "Traceback" not in err
-    assert re.search(r"^stopped by SIGTERM after line \d+; machine held", err, re.M)
+    assert re.search(
+        r"^stopped by SIGTERM after line \d+ \(the last one GRBL accepted; [^)]*\); machine held",
+        err,
+        re.M,
+    )
     events = read_journal(journal)
     assert events[-1]["ev"] == "stop" and "SIGTERM" in events[-1]["reason"]
     main(["stream", str(job), "--port", f"grblsim://?baud=0&time_scale=0.001&record={recs[1]}",

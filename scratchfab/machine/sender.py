@@ -97,6 +97,7 @@ from scratchfab.machine.sender_program import (
     dwell_seconds,
     followed_move,
     known_xyz,
+    resume_point,
     stands_at_end,
     strip_block,
     travel_height,
@@ -866,6 +867,7 @@ class Streamer:
         self._acked_blocks = []
         self._acks_at_status = 0
         self._hold_alarm = None
+        self._stopped_through = None
         self._hold_unseen = False  # a hold before the connect's reset is over
         self._all_ran = False  # END_WAIT acknowledged: every acknowledged block ran
         try:
@@ -1113,6 +1115,7 @@ class Streamer:
     _hold_unseen = False  # a feed hold was sent and no report since shows the machine still
     _alarm_lost = False  # the last alarm stopped the machine at speed: position likely lost
     _hold_alarm: _Fault | None = None  # an alarm that came while waiting for a hold
+    _stopped_through: int | None = None  # the safe stop's executed-through
 
     def _alarm_fault(self, code: int) -> _Fault:
         """The fault of GRBL's ``ALARM:code`` mid-job, journaled (``lost``: see below).
@@ -1268,8 +1271,27 @@ class Streamer:
             return
         tool = self._safe_stop(f"stopped by {by}", wait=self.options.hold_timeout)
         raise StreamStopped(
-            f"stopped by {by} after line {self._last_acked_line()}; machine held, then "
-            f"soft-reset (spindle off){tool}; continue later with --resume"
+            f"stopped by {by} after line {self._last_acked_line()}{self._ran_clause()}; "
+            f"machine held, then soft-reset (spindle off){tool}; continue later with --resume"
+        )
+
+    def _ran_clause(self) -> str:
+        """Where the machine stopped, as the stop's journal has it.
+
+        The last line it surely ran and the line a resume restarts at (the first
+        stroke not run to its end); "" before the safe stop judged it.
+        """
+        through = self._stopped_through
+        if through is None or not self._acked_blocks:
+            return ""
+        blocks = self._program.blocks
+        restart = resume_point(self._program, set(range(through + 1)))
+        if restart >= len(blocks):
+            return " (the last one GRBL accepted; the machine had run every line)"
+        ran = f"through line {blocks[through].lineno}" if through >= 0 else "no line"
+        return (
+            f" (the last one GRBL accepted; the machine had run {ran}: a resume restarts at line "
+            f"{blocks[restart].lineno})"
         )
 
     def _tell(self, text: str) -> None:
@@ -1436,7 +1458,7 @@ class Streamer:
         frame = self._wco  # the work offset the job ran under (a reset may clear G92)
         self._write(REALTIME_RESET)
         banner = self._wait_banner(self.options.banner_timeout) is not None
-        through = self._executed_guess(held)
+        through = self._stopped_through = self._executed_guess(held)
         lifted = self._lift(held, banner, frame)
         self._journal.write("stop", reason=reason, executed_through=through, **_journaled(lifted))
         alarm = "" if self._hold_alarm is None else f"; {self._hold_alarm}"
