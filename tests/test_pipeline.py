@@ -1093,6 +1093,23 @@ def test_an_interrupted_optimize_whose_design_changed_says_why_it_starts_over(
     assert line.endswith("optimizing from the start")
 
 
+def test_a_design_toml_the_design_stage_wrote_since_optimize_is_not_taken_for_a_hand_edit(
+    finished_job, tmp_path
+):
+    """The pipeline file changed and a run went only as far as design (``--until design``):
+    design.toml differs from what optimize read, but nobody edited it by hand."""
+    path, job, _ = finished_job
+    copy = tmp_path / "job"
+    shutil.copytree(job, copy)
+    said: list[str] = []
+    with _edited(path, "[board]\n", "[board]\nroughness = 0.06\n"):
+        result = run_pipeline(load_pipeline(path), copy, until="design", say=said.append)
+        assert result.ran == ["design"]
+        said.clear()
+        run_pipeline(load_pipeline(path), copy, until="design", say=said.append)
+    assert said == ["[design] up to date, skipped"]
+
+
 def test_a_hand_edited_design_toml_in_a_pipeline_job_is_named_with_where_to_edit(
     finished_job, tmp_path
 ):
@@ -1110,7 +1127,7 @@ def test_a_hand_edited_design_toml_in_a_pipeline_job_is_named_with_where_to_edit
     run_pipeline(load_pipeline(path), copy, until="design", say=said.append)
     assert said[0] == "[design] up to date, skipped"
     assert said[1] == (
-        f"  {toml} was edited since optimize read it: the stages after design use it as it "
-        f"is now, but this job's design comes from {path}, and the design stage writes it "
-        "over whenever that file changes: make the edit there"
+        f"  {toml} was edited since the design stage wrote it: the stages after design use "
+        f"it as it is now, but this job's design comes from {path}, and the design stage "
+        "writes it over whenever that file changes: make the edit there"
     )

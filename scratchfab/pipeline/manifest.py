@@ -216,9 +216,18 @@ class Manifest:
         return is_format_1((self.stages.get(stage) or {}).get("inputs"))
 
     def record(
-        self, stage: str, inputs: Mapping[str, Any], outputs: Iterable[str], seconds: float
+        self,
+        stage: str,
+        inputs: Mapping[str, Any],
+        outputs: Iterable[str],
+        seconds: float,
+        written: Iterable[Path] = (),
     ) -> None:
-        """Mark ``stage`` done on ``inputs`` with its outputs (relative to the job)."""
+        """Mark ``stage`` done on ``inputs`` with its outputs (relative to the job).
+
+        ``written``: job files whose digest as the stage wrote them is kept
+        (:meth:`written_digest`), so that an edit by hand can be told from the stage's own.
+        """
         self.stages[stage] = {
             "status": "done",
             "inputs": dict(inputs),
@@ -226,6 +235,8 @@ class Manifest:
             "seconds": round(seconds, 3),
             "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
         }
+        if digests := {_key(f, self.job): file_digest(f) for f in written}:
+            self.stages[stage]["written"] = digests
         self.save()
 
     def start(self, stage: str, inputs: Mapping[str, Any]) -> None:
@@ -253,6 +264,11 @@ class Manifest:
         inputs = (self.stages.get(stage) or {}).get("inputs") or {}
         files = inputs.get("files") if isinstance(inputs, dict) else None
         return files.get(_key(file, self.job)) if isinstance(files, dict) else None
+
+    def written_digest(self, stage: str, file: Path) -> str | None:
+        """The digest of the job's ``file`` as ``stage`` last wrote it (None: not recorded)."""
+        written = (self.stages.get(stage) or {}).get("written")
+        return written.get(_key(file, self.job)) if isinstance(written, dict) else None
 
     def stopped(self, stage: str) -> bool:
         """True when ``stage`` last started and did not finish, whatever its inputs."""

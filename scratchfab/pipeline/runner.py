@@ -125,18 +125,19 @@ class _Stages:
         return fingerprint(files, sources, options, self.job)
 
     def design_edited(self, manifest: Manifest) -> str | None:
-        """A line when ``JOB/design/design.toml`` changed since optimize last read it.
+        """A line when ``JOB/design/design.toml`` changed since the design stage wrote it.
 
         In a pipeline job the design stage writes that file from the pipeline file, so an
-        edit by hand holds only until the design stage runs again.
+        edit by hand holds only until the design stage runs again. Where the manifest does
+        not hold what design wrote (an earlier scratchfab's): the file as optimize read it.
         """
         file = self.layout.design.design_toml
-        was = manifest.recorded_digest("optimize", file)
+        was = manifest.written_digest("design", file) or manifest.recorded_digest("optimize", file)
         if was is None or not file.is_file() or file_digest(file) == was:
             return None
         return (
-            f"  {file} was edited since optimize read it: the stages after design use it "
-            f"as it is now, but this job's design comes from {self.pipe.path}, and the "
+            f"  {file} was edited since the design stage wrote it: the stages after design "
+            f"use it as it is now, but this job's design comes from {self.pipe.path}, and the "
             "design stage writes it over whenever that file changes: make the edit there"
         )
 
@@ -522,7 +523,9 @@ def _run_stages(
                 manifest.invalidate(stage, why)
                 raise
             # Record what the stage read, as it was when the stage ran.
-            manifest.record(stage, inputs, outputs, time.perf_counter() - began)
+            # what design wrote, to tell a later edit by hand (design_edited)
+            written = [stages.layout.design.design_toml] if stage == "design" else []
+            manifest.record(stage, inputs, outputs, time.perf_counter() - began, written)
             result.ran.append(stage)
             rerun = True
             say(f"[{stage}] done in {time.perf_counter() - began:.1f} s")
