@@ -279,6 +279,9 @@ def test_the_cli_says_its_final_figures_count_the_glint(tmp_path: Path, capsys) 
     out = capsys.readouterr().out.splitlines()
     share = json.loads((job / "optimize" / "summary.json").read_text())["glint_left_out"]
     (left,) = [line for line in out if line.startswith("left: ")]
-    assert left.endswith(f" (its glint on {100 * share['left']:.1f}% of the board counted)")
+    assert left.endswith(
+        f" (over every pixel, its glint on {100 * share['left']:.1f}% of the board too, which "
+        "optimize left out)"
+    )
     (right,) = [line for line in out if line.startswith("right: ")]
     assert "glint" not in right

@@ -199,7 +199,8 @@ def optimize(
     for name, v in views.items():
         cross = ", ".join(f"x_{name},{j} = {x:.3f}" for j, x in v["crosstalk"].items())
         glint = (
-            f" (its glint on {100 * result.glint[name]:.1f}% of the board counted)"
+            f" (over every pixel, its glint on {100 * result.glint[name]:.1f}% of the board too, "
+            "which optimize left out)"
             if name in result.glint
             else ""
         )
