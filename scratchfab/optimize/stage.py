@@ -668,6 +668,7 @@ def _run(
         start_layout = ScratchSet(c - rot, c + rot, initial.width, initial.depth)
     schedule = options.schedule()
     ckpt = paths.optimize_checkpoint
+    made: dict[str, Any] = {}  # the checkpoint's fingerprint (a resume's)
     if options.resume:
         state, meta, log_rows = load_checkpoint(ckpt)
         made = meta.get("fingerprint", {})
