@@ -368,22 +368,22 @@ def test_design_reports_the_coverage_in_its_files(tmp_path, capsys):
 
 
 def test_the_summary_lists_the_closest_pairs_and_counts_the_rest() -> None:
-    """Four views make twelve ordered pairs: the terminal gets the PAIR_LINES closest
-    (by median separation, in the report's order) and a count of the others."""
+    """Four views make twelve ordered pairs: the terminal gets the PAIR_LINES of most
+    expected crosstalk (in the report's order) and a count of the others."""
     from scratchfab.design.feasibility import PAIR_LINES
     from scratchfab.design.quick import quick_design
 
     report = check_feasibility(quick_design([f"v{i}.png" for i in range(4)], (100.0, 100.0)))
     assert len(report.pairs) == 12 > PAIR_LINES
     lines = [line for line in report.summary_lines() if line.startswith("scratches for ")]
-    closest = sorted(p.separation_median_deg for p in report.pairs)[PAIR_LINES - 1]
+    kept = sorted((p.expected_crosstalk for p in report.pairs), reverse=True)[PAIR_LINES - 1]
     want = [
         f"scratches for '{p.lit}' seen by '{p.other}'"
         for p in report.pairs
-        if p.separation_median_deg <= closest
+        if p.expected_crosstalk >= kept
     ]
     assert [line.split(":")[0] for line in lines] == want
-    assert f"... and {12 - PAIR_LINES} more pairs of views, farther apart " in "\n".join(
+    assert f"... and {12 - PAIR_LINES} more pairs of views, less crosstalk expected " in "\n".join(
         report.summary_lines()
     )
     three = check_feasibility(quick_design([f"v{i}.png" for i in range(3)], (100.0, 100.0)))

@@ -41,7 +41,7 @@ WARN_SEPARATION_LOBES = 3.0
 #: outshone (20,000 scratches) 0.94 / 0.92, 4.9 % (8036) 0.78 / 0.75, 8.7 % (4000) 0.51 /
 #: 0.47; at 2 % the advised count (17,846) comes near the first.
 SHOULDER_WARN_FRACTION = 0.02
-#: Pairs of views the terminal summary lists (the closest; three views make six).
+#: Pairs of views the terminal summary lists (most expected crosstalk first; three views make six).
 PAIR_LINES = 6
 #: Map dots where another view sees at least this share of the GGX peak (one lobe width).
 CROSSTALK_DOTS = 0.25
@@ -341,7 +341,7 @@ class FeasibilityReport:
                 f"{100 * v.reachable_fraction:.0f}% of the board reachable{glint}"
             )
         # Many views make many pairs: the terminal gets those most likely to show crosstalk.
-        order = sorted(range(len(self.pairs)), key=lambda i: self.pairs[i].separation_median_deg)
+        order = sorted(range(len(self.pairs)), key=lambda i: -self.pairs[i].expected_crosstalk)
         shown = sorted(order[:PAIR_LINES])
         for p in (self.pairs[i] for i in shown):
             lines.append(
@@ -350,7 +350,7 @@ class FeasibilityReport:
             )
         if len(self.pairs) > len(shown):
             lines.append(
-                f"... and {len(self.pairs) - len(shown)} more pairs of views, farther apart "
+                f"... and {len(self.pairs) - len(shown)} more pairs of views, less crosstalk expected "
                 "(every pair in feasibility.json)"
             )
         lines += [f"warning: {w}" for w in self.warnings]
