@@ -596,3 +596,33 @@ def test_a_resumed_sessions_later_moves_keep_the_preambles_numbers_on_axes_not_g
     for q in path[:-1]:
         report = _report(_work_at(q, wco, spm), wco, spm)
         assert s._executed_guess(report) <= cut - 1, q
+
+
+def test_a_stop_on_the_resume_preambles_rapid_is_not_taken_for_a_later_move(tmp_path):
+    """Safety: the resume preamble's moves (Z up, the rapid back to the stroke's start)
+    are no move of the file, and with the spindle off no line of it waits for them, so
+    GRBL acknowledges the stroke and the moves after it while the rapid still runs. The
+    earlier session stopped on the cut at X6 and lifted; stopped again on the rapid back
+    to X0 Y0 at Z1, the machine stands on the later travel along Y0 (block 6): that is
+    never taken for the stroke having run (its cut from X6 on would be skipped). Once
+    the plunge stands at its end, the match goes on: a stop on the next stroke's cut."""
+    text = "G21G90\nG0Z1\nG0X0Y0\nG1Z-0.1F100\nG1X10Y0\nG0Z1\nG0X3Y0\nG1Z-0.1\nG1X3Y8\nG0Z1\n"
+    spm = (80.0, 80.0, 400.0)
+    s = _streamer_spm(tmp_path, text, spm)
+    plunge, travel = 3, 6
+    assert s._program.strokes[0] == (plunge, 5)
+    preamble = resume_preamble(s._program, plunge)
+    assert preamble[-1] == "G0X0Y0" and not any(p.startswith(("M3", "G4")) for p in preamble)
+    s._acked_blocks = list(range(plunge, len(s._program.blocks)))
+    s._acks_at_status = len(s._acked_blocks)
+    wco = (0.0, 0.0, 0.0)
+    rapid = _stepper(_machine_steps((6.0, 0.0, 1.0), wco, spm), _machine_steps((0, 0, 1), wco, spm))
+    on_travel = 0
+    for q in rapid[1:-1]:
+        report = _report(_work_at(q, wco, spm), wco, spm)
+        on_travel += s._program.blocks[travel].modal.x <= report.wpos[0]
+        assert s._executed_guess(report) <= plunge - 1, q
+    assert on_travel > 100  # not vacuous: much of the rapid lies on the later travel
+    cut = _stepper(_machine_steps((3, 0, -0.1), wco, spm), _machine_steps((3, 8, -0.1), wco, spm))
+    for q in cut[1:-1]:
+        assert s._executed_guess(_report(_work_at(q, wco, spm), wco, spm)) == 7, q

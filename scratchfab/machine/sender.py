@@ -1764,7 +1764,9 @@ class Streamer:
         interrupted (a stroke is cut again rather than skipped), and so is a candidate
         move whose path the sender does not follow (:func:`followed_move`: an arc, G28,
         G53, a move whose start is not known after a change of the work frame...: the
-        machine may stand anywhere in it, even on a later move's segment). Only blocks
+        machine may stand anywhere in it, even on a later move's segment), and a resumed
+        session's first move unless the machine stands at its end (it may still be on the
+        resume preamble's moves, which the sender does not follow). Only blocks
         acknowledged before the position report can match it: a later block passing
         through the same point (an old report) had not run. Once END_WAIT is acknowledged
         every acknowledged block ran.
@@ -1786,6 +1788,9 @@ class Streamer:
         tol = self._step_tol(COARSE_STEP_MM)
         moves = [i for i in reported if blocks[i].motion]
         counted = steps_counted_until(blocks)
+        # a resumed session's first move: the machine may still be on the resume preamble's
+        # moves (not the file's), which may cross a later move
+        resumed = next((j for j in acked if blocks[j].motion), -1) if acked[0] > 0 else -1
         for i in moves:
             if not followed_move(blocks, i):  # an arc, G28, a move after G55...
                 return i - 1
@@ -1795,6 +1800,7 @@ class Streamer:
                 continue  # the next move's start, or the check below, takes it
             if (
                 end == "short"
+                or i == resumed
                 or along_move(blocks, i, wpos, tol) is not None
                 or (i > 0 and stands_at_end(blocks[i - 1], wpos, tol))  # at its start
             ):
