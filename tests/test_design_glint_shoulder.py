@@ -9,6 +9,7 @@ times the former; random grooves at that coverage check that too.
 
 from __future__ import annotations
 
+import tomllib
 from dataclasses import replace
 
 import numpy as np
@@ -28,11 +29,12 @@ from scratchfab.design.feasibility import (
     SHOULDER_WARN_FRACTION,
     FeasibilityReport,
     check_feasibility,
+    outshine_limit_deg,
     tilt_deg,
 )
 from scratchfab.design.quick import quick_design
 from scratchfab.design.targets import board_image
-from scratchfab.model.design import Design, load_design
+from scratchfab.model.design import MAX_SCRATCHES, Design, design_from_mapping, load_design
 from scratchfab.model.scratches import ScratchSet
 
 SHOULDER_WORDS = "outshines the scratches"
@@ -173,6 +175,36 @@ def test_the_quick_form_says_which_count_to_give():
         )
     )
     assert not _said(again)
+
+
+def test_where_no_count_up_to_the_maximum_clears_it_the_warning_says_so():
+    """A 1 m board of 100 scratches 0.1 mm long and 0.02 mm wide: the count the shoulder
+    needs (about 13 million) is above what a design takes. The check warns without a
+    count instead of failing on it (a ValueError from the count's bound)."""
+    data = tomllib.loads(DEMO_TOML.read_text())
+    data["board"]["width_mm"] = data["board"]["height_mm"] = 1000.0
+    data["scratch"].update(
+        width_mm=0.02, depth_mm=0.002, min_length_mm=0.1, max_length_mm=0.2, count=100
+    )
+    design = design_from_mapping(data, "big.toml", DEMO_TOML.parent)
+    report = _checked(design)
+    said = _said(report)
+    assert len(said) == 1 and report.shoulder_count is None
+    assert f"no scratch count up to {MAX_SCRATCHES:,} makes the grooves outshine it" in said[0]
+    assert "set [scratch] count" not in said[0]
+    assert f"tilts at least {report.shoulder_deg:.1f} deg" in said[0]
+    assert report.to_json()["shoulder_count"] is None
+    # the reference: the coverage grows with the count (the lengths do not depend on it),
+    # and at the maximum the grooves still leave more than the share outshone past the glint
+    assert report.groove_coverage is not None
+    most = report.groove_coverage * MAX_SCRATCHES / design.scratch.count
+    tool = design.scratch
+    limit = outshine_limit_deg(tool.width_mm, tool.depth_mm, design.board.roughness, most)
+    shares = [
+        np.mean((v.tilt_map >= report.glint_deg) & (v.tilt_map < limit))
+        for v in report.views.values()
+    ]
+    assert max(shares) >= SHOULDER_WARN_FRACTION, shares
 
 
 def test_no_target_images_no_shoulder():

@@ -29,7 +29,7 @@ from PIL import Image, ImageDraw
 from scratchfab import figures
 from scratchfab.design import quick
 from scratchfab.errors import ConfigError
-from scratchfab.model.design import Board, Design, View
+from scratchfab.model.design import MAX_SCRATCHES, Board, Design, View
 from scratchfab.render.profile import profile_normal, solve_wbar, steepest_wall_deg
 
 #: A view must be able to light at least this share of the board.
@@ -274,7 +274,8 @@ class FeasibilityReport:
     :func:`outshine_limit_deg` at the groove coverage (capped at 1), the tilt below which
     the bare board outshines the layout's grooves, and ``shoulder_count`` the
     ``[scratch] count`` whose grooves outshine it wherever it does not glint (None when
-    they already do, or without target images).
+    they already do, when no count up to :data:`MAX_SCRATCHES` does without grooves
+    covering more than the board, or without target images).
     """
 
     steepest_wall_deg: float
@@ -444,7 +445,7 @@ def check_feasibility(
             (found.shoulder_fraction or 0.0) >= SHOULDER_WARN_FRACTION for found in views.values()
         ):
             advised = _outshining_count(design, views, glint_deg, dpts, dens, coverage)
-            shoulder_count = advised[0]
+            shoulder_count = advised[0] if advised is not None else None
             warnings.append(
                 _shoulder_problem(design, views, pts, glint_deg, shoulder_deg, coverage, advised)
             )
@@ -659,10 +660,12 @@ def _outshining_count(
     dpts: np.ndarray,
     dens: dict[str, np.ndarray],
     coverage: float,
-) -> tuple[int, float]:
+) -> tuple[int, float] | None:
     """The least ``[scratch] count`` whose grooves leave no warning past the glint.
 
-    Returns the count and the groove coverage it gives.
+    Returns the count and the groove coverage it gives; None where it is above
+    :data:`MAX_SCRATCHES` or its grooves would cover more than the board (the coverage
+    grows with the count up to 1, where the limit is the glint's).
 
     The groove coverage must exceed :func:`outshine_ratio` at the tilt below which each
     view keeps less than :data:`SHOULDER_WARN_FRACTION` of the check's grid past
@@ -691,11 +694,14 @@ def _outshining_count(
         return expected_length(tried, dpts, dens) * tool.width_mm / usable_area(design.board)
 
     count = max(tool.count + 1, math.ceil(tool.count * need / coverage))
-    cov = covers(count)
-    while outshine_limit_deg(tool.width_mm, tool.depth_mm, roughness, min(cov, 1.0)) > least:
-        count += max(1, count // 1000)
+    while count <= MAX_SCRATCHES:
         cov = covers(count)
-    return count, cov
+        if cov > 1.0:
+            break
+        if outshine_limit_deg(tool.width_mm, tool.depth_mm, roughness, cov) <= least:
+            return count, cov
+        count += max(1, count // 1000)
+    return None
 
 
 def _shoulder_problem(
@@ -705,15 +711,14 @@ def _shoulder_problem(
     glint_deg: float,
     shoulder_deg: float,
     coverage: float,
-    advised: tuple[int, float],
+    advised: tuple[int, float] | None,
 ) -> str:
     """The warning for views where the bare board outshines the layout's grooves past the glint.
 
     Names each such view with its share of the board and where it is worst (the smallest
     tilt past the glint), and the count that makes the grooves outshine it with the
-    coverage it gives (``advised``, :func:`_outshining_count`).
+    coverage it gives (``advised``, :func:`_outshining_count`; None: no count does).
     """
-    count, covered = advised
     tool = design.scratch
     where = []
     worst = 0.0
@@ -728,7 +733,23 @@ def _shoulder_problem(
         ratio = outshine_ratio(tilt.min(), tool.width_mm, tool.depth_mm, design.board.roughness)
         worst = max(worst, float(ratio))
     views_said = "view " + ", ".join(where) if len(where) == 1 else "views " + ", ".join(where)
-    if _quick(design):
+    move = (
+        "move the cameras or the light so that every half-vector tilts at least "
+        f"{shoulder_deg:.1f} deg"
+    )
+    if advised is None:
+        change = (
+            f"no scratch count up to {MAX_SCRATCHES:,} makes the grooves outshine it there "
+            "without covering more than the board: "
+            + (
+                "the quick form places the cameras and the light itself: design from a "
+                f"design.toml and {move}"
+                if _quick(design)
+                else move
+            )
+        )
+    elif _quick(design):
+        count, covered = advised
         change = (
             f"give --count {count} or more (groove coverage {covered:.2f}) so that the grooves "
             f"outshine it on all but {100 * SHOULDER_WARN_FRACTION:.0f}% of the board past the "
@@ -736,11 +757,11 @@ def _shoulder_problem(
             "and the light itself: to move them, design from a design.toml)"
         )
     else:
+        count, covered = advised
         change = (
             f"set [scratch] count to at least {count} (groove coverage {covered:.2f}) so that "
             f"the grooves outshine it on all but {100 * SHOULDER_WARN_FRACTION:.0f}% of the "
-            "board past the glint, or move the cameras or the light so that "
-            f"every half-vector tilts at least {shoulder_deg:.1f} deg"
+            f"board past the glint, or {move}"
         )
     return (
         f"past the glint, the bare board still outshines the scratches where the half-vector "
