@@ -594,6 +594,34 @@ def quick_images_apart(design: Design, lobe: float, steepest: float, grid: int =
     return max(1, len(design.views) - 1)
 
 
+#: The farthest :func:`glint_free_scale` looks (times the camera's and light's distances).
+GLINT_SCALE_LIMIT = 20.0
+
+
+def glint_free_scale(
+    design: Design, view: View, points: np.ndarray, glint_deg: float
+) -> float | None:
+    """The least factor on the camera's and light's positions that ends ``view``'s glint.
+
+    Both stand that many times as far from the board's centre (the origin), so their
+    directions seen from the board spread less and every half-vector at ``points`` tilts
+    at least ``glint_deg``; in tenths. None where no factor up to
+    :data:`GLINT_SCALE_LIMIT` does (the light's mirror image then stays near the board's
+    centre: the view must move).
+    """
+    p = np.concatenate([points, np.zeros(points.shape[:-1] + (1,))], axis=-1)
+    light, camera = design.light_for(view), view.camera_position
+
+    def least_tilt(k: float) -> float:
+        wi, wo = k * light - p, k * camera - p
+        h = wi / np.linalg.norm(wi, axis=-1, keepdims=True)
+        h = h + wo / np.linalg.norm(wo, axis=-1, keepdims=True)
+        return float(tilt_deg(h).min())
+
+    steps = np.round(np.arange(10, round(10 * GLINT_SCALE_LIMIT) + 1) / 10.0, 1)
+    return next((float(k) for k in steps if least_tilt(float(k)) >= glint_deg), None)
+
+
 def _glint_problem(
     design: Design,
     view: View,
@@ -614,11 +642,16 @@ def _glint_problem(
         scratch_response(tilt.min(), tool.width_mm, tool.depth_mm, design.board.roughness)
     )
     x, y = pts[np.unravel_index(np.argmin(tilt), tilt.shape)]
+    scale = None if _quick(design) else glint_free_scale(design, view, pts, glint_deg)
+    farther = (
+        f"at least {scale:.1f} times as far from the board's centre"
+        if scale is not None
+        else "farther away in proportion to the board"
+    )
     change = (
         "move the camera or the light so that the light's mirror image leaves the board "
-        f"(every half-vector tilted at least {glint_deg:.1f} deg), stand both farther "
-        "away in proportion to the board (its half-vectors then spread less), or use a "
-        "smaller board"
+        f"(every half-vector tilted at least {glint_deg:.1f} deg), stand both {farther} "
+        "(its half-vectors then spread less), or use a smaller board"
     )
     if _quick(design):
         # No option helps: the quick form stands its cameras and light farther away in
