@@ -169,9 +169,14 @@ def board_points(board: Board, long_side: int = 96) -> np.ndarray:
 
 def half_vectors(design: Design, view: View, points: np.ndarray) -> np.ndarray:
     """Unit half-vectors h(p) = normalize(wi + wo) at board points (..., 2) -> (..., 3)."""
+    return half_vectors_from(design.light_for(view), view.camera_position, points)
+
+
+def half_vectors_from(light: np.ndarray, camera: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """:func:`half_vectors` for a light and a camera at the given positions (mm)."""
     p = np.concatenate([points, np.zeros(points.shape[:-1] + (1,))], axis=-1)
-    wi = design.light_for(view) - p
-    wo = view.camera_position - p
+    wi = light - p
+    wo = camera - p
     wi /= np.linalg.norm(wi, axis=-1, keepdims=True)
     wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
     h = wi + wo
@@ -609,14 +614,10 @@ def glint_free_scale(
     :data:`GLINT_SCALE_LIMIT` does (the light's mirror image then stays near the board's
     centre: the view must move).
     """
-    p = np.concatenate([points, np.zeros(points.shape[:-1] + (1,))], axis=-1)
     light, camera = design.light_for(view), view.camera_position
 
     def least_tilt(k: float) -> float:
-        wi, wo = k * light - p, k * camera - p
-        h = wi / np.linalg.norm(wi, axis=-1, keepdims=True)
-        h = h + wo / np.linalg.norm(wo, axis=-1, keepdims=True)
-        return float(tilt_deg(h).min())
+        return float(tilt_deg(half_vectors_from(k * light, k * camera, points)).min())
 
     steps = np.round(np.arange(10, round(10 * GLINT_SCALE_LIMIT) + 1) / 10.0, 1)
     return next((float(k) for k in steps if least_tilt(float(k)) >= glint_deg), None)
@@ -715,16 +716,13 @@ def _outshining_count(
         dens: See ``dpts``.
         coverage: The groove coverage at the design's count.
     """
-    from scratchfab.design.layout import expected_length
-
     tool = design.scratch
     roughness = design.board.roughness
     least = min(_warned_below(v.tilt_map, glint_deg) for v in views.values())
     need = float(outshine_ratio(least, tool.width_mm, tool.depth_mm, roughness))
 
     def covers(count: int) -> float:
-        tried = replace(design, scratch=replace(tool, count=count))
-        return expected_length(tried, dpts, dens) * tool.width_mm / usable_area(design.board)
+        return _groove_coverage(replace(design, scratch=replace(tool, count=count)), dpts, dens)[0]
 
     count = max(tool.count + 1, math.ceil(tool.count * need / coverage))
     while count <= MAX_SCRATCHES:
@@ -858,6 +856,21 @@ def usable_area(board: Board) -> float:
     return (board.width_mm - 2 * board.margin_mm) * (board.height_mm - 2 * board.margin_mm)
 
 
+def _groove_coverage(
+    design: Design, pts: np.ndarray, dens: dict[str, np.ndarray]
+) -> tuple[float, float]:
+    """The initial layout's groove coverage and its total scratch length (mm).
+
+    Coverage: groove area over the board inside the margin, from the layout's density grid
+    (as :func:`_coverage` takes it).
+    """
+    # imported here: the layout imports this module's geometry
+    from scratchfab.design.layout import expected_length
+
+    total = expected_length(design, pts, dens)
+    return total * design.scratch.width_mm / usable_area(design.board), total
+
+
 def _coverage(
     design: Design, pts: np.ndarray, dens: dict[str, np.ndarray]
 ) -> tuple[float, float, int, list[str]]:
@@ -872,12 +885,11 @@ def _coverage(
     one wider dent.
     """
     # imported here: the layout imports this module's geometry
-    from scratchfab.design.layout import expected_length, longest_for_length
+    from scratchfab.design.layout import longest_for_length
 
     tool = design.scratch
     usable = usable_area(design.board)
-    total = expected_length(design, pts, dens)
-    coverage = total * tool.width_mm / usable
+    coverage, total = _groove_coverage(design, pts, dens)
     mean = total / tool.count
     fits = math.floor(tool.count / coverage) if coverage > 0 else tool.count
     if coverage <= 1.0:
