@@ -44,17 +44,25 @@ def executed_blocks(record, until: float = math.inf) -> set[int]:
     return {block_of[e["n"]] for e in record if e["ev"] == "exec" and e["t"] <= until}
 
 
-def stopped_after(journal_path, prog, acks: int, url: str) -> tuple[list[dict], list[dict]]:
-    """Stream ``prog`` to the emulator at ``url``, stopped by Ctrl-C once more than ``acks``
-    lines are acknowledged (the user answers "stop"): the journal's events and the
-    emulator's record. The journal ends with the stop."""
+def interrupt_after(acks: int, exc: type[BaseException] = KeyboardInterrupt):  # noqa: ANN201
+    """An ``on_progress`` raising ``exc`` (Ctrl-C) once more than ``acks`` lines are
+    acknowledged, once; its ``fired`` list is not empty once it has."""
     fired: list[int] = []
 
     def progress(p):
         if p.acked > acks and not fired:
             fired.append(1)
-            raise KeyboardInterrupt
+            raise exc
 
+    progress.fired = fired  # type: ignore[attr-defined]
+    return progress
+
+
+def stopped_after(journal_path, prog, acks: int, url: str) -> tuple[list[dict], list[dict]]:
+    """Stream ``prog`` to the emulator at ``url``, stopped by Ctrl-C once more than ``acks``
+    lines are acknowledged (the user answers "stop"): the journal's events and the
+    emulator's record. The journal ends with the stop."""
+    progress = interrupt_after(acks)
     port = open_port(url, 115200)
     try:
         with pytest.raises(StreamStopped):

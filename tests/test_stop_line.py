@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import re
 
-from stream_helpers import executed_blocks, stream_program
+from stream_helpers import executed_blocks, interrupt_after, stream_program
 
 from scratchfab.machine.sender import StreamStopped, open_port
 from scratchfab.machine.sender_journal import done_blocks, read_journal
@@ -30,13 +30,7 @@ def test_the_users_stop_names_the_line_the_machine_ran_to_and_the_resumes_start(
     job = tmp_path / "job.gcode"
     _job(job, 30)
     prog = load_program(job)
-    fired: list[int] = []
-
-    def progress(p):
-        if p.acked > 40 and not fired:
-            fired.append(1)
-            raise KeyboardInterrupt
-
+    progress = interrupt_after(40)
     port = open_port("grblsim://?baud=0&time_scale=0.05", 115200)
     try:
         try:

@@ -11,7 +11,7 @@ which (``lost``: the speed it stopped from); the sender must tell the user the s
 from __future__ import annotations
 
 import pytest
-from stream_helpers import FAST, executed_blocks, stream_program
+from stream_helpers import FAST, executed_blocks, interrupt_after, stream_program
 
 from scratchfab.machine.sender import Streamer, StreamFault, StreamStopped, open_port
 from scratchfab.machine.sender_journal import read_journal
@@ -32,12 +32,7 @@ def _stream(tmp_path, stop_after: int | None, ask: str = "stop"):
     (None: none), answered ``ask``. The exception, the journal and the emulator's record."""
     job = tmp_path / "job.gcode"
     job.write_text(_JOB)
-    fired: list[int] = []
-
-    def progress(p):
-        if stop_after is not None and p.acked > stop_after and not fired:
-            fired.append(1)
-            raise KeyboardInterrupt
+    progress = interrupt_after(stop_after) if stop_after is not None else None
 
     port = open_port(_URL, 115200)
     try:
@@ -105,13 +100,7 @@ def test_after_the_alarm_at_speed_a_resume_is_refused_until_homed(tmp_path):
     job.write_text(_JOB)
     port = open_port(_URL, 115200)
     try:
-        fired: list[int] = []
-
-        def progress(p):
-            if p.acked > 19 and not fired:
-                fired.append(1)
-                raise KeyboardInterrupt
-
+        progress = interrupt_after(19)
         with pytest.raises(StreamStopped):
             stream_program(
                 port,

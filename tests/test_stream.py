@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import serial
-from stream_helpers import FAST, executed_blocks, stopped_after, stream_program
+from stream_helpers import FAST, executed_blocks, interrupt_after, stopped_after, stream_program
 
 from scratchfab.cli import main
 from scratchfab.errors import ConfigError, ScratchfabError
@@ -728,13 +728,7 @@ def test_ctrl_c_resume_continues(tmp_path):
     job = tmp_path / "job.gcode"
     write_job(job, 20)
     prog = load_program(job)
-    fired = []
-
-    def progress(p):
-        if p.acked > 40 and not fired:
-            fired.append(1)
-            raise KeyboardInterrupt
-
+    progress = interrupt_after(40)
     port = open_port("grblsim://?baud=0&time_scale=0.01", 115200)
     try:
         stream_program(
@@ -742,7 +736,7 @@ def test_ctrl_c_resume_continues(tmp_path):
         )
     finally:
         port.close()
-    assert fired
+    assert progress.fired
     assert _received_gcode(port.sim.record) == [b.text for b in prog.blocks] + ["G4P0"]
     chars = [e["ch"] for e in port.sim.record if e["ev"] == "rt" and e["ch"] != ord("?")]
     assert chars == [ord("!"), ord("~")]
@@ -1549,15 +1543,7 @@ def _held_then_reset(record) -> None:
     assert not [e for e in record if e["ev"] == "exec" and e["t"] > resets[0] + 1e-6]
 
 
-def _fire_after(n, exc=KeyboardInterrupt):
-    fired = []
-
-    def progress(p):
-        if p.acked > n and not fired:
-            fired.append(1)
-            raise exc
-
-    return progress
+_fire_after = interrupt_after
 
 
 @pytest.mark.parametrize("answer", ["abort", "eof", "second_ctrl_c"])

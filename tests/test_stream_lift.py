@@ -15,7 +15,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from stream_helpers import FAST, stream_program
+from stream_helpers import FAST, interrupt_after, stream_program
 
 from scratchfab.cli import main
 from scratchfab.machine.grblsim import DEFAULT_SETTINGS
@@ -83,14 +83,7 @@ def run(tmp_path, prog, query, options=LIFT, stop_at=None, journal=None, **kwarg
     """
     messages: list[str] = []
     if stop_at is not None:
-        fired: list[int] = []
-
-        def progress(p):
-            if p.acked > stop_at and not fired:
-                fired.append(1)
-                raise KeyboardInterrupt
-
-        kwargs.setdefault("on_progress", progress)
+        kwargs.setdefault("on_progress", interrupt_after(stop_at))
         kwargs.setdefault("ask_interrupt", lambda: "stop")
     port = open_port(f"grblsim://?baud=0&{query}", 115200)
     exc = None
@@ -201,15 +194,7 @@ def test_the_lift_goes_to_the_jobs_height_when_the_reset_clears_g92(tmp_path):
     assert "raising the tool to Z 2.000 (machine Z 5.000)" in messages
 
 
-def _stop_after(n):
-    fired: list[int] = []
-
-    def progress(p):
-        if p.acked > n and not fired:
-            fired.append(1)
-            raise KeyboardInterrupt
-
-    return progress
+_stop_after = interrupt_after
 
 
 def test_a_tool_already_at_travel_height_is_not_moved(tmp_path):
@@ -650,14 +635,7 @@ def test_a_startup_line_in_inches_does_not_turn_the_lift_into_inches(tmp_path):
     prog = load_program(job)
     port = open_port("grblsim://?baud=0&time_scale=0.2&wco=5,7,-10", 115200)
     port.sim.startup_lines[0] = "G20"
-    stop = segment_index(prog, 20)
-    fired: list[int] = []
-
-    def progress(p):
-        if p.acked > stop and not fired:
-            fired.append(1)
-            raise KeyboardInterrupt
-
+    progress = interrupt_after(segment_index(prog, 20))
     try:
         with pytest.raises(StreamStopped):
             stream_program(
