@@ -35,8 +35,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scratchfab.design.feasibility import tilt_deg
+from scratchfab import figures
+from scratchfab.design.feasibility import GLINT, tilt_deg
 from scratchfab.render.renderer import ViewRenderer
+
+#: The outline around the pixels where the bare board glints, in every picture of a view
+#: (the feasibility map's glint colour).
+GLINT_RGB: figures.RGB = GLINT
+#: What the outline means, in a picture's key or caption.
+GLINT_KEY = "the bare board glints: no scratch shows the image"
 
 
 def glints(h: np.ndarray, limit_deg: float) -> np.ndarray:
@@ -59,6 +66,18 @@ class ViewGlint:
     mask: np.ndarray
     board_share: float
     light_share: float
+
+    def check_shape(self, shape: tuple[int, ...], what: str) -> None:
+        """Raise ValueError naming the view unless ``shape`` is the mask's (``what`` has it)."""
+        if tuple(shape) != self.mask.shape:
+            raise ValueError(
+                f"view '{self.name}': glint mask {self.mask.shape} and {what} {tuple(shape)} differ"
+            )
+
+    def left_out(self, image: np.ndarray) -> np.ndarray:
+        """``image`` of the view (H, W) with NaN where the board glints, as off the board."""
+        self.check_shape(image.shape, "image")
+        return np.where(self.mask, np.nan, image)
 
     def note(self) -> str:
         """A line for the user; empty without glint."""
@@ -96,3 +115,31 @@ def view_glint(renderer: ViewRenderer, limit_deg: float) -> ViewGlint:
         float(area_on_board[mask].sum()) / area if area > 0 else 0.0,
         float(bare[mask].sum()) / light if light > 0 else 0.0,
     )
+
+
+def outline_glint(picture: np.ndarray, glint: ViewGlint | None, factor: int) -> ViewGlint | None:
+    """Outline ``glint``'s pixels on a picture of its view in :data:`GLINT_RGB`, in place.
+
+    The outline is the glint region's inner edge (:func:`scratchfab.figures.outline_cells`),
+    so the pixels inside keep their colours.
+
+    Args:
+        picture: 8-bit RGB (H * factor, W * factor, 3): the view's (H, W) pixels enlarged.
+        glint: The view's glint; None or an empty mask draws nothing.
+        factor: The enlargement.
+
+    Returns:
+        The glint drawn, or None where there is none.
+
+    Raises:
+        ValueError: The glint's mask is not the picture's pixels.
+    """
+    if glint is None:
+        return None
+    rows, cols = picture.shape[0] // factor, picture.shape[1] // factor
+    exact = picture.shape[:2] == (rows * factor, cols * factor)
+    glint.check_shape((rows, cols) if exact else picture.shape[:2], f"picture (enlarged {factor}x)")
+    if not glint.mask.any():
+        return None
+    figures.outline_cells(picture, figures.enlarge(glint.mask, factor), GLINT_RGB)
+    return glint

@@ -20,9 +20,11 @@ from scratchfab.figures import (
     font,
     gray_rgb,
     legend_size,
+    text_size,
 )
 from scratchfab.fileio import save_png
 from scratchfab.metrics import exposure, pearson
+from scratchfab.optimize.glint import GLINT_KEY, GLINT_RGB, ViewGlint, outline_glint
 
 #: What the off-board colour means, printed under the side-by-side picture.
 OFF_BOARD_CAPTION = "grey: off the board (not scratched, not scored)"
@@ -304,20 +306,34 @@ def save_loss_plot(
 
 
 def save_side_by_side(
-    path: Path, targets: Mapping[str, np.ndarray], renders: Mapping[str, np.ndarray]
+    path: Path,
+    targets: Mapping[str, np.ndarray],
+    renders: Mapping[str, np.ndarray],
+    glints: Mapping[str, ViewGlint] | None = None,
 ) -> None:
     """One row per view: target | exposed render (both sRGB-encoded), labelled.
 
     Cells are enlarged by a whole factor (nearest neighbour) to at least ``MIN_CELL_PX``
     wide; pixels off the board show ``OFF_BOARD_RGB``, which a caption line explains.
+
+    Args:
+        path: The PNG to write.
+        targets: Per view, its target (linear, NaN off the board).
+        renders: Per view, its render.
+        glints: Per view, where the bare board glints into it
+            (:attr:`scratchfab.optimize.optimizer.LayoutOptimizer.glint`): outlined on both
+            cells as verify's difference maps outline it, left out of the render's exposure
+            as the image error leaves it out, and explained by a caption line.
     """
+    glints = glints or {}
     rows = []
     for name, target in targets.items():
         render = renders[name]
-        s = exposure(render, target)
+        glint = glints.get(name)
+        s = exposure(render, target if glint is None else glint.left_out(target))
         shown = np.where(np.isfinite(target), render, np.nan)
         rho = pearson(render, target)
-        rows.append((f"{name}: target | render (rho {rho:.3f})", target, shown, s))
+        rows.append((f"{name}: target | render (rho {rho:.3f})", target, shown, s, glint))
     if not rows:
         return
     cell_w = max(r[1].shape[1] for r in rows)
@@ -325,21 +341,37 @@ def save_side_by_side(
     factor = max(1, math.ceil(MIN_CELL_PX / cell_w))
     cell_w, cell_h = cell_w * factor, cell_h * factor
     gap, label = 8, TEXT_PX + 10
-    caption = [OFF_BOARD_CAPTION, "render scaled to best match its target's brightness"]
-    width = max(2 * cell_w + 3 * gap, 330)
+    glinting = any(g is not None and g.mask.any() for *_, g in rows)
+    caption = [
+        OFF_BOARD_CAPTION,
+        "render scaled to best match its target's brightness"
+        + (" outside the glint" if glinting else ""),
+    ]
+    if glinting:
+        caption.insert(1, f"outlined: {GLINT_KEY} (left out of the image error)")
+    width = max(2 * cell_w + 3 * gap, 330, *(text_size(c, TEXT_PX - 2)[0] + 40 for c in caption))
     height = len(rows) * (cell_h + label + gap) + len(caption) * (TEXT_PX + 4) + gap
     img = Image.new("RGB", (width, height), "white")
     draw = ImageDraw.Draw(img)
     y = gap // 2
-    for text, t, r, s in rows:
+    for text, t, r, s, glint in rows:
         draw.text((gap, y + 3), text, fill=AXIS_RGB, font=font())
-        img.paste(Image.fromarray(enlarge(gray_rgb(t), factor)), (gap, y + label))
-        img.paste(Image.fromarray(enlarge(gray_rgb(r, s), factor)), (2 * gap + cell_w, y + label))
+        for x, cell in ((gap, gray_rgb(t)), (2 * gap + cell_w, gray_rgb(r, s))):
+            big = enlarge(cell, factor)
+            outline_glint(big, glint, factor)
+            img.paste(Image.fromarray(big), (x, y + label))
         y += cell_h + label + gap
     swatch = TEXT_PX - 3
-    draw.rectangle((gap, y + 2, gap + swatch, y + 2 + swatch), fill=OFF_BOARD_RGB, outline=AXIS_RGB)
     for k, line in enumerate(caption):
-        x = gap + (swatch + 6 if k == 0 else 0)
+        x = gap
+        if k == 0:
+            draw.rectangle(
+                (x, y + 2, x + swatch, y + 2 + swatch), fill=OFF_BOARD_RGB, outline=AXIS_RGB
+            )
+        elif line.startswith("outlined"):
+            draw.rectangle((x, y + 2, x + swatch, y + 2 + swatch), outline=GLINT_RGB, width=2)
+        if k == 0 or line.startswith("outlined"):
+            x += swatch + 6
         draw.text((x, y), line, fill=(60, 60, 60), font=font(TEXT_PX - 2))
         y += TEXT_PX + 4
     save_png(path, img)

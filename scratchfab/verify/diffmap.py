@@ -26,10 +26,9 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from scratchfab import figures
-from scratchfab.design.feasibility import GLINT
 from scratchfab.fileio import save_png
 from scratchfab.metrics import exposed_difference
-from scratchfab.optimize.glint import ViewGlint
+from scratchfab.optimize.glint import GLINT_KEY, GLINT_RGB, ViewGlint, outline_glint
 
 #: Half-width of the colour scale in the target's linear units: differences of this
 #: size or more get the full colour.
@@ -43,8 +42,6 @@ DARKER_RGB: figures.RGB = figures.OKABE_ITO["blue"]
 EQUAL_RGB: figures.RGB = (255, 255, 255)
 #: The hatch lines over pixels off the board (as in a ``hatch`` legend swatch).
 HATCH_RGB: figures.RGB = figures.HATCH_RGB
-#: The outline around the pixels where the bare board glints (the feasibility map's colour).
-GLINT_RGB: figures.RGB = GLINT
 #: The map is enlarged (nearest neighbour) to at least this width.
 MAP_MIN_PX = 256
 _BAR_H = 14
@@ -112,11 +109,7 @@ def diff_figure(
     mw, mh = cols * factor, rows * factor
     big = figures.enlarge(diff_colours(diff, scale), factor)
     figures.hatch_cells(big, figures.enlarge(~np.isfinite(diff), factor), HATCH_RGB)
-    if glint is not None and glint.mask.shape != diff.shape:
-        raise ValueError(f"glint mask {glint.mask.shape} and map {diff.shape} differ")
-    shown = glint if glint is not None and glint.mask.any() else None
-    if shown is not None:
-        figures.outline_cells(big, figures.enlarge(shown.mask, factor), GLINT_RGB)
+    shown = outline_glint(big, glint, factor)
 
     size = figures.TEXT_PX
     m = 12
@@ -128,11 +121,7 @@ def diff_figure(
         ),
     ]
     if shown is not None:
-        items.append(
-            figures.LegendItem(
-                "the bare board glints: no scratch shows the image", GLINT_RGB, "outline"
-            )
-        )
+        items.append(figures.LegendItem(GLINT_KEY, GLINT_RGB, "outline"))
     note = (
         "verify render x exposure - target, in the target's linear\n"
         f"brightness (0 black, 1 white); beyond ±{scale:g} clipped"
