@@ -52,6 +52,10 @@ LOBE_ONLY = figures.OKABE_ITO["yellow"]
 UNREACHABLE = figures.OKABE_ITO["vermillion"]
 #: The bare board's glint (hatched too: no layout shows the image there).
 GLINT = figures.OKABE_ITO["reddish_purple"]
+#: The line around where the bare board outshines the layout's grooves (the glint and its
+#: shoulder past it): the glint's purple darkened to CIE L* 35, so that it stands out on
+#: the light blues of small tilts in grey and under red-green blindness too.
+SHOULDER = (117, 49, 90)
 HATCH = figures.HATCH_RGB
 #: The map is drawn at least this wide (pixels), each grid cell a square block.
 MAP_MIN_PX = 384
@@ -321,7 +325,9 @@ class FeasibilityReport:
                 "yellow: only through the roughness lobe, orange with hatching: unreachable, "
                 "purple with hatching: the bare board glints (half-vector tilt below "
                 "glint_limit_deg: the polished board mirrors the light into the view brighter "
-                "than a scratch can shine there); "
+                "than a scratch can shine there); a dark purple line around the half-vectors "
+                "tilted below shoulder_limit_deg: the bare board outshines the layout's grooves "
+                "inside it, past the glint too, so the image shows only faintly there; "
                 f"black dots: expected crosstalk with another view at least {CROSSTALK_DOTS:g} "
                 "of the peak (within one lobe width); the key under the map gives the tilt "
                 "scale in degrees"
@@ -992,6 +998,10 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
     cells = tilt_colours(tilt, reach, limit, glint)
     big = figures.enlarge(cells, cell)
     figures.hatch_cells(big, figures.enlarge((tilt > limit) | (tilt < glint), cell), HATCH)
+    shoulder = report.shoulder_deg
+    outshone = shoulder is not None and bool(np.any((tilt >= glint) & (tilt < shoulder)))
+    if shoulder is not None and outshone:
+        figures.outline_cells(big, figures.enlarge(tilt < shoulder, cell), SHOULDER)
     img = Image.fromarray(big)
     draw = ImageDraw.Draw(img)
     cross = np.zeros(tilt.shape)
@@ -1016,19 +1026,33 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
         figures.LegendItem("bare board glints brighter than a scratch", GLINT, "hatch"),
         figures.LegendItem(f"crosstalk >= {CROSSTALK_DOTS:g} of peak", (0, 0, 0), "dots"),
     ]
+    if outshone:
+        items.insert(
+            4,
+            figures.LegendItem(
+                "inside the line: the bare board outshines the layout's grooves",
+                SHOULDER,
+                "outline",
+                fill=REACH_LIGHT,
+            ),
+        )
     lw, lh = figures.legend_size(items, size)
     bar_label = "half-vector tilt from the board normal (deg)"
     note = (
         f"{bar_label}\ntool: steepest wall {reach:.1f} + lobe {report.lobe_deg:.1f} deg; "
         f"glint below {glint:.1f}"
     )
-    # a warning of overlapping grooves under the note, the picture taller by its lines
-    warn = ""
+    # lines under the note (the picture taller by them): where the bare board outshines
+    # the layout's grooves, and a warning of overlapping grooves
+    more = []
+    if outshone:
+        more.append(f"the bare board outshines the layout's grooves below {shoulder:.1f}")
     if report.groove_coverage is not None and report.groove_coverage > 1.0:
-        warn = (
+        more.append(
             f"warning: the grooves cover {report.groove_coverage:.2f} times\n"
             "the board inside the margin: they will overlap"
         )
+    warn = "\n".join(more)
     extra = figures.text_size(f"{note}\n{warn}", size)[1] - figures.text_size(note, size)[1]
     width = max(mw + side, lw, figures.text_size(note, size)[0] + 10)
     width = max(width, figures.text_size(warn, size)[0] + 10) if warn else width
@@ -1068,12 +1092,19 @@ def map_figure(report: FeasibilityReport, name: str) -> MapFigure:
     glint_x = int(np.searchsorted(degs, glint))  # the strip's first column at or past it
     if glint_x > 0:
         figures.hatch(sd, (0, 0, glint_x - 1, bar_h - 1), HATCH, step=6)
+    if shoulder is not None and outshone:
+        strip = np.asarray(strip_img).copy()
+        below = np.broadcast_to(degs < shoulder, strip.shape[:2])
+        figures.outline_cells(strip, below, SHOULDER)
+        strip_img = Image.fromarray(strip)
     canvas.paste(strip_img, (bx0, y))
     bar_box = (bx0, y, bx1, y + bar_h - 1)
     cd.rectangle((bx0 - 1, y - 1, bx1 + 1, y + bar_h), outline=figures.FRAME)
     y += bar_h + 2
     ticks = [(0.0, "0"), (glint, f"{glint:.1f}"), (reach, f"{reach:.1f}"), (limit, f"{limit:.1f}")]
-    ticks.append((bar_deg, f"{bar_deg:.0f}"))
+    if shoulder is not None and outshone:
+        ticks.append((shoulder, f"{shoulder:.1f}"))
+    ticks = sorted(ticks) + [(bar_deg, f"{bar_deg:.0f}")]
     last_right = -999
     for d, text in ticks:
         x = xdeg(d)
