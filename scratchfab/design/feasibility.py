@@ -18,7 +18,7 @@ steepest wall 2 atan(2w / wbar) (SPEC section 3). Hence:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from itertools import combinations
 from typing import Any
@@ -410,6 +410,21 @@ def check_feasibility(
     hs = {v.name: half_vectors(design, v, pts) for v in design.views}
     errors: list[str] = []
     warnings: list[str] = []
+    coverage = mean_length = None
+    drawn: tuple[int, float] | None = None
+    shoulder_deg = shoulder_count = None
+    crowded: list[str] = []
+    density: tuple[np.ndarray, dict[str, np.ndarray]] | None = None
+    if boards:
+        # imported here: the layout imports this module's geometry
+        from scratchfab.design.layout import board_densities
+
+        density = board_densities(design, boards)
+        coverage, mean_length, fits, crowded = _coverage(design, *density)
+        drawn = (fits, mean_length)
+        shoulder_deg = outshine_limit_deg(
+            tool.width_mm, tool.depth_mm, design.board.roughness, min(coverage, 1.0)
+        )
     views: dict[str, ViewFeasibility] = {}
     for v in design.views:
         tilt = tilt_deg(hs[v.name])
@@ -420,7 +435,7 @@ def check_feasibility(
         )
         if frac >= MIN_REACHABLE_FRACTION and glint:
             shows = frac - glint  # glint (low tilt) and unreachable (high) never overlap
-            problem = _glint_problem(design, v, pts, tilt, glint_deg, glint, shows)
+            problem = _glint_problem(design, v, pts, tilt, glint_deg, glint, shows, shoulder_deg)
             (errors if shows < MIN_REACHABLE_FRACTION else warnings).append(problem)
         if frac < MIN_REACHABLE_FRACTION:
             errors.append(
@@ -435,27 +450,15 @@ def check_feasibility(
                 f"view '{v.name}': only {100 * frac:.1f}% of the board can light up "
                 f"(half-vector tilt up to {tilt.max():.1f} deg)"
             )
-    coverage = mean_length = None
-    drawn: tuple[int, float] | None = None
-    shoulder_deg = shoulder_count = None
-    if boards:
-        # imported here: the layout imports this module's geometry
-        from scratchfab.design.layout import board_densities
-
-        dpts, dens = board_densities(design, boards)
-        coverage, mean_length, fits, crowded = _coverage(design, dpts, dens)
-        warnings += crowded
-        drawn = (fits, mean_length)
-        shoulder_deg = outshine_limit_deg(
-            tool.width_mm, tool.depth_mm, design.board.roughness, min(coverage, 1.0)
-        )
+    warnings += crowded
+    if density is not None and coverage is not None and shoulder_deg is not None:
         for found in views.values():
             tilt = found.tilt_map
             found.shoulder_fraction = float(np.mean((tilt >= glint_deg) & (tilt < shoulder_deg)))
         if any(
             (found.shoulder_fraction or 0.0) >= SHOULDER_WARN_FRACTION for found in views.values()
         ):
-            advised = _outshining_count(design, views, glint_deg, dpts, dens, coverage)
+            advised = _outshining_count(design, views, glint_deg, *density, coverage)
             shoulder_count = advised[0] if advised is not None else None
             warnings.append(
                 _shoulder_problem(design, views, pts, glint_deg, shoulder_deg, coverage, advised)
@@ -610,23 +613,35 @@ GLINT_SCALE_LIMIT = 20.0
 
 
 def glint_free_scale(
-    design: Design, view: View, points: np.ndarray, glint_deg: float
+    design: Design,
+    views: Sequence[View],
+    points: np.ndarray,
+    glint_deg: float,
+    shoulder_deg: float | None = None,
 ) -> float | None:
-    """The least factor on the camera's and light's positions that ends ``view``'s glint.
+    """The least factor on the views' cameras' and lights' positions that ends their glint.
 
-    Both stand that many times as far from the board's centre (the origin), so their
-    directions seen from the board spread less and every half-vector at ``points`` tilts
-    at least ``glint_deg``; in tenths. None where no factor up to
+    They stand that many times as far from the board's centre (the origin), so their
+    directions seen from the board spread less and every half-vector of each view at
+    ``points`` tilts at least ``glint_deg``; given ``shoulder_deg``, also under
+    :data:`SHOULDER_WARN_FRACTION` of ``points`` tilt less than it (no shoulder warning:
+    with no glint its share is those points'). In tenths; None where no factor up to
     :data:`GLINT_SCALE_LIMIT` does (the light's mirror image then stays near the board's
     centre: the view must move).
     """
-    light, camera = design.light_for(view), view.camera_position
+    places = [(design.light_for(v), v.camera_position) for v in views]
 
-    def least_tilt(k: float) -> float:
-        return float(tilt_deg(half_vectors_from(k * light, k * camera, points)).min())
+    def clear(k: float) -> bool:
+        for light, camera in places:
+            tilt = tilt_deg(half_vectors_from(k * light, k * camera, points))
+            if tilt.min() < glint_deg:
+                return False
+            if shoulder_deg is not None and np.mean(tilt < shoulder_deg) >= SHOULDER_WARN_FRACTION:
+                return False
+        return True
 
     steps = np.round(np.arange(10, round(10 * GLINT_SCALE_LIMIT) + 1) / 10.0, 1)
-    return next((float(k) for k in steps if least_tilt(float(k)) >= glint_deg), None)
+    return next((float(k) for k in steps if clear(float(k))), None)
 
 
 def _glint_problem(
@@ -637,11 +652,15 @@ def _glint_problem(
     glint_deg: float,
     share: float,
     shows: float,
+    shoulder_deg: float | None = None,
 ) -> str:
     """The message for a view into which the bare board glints on ``share`` of the board.
 
     ``shows`` is the share where the view can show its image (reachable, no glint); below
-    :data:`MIN_REACHABLE_FRACTION` the message says so.
+    :data:`MIN_REACHABLE_FRACTION` the message says so. Given the shoulder's limit
+    (:attr:`FeasibilityReport.shoulder_deg`), the distance advice also names the factor
+    that ends the band past the glint where the bare board still outshines the layout's
+    grooves, where it is another than the glint's.
     """
     tool = design.scratch
     peak = float(ggx_ratio(np.asarray(tilt.min()), design.board.roughness))
@@ -649,16 +668,27 @@ def _glint_problem(
         scratch_response(tilt.min(), tool.width_mm, tool.depth_mm, design.board.roughness)
     )
     x, y = pts[np.unravel_index(np.argmin(tilt), tilt.shape)]
-    scale = None if _quick(design) else glint_free_scale(design, view, pts, glint_deg)
+    scale = None if _quick(design) else glint_free_scale(design, [view], pts, glint_deg)
     farther = (
         f"at least {scale:.1f} times as far from the board's centre"
         if scale is not None
         else "farther away in proportion to the board"
     )
+    spread = "its half-vectors then spread less"
+    if scale is not None and shoulder_deg is not None:
+        both = glint_free_scale(design, [view], pts, glint_deg, shoulder_deg)
+        band = (
+            "also ends the glint's shoulder, the band past it where the bare board still "
+            f"outshines the layout's grooves, tilted up to {shoulder_deg:.1f} deg"
+        )
+        if both is None:
+            spread += f"; no factor up to {GLINT_SCALE_LIMIT:g} {band}"
+        elif both > scale:
+            spread += f"; at least {both:.1f} times {band}"
     change = (
         "move the camera or the light so that the light's mirror image leaves the board "
         f"(every half-vector tilted at least {glint_deg:.1f} deg), stand both {farther} "
-        "(its half-vectors then spread less), or use a smaller board"
+        f"({spread}), or use a smaller board"
     )
     if _quick(design):
         # No option helps: the quick form stands its cameras and light farther away in
@@ -774,6 +804,17 @@ def _shoulder_problem(
         "move the cameras or the light so that every half-vector tilts at least "
         f"{shoulder_deg:.1f} deg"
     )
+    scale = (
+        None
+        if _quick(design)
+        else glint_free_scale(design, design.views, pts, glint_deg, shoulder_deg)
+    )
+    if scale is not None:
+        move += (
+            f" on all but {100 * SHOULDER_WARN_FRACTION:.0f}% of the board (standing the "
+            f"cameras and the light at least {scale:.1f} times as far from the board's centre "
+            "does)"
+        )
     if advised is None:
         change = (
             f"no scratch count up to {MAX_SCRATCHES:,} makes the grooves outshine it there "
