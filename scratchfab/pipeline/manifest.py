@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from scratchfab.fileio import decode_json, file_sha256, write_text
 
@@ -226,7 +226,7 @@ class Manifest:
         """Mark ``stage`` done on ``inputs`` with its outputs (relative to the job).
 
         ``written``: job files whose digest as the stage wrote them is kept
-        (:meth:`written_digest`), so that an edit by hand can be told from the stage's own.
+        (:meth:`digest`), so that an edit by hand can be told from the stage's own.
         """
         self.stages[stage] = {
             "status": "done",
@@ -249,26 +249,24 @@ class Manifest:
         self.stages[stage] = {"status": "interrupted", "inputs": dict(inputs), "reason": reason}
         self.save()
 
-    def unfinished(
-        self, stage: str, inputs: Mapping[str, Any], legacy: Legacy | None = None
-    ) -> bool:
-        """True when ``stage`` last started on exactly ``inputs`` and did not finish.
+    def digest(self, stage: str, file: Path, table: Literal["read", "written"]) -> str | None:
+        """The digest of the job's ``file`` as ``stage`` last read or wrote it.
 
-        ``legacy`` as for :meth:`is_current`.
+        Args:
+            stage: The stage.
+            file: A job file.
+            table: ``"read"``: as its inputs recorded it; ``"written"``: as :meth:`record`
+                kept what it wrote.
+
+        Returns:
+            The digest; None where the entry does not hold it.
         """
         entry = self.stages.get(stage) or {}
-        return self.stopped(stage) and self._same_inputs(entry, inputs, legacy)
-
-    def recorded_digest(self, stage: str, file: Path) -> str | None:
-        """The digest of the job's ``file`` as ``stage`` last read it (None: not recorded)."""
-        inputs = (self.stages.get(stage) or {}).get("inputs") or {}
-        files = inputs.get("files") if isinstance(inputs, dict) else None
+        if table == "read":
+            inputs = entry.get("inputs")
+            entry = inputs if isinstance(inputs, dict) else {}
+        files = entry.get("files" if table == "read" else "written")
         return files.get(_key(file, self.job)) if isinstance(files, dict) else None
-
-    def written_digest(self, stage: str, file: Path) -> str | None:
-        """The digest of the job's ``file`` as ``stage`` last wrote it (None: not recorded)."""
-        written = (self.stages.get(stage) or {}).get("written")
-        return written.get(_key(file, self.job)) if isinstance(written, dict) else None
 
     def stopped(self, stage: str) -> bool:
         """True when ``stage`` last started and did not finish, whatever its inputs."""

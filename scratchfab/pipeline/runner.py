@@ -132,7 +132,8 @@ class _Stages:
         not hold what design wrote (an earlier scratchfab's): the file as optimize read it.
         """
         file = self.layout.design.design_toml
-        was = manifest.written_digest("design", file) or manifest.recorded_digest("optimize", file)
+        was = manifest.digest("design", file, "written")
+        was = was or manifest.digest("optimize", file, "read")
         if was is None or not file.is_file() or file_digest(file) == was:
             return None
         return (
