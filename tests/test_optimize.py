@@ -1040,7 +1040,7 @@ def test_resume_names_options_and_design_changed_together(job: Path) -> None:
     assert exc.changed == ["seed", "[board] f0", "[[views]] 'right' fov_deg"]
     assert exc.design["[board] f0"] == "0.91 -> 0.5"
     assert str(exc).startswith(
-        f"{job / 'optimize' / 'checkpoint.npz'}: made with different settings or inputs (seed); "
+        f"{job / 'optimize' / 'checkpoint.npz'}: made with different settings (seed); "
         f"{job / 'design' / 'design.toml'} changed since it was made ([board] f0 0.91 -> 0.5, "
         "[[views]] 'right' fov_deg "
     )
@@ -1147,15 +1147,15 @@ def test_resume_after_a_design_rerun_says_so_in_the_users_terms(job: Path, capsy
     assert info.value.changed == ["inputs_sha256"]
     assert "inputs_sha256" not in str(info.value)
     assert info.value.reasons() == (
-        "made with different settings or inputs "
-        "(the design's initial scratches or targets: design was rerun)"
+        f"design/targets/{target.name} changed since it was made: design was rerun"
     )
 
 
 def test_resume_refuses_views_given_in_another_order(job: Path) -> None:
     """The views' order sets the order of the loss's terms and of log.csv's columns: a
     checkpoint's steps (and its log rows) follow its own order, so reordered views are named
-    as a change; a checkpoint that records no order (made before it was kept) resumes."""
+    as a change; a checkpoint that records no order (made before it was kept) is refused
+    too, its order read from its log's columns."""
     from scratchfab.model.job import load_job_design
     from scratchfab.optimize.stage import ResumeRefused
 
@@ -1172,4 +1172,6 @@ def test_resume_refuses_views_given_in_another_order(job: Path) -> None:
     state, meta, rows = load_checkpoint(ckpt)
     del meta["fingerprint"]["design"]["view_order"]
     save_checkpoint(ckpt, state, meta, rows)
-    assert run_optimize(job, OptimizeOptions(iterations=3, resume=True)).iterations == 3
+    with pytest.raises(ResumeRefused) as info:
+        run_optimize(job, OptimizeOptions(iterations=3, resume=True))
+    assert info.value.design == {"[[views]] order": f"[{first}, {second}] -> [{second}, {first}]"}

@@ -258,7 +258,11 @@ def test_a_glinting_run_says_so_and_an_earlier_checkpoint_of_it_does_not_resume(
     ckpt = job / "optimize" / "checkpoint.npz"
     run_optimize(job, OptimizeOptions(iterations=3, resume=True))  # its own: resumes
     state, meta, rows = load_checkpoint(ckpt)
-    assert meta["fingerprint"].pop("image_error") == "glint left out"
+    limit = round(design_glint_deg(design), 6)
+    assert meta["fingerprint"].pop("image_error") == {
+        "glint_limit_deg": limit,
+        "glint_left_out": True,
+    }
     save_checkpoint(ckpt, state, meta, rows)
     with pytest.raises(ResumeRefused) as info:
         run_optimize(job, OptimizeOptions(iterations=4, resume=True))

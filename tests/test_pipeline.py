@@ -872,7 +872,7 @@ def test_a_checkpoint_made_otherwise_is_started_afresh_without_optimize_s_advice
     result = run_pipeline(load_pipeline(path), copy, until="optimize", say=said.append)
     assert result.ran == ["optimize"]
     assert (
-        f"  cannot continue it ({ckpt}: made with different settings or inputs (seed)); "
+        f"  cannot continue it ({ckpt}: made with different settings (seed)); "
         "optimizing from the start"
     ) in said
     assert not any("--resume" in line or "give that" in line for line in said)

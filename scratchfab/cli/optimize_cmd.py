@@ -13,6 +13,8 @@ import click
 from scratchfab.cli.options import FiniteFloat, RedrawnLine, backend_option
 from scratchfab.console import command_line
 from scratchfab.errors import ConfigError, Interrupted
+from scratchfab.model.job import JobLayout
+from scratchfab.optimize.checkpoint import Checkpoint, read_checkpoint
 from scratchfab.optimize.progress import clock, progress_printer
 from scratchfab.optimize.stage import (
     NOTHING_TO_DO,
@@ -158,8 +160,12 @@ def optimize(
     given = {
         name for name in asked if _given(ctx, name) or (no_prune and name == "prune_tolerance")
     }
+    checkpoint: Checkpoint | None = None
     if resume:  # what the command does not give, the run's own (its total, its prune)
-        own = checkpoint_request(job)
+        checkpoint = read_checkpoint(JobLayout(job).optimize_checkpoint)
+        own = checkpoint_request(job, checkpoint)
+        if "iterations" not in own and "iterations" not in given:
+            raise ConfigError(_no_total(checkpoint))
         for name, value in own.items():
             if name not in given:
                 asked[name] = value
@@ -183,7 +189,7 @@ def optimize(
         checkpoint_every=checkpoint_every,
     )
     try:
-        result = run_optimize(job, options, progress=_bar())
+        result = run_optimize(job, options, progress=_bar(), checkpoint=checkpoint)
     except ResumeRefused as exc:
         raise ConfigError(
             exc.message(lambda made: _as_flags(made, options, asked_constant, bool(scaled)))
@@ -226,6 +232,19 @@ def optimize(
             f"interrupted after {result.iterations} of {options.iterations} iterations; "
             f"`{command_line(again)}` continues it"
         )
+
+
+def _no_total(checkpoint: Checkpoint) -> str:
+    """Why ``--resume`` needs ``--iterations`` for a checkpoint that keeps no total."""
+    done = checkpoint.done
+    return (
+        f"{checkpoint.path}: the run's total is not known: its checkpoint, made by an earlier "
+        "scratchfab, does not keep it"
+        + (f" (it had done {done} iterations)" if done is not None else "")
+        + ", and no summary.json written from it tells it (a run killed before writing its "
+        "outputs leaves none); give --iterations N with --resume, N the total the run was "
+        "last given"
+    )
 
 
 def _given_flags(ctx: click.Context) -> list[str]:

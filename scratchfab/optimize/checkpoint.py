@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -70,3 +71,33 @@ def load_checkpoint(path: Path) -> tuple[dict[str, np.ndarray], dict[str, Any], 
     if meta.get("format") != FORMAT:
         raise ConfigError(f"{path}: checkpoint format {meta.get('format')} is not {FORMAT}")
     return arrays, meta, log_rows
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A checkpoint as read (:func:`read_checkpoint`), so that one reading serves a resume.
+
+    Attributes:
+        path: The ``.npz`` file.
+        state: The optimizer's state (:meth:`LayoutOptimizer.state`).
+        meta: Its metadata (fingerprint, RNG state, elapsed time, column names).
+        log_rows: (iterations, columns) float64 log so far.
+    """
+
+    path: Path
+    state: dict[str, np.ndarray]
+    meta: dict[str, Any]
+    log_rows: np.ndarray
+
+    @property
+    def done(self) -> int | None:
+        """The steps it had done (None: its ``iteration`` is no integer scalar)."""
+        step = self.state.get("iteration")
+        if not isinstance(step, np.ndarray) or step.shape != () or step.dtype.kind not in "iu":
+            return None
+        return int(step)
+
+
+def read_checkpoint(path: Path) -> Checkpoint:
+    """Read a checkpoint (:func:`load_checkpoint`) as a :class:`Checkpoint`."""
+    return Checkpoint(path, *load_checkpoint(path))

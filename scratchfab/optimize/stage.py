@@ -34,6 +34,7 @@ import drjit as dr
 import numpy as np
 
 from scratchfab.backend import array_module
+from scratchfab.design.feasibility import design_glint_deg, outshine_limit_deg
 from scratchfab.design.targets import job_cross_targets
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, load_numpy, write_json, write_text
@@ -41,13 +42,15 @@ from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design
 from scratchfab.model.job import JobLayout, design_digest, load_job_design
 from scratchfab.model.scratches import ScratchSet, load_scratches
-from scratchfab.optimize.checkpoint import load_checkpoint, save_checkpoint
+from scratchfab.optimize.checkpoint import Checkpoint, read_checkpoint, save_checkpoint
+from scratchfab.optimize.glint import view_glint
 from scratchfab.optimize.loss import IMAGE_ERROR, MERGE_PENALTY
 from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
 from scratchfab.optimize.options import OptimizeOptions, StepSchedule
 from scratchfab.optimize.plots import save_loss_plot, save_side_by_side
 from scratchfab.optimize.prune import PruneReport, prune
 from scratchfab.render.layout import write_render_layout
+from scratchfab.render.renderer import ViewRenderer
 
 #: Options that shape the trajectory; a resume must match them.
 TRAJECTORY_KEYS = (
@@ -119,7 +122,7 @@ class OptimizeResult:
 NOTHING_TO_DO = "nothing to do"
 
 
-def checkpoint_request(job: str | Path) -> dict[str, Any]:
+def checkpoint_request(job: str | Path, checkpoint: Checkpoint | None = None) -> dict[str, Any]:
     """What the run in ``JOB/optimize/checkpoint.npz`` was asked for, that a resume keeps.
 
     A resume that does not give them goes on with the run's own ``iterations`` (its total,
@@ -129,14 +132,18 @@ def checkpoint_request(job: str | Path) -> dict[str, Any]:
     more steps (a run extended past that total went on to a total it did not keep). Each
     is left out where none of these tells, and all without a readable checkpoint (the
     resume then says what is wrong).
+
+    Args:
+        job: The job folder.
+        checkpoint: Its checkpoint, already read (None: read here).
     """
     paths = JobLayout(Path(job))
-    try:
-        state, meta, _ = load_checkpoint(paths.optimize_checkpoint)
-    except ConfigError:
-        return {}
-    step = state.get("iteration")
-    done = int(step) if isinstance(step, np.ndarray) and step.shape == () else None
+    if checkpoint is None:
+        try:
+            checkpoint = read_checkpoint(paths.optimize_checkpoint)
+        except ConfigError:
+            return {}
+    meta, done = checkpoint.meta, checkpoint.done
     keys = ("iterations", "prune_tolerance")
     own = {k: meta[k] for k in keys if k in meta}
     if len(own) < len(keys) and done is not None:
@@ -304,19 +311,33 @@ def _design_fields(design: Design) -> dict[str, Any]:
     }
 
 
+def _sha256(whole: Any, name: bytes, *arrays: np.ndarray) -> str:
+    """The SHA-256 of ``name`` and ``arrays`` as float64 bytes, also fed to ``whole``."""
+    part = hashlib.sha256(name)
+    whole.update(name)
+    for arr in arrays:
+        data = np.ascontiguousarray(arr, dtype=np.float64).tobytes()
+        part.update(data)
+        whole.update(data)
+    return part.hexdigest()
+
+
 def _fingerprint(
     options: OptimizeOptions, scratches: ScratchSet, targets: dict[str, Any], design: Design
 ) -> dict[str, Any]:
     digest = hashlib.sha256()
-    for arr in (scratches.p0, scratches.p1, scratches.width, scratches.depth):
-        digest.update(np.ascontiguousarray(arr, dtype=np.float64).tobytes())
+    layout = (scratches.p0, scratches.p1, scratches.width, scratches.depth)
+    parts: dict[str, Any] = {"scratches": _sha256(digest, b"", *layout), "targets": {}}
     for name in sorted(targets):
-        digest.update(name.encode())
-        digest.update(np.ascontiguousarray(targets[name], dtype=np.float64).tobytes())
+        parts["targets"][name] = _sha256(digest, name.encode(), targets[name])
     out: dict[str, Any] = {k: getattr(options, k) for k in TRAJECTORY_KEYS}
     out["inputs_sha256"] = digest.hexdigest()
+    # by part, to name what changed (inputs_sha256, which checkpoints of an earlier
+    # scratchfab have too, decides)
+    out["inputs"] = parts
     out["merge_penalty"] = MERGE_PENALTY  # a checkpoint of another penalty (or none) differs
-    # a checkpoint without it (an earlier scratchfab's) resumes unchecked: _changed_keys
+    # a checkpoint without it (an earlier scratchfab's) tells the views' order alone:
+    # _made_fingerprint
     out["design"] = _design_fields(design)
     schedule = options.schedule()
     if schedule is not None:
@@ -390,6 +411,91 @@ def _design_changes(made: Any, now: Any) -> dict[str, str]:
     return out
 
 
+def _made_fingerprint(meta: dict[str, Any]) -> dict[str, Any]:
+    """A checkpoint's fingerprint, its design record given the views' order where it lacks one.
+
+    A checkpoint of an earlier scratchfab records no design, or no order of the views; its
+    log's columns (``psnr_<view>`` in the views' order: :func:`log_columns`) tell the order,
+    which its digest of the targets (by name, sorted) does not cover: views swapped since
+    would resume on other steps, their log rows under swapped columns.
+    """
+    made: dict[str, Any] = meta.get("fingerprint", {})
+    design, columns = made.get("design", {}), meta.get("columns")
+    if isinstance(design, dict) and "view_order" not in design and isinstance(columns, list):
+        order = [c[5:] for c in columns if isinstance(c, str) and c.startswith("psnr_")]
+        made = {**made, "design": {**design, "view_order": order}}
+    return made
+
+
+def _design_diff(made: dict[str, Any], now: dict[str, Any]) -> dict[str, str]:
+    """How the design changed since a checkpoint (:func:`_design_changes`), where it tells.
+
+    A checkpoint of an earlier scratchfab records fewer tables (only the views' order:
+    :func:`_made_fingerprint`); those it holds are compared.
+    """
+    if "design" not in made:
+        return {}
+    was, is_ = made["design"], now["design"]
+    if isinstance(was, dict):
+        is_ = {k: v for k, v in is_.items() if k in was}
+    return _design_changes(was, is_)
+
+
+def _glint_limit(design: Design) -> float:
+    """The glint rule's limit for ``design`` (:func:`design_glint_deg`) as checkpoints keep it."""
+    return round(design_glint_deg(design), 6)
+
+
+def _image_error(design: Design, glinting: bool) -> dict[str, Any]:
+    """The image error's form, as a checkpoint keeps it.
+
+    The glint rule's limit for this design (:func:`_glint_limit`) and whether a view glints
+    (its pixels left out): with the design, which the checkpoint records besides, they
+    tell which pixels the image error leaves out.
+    """
+    return {"glint_limit_deg": _glint_limit(design), "glint_left_out": glinting}
+
+
+def _image_error_change(made: Any, design: Design, glinting: Callable[[], bool]) -> str | None:
+    """Why the image error a checkpoint's steps followed is not this run's; None when it is.
+
+    One of this design (its design record is compared apart) and the same limit
+    (:func:`_image_error`) left out the same pixels. One of another limit (another glint
+    rule's) that left pixels out is refused; one that left none out, like one of an
+    earlier scratchfab that keeps no form, counted every pixel, as this run does where no
+    view glints. The first rule's checkpoints say :data:`IMAGE_ERROR`: the glint below
+    :func:`outshine_limit_deg` at full coverage.
+
+    Args:
+        made: The checkpoint's ``image_error`` (None where it keeps none).
+        design: This run's design.
+        glinting: Whether a view of this run glints; called only where the limits do not tell.
+    """
+    if made == IMAGE_ERROR:
+        tool = design.scratch
+        first = outshine_limit_deg(tool.width_mm, tool.depth_mm, design.board.roughness, 1.0)
+        made = {"glint_limit_deg": round(first, 6), "glint_left_out": True}
+    now = _glint_limit(design)
+    if isinstance(made, dict) and made.get("glint_limit_deg") == now:
+        return None
+    if not (isinstance(made, dict) and made.get("glint_left_out") is True):
+        return None if not glinting() else FORM_SAID["image_error"]
+    return (
+        f"image error left out the bare board's glint below {_shown(made['glint_limit_deg'])} "
+        f"degrees of half-vector tilt (this one below {_shown(now)} degrees)"
+    )
+
+
+def _glinting(design: Design, targets: dict[str, np.ndarray], m: Any) -> bool:
+    """Whether a view of the run glints (:func:`view_glint`), without setting up the optimizer."""
+    limit = design_glint_deg(design)
+    return any(
+        view_glint(ViewRenderer(design, v, m), limit).mask.any()
+        for v in design.views
+        if v.name in targets
+    )
+
+
 def _schedule_fields(fields: dict[str, Any]) -> dict[str, Any]:
     """The fields of a fingerprint's schedule (a StepSchedule's) that its steps depend on.
 
@@ -438,14 +544,16 @@ def _changed_keys(made: dict[str, Any], now: dict[str, Any]) -> list[str]:
     A schedule's change is named by the options that changed (its total, ``iterations``,
     rather than ``lr_schedule``); a constant run has no schedule: scales 1, no total. A
     schedule of equal scales depends on neither its shape nor its total. A design change
-    is named by its keys (:func:`_design_changes`); a checkpoint that does not record the
-    design (an earlier scratchfab's) is not compared there.
+    is named by its keys (:func:`_design_diff`). The image error's form is left to
+    :func:`_image_error_change`, the digests of the inputs by part to :func:`_inputs_change`.
     """
     out: list[str] = []
     for k in dict.fromkeys([*now, *made]):
         a, b = made.get(k), now.get(k)
         if k == "design":
-            out.extend(_design_changes(a, b) if k in made else [])
+            out.extend(_design_diff(made, now))
+            continue
+        if k in ("inputs", "image_error"):  # inputs_sha256 decides; _image_error_change
             continue
         if k == "lr_schedule":  # a checkpoint may keep a constant scale's shape and total
             a, b = (_schedule_fields(v) if isinstance(v, dict) else v for v in (a, b))
@@ -501,14 +609,40 @@ def _made_with(
     return out
 
 
-#: The fingerprint's digest of the design stage's outputs, as a refusal names it.
-INPUTS_SAID = {"inputs_sha256": "the design's initial scratches or targets: design was rerun"}
-#: The fingerprint's forms of the objective, as a refusal names a checkpoint of another
-#: (an earlier scratchfab's): no option resumes it.
+#: The fingerprint's keys of the objective's form, as a refusal names a checkpoint of
+#: another (an earlier scratchfab's): no option resumes it. The stage words the image
+#: error's change (:func:`_image_error_change`).
 FORM_SAID = {
     "merge_penalty": "merge penalty had another form",
     "image_error": "image error counted the bare board's glint (this one leaves it out)",
 }
+#: A changed ``inputs_sha256`` where the checkpoint does not tell which outputs changed.
+INPUTS_CHANGED = (
+    "the design's initial scratches or targets changed since it was made: design was rerun"
+)
+
+
+def _inputs_change(made: Any, now: dict[str, Any], paths: JobLayout) -> str:
+    """Which of the design stage's outputs changed since a checkpoint, in a refusal's words.
+
+    Args:
+        made: The checkpoint's fingerprint's ``inputs`` (None in an earlier scratchfab's,
+            which kept their digest only: then the words name both kinds).
+        now: This run's.
+        paths: The job, whose files are named.
+    """
+    folder = paths.design
+    if isinstance(made, dict) and isinstance(targets := made.get("targets"), dict):
+        files = [folder.initial_scratches] * (made.get("scratches") != now["scratches"])
+        files += [
+            folder.target_npy(name)
+            for name in dict.fromkeys([*now["targets"], *targets])
+            if targets.get(name) != now["targets"].get(name)
+        ]
+        if files:
+            named = ", ".join(paths.relative(f) for f in files)
+            return f"{named} changed since it was made: design was rerun"
+    return INPUTS_CHANGED
 
 
 class ResumeRefused(ConfigError):
@@ -516,17 +650,21 @@ class ResumeRefused(ConfigError):
 
     Its message names the options that differ and the values to give to resume it
     (``lr_start_scale = 1.0``: a pipeline's ``[optimize]`` key and an
-    :class:`OptimizeOptions` field), and the design keys that changed since, with their
-    values then and now; :meth:`message` spells the options' values another way.
+    :class:`OptimizeOptions` field), the design stage's outputs that changed, the forms
+    of the objective an earlier scratchfab had, and the design keys that changed since,
+    with their values then and now; :meth:`message` spells the options' values another way.
 
     Attributes:
         path: The checkpoint.
-        changed: The options (or ``"inputs_sha256"``, or design keys) whose values differ.
+        changed: The options (or ``"inputs_sha256"``, a key of :data:`FORM_SAID`, or design
+            keys) whose values differ.
         made_with: The checkpoint's values of the options to give to resume it; None when
-            none can (its inputs or design differ).
+            none can (its inputs, objective or design differ).
         design: How each changed design key changed (``{"[board] roughness": "0.05 ->
             0.08"}``: :func:`_design_changes`).
         design_file: The design file those keys are in.
+        said: The words of each changed key that is no option nor design key
+            (``inputs_sha256``'s: :func:`_inputs_change`), where not :data:`FORM_SAID`'s.
     """
 
     def __init__(
@@ -536,9 +674,11 @@ class ResumeRefused(ConfigError):
         made_with: dict[str, Any] | None,
         design: dict[str, str] | None = None,
         design_file: Path | None = None,
+        said: dict[str, str] | None = None,
     ) -> None:
         self.path, self.changed, self.made_with = path, changed, made_with
         self.design, self.design_file = design or {}, design_file
+        self.said = {**FORM_SAID, "inputs_sha256": INPUTS_CHANGED, **(said or {})}
         super().__init__(self.message(self.as_keys))
 
     @staticmethod
@@ -559,16 +699,12 @@ class ResumeRefused(ConfigError):
 
     def reasons(self) -> str:
         """What changed since the checkpoint was made, in the user's terms, without advice."""
-        settings = [
-            INPUTS_SAID.get(k, k)
-            for k in self.changed
-            if k not in self.design and k not in FORM_SAID
-        ]
-        total = "; a scheduled run's step sizes follow its total" * ("iterations" in settings)
-        why = [f"made with different settings or inputs ({', '.join(settings)}{total})"] * bool(
-            settings
-        )
-        if forms := [FORM_SAID[k] for k in self.changed if k in FORM_SAID]:
+        options = [k for k in self.changed if k not in self.design and k not in self.said]
+        total = "; a scheduled run's step sizes follow its total" * ("iterations" in options)
+        why = [f"made with different settings ({', '.join(options)}{total})"] * bool(options)
+        if "inputs_sha256" in self.changed:
+            why.append(self.said["inputs_sha256"])
+        if forms := [self.said[k] for k in self.changed if k in FORM_SAID]:
             why.append(f"made by an earlier scratchfab, whose {' and whose '.join(forms)}")
         if self.design:
             changes = ", ".join(f"{k} {v}" for k, v in self.design.items())
@@ -612,6 +748,7 @@ def run_optimize(
     options: OptimizeOptions,
     progress: Callable[[Progress], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
+    checkpoint: Checkpoint | None = None,
 ) -> OptimizeResult:
     """Optimize the layout of ``job`` and write ``JOB/optimize/``.
 
@@ -620,6 +757,8 @@ def run_optimize(
         options: Stage settings.
         progress: Called after every step and with status lines.
         should_stop: Polled after every step; True stops cleanly (Ctrl-C does too).
+        checkpoint: The job's checkpoint that ``options.resume`` continues, where the caller
+            has read it (:func:`checkpoint_request`); None: read here.
 
     Raises:
         ConfigError: Missing or malformed inputs, or a checkpoint made with other settings.
@@ -636,7 +775,16 @@ def run_optimize(
         dr.set_thread_count(options.threads if options.threads > 0 else (os.cpu_count() or 1))
     try:
         return _run(
-            JobLayout(job), design, targets, initial, design_files, options, m, report, should_stop
+            JobLayout(job),
+            design,
+            targets,
+            initial,
+            design_files,
+            options,
+            m,
+            report,
+            should_stop,
+            checkpoint,
         )
     finally:
         if options.backend == "llvm":
@@ -653,6 +801,7 @@ def _run(
     m: Any,
     report: Callable[[Progress], None],
     should_stop: Callable[[], bool] | None,
+    resumed: Checkpoint | None,
 ) -> OptimizeResult:
     rng = np.random.default_rng(options.seed)
     fingerprint = _fingerprint(options, initial, targets, design)
@@ -670,25 +819,32 @@ def _run(
     ckpt = paths.optimize_checkpoint
     made: dict[str, Any] = {}  # the checkpoint's fingerprint (a resume's)
     if options.resume:
-        state, meta, log_rows = load_checkpoint(ckpt)
-        made = meta.get("fingerprint", {})
+        loaded = resumed if resumed is not None else read_checkpoint(ckpt)
+        state, meta, log_rows = loaded.state, loaded.meta, loaded.log_rows
+        made = _made_fingerprint(meta)
         if (extended := _extended_schedule(made, fingerprint, options)) is not None:
             schedule = extended
             fingerprint = {**fingerprint, "lr_schedule": made["lr_schedule"]}
-        # image_error: checked once the views are set up (below)
-        differ = [k for k in _changed_keys(made, fingerprint) if k != "image_error"]
+        differ = _changed_keys(made, fingerprint)
+        said = {"inputs_sha256": _inputs_change(made.get("inputs"), fingerprint["inputs"], paths)}
+        glint_change = _image_error_change(
+            made.get("image_error"), design, lambda: _glinting(design, targets, m)
+        )
+        if glint_change is not None:  # before "nothing to do": its outputs are the old error's
+            differ.append("image_error")
+            said["image_error"] = glint_change
         if differ:
-            design_changed = (
-                _design_changes(made["design"], fingerprint["design"]) if "design" in made else {}
-            )
             raise ResumeRefused(
                 ckpt,
                 differ,
                 _made_with(made, differ, options),
-                design_changed,
+                _design_diff(made, fingerprint),
                 paths.design.design_toml,
+                said,
             )
-        done = int(state["iteration"])
+        done = loaded.done
+        if done is None:
+            raise ConfigError(f"{ckpt}: not a scratchfab checkpoint (no integer 'iteration')")
         if done >= options.iterations and (
             kept := _finished(paths, design, design_files, done, meta.get("elapsed_s"), options)
         ):
@@ -702,12 +858,8 @@ def _run(
     )
     report(Progress(0, options.iterations, math.nan, 0.0, math.nan, "compiling kernels"))
     opt = LayoutOptimizer(design, targets, start_layout, settings, m)
-    if any(g.mask.any() for g in opt.glint):
-        # A glinting design's objective changed (its image error leaves the glint out): its
-        # checkpoints say so. Known only once the views are set up, so checked here.
-        fingerprint["image_error"] = IMAGE_ERROR
-    if options.resume and made.get("image_error") != fingerprint.get("image_error"):
-        raise ResumeRefused(ckpt, ["image_error"], None)
+    # the pixels the image error leaves out, as this run's checkpoints keep them
+    fingerprint["image_error"] = _image_error(design, any(g.mask.any() for g in opt.glint))
     for note in opt.glint_notes():
         report(Progress(0, options.iterations, math.nan, 0.0, math.nan, note))
     cross = job_cross_targets(design) or {(k, k): t for k, t in targets.items()}
