@@ -145,6 +145,44 @@ def test_elimination_follows_a_varying_density():
     assert np.all(nn > 0.5 * radius[kept])
 
 
+def _eliminate_by_scan(points: np.ndarray, radius: np.ndarray, keep: int) -> np.ndarray:
+    """Yuksel's elimination read literally: all pairs, remove the heaviest, lower the rest.
+
+    Each step scans every live candidate for the largest weight (the lowest index among
+    equal ones) and subtracts the removed one's term from every candidate's weight.
+    """
+    m = len(points)
+    diff = points[:, None, :] - points[None, :, :]
+    dist = np.linalg.norm(diff.reshape(-1, 2), axis=1).reshape(m, m)
+    near = (dist <= 2.0 * radius[:, None]) & ~np.eye(m, dtype=bool)
+    rows, cols = np.nonzero(near)
+    terms = np.zeros((m, m))
+    terms[rows, cols] = (1.0 - dist[rows, cols] / (2.0 * radius[rows])) ** 8.0
+    weight = np.bincount(rows, weights=terms[rows, cols], minlength=m)
+    alive = np.ones(m, dtype=bool)
+    for _ in range(m - keep):
+        j = int(np.argmax(np.where(alive, weight, -np.inf)))
+        alive[j] = False
+        weight = weight - terms[:, j]
+    return np.flatnonzero(alive)
+
+
+@pytest.mark.parametrize("case", ["random", "grid ties"])
+def test_elimination_removes_the_heaviest_candidate_each_step(case):
+    """The heap's order is the plain scan's, tie for tie, so a layout stays the same."""
+    rng = np.random.default_rng(11)
+    if case == "random":
+        pts = rng.random((600, 2))
+        radius = rng.uniform(0.02, 0.06, len(pts))
+    else:  # a lattice with one radius: whole rows of candidates weigh exactly the same
+        pts = np.stack(np.meshgrid(np.arange(24.0), np.arange(24.0)), axis=-1).reshape(-1, 2)
+        radius = np.full(len(pts), 1.3)
+    for keep in (len(pts) // 5, len(pts) // 2, len(pts) - 1):
+        np.testing.assert_array_equal(
+            eliminate(pts, radius, keep), _eliminate_by_scan(pts, radius, keep)
+        )
+
+
 def test_layout_is_deterministic(halves):
     design = _design(halves, count=120)
     targets = view_targets(design)

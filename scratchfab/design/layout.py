@@ -20,6 +20,7 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
+from scratchfab.console import Say
 from scratchfab.design.feasibility import (
     across_directions,
     board_points,
@@ -42,6 +43,9 @@ ELIMINATION_ALPHA = 8.0
 DENSITY_GRID = 256
 #: Grid points :func:`expected_length` draws strokes at, a batch.
 EXPECTED_CHUNK = 8192
+#: A view laying at least this many scratches gets a line of its own before it starts
+#: (100000 take about 10 s on one core).
+PROGRESS_COUNT = 20_000
 
 
 def sample_view_target(target: np.ndarray, view: View, points: np.ndarray) -> np.ndarray:
@@ -104,20 +108,28 @@ def eliminate(points: np.ndarray, radius: np.ndarray, keep: int) -> np.ndarray:
     indices: list[int] = by_removed.indices.tolist()
     data: list[float] = by_removed.data.tolist()
     alive = [True] * m
+    # One entry per live candidate, keyed (-weight, index) as the weight was when it was
+    # pushed. Weights only fall, so a stored key never ranks a candidate lower than its
+    # weight now: an entry on top whose key is current is the heaviest candidate (ties:
+    # the lowest index), and one that is not is pushed back with its weight now. Each
+    # removal then costs one pop plus the few stale entries that reach the top, instead
+    # of a push per neighbour on a heap that grows to millions of stale entries.
     heap = [(-weight[i], i) for i in range(m)]
     heapq.heapify(heap)
+    pop, replace_top = heapq.heappop, heapq.heapreplace
     remaining = m
     while remaining > keep:
-        neg, j = heapq.heappop(heap)
-        if not alive[j] or -neg != weight[j]:
+        neg, j = heap[0]
+        if -neg != weight[j]:
+            replace_top(heap, (-weight[j], j))
             continue
+        pop(heap)
         alive[j] = False
         remaining -= 1
         for k in range(indptr[j], indptr[j + 1]):
             i = indices[k]
             if alive[i]:
                 weight[i] -= data[k]
-                heapq.heappush(heap, (-weight[i], i))
     return np.flatnonzero(np.asarray(alive))
 
 
@@ -229,7 +241,12 @@ def _densities(
     return pts, out
 
 
-def initial_layout(design: Design, targets: Mapping[str, np.ndarray], seed: int) -> ScratchSet:
+def initial_layout(
+    design: Design,
+    targets: Mapping[str, np.ndarray],
+    seed: int,
+    progress: Say = lambda _: None,
+) -> ScratchSet:
     """Place exactly ``design.scratch.count`` scratches that show each target in its view.
 
     Args:
@@ -237,6 +254,7 @@ def initial_layout(design: Design, targets: Mapping[str, np.ndarray], seed: int)
         targets: View name -> (H, W) target in that view's camera pixels (NaN off the
             board), as :func:`scratchfab.design.targets.view_targets` returns.
         seed: Seed of the random generator.
+        progress: Called with a line before each view that lays many scratches.
 
     Returns:
         The layout (the views' scratches one after the other, see
@@ -247,7 +265,7 @@ def initial_layout(design: Design, targets: Mapping[str, np.ndarray], seed: int)
         ScratchfabError: The targets name none of the views or one is not (H, W) of its
             view (:func:`check_targets`); ``min_length_mm`` does not fit the margin.
     """
-    parts = list(layout_by_view(design, targets, seed).values())
+    parts = list(layout_by_view(design, targets, seed, progress).values())
     return ScratchSet(
         np.concatenate([p.p0 for p in parts]),
         np.concatenate([p.p1 for p in parts]),
@@ -257,7 +275,10 @@ def initial_layout(design: Design, targets: Mapping[str, np.ndarray], seed: int)
 
 
 def layout_by_view(
-    design: Design, targets: Mapping[str, np.ndarray], seed: int
+    design: Design,
+    targets: Mapping[str, np.ndarray],
+    seed: int,
+    progress: Say = lambda _: None,
 ) -> dict[str, ScratchSet]:
     """The initial layout split by the view each scratch is turned for.
 
@@ -266,6 +287,8 @@ def layout_by_view(
         targets: View name -> (H, W) target in that view's camera pixels (NaN off the
             board), as :func:`scratchfab.design.targets.view_targets` returns.
         seed: Seed of the random generator.
+        progress: Called with a line before each view that lays at least
+            :data:`PROGRESS_COUNT` scratches.
 
     Returns:
         View name -> its scratches (possibly none); ``count`` scratches in all.
@@ -295,6 +318,8 @@ def layout_by_view(
         rel, q = _centre_weights(dens[name].ravel(), design)
         prob = q / q.sum()
         m = CANDIDATES_PER_SAMPLE * int(n)
+        if n >= PROGRESS_COUNT:
+            progress(f"  laying {n} scratches for '{name}' (thinning {m} candidates) ...")
         idx = rng.choice(len(prob), size=m, p=prob)
         cand = pts.reshape(-1, 2)[idx] + (rng.random((m, 2)) - 0.5) * cell
         cand = np.clip(cand, -inner, inner)

@@ -282,7 +282,9 @@ def run_design(
         )
 
     t0 = time.perf_counter()
-    scratches = initial_layout(design, {k: v.astype(np.float64) for k, v in targets.items()}, seed)
+    scratches = initial_layout(
+        design, {k: v.astype(np.float64) for k, v in targets.items()}, seed, progress
+    )
     progress(f"  initial layout: {len(scratches)} scratches ({time.perf_counter() - t0:.1f} s)")
 
     resolved = design.with_views(
