@@ -16,6 +16,7 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 import pytest
+from PIL import Image
 from test_optimize_helpers import cross_of, make_job, make_layout
 
 import scratchfab.optimize.optimizer as optimizer_module
@@ -23,7 +24,7 @@ from scratchfab import metrics
 from scratchfab.design.feasibility import check_feasibility, design_glint_deg, glint_limit_deg
 from scratchfab.model.camera import Camera
 from scratchfab.model.design import Design, design_from_mapping
-from scratchfab.optimize.glint import ViewGlint
+from scratchfab.optimize.glint import GLINT_RGB, ViewGlint
 from scratchfab.optimize.loss import view_error
 from scratchfab.optimize.optimizer import LayoutOptimizer, Settings
 from scratchfab.optimize.progress import message_text, progress_printer
@@ -255,6 +256,8 @@ def test_a_glinting_run_says_so_and_an_earlier_checkpoint_of_it_does_not_resume(
     share = check_feasibility(design).views["left"].glint_fraction
     assert list(summary["glint_left_out"]) == ["left"]
     assert summary["glint_left_out"]["left"] == pytest.approx(share, abs=0.02)
+    picture = np.asarray(Image.open(job / "optimize" / "side_by_side.png").convert("RGB"))
+    assert (picture == GLINT_RGB).all(axis=-1).sum() > 0, "side_by_side.png outlines the glint"
     ckpt = job / "optimize" / "checkpoint.npz"
     run_optimize(job, OptimizeOptions(iterations=3, resume=True))  # its own: resumes
     state, meta, rows = load_checkpoint(ckpt)

@@ -957,7 +957,9 @@ def _run(
             [r[1] for r in final_rows],
             {k: [r[columns.index(f"rho_{k}")] for r in final_rows] for k in names},
         )
-        save_side_by_side(paths.side_by_side_png, targets, final.renders)
+        save_side_by_side(
+            paths.side_by_side_png, targets, final.renders, {g.name: g for g in opt.glint}
+        )
         per_iter = step_time / (steps - 1) if steps > 1 else math.nan
         summary: dict[str, Any] = {
             "iterations": opt.iteration,
