@@ -7,6 +7,7 @@ folder (or none) and never half of a new one.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import time
@@ -18,19 +19,20 @@ import numpy as np
 
 from scratchfab.console import Say
 from scratchfab.design.feasibility import FeasibilityReport, check_feasibility
+from scratchfab.design.images import load_image
 from scratchfab.design.layout import initial_layout
 from scratchfab.design.targets import (
     FITS,
-    board_image,
     board_image_png,
     board_pixels,
+    fit_picture,
     preview_png,
     quantize_like_png,
     warp_to_view,
 )
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import atomic_folder, save_npy, save_png, write_json, write_text
-from scratchfab.model.design import Design, design_from_mapping
+from scratchfab.model.design import Board, Design, design_from_mapping
 from scratchfab.model.job import DesignFolder, JobLayout
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
@@ -112,14 +114,25 @@ def load_source(
 ORIGIN_HEADER = "# Resolved by `scratchfab design`. Each target is the board-space image made from"
 #: Starts the line under a view's picture that names what an earlier design made it from.
 EARLIER = "#   the board picture an earlier design made from "
+#: The line after it when that image was fitted anew to this board's shape.
+REFITTED = "#   refitted from that image to this board's shape, each step's options in turn"
+#: One design's options in the heading comment: fit, gamma, contrast.
+_STEP = r"\(fit = (contain|cover), gamma = ([^,()]+), contrast = ([^,()]+)\)"
 
 
-def _origin_comment(design: Design, fit: str, gamma: float, contrast: float, seed: int) -> str:
+def _origin_comment(
+    design: Design,
+    fit: str,
+    gamma: float,
+    contrast: float,
+    seed: int,
+    refitted: frozenset[Path] = frozenset(),
+) -> str:
     """The comment heading ``design.toml``: each view's picture and the options applied to it.
 
     A picture that is an earlier design's board picture (a rerun from ``JOB/design/
     design.toml``) gets a second line naming the image that design started from, as its
-    own comment named it.
+    own comment named it, and a third when that image was fitted anew (``refitted``).
     """
     options = f"fit = {fit}, gamma = {gamma:g}, contrast = {contrast:g}"
     lines = [
@@ -134,6 +147,8 @@ def _origin_comment(design: Design, fit: str, gamma: float, contrast: float, see
         earlier = _earlier_origin(path)
         if earlier:
             lines.append(EARLIER + earlier)
+            if path in refitted:
+                lines.append(REFITTED)
     return "\n".join(lines) + "\n"
 
 
@@ -170,6 +185,66 @@ def _earlier_origin(picture: Path) -> str | None:
                 return earlier
             return f"{earlier}, then {options}"
     return None
+
+
+def _steps(origin: str) -> tuple[Path, list[tuple[str, float, float]]] | None:
+    """The image and each design's (fit, gamma, contrast) in turn, from :func:`_earlier_origin`'s text."""
+    found = re.fullmatch(rf"(.*?) {_STEP}((?:, then {_STEP})*)", origin)
+    if not found:
+        return None
+    try:
+        steps = [(f, float(g), float(c)) for f, g, c in re.findall(_STEP, origin[found.end(1) :])]
+    except ValueError:
+        return None
+    return Path(found.group(1)), steps
+
+
+def target_picture(
+    path: Path, board: Board, fit: str, gamma: float, contrast: float
+) -> tuple[np.ndarray, Path | None]:
+    """A view's target file as a linear board-space image (``targets.board_image``).
+
+    An earlier design's board picture made for a board of another shape would be fitted
+    again, its own bars or crop inside the new ones; it is made anew instead from the
+    image that design started from, with each design's options in turn (as its heading
+    comment names them), then this run's.
+
+    Returns:
+        (image, the image it was made anew from, or None).
+
+    Raises:
+        ConfigError: A file is unreadable; for a picture to make anew, naming it and the
+            image it was made from.
+    """
+    picture = load_image(path)
+    rows, cols = picture.shape
+    aspect = board.width_mm / board.height_mm
+    origin = _earlier_origin(path)
+    made_from = None
+    # one pixel of the short side: the rounding of a picture fitted to this shape
+    if origin is not None and abs(math.log(cols / rows / aspect)) > 1.0 / min(rows, cols):
+        steps = _steps(origin)
+        where = (
+            f"{path} is the board picture an earlier design made for a board of another shape "
+            f"({cols} x {rows} pixels, this board is {board.width_mm:g} x {board.height_mm:g} mm)"
+        )
+        if steps is None:
+            raise ConfigError(
+                f"{where} and its design.toml names no image it was made from; set the "
+                "target to the image itself to fit it to this board"
+            )
+        made_from, options = steps
+        try:
+            picture = load_image(made_from)
+        except ConfigError as exc:
+            raise ConfigError(
+                f"{where}, and the image it was made from cannot be read ({exc}); set the "
+                "target to that image, or another, to fit it to this board"
+            ) from None
+        for step_fit, step_gamma, step_contrast in options:
+            step = fit_picture(picture, board, step_fit, step_gamma, step_contrast)
+            picture = quantize_like_png(step)
+    return fit_picture(picture, board, fit, gamma, contrast), made_from
 
 
 def _comment_safe(text: str) -> str:
@@ -240,18 +315,26 @@ def run_design(
     )
     boards: dict[str, np.ndarray] = {}
     cache: dict[Path, np.ndarray] = {}
+    refitted: set[Path] = set()
     for i, view in enumerate(design.views):
         path = design.target_path(view)
         assert path is not None
         if path not in cache:
             try:
-                image = board_image(path, design.board, fit, gamma, contrast)
+                image, made_from = target_picture(path, design.board, fit, gamma, contrast)
             except ConfigError as exc:
                 # The image's own message names the file; say which key pointed at it.
                 raise ConfigError(
                     f"{design.source}: views[{i}].target ('{view.name}'): {exc}"
                 ) from None
             cache[path] = quantize_like_png(image)
+            if made_from is not None:
+                refitted.add(path)
+                progress(
+                    f"  target '{view.name}': {path} was made for a board of another shape; "
+                    f"made anew from {made_from}, fitted to this "
+                    f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
+                )
         boards[view.name] = cache[path]
         spread = float(np.ptp(boards[view.name]))
         if spread < UNIFORM_TARGET_SPREAD:
@@ -293,7 +376,7 @@ def run_design(
     resolved = replace(resolved, base_dir=folder, source=str(files.design_toml))
 
     # read before the new folder replaces the old one, whose design.toml it may read
-    comment = _origin_comment(design, fit, gamma, contrast, seed)
+    comment = _origin_comment(design, fit, gamma, contrast, seed, frozenset(refitted))
     with atomic_folder(folder) as tmp:
         staged = DesignFolder(tmp)
         write_text(staged.design_toml, comment + resolved.to_toml())

@@ -153,8 +153,14 @@ def board_image(
     Returns:
         (rows, cols) float64 in [0, 1]; top edge +y, left edge -x (SPEC section 5).
     """
-    picture = adjust(load_image(path), gamma, contrast)
-    return fit_to_board(picture, board, fit)
+    return fit_picture(load_image(path), board, fit, gamma, contrast)
+
+
+def fit_picture(
+    picture: np.ndarray, board: Board, fit: str, gamma: float = 1.0, contrast: float = 1.0
+) -> np.ndarray:
+    """A linear picture toned by :func:`adjust`, then placed by :func:`fit_to_board`."""
+    return fit_to_board(adjust(picture, gamma, contrast), board, fit)
 
 
 def quantize_like_png(board_img: np.ndarray) -> np.ndarray:
