@@ -44,7 +44,7 @@ DENSITY_GRID = 256
 #: Grid points :func:`expected_length` draws strokes at, a batch.
 EXPECTED_CHUNK = 8192
 #: A view laying at least this many scratches gets a line of its own before it starts
-#: (100000 take about 10 s on one core).
+#: (100000 take about 12 s on one core).
 PROGRESS_COUNT = 20_000
 
 

@@ -46,7 +46,7 @@ COUNT_PER_MM2 = 0.5
 #: The default count's most: 0.5 per mm^2 up to about 630 x 630 mm. Fewer cost image
 #: quality, since the views' pixels do not grow with the board (600 x 600 mm, two views,
 #: 40 steps: 20000 scratches 13 dB, 60000 20 dB, 180000 28 dB, as 100 x 100 mm's 5000 reach
-#: 22-25), and more cost time (180000: 75 s to lay, 2.5 s a step on one thread; both grow
+#: 22-25), and more cost time (180000: 25 s to lay, 2.5 s a step on one thread; both grow
 #: with the count; a 10 m board's 50 million would pass scratch.count's most).
 COUNT_CAP = 200_000
 #: Camera and light distance for boards up to 100 mm; larger boards scale it.
