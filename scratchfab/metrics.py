@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from decimal import ROUND_FLOOR, Decimal
 from typing import Any
 
@@ -64,6 +65,86 @@ def pearson(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> flo
     y = y - y.mean()
     den = math.sqrt(float(x @ x) * float(y @ y))
     return float(x @ y) / den if den > 0 else 0.0
+
+
+#: The rho that Monte Carlo noise may cost before verify names a higher sample count.
+NOISE_RHO_LOSS = 0.005
+
+
+@dataclass(frozen=True)
+class NoiseEffect:
+    """How a render's Monte Carlo noise bends its rho_kk, estimated from one render.
+
+    The render is R = R_inf + N with zero-mean noise N of known per-pixel variance. Over
+    the board pixels the noise leaves the covariance with the target as it is but adds
+    its variance to the render's, so rho = rho_inf sqrt(signal / (signal + noise)),
+    with ``noise`` the summed pixel variance and ``signal`` the render's summed squared
+    deviation less it. Noise falls as 1 / spp.
+
+    Attributes:
+        rho: The measured rho.
+        rho_free: Estimated rho of a noise-free render (None where the noise outweighs
+            the picture's own contrast and no estimate holds).
+        signal: Summed squared deviation of the noise-free render over the board.
+        noise: Summed noise variance over the board (centred as the deviation is).
+    """
+
+    rho: float
+    rho_free: float | None
+    signal: float
+    noise: float
+
+    def rho_at(self, factor: float) -> float | None:
+        """The rho expected with ``factor`` times the samples (None without an estimate)."""
+        if self.rho_free is None:
+            return None
+        return self.rho_free * math.sqrt(self.signal / (self.signal + self.noise / factor))
+
+    def samples_factor(self, loss: float = NOISE_RHO_LOSS) -> float | None:
+        """How many times the samples make noise cost rho at most ``loss``.
+
+        1 when it already does; None without an estimate.
+        """
+        if self.rho_free is None:
+            return None
+        if abs(self.rho_free) <= loss or self.noise <= 0:
+            return 1.0
+        q = 1.0 - loss / abs(self.rho_free)
+        allowed = self.signal * (1.0 / (q * q) - 1.0)
+        return max(1.0, self.noise / allowed)
+
+
+def noise_effect(render: np.ndarray, target: np.ndarray, variance: np.ndarray) -> NoiseEffect:
+    """The :class:`NoiseEffect` of a render whose pixels have the noise ``variance``."""
+    mask = board_mask(target, render) & np.isfinite(variance)
+    r = render[mask].astype(np.float64)
+    rho = pearson(render, target, mask)
+    n = r.size
+    if n < 2:
+        return NoiseEffect(rho, rho, 0.0, 0.0)
+    spread = float(np.sum((r - r.mean()) ** 2))
+    noise = float(np.sum(variance[mask])) * (n - 1) / n  # what centring leaves of it
+    signal = spread - noise
+    if not signal > 0:
+        return NoiseEffect(rho, None, 0.0, noise)
+    free = max(-1.0, min(1.0, rho * math.sqrt(spread / signal)))
+    return NoiseEffect(rho, free, signal, noise)
+
+
+def noise_share(render: np.ndarray, target: np.ndarray, variance: np.ndarray) -> float:
+    """Share of the exposed difference ``s R - T``'s squared size that is render noise.
+
+    The expected |s R - T|^2 is the noise-free difference's plus s^2 times the summed
+    pixel variance; this is the second over the whole (0 for a render equal to the target
+    only where no noise is either; NaN without board pixels).
+    """
+    diff, s = exposed_difference(render, target)
+    ok = np.isfinite(diff) & np.isfinite(variance)
+    if not ok.any():
+        return math.nan
+    total = float(np.sum(diff[ok] ** 2))
+    noise = s * s * float(np.sum(variance[ok]))
+    return min(1.0, noise / total) if total > 0 else 0.0
 
 
 def quality_report(

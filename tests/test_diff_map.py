@@ -216,8 +216,8 @@ def test_the_glint_is_outlined_on_the_map_and_named_in_its_title_and_key():
     diff[:, -1] = NAN  # off the board
     mask = np.zeros(diff.shape, bool)
     mask[0:5, 0:4] = True  # a corner, as a glint lies
-    plain = diff_figure(diff, "v", 2.0)
-    fig = diff_figure(diff, "v", 2.0, glint=ViewGlint("v", mask, 0.0734, 0.8))
+    plain = diff_figure(diff, "v")
+    fig = diff_figure(diff, "v", glint=ViewGlint("v", mask, 0.0734, 0.8))
     img = np.asarray(fig.image.convert("RGB"))
     f = fig.factor
     assert f >= 4
@@ -240,10 +240,10 @@ def test_the_glint_is_outlined_on_the_map_and_named_in_its_title_and_key():
     assert np.any(np.all(img[ly0 : ly1 + 1, lx0 : lx1 + 1] == GLINT_RGB, axis=-1))
     plain_img = np.asarray(plain.image.convert("RGB"))
     assert not np.any(np.all(plain_img == GLINT_RGB, axis=-1))
-    none = diff_figure(diff, "v", 2.0, glint=ViewGlint("v", np.zeros_like(mask), 0.0, 0.0))
+    none = diff_figure(diff, "v", glint=ViewGlint("v", np.zeros_like(mask), 0.0, 0.0))
     assert np.array_equal(np.asarray(none.image), np.asarray(plain.image))
     with pytest.raises(ValueError, match="glint mask"):
-        diff_figure(diff, "v", 2.0, glint=ViewGlint("v", mask[:-1], 0.07, 0.8))
+        diff_figure(diff, "v", glint=ViewGlint("v", mask[:-1], 0.07, 0.8))
 
 
 def test_verify_outlines_the_glint_design_predicts_and_its_gate_names_it(tmp_path):

@@ -106,8 +106,10 @@ def verify_render(
     JOB/design/scratches.csv; writes JOB/verify/) or --design FILE --scratches CSV --out
     DIR. Writes <view>.npy and <view>.png like `render`, and metrics.json: per view
     the relative L2 error against the analytic render, the noise estimate, PSNR,
-    rho_kk, crosstalk, spp and time. For each view with a target, diff/<view>.png
-    shows where the board comes out brighter or darker than it.
+    rho_kk and the rho_kk a noise-free render would reach, crosstalk, spp and time.
+    Where the sampling noise lowers rho, the output says by how much and which --spp
+    ends it. For each view with a target, diff/<view>.png shows where the board comes
+    out brighter or darker than it.
     """
     from scratchfab.verify.jitter import Tolerance
     from scratchfab.verify.scene import Sky, bad_sun_direction

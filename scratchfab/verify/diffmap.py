@@ -90,19 +90,20 @@ class DiffFigure:
 def diff_figure(
     diff: np.ndarray,
     view: str,
-    exposure_value: float,
     scale: float = DIFF_SCALE,
     glint: ViewGlint | None = None,
+    note: str = "",
 ) -> DiffFigure:
     """Draw ``view``'s difference map with its title, colour bar and key.
 
     Args:
         diff: ``s R - T`` (H, W), NaN off the board.
         view: The view's name (for the title).
-        exposure_value: The exposure ``s`` the render was scaled by.
         scale: The colour scale's half-width in the target's linear units.
         glint: Where the bare board glints into the view, outlined (None or an empty
             mask: no glint).
+        note: Last title lines, split at "; " (verify's: how much of the map is sampling
+            noise), or "".
     """
     rows, cols = diff.shape
     factor = max(1, -(-MAP_MIN_PX // cols))
@@ -122,13 +123,14 @@ def diff_figure(
     ]
     if shown is not None:
         items.append(figures.LegendItem(GLINT_KEY, GLINT_RGB, "outline"))
-    note = (
-        "verify render x exposure - target, in the target's linear\n"
-        f"brightness (0 black, 1 white); beyond ±{scale:g} clipped"
+    note_text = (
+        "the verify render, brightened or dimmed to match the target\n"
+        "overall, minus the target, in the target's linear brightness\n"
+        f"(0 black, 1 white); beyond ±{scale:g} clipped"
     )
     lw, lh = figures.legend_size(items, size)
     tick_h = figures.text_size("0", size)[1]
-    note_w, note_h = figures.text_size(note, size)
+    note_w, note_h = figures.text_size(note_text, size)
     width = max(mw, lw, note_w)
     height = mh + 10 + _BAR_H + 6 + tick_h + 4 + tick_h + 10 + note_h + 10 + lh
     canvas = Image.new("RGB", (width + 2 * m, height + 2 * m), (255, 255, 255))
@@ -157,14 +159,14 @@ def diff_figure(
     tw = figures.text_size("brighter", size)[0]
     draw.text((bx1 - tw, y), "brighter", fill=(0, 0, 0), font=figures.font(size))
     y += tick_h + 10
-    draw.multiline_text((bx0, y), note, fill=(0, 0, 0), font=figures.font(size), spacing=3)
+    draw.multiline_text((bx0, y), note_text, fill=(0, 0, 0), font=figures.font(size), spacing=3)
     y += note_h + 10
     legend_box = figures.draw_legend(canvas, items, (m, y), size)
 
     beyond = clipped_share(diff, scale)
     title = [
         f"view '{view}': verified board minus target",
-        f"render x exposure {exposure_value:.3g}, as the metrics take it",
+        "the render scaled to the target's overall brightness (as PSNR takes it)",
         f"{100 * beyond:.0f} % of the board at ±{scale:g} or beyond"
         if math.isfinite(beyond)
         else "no board pixels",
@@ -173,6 +175,8 @@ def diff_figure(
         title.append(
             f"the bare board glints on {100 * shown.board_share:.1f} % of the board (outlined)"
         )
+    if note:
+        title += note.split("; ")
     out = figures.add_title(canvas, title, size + 1, margin=m)
     dy = out.height - canvas.height
 
@@ -196,15 +200,16 @@ def write_diff_map(
     view: str,
     scale: float = DIFF_SCALE,
     glint: ViewGlint | None = None,
+    note: str = "",
 ) -> DiffFigure:
     """Draw ``view``'s map of ``s R - T`` and save it (atomically) as the PNG ``path``.
 
-    ``glint``: where the bare board glints into the view, as :func:`diff_figure` takes it.
+    ``glint`` and ``note``: as :func:`diff_figure` takes them.
     """
     if render.shape != target.shape:
         raise ValueError(f"view {view}: render {render.shape} and target {target.shape} differ")
-    diff, s = exposed_difference(render, target)
-    fig = diff_figure(diff, view, s, scale, glint)
+    diff, _ = exposed_difference(render, target)
+    fig = diff_figure(diff, view, scale, glint, note)
     save_png(path, fig.image)
     return fig
 

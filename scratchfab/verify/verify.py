@@ -26,7 +26,7 @@ from scratchfab.console import Say, clock
 from scratchfab.design.targets import cross_targets, job_cross_targets
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import load_numpy, write_bytes, write_json
-from scratchfab.metrics import quality_report, rho_text
+from scratchfab.metrics import noise_effect, noise_share, quality_report, rho_text
 from scratchfab.model.design import Design, View, load_design
 from scratchfab.model.job import (
     JobLayout,
@@ -39,6 +39,7 @@ from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.glint import ViewGlint, view_glint
 from scratchfab.verify.diffmap import write_diff_map
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
+from scratchfab.verify.noise import diff_noise_advice, noise_advice, noise_explains
 from scratchfab.verify.scene import Sky, board_bsdf, render_view, scene_dict, use_variant
 from scratchfab.verify.sweep import nearest_frames, sweep_gif, sweep_path
 
@@ -75,22 +76,38 @@ class VerifyGateError(ScratchfabError):
         setting: str = "--min-rho",
         source: str | None = None,
         glinting: tuple[str, ...] = (),
+        entry: Mapping[str, Any] | None = None,
     ) -> None:
         self.view, self.rho, self.min_rho = view, rho, min_rho
         self.failing, self.views, self.metrics_file = failing, views, metrics_file
-        self.glinting = glinting
+        self.glinting, self.entry = glinting, entry
         where = f"{source}: " if source else ""
-        glint = (
-            f"; the bare board glints into {', '.join(glinting)} (design warned; outlined in "
-            f"{metrics_file.parent / 'diff'}): no scratch shows the image there and the glint "
-            "outshines the rest, so optimizing longer does not help: move the camera or the "
-            "light as design's warning says"
-            if glinting
-            else ""
+        cli = setting.startswith("--")
+        noise = noise_advice(
+            entry or {}, min_rho, "--spp" if cli else setting.replace("min_rho", "spp")
         )
+        advice = [noise] if noise else []
+        if glinting:
+            advice.append(
+                f"the bare board glints into {', '.join(glinting)} (design warned; outlined in "
+                f"{metrics_file.parent / 'diff'}): no scratch shows the image there and the "
+                "glint outshines the rest, so optimizing longer does not help: move the camera "
+                "or the light as design's warning says"
+            )
+        elif not noise_explains(entry or {}, min_rho):
+            advice.append(
+                "optimize longer or add scratches ("
+                + (
+                    "optimize --iterations, design --count"
+                    if cli
+                    else "[optimize] iterations, [scratch] count"
+                )
+                + ")"
+            )
         super().__init__(
             f"{where}view {view} looks like its target only to rho {rho_text(rho, min_rho)}, below "
-            f"{setting} {min_rho:g} ({failing} of {views} views fail; see {metrics_file}){glint}"
+            f"{setting} {min_rho:g} ({failing} of {views} views fail; see {metrics_file})"
+            + "".join(f"; {a}" for a in advice)
         )
 
     def named(self, setting: str, source: str) -> VerifyGateError:
@@ -105,6 +122,7 @@ class VerifyGateError(ScratchfabError):
             setting,
             source,
             self.glinting,
+            self.entry,
         )
 
 
@@ -160,12 +178,15 @@ class ViewRender:
             sqrt(sum_i |B_i - mean|^2 / (k (k - 1))) over |mean|.
         spp: Samples per pixel actually taken (all batches).
         seconds: Wall time of all batches.
+        variance: (H, W) the estimated variance of each pixel of ``image`` (the squared
+            standard error that ``noise`` sums).
     """
 
     image: np.ndarray
     noise: float
     spp: int
     seconds: float
+    variance: np.ndarray
 
 
 def half_spp(spp: int) -> int:
@@ -237,7 +258,7 @@ class BoardRenderer:
         """
         start = time.perf_counter()
         means = []
-        variance = 0.0
+        variance: np.ndarray | float = 0.0
         taken = 0
         for p, (bsdf, fraction) in enumerate(self.parts):
             part_spp = max(MIN_PART_SPP, round(fraction * spp))
@@ -252,14 +273,15 @@ class BoardRenderer:
         else:
             image = means[0]
         norm = float(np.linalg.norm(image))
-        noise = math.sqrt(variance) / norm if norm > 0 else 0.0
+        noise = math.sqrt(float(np.sum(variance))) / norm if norm > 0 else 0.0
         seconds = time.perf_counter() - start
-        return ViewRender(image.astype(np.float32), noise, taken, seconds)
+        per_pixel = np.broadcast_to(np.asarray(variance, np.float64), image.shape).copy()
+        return ViewRender(image.astype(np.float32), noise, taken, seconds, per_pixel)
 
     def _batches(
         self, view: View, bsdf: Any, spp: int, seed: int, max_noise: float | None
-    ) -> tuple[np.ndarray, float, int]:
-        """Mean of independent batches, its summed squared standard error, and spp taken."""
+    ) -> tuple[np.ndarray, np.ndarray, int]:
+        """Mean of independent batches, its squared standard error per pixel, and spp taken."""
         mi = self.mi
         half = half_spp(spp)
         scene = mi.load_dict(
@@ -273,17 +295,17 @@ class BoardRenderer:
                 continue
             mean, var = _batch_stats(batches)
             norm = float(np.linalg.norm(mean))
-            noise = math.sqrt(var) / norm if norm > 0 else 0.0
+            noise = math.sqrt(float(np.sum(var))) / norm if norm > 0 else 0.0
             if max_noise is None or noise <= max_noise or len(batches) >= limit:
                 return mean, var, half * len(batches)
 
 
-def _batch_stats(batches: list[np.ndarray]) -> tuple[np.ndarray, float]:
-    """Mean image and its squared standard error sum_i |B_i - mean|^2 / (k (k - 1))."""
+def _batch_stats(batches: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Mean image and its squared standard error per pixel, sum_i (B_i - mean)^2 / (k (k - 1))."""
     k = len(batches)
     mean = sum(batches[1:], batches[0]) / k
-    spread = sum(float(np.sum((b - mean) ** 2)) for b in batches)
-    return mean, spread / (k * (k - 1))
+    spread = sum((np.asarray(b, np.float64) - mean) ** 2 for b in batches)
+    return mean, np.asarray(spread) / (k * (k - 1))
 
 
 def relative_l2(image: np.ndarray, reference: np.ndarray) -> float:
@@ -327,15 +349,18 @@ def _write_diff_maps(
     images: Mapping[str, np.ndarray],
     targets: Mapping[str, np.ndarray],
     glints: Mapping[str, ViewGlint],
+    views: Mapping[str, Mapping[str, Any]],
 ) -> None:
     """Write ``diff/<view>.png`` for each view with a target, its glint outlined.
 
+    A map that is mostly sampling noise says so (``views``: the metrics' view entries).
     An earlier run's map of a view without a target now is removed: it showed another board.
     """
     for name, image in images.items():
         path = diff_map_png(out_dir, name)
         if name in targets:
-            write_diff_map(path, image, targets[name], name, glint=glints.get(name))
+            note = diff_noise_advice(views.get(name, {}), "spp")
+            write_diff_map(path, image, targets[name], name, glint=glints.get(name), note=note)
         else:
             path.unlink(missing_ok=True)
 
@@ -441,12 +466,16 @@ def run_verify(
             entry["psnr_vs_render"] = _psnr_vs(r.image, reference)
         q = quality["views"].get(view.name)
         if q is not None:
+            effect = noise_effect(r.image, targets[view.name], r.variance)
             entry.update(
                 exposure=q["exposure"],
                 psnr=q["psnr"],
                 rho=q["rho"],
                 rho_to=q["rho_to"],
                 crosstalk=q["crosstalk"],
+                rho_noise_free=effect.rho_free,
+                noise_to_signal=effect.noise / effect.signal if effect.signal > 0 else None,
+                diff_noise_share=noise_share(r.image, targets[view.name], r.variance),
             )
         views[view.name] = entry
         rel = entry["rel_l2"]
@@ -461,6 +490,8 @@ def run_verify(
             )
             + (f", the bare board glints on {100 * share:.1f} % of the board" if share else "")
         )
+        if (noisy := noise_advice(entry, settings.min_rho, "spp")) and progress is not None:
+            say(f"verify {view.name}: {noisy}")
 
     names = [v.name for v in design.views]
     metrics: dict[str, Any] = {
@@ -500,7 +531,7 @@ def run_verify(
         }
 
     _write_layout(out, images)
-    _write_diff_maps(out, images, targets, glints)
+    _write_diff_maps(out, images, targets, glints, views)
     if sweep_gif is not None:
         write_bytes(out / "sweep.gif", sweep_gif)
     write_json(out / "metrics.json", metrics)
@@ -514,6 +545,7 @@ def run_verify(
             len(names),
             out / "metrics.json",
             glinting=tuple(n for n in failing if views[n]["glint_share"] > 0),
+            entry=views[worst],
         )
     return metrics
 

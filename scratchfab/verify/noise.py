@@ -1,0 +1,113 @@
+"""What a verify render's Monte Carlo noise does to its rho, in words a maker acts on.
+
+:func:`scratchfab.metrics.noise_effect` estimates, from the renders' own batch spread,
+the rho a noise-free render would reach; this module turns the figures ``metrics.json``
+records for a view (``rho``, ``rho_noise_free``, ``noise_to_signal``, ``noise``, ``spp``,
+``seconds``, ``diff_noise_share``) into advice: whether the noise explains a failed gate,
+and the sample count that would end it. It imports no renderer, so the report uses it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from scratchfab.console import duration_text
+from scratchfab.metrics import NOISE_RHO_LOSS, NoiseEffect
+
+#: Without a noise-free estimate (the render is mostly noise), the named sample count is
+#: this many times the one taken.
+NOISY_SPP_FACTOR = 16
+#: A difference map at least this much noise (a share of its squared size) says so ...
+NOISY_MAP_SHARE = 0.25
+#: ... and names the sample count that brings the share under this.
+QUIET_MAP_SHARE = 0.2
+
+
+def more_spp(spp: int, factor: float) -> int:
+    """The power of two at or above ``factor`` times ``spp`` (counts a maker types)."""
+    return 1 << max(0, math.ceil(math.log2(max(1.0, spp * factor)) - 1e-9))
+
+
+def _effect(entry: Mapping[str, Any]) -> NoiseEffect | None:
+    """The :class:`NoiseEffect` a metrics.json view entry records (None: not measured)."""
+    rho, ratio = entry.get("rho"), entry.get("noise_to_signal")
+    if rho is None or "rho_noise_free" not in entry:
+        return None
+    free = entry["rho_noise_free"]
+    if free is None or ratio is None:
+        return NoiseEffect(rho, None, 0.0, 0.0)
+    return NoiseEffect(rho, free, 1.0, ratio)
+
+
+def noise_explains(entry: Mapping[str, Any], min_rho: float | None) -> bool:
+    """Whether a view's rho falls short of ``min_rho`` only for the render's noise."""
+    effect = _effect(entry)
+    if effect is None or min_rho is None or not effect.rho < min_rho:
+        return False
+    return effect.rho_free is None or effect.rho_free > min_rho
+
+
+def noise_advice(entry: Mapping[str, Any], min_rho: float | None, spp_setting: str) -> str:
+    """What the render's sampling noise does to a view's rho, and the spp that ends it.
+
+    Args:
+        entry: The view's entry in ``metrics.json``.
+        min_rho: The gate, or None.
+        spp_setting: How the user sets the sample count (``--spp``, ``[verify] spp =``).
+
+    Returns:
+        One clause (no leading capital, no full stop), or "" where the noise costs rho
+        less than :data:`~scratchfab.metrics.NOISE_RHO_LOSS` (or was not measured).
+    """
+    effect = _effect(entry)
+    spp, noise, seconds = entry.get("spp"), entry.get("noise"), entry.get("seconds")
+    if effect is None or not spp or noise is None:
+        return ""
+    free = effect.rho_free
+    if free is None:
+        factor = float(NOISY_SPP_FACTOR)
+    else:
+        # Where the gate fails for noise alone, half the way from the gate to the
+        # noise-free rho is left to the noise, so the named count passes it.
+        loss = NOISE_RHO_LOSS
+        if min_rho is not None and effect.rho < min_rho < free:
+            loss = min(loss, (free - min_rho) / 2)
+        factor = effect.samples_factor(loss) or 1.0
+        if factor <= 1.0:
+            return ""
+    more = more_spp(spp, factor)
+    ratio = more / spp
+    later = f", about {duration_text(seconds * ratio)} a view" if isinstance(seconds, float) else ""
+    then = f"{spp_setting} {more} brings the noise to about {100 * noise / math.sqrt(ratio):.1f} %"
+    noisy = f"the render's sampling noise ({100 * noise:.1f} %)"
+    if free is None:
+        return (
+            f"{noisy} outweighs the picture, so rho says little; {then}{later} (at least: "
+            "the noise hides how far)"
+        )
+    expect = effect.rho_at(ratio)
+    at = f"{then} and rho to about {expect:.3f}{later}" if expect is not None else then
+    if noise_explains(entry, min_rho):
+        return f"{noisy} explains it: a noise-free render would reach rho about {free:.3f}; {at}"
+    return f"{noisy} costs rho about {free - effect.rho:.3f} (noise-free about {free:.3f}); {at}"
+
+
+def diff_noise_advice(entry: Mapping[str, Any], spp_setting: str) -> str:
+    """A line for a difference map that is in good part sampling noise ("" otherwise).
+
+    The noise's part of the map's squared size falls as 1 / spp while the board's stays:
+    at k times the samples a share p becomes (p / k) / (p / k + 1 - p).
+    """
+    share, spp = entry.get("diff_noise_share"), entry.get("spp")
+    if not isinstance(share, int | float) or not share >= NOISY_MAP_SHARE or not spp:
+        return ""
+    quiet = QUIET_MAP_SHARE
+    factor = share * (1 - quiet) / (quiet * (1 - share)) if share < 1 else float(NOISY_SPP_FACTOR)
+    more = more_spp(spp, factor)
+    then = f"brings it under {100 * quiet:.0f} %" if share < 1 else "at least"
+    return (
+        f"{'mostly ' if share >= 0.5 else ''}sampling noise: about {100 * share:.0f} % of "
+        f"these differences is the render's noise, not the board; {spp_setting} {more} {then}"
+    )
