@@ -25,6 +25,7 @@ from scratchfab.fileio import decode_json, write_text
 from scratchfab.metrics import rho_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
 from scratchfab.model.job import JobLayout
+from scratchfab.verify.noise import diff_noise_advice, noise_advice, noise_explains
 
 _MIME = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
 
@@ -80,12 +81,18 @@ Status = Literal["ok", "fail", "warn", "info"]
 
 @dataclass(frozen=True)
 class _Check:
-    """One line of the verdict box: ``html`` is the line, ``reason`` its short form."""
+    """One line of the verdict box: ``html`` is the line, ``reason`` its short form.
+
+    ``not_run``: the stage whose output is missing (the line says it has not run), left
+    out where the manifest says that stage failed or stopped (its own line says so).
+    """
 
     status: Status
     html: str
     reason: str = ""
     fix: str = ""
+    not_run: str = ""
+    stage: str = ""
 
 
 @dataclass(frozen=True)
@@ -258,7 +265,8 @@ def _stage_checks(job: Path) -> list[_Check]:
                 + (f": {html.escape(why)}" if why else "")
                 + " (files after it may be from an earlier run)",
                 f"stage {stage} {said}",
-                f"Fix what stage {html.escape(stage)} reports above, then run again.",
+                f"Fix what stage {html.escape(stage)} reports above.",
+                stage=stage,
             )
         )
     return checks
@@ -267,7 +275,11 @@ def _stage_checks(job: Path) -> list[_Check]:
 def _feasibility_checks(data: Any) -> list[_Check]:
     """The verdict's lines from ``design/feasibility.json`` (``data``, None if unreadable)."""
     if not isinstance(data, dict):
-        return [_Check("fail", "feasibility: design has not run", "design has not run")]
+        return [
+            _Check(
+                "fail", "feasibility: design has not run", "design has not run", not_run="design"
+            )
+        ]
     errors = [str(e) for e in data.get("errors", [])]
     warnings = [str(w) for w in data.get("warnings", [])]
     checks = [
@@ -276,7 +288,7 @@ def _feasibility_checks(data: Any) -> list[_Check]:
             f"feasibility: {html.escape(e)}",
             "feasibility error",
             "Change the design as the feasibility error above advises (where the views or "
-            "the light stand, or the tool), then run again.",
+            "the light stand, or the tool).",
         )
         for e in errors
     ]
@@ -311,7 +323,7 @@ _GLINT_FIX = (
     "feasibility warning above says where): no scratch shows the image there and the glint "
     "outshines the rest, so optimizing longer or adding scratches does not help. Move the "
     "camera or the light as that warning says (or stand both farther away in proportion to "
-    "the board), then run again."
+    "the board)."
 )
 
 
@@ -330,23 +342,42 @@ def _rho_checks(
                 "fail",
                 "the views look like their targets: verify has not run",
                 "verify has not run",
+                not_run="verify",
             )
         ]
     checks = []
     for name in names:
-        rho = views.get(name, {}).get("rho")
+        entry = views.get(name)
+        entry = entry if isinstance(entry, dict) else {}
+        rho = entry.get("rho")
         label = f"{html.escape(name)} looks like its target: rho_kk"
+        noisy = noise_advice(entry, min_rho, "[verify] spp =")
+        noisy_html = f"; {html.escape(noisy)}" if noisy else ""
         if rho is None:
             checks.append(_Check("fail", f"{label} missing", f"{name}: no rho"))
         elif min_rho is None or min_rho <= -1.0:  # -1: the gate is off, nothing passes it
             why = "no min_rho set" if min_rho is None else "min_rho -1: no gate"
-            checks.append(_Check("info", f"{label} {rho_text(rho)} (1 = perfect; {why})"))
+            checks.append(
+                _Check("info", f"{label} {rho_text(rho)} (1 = perfect; {why}){noisy_html}")
+            )
         elif rho >= min_rho:
             checks.append(
                 _Check(
                     "ok",
                     f"{label} {rho_text(rho, min_rho)} ≥ {min_rho:g} ([verify] min_rho; "
-                    "1 = perfect)",
+                    f"1 = perfect){noisy_html}",
+                )
+            )
+        elif noise_explains(entry, min_rho):
+            checks.append(
+                _Check(
+                    "fail",
+                    f"{label} {rho_text(rho, min_rho)} &lt; {min_rho:g} ([verify] min_rho; "
+                    f"1 = perfect){noisy_html}",
+                    f"{name} rho {rho_text(rho, min_rho)} below {min_rho:g} in a noisy render",
+                    "The verify render is too noisy to judge a view: raise [verify] "
+                    "<code>spp</code> as the line above says (the board itself may be good "
+                    "enough).",
                 )
             )
         else:
@@ -360,7 +391,7 @@ def _rho_checks(
                 _Check(
                     "fail",
                     f"{label} {rho_text(rho, min_rho)} &lt; {min_rho:g} ([verify] min_rho; "
-                    f"1 = perfect){glints}",
+                    f"1 = perfect){glints}{noisy_html}",
                     f"{name} rho {rho_text(rho, min_rho)} below {min_rho:g}{glints}",
                     _GLINT_FIX
                     if share
@@ -399,7 +430,14 @@ def _toolpath_checks(data: Any) -> list[_Check]:
     """The verdict's lines from ``toolpath/toolpath.json`` (``data``, None if unreadable)."""
     stats = data.get("statistics") if isinstance(data, dict) else None
     if not isinstance(stats, dict):
-        return [_Check("fail", "machine travel: toolpath has not run", "toolpath has not run")]
+        return [
+            _Check(
+                "fail",
+                "machine travel: toolpath has not run",
+                "toolpath has not run",
+                not_run="toolpath",
+            )
+        ]
     outside = int(stats.get("outside_count", 0))
     clipped = int(stats.get("clipped_count", 0))
     total = int(stats.get("input_count", 0))
@@ -434,7 +472,7 @@ def _gcode_check(job: Path) -> list[_Check]:
     gcode = JobLayout(job).export_file("gcode")
     if gcode.is_file():
         return [_Check("ok", f"G-code written: {_link(job, gcode)}")]
-    return [_Check("fail", "G-code: export has not run", "no G-code yet")]
+    return [_Check("fail", "G-code: export has not run", "no G-code yet", not_run="export")]
 
 
 def _stream_check(state: _Stream) -> list[_Check]:
@@ -497,6 +535,8 @@ def _views_section(
         n = html.escape(name)
         entry = verified.get(name) if isinstance(verified, dict) else None
         share = entry.get("glint_share") if isinstance(entry, dict) else None
+        noisy = diff_noise_advice(entry, "[verify] spp =") if isinstance(entry, dict) else ""
+        noise_line = f"<br><span class='warn' data-noise='{n}'>{html.escape(noisy)}</span>"
         glint = (
             "; a purple outline marks where the bare board glints: no scratch shows the "
             "image there, and its light sets the exposure, so the rest reads darker"
@@ -521,7 +561,8 @@ def _views_section(
                 "difference map",
                 "difference map: where the verified board is brighter (orange) or darker "
                 "(blue) than the target, measured as the PSNR below measures it; the "
-                f"colour scale is the same for every view and run{glint}",
+                f"colour scale is the same for every view and run{glint}"
+                + (noise_line if noisy else ""),
             ),
             (
                 layout.design.feasibility_png(name),
@@ -577,6 +618,11 @@ def _metrics_table(names: list[str], metrics: dict[str, Any] | None, min_rho: fl
                 cells.append("<td>–</td>")
                 continue
             mark = ""
+            noise = v.get("noise")
+            if key == "rel_l2" and isinstance(noise, int | float) and noise >= value / 2:
+                mark = (  # most of the difference is the Mitsuba render's own noise
+                    f"<span class='muted'> (its sampling noise alone: {100 * noise:.2f} %)</span>"
+                )
             if key == "rho" and min_rho is not None:
                 good = value >= min_rho
                 mark = (
@@ -963,6 +1009,31 @@ def _is_bundled(pipeline_file: Path) -> bool:
         return False
 
 
+def _copied_title(title: str, pipeline_file: Path | None) -> str:
+    """A muted line where the title is a bundled pipeline's name, kept in a copy of it.
+
+    "" otherwise. The copy's board is likely another than the one its name describes.
+    """
+    import tomllib
+
+    from scratchfab.bundled import bundled_dir
+
+    if pipeline_file is None or _is_bundled(pipeline_file):
+        return ""
+    for bundled in sorted(bundled_dir("pipelines").glob("*.toml")):
+        try:
+            name = tomllib.loads(bundled.read_text(encoding="utf-8")).get("pipeline", {})
+        except (OSError, tomllib.TOMLDecodeError):
+            continue
+        if isinstance(name, dict) and name.get("name") == title:
+            return (
+                "<p class='muted' data-title-note>This title is <code>[pipeline] name</code> "
+                f"in {_code(pipeline_file.name)}, as the bundled {html.escape(bundled.stem)} "
+                "pipeline names its board: give yours its own name there.</p>"
+            )
+    return ""
+
+
 def _setup_step(job: Path) -> str:
     """How to set the machine up: the profile's placement, and README step 5."""
     text = (
@@ -1005,10 +1076,6 @@ def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: 
     run = ["scratchfab", "run", pipe, "--out", "."]
     rerun = _code(command_line(run))
     again = _code(command_line([*run, "--from", "stream"]))
-    where = (
-        " (commands from the job folder; PORT is your machine's serial port, e.g. /dev/ttyUSB0"
-        " on Linux, /dev/cu.usbserial-1410 on macOS, COM3 on Windows)"
-    )
     steps: list[str] = []
     state_kind = "not-streamed"
     if state.kind == "real" and not state.finished:
@@ -1064,6 +1131,13 @@ def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: 
             "(<code>scratchfab stream</code> needs <code>--resume</code>).",
         ]
     items = "".join(f"<li>{s}</li>" for s in steps)
+    port = (  # only where a command names PORT
+        "; PORT is your machine's serial port, e.g. /dev/ttyUSB0 on Linux, "
+        "/dev/cu.usbserial-1410 on macOS, COM3 on Windows"
+        if any("PORT" in s for s in steps)
+        else ""
+    )
+    where = f"(commands from the job folder{port})"
     return f"<ol data-next='{state_kind}'>{items}</ol><p class='muted'>{html.escape(where)}</p>"
 
 
@@ -1096,18 +1170,22 @@ def write_report(
     design = _read_design(job)
     names = _view_order(design, metrics, job)
     state, stream_text = _stream_state(job, port)
-    checks = (
-        _stage_checks(job)
-        + _feasibility_checks(feasibility)
+    stages = _stage_checks(job)
+    stopped = {c.stage for c in stages}
+    checks = stages + [
+        c
+        for c in _feasibility_checks(feasibility)
         + _rho_checks(names, metrics, min_rho, _glint_shares(feasibility))
         + _crosstalk_check(names, metrics)
         + _toolpath_checks(toolpath)
         + _gcode_check(job)
         + _stream_check(state)
-    )
+        if c.not_run not in stopped
+    ]
     body = [
         f"<h1>{html.escape(title)}</h1><p class='muted'>job folder "
-        f"{_code(job.resolve().name)}; every path below is relative to it.</p>",
+        f"{_code(job.resolve().name)}; every path below is relative to it.</p>"
+        + _copied_title(title, pipeline_file),
         "<span id='image-check' hidden></span>",
         _verdict(checks),
         "<h2>What to do next</h2>",
