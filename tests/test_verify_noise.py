@@ -203,3 +203,23 @@ def test_a_map_mostly_noise_names_the_spp_that_quiets_it():
     assert diff_noise_advice({"diff_noise_share": 0.3, "spp": 1}, "spp").startswith("sampling")
     assert "spp 16384 at least" in diff_noise_advice({"diff_noise_share": 1.0, "spp": 1024}, "spp")
     assert more_spp(70, 1.0) == 128 and more_spp(64, 1.0) == 64
+
+
+def test_the_maps_noise_note_adds_a_title_line_per_clause(monkeypatch):
+    from scratchfab.verify import diffmap
+
+    said: list[list[str]] = []
+    add_title = diffmap.figures.add_title
+
+    def record(canvas, lines, *args, **kwargs):
+        said.append(list(lines))
+        return add_title(canvas, lines, *args, **kwargs)
+
+    monkeypatch.setattr(diffmap.figures, "add_title", record)
+    diff = np.random.default_rng(2).uniform(-0.3, 0.3, (8, 8))
+    note = diff_noise_advice({"diff_noise_share": 0.6, "spp": 512}, "spp")
+    diffmap.diff_figure(diff, "v")
+    diffmap.diff_figure(diff, "v", note=note)
+    plain, noted = said
+    assert noted == [*plain, *note.split("; ")] and len(noted) == len(plain) + 2
+    assert not any("exposure" in line for line in noted)  # a maker's words
