@@ -60,6 +60,7 @@ def export(
     from scratchfab.export import export as export_toolpath
     from scratchfab.machine.profile import load_profile
     from scratchfab.toolpath import Toolpath
+    from scratchfab.toolpath.plan import partial_text
 
     if toolpath_file is None:
         if job is None:
@@ -85,11 +86,9 @@ def export(
     else:
         detail = f"{len(tp)} scratches, {stats['bytes']} bytes"
     click.echo(f"wrote {output}: {detail}")
-    lost = tp.stats.get("outside_count", 0), tp.stats.get("clipped_count", 0)
-    if any(lost):
+    lost = partial_text(tp.stats)
+    if lost is not None:
         click.echo(
-            f"warning: the board does not fit the machine's envelope: {lost[0]} scratches "
-            f"were left out and {lost[1]} clipped when {toolpath_file} was planned "
-            "(see its preview.png)",
+            f"warning: {toolpath_file} holds a partial board: {lost} (see its preview.png)",
             err=True,
         )

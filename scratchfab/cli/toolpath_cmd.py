@@ -20,12 +20,13 @@ def run_toolpath(
     machine: str,
     options: OrderOptions,
     say: Callable[[str], None],
+    refuse_partial: str | None = None,
 ) -> None:
     """:func:`scratchfab.toolpath.stage.run_toolpath`, the stage imported when it runs."""
     # Not imported for --help: the stage plans with shapely and draws with Pillow.
     from scratchfab.toolpath.stage import run_toolpath as run
 
-    run(scratch_file, design_file, out_dir, machine, options, say)
+    run(scratch_file, design_file, out_dir, machine, options, say, refuse_partial)
 
 
 def _inputs(
@@ -92,6 +93,11 @@ def _inputs(
     show_default=f"{OrderOptions.kicks_per_stroke:g} per stroke, at most {OrderOptions.max_kicks}",
     help="Perturbation trials in all. More trials: shorter travel, longer run.",
 )
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Plan the part the machine reaches of a board its envelope cuts short (warned).",
+)
 def toolpath(
     job: Path | None,
     machine: str,
@@ -101,17 +107,21 @@ def toolpath(
     passes: int,
     seed: int,
     kicks: int | None,
+    force: bool,
 ) -> None:
     """Order the strokes for a machine: JOB/toolpath/toolpath.json and preview.png.
 
     Either JOB (reads JOB/optimize/scratches.csv, else JOB/design/scratches.csv with a
     note, and JOB/design/design.toml) or all of --scratches, --design and --out.
 
-    Clips the scratches to the board and the machine's envelope, drops those shorter
-    than the tool's minimum, merges collinear duplicates, orders them to minimise pen-up
-    travel from the start position and estimates the machining time.
+    Clips the scratches to the board, drops those shorter than the tool's minimum,
+    merges collinear duplicates, orders them to minimise pen-up travel from the start
+    position and estimates the machining time. A board that the machine's envelope cuts
+    short is refused, with the offset_mm that fits it or the largest board that fits;
+    --force plans the part within reach, and export repeats the warning.
     """
     csv_path, design_path, out_dir = _inputs(job, scratches, design, out)
     options = OrderOptions(passes=passes, seed=seed, kicks=kicks)
-    run_toolpath(csv_path, design_path, out_dir, machine, options, say=click.echo)
+    refuse = None if force else "--force"
+    run_toolpath(csv_path, design_path, out_dir, machine, options, click.echo, refuse)
     click.echo(f"wrote {out_dir / 'toolpath.json'} and {out_dir / 'preview.png'}")

@@ -25,7 +25,7 @@ import numpy as np
 from scratchfab.errors import ScratchfabError
 from scratchfab.fileio import write_bytes
 from scratchfab.machine.profile import MachineProfile, gcode_number
-from scratchfab.toolpath.plan import Toolpath, estimate_time
+from scratchfab.toolpath.plan import Toolpath, estimate_time, partial_text
 
 _COMMENT_SAFE = re.compile(r"[^A-Za-z0-9 .,:_+=/-]")
 
@@ -132,6 +132,11 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
         f"about {estimate_time(toolpath.strokes, prof) / 60:.1f} min",
         f"board top edge, design +y, faces machine {prof.board_top()}",
     ]
+    if partial_text(stats) is not None:  # short: a comment is cut at max_line_length
+        notes.append(
+            f"PARTIAL BOARD: {stats.get('outside_count', 0)} of {stats.get('input_count', '?')} "
+            f"scratches outside the envelope, {stats.get('clipped_count', 0)} clipped"
+        )
     lines = ["G21 G90 G17 G94", *(comment(text, limit) for text in notes)]
     modal_feed: list[float | None] = [None]
 

@@ -438,6 +438,60 @@ class MachineProfile:
         )
         return rotated + shift
 
+    @property
+    def envelope_slack_mm(self) -> float:
+        """Half a unit of the last written digit: how far inside the envelope strokes are kept.
+
+        Rounding a coordinate kept this far inside for the G-code cannot push it outside.
+        """
+        return 0.5 * 10.0 ** (-self.gcode.decimals)
+
+    def offset_range(self, points: np.ndarray, slack: float = 0.0) -> tuple[Range, Range]:
+        """The ``[board] offset_mm`` values that keep ``points`` inside the envelope.
+
+        Args:
+            points: (N, 2) machine XY as this profile places them (its own offset_mm).
+            slack: Keep them this far inside the envelope's edges.
+
+        Returns:
+            Per axis, the [low, high] of offset_mm values; low > high on an axis where
+            the points span more than the envelope (less twice ``slack``).
+        """
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        spans = (self.envelope.x_mm, self.envelope.y_mm)
+        x, y = (
+            (
+                self.board.offset_mm[k] + spans[k][0] + slack - float(lo[k]),
+                self.board.offset_mm[k] + spans[k][1] - slack - float(hi[k]),
+            )
+            for k in range(2)
+        )
+        return x, y
+
+    def fitting_offset(self, board_size: tuple[float, float]) -> tuple[float, float] | None:
+        """The ``[board] offset_mm`` nearest the profile's own that puts the whole board inside.
+
+        The board is kept :attr:`envelope_slack_mm` inside the envelope where it is that
+        much smaller than the travel. Each coordinate is a whole millimetre where one
+        fits, else a tenth, and so on down to the G-code's decimals. The profile's
+        ``origin`` and ``rotation_deg`` stay as they are.
+
+        Returns:
+            (x, y), or None when the board (so turned) is larger than the travel.
+        """
+        outline = self.board_outline(board_size)
+        ranges = self.offset_range(outline, self.envelope_slack_mm)
+        if any(lo > hi for lo, hi in ranges):
+            ranges = self.offset_range(outline)
+        if any(lo > hi for lo, hi in ranges):
+            return None
+        x, y = (
+            _nearest_round(c, r, self.gcode.decimals)
+            for c, r in zip(self.board.offset_mm, ranges, strict=True)
+        )
+        return x, y
+
     def board_top(self) -> str:
         """The machine direction the board's top edge (the design's +y) faces: ``"+Y"``, ``"-X"``..."""
         return ("+Y", "-X", "-Y", "+X")[self.board.rotation_deg // 90]
@@ -447,6 +501,20 @@ class MachineProfile:
         hw, hh = board_size[0] / 2, board_size[1] / 2
         corners = np.array([[-hw, -hh], [hw, -hh], [hw, hh], [-hw, hh]])
         return self.board_to_machine(corners, board_size)
+
+
+def _nearest_round(value: float, span: Range, decimals: int) -> float:
+    """``value`` moved into ``span``, onto the coarsest grid (1 mm, 0.1 mm, ...) with a point in it."""
+    lo, hi = span
+    if lo <= value <= hi:
+        return value
+    for digits in range(decimals + 1):
+        unit = 10.0**-digits
+        first = math.ceil(round(lo / unit, 6)) * unit
+        last = math.floor(round(hi / unit, 6)) * unit
+        if first <= last:
+            return round(min(max(value, first), last), digits)
+    return min(max(value, lo), hi)
 
 
 def profile_from_mapping(data: Any, source: str) -> MachineProfile:

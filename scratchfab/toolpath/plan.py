@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +25,12 @@ from scratchfab import figures
 from scratchfab.console import duration_text
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import decode_json, read_input, save_png, write_text
-from scratchfab.machine.profile import MachineProfile, profile_from_mapping
+from scratchfab.machine.profile import (
+    Envelope,
+    MachineProfile,
+    gcode_number,
+    profile_from_mapping,
+)
 from scratchfab.model.design import Board, ScratchTool
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.toolpath.geometry import clip_strokes, merge_collinear
@@ -53,12 +58,18 @@ def envelope_text(profile: MachineProfile) -> str:
     return f"the envelope of machine '{profile.name}' ({profile.envelope.xy_text()})"
 
 
+def _offset_text(offset: tuple[float, float]) -> str:
+    """An offset_mm as the profile writes it: ``[-220, -161]``."""
+    return f"[{gcode_number(offset[0], 6)}, {gcode_number(offset[1], 6)}]"
+
+
 def oversize_text(profile: MachineProfile, board_size: tuple[float, float]) -> str | None:
     """Why no ``[board] offset_mm`` can put the whole board in the envelope, or None.
 
     The board is larger than the machine's travel on an axis (after the profile's quarter
-    turns); the text names the spans, the design key to shrink and, when the board would
-    fit turned a quarter, the profile's ``rotation_deg`` that does it.
+    turns); the text names the spans, the design keys and the largest board that fits
+    and, when the board would fit turned a quarter, the ``rotation_deg`` and the
+    ``offset_mm`` that do it.
     """
     turned = profile.board.rotation_deg % 180 == 90
     spans = (board_size[1], board_size[0]) if turned else board_size
@@ -72,17 +83,57 @@ def oversize_text(profile: MachineProfile, board_size: tuple[float, float]) -> s
     ]
     if not over:
         return None
+    most = (travel[1], travel[0]) if turned else travel
     text = (
         f"{' and '.join(over)}: no offset_mm in the profile's [board] can fit it; make the "
-        "board smaller"
+        f"board at most {most[0]:g} x {most[1]:g} mm (width_mm x height_mm)"
     )
-    if spans[1] <= travel[0] and spans[0] <= travel[1]:
-        other = (profile.board.rotation_deg + 90) % 360
+    other = (profile.board.rotation_deg + 90) % 360
+    quarter = replace(profile, board=replace(profile.board, rotation_deg=other))
+    offset = quarter.fitting_offset(board_size)
+    if offset is not None:
         text += (
-            f" or turn it a quarter (the profile's [board] rotation_deg = {other}, and "
-            "offset_mm to match)"
+            f" or turn it a quarter (the profile's [board] rotation_deg = {other} with "
+            f"offset_mm = {_offset_text(offset)})"
         )
     return text
+
+
+def fit_advice(profile: MachineProfile, board_size: tuple[float, float]) -> str:
+    """What to change so that the machine reaches the whole board.
+
+    :func:`oversize_text` for a board larger than the travel, else the ``[board]
+    offset_mm`` nearest the profile's that fits
+    (:meth:`~scratchfab.machine.profile.MachineProfile.fitting_offset`) and the range
+    of those that do, in the profile's convention (its origin corner, its rotation).
+    """
+    too_big = oversize_text(profile, board_size)
+    offset = profile.fitting_offset(board_size)
+    if too_big is not None or offset is None:
+        return too_big or OUTSIDE_ADVICE
+    (x0, x1), (y0, y1) = profile.offset_range(profile.board_outline(board_size))
+    place = profile.board
+    corner = "centre" if place.origin == "center" else f"{place.origin} corner"
+    turned = f" (turned by rotation_deg = {place.rotation_deg})" if place.rotation_deg else ""
+    return (
+        f"set the profile's [board] offset_mm = {_offset_text(offset)}, where the "
+        f"board's {corner}{turned} then lies: the whole board fits with any offset_mm "
+        f"from X {x0:g} to {x1:g} and Y {y0:g} to {y1:g}"
+    )
+
+
+def partial_text(stats: dict[str, Any]) -> str | None:
+    """What the envelope cuts off a planned board (:func:`plan_toolpath`'s stats), or None.
+
+    Said by ``toolpath``, ``export`` and written into the G-code's header.
+    """
+    outside, clipped = int(stats.get("outside_count", 0)), int(stats.get("clipped_count", 0))
+    if not outside and not clipped:
+        return None
+    return (
+        f"{outside} of {stats.get('input_count', '?')} scratches lie outside the machine's "
+        f"envelope (not cut) and {clipped} are clipped to it"
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -309,25 +360,25 @@ def plan_toolpath(
     env = profile.envelope
     # Shrink the envelope by half a unit of the last written digit, so that rounding the
     # coordinates for G-code can never push one outside.
-    slack = 0.5 * 10.0 ** (-profile.gcode.decimals)
+    slack = profile.envelope_slack_mm
+    inner = Envelope(
+        (env.x_mm[0] + slack, env.x_mm[1] - slack), (env.y_mm[0] + slack, env.y_mm[1] - slack)
+    )
     region = shapely.Polygon(outline).intersection(
-        shapely.box(
-            env.x_mm[0] + slack, env.y_mm[0] + slack, env.x_mm[1] - slack, env.y_mm[1] - slack
-        )
+        shapely.box(inner.x_mm[0], inner.y_mm[0], inner.x_mm[1], inner.y_mm[1])
     )
     if region.is_empty or region.area <= 0:
         raise ScratchfabError(
-            f"the board (corners {xy_text(outline)}) lies wholly outside "
-            f"{envelope_text(profile)}, so nothing can be cut; {OUTSIDE_ADVICE}"
+            f"{profile.source}: the {size[0]:g} x {size[1]:g} mm board (corners "
+            f"{xy_text(outline)}) lies wholly outside {envelope_text(profile)}, so nothing "
+            f"can be cut; {fit_advice(profile, size)}"
         )
     m0 = profile.board_to_machine(scratches.p0, size)
     m1 = profile.board_to_machine(scratches.p1, size)
     keep, q0, q1 = clip_strokes(m0, m1, region)
-    clipped = int(
-        np.count_nonzero(
-            np.any(np.abs(np.stack([q0 - m0[keep], q1 - m1[keep]])) > 1e-9, axis=(0, 2))
-        )
-    )
+    # Clipped by the envelope: an end beyond it (the board's own edge clips only rounding).
+    beyond = ~(inner.contains_xy(m0) & inner.contains_xy(m1))
+    clipped = int(np.count_nonzero(beyond[keep]))
     lengths = np.hypot(*(q1 - q0).T)
     # A stroke must also survive rounding to the written decimals with a non-zero length.
     min_length = max(profile.tool.min_length_mm, 2.0 * 10.0 ** (-profile.gcode.decimals))

@@ -5,12 +5,19 @@ from __future__ import annotations
 from pathlib import Path
 
 from scratchfab.console import Say, duration_text
+from scratchfab.errors import ScratchfabError
 from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
 from scratchfab.model.job import JobLayout, job_inputs, stale_layout_warning
 from scratchfab.model.scratches import load_scratches
 from scratchfab.toolpath.order import OrderOptions
-from scratchfab.toolpath.plan import Toolpath, oversize_text, plan_toolpath, write_preview
+from scratchfab.toolpath.plan import (
+    Toolpath,
+    fit_advice,
+    partial_text,
+    plan_toolpath,
+    write_preview,
+)
 
 
 def summary(toolpath: Toolpath) -> str:
@@ -33,32 +40,44 @@ def run_toolpath(
     machine: str | Path | MachineProfile,
     options: OrderOptions | None = None,
     say: Say = lambda _: None,
+    refuse_partial: str | None = None,
 ) -> Toolpath:
     """Plan the strokes of ``scratch_file`` for ``machine``; write toolpath.json and preview.png.
 
-    ``machine`` is a profile name or file, or a profile already loaded.
+    ``machine`` is a profile name or file, or a profile already loaded. A board that the
+    machine's envelope cuts short (scratches left out or clipped) is planned for what
+    fits, with a warning, unless ``refuse_partial`` names the override (``--force``) that
+    would allow it: then it is refused and nothing is written.
 
     Raises:
-        ScratchfabError: Bad inputs, tools that differ, or a board outside the envelope.
+        ScratchfabError: Bad inputs, tools that differ, a board outside the envelope, or
+            (with ``refuse_partial``) one the envelope cuts short.
     """
     profile = load_profile(machine)
     design = load_design(design_file, require_views=False)
     scratches = load_scratches(scratch_file, design.scratch, design.board)
     say(f"ordering {len(scratches)} scratches for {profile.name} ...")
     result = plan_toolpath(scratches, design.board, profile, design.scratch, options)
+    lost = partial_text(result.stats)
+    if lost is not None:
+        board = (design.board.width_mm, design.board.height_mm)
+        travel = profile.envelope.max_travel_mm
+        advice = fit_advice(profile, board)
+        lost = (
+            f"machine '{profile.name}' ({profile.source}) cannot reach the whole "
+            f"{board[0]:g} x {board[1]:g} mm board: {lost}; its travel is {travel[0]:g} x "
+            f"{travel[1]:g} mm ({profile.envelope.xy_text()}). {advice[0].upper()}{advice[1:]}"
+        )
+        if refuse_partial is not None:
+            raise ScratchfabError(
+                f"{lost}; or give {refuse_partial} to plan only the part it reaches; "
+                "nothing written"
+            )
     result.save(out_dir / "toolpath.json")
     write_preview(result, out_dir / "preview.png")
     say(summary(result))
-    s = result.stats
-    if s["outside_count"] or s["clipped_count"]:
-        fix = oversize_text(profile, (design.board.width_mm, design.board.height_mm)) or (
-            "check the profile's [board] offset_mm and [envelope]"
-        )
-        say(
-            f"warning: {s['outside_count']} of {s['input_count']} scratches lie outside the "
-            f"machine's envelope (not cut) and {s['clipped_count']} were clipped to it: "
-            f"{fix} (see preview.png)"
-        )
+    if lost is not None:
+        say(f"warning: {lost} (see preview.png)")
     return result
 
 
@@ -89,11 +108,21 @@ def run_toolpath_job(
     machine: str | Path | MachineProfile,
     options: OrderOptions | None = None,
     say: Say = lambda _: None,
+    refuse_partial: str | None = None,
 ) -> Toolpath:
-    """``toolpath JOB``: the job's optimized layout (else the initial one) into JOB/toolpath."""
+    """``toolpath JOB``: the job's optimized layout (else the initial one) into JOB/toolpath.
+
+    ``refuse_partial`` as :func:`run_toolpath`'s.
+    """
     scratch_file, design_file, note = job_toolpath_inputs(job)
     if note:
         say(note)
     return run_toolpath(
-        scratch_file, design_file, JobLayout(job).toolpath_dir, machine, options, say
+        scratch_file,
+        design_file,
+        JobLayout(job).toolpath_dir,
+        machine,
+        options,
+        say,
+        refuse_partial,
     )
