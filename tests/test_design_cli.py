@@ -239,30 +239,32 @@ def test_user_errors_are_one_line_and_keep_the_old_job(tmp_path, capsys):
     assert not list(job.glob(".design*"))
 
 
-def test_one_pixel_and_black_images_still_make_a_job(tmp_path, capsys):
+def test_one_pixel_and_black_images_make_a_job_when_forced(tmp_path, capsys):
     Image.new("L", (1, 1), 180).save(tmp_path / "dot.png")
     Image.new("RGB", (20, 10), (0, 0, 0)).save(tmp_path / "night.jpg")
     logo = Image.new("RGBA", (20, 20), (0, 0, 0, 0))  # a white logo on a transparent ground:
     logo.paste((255, 255, 255, 255), (5, 5, 15, 15))  # not uniform, no warning
     logo.save(tmp_path / "logo.png")
     job = tmp_path / "job"
-    out = _run(
-        [
-            "design",
-            str(tmp_path / "dot.png"),
-            str(tmp_path / "night.jpg"),
-            str(tmp_path / "logo.png"),
-            "--board",
-            "30x30",
-            "--count",
-            "50",
-            "--resolution",
-            "16",
-            "--out",
-            str(job),
-        ],
-        capsys,
-    )
+    args = [
+        "design",
+        str(tmp_path / "dot.png"),
+        str(tmp_path / "night.jpg"),
+        str(tmp_path / "logo.png"),
+        "--board",
+        "30x30",
+        "--count",
+        "50",
+        "--resolution",
+        "16",
+        "--out",
+        str(job),
+    ]
+    # The black picture shows nothing: refused, naming it as typed, until forced.
+    err = _fail(args, capsys)
+    assert f"error: {tmp_path / 'night.jpg'}: the picture is black on the board" in err
+    assert "use --force" in err and not job.exists()
+    out = _run([*args, "--force"], capsys)
     assert "initial layout: 50 scratches" in out
     # The two even pictures are named, with what they read as, and the logo is not.
     assert "warning: target 'dot' is uniform (brightness 0.4" in out
@@ -283,7 +285,7 @@ def test_one_pixel_and_black_images_still_make_a_job(tmp_path, capsys):
 def test_all_black_targets_spread_the_scratches_evenly(tmp_path):
     Image.new("L", (8, 8), 0).save(tmp_path / "black.png")
     design = quick_design([tmp_path / "black.png"], (30.0, 30.0), count=40, resolution=(16, 16))
-    res = run_design(design, tmp_path / "job", progress=lambda s: None)
+    res = run_design(design, tmp_path / "job", force=True, progress=lambda s: None)
     assert len(res.scratches) == 40
     mid = (res.scratches.p0 + res.scratches.p1) / 2
     assert (mid[:, 0] < 0).sum() > 10 and (mid[:, 0] > 0).sum() > 10

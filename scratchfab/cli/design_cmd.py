@@ -70,7 +70,12 @@ if TYPE_CHECKING:
     show_default="the file's pipeline.seed, else 0",
     help="Seed of the initial layout.",
 )
-@click.option("--force", is_flag=True, default=None, help="Go on despite feasibility errors.")
+@click.option(
+    "--force",
+    is_flag=True,
+    default=None,
+    help="Go on despite feasibility errors or a black target.",
+)
 def design(
     inputs: tuple[str, ...],
     out: str,
@@ -95,6 +100,7 @@ def design(
     # Imported here, not for --help: the design stage loads scipy (~0.2 s).
     from scratchfab.design.quick import count_note, quick_design
     from scratchfab.design.stage import run_design
+    from scratchfab.design.stand import stand_lines
     from scratchfab.model.job import redesigned_note
 
     res = resolution
@@ -131,6 +137,8 @@ def design(
         if isinstance(source, str):
             raise
         raise _as_typed(exc, source, inputs) from None
+    for line in stand_lines(result.design):
+        click.echo(line)
     click.echo(f"design file: {result.design_file}")
     note = redesigned_note(result.folder.parent)
     if note:

@@ -38,8 +38,17 @@ from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.pipeline.config import PipelineOptions, parse_stage_tables
 
-#: A target whose brightness varies less than this (linear, 0..1) is reported as uniform.
+#: A target whose brightness varies less than this (linear, 0..1) is uniform: a warning,
+#: or, when it is black too (nothing brighter than this), refused unless forced.
 UNIFORM_TARGET_SPREAD = 0.01
+#: A target whose mean linear brightness on the board is above this gets a warning:
+#: bright parts are cut, and a picture that is mostly cut shows poorly. Measured (two
+#: quick-form views on 100 x 80 mm, 60 steps, the other view a light star on dark):
+#: bars of bright share 0.1 / 0.3 / 0.5 / 0.7 / 0.9 reached rho 0.84 / 0.92 / 0.92 /
+#: 0.88 / 0.73, the other view's light leaking into them ever more (crosstalk 0.01 to
+#: 0.11); black "HI" on white (mean 0.93) rho 0.65, 11.4 dB, inverted (0.07) 0.995,
+#: 30.1 dB; a dark star on white (0.80) rho 0.81, the light star 0.99.
+BRIGHT_TARGET_MEAN = 0.5
 
 
 @dataclass(frozen=True)
@@ -274,7 +283,7 @@ def run_design(
             checks them; a ``[pipeline]`` table supplies ``fit``, ``seed`` and ``force``
             defaults), or a resolved :class:`Design` (the quick form).
         out_job: The job folder; ``design/`` is (re)written inside it.
-        force: Go on although the feasibility check found errors.
+        force: Go on although the feasibility check found errors or a target is black.
         fit: ``"contain"`` or ``"cover"`` (default ``"contain"``).
         gamma: Exponent on the linear target values.
         contrast: Contrast about the picture's mean (1 = unchanged).
@@ -336,13 +345,7 @@ def run_design(
                     f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
                 )
         boards[view.name] = cache[path]
-        spread = float(np.ptp(boards[view.name]))
-        if spread < UNIFORM_TARGET_SPREAD:
-            progress(
-                f"  warning: target '{view.name}' is uniform (brightness {boards[view.name].mean():.3f}"
-                f" everywhere, spread {spread:.4f}): the view will show an even board; transparent "
-                "pixels read as black (bare board)"
-            )
+        _check_brightness(design.source, i, view.name, path, boards[view.name], force, progress)
     progress(f"  loaded {len(cache)} target image(s)")
 
     report = check_feasibility(design, boards=boards)
@@ -389,6 +392,44 @@ def run_design(
         write_json(staged.feasibility_json, report.to_json())
     progress(f"design: wrote {folder} ({time.perf_counter() - start:.1f} s)")
     return DesignResult(folder, resolved, targets, scratches, report)
+
+
+def _check_brightness(
+    source: str, index: int, name: str, path: Path, board: np.ndarray, force: bool, say: Say
+) -> None:
+    """Refuse a black target unless forced; warn of a uniform or a mostly bright one.
+
+    Bright parts of a target are cut and dark parts stay bare board. A black target
+    shows nothing and asks nothing of the layout (its best exposure is 0, so its error
+    is 0 whatever the render); a uniform one asks for an even glow; a mostly bright
+    one (text dark on white) shows poorly.
+
+    Raises:
+        ConfigError: A black target without ``force``, naming the view's key and file.
+    """
+    spread = float(np.ptp(board))
+    mean = float(board.mean())
+    if float(board.max()) < UNIFORM_TARGET_SPREAD and not force:
+        raise ConfigError(
+            f"{source}: views[{index}].target ('{name}'): {path}: the picture is black on "
+            f"the board (brightest {float(board.max()):.3f}), so the view would show nothing: "
+            "bright parts are cut, dark ones stay bare board, and transparent pixels read "
+            "as black; give a picture with light shapes on a dark ground (a dark logo on a "
+            "transparent ground: make the logo white) (use --force to design anyway)"
+        )
+    if spread < UNIFORM_TARGET_SPREAD:
+        say(
+            f"  warning: target '{name}' is uniform (brightness {mean:.3f} everywhere, spread "
+            f"{spread:.4f}): the view will show an even board; transparent pixels read as "
+            "black (bare board)"
+        )
+    elif mean > BRIGHT_TARGET_MEAN:
+        say(
+            f"  warning: target '{name}' is mostly bright (mean linear brightness {mean:.2f} "
+            f"on the board, above {BRIGHT_TARGET_MEAN:g}) and will show poorly: bright = cut, "
+            "dark = bare board, so light shapes on a dark ground show best; invert a "
+            "dark-on-white image (in an image editor) and design again"
+        )
 
 
 def _check_job_folder(job: Path) -> None:
