@@ -777,8 +777,9 @@ def test_a_move_that_comes_while_the_last_one_runs_joins_it():
 
 
 def test_position_and_rate_in_a_status_follow_the_acceleration():
-    """Half a second into ``G1X10F600`` from rest at 10 mm/s^2: x = a t^2 / 2 = 1.25 mm,
-    at 5 mm/s (FS:300, the realtime rate Grbl 1.1 reports); Grbl reports the steps its
+    """Half a second into ``G1X10F600`` from rest at 10 mm/s^2: x = a t^2 / 2 = 1.25 mm, at
+    5 mm/s; ``FS:`` is the speed where the segments prepared end (``st_get_realtime_rate``:
+    the one from 0.5 s and 4 more, to 0.55 s: 5.5 mm/s, FS:330); Grbl reports the steps its
     interrupt took: at 1250 steps/s AMASS runs 8 ticks an event and the 313th event's
     step comes on its 5th tick, from 312.5 events on (313 steps at 250 steps/mm: 1.252)."""
     sim, clock = _sim_in_own_time(SimOptions(baud=0))
@@ -792,7 +793,10 @@ def test_position_and_rate_in_a_status_follow_the_acceleration():
     report = sim.host_read(1 << 16, 0.0).decode()
     x = ticks_taken((0.0, 0.0, 0.0), (10.0, 0.0, 0.0), 1.25, 5.0)[0]
     assert x == 1.252
-    assert report.startswith(f"<Run|MPos:{x:.3f},0.000,0.000|") and "|FS:300,0" in report
+    assert (
+        report.startswith(f"<Run|MPos:{x:.3f},0.000,0.000|")
+        and f"|FS:{60.0 * 10.0 * 0.55:.0f},0" in report
+    )
     sim.close()
 
 

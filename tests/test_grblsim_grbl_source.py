@@ -47,12 +47,16 @@ def test_a_hold_among_blocks_shorter_than_a_segment_acts_after_five_of_them():
 def test_an_override_acts_once_the_prepared_segments_ran():
     """A feed override sent at 2.005 s into a 10 mm/s cruise changes nothing before 2.05 s
     (``st_update_plan_block_parameters`` re-plans from the end of the segment buffer),
-    then slows down at $120: at 2.15 s it is 1 mm/s slower, not 1.45."""
+    then slows down at $120. ``FS:`` is the speed where the prepared segments end
+    (``st_get_realtime_rate``): 40 ms into the slowdown at 2.04 s, at 2.15 s 0.15 s into
+    it (1.5 mm/s slower; the machine itself 1 mm/s, not 1.45), where it stands 0.1 s on."""
     machine = _Machine({110: 1000.0})
     machine.at(0.0, b"G1X100F600\n")
     machine.at(2.005, b"\x92" * 5)
-    assert machine.report(2.04)[2] == 600.0
-    assert machine.report(2.15)[2] == pytest.approx(600.0 - 60.0 * 10.0 * 0.1, abs=0.6)
+    assert machine.report(2.04)[2] == pytest.approx(600.0 - 60.0 * 10.0 * 0.04, abs=0.6)
+    assert machine.report(2.15)[2] == pytest.approx(600.0 - 60.0 * 10.0 * 0.15, abs=0.6)
+    x = [machine.report(t)[1][0] for t in (2.15, 2.25)]
+    assert x[1] - x[0] == pytest.approx(0.1 * (10.0 - 10.0 * 0.15), abs=5e-3)
     machine.until_still()
 
 
@@ -60,14 +64,16 @@ def test_an_override_just_before_a_block_ends_leaves_the_next_block_its_prepared
     """A 50 % override at 1.48 s, 25 ms before G1X10.05 ends (at 1.505 s, x = 10.05): the
     segments prepared until then include the next block's first two (to 1.525 s), at the
     old speed; the slowdown starts there, in the next block, not where it begins. Against
-    the time-stepped reference with the same segments."""
+    the time-stepped reference with the same segments. ``FS:`` reads the speed where the
+    prepared segments end: at 1.5 s 1.545 s (the block's last segment from 1.5 s, then 4
+    of 10 ms), at 1.52 s 1.565 s and at 1.55 s 1.595 s, 20, 40 and 70 ms into the slowdown."""
     samples = [1.5, 1.52, 1.55, 1.6, 1.8, 2.0, 2.5, 3.0]
     machine, got, want, stepper = _run_both(
         {110: 1000.0}, ["G1X10.05F600", "G1X30"], [(1.48, b"\x92" * 5)], samples
     )
     _assert_follows(got, want)
-    assert [rate for _, _, rate in got[:2]] == [600.0, 600.0]
-    assert got[2][2] == pytest.approx(600.0 - 60.0 * 10.0 * 0.025, abs=0.6)
+    rates = [600.0 - 60.0 * 10.0 * into for into in (0.02, 0.04, 0.07)]
+    assert [rate for _, _, rate in got[:3]] == pytest.approx(rates, abs=0.6)
     assert machine.times("exec")[-1] == pytest.approx(stepper.t, abs=2e-3)
 
 
@@ -159,3 +165,42 @@ def test_a_minor_axis_steps_within_an_event_and_a_reset_there_keeps_that_positio
     assert "ALARM:3" in machine.text
     machine.until_still()
     assert machine.sim.mpos == pytest.approx((0.008, 0.008, 0.0), abs=1e-12)
+
+
+def test_a_block_queued_while_running_acts_once_the_prepared_segments_ran():
+    """G1X10F600 alone slows down from x = 5 at 1 s to stop at 2 s. G1X20 queued at 1.2 s
+    (at 8 mm/s) re-plans it (``planner_recalculate`` -> ``st_update_plan_block_parameters``)
+    from the end of the segments prepared, at 1.25 s: it slows on to 7.5 mm/s at x =
+    7.1875 first, then speeds up to 10 mm/s at 1.5 s, x = 9.375 (re-planned at once it
+    would be 9.6), and the move ends 5.625 mm of cruise and 1 s of slowdown later, at
+    3.0625 s. Against that and the time-stepped reference with the same segments."""
+    machine = _Machine({110: 1000.0})
+    machine.at(0.0, b"G1X10F600\n")
+    machine.at(1.2, b"G1X20\n")
+    assert machine.report(1.5)[1][0] == pytest.approx(9.375, abs=1 / 250.0)
+    assert machine.report(1.8)[1][0] == pytest.approx(12.375, abs=1 / 250.0)
+    machine.until_still()
+    assert machine.times("exec")[-1] == pytest.approx(3.0625, abs=1e-6)
+    reference = planner_sim.queued_blocks(
+        ["G1X10F600", "G1X20"], planner_sim.Settings((1000.0,) * 3, (10.0,) * 3)
+    )
+    stepper = _Prepared(reference[:1])
+    stepper.run_until(1.2)
+    stepper.queue(reference[1])
+    stepper.run_until(1.5)
+    assert stepper.position()[0] == pytest.approx(9.375, abs=2e-3)
+    assert stepper.run_to_stop() == pytest.approx(3.0625, abs=2e-3)
+
+
+def test_fs_reads_the_speed_where_the_prepared_segments_end():
+    """``st_get_realtime_rate`` reports ``prep.current_speed``: G1X10F600 speeds up for
+    1 s and slows down for 1 s; at 0.303 s the segments prepared end at 0.35 s (3.5 mm/s,
+    the machine itself goes 3.03), and from 1.95 s all of the move is prepared, so ``FS:0``
+    while it still runs its last 50 ms (at 1.945 s those end at 1.99 s: 0.1 mm/s)."""
+    machine = _Machine({110: 1000.0})
+    machine.at(0.0, b"G1X10F600\n")
+    assert machine.report(0.303)[2] == pytest.approx(60.0 * 3.5, abs=0.6)
+    assert machine.report(1.945)[2] == pytest.approx(6.0, abs=0.6)
+    state, (x, _, _), rate = machine.report(1.97)
+    assert (state, rate) == ("Run", 0.0) and x < 10.0
+    assert machine.report(2.01) == ("Idle", (10.0, 0.0, 0.0), 0.0)

@@ -14,6 +14,7 @@ counted as it runs (:class:`_Prepared`).
 
 from __future__ import annotations
 
+import copy
 import math
 import re
 import threading
@@ -119,9 +120,32 @@ class _Prepared(planner_sim.Stepper):
             else:
                 self.act(byte)
 
-    def act(self, byte: int) -> None:
-        """A realtime byte takes effect."""
-        if byte == ord("!"):
+    def prepared_speed(self) -> float:
+        """The speed where the segments prepared now end (Grbl's ``FS:``, ``prep.current_speed``):
+        a copy runs on to the end of the 5th segment, the one under way included; 0 if it
+        stands or ends before."""
+        ahead = copy.deepcopy(self)
+        ahead.probed = None
+        ahead.waiting.append([PREPARED, "probe"])
+        while ahead.probed is None and not ahead.done() and not (ahead.held and ahead.v == 0.0):
+            ahead.step(ahead.dt)
+        return 0.0 if ahead.probed is None else ahead.probed
+
+    def queue(self, block: planner_sim.Block) -> None:
+        """A block queued now: the profile takes it in once the prepared segments ran."""
+        if self.v > 0.0:
+            self.waiting.append([PREPARED, block])
+        else:
+            self.act(block)
+
+    def act(self, byte: int | str | planner_sim.Block) -> None:
+        """A realtime byte or a queued block takes effect ("probe": the speed is noted)."""
+        if isinstance(byte, planner_sim.Block):
+            self.blocks.append(byte)
+            self.ends.append(self.ends[-1] + byte.length)
+        elif byte == "probe":
+            self.probed = self.v
+        elif byte == ord("!"):
             self.held = True
         elif byte == ord("~"):
             self.held = False
@@ -157,10 +181,16 @@ def _run_both(settings, lines, events, samples):
             stepper.send(data)
         else:
             got.append(machine.report(t))
-            want.append((stepper.position(), stepper.v * 60.0))
+            want.append((stepper.position(), stepper.prepared_speed() * 60.0))
     machine.until_still()
     stepper.run_to_stop()
     return machine, got, want, stepper
+
+
+def _prepared_until(t: float, start: float = 0.0) -> float:
+    """Where the 5 segments prepared at ``t`` end, the one under way included, in a block
+    running since ``start`` (10 ms each; not near its end)."""
+    return start + (math.floor((t - start) / SEGMENT_S + 1e-9) + PREPARED) * SEGMENT_S
 
 
 def _taken_x(x: float, speed: float) -> float:
@@ -181,7 +211,9 @@ def test_a_feed_hold_slows_down_over_v2_over_2a_then_resumes_from_rest():
     """G1X50F600 at $120=10: 1 s up to 10 mm/s over 5 mm. A hold at 2.005 s is Hold:1 at
     once, but the segments prepared up to 2.05 s (the one from 2.00 s and 4 more) run
     first: at x = 15.5 it slows down for v/a = 1 s over v^2/2a = 5 mm
-    (x = 15.5 + 10 t - 5 t^2), then Hold:0 at x = 20.5 from 3.05 s on. The resume at 4 s
+    (x = 15.5 + 10 t - 5 t^2), then Hold:0 at x = 20.5 from 3.05 s on. ``FS:`` is the speed
+    where the prepared segments end (``st_get_realtime_rate``): at 2.03 s those end at
+    2.08 s, 30 ms into the slowdown (582 mm/min), at 2.9 s at 2.95 s (60). The resume at 4 s
     starts from rest: 29.5 mm to go take 1 s up, 1.95 s at 10 mm/s and 1 s down, so the
     move ends at 7.95 s."""
     settings = {110: 1000.0}
@@ -190,9 +222,11 @@ def test_a_feed_hold_slows_down_over_v2_over_2a_then_resumes_from_rest():
         settings, ["G1X50F600"], [(2.005, b"!"), (4.0, b"~")], samples
     )
     for t, (state, (x, _, _), rate) in zip(samples, got, strict=True):
+        prepared = 60.0 * max(0.0, 10.0 - 10.0 * max(0.0, _prepared_until(t) - 2.05))
         if 2.005 <= t < 2.05:
             assert state == "Hold:1"
-            assert (x, rate) == (_taken_x(10.0 * t - 5.0, 10.0), 600.0)
+            assert x == _taken_x(10.0 * t - 5.0, 10.0)
+            assert rate == pytest.approx(prepared, abs=0.6)
         elif 2.05 <= t < 3.05:
             tau = t - 2.05
             assert state == "Hold:1"
@@ -200,7 +234,7 @@ def test_a_feed_hold_slows_down_over_v2_over_2a_then_resumes_from_rest():
             assert x == pytest.approx(
                 _taken_x(15.5 + 10.0 * tau - 5.0 * tau * tau, speed), abs=6e-4
             )
-            assert rate == pytest.approx(60.0 * (10.0 - 10.0 * tau), abs=0.6)
+            assert rate == pytest.approx(prepared, abs=0.6)
         elif 3.05 < t < 4.0:
             assert (state, x, rate) == ("Hold:0", 20.5, 0.0)
         else:
@@ -243,7 +277,8 @@ def test_a_feed_hold_slows_down_into_the_next_block_at_its_acceleration():
 def test_a_jog_cancel_slows_down_then_flushes_the_jog_where_it_stood():
     """0x85 at 1.505 s into a 20 mm jog at 10 mm/s acts at 1.55 s (x = 10.5 mm), once the
     prepared segments ran: the state stays Jog while it slows down over 1 s and 5 mm, then
-    Idle at x = 15.5 with the jog's rest flushed."""
+    Idle at x = 15.5 with the jog's rest flushed. At 2.2 s ``FS:`` reads the speed where
+    the prepared segments end, at 2.25 s: 3 mm/s (the machine itself goes 3.5)."""
     machine = _Machine({110: 1000.0})
     machine.at(0.0, b"$J=G91X20F600\n")
     machine.at(1.505, b"\x85")
@@ -251,7 +286,7 @@ def test_a_jog_cancel_slows_down_then_flushes_the_jog_where_it_stood():
     assert state == "Jog" and x == pytest.approx(
         _taken_x(10.5 + 6.5 - 5.0 * 0.65**2, 3.5), abs=6e-4
     )
-    assert rate == pytest.approx(60.0 * 3.5, abs=0.6)
+    assert rate == pytest.approx(60.0 * (10.0 - 10.0 * (_prepared_until(2.2) - 1.55)), abs=0.6)
     assert machine.report(2.6) == ("Idle", (15.5, 0.0, 0.0), 0.0)
     machine.until_still()
     assert machine.times("state", state="Idle")[-1] == pytest.approx(2.55, abs=1e-6)

@@ -15,17 +15,19 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   per-axis rates and accelerations (``$110``-``$112``, ``$120``-``$122``), corners at the
   junction speed of ``$11``, look-ahead over the blocks queued when it plans (the newest
   ends at rest, so a planner that runs short slows down; a block queued behind the running
-  one re-plans it from its current speed), trapezoid profiles in the reported position and
-  realtime ``FS:`` rate; moves run between targets rounded to whole steps
+  one re-plans it once the segments prepared before it came have run), trapezoid profiles
+  in the reported position; the realtime ``FS:`` rate is the speed where the prepared
+  segments end (Grbl's ``prep.current_speed``: 40-50 ms ahead, 0 once a stop or the end
+  is all prepared); moves run between targets rounded to whole steps
   (``$100``-``$102``) and the reported position is the steps taken so far (each axis
   by Grbl's Bresenham counters, tick by tick under AMASS, an event's ticks from one
   event's distance before it ends), so ``X0.01`` at 250 steps/mm ends at 0.012; a move
   of no whole step, which Grbl drops, passes at once, takes no block in ``Bf:`` and no
   ``plan_time``; a changed feed or rapid override (``0x90``-``0x97``) re-plans, the
   running block slowing down (through it into the next where it is too short) or
-  speeding up at its acceleration; a hold or override acts once the stepper has run
-  the segments it had prepared (5 of 10 ms, the running one included, each block's last
-  one shorter: 40-50 ms); a ``$100``-``$102`` change keeps the step counts, so the
+  speeding up at its acceleration; a hold, override or new block acts once the stepper
+  has run the segments it had prepared (5 of 10 ms, the running one included, each
+  block's last one shorter: 40-50 ms); a ``$100``-``$102`` change keeps the step counts, so the
   reported position moves; all times ``time_scale``.
   These wait for the planner to empty (so their ``ok`` comes after the motion before
   them ended): spindle and coolant changes, dwells, M0/M2/M30, G10, G28.1/G30.1,
@@ -66,6 +68,7 @@ after N blocks (the host vanishes; the controller still runs what it had receive
 from __future__ import annotations
 
 import collections
+import copy
 import dataclasses
 import itertools
 import json
@@ -315,6 +318,7 @@ class _Block:
     vmax: float = 0.0  # mm/s cruise (overrides applied)
     span: float = 0.0  # mm the current profile covers (less than what is left: a hold's stop)
     duration: float = 0.0  # seconds of the current profile, already scaled
+    seen: bool = True  # the stepper's profile takes it in (its arrival's re-plan has acted)
 
 
 @dataclass
@@ -376,9 +380,11 @@ class GrblSim:
         self._stopping = False  # a hold, door or jog cancel decelerates the machine to a stop
         self._stop_due = False  # such a stop is commanded, the prepared segments still run
         self._seg_origin = 0.0  # where the segments of the head block's run start (s)
-        self._seg_next = math.inf  # the end of the next segment, while something is deferred
-        self._seg_last = -math.inf  # the last segment end counted
-        self._deferred: list[list[Any]] = []  # [segments left, "stop" or "replan"]
+        self._seg_last = 0.0  # the last segment end counted (the head's run start at least)
+        # [segment ends left after _seg_last, kind, what]: "stop", "replan" (the feed and
+        # rapid overrides), "block" (a new block), "probe" (a list that gets the speed)
+        self._deferred: list[list[Any]] = []
+        self._land_at = math.inf  # when the first of them acts (:meth:`_schedule`)
         self._door_ajar = False  # the door switch
         self._restore_until = math.inf  # Door:3: spindle/coolant restoring before resuming
         self._door_saved: tuple[str, float, frozenset[str]] = ("M5", 0.0, frozenset())
@@ -568,8 +574,7 @@ class GrblSim:
 
     def _next_event(self) -> float:
         t = min(self._head_end(), self._reset_at, self._boot_at, self._restore_until)
-        if self._deferred:
-            t = min(t, self._seg_next)
+        t = min(t, self._land_at)
         if self._wire:
             t = min(t, self._wire[0][0])
         if self._pending is not None and self._pending.until > 0.0:
@@ -596,7 +601,7 @@ class GrblSim:
             elif t == self._restore_until:
                 self._restore_until = math.inf
                 self._door_resume(t)
-            elif self._deferred and t == self._seg_next:
+            elif t == self._land_at:
                 self._segment_end(t)
             elif t == self._head_end():
                 self._finish_head(t)
@@ -654,11 +659,11 @@ class GrblSim:
         elif 0x90 <= byte <= 0x94:
             self._overrides[0] = _override(self._overrides[0], byte - 0x90)
             self._ovr_counter = 0
-            self._defer(t, "replan")  # plan_update_velocity_profile_parameters
+            self._defer(t, "replan", self._overrides[:2])  # plan_update_velocity_profile_parameters
         elif 0x95 <= byte <= 0x97:
             self._overrides[1] = (100, 50, 25)[byte - 0x95]
             self._ovr_counter = 0
-            self._defer(t, "replan")
+            self._defer(t, "replan", self._overrides[:2])
         elif 0x99 <= byte <= 0x9D:
             self._overrides[2] = _override(self._overrides[2], byte - 0x99)
             self._ovr_counter = 0
@@ -1012,8 +1017,9 @@ class GrblSim:
                 corner_sq=corner_sq,
             )
         )
-        if not self._deferred:  # else the deferred re-plan or stop takes it in
-            self._replan(t)
+        block = self._planner[-1]
+        block.seen = False
+        self._defer(t, "block", block)  # planner_recalculate: st_update_plan_block_parameters
         if self.state == "Idle" and self._jogging:
             # a jog starts at once (jog_execute); other motion waits for the auto cycle start
             self._start_motion(t)
@@ -1040,6 +1046,38 @@ class GrblSim:
         return profile_at(
             (t - self._head_start) / scale, head.span, head.v0, head.v1, head.vmax, head.accel
         )
+
+    def _prepared_speed(self, t: float) -> float:
+        """The speed (mm/s) where the segments prepared by ``t`` end: Grbl's ``FS:`` rate.
+
+        ``st_get_realtime_rate`` reports ``prep.current_speed``, the speed at the end of
+        the last segment ``st_prep_buffer`` prepared (5 with the one running: 40-50 ms
+        ahead; 0 once the profile to a stop or the end is all prepared). Found by running a
+        copy of the motion on, changes still deferred acting as they will.
+        """
+        if not self._running() or self.options.time_scale <= 0.0:
+            return self._head_progress(t)[1]
+        ahead = copy.copy(self)
+        blocks = {id(b): dataclasses.replace(b) for b in self._planner}
+        ahead._planner = collections.deque(blocks[id(b)] for b in self._planner)
+        ahead._deferred = [
+            [n, kind, blocks.get(id(what), what)] for n, kind, what in self._deferred
+        ]
+        ahead._gc = dataclasses.replace(self._gc)
+        ahead.record = []
+        ahead.link_up = False  # it says nothing
+        speed: list[float] = []
+        ahead._defer(t, "probe", speed)
+        while not speed:
+            end = ahead._head_end()
+            landing = ahead._land_at
+            if min(end, landing) == math.inf:
+                return 0.0  # stopped or ended before: the profile is all prepared
+            if landing <= end:
+                ahead._segment_end(landing)
+            else:
+                ahead._finish_head(end)
+        return speed[0]
 
     def _cruise(self, block: _Block) -> float:
         """A block's nominal speed (mm/s) under the overrides (``plan_compute_profile_nominal_speed``).
@@ -1099,6 +1137,8 @@ class GrblSim:
             later = []
             speed = head.vmax
             for b in itertools.islice(self._planner, 1, None):
+                if not b.seen:
+                    break  # queued since the segments now prepared were
                 if b.length > 0.0:
                     cruise = self._cruise(b)
                     later.append(
@@ -1121,6 +1161,10 @@ class GrblSim:
             self._head_start = t
             self._stopped(t)
             return
+        if head.length > 0.0:
+            self._segment_end(t, block_end=True)  # its last segment ends with it (st_prep_buffer)
+            if not self._planner or self._planner[0] is not head:
+                return  # what acted there (a hold's stop at the block's end) took it on
         block = self._planner.popleft()
         self.mpos = block.end
         self._target = block.target
@@ -1135,9 +1179,10 @@ class GrblSim:
             spindle=block.spindle,
         )
         if self._planner:
+            # queued once this block's segments were all prepared: its own come from there,
+            # planned with what was queued then (st_prep_buffer loads it on its arrival)
+            self._planner[0].seen = True
             self._plan_head(block.v1)
-            if block.length > 0.0 and t > self._seg_last:
-                self._segment_end(t)  # a block's last segment ends with it (st_prep_buffer)
         elif self._stopping or self._stop_due:
             self._stopped(t)  # stopped at the end of the last block
         else:
@@ -1149,46 +1194,80 @@ class GrblSim:
         """The head block starts to run at ``t``: its profile and its segments start there."""
         self._head_start = t
         self._seg_origin = t
-        if self._deferred:
-            self._seg_next = t + SEGMENT_SECONDS * self.options.time_scale
+        self._seg_last = t
+        self._schedule()
 
-    def _defer(self, t: float, kind: str) -> None:
-        """A stop or re-plan that takes effect once the prepared segments have run.
+    def _grid(self, t: float) -> int:
+        """The head's whole segments run by ``t`` (10 ms each from its run's start)."""
+        return math.floor(
+            (t - self._seg_origin) / (SEGMENT_SECONDS * self.options.time_scale) + 1e-9
+        )
+
+    def _schedule(self) -> None:
+        """When the first deferred change acts, if the head's segments run on to it."""
+        if not self._deferred:
+            self._land_at = math.inf
+            return
+        left = min(item[0] for item in self._deferred)
+        dt = SEGMENT_SECONDS * self.options.time_scale
+        self._land_at = self._seg_origin + (self._grid(self._seg_last) + left) * dt
+
+    def _defer(self, t: float, kind: str, what: Any = None) -> None:
+        """A stop, re-plan or new block that takes effect once the prepared segments ran.
 
         Grbl's ``st_update_plan_block_parameters`` re-plans from the end of the segment
         buffer (``prep.current_speed``): the segments already prepared (``st_prep_buffer``
         keeps 5, the one running included; 10 ms each, shorter where a block ends) run as
-        they were, so a hold or override acts 40-50 ms later than it came. Not moving, or
-        with no time passing (``time_scale`` 0), it acts at once.
+        they were, so a hold, override or new block acts 40-50 ms later than it came. Not
+        moving, or with no time passing (``time_scale`` 0), it acts at once.
         """
-        dt = SEGMENT_SECONDS * self.options.time_scale
-        if not self._running() or dt <= 0.0:
-            self._apply_deferred(t, kind)
+        if not self._running() or self.options.time_scale <= 0.0:
+            self._apply_deferred(t, kind, what)
             return
-        if not self._deferred:
-            k = math.floor((t - self._seg_origin) / dt + 1e-9) + 1
-            self._seg_next = self._seg_origin + k * dt
-            if self._seg_next <= t:
-                self._seg_next += dt
-        self._deferred.append([SEGMENTS_PREPARED, kind])
+        left = SEGMENTS_PREPARED + self._grid(t) - self._grid(self._seg_last)
+        self._deferred.append([left, kind, what])
+        self._schedule()
 
-    def _segment_end(self, t: float) -> None:
-        """A stepper segment ended at ``t``: deferred changes whose segments have run act."""
+    def _segment_end(self, t: float, block_end: bool = False) -> None:
+        """Count the segment ends up to ``t`` (at the head's end its last, shorter one too).
+
+        Deferred changes whose segments have run act, in the order they came.
+        """
+        if not self._deferred:
+            self._seg_last = t
+            return
+        k = self._grid(t)
+        if (
+            block_end
+            and self._seg_origin + k * SEGMENT_SECONDS * self.options.time_scale < t - 1e-12
+        ):
+            k += 1
+        passed = k - self._grid(self._seg_last)
+        if t >= self._land_at:  # the landing itself counts, whatever the clock's rounding
+            passed = max(passed, min(item[0] for item in self._deferred))
         self._seg_last = t
-        self._seg_next = t + SEGMENT_SECONDS * self.options.time_scale
+        if passed <= 0:
+            return
         due = []
         for item in self._deferred:
-            item[0] -= 1
+            item[0] -= passed
             if item[0] <= 0:
-                due.append(item[1])
+                due.append(item)
         self._deferred = [item for item in self._deferred if item[0] > 0]
-        for kind in due:
-            self._apply_deferred(t, kind)
+        self._schedule()
+        for _, kind, what in due:
+            self._apply_deferred(t, kind, what)
 
-    def _apply_deferred(self, t: float, kind: str) -> None:
-        """A deferred change acts: an override's re-plan, or the stop from where it is."""
-        if kind == "replan":
-            self._planned_overrides = self._overrides[:2]
+    def _apply_deferred(self, t: float, kind: str, what: Any = None) -> None:
+        """A deferred change acts: an override's or new block's re-plan, or the stop."""
+        if kind == "probe":
+            what.append(self._head_progress(t)[1])
+            return
+        if kind in ("replan", "block"):
+            if kind == "replan":
+                self._planned_overrides = what
+            else:
+                what.seen = True
             self._replan(t)
             return
         moving = self._running()
@@ -1205,11 +1284,13 @@ class GrblSim:
             self._stopped(t)  # nothing moves
 
     def _clear_deferred(self) -> None:
-        """Nothing waits on the segments (stopped, reset): the overrides plan from now on."""
+        """Nothing waits on the segments (stopped, reset): the plan takes in all from now on."""
         self._planned_overrides = self._overrides[:2]
         self._deferred = []
+        self._land_at = math.inf
         self._stop_due = False
-        self._seg_next = math.inf
+        for block in self._planner:
+            block.seen = True
 
     def _decelerate(self, t: float, state: str) -> None:
         """A hold, door or jog cancel: the head slows down to a stop (:meth:`_defer`).
@@ -1515,7 +1596,7 @@ class GrblSim:
         ]
         if int(self.settings[10]) & 2:
             fields_.append(f"Bf:{PLANNER_BLOCKS - self._blocks()},{RX_BUFFER_SIZE - len(self._rx)}")
-        rate = self._head_progress(t)[1] * 60.0  # Grbl 1.1 reports the realtime rate
+        rate = self._prepared_speed(t) * 60.0
         if inches:
             fields_.append(f"FS:{rate / MM_PER_INCH:.1f},{self._spindle_speed:.0f}")
         else:
