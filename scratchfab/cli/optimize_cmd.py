@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -22,10 +22,13 @@ from scratchfab.optimize.stage import (
     Progress,
     ResumeRefused,
     checkpoint_request,
+    checkpoint_settings,
     run_optimize,
 )
 
 _DEFAULTS = OptimizeOptions()
+#: The options whose parameters the command's share names with :class:`OptimizeOptions`.
+_FIELDS = frozenset(f.name for f in fields(OptimizeOptions))
 
 
 def _bar() -> Callable[[Progress], None]:
@@ -47,6 +50,7 @@ def _bar() -> Callable[[Progress], None]:
 )
 @click.option(
     "--time-budget",
+    "time_budget_s",
     type=FiniteFloat(min=0),
     default=0.0,
     show_default=True,
@@ -98,7 +102,13 @@ def _bar() -> Callable[[Progress], None]:
     show_default=True,
     help="Step sizes of the last step, as a multiple of the base steps.",
 )
-@click.option("--resume", is_flag=True, help="Continue from JOB/optimize/checkpoint.npz.")
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="Continue from JOB/optimize/checkpoint.npz with the run's own options where not "
+    "given (its total, step sizes, schedule, seed and --prune), as `scratchfab run` "
+    "started it too.",
+)
 @click.option(
     "--prune",
     "prune_tolerance",
@@ -126,7 +136,7 @@ def _bar() -> Callable[[Progress], None]:
 def optimize(
     job: Path,
     iterations: int,
-    time_budget: float,
+    time_budget_s: float,
     seed: int,
     backend: str,
     space: str,
@@ -156,38 +166,21 @@ def optimize(
         )
     if no_prune and prune_tolerance is not None:
         raise click.BadParameter("give --prune or --no-prune, not both", param_hint="--no-prune")
-    asked: dict[str, Any] = {"iterations": iterations, "prune_tolerance": prune_tolerance}
-    given = {
-        name for name in asked if _given(ctx, name) or (no_prune and name == "prune_tolerance")
-    }
+    asked = {k: v for k, v in ctx.params.items() if k in _FIELDS}
+    given = {k for k in asked if _given(ctx, k)} | ({"prune_tolerance"} if no_prune else set())
     checkpoint: Checkpoint | None = None
-    if resume:  # what the command does not give, the run's own (its total, its prune)
+    if resume:  # what the command does not give, the run's own (its steps', total, prune)
         checkpoint = read_checkpoint(JobLayout(job).optimize_checkpoint)
-        own = checkpoint_request(job, checkpoint)
+        own = {**checkpoint_settings(checkpoint), **checkpoint_request(job, checkpoint)}
         if "iterations" not in own and "iterations" not in given:
             raise ConfigError(_no_total(checkpoint))
-        for name, value in own.items():
-            if name not in given:
-                asked[name] = value
+        asked.update((k, v) for k, v in own.items() if k not in given)
         if no_prune and own.get("prune_tolerance") is not None:
             click.echo(
                 f"--no-prune: the run's own --prune {own['prune_tolerance']:g} is dropped; "
                 "its outputs are written without pruning"
             )
-    options = OptimizeOptions(
-        iterations=asked["iterations"],
-        time_budget_s=time_budget,
-        seed=seed,
-        backend=backend,  # type: ignore[arg-type]
-        space=space,  # type: ignore[arg-type]
-        threads=threads,
-        lr_schedule=lr_schedule,  # type: ignore[arg-type]
-        lr_start_scale=lr_start_scale,
-        lr_end_scale=lr_end_scale,
-        resume=resume,
-        prune_tolerance=asked["prune_tolerance"],
-        checkpoint_every=checkpoint_every,
-    )
+    options = OptimizeOptions(**asked)
     try:
         result = run_optimize(job, options, progress=_bar(), checkpoint=checkpoint)
     except ResumeRefused as exc:
@@ -250,8 +243,8 @@ def _no_total(checkpoint: Checkpoint) -> str:
 def _given_flags(ctx: click.Context) -> list[str]:
     """The options this command was given, as flags, less --resume.
 
-    A resume must repeat the options its checkpoint was made with (``--iterations`` among
-    them, whose total a schedule's steps follow), so the advice repeats what was given.
+    A resume takes the options its checkpoint keeps where it is not given them, but not
+    ``--time-budget``, so the advice repeats what was given.
     """
     return [
         word

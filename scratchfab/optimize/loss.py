@@ -67,9 +67,6 @@ SPACES: tuple[str, ...] = ("linear", "perceptual")
 #: The merge penalty's form, kept in checkpoints: a run made under another form (the
 #: earlier one weighed the nearest scratch ends by ``cos^16`` of the angle) does not resume.
 MERGE_PENALTY = "length cut twice"
-#: The image error's form, for checkpoints: a run made when the glint still counted
-#: (:mod:`scratchfab.optimize.glint`) took other steps on a design with glint.
-IMAGE_ERROR = "glint left out"
 #: Pairs more than this far from parallel are never merge candidates (radians).
 PARALLEL_LIMIT = math.radians(35.0)
 #: Longest piece :func:`neighbour_pairs` cuts a scratch into (longer than the 12 mm default

@@ -81,7 +81,9 @@ class OptimizeOptions:
             by how close (divided by the scratch count; :mod:`scratchfab.optimize.loss`).
         jitter_deg: Standard deviation of a random turn of each initial scratch.
         threads: CPU threads (1: bit-reproducible; 0: all cores).
-        resume: Continue from ``JOB/optimize/checkpoint.npz``.
+        resume: Continue from ``JOB/optimize/checkpoint.npz``; the options that shape the
+            steps must be the run's (:func:`scratchfab.optimize.stage.checkpoint_settings`
+            reads them from it).
         prune_tolerance: When set, drop scratches while the loss rises by at most this
             fraction.
         feed_mm_min: Engrave feed for the machining-time estimate of pruning.

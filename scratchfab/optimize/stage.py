@@ -41,10 +41,11 @@ from scratchfab.fileio import decode_json, load_numpy, write_json, write_text
 from scratchfab.metrics import quality_report
 from scratchfab.model.design import Design
 from scratchfab.model.job import JobLayout, design_digest, load_job_design
+from scratchfab.model.schema import parse_table
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.checkpoint import Checkpoint, read_checkpoint, save_checkpoint
 from scratchfab.optimize.glint import view_glint
-from scratchfab.optimize.loss import IMAGE_ERROR, MERGE_PENALTY
+from scratchfab.optimize.loss import MERGE_PENALTY
 from scratchfab.optimize.optimizer import LayoutOptimizer, NonFiniteError, Settings
 from scratchfab.optimize.options import OptimizeOptions, StepSchedule
 from scratchfab.optimize.plots import save_loss_plot, save_side_by_side
@@ -130,8 +131,8 @@ def checkpoint_request(job: str | Path, checkpoint: Checkpoint | None = None) ->
     kept them takes them from the summary written from it (a run stopped by Ctrl-C or its
     time budget), else its total from a scheduled run's fingerprint while it has not done
     more steps (a run extended past that total went on to a total it did not keep). Each
-    is left out where none of these tells, and all without a readable checkpoint (the
-    resume then says what is wrong).
+    is left out where none of these tells a valid value, and all without a readable
+    checkpoint (the resume then says what is wrong).
 
     Args:
         job: The job folder.
@@ -156,14 +157,46 @@ def checkpoint_request(job: str | Path, checkpoint: Checkpoint | None = None) ->
     total = schedule.get("iterations") if isinstance(schedule, dict) else None
     if "iterations" not in own and type(total) is int and done is not None and done <= total:
         own["iterations"] = total
-    asked: dict[str, Any] = {}
-    total = own.get("iterations")
-    if type(total) is int and total >= 0:
-        asked["iterations"] = total
-    prune = own.get("prune_tolerance", math.nan)
-    if prune is None or (type(prune) in (int, float) and math.isfinite(prune) and prune >= 0):
-        asked["prune_tolerance"] = prune
-    return asked
+    return {k: v for k, v in own.items() if _valid_option(k, v)}
+
+
+#: Options a checkpoint's meta keeps that no step depends on: how the run checkpoints and
+#: what its pruning's estimate of the machining time saved assumes.
+KEPT_IN_META = ("checkpoint_every", "feed_mm_min", "stroke_overhead_s")
+
+
+def checkpoint_settings(checkpoint: Checkpoint) -> dict[str, Any]:
+    """The options of a checkpoint's run besides its total and prune (:func:`checkpoint_request`).
+
+    Those that shaped its steps, as its fingerprint keeps them (:data:`TRAJECTORY_KEYS`
+    and the schedule's shape and scales; scales 1 where it keeps none: constant steps),
+    and those of :data:`KEPT_IN_META`, so that a resume that does not give them goes on
+    as the run did, whatever started it (``scratchfab run`` takes the ``lr_*`` and
+    ``refresh_every`` of its ``[optimize]`` table, which the command has no flags for).
+    Each is left out where the checkpoint holds no valid value (a step's: the resume then
+    says what differs; the others', as a checkpoint of an earlier scratchfab: the caller's).
+    """
+    meta = checkpoint.meta
+    made = meta.get("fingerprint", {})
+    own = {k: made[k] for k in TRAJECTORY_KEYS if k in made}
+    own.update((k, meta[k]) for k in KEPT_IN_META if k in meta)
+    schedule = made.get("lr_schedule", {"start": 1.0, "end": 1.0})
+    if isinstance(schedule, dict):
+        own.update(
+            (SCHEDULE_OPTIONS[k], v)
+            for k, v in schedule.items()
+            if k in SCHEDULE_OPTIONS and k != "iterations"  # the total: checkpoint_request
+        )
+    return {k: v for k, v in own.items() if _valid_option(k, v)}
+
+
+def _valid_option(name: str, value: Any) -> bool:
+    """Whether ``value`` is one :class:`OptimizeOptions` takes for ``name`` (type and bounds)."""
+    try:
+        parse_table(OptimizeOptions, {name: value}, "checkpoint")
+    except ConfigError:
+        return False
+    return True
 
 
 def _summary_of(paths: JobLayout, done: int, elapsed_s: Any) -> dict[str, Any] | None:
@@ -456,6 +489,11 @@ def _image_error(design: Design, glinting: bool) -> dict[str, Any]:
     return {"glint_limit_deg": _glint_limit(design), "glint_left_out": glinting}
 
 
+#: The ``image_error`` of the first glint rule's checkpoints, which kept no limit: they left
+#: out the glint below :func:`outshine_limit_deg` at full coverage.
+FIRST_GLINT_RULE = "glint left out"
+
+
 def _image_error_change(made: Any, design: Design, glinting: Callable[[], bool]) -> str | None:
     """Why the image error a checkpoint's steps followed is not this run's; None when it is.
 
@@ -463,15 +501,14 @@ def _image_error_change(made: Any, design: Design, glinting: Callable[[], bool])
     (:func:`_image_error`) left out the same pixels. One of another limit (another glint
     rule's) that left pixels out is refused; one that left none out, like one of an
     earlier scratchfab that keeps no form, counted every pixel, as this run does where no
-    view glints. The first rule's checkpoints say :data:`IMAGE_ERROR`: the glint below
-    :func:`outshine_limit_deg` at full coverage.
+    view glints. The first rule's checkpoints say :data:`FIRST_GLINT_RULE`.
 
     Args:
         made: The checkpoint's ``image_error`` (None where it keeps none).
         design: This run's design.
         glinting: Whether a view of this run glints; called only where the limits do not tell.
     """
-    if made == IMAGE_ERROR:
+    if made == FIRST_GLINT_RULE:
         tool = design.scratch
         first = outshine_limit_deg(tool.width_mm, tool.depth_mm, design.board.roughness, 1.0)
         made = {"glint_limit_deg": round(first, 6), "glint_left_out": True}
@@ -882,6 +919,7 @@ def _run(
             # what a resume that does not give them goes on with
             "iterations": options.iterations,
             "prune_tolerance": options.prune_tolerance,
+            **{k: getattr(options, k) for k in KEPT_IN_META},
         }
         save_checkpoint(
             ckpt, opt.state(), meta, np.asarray(rows, dtype=np.float64).reshape(-1, len(columns))
