@@ -231,3 +231,24 @@ def test_a_board_wholly_off_the_envelope_names_an_offset_that_fits(tmp_path, pic
     fits = brute_force_offsets(table, (100.0, 80.0))
     nearest = fits[np.argmin(np.linalg.norm(fits - [500.0, -400.0], axis=1))]
     assert offset == tuple(nearest)
+
+
+@pytest.mark.parametrize("origin", sorted(_BACK))
+@pytest.mark.parametrize("rotation", [0, 90, 180, 270])
+def test_fitting_offset_follows_every_origin_and_turn(origin, rotation):
+    from scratchfab.machine.profile import profile_from_mapping
+
+    table = machine("grbl-3018-diamond")  # X -300..0, Y -180..0
+    table["board"].update(origin=origin, rotation_deg=rotation, offset_mm=[37.5, -412.25])
+    size = (170.0, 120.0)  # fits either way round
+    got = profile_from_mapping(table, "<p>").fitting_offset(size)
+    fits = brute_force_offsets(table, size)
+    nearest = fits[np.argmin(np.linalg.norm(fits - [37.5, -412.25], axis=1))]
+    assert got == tuple(nearest)
+    # Too long for Y when turned so that its 200 mm lie along Y; never for X.
+    long = profile_from_mapping(table, "<p>").fitting_offset((100.0, 200.0))
+    assert (
+        (long is None)
+        is (rotation % 180 == 0)
+        is (not len(brute_force_offsets(table, (100.0, 200.0))))
+    )
