@@ -480,7 +480,11 @@ def test_real_port_cuts_a_board_the_envelope_cuts_short_only_when_asked(
     assert old in profile
     (tmp_path / "overhang.toml").write_text(profile.replace(old, "offset_mm = [-15.0, -150.0]"))
     path = write_pipeline(
-        tmp_path, edits={'machine = "grbl-3018-diamond"': 'machine = "overhang.toml"'}
+        tmp_path,
+        edits={
+            'machine = "grbl-3018-diamond"': 'machine = "overhang.toml"',
+            'name = "tiny"': 'name = "tiny"\nforce = true',  # plans the part it reaches
+        },
     )
     job = tmp_path / "job"
     main(["run", str(path), "--out", str(job), "--until", "export"])
@@ -980,8 +984,14 @@ def test_other_ports_load(tmp_path, port):
 @pytest.mark.parametrize(("width", "warned"), [(30.0, False), (400.0, True)])
 def test_a_board_the_machine_cannot_reach_whole_is_said_before_design(tmp_path, width, warned):
     """The 3018's envelope is 300 x 180 mm: a 400 mm board is said at the start, and the
-    toolpath stage then finds scratches outside it, as the warning said it would."""
-    path = write_pipeline(tmp_path, edits={"width_mm = 30.0": f"width_mm = {width}"})
+    toolpath stage (under ``force``) then finds scratches outside it, as the warning said."""
+    path = write_pipeline(
+        tmp_path,
+        edits={
+            "width_mm = 30.0": f"width_mm = {width}",
+            'name = "tiny"': 'name = "tiny"\nforce = true',
+        },
+    )
     said: list[str] = []
     result = run_pipeline(load_pipeline(path), tmp_path / "job", until="toolpath", say=said.append)
     first = said[0].startswith(f"warning: the {width:g} x 30 mm board (corners ")
@@ -1131,3 +1141,35 @@ def test_a_hand_edited_design_toml_in_a_pipeline_job_is_named_with_where_to_edit
         f"it as it is now, but this job's design comes from {path}, and the design stage "
         "writes it over whenever that file changes: make the edit there"
     )
+
+
+def test_a_board_the_envelope_cuts_short_stops_the_run_at_toolpath_with_the_offset_that_fits(
+    tmp_path,
+):
+    """Without ``[pipeline] force`` a partial board is refused at toolpath, as the CLI's
+    ``toolpath`` refuses it without ``--force``: the start's warning says so, the refusal
+    names the offset_mm that fits, nothing is planned, and that offset cuts every scratch."""
+    from scratchfab.bundled import bundled_dir
+
+    profile = (bundled_dir("machine_profiles") / "grbl-3018-diamond.toml").read_text()
+    old = "offset_mm = [-220.0, -150.0]"
+    (tmp_path / "overhang.toml").write_text(profile.replace(old, "offset_mm = [-15.0, -150.0]"))
+    path = write_pipeline(
+        tmp_path, edits={'machine = "grbl-3018-diamond"': 'machine = "overhang.toml"'}
+    )
+    job = tmp_path / "job"
+    said: list[str] = []
+    with pytest.raises(ScratchfabError) as info:
+        run_pipeline(load_pipeline(path), job, until="toolpath", say=said.append)
+    assert "will stop there unless [pipeline] force = true" in said[0]
+    refusal = str(info.value)
+    assert "or give [pipeline] force = true to plan only the part it reaches" in refusal
+    assert not (job / "toolpath" / "toolpath.json").exists()
+    assert (job / "optimize" / "scratches.csv").is_file()  # the work before it is kept
+    (offset,) = re.findall(r"offset_mm = (\[[-0-9.]+, [-0-9.]+\])", refusal)
+    (tmp_path / "overhang.toml").write_text(profile.replace(old, f"offset_mm = {offset}"))
+    said.clear()
+    run_pipeline(load_pipeline(path), job, until="toolpath", say=said.append)
+    stats = json.loads((job / "toolpath" / "toolpath.json").read_text())["statistics"]
+    assert stats["outside_count"] == 0 and stats["clipped_count"] == 0
+    assert not any("board (corners" in line for line in said)

@@ -34,7 +34,8 @@ class PipelineOptions:
             ``--out`` (relative to the current directory) overrides.
         fit: How target images meet the board's aspect ("contain" or "cover").
         seed: Seed of the initial layout (as ``scratchfab design --seed``).
-        force: Go on when the feasibility check fails.
+        force: Go on when the feasibility check fails, and plan a board the machine's
+            envelope cuts short (only the part it reaches).
     """
 
     name: str = "scratchfab job"

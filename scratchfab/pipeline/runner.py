@@ -70,6 +70,10 @@ class RunResult:
     seconds: float = 0.0
 
 
+#: What lets the toolpath stage plan a board the machine's envelope cuts short.
+PARTIAL_OVERRIDE = "[pipeline] force = true"
+
+
 class _Stages:
     """The stage table: inputs, action and outputs of each stage of one pipeline."""
 
@@ -269,7 +273,13 @@ class _Stages:
 
         t = self.pipe.toolpath
         options = OrderOptions(passes=t.passes, kicks=t.kicks, seed=t.seed)
-        run_toolpath_job(self.job, self.pipe.profile, options, say=self._say_in)
+        run_toolpath_job(
+            self.job,
+            self.pipe.profile,
+            options,
+            say=self._say_in,
+            refuse_partial=None if self.pipe.pipeline.force else PARTIAL_OVERRIDE,
+        )
         return self._relative(self.layout.toolpath_json, self.layout.toolpath_preview)
 
     def _run_export(self) -> Sequence[str]:
@@ -320,22 +330,20 @@ class _Stages:
     def _ask_before_a_partial_board(self) -> None:
         """A board the envelope cuts short goes to a real machine only when a person says so.
 
-        The toolpath stage only warns (its preview shows what is lost); under ``--yes``
-        nobody reads that, and the machine would cut a board that cannot be finished.
+        The toolpath stage plans one only under ``[pipeline] force = true``, with a warning
+        (its preview shows what is lost); under ``--yes`` nobody reads that, and the machine
+        would cut a board that cannot be finished.
 
         Raises:
             ScratchfabError: Under ``--yes``, or when the person says no; nothing is sent.
         """
         from scratchfab.toolpath import Toolpath
+        from scratchfab.toolpath.plan import partial_text
 
-        stats = Toolpath.load(self.layout.toolpath_json).stats
-        outside, clipped = int(stats["outside_count"]), int(stats["clipped_count"])
-        if not outside and not clipped:
+        cut_short = partial_text(Toolpath.load(self.layout.toolpath_json).stats)
+        if cut_short is None:
             return
-        lost = (
-            f"{outside} of {stats['input_count']} scratches lie outside the machine's envelope "
-            f"and {clipped} are clipped to it ({self.layout.toolpath_preview})"
-        )
+        lost = f"{cut_short} ({self.layout.toolpath_preview})"
         if self.confirm is None:
             raise ScratchfabError(
                 f"[stream] refusing to cut a partial board with --yes: {lost}; fix the "
@@ -413,7 +421,7 @@ def _board_overhang(pipe: Pipeline) -> str | None:
     envelope, and refuses one wholly outside it; said before design and optimize run, a
     person can fix the board or the profile before minutes of work.
     """
-    from scratchfab.toolpath.plan import OUTSIDE_ADVICE, envelope_text, oversize_text, xy_text
+    from scratchfab.toolpath.plan import OUTSIDE_ADVICE, envelope_text, fit_advice, xy_text
 
     board, profile = pipe.design.board, pipe.profile
     size = (board.width_mm, board.height_mm)
@@ -426,27 +434,27 @@ def _board_overhang(pipe: Pipeline) -> str | None:
         f"{xy_text(corners)})"
     )
     envelope = envelope_text(profile)
-    oversize = oversize_text(profile, size)
+    fix = fit_advice(profile, size)
+    kept = "design and optimize do not use the machine: their work is kept for the next run"
     # The board turns by quarter turns only: its outline is an axis-aligned rectangle.
     lo, hi = corners.min(axis=0).tolist(), corners.max(axis=0).tolist()
     if not all(
         min(hi[i], span[1]) > max(lo[i], span[0]) for i, span in enumerate((env.x_mm, env.y_mm))
     ):
+        advice = OUTSIDE_ADVICE if fix == OUTSIDE_ADVICE else f"{OUTSIDE_ADVICE} ({fix})"
         return (
             f"{where} lies wholly outside {envelope}: the toolpath stage will refuse it; "
-            f"{OUTSIDE_ADVICE}{f' ({oversize})' if oversize else ''} (design and optimize "
-            "do not use the machine: their work is kept for the next run)"
+            f"{advice} ({kept})"
         )
-    fix = (
-        oversize[0].upper() + oversize[1:]
-        if oversize
-        else "To cut the whole board, make [board] smaller or move it with the profile's "
-        "[board] offset_mm (or correct [envelope])"
+    when = (
+        "will leave out the scratches beyond it and clip those across its edge "
+        f"({PARTIAL_OVERRIDE})"
+        if pipe.pipeline.force
+        else f"will stop there unless {PARTIAL_OVERRIDE}, which cuts only the part it reaches"
     )
     return (
-        f"{where} reaches beyond {envelope}: the toolpath stage will leave out the "
-        f"scratches beyond it and clip those across its edge. {fix}; Ctrl-C now to make "
-        "the change"
+        f"{where} reaches beyond {envelope}: the toolpath stage {when}. To cut the whole "
+        f"board, {fix}; Ctrl-C now to make the change ({kept})"
     )
 
 
