@@ -210,7 +210,7 @@ CASES = [
         ),
     ),
     # targets
-    _case("targets_black", lambda d: _views(d, None, target="black.png")),
+    _case("targets_black", lambda d: (_force(d), _views(d, None, target="black.png"))),
     _case("targets_white", lambda d: _views(d, None, target="white.png"), slow=True),
     _case(
         "targets_dot_and_1px",

@@ -1173,3 +1173,27 @@ def test_a_board_the_envelope_cuts_short_stops_the_run_at_toolpath_with_the_offs
     stats = json.loads((job / "toolpath" / "toolpath.json").read_text())["statistics"]
     assert stats["outside_count"] == 0 and stats["clipped_count"] == 0
     assert not any("board (corners" in line for line in said)
+
+
+@pytest.mark.parametrize("force", [False, True])
+def test_a_refused_design_names_the_pipeline_key_that_overrides_it(tmp_path, force):
+    """Under ``run``, ``--force`` reruns every stage: a design refusal (here a black target)
+    names ``[pipeline] force = true`` in the file instead, and that key does design it."""
+    from PIL import Image
+
+    edits = {'target = "bar.png"': 'target = "black.png"'}
+    if force:
+        edits['name = "tiny"'] = 'name = "tiny"\nforce = true'
+    path = write_pipeline(tmp_path, edits=edits)
+    Image.new("L", (24, 24), 0).save(tmp_path / "black.png")
+    job = tmp_path / "job"
+    if force:
+        run_pipeline(load_pipeline(path), job, until="design", say=lambda _: None)
+        assert (job / "design" / "design.toml").is_file()
+        return
+    with pytest.raises(ScratchfabError) as info:
+        run_pipeline(load_pipeline(path), job, until="design", say=lambda _: None)
+    said = str(info.value)
+    assert "the picture is black on the board" in said
+    assert f"(set [pipeline] force = true in {path} to design anyway)" in said
+    assert "--force" not in said

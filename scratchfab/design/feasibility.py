@@ -60,6 +60,9 @@ HATCH = figures.HATCH_RGB
 #: The map is drawn at least this wide (pixels), each grid cell a square block.
 MAP_MIN_PX = 384
 
+#: How a design refusal ends: the option that overrides it (``run`` names its own).
+DESIGN_ANYWAY = "(use --force to design anyway)"
+
 
 def lobe_deg(roughness: float) -> float:
     """Angular width of the GGX lobe, atan(alpha): where D falls to about a quarter of its peak."""
@@ -372,9 +375,7 @@ class FeasibilityReport:
     def raise_if_errors(self, source: str) -> None:
         """Raise one ConfigError naming the source and every problem (with the --force hint)."""
         if self.errors:
-            raise ConfigError(
-                f"{source}: " + "; ".join(self.errors) + " (use --force to design anyway)"
-            )
+            raise ConfigError(f"{source}: " + "; ".join(self.errors) + f" {DESIGN_ANYWAY}")
 
     def map_image(self, name: str) -> Image.Image:
         """The feasibility map of one view as an RGB picture with its key (see :func:`map_figure`)."""

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from scratchfab.console import Say
-from scratchfab.design.feasibility import FeasibilityReport, check_feasibility
+from scratchfab.design.feasibility import DESIGN_ANYWAY, FeasibilityReport, check_feasibility
 from scratchfab.design.images import load_image
 from scratchfab.design.layout import initial_layout
 from scratchfab.design.targets import (
@@ -415,7 +415,7 @@ def _check_brightness(
             f"the board (brightest {float(board.max()):.3f}), so the view would show nothing: "
             "bright parts are cut, dark ones stay bare board, and transparent pixels read "
             "as black; give a picture with light shapes on a dark ground (a dark logo on a "
-            "transparent ground: make the logo white) (use --force to design anyway)"
+            f"transparent ground: make the logo white) {DESIGN_ANYWAY}"
         )
     if spread < UNIFORM_TARGET_SPREAD:
         say(

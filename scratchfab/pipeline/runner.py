@@ -197,17 +197,24 @@ class _Stages:
         return [self.layout.relative(p) for p in paths]
 
     def _run_design(self) -> Sequence[str]:
+        from scratchfab.design.feasibility import DESIGN_ANYWAY
         from scratchfab.design.stage import run_design
 
         opts = self.pipe.pipeline
-        run_design(
-            replace(self.pipe.design, source=str(self.pipe.path)),
-            self.job,
-            force=opts.force,
-            fit=opts.fit,
-            seed=opts.seed,
-            progress=self._say_in,
-        )
+        try:
+            run_design(
+                replace(self.pipe.design, source=str(self.pipe.path)),
+                self.job,
+                force=opts.force,
+                fit=opts.fit,
+                seed=opts.seed,
+                progress=self._say_in,
+            )
+        except ScratchfabError as exc:  # `run --force` reruns stages: name the file's key
+            if exc.args and DESIGN_ANYWAY in str(exc.args[0]):
+                anyway = f"(set [pipeline] force = true in {self.pipe.path} to design anyway)"
+                exc.args = (str(exc.args[0]).replace(DESIGN_ANYWAY, anyway), *exc.args[1:])
+            raise
         design = self.layout.design
         return self._relative(design.design_toml, design.initial_scratches, design.targets_dir)
 
