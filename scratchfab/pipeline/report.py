@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from scratchfab.console import command_line, duration_text
+from scratchfab.design.stand import side, stand_text
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, write_text
 from scratchfab.metrics import rho_text
@@ -196,32 +197,17 @@ def _vec3(values: Any) -> Vec3:
     return (float(values[0]), float(values[1]), float(values[2]))
 
 
-def _place(position: Vec3, subject: str) -> str:
-    """``22° to the left of the board's front, level with its centre, 50 cm away``."""
-    azimuth, elevation, distance = polar_from_position(position)
-    # Straight ahead, "of the board's front" would say the front twice.
-    parts = [f"{_side(azimuth)} of {'the board' if round(abs(azimuth)) == 0 else subject}"]
-    if round(abs(elevation)) == 0:
-        parts.append("level with its centre")
-    else:
-        parts.append(f"{abs(elevation):.0f}° {'above' if elevation > 0 else 'below'} its centre")
-    parts.append(f"{distance / 10:.0f} cm away")
-    return ", ".join(parts)
-
-
 def _stand_section(design: Design | None) -> str:
     if design is None or not design.views:
         return "<p class='muted'>design has not run.</p>"
     items = []
     for view in design.views:
         name = view.name
-        position = _vec3(view.camera_position)
-        light = f"; light {_place(_vec3(design.light_for(view)), 'the board')}"
-        az, el, dist = polar_from_position(position)
+        az, el, dist = polar_from_position(_vec3(view.camera_position))
         items.append(
             f"<li data-stand='{html.escape(name)}' data-azimuth='{az:.3f}' "
             f"data-elevation='{el:.3f}' data-distance='{dist:.3f}'><b>{html.escape(name)}</b>: "
-            f"stand {_place(position, 'the board’s front')}{light}.</li>"
+            f"{html.escape(stand_text(design, view))}.</li>"
         )
     return (
         "<p>Angles are from the board's front (its normal) with its top edge up; distances "
@@ -778,20 +764,13 @@ def _walk_section(job: Path, metrics: dict[str, Any] | None) -> str:
         try:
             first = polar_from_position(tuple(cameras[0]["position_mm"]))[0]
             last = polar_from_position(tuple(cameras[-1]["position_mm"]))[0]
-            detail = f", from {_side(first)} to {_side(last)} of the board's front"
+            detail = f", from {side(first)} to {side(last)} of the board's front"
         except (IndexError, KeyError, TypeError, ValueError):
             detail = ""
         if isinstance(sweep.get("nearest_frame"), dict) and sweep["nearest_frame"]:
             detail += ", passing the place of each view"
     caption = f"the board under the design light as a viewer walking past it sees it{detail}"
     return f"<div class='row'>{_figure(gif, 'walk past the board', caption, wide=True)}</div>"
-
-
-def _side(azimuth: float) -> str:
-    """``straight in front`` or ``22° to the left``: where an azimuth lies, in the report's words."""
-    if round(abs(azimuth)) == 0:
-        return "straight in front"
-    return f"{abs(azimuth):.0f}° to the {'left' if azimuth < 0 else 'right'}"
 
 
 def _sky_section(job: Path, names: list[str], metrics: dict[str, Any] | None) -> str:
