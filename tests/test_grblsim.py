@@ -568,7 +568,10 @@ def test_a_feed_hold_reads_lines_while_it_stops_and_none_once_held():
     """Grbl 1.1: while a hold decelerates (Hold:1) the main loop still reads and plans
     lines; once it is complete (Hold:0) the suspend loop reads none until the resume. A
     hold from Idle is complete at once, and M0's ok comes after the resume too."""
-    port = _open("time_scale=2")  # the G1 takes 6 s; a hold's stop v/a = 1/30 s: 0.07 s
+    # the G1 takes 6 s; a hold acts after the 5 segments prepared, 20 ms each (F20 runs
+    # less than 1.25 steps in 10 ms: st_prep_buffer stretches them), then stops in v/a =
+    # 1/30 s: within 0.16 s, 0.32 s at time_scale 2
+    port = _open("time_scale=2")
     try:
         _banner(port)
         port.write(b"!")  # from Idle: Hold:0 at once
@@ -587,7 +590,7 @@ def test_a_feed_hold_reads_lines_while_it_stops_and_none_once_held():
         time.sleep(0.1)
         port.write(b"!G1X2\n")  # the line arrives while the hold is under way
         assert _answers(_read_until(port, lambda ls: "ok" in ls, timeout=0.08)) == ["ok"]
-        time.sleep(0.2)
+        time.sleep(0.4)
         assert _status(port).startswith("<Hold:0|")
         port.write(b"G1X3\n")
         assert _answers(_lines_for(port, 0.3)) == []

@@ -7,6 +7,8 @@ segments counted as it runs), never the emulator's own profiles.
 
 from __future__ import annotations
 
+import math
+
 import grbl_planner_sim as planner_sim
 import pytest
 from grbl_stepper_ticks import ticks_taken
@@ -195,12 +197,89 @@ def test_a_block_queued_while_running_acts_once_the_prepared_segments_ran():
 def test_fs_reads_the_speed_where_the_prepared_segments_end():
     """``st_get_realtime_rate`` reports ``prep.current_speed``: G1X10F600 speeds up for
     1 s and slows down for 1 s; at 0.303 s the segments prepared end at 0.35 s (3.5 mm/s,
-    the machine itself goes 3.03), and from 1.95 s all of the move is prepared, so ``FS:0``
-    while it still runs its last 50 ms (at 1.945 s those end at 1.99 s: 0.1 mm/s)."""
+    the machine itself goes 3.03), and near the end all of the move is prepared, so
+    ``FS:0`` while it still runs its last segments."""
     machine = _Machine({110: 1000.0})
     machine.at(0.0, b"G1X10F600\n")
     assert machine.report(0.303)[2] == pytest.approx(60.0 * 3.5, abs=0.6)
-    assert machine.report(1.945)[2] == pytest.approx(6.0, abs=0.6)
     state, (x, _, _), rate = machine.report(1.97)
     assert (state, rate) == ("Run", 0.0) and x < 10.0
     assert machine.report(2.01) == ("Idle", (10.0, 0.0, 0.0), 0.0)
+
+
+def _grbl_segments(length: float, rate: float, accel: float, per_mm: float) -> list:
+    """(end time, speed there) of each segment ``st_prep_buffer`` prepares for one block
+    from rest to rest, its ramps as it walks them (``RAMP_ACCEL``, ``RAMP_CRUISE``,
+    ``RAMP_DECEL``): 10 ms (``DT_SEGMENT``), 10 ms more while a segment holds less than
+    1.25 steps (``REQ_MM_INCREMENT_SCALAR``), the last one ending with the block."""
+    decel_after = min(rate * rate / (2.0 * accel), 0.5 * length)  # mm from the end
+    top = math.sqrt(2.0 * accel * decel_after)
+    accel_until = length - decel_after
+    ramp, v, left, t, out = "accel", 0.0, length, 0.0, []
+    while left > 0.0:
+        dt_max, dt, step, start, least = 0.01, 0.0, 0.01, left, max(left - 1.25 / per_mm, 0.0)
+        while True:
+            if ramp == "accel":
+                left -= step * (v + 0.5 * accel * step)
+                if left < accel_until:
+                    left = accel_until
+                    step = 2.0 * (start - left) / (v + top)
+                    ramp, v = ("decel" if left == decel_after else "cruise"), top
+                else:
+                    v += accel * step
+            elif ramp == "cruise":
+                if left - top * step < decel_after:
+                    step = (left - decel_after) / top
+                    left, ramp = decel_after, "decel"
+                else:
+                    left -= top * step
+            elif v > accel * step and left - step * (v - 0.5 * accel * step) > 0.0:
+                left -= step * (v - 0.5 * accel * step)
+                v -= accel * step
+            else:
+                step, left, v = 2.0 * left / v, 0.0, 0.0
+            dt += step
+            if left <= 0.0:
+                break
+            if dt < dt_max:
+                step = dt_max - dt
+            elif left > least:
+                dt_max += 0.01
+                step = dt_max - dt
+            else:
+                break
+        t += dt
+        out.append((t, v))
+    return out
+
+
+def _prepared_end(segments: list, t: float) -> tuple[float, float]:
+    """Where the 5 segments prepared at ``t`` end (the one under way included), and the
+    speed there (``prep.current_speed``; 0 once the last is prepared)."""
+    running = next(k for k, (end, _) in enumerate(segments) if end > t)
+    end, speed = segments[min(running + 4, len(segments) - 1)]
+    return end, (speed if running + 4 < len(segments) - 1 else 0.0)
+
+
+def test_segments_of_less_than_a_step_and_a_quarter_run_longer():
+    """At $120=10 a move from rest runs 0.5 mm in its first 10 ms, less than 1.25 steps
+    (5 um at 250 steps/mm): ``st_prep_buffer`` stretches that segment to 40 ms and the next
+    to 20 ms. A hold at 5 ms so acts at 90 ms (not 50), at 0.9 mm/s, and the machine
+    stands 0.081 mm on (0.025 with 10 ms segments), on step 20. Against a walk of Grbl's
+    segment loop, which also gives ``FS:`` near the end, where the segments stretch again."""
+    segments = _grbl_segments(10.0, 10.0, 10.0, 250.0)
+    assert [round(end, 6) for end, _ in segments[:3]] == [0.04, 0.06, 0.07]
+    acts, speed = _prepared_end(segments, 0.005)
+    assert acts == pytest.approx(0.09) and speed == pytest.approx(0.9)
+    machine = _Machine({})
+    machine.at(0.0, b"G1X10F600\n")
+    machine.at(0.005, b"!")
+    stood = 0.5 * 10.0 * acts**2 + speed**2 / 20.0
+    assert machine.report(0.5) == ("Hold:0", (math.floor(stood * 250.0) / 250.0, 0.0, 0.0), 0.0)
+    assert machine.times("state", state="Hold:0") == pytest.approx([acts + speed / 10.0])
+    machine = _Machine({110: 1000.0})
+    machine.at(0.0, b"G1X10F600\n")
+    for t in (0.003, 0.045, 0.503, 1.503, 1.903, 1.925, 1.935, 1.945, 1.955, 1.97):
+        assert machine.report(t)[2] == pytest.approx(
+            60.0 * _prepared_end(segments, t)[1], abs=0.6
+        ), t

@@ -88,6 +88,7 @@ class _Prepared(planner_sim.Stepper):
     def __init__(self, blocks: list[planner_sim.Block]) -> None:
         super().__init__(blocks)
         self.segment_ends = SEGMENT_S
+        self.segment_from = 0.0  # where the segment under way started (mm along the path)
         self.block = 0
         self.waiting: list[list] = []  # [segments left, realtime byte]
 
@@ -97,10 +98,18 @@ class _Prepared(planner_sim.Stepper):
         if block != self.block:  # a block ended within this step, its last segment too
             self.block = block
             self.segment_ends = self.t + SEGMENT_S
+            self.segment_from = self.s
             self._segment_ended()
         elif self.t >= self.segment_ends - 1e-9:
             self.segment_ends += SEGMENT_S
-            self._segment_ended()
+            # st_prep_buffer: a segment of less than 1.25 steps runs 10 ms more
+            if self.s - self.segment_from >= 1.25 / self.steps_per_mm(block) - 1e-6:
+                self.segment_from = self.s
+                self._segment_ended()
+
+    def steps_per_mm(self, block: int) -> float:
+        """Step events (the most steps of an axis) per mm along a block (250 steps/mm)."""
+        return 250.0 * max(abs(u) for u in self.blocks[block].unit)
 
     def _segment_ended(self) -> None:
         for item in self.waiting:
@@ -115,6 +124,7 @@ class _Prepared(planner_sim.Stepper):
             if byte == ord("~"):
                 self.act(byte)
                 self.segment_ends = self.t + SEGMENT_S  # segments from the resume
+                self.segment_from = self.s
             elif self.v > 0.0:
                 self.waiting.append([PREPARED, byte])
             else:

@@ -1127,6 +1127,7 @@ class GrblSim:
         head.duration = 0.0
         if left <= 0.0:  # nothing left, or a move Grbl drops: passed at the speed it has
             head.v1 = entry
+            self._schedule()
             return
         shed = 2.0 * head.accel * left  # the speed^2 the head can shed (or gain) over it
         if self._stopping:
@@ -1152,6 +1153,7 @@ class GrblSim:
         if head.span > 0.0:
             seconds = profile_seconds(head.span, head.v0, head.v1, head.vmax, head.accel)
             head.duration = float(seconds) * self.options.time_scale
+        self._schedule()  # the segments follow the profile
 
     def _finish_head(self, t: float) -> None:
         """The head's profile ended: a stop inside the block (a hold), else the block ended."""
@@ -1162,7 +1164,7 @@ class GrblSim:
             self._stopped(t)
             return
         if head.length > 0.0:
-            self._segment_end(t, block_end=True)  # its last segment ends with it (st_prep_buffer)
+            self._segment_end(t)  # its last segment ends with it (st_prep_buffer)
             if not self._planner or self._planner[0] is not head:
                 return  # what acted there (a hold's stop at the block's end) took it on
         block = self._planner.popleft()
@@ -1197,52 +1199,102 @@ class GrblSim:
         self._seg_last = t
         self._schedule()
 
-    def _grid(self, t: float) -> int:
-        """The head's whole segments run by ``t`` (10 ms each from its run's start)."""
-        return math.floor(
-            (t - self._seg_origin) / (SEGMENT_SECONDS * self.options.time_scale) + 1e-9
-        )
+    def _ends(self, frm: float, until: float, most: float = math.inf) -> tuple[int, float]:
+        """How many of the head's segment ends come after ``frm`` (one) up to ``until``.
+
+        At most ``most`` of them; also the last one's time.
+
+        ``st_prep_buffer`` ends a segment after 10 ms (``DT_SEGMENT``), or more 10 ms where
+        that is less than ``REQ_MM_INCREMENT_SCALAR`` (1.25) steps of the block (slow
+        moves, a start from rest: its "very slow segments" rule), and at the profile's end.
+        The speed of a profile is least at the ends of any span of it, so where both ends
+        are fast enough the 10 ms segments are counted at once.
+        """
+        head = self._planner[0]
+        scale = self.options.time_scale
+        dt = SEGMENT_SECONDS * scale
+        end = self._head_start + head.duration
+        a, b = self._to_steps(head.start), self._to_steps(head.end)
+        events = max(abs(q - p) for p, q in zip(a, b, strict=True))
+        need = 1.25 * head.length / events if events and head.length > 0.0 else 0.0
+
+        def at(t: float) -> tuple[float, float]:
+            if head.span <= 0.0:
+                return 0.0, head.v0
+            return profile_at(
+                (min(t, end) - self._head_start) / scale,
+                head.span,
+                head.v0,
+                head.v1,
+                head.vmax,
+                head.accel,
+            )
+
+        k = math.floor((frm - self._seg_origin) / dt + 1e-9)
+        count, last = 0, frm
+        done, speed = at(last)
+        while count < most:
+            stop = min(until, end)
+            far = math.floor((stop - self._seg_origin) / dt + 1e-9)  # the last whole grid point
+            if (
+                far > k + 1
+                and speed * dt >= need
+                and at(self._seg_origin + far * dt)[1] * dt >= need
+            ):
+                jump = min(far - k - 1, int(min(most - count, 1e9)) - 1)
+                if jump > 0:  # all 10 ms segments: to one before the far point at once
+                    k += jump
+                    count += jump
+                    last = self._seg_origin + k * dt
+                    done, speed = at(last)
+                    continue
+            k += 1
+            point = self._seg_origin + k * dt
+            if point >= end - 1e-12 * max(1.0, abs(end)):
+                point = end
+            if point > until + 1e-12 * max(1.0, abs(until)):
+                break
+            mm, v = at(point)
+            if point == end or mm - done >= need * (1.0 - 1e-9):
+                count, last, done, speed = count + 1, point, mm, v
+            if point == end:
+                break
+        return count, last
 
     def _schedule(self) -> None:
         """When the first deferred change acts, if the head's segments run on to it."""
-        if not self._deferred:
-            self._land_at = math.inf
-            return
-        left = min(item[0] for item in self._deferred)
-        dt = SEGMENT_SECONDS * self.options.time_scale
-        self._land_at = self._seg_origin + (self._grid(self._seg_last) + left) * dt
+        self._land_at = math.inf
+        if self._deferred and self._running():
+            left = min(item[0] for item in self._deferred)
+            count, last = self._ends(self._seg_last, math.inf, left)
+            if count >= left:
+                self._land_at = last
 
     def _defer(self, t: float, kind: str, what: Any = None) -> None:
         """A stop, re-plan or new block that takes effect once the prepared segments ran.
 
         Grbl's ``st_update_plan_block_parameters`` re-plans from the end of the segment
         buffer (``prep.current_speed``): the segments already prepared (``st_prep_buffer``
-        keeps 5, the one running included; 10 ms each, shorter where a block ends) run as
-        they were, so a hold, override or new block acts 40-50 ms later than it came. Not
-        moving, or with no time passing (``time_scale`` 0), it acts at once.
+        keeps 5, the one running included; 10 ms each, longer at slow speeds, shorter where
+        a block ends) run as they were, so a hold, override or new block acts 40-50 ms later
+        than it came. Not moving, or with no time passing (``time_scale`` 0), it acts at once.
         """
         if not self._running() or self.options.time_scale <= 0.0:
             self._apply_deferred(t, kind, what)
             return
-        left = SEGMENTS_PREPARED + self._grid(t) - self._grid(self._seg_last)
+        left = SEGMENTS_PREPARED + self._ends(self._seg_last, t)[0]
         self._deferred.append([left, kind, what])
         self._schedule()
 
-    def _segment_end(self, t: float, block_end: bool = False) -> None:
-        """Count the segment ends up to ``t`` (at the head's end its last, shorter one too).
+    def _segment_end(self, t: float) -> None:
+        """Count the segment ends up to ``t`` (a segment's end, or the head's end).
 
         Deferred changes whose segments have run act, in the order they came.
         """
         if not self._deferred:
             self._seg_last = t
             return
-        k = self._grid(t)
-        if (
-            block_end
-            and self._seg_origin + k * SEGMENT_SECONDS * self.options.time_scale < t - 1e-12
-        ):
-            k += 1
-        passed = k - self._grid(self._seg_last)
+        passed = self._ends(self._seg_last, t)[0]
         if t >= self._land_at:  # the landing itself counts, whatever the clock's rounding
             passed = max(passed, min(item[0] for item in self._deferred))
         self._seg_last = t
