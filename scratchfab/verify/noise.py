@@ -3,8 +3,9 @@
 :func:`scratchfab.metrics.noise_effect` estimates, from the renders' own batch spread,
 the rho a noise-free render would reach; this module turns the figures ``metrics.json``
 records for a view (``rho``, ``rho_noise_free``, ``noise_to_signal``, ``noise``, ``spp``,
-``seconds``, ``diff_noise_share``) into advice: whether the noise explains a failed gate,
-and the sample count that would end it. It imports no renderer, so the report uses it.
+``seconds``, ``seconds_per_spp``, ``diff_noise_share``) into advice: whether the noise
+explains a failed gate, and the sample count that would end it (and about how long that
+takes). It imports no renderer, so the report uses it.
 """
 
 from __future__ import annotations
@@ -28,6 +29,21 @@ QUIET_MAP_SHARE = 0.2
 def more_spp(spp: int, factor: float) -> int:
     """The power of two at or above ``factor`` times ``spp`` (counts a maker types)."""
     return 1 << max(0, math.ceil(math.log2(max(1.0, spp * factor)) - 1e-9))
+
+
+def render_seconds(entry: Mapping[str, Any], spp: int) -> float | None:
+    """About how long a view's render would take with ``spp`` samples per pixel.
+
+    Its own time, plus the added samples at ``seconds_per_spp`` (what a sample per pixel
+    cost once compiled); a metrics.json without that scales the whole time, compiling
+    included. None where the entry keeps no time.
+    """
+    seconds, taken, per_spp = entry.get("seconds"), entry.get("spp"), entry.get("seconds_per_spp")
+    if not isinstance(seconds, float) or not taken:
+        return None
+    if isinstance(per_spp, float) and math.isfinite(per_spp) and per_spp >= 0:
+        return seconds + max(0, spp - taken) * per_spp
+    return seconds * spp / taken
 
 
 def _effect(entry: Mapping[str, Any]) -> NoiseEffect | None:
@@ -62,7 +78,7 @@ def noise_advice(entry: Mapping[str, Any], min_rho: float | None, spp_setting: s
         less than :data:`~scratchfab.metrics.NOISE_RHO_LOSS` (or was not measured).
     """
     effect = _effect(entry)
-    spp, noise, seconds = entry.get("spp"), entry.get("noise"), entry.get("seconds")
+    spp, noise = entry.get("spp"), entry.get("noise")
     if effect is None or not spp or noise is None:
         return ""
     free = effect.rho_free
@@ -79,7 +95,8 @@ def noise_advice(entry: Mapping[str, Any], min_rho: float | None, spp_setting: s
             return ""
     more = more_spp(spp, factor)
     ratio = more / spp
-    later = f", about {duration_text(seconds * ratio)} a view" if isinstance(seconds, float) else ""
+    took = render_seconds(entry, more)
+    later = f", about {duration_text(took)} a view" if took is not None else ""
     then = f"{spp_setting} {more} brings the noise to about {100 * noise / math.sqrt(ratio):.1f} %"
     noisy = f"the render's sampling noise ({100 * noise:.1f} %)"
     if free is None:

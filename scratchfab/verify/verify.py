@@ -180,6 +180,9 @@ class ViewRender:
         seconds: Wall time of all batches.
         variance: (H, W) the estimated variance of each pixel of ``image`` (the squared
             standard error that ``noise`` sums).
+        seconds_per_spp: Wall time one more sample per pixel (of ``render``'s ``spp``)
+            costs, timed on each part's batches after its first, whose time also holds
+            compiling and loading the scene.
     """
 
     image: np.ndarray
@@ -187,6 +190,7 @@ class ViewRender:
     spp: int
     seconds: float
     variance: np.ndarray
+    seconds_per_spp: float
 
 
 def half_spp(spp: int) -> int:
@@ -260,14 +264,16 @@ class BoardRenderer:
         means = []
         variance: np.ndarray | float = 0.0
         taken = 0
+        per_spp = 0.0
         for p, (bsdf, fraction) in enumerate(self.parts):
             part_spp = max(MIN_PART_SPP, round(fraction * spp))
-            mean, var, n = self._batches(
+            mean, var, n, per_sample = self._batches(
                 view, bsdf, part_spp, 4096 * seed + 64 * p, max_noise if p == 0 else None
             )
             means.append(mean)
             variance += var
             taken = max(taken, n)
+            per_spp += fraction * per_sample  # a part takes ``fraction`` of each spp
         if self.mode == "spec":
             image = means[0] + np.maximum(means[1], 0.0)
         else:
@@ -276,12 +282,16 @@ class BoardRenderer:
         noise = math.sqrt(float(np.sum(variance))) / norm if norm > 0 else 0.0
         seconds = time.perf_counter() - start
         per_pixel = np.broadcast_to(np.asarray(variance, np.float64), image.shape).copy()
-        return ViewRender(image.astype(np.float32), noise, taken, seconds, per_pixel)
+        return ViewRender(image.astype(np.float32), noise, taken, seconds, per_pixel, per_spp)
 
     def _batches(
         self, view: View, bsdf: Any, spp: int, seed: int, max_noise: float | None
-    ) -> tuple[np.ndarray, np.ndarray, int]:
-        """Mean of independent batches, its squared standard error per pixel, and spp taken."""
+    ) -> tuple[np.ndarray, np.ndarray, int, float]:
+        """Batches' mean, its squared standard error per pixel, spp taken, seconds per sample.
+
+        The seconds per sample are timed on the batches after the first, whose time also
+        holds compiling the kernels and the scene's first use.
+        """
         mi = self.mi
         half = half_spp(spp)
         scene = mi.load_dict(
@@ -289,15 +299,19 @@ class BoardRenderer:
         )
         batches: list[np.ndarray] = []
         limit = max(2, (MAX_SPP_FACTOR * spp) // half)
+        later = 0.0  # the batches after the first: no compiling, no first use of the scene
         while True:
+            start = time.perf_counter()
             batches.append(render_view(scene, half, (seed + len(batches)) % (1 << 32)))
+            if len(batches) > 1:
+                later += time.perf_counter() - start
             if len(batches) < 2:
                 continue
             mean, var = _batch_stats(batches)
             norm = float(np.linalg.norm(mean))
             noise = math.sqrt(float(np.sum(var))) / norm if norm > 0 else 0.0
             if max_noise is None or noise <= max_noise or len(batches) >= limit:
-                return mean, var, half * len(batches)
+                return mean, var, half * len(batches), later / (half * (len(batches) - 1))
 
 
 def _batch_stats(batches: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -455,6 +469,7 @@ def run_verify(
         entry: dict[str, Any] = {
             "spp": r.spp,
             "seconds": r.seconds,
+            "seconds_per_spp": r.seconds_per_spp,
             "noise": r.noise,
             "rel_l2": None,
             "resolution": [view.width, view.height],
