@@ -1045,8 +1045,10 @@ def test_a_board_wholly_off_the_machine_is_said_with_advice_that_works(tmp_path)
     assert "can fit it" not in warning  # 30 mm fits the travel: moving it is the fix
     assert "lies wholly outside" in warning and "the toolpath stage will refuse it" in warning
     assert "leave out" not in warning and "clip" not in warning
-    advice = "set the machine profile's [board] offset_mm to where the board lies on the bed"
-    assert advice in warning and advice in str(info.value)
+    # The same offset in both, one that fits: the 30 mm board's far corner inside X <= 0.
+    (offset,) = re.findall(r"set the profile's \[board\] offset_mm = \[([-0-9.]+), ", warning)
+    assert f"offset_mm = [{offset}, " in str(info.value)
+    assert -300 <= float(offset) <= -30
     assert "wholly outside the envelope" in str(info.value)
     assert sum("board (corners" in line for line in said) == 1
 

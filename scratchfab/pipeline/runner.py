@@ -428,7 +428,7 @@ def _board_overhang(pipe: Pipeline) -> str | None:
     envelope, and refuses one wholly outside it; said before design and optimize run, a
     person can fix the board or the profile before minutes of work.
     """
-    from scratchfab.toolpath.plan import OUTSIDE_ADVICE, envelope_text, fit_advice, xy_text
+    from scratchfab.toolpath.plan import envelope_text, fit_advice, xy_text
 
     board, profile = pipe.design.board, pipe.profile
     size = (board.width_mm, board.height_mm)
@@ -448,10 +448,9 @@ def _board_overhang(pipe: Pipeline) -> str | None:
     if not all(
         min(hi[i], span[1]) > max(lo[i], span[0]) for i, span in enumerate((env.x_mm, env.y_mm))
     ):
-        advice = OUTSIDE_ADVICE if fix == OUTSIDE_ADVICE else f"{OUTSIDE_ADVICE} ({fix})"
         return (
             f"{where} lies wholly outside {envelope}: the toolpath stage will refuse it; "
-            f"{advice} ({kept})"
+            f"{fix} ({kept})"
         )
     when = (
         "will leave out the scratches beyond it and clip those across its edge "
