@@ -430,11 +430,15 @@ def _stream_locked(
             "machine moves: board clamped and set up as README step 5 says, area clear"
         ):
             raise ScratchfabError("not confirmed; nothing was sent")
-        streamer.stream(program, journal, start=start, preamble=preamble, resume=resume)
-        journal.close()
-        cb.outcome(
-            f"done: {len(program.blocks) - start} lines acknowledged; journal {journal_file}"
-        )
+        try:
+            streamer.stream(program, journal, start=start, preamble=preamble, resume=resume)
+            journal.close()
+            cb.outcome(
+                f"done: {len(program.blocks) - start} lines acknowledged; journal {journal_file}"
+            )
+        finally:
+            if resume and events is not None:
+                _say_lost_position(events, cb.say, again=True)
     finally:
         ser.close()
 
@@ -511,23 +515,52 @@ def _check_strokes(program: Program, gcode: Path) -> None:
     )
 
 
-def _say_lost_position(events: list[dict[str, Any]], say: Say) -> None:
-    """Warn where the interrupted run ended with an alarm that likely lost the position.
+def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
+    """The warning where the interrupted run ended with an alarm that may have lost the position.
 
-    The journal's ``alarm`` with ``lost`` (an ``ALARM:2`` while the sender's feed hold
-    still slowed the machine: GRBL stopped the motors at speed). GRBL stays locked until
-    homed or unlocked, and the sender cannot tell which was done: an unlock keeps the lost
-    position, so the resumed strokes would land off.
+    The journal's last session's ``alarm`` with ``lost``: ``true`` where GRBL stopped the
+    motors at speed (a soft limit while the sender's feed hold slowed the machine down, a
+    hard limit, a reset in motion), ``"maybe"`` where a hold the sender did not send (the
+    controller's feed hold button, or GRBL's own soft-limit hold) was slowing it. GRBL stays
+    locked until homed or unlocked, and the sender cannot tell which was done (Grbl 1.1
+    answers ``$H`` and ``$X`` alike): an unlock keeps the lost position, so the resumed
+    strokes would land off. None where no such alarm ended it.
     """
     starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
     last = events[starts[-1] :] if starts else events
-    if any(ev.get("ev") == "alarm" and ev.get("lost") is True for ev in last):
-        say(
-            "warning: the interrupted run ended with an alarm that stopped the motors at "
-            "speed (a soft limit while a feed hold slowed the machine down), so its position "
-            "was likely lost: go on only if the machine was homed ($H) since; after an "
-            "unlock ($X) alone the strokes would land off"
+    alarms = [ev for ev in last if ev.get("ev") == "alarm" and ev.get("lost")]
+    if not alarms:
+        return None
+    code = alarms[-1].get("code")
+    if alarms[-1]["lost"] == "maybe":
+        return (
+            f"the interrupted run ended with ALARM:{code} (a soft limit) while a feed "
+            "hold the sender did not send was slowing the machine down: GRBL's own soft-limit "
+            "hold keeps the position, the controller's feed hold button would have lost it "
+            "(the motors stopped at speed); go on only if the machine was homed ($H) since, or "
+            "you know the hold was GRBL's own; after an unlock ($X) alone the strokes may land off"
         )
+    why = {
+        1: "a hard limit",
+        2: "a soft limit while a feed hold slowed the machine down",
+        3: "a reset while the machine moved",
+    }.get(code if isinstance(code, int) else -1, "an alarm")
+    return (
+        f"the interrupted run ended with ALARM:{code}, which stopped the motors at "
+        f"speed ({why}), so its position was likely lost: go on only if the machine was "
+        "homed ($H) since; after an unlock ($X) alone the strokes would land off"
+    )
+
+
+def _say_lost_position(events: list[dict[str, Any]], say: Say, again: bool = False) -> None:
+    """Say :func:`lost_position_warning`, where there is one; ``again`` in the closing lines.
+
+    Said once connected, and again when the resumed stream ends (done, stopped or failed):
+    with ``--yes`` nothing waits after the first, which scrolls past under the progress.
+    """
+    warning = lost_position_warning(events)
+    if warning is not None:
+        say(f"warning{' (repeated)' if again else ''}: {warning}")
 
 
 def _say_unclosed(program: Program, unsure_blocks: set[int], say: Say) -> None:
