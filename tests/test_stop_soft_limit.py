@@ -77,19 +77,23 @@ def test_a_soft_limit_read_in_a_cycle_is_not_told_as_surely_lost(tmp_path):
     """Without the sender's hold, GRBL reads the line in the cycle, holds (Hold:1), then
     alarms at rest: the position is kept. The sender cannot tell that hold from one of the
     controller's feed hold button (the same reports): it says the position is kept if
-    the hold was GRBL's own, and asks for homing otherwise."""
+    the hold was GRBL's own, and asks for homing otherwise; the journal's alarm says the
+    position is maybe lost, which a later --resume tells (only the last session's)."""
     exc, events, record = _stream(tmp_path, None)
     (alarm,) = _alarms(record)
     assert alarm["code"] == 2 and "lost" not in alarm
     assert any(e["ev"] == "state" and e["state"] == "Hold:1" for e in record)
     assert "ALARM:2" in str(exc) and _LOST not in str(exc)
     assert "position is kept if that was GRBL's own soft-limit hold" in str(exc)
-    assert [(e["code"], e.get("lost")) for e in events if e["ev"] == "alarm"] == [(2, None)]
+    assert [(e["code"], e.get("lost")) for e in events if e["ev"] == "alarm"] == [(2, "maybe")]
     said: list[str] = []
     _say_lost_position(events, said.append)
-    assert said == []
-    # an earlier session's lost position is not this run's: only the last session counts
-    _say_lost_position([{"ev": "alarm", "code": 2, "lost": True}, *events], said.append)
+    assert len(said) == 1 and "unless you know" not in said[0]
+    assert "or you know the hold was GRBL's own" in said[0] and "homed ($H) since" in said[0]
+    # an earlier session's alarm is not this run's: only the last session counts
+    later = [{"ev": "start"}, {"ev": "stop", "reason": "stopped by the user"}]
+    said.clear()
+    _say_lost_position([*events, *later], said.append)
     assert said == []
 
 

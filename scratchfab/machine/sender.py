@@ -867,6 +867,7 @@ class Streamer:
         self._acked_blocks = []
         self._acks_at_status = 0
         self._hold_alarm = None
+        self._session_start = start
         self._stopped_through = None
         self._hold_unseen = False  # a hold before the connect's reset is over
         self._all_ran = False  # END_WAIT acknowledged: every acknowledged block ran
@@ -882,8 +883,8 @@ class Streamer:
                     again, reason=f"{fault}; {_interrupt_name(again)} while stopping"
                 )
                 raise StreamStopped(
-                    f"{fault}; {_interrupt_name(again)} while stopping: machine held, then "
-                    "soft-reset (spindle off); continue later with --resume"
+                    f"{fault}; {_interrupt_name(again)} while stopping: {self._held_text()}; "
+                    f"{self._go_on()}"
                 ) from None
             raise StreamFault(str(fault)) from None
         except StreamStopped:
@@ -894,8 +895,7 @@ class Streamer:
             self._stop_on_escape(exc)
             if isinstance(exc, StopSignal):
                 raise StreamStopped(
-                    f"stopped by {exc} after line {self._last_acked_line()}; machine held, "
-                    "then soft-reset (spindle off); continue later with --resume"
+                    f"stopped by {exc} {self._after_line()}; {self._held_text()}; {self._go_on()}"
                 ) from None
             raise
         journal.write("end", complete=True)
@@ -996,8 +996,8 @@ class Streamer:
                             # its ALARM:N or reset banner was lost on the line: the lines
                             # in flight will never be answered, and the position may be lost
                             raise _Fault(
-                                "the controller reports Alarm after line "
-                                f"{self._last_acked_line()} (its ALARM or reset message was "
+                                "the controller reports Alarm "
+                                f"{self._after_line()} (its ALARM or reset message was "
                                 "lost on the line); it stopped the job: home it or check the "
                                 "zero, then --resume",
                                 kind="lock",
@@ -1115,6 +1115,8 @@ class Streamer:
     _hold_unseen = False  # a feed hold was sent and no report since shows the machine still
     _alarm_lost = False  # the last alarm stopped the machine at speed: position likely lost
     _hold_alarm: _Fault | None = None  # an alarm that came while waiting for a hold
+    _alarm_text = ""  # the last alarm: its code, meaning and line
+    _session_start = 0  # the first file block of this session (a resume's restart)
     _stopped_through: int | None = None  # the safe stop's executed-through
 
     def _alarm_fault(self, code: int) -> _Fault:
@@ -1126,20 +1128,26 @@ class Streamer:
         (``Hold:1``), and one whose target lies outside resets at once: ``mc_reset`` sees
         the hold running, kills the steppers at speed ("position has likely been lost") and
         only ``ALARM:2`` is reported. The sender takes the position as likely lost where it
-        sent a feed hold that no report since showed complete, and as unsure where the last
-        report said ``Hold:1`` without one (GRBL's own soft-limit hold, or the controller's
-        feed hold button).
+        sent a feed hold that no report since showed complete (journaled ``lost: true``),
+        and as unsure where the last report said ``Hold:1`` without one (GRBL's own
+        soft-limit hold, or the controller's feed hold button: ``lost: "maybe"``). A hard
+        limit (``ALARM:1``) and a reset in motion (``ALARM:3``) lose it (``lost: true``).
+        The message names the line whose target left the travel (:meth:`_soft_limit_line`).
         """
         own = self._hold_unseen
-        self._alarm_lost = code == 2 and (own or self.status.state == "Hold:1")
+        slowing = own or self.status.state == "Hold:1"
+        lost: bool | str = code in (1, 3) or (code == 2 and own)
+        if code == 2 and slowing and not own:
+            lost = "maybe"
+        self._alarm_lost = bool(lost)
         meaning = alarm_meaning(code)
-        if self._alarm_lost and own:
+        if code == 2 and own:
             meaning = (
                 "soft limit: a target beyond the machine travel, read while the feed hold "
                 "the sender sent was still slowing the machine down, so GRBL stopped the "
                 "motors at speed: its position is likely lost, home it ($H) before --resume"
             )
-        elif self._alarm_lost:
+        elif lost == "maybe":
             meaning = (
                 "soft limit: a target beyond the machine travel, while the machine was "
                 "slowing down (Hold:1): the position is kept if that was GRBL's own "
@@ -1147,13 +1155,52 @@ class Streamer:
                 "was slowing it (GRBL then stopped the motors at speed); home it ($H) "
                 "before --resume unless you know which"
             )
-        self._journal.write(
-            "alarm", code=code, **({"lost": True} if own and self._alarm_lost else {})
+        self._journal.write("alarm", code=code, **({"lost": lost} if lost else {}))
+        where = self._soft_limit_line() if code == 2 else self._after_line()
+        self._alarm_text = f"ALARM:{code} ({meaning}) {where}"
+        return _Fault(f"{self._alarm_text}; the controller stopped the job", kind="alarm")
+
+    def _soft_limit_line(self) -> str:
+        """Which line's target left GRBL's travel, for ``ALARM:2``'s message.
+
+        GRBL checks a line's target when it plans it (``mc_line``) and answers it only
+        after, so the line it raised the alarm on is the oldest one not yet answered.
+        Named where its target, placed in machine coordinates with the work offset, lies
+        outside the soft limits' ``-$13x..0`` on an axis (the frame unchanged since the
+        connect, :func:`steps_counted_until`, and no move the sender does not follow, such
+        as G53 or G28, before it); else the line is said to be unknown.
+        """
+        after = self._after_line()
+        item = self._inflight[0][0] if getattr(self, "_inflight", None) else None
+        block = None if item is None else item.block
+        if block is None:
+            reading = "" if item is None else f"; GRBL was reading the sender's {item.text!r}"
+            return f"{after} (which line's target left the travel is not known{reading})"
+        blocks = self._program.blocks
+        known = known_xyz(block.modal)
+        wco = self._wco
+        travel = [self.info.settings.get(130 + k) for k in range(3)]
+        outside = []
+        frame_known = block.index < steps_counted_until(blocks) and not any(
+            b.unfollowed for b in blocks[: block.index + 1]
         )
-        return _Fault(
-            f"ALARM:{code} ({meaning}) after line {self._last_acked_line()}; the controller "
-            "stopped the job",
-            kind="alarm",
+        if wco is not None and frame_known:
+            for k, axis in enumerate("XYZ"):
+                v, t = known[k], travel[k]
+                if v is None or t is None:
+                    continue
+                m = v + wco[k]
+                if m > 0.001 or m < -t - 0.001:
+                    outside.append(f"machine {axis} {m:.3f} outside -{t:g}..0 (${130 + k})")
+        if not outside:
+            return (
+                f"{after} (which line's target left the travel is not known: GRBL was "
+                f"reading line {block.lineno}, whose target the sender does not place "
+                "outside the travel)"
+            )
+        return (
+            f"on line {block.lineno} ({block.text!r}), whose target lies beyond the travel "
+            f"({', '.join(outside)})"
         )
 
     def _finished(self) -> bool:
@@ -1213,16 +1260,28 @@ class Streamer:
         with contextlib.suppress(_Fault):
             self._write(REALTIME_RESET)
         return _Fault(
-            f"the controller reset itself {when} (banner received after line "
-            f"{self._last_acked_line()}); its position may be lost: re-home or re-zero, then "
+            f"the controller reset itself {when} (banner received "
+            f"{self._after_line()}); its position may be lost: re-home or re-zero, then "
             "--resume",
             kind="reset",
         )
 
-    def _last_acked_line(self) -> str:
-        if not self._acked_blocks:
-            return "none (before the first line)"
-        return str(self._program.blocks[self._acked_blocks[-1]].lineno)
+    def _after_line(self) -> str:
+        """``after line N`` (the last file line GRBL accepted), or before which line it stopped.
+
+        Where no file line was accepted yet: before the file's first line, or in a resumed
+        session before the line it restarts at.
+        """
+        blocks = self._program.blocks
+        if self._acked_blocks:
+            return f"after line {blocks[self._acked_blocks[-1]].lineno}"
+        start = self._session_start
+        if start <= 0 or start >= len(blocks):
+            return "before GRBL accepted the file's first line"
+        return (
+            f"before GRBL accepted line {blocks[start].lineno}, the first line of this resumed "
+            "session"
+        )
 
     def _error_text(self, item: _Item, code: int) -> str:
         if item.block is not None:
@@ -1271,9 +1330,29 @@ class Streamer:
             return
         tool = self._safe_stop(f"stopped by {by}", wait=self.options.hold_timeout)
         raise StreamStopped(
-            f"stopped by {by} after line {self._last_acked_line()}{self._ran_clause()}; "
-            f"machine held, then soft-reset (spindle off){tool}; continue later with --resume"
+            f"stopped by {by} {self._after_line()}{self._ran_clause()}; "
+            f"{self._held_text()}{tool}; {self._go_on()}"
         )
+
+    def _held_text(self) -> str:
+        """How the stop left the machine: held then reset, or held until an alarm came.
+
+        An alarm while the hold was awaited (:attr:`_hold_alarm`) means GRBL stopped the
+        job itself (at speed where the hold still slowed it down): its message says what
+        became of the position.
+        """
+        if self._hold_alarm is None:
+            return "machine held, then soft-reset (spindle off)"
+        return (
+            f"the feed hold was cut short: {self._alarm_text}; GRBL stopped the machine "
+            "itself and is locked, and the sender soft-reset it (spindle off)"
+        )
+
+    def _go_on(self) -> str:
+        """The stop's advice on going on: after an alarm, once it is cleared."""
+        if self._hold_alarm is None:
+            return "continue later with --resume"
+        return "clear the alarm as it says, then continue with --resume"
 
     def _ran_clause(self) -> str:
         """Where the machine stopped, as the stop's journal has it.
@@ -1325,7 +1404,7 @@ class Streamer:
         self._journal_quietly(
             "stop", reason=reason, executed_through=self._executed_guess(held), **_journaled(lifted)
         )
-        self._tell("machine held, then soft-reset (spindle off)")
+        self._tell(self._held_text())
 
     def _write_surely(self, data: bytes) -> None:
         """Write ``data`` even if Ctrl-C arrives meanwhile (a stop must reach the machine)."""
@@ -1348,13 +1427,12 @@ class Streamer:
             if fault.kind in ("error", "stall"):
                 self._write(REALTIME_HOLD)
                 tool = self._safe_stop(str(fault), wait=self.options.hold_timeout)
-                fault.args = (
-                    str(fault) + "; feeding stopped, machine held, then soft-reset" + tool,
-                )
+                fault.args = (f"{fault}; feeding stopped, {self._held_text()}{tool}",)
             elif fault.kind == "silent":
                 self._write(REALTIME_HOLD)
                 tool = self._safe_stop(str(fault), wait=2.0)
-                fault.args = (str(fault) + tool,)
+                alarm = "" if self._hold_alarm is None else f"; {self._held_text()}"
+                fault.args = (str(fault) + alarm + tool,)
             elif fault.kind == "alarm":
                 # the alarm already stopped motion and flushed the queue; a critical alarm
                 # answers nothing until reset
@@ -1458,11 +1536,12 @@ class Streamer:
         frame = self._wco  # the work offset the job ran under (a reset may clear G92)
         self._write(REALTIME_RESET)
         banner = self._wait_banner(self.options.banner_timeout) is not None
-        through = self._stopped_through = self._executed_guess(held)
+        # an alarm that cut the hold short: the last report's position was passed all the same
+        seen = held if self._hold_alarm is None else self.status
+        through = self._stopped_through = self._executed_guess(seen)
         lifted = self._lift(held, banner, frame)
         self._journal.write("stop", reason=reason, executed_through=through, **_journaled(lifted))
-        alarm = "" if self._hold_alarm is None else f"; {self._hold_alarm}"
-        return alarm + _clause(lifted)
+        return _clause(lifted)
 
     # ------------------------------------------------------------------ lifting the tool
 
