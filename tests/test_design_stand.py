@@ -56,7 +56,7 @@ def test_stand_text_is_what_the_report_says_for_the_demo():
     from scratchfab.pipeline import report
 
     design = _demo_design()
-    section = report._stand_section(design)
+    section = report._stand_section(design, {})
     for view in design.views:
         assert f"<b>{view.name}</b>: {stand_text(design, view)}.</li>" in section
     # The demo's file: cameras 22° left and right, level, 500 mm; light 22° up, 500 mm.

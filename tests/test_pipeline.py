@@ -924,7 +924,7 @@ def test_pipeline_without_a_stream_port_runs_to_the_end_and_says_not_streamed(tm
     assert "Or set [stream] <code>port</code> in the pipeline file" in report
 
 
-def test_report_after_design_failed_says_design_has_not_run(tmp_path):
+def test_report_after_design_failed_says_design_failed_and_the_rest_has_not_run(tmp_path):
     path = write_pipeline(tmp_path)
     (tmp_path / "disc.png").write_bytes(b"not a png")
     job = tmp_path / "job"
@@ -936,7 +936,9 @@ def test_report_after_design_failed_says_design_has_not_run(tmp_path):
     assert "data-verdict='not-ready'" in report
     assert "stage design failed" in report and "disc.png: not an image file" in report
     assert "design has not run</li>" not in report  # its failure is its line
-    assert "<p class='muted'>design has not run.</p>" in report  # where to stand, the views
+    assert "design has not run" not in report  # it ran, and failed
+    failed = "<p class='muted'>design failed (see the verdict above).</p>"
+    assert report.count(failed) == 2  # where to stand, the views
     for later in ("optimize", "toolpath", "export"):
         assert f"<p class='muted'>{later} has not run.</p>" in report
 

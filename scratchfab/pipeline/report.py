@@ -15,6 +15,7 @@ import csv
 import html
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -76,6 +77,21 @@ _CSS = {"ok": "ok", "fail": "bad", "warn": "warn", "info": "muted"}
 # A stage's manifest status as the verdict says it.
 # "running" after the run ended: the process died (killed) before it could say.
 _STAGE_STATUS = {"interrupted": "was interrupted", "running": "did not finish"}
+
+
+def _absent(stage: str, stopped: Mapping[str, str], detail: str = "") -> str:
+    """The muted line for a section whose stage left no output.
+
+    ``stopped`` maps a stage that failed, was interrupted or died to what the verdict
+    says of it: such a stage ran, so "has not run" would contradict its line.
+    """
+    said = (
+        f"{stage} {stopped[stage]} (see the verdict above)"
+        if stage in stopped
+        else (f"{stage} has not run")
+    )
+    return f"<p class='muted'>{html.escape(said)}{detail}.</p>"
+
 
 Status = Literal["ok", "fail", "warn", "info"]
 
@@ -197,9 +213,9 @@ def _vec3(values: Any) -> Vec3:
     return (float(values[0]), float(values[1]), float(values[2]))
 
 
-def _stand_section(design: Design | None) -> str:
+def _stand_section(design: Design | None, stopped: Mapping[str, str]) -> str:
     if design is None or not design.views:
-        return "<p class='muted'>design has not run.</p>"
+        return _absent("design", stopped)
     items = []
     for view in design.views:
         name = view.name
@@ -231,31 +247,40 @@ def _view_order(design: Design | None, metrics: dict[str, Any] | None, job: Path
 # --- the verdict ------------------------------------------------------------------
 
 
-def _stage_checks(job: Path) -> list[_Check]:
-    """Stages before stream that failed, stopped or never finished (from the manifest)."""
+def _stopped_stages(job: Path) -> dict[str, tuple[str, str]]:
+    """Stages before stream that failed, stopped or never finished (from the manifest).
+
+    Returns:
+        Per such stage, what the report says of it ("failed", "was interrupted") and the
+        reason the manifest records ("" without).
+    """
     manifest = _read_json(job / "manifest.json")
     if not isinstance(manifest, dict) or not isinstance(manifest.get("stages"), dict):
-        return []
-    checks = []
+        return {}
+    stopped = {}
     for stage, entry in manifest["stages"].items():
         if stage == "stream" or not isinstance(entry, dict) or entry.get("status") == "done":
             continue
         status = str(entry.get("status"))
-        why = str(entry.get("reason") or "")
-        said = _STAGE_STATUS.get(status, status)
-        checks.append(
-            _Check(
-                "fail",
-                # Phrased as a claim like every other line, so that "✘ no" reads as its answer.
-                f"every stage finished: stage {html.escape(stage)} {html.escape(said)}"
-                + (f": {html.escape(why)}" if why else "")
-                + " (files after it may be from an earlier run)",
-                f"stage {stage} {said}",
-                f"Fix what stage {html.escape(stage)} reports above.",
-                stage=stage,
-            )
+        stopped[stage] = (_STAGE_STATUS.get(status, status), str(entry.get("reason") or ""))
+    return stopped
+
+
+def _stage_checks(stopped: Mapping[str, tuple[str, str]]) -> list[_Check]:
+    """The verdict's line for each of :func:`_stopped_stages`."""
+    return [
+        _Check(
+            "fail",
+            # Phrased as a claim like every other line, so that "✘ no" reads as its answer.
+            f"every stage finished: stage {html.escape(stage)} {html.escape(said)}"
+            + (f": {html.escape(why)}" if why else "")
+            + " (files after it may be from an earlier run)",
+            f"stage {stage} {said}",
+            f"Fix what stage {html.escape(stage)} reports above.",
+            stage=stage,
         )
-    return checks
+        for stage, (said, why) in stopped.items()
+    ]
 
 
 def _feasibility_checks(data: Any) -> list[_Check]:
@@ -505,11 +530,15 @@ def _views_section(
     metrics: dict[str, Any] | None,
     min_rho: float | None,
     maps: Any,
+    stopped: Mapping[str, str],
 ) -> str:
-    """Each view's pictures, then the measurements; ``maps`` is feasibility.json's data."""
+    """Each view's pictures, then the measurements; ``maps`` is feasibility.json's data.
+
+    ``stopped``: the stages that failed or stopped, as :func:`_absent` takes them.
+    """
     layout = JobLayout(job)
     if not names:
-        return "<p class='muted'>design has not run.</p>"
+        return _absent("design", stopped)
     maps_text = (
         str(maps.get("maps", "")).split(": ", 1)[-1]
         if isinstance(maps, dict)
@@ -574,12 +603,17 @@ def _views_section(
         + "</div>"
         for name, row in rows
     ]
-    return "\n".join(parts) + _metrics_table(names, metrics, min_rho)
+    return "\n".join(parts) + _metrics_table(names, metrics, min_rho, stopped)
 
 
-def _metrics_table(names: list[str], metrics: dict[str, Any] | None, min_rho: float | None) -> str:
+def _metrics_table(
+    names: list[str],
+    metrics: dict[str, Any] | None,
+    min_rho: float | None,
+    stopped: Mapping[str, str],
+) -> str:
     if not metrics or not isinstance(metrics.get("views"), dict):
-        return "<p class='muted'>verify has not run: no measurements.</p>"
+        return _absent("verify", stopped, ": no measurements")
     views = metrics["views"]
     names = [k for k in names if k in views] or list(views)
     head = (
@@ -653,7 +687,7 @@ def _metrics_table(names: list[str], metrics: dict[str, Any] | None, min_rho: fl
     return table
 
 
-def _optimize_section(job: Path, names: list[str]) -> str:
+def _optimize_section(job: Path, names: list[str], stopped: Mapping[str, str]) -> str:
     layout = JobLayout(job)
     out = []
     if layout.loss_png.is_file():
@@ -689,7 +723,7 @@ def _optimize_section(job: Path, names: list[str]) -> str:
         if rows:
             out.append(_last_iteration(rows[-1], names))
     if not out and not intro:
-        return "<p class='muted'>optimize has not run.</p>"
+        return _absent("optimize", stopped)
     return f"{intro}<div class='row'>{''.join(out)}</div>"
 
 
@@ -751,11 +785,11 @@ def _last_iteration(last: dict[str, str], names: list[str]) -> str:
     )
 
 
-def _walk_section(job: Path, metrics: dict[str, Any] | None) -> str:
+def _walk_section(job: Path, metrics: dict[str, Any] | None, stopped: Mapping[str, str]) -> str:
     gif = JobLayout(job).verify_dir / "sweep.gif"
     if not gif.is_file():
         if metrics is None:
-            return "<p class='muted'>verify has not run: no walk-past animation.</p>"
+            return _absent("verify", stopped, ": no walk-past animation")
         return "<p class='muted'>no walk-past animation ([verify] sweep = 0).</p>"
     sweep = (metrics or {}).get("sweep") if isinstance(metrics, dict) else None
     detail = ""
@@ -814,7 +848,7 @@ _TOOLPATH_ROWS = (
 )
 
 
-def _toolpath_section(job: Path, data: Any) -> str:
+def _toolpath_section(job: Path, data: Any, stopped: Mapping[str, str]) -> str:
     """The preview and the figures of ``toolpath.json`` (``data``, None if unreadable)."""
     layout = JobLayout(job)
     parts = []
@@ -839,11 +873,7 @@ def _toolpath_section(job: Path, data: Any) -> str:
         parts.append(
             f"<figure><table>{cells}</table><figcaption>the toolpath's figures (toolpath/toolpath.json)</figcaption></figure>"
         )
-    return (
-        f"<div class='row'>{''.join(parts)}</div>"
-        if parts
-        else "<p class='muted'>toolpath has not run.</p>"
-    )
+    return f"<div class='row'>{''.join(parts)}</div>" if parts else _absent("toolpath", stopped)
 
 
 def gcode_statistics(path: Path) -> dict[str, Any]:
@@ -877,7 +907,7 @@ _GCODE_LABELS = {
 }
 
 
-def _files_section(job: Path) -> str:
+def _files_section(job: Path, stopped: Mapping[str, str]) -> str:
     layout = JobLayout(job)
     what = {
         "gcode": "for the machine",
@@ -897,7 +927,7 @@ def _files_section(job: Path) -> str:
         if path.is_file():
             items.append(f"<li>{_link(job, path)}: {text}</li>")
     if not items:
-        return "<p class='muted'>export has not run.</p>"
+        return _absent("export", stopped)
     gcode = layout.export_file("gcode")
     table = ""
     if gcode.is_file():
@@ -1149,8 +1179,9 @@ def write_report(
     design = _read_design(job)
     names = _view_order(design, metrics, job)
     state, stream_text = _stream_state(job, port)
-    stages = _stage_checks(job)
-    stopped = {c.stage for c in stages}
+    stopped_stages = _stopped_stages(job)
+    stages = _stage_checks(stopped_stages)
+    stopped = {stage: said for stage, (said, _) in stopped_stages.items()}
     checks = stages + [
         c
         for c in _feasibility_checks(feasibility)
@@ -1170,18 +1201,18 @@ def write_report(
         "<h2>What to do next</h2>",
         _next_steps(job, checks, state, pipeline_file),
         "<h2>Where to stand</h2>",
-        _stand_section(design),
+        _stand_section(design, stopped),
         "<h2>Views</h2>",
-        _views_section(job, names, metrics, min_rho, feasibility),
+        _views_section(job, names, metrics, min_rho, feasibility, stopped),
         "<h2>Optimization</h2>",
-        _optimize_section(job, names),
+        _optimize_section(job, names, stopped),
         "<h2>Walking past the board</h2>",
-        _walk_section(job, metrics),
+        _walk_section(job, metrics, stopped),
         _sky_section(job, names, metrics),
         "<h2>Toolpath</h2>",
-        _toolpath_section(job, toolpath),
+        _toolpath_section(job, toolpath, stopped),
         "<h2>Files</h2>",
-        _files_section(job),
+        _files_section(job, stopped),
         "<h2>Stream</h2>",
         stream_text,
     ]
