@@ -333,7 +333,10 @@ def save_side_by_side(
         s = exposure(render, target if glint is None else glint.left_out(target))
         shown = np.where(np.isfinite(target), render, np.nan)
         rho = pearson(render, target)
-        rows.append((f"{name}: target | render (rho {rho:.3f})", target, shown, s, glint))
+        # As optimize's closing figures: rho counts the glint too, which the exposure leaves out.
+        every = " over every pixel" if glint is not None and glint.mask.any() else ""
+        label = f"{name}: target | render (rho {rho:.3f}{every})"
+        rows.append((label, target, shown, s, glint))
     if not rows:
         return
     cell_w = max(r[1].shape[1] for r in rows)
