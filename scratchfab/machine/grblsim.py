@@ -319,6 +319,7 @@ class _Block:
     span: float = 0.0  # mm the current profile covers (less than what is left: a hold's stop)
     duration: float = 0.0  # seconds of the current profile, already scaled
     seen: bool = True  # the stepper's profile takes it in (its arrival's re-plan has acted)
+    least: float = 0.0  # mm of 1.25 step events: the least a segment runs (:meth:`_ends`)
 
 
 @dataclass
@@ -1018,6 +1019,7 @@ class GrblSim:
             )
         )
         block = self._planner[-1]
+        block.least = self._least(block)
         block.seen = False
         self._defer(t, "block", block)  # planner_recalculate: st_update_plan_block_parameters
         if self.state == "Idle" and self._jogging:
@@ -1057,8 +1059,12 @@ class GrblSim:
         """
         if not self._running() or self.options.time_scale <= 0.0:
             return self._head_progress(t)[1]
+        most = self._ends(self._seg_last, t)[0] + SEGMENTS_PREPARED
+        count, last = self._ends(self._seg_last, math.inf, most)
+        if count == most and last <= self._land_at:  # within the head's profile as it is
+            return self._head_progress(last)[1]
         ahead = copy.copy(self)
-        blocks = {id(b): dataclasses.replace(b) for b in self._planner}
+        blocks = {id(b): copy.copy(b) for b in self._planner}
         ahead._planner = collections.deque(blocks[id(b)] for b in self._planner)
         ahead._deferred = [
             [n, kind, blocks.get(id(what), what)] for n, kind, what in self._deferred
@@ -1214,9 +1220,7 @@ class GrblSim:
         scale = self.options.time_scale
         dt = SEGMENT_SECONDS * scale
         end = self._head_start + head.duration
-        a, b = self._to_steps(head.start), self._to_steps(head.end)
-        events = max(abs(q - p) for p, q in zip(a, b, strict=True))
-        need = 1.25 * head.length / events if events and head.length > 0.0 else 0.0
+        need = head.least
 
         def at(t: float) -> tuple[float, float]:
             if head.span <= 0.0:
@@ -1260,6 +1264,12 @@ class GrblSim:
             if point == end:
                 break
         return count, last
+
+    def _least(self, block: _Block) -> float:
+        """The mm of 1.25 of a block's step events (``REQ_MM_INCREMENT_SCALAR``)."""
+        a, b = self._to_steps(block.start), self._to_steps(block.end)
+        events = max(abs(q - p) for p, q in zip(a, b, strict=True))
+        return 1.25 * block.length / events if events and block.length > 0.0 else 0.0
 
     def _schedule(self) -> None:
         """When the first deferred change acts, if the head's segments run on to it."""
@@ -1801,6 +1811,7 @@ class GrblSim:
         for block in self._planner:
             block.start = self._from_steps(self._to_steps(block.start, before))
             block.end = self._from_steps(self._to_steps(block.end, before))
+            block.least = self._least(block)
 
     def _jog(self, t: float, n: int, body: str) -> str:
         if self.state not in ("Idle", "Jog"):
