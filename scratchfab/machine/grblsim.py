@@ -27,7 +27,8 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
   running block slowing down (through it into the next where it is too short) or
   speeding up at its acceleration; a hold, override or new block acts once the stepper
   has run the segments it had prepared (5 of 10 ms, the running one included, each
-  block's last one shorter: 40-50 ms); a ``$100``-``$102`` change keeps the step counts, so the
+  block's last one shorter: 40-50 ms; 10 ms longer while one runs under 1.25 steps, as
+  from rest or at a slow feed); a ``$100``-``$102`` change keeps the step counts, so the
   reported position moves; all times ``time_scale``.
   These wait for the planner to empty (so their ``ok`` comes after the motion before
   them ended): spindle and coolant changes, dwells, M0/M2/M30, G10, G28.1/G30.1,
