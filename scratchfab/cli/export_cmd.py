@@ -44,15 +44,27 @@ from scratchfab.model.job import JobLayout
         "heights or tool control; the board placement and tool must be the toolpath's."
     ),
 )
+@click.option(
+    "--force",
+    is_flag=True,
+    help=(
+        "Export a toolpath planned from another layout, design or machine profile than "
+        "there is now (warned)."
+    ),
+)
 def export(
     job: Path | None,
     fmt: str | None,
     output: Path | None,
     toolpath_file: Path | None,
     machine: str | None,
+    force: bool,
 ) -> None:
     """Write JOB/export/board.gcode, .dxf or .svg from JOB/toolpath/toolpath.json.
 
+    A toolpath planned from other inputs than there are now (optimize or design ran
+    again, the scratch CSV or the machine profile was edited) is refused, naming what
+    changed and the toolpath command to rerun; --force exports it as it was planned.
     G-code is checked before anything is written: every coordinate inside the machine's
     envelope, every line within its length limit.
     """
@@ -75,7 +87,7 @@ def export(
     name = format_for(output, fmt)
     tp = Toolpath.load(toolpath_file)
     profile = load_profile(machine) if machine else None
-    stats = export_toolpath(tp, profile, output, name)
+    stats = export_toolpath(tp, profile, output, name, None if force else "--force")
     if "lines" in stats:
         box = stats["bbox"]
         extent = ", ".join(f"{k[0].upper()} {v[0]:g}..{v[1]:g}" for k, v in box.items() if v)
@@ -86,6 +98,10 @@ def export(
     else:
         detail = f"{len(tp)} scratches, {stats['bytes']} bytes"
     click.echo(f"wrote {output}: {detail}")
+    for note in stats["notes"]:
+        click.echo(f"note: {note}", err=True)
+    if stats["stale"] is not None:
+        click.echo(f"warning: exported as planned (--force): {stats['stale']}", err=True)
     lost = partial_text(tp.stats)
     if lost is not None:
         click.echo(

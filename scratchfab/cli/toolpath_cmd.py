@@ -21,17 +21,19 @@ def run_toolpath(
     options: OrderOptions,
     say: Callable[[str], None],
     refuse_partial: str | None = None,
+    job: Path | None = None,
 ) -> None:
     """:func:`scratchfab.toolpath.stage.run_toolpath`, the stage imported when it runs."""
     # Not imported for --help: the stage plans with shapely and draws with Pillow.
     from scratchfab.toolpath.stage import run_toolpath as run
 
-    run(scratch_file, design_file, out_dir, machine, options, say, refuse_partial)
+    run(scratch_file, design_file, out_dir, machine, options, say, refuse_partial, job)
 
 
 def _inputs(
     job: Path | None, scratches: Path | None, design: Path | None, out: Path | None
-) -> tuple[Path, Path, Path]:
+) -> tuple[Path, Path, Path, Path | None]:
+    """(scratches, design, output folder, the job when its layout picked both files)."""
     from scratchfab.toolpath.stage import job_toolpath_inputs
 
     if job is None:
@@ -39,11 +41,12 @@ def _inputs(
             raise ScratchfabError(
                 "give a JOB folder, or all of --scratches CSV --design FILE --out DIR"
             )
-        return scratches, design, out
+        return scratches, design, out, None
     scratch_file, design_file, note = job_toolpath_inputs(job, scratches, design)
     if note:
         click.echo(note, err=True)
-    return scratch_file, design_file, out or JobLayout(job).toolpath_dir
+    picked = job if scratches is None and design is None else None
+    return scratch_file, design_file, out or JobLayout(job).toolpath_dir, picked
 
 
 @click.command("toolpath")
@@ -120,8 +123,8 @@ def toolpath(
     short is refused, with the offset_mm that fits it or the largest board that fits;
     --force plans the part within reach, and export repeats the warning.
     """
-    csv_path, design_path, out_dir = _inputs(job, scratches, design, out)
+    csv_path, design_path, out_dir, picked = _inputs(job, scratches, design, out)
     options = OrderOptions(passes=passes, seed=seed, kicks=kicks)
     refuse = None if force else "--force"
-    run_toolpath(csv_path, design_path, out_dir, machine, options, click.echo, refuse)
+    run_toolpath(csv_path, design_path, out_dir, machine, options, click.echo, refuse, picked)
     click.echo(f"wrote {out_dir / 'toolpath.json'} and {out_dir / 'preview.png'}")

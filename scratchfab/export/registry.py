@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -68,18 +67,10 @@ def check_same_plan(toolpath: Toolpath, profile: MachineProfile) -> None:
     Raises:
         ScratchfabError: Naming what differs and the command that plans for the profile.
     """
+    from scratchfab.toolpath.inputs import profile_changes
+
     planned = toolpath.profile
-    differ = [
-        f"{table}.{key} = {theirs!r} (planned: {ours!r})"
-        for table, mine, other in (
-            ("board", planned.board, profile.board),
-            ("tool", planned.tool, profile.tool),
-        )
-        for key, ours, theirs in (
-            (f.name, getattr(mine, f.name), getattr(other, f.name)) for f in fields(mine)
-        )
-        if ours != theirs
-    ]
+    differ = profile_changes(planned, profile, ("board", "tool"))
     if differ:
         raise ScratchfabError(
             f"machine '{profile.name}' ({profile.source}) places or cuts the board otherwise "
@@ -94,6 +85,7 @@ def export(
     profile: MachineProfile | None,
     path: str | Path,
     format: str | None = None,
+    refuse_stale: str | None = None,
 ) -> dict[str, Any]:
     """Write ``toolpath`` to ``path`` in ``format`` (default: from the extension).
 
@@ -103,18 +95,31 @@ def export(
             board and cut with the tool as the toolpath's own does.
         path: The output file (written atomically; nothing is written on error).
         format: ``gcode``, ``nc``, ``dxf`` or ``svg``.
+        refuse_stale: The override (``--force``) that exports a toolpath planned from
+            other inputs than there are now
+            (:func:`~scratchfab.toolpath.inputs.check_current`): given, such a toolpath
+            is refused naming it; None: it is written and ``stale`` says what changed.
 
     Returns:
-        Figures for the report (G-code: lines, bytes, max_line_length, bbox).
+        Figures for the report (G-code: lines, bytes, max_line_length, bbox); ``stale``:
+        what changed since the toolpath was planned, or None; ``notes``: what could not
+        be checked.
 
     Raises:
         ScratchfabError: An unknown format or extension, a path that holds a NUL byte,
             a profile that would have planned other strokes (:func:`check_same_plan`),
-            or what the writer refuses (G-code: a stroke outside the envelope, a line
-            too long).
+            a stale toolpath under ``refuse_stale``, or what the writer refuses (G-code:
+            a stroke outside the envelope, a line too long).
     """
+    from scratchfab.toolpath.inputs import check_current
+
     name = format_for(path, format)
     if profile is not None:
         check_same_plan(toolpath, profile)
+    stale, notes = check_current(toolpath, profile)
+    if stale is not None and refuse_stale is not None:
+        raise ScratchfabError(
+            f"{stale} (or give {refuse_stale} to export it as it was planned); nothing written"
+        )
     stats = writer(name)(toolpath, profile, path)
-    return {"format": name, "path": str(path), **stats}
+    return {"format": name, "path": str(path), **stats, "stale": stale, "notes": notes}

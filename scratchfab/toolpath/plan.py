@@ -34,6 +34,7 @@ from scratchfab.machine.profile import (
 from scratchfab.model.design import Board, ScratchTool
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.toolpath.geometry import clip_strokes, merge_collinear
+from scratchfab.toolpath.inputs import checked_record
 from scratchfab.toolpath.order import OrderOptions, order_strokes, tour_travel
 from scratchfab.toolpath.timing import path_times
 
@@ -149,6 +150,10 @@ class Toolpath:
         outline: (4, 2) board corners on the bed, counter-clockwise.
         profile: The machine profile the strokes were planned for.
         stats: Counts, lengths (mm) and the time estimate (s); see :func:`plan_toolpath`.
+        inputs: The files it was planned from, as the toolpath stage records them
+            (:func:`scratchfab.toolpath.inputs.record_inputs`); None when not recorded.
+        file: The ``toolpath.json`` it was loaded from (None: planned in memory); the
+            paths in ``inputs`` are relative to its folder.
     """
 
     strokes: np.ndarray
@@ -157,6 +162,8 @@ class Toolpath:
     outline: np.ndarray
     profile: MachineProfile
     stats: dict[str, Any] = field(default_factory=dict)
+    inputs: dict[str, Any] | None = None
+    file: Path | None = None
 
     def __len__(self) -> int:
         return len(self.strokes)
@@ -177,6 +184,7 @@ class Toolpath:
             "outline_mm": self.outline.tolist(),
             "start_mm": list(self.profile.start_mm),
             "statistics": self.stats,
+            **({"inputs": self.inputs} if self.inputs is not None else {}),
             "source_rows": self.source_rows.tolist(),
             "strokes": self.strokes.reshape(-1, 4).tolist(),
         }
@@ -221,7 +229,8 @@ class Toolpath:
         if min(board) <= 0:
             raise ConfigError(f"{file}: malformed toolpath (board_mm must be positive)")
         profile = profile_from_mapping(data.get("machine"), f"{file}: machine")
-        return cls(strokes, rows, board, outline, profile, stats)
+        inputs = checked_record(data.get("inputs"), str(file))
+        return cls(strokes, rows, board, outline, profile, stats, inputs, file)
 
 
 def check_tool(

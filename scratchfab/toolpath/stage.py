@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from scratchfab.console import Say, duration_text
@@ -10,6 +11,7 @@ from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
 from scratchfab.model.job import JobLayout, job_inputs, stale_layout_warning
 from scratchfab.model.scratches import load_scratches
+from scratchfab.toolpath.inputs import record_inputs
 from scratchfab.toolpath.order import OrderOptions
 from scratchfab.toolpath.plan import (
     Toolpath,
@@ -41,13 +43,16 @@ def run_toolpath(
     options: OrderOptions | None = None,
     say: Say = lambda _: None,
     refuse_partial: str | None = None,
+    job: Path | None = None,
 ) -> Toolpath:
     """Plan the strokes of ``scratch_file`` for ``machine``; write toolpath.json and preview.png.
 
     ``machine`` is a profile name or file, or a profile already loaded. A board that the
     machine's envelope cuts short (scratches left out or clipped) is planned for what
     fits, with a warning, unless ``refuse_partial`` names the override (``--force``) that
-    would allow it: then it is refused and nothing is written.
+    would allow it: then it is refused and nothing is written. toolpath.json records
+    the inputs (:func:`~scratchfab.toolpath.inputs.record_inputs`; ``job``: the job
+    folder whose layout picked the two files), which export checks.
 
     Raises:
         ScratchfabError: Bad inputs, tools that differ, a board outside the envelope, or
@@ -73,6 +78,7 @@ def run_toolpath(
                 f"{lost}; or give {refuse_partial} to plan only the part it reaches; "
                 "nothing written"
             )
+    result = replace(result, inputs=record_inputs(scratch_file, design_file, profile, out_dir, job))
     result.save(out_dir / "toolpath.json")
     write_preview(result, out_dir / "preview.png")
     say(summary(result))
@@ -125,4 +131,5 @@ def run_toolpath_job(
         options,
         say,
         refuse_partial,
+        job,
     )

@@ -1,0 +1,282 @@
+"""What a toolpath was planned from, and whether those inputs are still what they were.
+
+``toolpath.json`` records its inputs under ``"inputs"``: the scratch CSV and the design
+(each by its path relative to the toolpath's own folder and its SHA-256), the machine
+profile (a bundled one by name, a file by its path), and the job folder when the job
+picked the layout (its optimized one, else the initial one). Paths are relative so that
+a job moved or copied whole keeps its record. ``export`` compares the record with the
+files as they are now (:func:`input_changes`), so that a toolpath left from before
+optimize, design or the profile changed is not written out as if it were current.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from scratchfab.bundled import bundled_dir
+from scratchfab.console import command_line
+from scratchfab.errors import ConfigError
+from scratchfab.fileio import decode_json, file_sha256
+from scratchfab.machine.profile import MachineProfile, load_profile
+from scratchfab.model.job import JobLayout, job_inputs
+
+if TYPE_CHECKING:
+    from scratchfab.toolpath.plan import Toolpath
+
+
+def _relative(path: Path, folder: Path) -> str:
+    """``path`` relative to ``folder`` (forward slashes), else absolute (another drive)."""
+    try:
+        return Path(os.path.relpath(os.path.abspath(path), os.path.abspath(folder))).as_posix()
+    except ValueError:
+        return os.path.abspath(path)
+
+
+def _resolve(recorded: str, folder: Path) -> Path:
+    """A recorded path, relative to the toolpath's ``folder``, as a path a person can read."""
+    return Path(os.path.normpath(folder / recorded))
+
+
+def _machine_record(profile: MachineProfile, folder: Path) -> dict[str, str] | None:
+    """A bundled profile by name, a profile file by its path; None for one made in memory."""
+    source = Path(profile.source)
+    if source.parent == bundled_dir("machine_profiles") and source.suffix == ".toml":
+        return {"name": source.stem}
+    if source.is_file():
+        return {"file": _relative(source, folder)}
+    return None
+
+
+def record_inputs(
+    scratch_file: Path,
+    design_file: Path,
+    profile: MachineProfile,
+    folder: Path,
+    job: Path | None = None,
+) -> dict[str, Any]:
+    """The ``"inputs"`` record of a toolpath written into ``folder``.
+
+    Args:
+        scratch_file: The scratch CSV planned.
+        design_file: The design TOML.
+        profile: The machine; recorded when its ``source`` is a bundled profile or a file.
+        folder: The toolpath's folder (where ``toolpath.json`` goes).
+        job: The job folder whose layout picked ``scratch_file`` and ``design_file``
+            (None: the files were given).
+    """
+    record: dict[str, Any] = {
+        role: {"file": _relative(file, folder), "sha256": file_sha256(file)}
+        for role, file in (("scratches", scratch_file), ("design", design_file))
+    }
+    machine = _machine_record(profile, folder)
+    if machine is not None:
+        record["machine"] = machine
+    if job is not None:
+        record["job"] = _relative(job, folder)
+    return record
+
+
+def checked_record(data: Any, where: str) -> dict[str, Any] | None:
+    """A toolpath.json's ``"inputs"`` as :func:`record_inputs` writes it (None: absent).
+
+    Raises:
+        ConfigError: Naming ``where`` and what is malformed.
+    """
+    if data is None:
+        return None
+
+    def strings(entry: Any, keys: tuple[str, ...], name: str) -> None:
+        if not isinstance(entry, dict) or not all(isinstance(entry.get(k), str) for k in keys):
+            raise ConfigError(
+                f"{where}: malformed toolpath (inputs.{name} must be a table of "
+                f"{' and '.join(keys)} strings)"
+            )
+
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: malformed toolpath (inputs must be a table)")
+    for role in ("scratches", "design"):
+        strings(data.get(role), ("file", "sha256"), role)
+    machine = data.get("machine")
+    if machine is not None:
+        named = isinstance(machine, dict) and "name" in machine
+        strings(machine, ("name",) if named else ("file",), "machine")
+    if not isinstance(data.get("job", ""), str):
+        raise ConfigError(f"{where}: malformed toolpath (inputs.job must be a path string)")
+    return dict(data)
+
+
+def _value(value: Any) -> str:
+    """A profile value as TOML writes it (near enough): ``[-220.0, -161.0]``, ``"center"``."""
+    return json.dumps(value)
+
+
+def profile_changes(
+    planned: MachineProfile, other: MachineProfile, tables: tuple[str, ...] | None = None
+) -> list[str]:
+    """``table.key = value (planned: value)`` for each setting ``other`` has otherwise.
+
+    Args:
+        planned: The profile the toolpath was planned for.
+        other: The profile to compare with.
+        tables: Only these tables (``board``, ``tool``); None: the whole profile.
+    """
+    ours, theirs = planned.to_table(), other.to_table()
+    names = tables if tables is not None else tuple(dict.fromkeys([*ours, *theirs]))
+    differ = []
+    for name in names:
+        a, b = ours.get(name), theirs.get(name)
+        if isinstance(a, dict) or isinstance(b, dict):
+            a, b = a or {}, b or {}
+            pairs = [(f"{name}.{k}", a.get(k), b.get(k)) for k in dict.fromkeys([*a, *b])]
+        else:
+            pairs = [(name, a, b)]
+        differ += [f"{k} = {_value(y)} (planned: {_value(x)})" for k, x, y in pairs if x != y]
+    return differ
+
+
+def _machine_now(record: Any, folder: Path) -> tuple[MachineProfile | None, str]:
+    """The recorded machine profile as it is now (None: not to be found), and its name."""
+    if isinstance(record.get("name"), str):
+        return load_profile(record["name"]), record["name"]
+    path = _resolve(str(record.get("file")), folder)
+    return (load_profile(path) if path.is_file() else None), str(path)
+
+
+def input_changes(
+    inputs: dict[str, Any] | None,
+    planned: MachineProfile,
+    folder: Path,
+    check_machine: bool = True,
+) -> tuple[list[str], list[str]]:
+    """What differs between a toolpath's recorded inputs and the files as they are now.
+
+    Args:
+        inputs: The toolpath's record (:func:`record_inputs`); None for a toolpath.json
+            written before scratchfab kept one.
+        planned: The profile the toolpath holds.
+        folder: The toolpath's folder, which the record's paths are relative to.
+        check_machine: Compare the recorded machine profile too (not when exporting for
+            another profile: ``export --machine``).
+
+    Returns:
+        (changes, notes): each change in words (a file changed, another layout picked,
+        profile settings changed); notes on what could not be checked.
+    """
+    if inputs is None:
+        return [], [
+            "it records no inputs (an earlier scratchfab, or saved without the toolpath "
+            "stage), so it cannot be checked against the current layout, design and "
+            "machine profile"
+        ]
+    changes: list[str] = []
+    notes: list[str] = []
+    picked: tuple[Path, Path] | None = None  # the job's (design, layout) now
+    if "job" in inputs:
+        try:
+            picked = job_inputs(_resolve(inputs["job"], folder))
+        except ConfigError as exc:  # the job lost its design or every layout
+            changes.append(str(exc))
+    for role in ("scratches", "design") if picked or "job" not in inputs else ():
+        entry = inputs[role]
+        file = _resolve(entry["file"], folder)
+        now = file if picked is None else picked[0 if role == "design" else 1]
+        if os.path.abspath(now) != os.path.abspath(file):
+            changes.append(f"the job's layout is now {now} (planned from {file})")
+        elif not now.is_file():  # a file given, not the job's: moved away with its toolpath
+            notes.append(f"{file}, planned from, is not found: not checked")
+        elif file_sha256(now) != entry["sha256"]:
+            changes.append(f"{now} changed since")
+    machine = inputs.get("machine")
+    if check_machine and machine is not None:
+        try:
+            profile, where = _machine_now(machine, folder)
+        except ConfigError as exc:
+            changes.append(f"the machine profile no longer loads ({exc})")
+        else:
+            if profile is None:
+                notes.append(f"machine profile {where} is not found: not checked")
+            elif differ := profile_changes(planned, profile):
+                changes.append(f"machine profile {where} changed since: {'; '.join(differ)}")
+    return changes, notes
+
+
+def rerun_command(
+    inputs: dict[str, Any] | None, folder: Path, profile: MachineProfile | None = None
+) -> str:
+    """The ``scratchfab toolpath`` command that plans the current inputs again.
+
+    Args:
+        inputs: The toolpath's record (None: an old toolpath; the job is then taken to be
+            the folder above ``folder``).
+        folder: The toolpath's folder.
+        profile: The profile to name (``export --machine``'s); None: the recorded one.
+    """
+    record = inputs or {}
+    held = (_machine_record(profile, folder) if profile else None) or record.get("machine") or {}
+    machine = held.get("name") or (
+        str(_resolve(held["file"], folder)) if "file" in held else "PROFILE"
+    )
+    args: list[str | Path] = ["scratchfab", "toolpath"]
+    if "job" in record or inputs is None:
+        job = _resolve(record.get("job", ".."), folder)
+        args.append(job)
+        if os.path.normpath(folder) != os.path.normpath(job / "toolpath"):
+            args += ["--out", folder]
+    else:
+        args += ["--scratches", _resolve(record["scratches"]["file"], folder)]
+        args += ["--design", _resolve(record["design"]["file"], folder), "--out", folder]
+    return command_line([*args, "--machine", machine])
+
+
+def _machine_source(file: Path) -> MachineProfile | None:
+    """The profile an old toolpath.json (no ``inputs``) names as its ``machine_source``.
+
+    Only its name is wanted, for the command that plans it again; None when the file
+    no longer names one that loads.
+    """
+    try:
+        source = decode_json(file.read_text(encoding="utf-8")).get("machine_source")
+        return load_profile(Path(source)) if isinstance(source, str) else None
+    except (OSError, ValueError, AttributeError, ConfigError):
+        return None
+
+
+def check_current(
+    toolpath: Toolpath, profile: MachineProfile | None = None
+) -> tuple[str | None, list[str]]:
+    """Whether a loaded toolpath was planned from the inputs as they are now.
+
+    Args:
+        toolpath: A toolpath loaded from its file (one planned in memory is current).
+        profile: The profile it is exported for, where not its own (its machine
+            profile is then not compared: the export checks board and tool itself).
+
+    Returns:
+        (stale, notes): what changed and the command that plans it again, in words
+        (None: nothing changed); lines on what could not be checked.
+    """
+    if toolpath.file is None:
+        return None, []
+    folder = toolpath.file.parent
+    changes, notes = input_changes(toolpath.inputs, toolpath.profile, folder, profile is None)
+    if toolpath.inputs is None:
+        command = "scratchfab toolpath"
+        if JobLayout(folder.parent).design.design_toml.is_file():  # in its job's folder
+            machine = profile or _machine_source(toolpath.file)
+            command = rerun_command(None, folder, machine)
+        notes = [
+            f"{toolpath.file}: {note}; if they changed since, rerun `{command}`" for note in notes
+        ]
+    else:
+        notes = [f"{toolpath.file}: {note}" for note in notes]
+    if not changes:
+        return None, notes
+    return (
+        f"{toolpath.file} was planned from other inputs than there are now: "
+        f"{'; '.join(changes)}; rerun `{rerun_command(toolpath.inputs, folder, profile)}`, "
+        "then export",
+        notes,
+    )
