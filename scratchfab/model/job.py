@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -246,15 +248,40 @@ def job_inputs(job: str | Path) -> tuple[Path, Path]:
 
 
 def design_digest(job: str | Path) -> dict[str, str]:
-    """SHA-256 of each of the job's :attr:`DesignFolder.digested` files, by file name."""
-    return {path.name: file_sha256(path) for path in JobLayout(Path(job)).design.digested}
+    """SHA-256 of each of the job's :attr:`DesignFolder.digested` files, by file name.
+
+    ``design.toml``'s is of what optimize's steps depend on (:func:`_design_content`), so a
+    rerun of design that rewrites only its comments and paths changes nothing.
+    """
+    folder = JobLayout(Path(job)).design
+    return {
+        path.name: _design_content(path) if path == folder.design_toml else file_sha256(path)
+        for path in folder.digested
+    }
+
+
+def _design_content(path: Path) -> str:
+    """SHA-256 of the design fields optimize's resume compares, as JSON; else of the bytes.
+
+    The bytes when the file does not load (a broken file differs from any design).
+    """
+    # here, not at the top: optimize imports this module, and Dr.Jit takes 0.4 s to load
+    from scratchfab.optimize.stage import _design_fields
+
+    try:
+        design = load_design(path)
+    except ConfigError:
+        return file_sha256(path)
+    text = json.dumps(_design_fields(design), sort_keys=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def design_changed_since_optimize(job: str | Path) -> list[str]:
     """The design files (job-relative) changed since ``JOB/optimize/scratches.csv`` was made.
 
-    Optimize records :func:`design_digest` in ``optimize/summary.json``. Empty when the
-    layout is current, when there is none, or when there is no record to tell by.
+    Optimize records :func:`design_digest` in ``optimize/summary.json``; a record of the
+    scratchfab before, of ``design.toml``'s bytes, still matches an unchanged file. Empty
+    when the layout is current, when there is none, or when there is no record to tell by.
     """
     layout = JobLayout(Path(job))
     if not layout.optimized_scratches.is_file():
@@ -266,10 +293,11 @@ def design_changed_since_optimize(job: str | Path) -> list[str]:
         return []
     if not isinstance(recorded, dict):
         return []
+    now = design_digest(layout.root)
     return [
         layout.relative(path)
         for path in layout.design.digested
-        if recorded.get(path.name) != file_sha256(path)
+        if recorded.get(path.name) not in (now[path.name], file_sha256(path))
     ]
 
 
