@@ -32,7 +32,8 @@ from scratchfab.design.targets import (
 )
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import atomic_folder, save_npy, save_png, write_json, write_text
-from scratchfab.model.design import Board, Design, design_from_mapping
+from scratchfab.model.camera import Camera
+from scratchfab.model.design import Board, Design, View, auto_fov, design_from_mapping
 from scratchfab.model.job import DesignFolder, JobLayout
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
@@ -322,6 +323,8 @@ def run_design(
         f"design: {views} view{'' if views == 1 else 's'}, {design.scratch.count} scratches on a "
         f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
     )
+    for i, view in enumerate(design.views):
+        _check_frame(design.source, i, view, design.board, progress)
     boards: dict[str, np.ndarray] = {}
     cache: dict[Path, np.ndarray] = {}
     refitted: set[Path] = set()
@@ -392,6 +395,55 @@ def run_design(
         write_json(staged.feasibility_json, report.to_json())
     progress(f"design: wrote {folder} ({time.perf_counter() - start:.1f} s)")
     return DesignResult(folder, resolved, targets, scratches, report)
+
+
+#: A view whose frame sees less of the board than this share gets a warning.
+FRAME_SHARE = 0.99
+#: Board points per side on which :func:`share_seen` counts (the share to 4 / this).
+_SHARE_GRID = 512
+
+
+def share_seen(board: Board, view: View) -> float:
+    """The share of the board's area that ``view``'s frame sees.
+
+    Counted on a grid of the board's points (cell centres), each projected through the camera.
+    """
+    n = _SHARE_GRID
+    hw, hh = board.half_extent
+    xs = (np.arange(n) + 0.5) / n * 2 * hw - hw
+    ys = (np.arange(n) + 0.5) / n * 2 * hh - hh
+    gx, gy = np.meshgrid(xs, ys)
+    points = np.stack([gx, gy, np.zeros_like(gx)], axis=-1)
+    st, in_front = Camera.from_view(view).project(points)
+    inside = (
+        in_front
+        & (st[..., 0] >= 0)
+        & (st[..., 0] <= view.width)
+        & (st[..., 1] >= 0)
+        & (st[..., 1] <= view.height)
+    )
+    return float(inside.mean())
+
+
+def _check_frame(source: str, index: int, view: View, board: Board, say: Say) -> None:
+    """Warn of a view whose frame misses part of the board, naming the fov that frames it.
+
+    A numeric ``fov_deg`` frames the board it was chosen for: a design.toml edited to a
+    larger board, or a camera moved nearer, keeps it and would show a crop of the picture.
+    """
+    share = share_seen(board, view)
+    if share >= FRAME_SHARE:
+        return
+    try:
+        fix = f" ({auto_fov(view, board):.6g} degrees here)"
+    except ValueError:  # a board corner behind the camera: auto cannot frame it either
+        fix = ""
+    say(
+        f"  warning: view '{view.name}' sees {math.floor(share * 100)} % of the "
+        f"{board.width_mm:g} x {board.height_mm:g} mm board (fov_deg = {view.fov:.6g}), so it "
+        f"shows only that part of its picture; to frame the whole board, set views[{index}] "
+        f'fov_deg = "auto" in {source}{fix}'
+    )
 
 
 def _check_brightness(

@@ -274,8 +274,15 @@ class Design:
         return replace(self, views=views)
 
     def to_toml(self) -> str:
-        """The resolved design as TOML text (absolute target paths, every default filled in)."""
+        """The resolved design as TOML text (absolute target paths, every default filled in).
+
+        Views stand by position. A fov that is ``"auto"``'s (:func:`fov_is_auto`) is written
+        ``"auto"`` with its number in a comment, so that the file, edited to another board
+        or camera position and run again, frames the whole board: a number would keep the
+        old frame and crop the new board.
+        """
         views = []
+        autos = []
         for v in self.views:
             table = to_table(v)
             for key in ("azimuth_deg", "elevation_deg", "distance_mm"):
@@ -283,6 +290,9 @@ class Design:
             target = self.target_path(v)
             if target is not None:
                 table["target"] = str(target)
+            if fov_is_auto(v, self.board):
+                table["fov_deg"] = "auto"
+                autos.append(v.fov)
             views.append(table)
         data: dict[str, Any] = {
             "board": to_table(self.board),
@@ -290,12 +300,21 @@ class Design:
             "scratch": to_table(self.scratch),
             "views": views,
         }
-        return _numbers_on_one_line(tomli_w.dumps(data))
+        text = _numbers_on_one_line(tomli_w.dumps(data))
+        # tomli_w writes no comments: each "auto" gets its number, in the views' order
+        fovs = iter(autos)
+        board = f"{self.board.width_mm:g} x {self.board.height_mm:g} mm board"
+        return _AUTO_FOV_LINE.sub(
+            lambda m: f"{m[0]}  # {next(fovs)!r} degrees on this {board}", text
+        )
 
     def save(self, path: str | Path) -> None:
         """Write the resolved design atomically."""
         write_text(path, self.to_toml())
 
+
+#: A view's ``fov_deg = "auto"`` line as tomli_w writes it (no other key holds "auto").
+_AUTO_FOV_LINE = re.compile(r'^fov_deg = "auto"$', re.MULTILINE)
 
 #: An array of numbers as tomli_w writes it: one item per line.
 _NUMBER_ARRAY = re.compile(r"\[\n((?:[ \t]+[-+0-9.eEinfa]+,\n)+)\]")
@@ -370,6 +389,18 @@ def auto_fov(view: View, board: Board, margin: float = 1.08) -> float:
     ty = np.max(np.abs(rel @ up) / depth)
     tx = np.max(np.abs(rel @ right) / depth) / aspect
     return math.degrees(2 * math.atan(max(ty, tx) * margin))
+
+
+def fov_is_auto(view: View, board: Board) -> bool:
+    """Whether a resolved view's fov is the one ``"auto"`` gives it on ``board``.
+
+    To rounding: a number that close is ``"auto"``'s, copied from a resolved design
+    (no one types 15 digits), so a copy written with ``"auto"`` frames an edited board anew.
+    """
+    try:
+        return math.isclose(view.fov, auto_fov(view, board), rel_tol=1e-12)
+    except ValueError:  # the board is not in front of the camera
+        return False
 
 
 def resolve_view(view: View, board: Board) -> View:
