@@ -156,7 +156,7 @@ def test_a_numeric_fov_that_misses_part_of_the_board_is_warned_with_the_fix(tmp_
 
 
 def test_a_frame_that_sees_the_whole_board_is_not_warned(tmp_path, capsys):
-    """A numeric fov wider than the board needs, or one cropping under 1 %, says nothing."""
+    """A numeric fov wider than the board needs says nothing, and stays a number."""
     job = tmp_path / "job"
     _run(["design", *QUICK, "--out", str(job)], capsys)
     file = job / "design" / "design.toml"
