@@ -335,8 +335,8 @@ def save_side_by_side(
         rho = pearson(render, target)
         # As optimize's closing figures: rho counts the glint too, which the exposure leaves out.
         every = " over every pixel" if glint is not None and glint.mask.any() else ""
-        label = f"{name}: target | render (rho {rho:.3f}{every})"
-        rows.append((label, target, shown, s, glint))
+        title = f"{name}: target | render (rho {rho:.3f}{every})"
+        rows.append((title, target, shown, s, glint))
     if not rows:
         return
     cell_w = max(r[1].shape[1] for r in rows)
