@@ -550,3 +550,33 @@ def load_design(path: str | Path, require_views: bool = True) -> Design:
     """
     file = Path(path)
     return design_from_mapping(load_toml(file), str(file), file.resolve().parent, require_views)
+
+
+#: Design fields that no step depends on: the tool's count (the design stage's; the
+#: layout is ``scratches.csv``), a view's name (its key), target picture (its
+#: ``targets/<view>.npy`` counts) and polar position (resolved into ``position_mm``).
+NOT_IN_RUN = frozenset({"count", "name", "target", "azimuth_deg", "elevation_deg", "distance_mm"})
+
+
+def design_fields(design: Design) -> dict[str, Any]:
+    """The design an optimize run's steps depend on, by table as ``design.toml`` holds it.
+
+    Optimize's checkpoints record it (a resume names what changed) and the job's design
+    digest hashes it (a rerun that changes nothing here leaves the layout current).
+
+    The renderer's board (size, roughness, f0), light and views (camera, resolution,
+    light), the layout's bounds (the board's margin, the tool's lengths) and the tool's
+    dent (the scratches' width and depth where ``scratches.csv`` gives none), and the
+    views' order (the order of the loss's terms and of ``log.csv``'s columns).
+    """
+
+    def table(obj: Any) -> dict[str, Any]:
+        return {f.name: getattr(obj, f.name) for f in fields(obj) if f.name not in NOT_IN_RUN}
+
+    return {
+        "board": table(design.board),
+        "light": table(design.light),
+        "scratch": table(design.scratch),
+        "views": {v.name: table(v) for v in design.views},
+        "view_order": [v.name for v in design.views],
+    }

@@ -10,7 +10,7 @@ from pathlib import Path
 from scratchfab.console import command_line
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, file_sha256
-from scratchfab.model.design import Design, load_design
+from scratchfab.model.design import Design, design_fields, load_design
 
 _EXPORT_STEM = "board"  # JOB/export/board.<format>
 
@@ -265,14 +265,11 @@ def _design_content(path: Path) -> str:
 
     The bytes when the file does not load (a broken file differs from any design).
     """
-    # here, not at the top: optimize imports this module, and Dr.Jit takes 0.4 s to load
-    from scratchfab.optimize.stage import _design_fields
-
     try:
         design = load_design(path)
     except ConfigError:
         return file_sha256(path)
-    text = json.dumps(_design_fields(design), sort_keys=True)
+    text = json.dumps(design_fields(design), sort_keys=True)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 

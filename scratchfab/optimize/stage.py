@@ -26,7 +26,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +39,7 @@ from scratchfab.design.targets import job_cross_targets
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, load_numpy, write_json, write_text
 from scratchfab.metrics import quality_report
-from scratchfab.model.design import Design
+from scratchfab.model.design import Design, design_fields
 from scratchfab.model.job import JobLayout, design_digest, load_job_design
 from scratchfab.model.schema import parse_table
 from scratchfab.model.scratches import ScratchSet, load_scratches
@@ -317,33 +317,6 @@ def load_job_inputs(job: Path) -> tuple[Design, dict[str, np.ndarray], ScratchSe
     return design, targets, scratches
 
 
-#: Design fields that no step depends on: the tool's count (the design stage's; the
-#: layout is ``scratches.csv``), a view's name (its key), target picture (its
-#: ``targets/<view>.npy`` counts) and polar position (resolved into ``position_mm``).
-_NOT_IN_RUN = frozenset({"count", "name", "target", "azimuth_deg", "elevation_deg", "distance_mm"})
-
-
-def _design_fields(design: Design) -> dict[str, Any]:
-    """The design a run's steps depend on, by table as ``design.toml`` holds it.
-
-    The renderer's board (size, roughness, f0), light and views (camera, resolution,
-    light), the layout's bounds (the board's margin, the tool's lengths) and the tool's
-    dent (the scratches' width and depth where ``scratches.csv`` gives none), and the
-    views' order (the order of the loss's terms and of ``log.csv``'s columns).
-    """
-
-    def table(obj: Any) -> dict[str, Any]:
-        return {f.name: getattr(obj, f.name) for f in fields(obj) if f.name not in _NOT_IN_RUN}
-
-    return {
-        "board": table(design.board),
-        "light": table(design.light),
-        "scratch": table(design.scratch),
-        "views": {v.name: table(v) for v in design.views},
-        "view_order": [v.name for v in design.views],
-    }
-
-
 def _sha256(whole: Any, name: bytes, *arrays: np.ndarray) -> str:
     """The SHA-256 of ``name`` and ``arrays`` as float64 bytes, also fed to ``whole``."""
     part = hashlib.sha256(name)
@@ -371,7 +344,7 @@ def _fingerprint(
     out["merge_penalty"] = MERGE_PENALTY  # a checkpoint of another penalty (or none) differs
     # a checkpoint without it (an earlier scratchfab's) tells the views' order alone:
     # _made_fingerprint
-    out["design"] = _design_fields(design)
+    out["design"] = design_fields(design)
     schedule = options.schedule()
     if schedule is not None:
         # its scales depend on the run's total, so a resume needs the same iterations;
@@ -423,7 +396,7 @@ def _design_changes(made: Any, now: Any) -> dict[str, str]:
     """How the design changed since a checkpoint, by key in ``design.toml``'s terms.
 
     ``{"[board] roughness": "0.05 -> 0.08", "[[views]] 'top'": "added"}``: from the
-    checkpoint's ``design`` fingerprint (:func:`_design_fields`, as JSON) to ``now``.
+    checkpoint's ``design`` fingerprint (:func:`~scratchfab.model.design.design_fields`, as JSON) to ``now``.
     """
     out: dict[str, str] = {}
     for path, a, b in _differences(made, now):
