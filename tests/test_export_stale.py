@@ -18,6 +18,7 @@ import tomli_w
 from conftest import cli_said, make_design
 from test_toolpath import make_job
 
+from scratchfab.errors import ScratchfabError
 from scratchfab.export import export
 from scratchfab.machine.profile import load_profile
 from scratchfab.model.scratches import load_scratches
@@ -205,16 +206,19 @@ def test_given_files_are_checked_where_they_lie(rng, tmp_path, capsys):
     assert cli_said(args, capsys)[0] == 0
 
 
-def test_the_library_reports_what_changed_and_refuses_only_when_told(rng, tmp_path, capsys):
+def test_the_library_checks_when_told_and_forced_reports_what_changed(rng, tmp_path, capsys):
     job = make_job(tmp_path, rng, optimize=True)
     assert toolpath(job, BUNDLED, capsys)[0] == 0
     rewrite_layout(job, 50)
     tp = Toolpath.load(job / "toolpath" / "toolpath.json")
-    stats = export(tp, None, tmp_path / "a.gcode")
-    assert stats["stale"] is not None and "changed since" in stats["stale"]
-    with pytest.raises(Exception, match="give --yes to export"):
+    with pytest.raises(ScratchfabError, match="changed since.*give --yes to export"):
         export(tp, None, tmp_path / "b.gcode", refuse_stale="--yes")
     assert not (tmp_path / "b.gcode").exists()
+    stats = export(tp, None, tmp_path / "a.gcode", refuse_stale="--yes", force=True)
+    assert stats["stale"] is not None and "changed since" in stats["stale"]
+    # Not told (the runner, whose manifest replans a stale toolpath): not checked.
+    assert export(tp, None, tmp_path / "c.gcode")["stale"] is None
+    assert (tmp_path / "a.gcode").read_bytes() == (tmp_path / "c.gcode").read_bytes()
 
 
 @pytest.mark.parametrize(

@@ -87,7 +87,7 @@ def export(
     name = format_for(output, fmt)
     tp = Toolpath.load(toolpath_file)
     profile = load_profile(machine) if machine else None
-    stats = export_toolpath(tp, profile, output, name, None if force else "--force")
+    stats = export_toolpath(tp, profile, output, name, "--force", force)
     if "lines" in stats:
         box = stats["bbox"]
         extent = ", ".join(f"{k[0].upper()} {v[0]:g}..{v[1]:g}" for k, v in box.items() if v)

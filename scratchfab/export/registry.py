@@ -86,6 +86,7 @@ def export(
     path: str | Path,
     format: str | None = None,
     refuse_stale: str | None = None,
+    force: bool = False,
 ) -> dict[str, Any]:
     """Write ``toolpath`` to ``path`` in ``format`` (default: from the extension).
 
@@ -97,8 +98,10 @@ def export(
         format: ``gcode``, ``nc``, ``dxf`` or ``svg``.
         refuse_stale: The override (``--force``) that exports a toolpath planned from
             other inputs than there are now
-            (:func:`~scratchfab.toolpath.inputs.check_current`): given, such a toolpath
-            is refused naming it; None: it is written and ``stale`` says what changed.
+            (:func:`~scratchfab.toolpath.inputs.check_current`), named when such a
+            toolpath is refused; None: not checked (the runner's manifest sees to it).
+        force: The override was given: a stale toolpath is written, and ``stale`` says
+            what changed.
 
     Returns:
         Figures for the report (G-code: lines, bytes, max_line_length, bbox); ``stale``:
@@ -116,8 +119,8 @@ def export(
     name = format_for(path, format)
     if profile is not None:
         check_same_plan(toolpath, profile)
-    stale, notes = check_current(toolpath, profile)
-    if stale is not None and refuse_stale is not None:
+    stale, notes = check_current(toolpath, profile) if refuse_stale else (None, [])
+    if stale is not None and not force:
         raise ScratchfabError(
             f"{stale} (or give {refuse_stale} to export it as it was planned); nothing written"
         )
