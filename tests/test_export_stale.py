@@ -223,7 +223,15 @@ def test_the_library_checks_when_told_and_forced_reports_what_changed(rng, tmp_p
 
 @pytest.mark.parametrize(
     "inputs",
-    [[], {"scratches": {"file": 1}}, {"scratches": {}, "design": {}}],
+    [
+        [],
+        {"scratches": {"file": 1}},
+        {"scratches": {}, "design": {}},
+        {
+            "scratches": {"file": "a.csv", "sha256": "0"},
+            "design": {"file": "d.toml", "sha256": "0", "fields_sha256": 1},
+        },
+    ],
 )
 def test_a_malformed_record_is_one_line(rng, tmp_path, capsys, inputs):
     job = make_job(tmp_path, rng, optimize=True)
@@ -235,3 +243,20 @@ def test_a_malformed_record_is_one_line(rng, tmp_path, capsys, inputs):
     code, said = export_gcode(job, capsys)
     assert code == 2 and "malformed toolpath (inputs" in said and str(file) in said, said
     assert len(said.strip().splitlines()) == 1
+
+
+def test_a_design_written_again_with_the_same_design_is_current(rng, tmp_path, capsys):
+    """A rerun of design rewrites design.toml's heading comment and target paths (and may
+    change the count it laid, which the CSV supersedes): export goes on, as optimize's stale
+    note and --resume do; an edit to the board is still refused."""
+    job = make_job(tmp_path, rng, optimize=True)
+    assert toolpath(job, BUNDLED, capsys)[0] == 0
+    toml = job / "design" / "design.toml"
+    text = toml.read_text()
+    assert "count = 200" in text
+    again = "# Resolved by `scratchfab design` from another file\n" + text
+    toml.write_text(again.replace("count = 200", "count = 150"))
+    code, said = export_gcode(job, capsys)
+    assert code == 0 and "warning" not in said and "note" not in said, said
+    toml.write_text(again.replace("margin_mm = 1.0", "margin_mm = 2.0"))
+    refused(job, capsys, f"{toml} changed since")

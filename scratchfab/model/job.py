@@ -250,20 +250,22 @@ def job_inputs(job: str | Path) -> tuple[Path, Path]:
 def design_digest(job: str | Path) -> dict[str, str]:
     """SHA-256 of each of the job's :attr:`DesignFolder.digested` files, by file name.
 
-    ``design.toml``'s is of what optimize's steps depend on (:func:`_design_content`), so a
-    rerun of design that rewrites only its comments and paths changes nothing.
+    ``design.toml``'s is of what optimize's steps depend on (:func:`design_content_sha256`),
+    so a rerun of design that rewrites only its comments and paths changes nothing.
     """
     folder = JobLayout(Path(job)).design
     return {
-        path.name: _design_content(path) if path == folder.design_toml else file_sha256(path)
+        path.name: design_content_sha256(path) if path == folder.design_toml else file_sha256(path)
         for path in folder.digested
     }
 
 
-def _design_content(path: Path) -> str:
-    """SHA-256 of the design fields optimize's resume compares, as JSON; else of the bytes.
+def design_content_sha256(path: Path) -> str:
+    """SHA-256 of a design file's :func:`~scratchfab.model.design.design_fields`, as JSON.
 
-    The bytes when the file does not load (a broken file differs from any design).
+    What optimize's resume compares and a toolpath's plan depends on, so that a rerun of
+    design that rewrites only the file's comments and target paths changes nothing; the
+    bytes' SHA-256 when the file does not load (a broken file differs from any design).
     """
     try:
         design = load_design(path)

@@ -1,7 +1,9 @@
 """What a toolpath was planned from, and whether those inputs are still what they were.
 
 ``toolpath.json`` records its inputs under ``"inputs"``: the scratch CSV and the design
-(each by its path relative to the toolpath's own folder and its SHA-256), the machine
+(each by its path relative to the toolpath's own folder and its SHA-256; the design also
+by what the plan depends on, ``fields_sha256``: a rerun of design that rewrites only its
+comments and target paths changes nothing), the machine
 profile (a bundled one by name, a file by its path), and the job folder when the job
 picked the layout (its optimized one, else the initial one). Paths are relative so that
 a job moved or copied whole keeps its record. ``export`` compares the record with the
@@ -21,7 +23,7 @@ from scratchfab.console import command_line
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, file_sha256
 from scratchfab.machine.profile import MachineProfile, load_profile
-from scratchfab.model.job import JobLayout, job_inputs
+from scratchfab.model.job import JobLayout, design_content_sha256, job_inputs
 
 if TYPE_CHECKING:
     from scratchfab.toolpath.plan import Toolpath
@@ -71,6 +73,7 @@ def record_inputs(
         role: {"file": _relative(file, folder), "sha256": file_sha256(file)}
         for role, file in (("scratches", scratch_file), ("design", design_file))
     }
+    record["design"]["fields_sha256"] = design_content_sha256(design_file)
     machine = _machine_record(profile, folder)
     if machine is not None:
         record["machine"] = machine
@@ -99,6 +102,10 @@ def checked_record(data: Any, where: str) -> dict[str, Any] | None:
         raise ConfigError(f"{where}: malformed toolpath (inputs must be a table)")
     for role in ("scratches", "design"):
         strings(data.get(role), ("file", "sha256"), role)
+    if not isinstance(data["design"].get("fields_sha256", ""), str):
+        raise ConfigError(
+            f"{where}: malformed toolpath (inputs.design.fields_sha256 must be a string)"
+        )
     machine = data.get("machine")
     if machine is not None:
         named = isinstance(machine, dict) and "name" in machine
@@ -187,7 +194,9 @@ def input_changes(
             changes.append(f"the job's layout is now {now} (planned from {file})")
         elif not now.is_file():  # a file given, not the job's: moved away with its toolpath
             notes.append(f"{file}, planned from, is not found: not checked")
-        elif file_sha256(now) != entry["sha256"]:
+        elif file_sha256(now) != entry["sha256"] and (
+            role != "design" or entry.get("fields_sha256") != design_content_sha256(now)
+        ):
             changes.append(f"{now} changed since")
     machine = inputs.get("machine")
     if check_machine and machine is not None:
