@@ -474,7 +474,10 @@ def test_cli_writes_every_output(job: Path, capsys: pytest.CaptureFixture[str]) 
 
     assert stale_layout_warning(job) is None and job_toolpath_inputs(job)[2] is None
     toml = job / "design" / "design.toml"
-    toml.write_text(toml.read_text() + "\n# edited\n")
+    toml.write_text(toml.read_text() + "\n# edited\n")  # a comment: nothing optimize uses
+    assert job_toolpath_inputs(job)[2] is None
+    assert "roughness = 0.05\n" in toml.read_text()
+    toml.write_text(toml.read_text().replace("roughness = 0.05\n", "roughness = 0.08\n"))
     note = job_toolpath_inputs(job)[2]
     assert note is not None and "(design/design.toml changed since)" in note
     capsys.readouterr()
@@ -1175,3 +1178,23 @@ def test_resume_refuses_views_given_in_another_order(job: Path) -> None:
     with pytest.raises(ResumeRefused) as info:
         run_optimize(job, OptimizeOptions(iterations=3, resume=True))
     assert info.value.design == {"[[views]] order": f"[{first}, {second}] -> [{second}, {first}]"}
+
+
+def test_a_time_budget_stop_says_the_budget_counts_the_whole_run_and_how_to_go_on(
+    job: Path, capsys
+) -> None:
+    """A --time-budget counts the run's optimizing in all, earlier sessions included, so a
+    resume given the spent budget again takes no step: both stops say so, and the command
+    they name, run as written, goes on to the run's total."""
+    main(["optimize", str(job), "--iterations", "5", "--time-budget", "0.001"])
+    out = capsys.readouterr().out
+    assert "1 iterations (time budget)" in out
+    said = out.splitlines()[-1]
+    assert "its earlier sessions' too" in said, out
+    command = said.split("`")[1]
+    assert command == f"scratchfab optimize {job} --resume"
+    main(["optimize", str(job), "--resume", "--time-budget", "0.001"])
+    out = capsys.readouterr().out
+    assert "1 iterations (time budget)" in out and out.splitlines()[-1] == said
+    main(shlex.split(command)[1:])
+    assert "5 iterations (done)" in capsys.readouterr().out

@@ -219,6 +219,13 @@ def optimize(
         f"{result.iterations} iterations ({result.stopped}), loss {result.loss:.5f}; "
         f"wrote {result.out_dir}"
     )
+    if result.stopped == "time budget":  # a resume given the same budget would take no step
+        go_on = command_line(["scratchfab", "optimize", job, "--resume"])
+        click.echo(
+            f"stopped by --time-budget {options.time_budget_s:g}, which counts the run's "
+            f"optimizing in all, its earlier sessions' too; `{go_on}` goes on to its "
+            f"{options.iterations} iterations (add a larger --time-budget to stop sooner)"
+        )
     if result.stopped == "interrupted":  # exit 130: `optimize && toolpath` stops here
         again: list[str | Path] = ["scratchfab", "optimize", job, *_given_flags(ctx), "--resume"]
         raise Interrupted(
