@@ -483,6 +483,18 @@ def test_cli_writes_every_output(job: Path, capsys: pytest.CaptureFixture[str]) 
     capsys.readouterr()
     main(["render", str(job)])
     assert "rerun `scratchfab optimize" in capsys.readouterr().err
+    # toolpath refuses to plan it (a maker may miss a warning and cut the earlier board),
+    # writes nothing, and plans it as it is under --force.
+    with pytest.raises(SystemExit) as info:
+        main(["toolpath", str(job), "--machine", "grbl-3018-diamond"])
+    said = capsys.readouterr().err
+    assert info.value.code == 2 and "Traceback" not in said
+    assert "was optimized from an earlier design (design/design.toml changed since)" in said
+    assert "or give --force to plan it as it is; nothing written" in said
+    assert not (job / "toolpath").exists()
+    main(["toolpath", str(job), "--machine", "grbl-3018-diamond", "--force"])
+    assert "warning:" in capsys.readouterr().err
+    assert (job / "toolpath" / "toolpath.json").is_file()
 
 
 def _run_cli(job: Path, *args: str) -> subprocess.Popen[bytes]:

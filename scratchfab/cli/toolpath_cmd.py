@@ -31,9 +31,16 @@ def run_toolpath(
 
 
 def _inputs(
-    job: Path | None, scratches: Path | None, design: Path | None, out: Path | None
+    job: Path | None,
+    scratches: Path | None,
+    design: Path | None,
+    out: Path | None,
+    refuse: str | None,
 ) -> tuple[Path, Path, Path, Path | None]:
-    """(scratches, design, output folder, the job when its layout picked both files)."""
+    """(scratches, design, output folder, the job when its layout picked both files).
+
+    ``refuse`` names the override of a refusal (a stale layout), None to warn instead.
+    """
     from scratchfab.toolpath.stage import job_toolpath_inputs
 
     if job is None:
@@ -42,7 +49,7 @@ def _inputs(
                 "give a JOB folder, or all of --scratches CSV --design FILE --out DIR"
             )
         return scratches, design, out, None
-    scratch_file, design_file, note = job_toolpath_inputs(job, scratches, design)
+    scratch_file, design_file, note = job_toolpath_inputs(job, scratches, design, refuse)
     if note:
         click.echo(note, err=True)
     picked = job if scratches is None and design is None else None
@@ -99,7 +106,8 @@ def _inputs(
 @click.option(
     "--force",
     is_flag=True,
-    help="Plan the part the machine reaches of a board its envelope cuts short (warned).",
+    help="Plan anyway (warned): the part the machine reaches of a board its envelope cuts "
+    "short, or a layout optimized from an earlier design.",
 )
 def toolpath(
     job: Path | None,
@@ -121,10 +129,11 @@ def toolpath(
     merges collinear duplicates, orders them to minimise pen-up travel from the start
     position and estimates the machining time. A board that the machine's envelope cuts
     short is refused, with the offset_mm that fits it or the largest board that fits;
-    --force plans the part within reach, and export repeats the warning.
+    --force plans the part within reach, and export repeats the warning. So is a layout
+    optimized from an earlier design (rerun optimize; --force plans it as it is).
     """
-    csv_path, design_path, out_dir, picked = _inputs(job, scratches, design, out)
-    options = OrderOptions(passes=passes, seed=seed, kicks=kicks)
     refuse = None if force else "--force"
+    csv_path, design_path, out_dir, picked = _inputs(job, scratches, design, out, refuse)
+    options = OrderOptions(passes=passes, seed=seed, kicks=kicks)
     run_toolpath(csv_path, design_path, out_dir, machine, options, click.echo, refuse, picked)
     click.echo(f"wrote {out_dir / 'toolpath.json'} and {out_dir / 'preview.png'}")

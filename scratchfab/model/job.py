@@ -307,15 +307,27 @@ def stale_layout_warning(job: str | Path) -> str | None:
     layout of the old design behind, which toolpath, verify and render would otherwise
     use without a word. None when the layout is current, or when there is no record.
     """
+    stale = stale_layout(job)
+    if stale is None:
+        return None
+    return (
+        f"warning: {stale}: it is used as it is; rerun "
+        f"`{command_line(['scratchfab', 'optimize', Path(job)])}` for the current design"
+    )
+
+
+def stale_layout(job: str | Path) -> str | None:
+    """``JOB/optimize/scratches.csv was optimized from an earlier design (… changed since)``.
+
+    None when the layout is current, or when there is no record to tell by.
+    """
     folder = Path(job)
-    layout = JobLayout(folder)
     changed = design_changed_since_optimize(folder)
     if not changed:
         return None
     return (
-        f"warning: {layout.optimized_scratches} was optimized from an earlier "
-        f"design ({', '.join(changed)} changed since): it is used as it is; rerun "
-        f"`{command_line(['scratchfab', 'optimize', folder])}` for the current design"
+        f"{JobLayout(folder).optimized_scratches} was optimized from an earlier design "
+        f"({', '.join(changed)} changed since)"
     )
 
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from scratchfab.console import Say, duration_text
+from scratchfab.console import Say, command_line, duration_text
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
-from scratchfab.model.job import JobLayout, job_inputs, stale_layout_warning
+from scratchfab.model.job import JobLayout, job_inputs, stale_layout, stale_layout_warning
 from scratchfab.model.scratches import load_scratches
 from scratchfab.toolpath.inputs import record_inputs
 from scratchfab.toolpath.order import OrderOptions
@@ -88,7 +88,10 @@ def run_toolpath(
 
 
 def job_toolpath_inputs(
-    job: Path, scratches: Path | None = None, design: Path | None = None
+    job: Path,
+    scratches: Path | None = None,
+    design: Path | None = None,
+    refuse_stale: str | None = None,
 ) -> tuple[Path, Path, str | None]:
     """The scratch CSV and design a toolpath on ``job`` uses; given files win over the job's.
 
@@ -96,6 +99,10 @@ def job_toolpath_inputs(
         (scratches, design, note): ``note`` says so when the job's layout is the initial
         one because optimize has not run, or an optimized one of an earlier design
         (:func:`~scratchfab.model.job.stale_layout_warning`), else None.
+
+    Raises:
+        ScratchfabError: The job's optimized layout was made from an earlier design and
+            ``refuse_stale`` names the override (``--force``) that would plan it.
     """
     if scratches is not None and design is not None:
         return scratches, design, None
@@ -105,6 +112,13 @@ def job_toolpath_inputs(
     if scratches is None and scratch_file != optimized:
         note = f"note: {optimized} not found (optimize has not run); using {scratch_file}"
     elif scratches is None:
+        stale = stale_layout(job)
+        if stale is not None and refuse_stale is not None:
+            rerun = command_line(["scratchfab", "optimize", job])
+            raise ScratchfabError(
+                f"{stale}: its toolpath would cut the earlier design's layout; rerun "
+                f"`{rerun}` first, or give {refuse_stale} to plan it as it is; nothing written"
+            )
         note = stale_layout_warning(job)
     return scratches or scratch_file, design or design_file, note
 
