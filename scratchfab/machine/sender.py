@@ -125,6 +125,8 @@ END_WAIT = "G4P0"
 #: not known: 40 steps/mm, a coarse belt drive. Wider only matches an earlier move (cut
 #: again); never used to tell a move ended (there an unknown step counts as none).
 COARSE_STEP_MM = 0.025
+#: GRBL's ``error:9``: G-code locked out, which it answers only in Alarm (or a jog).
+GC_LOCKED = 9
 
 
 class StreamFault(ScratchfabError):
@@ -993,15 +995,7 @@ class Streamer:
                     elif line.startswith("<"):
                         self._note_status(line)
                         if self.status.state.startswith("Alarm"):
-                            # its ALARM:N or reset banner was lost on the line: the lines
-                            # in flight will never be answered, and the position may be lost
-                            raise _Fault(
-                                "the controller reports Alarm "
-                                f"{self._after_line()} (its ALARM or reset message was "
-                                "lost on the line); it stopped the job: home it or check the "
-                                "zero, then --resume",
-                                kind="lock",
-                            )
+                            raise self._lock_fault()
                         if self._inflight and self.status.state == "Idle":
                             idle_since = idle_since or time.monotonic()
                         else:
@@ -1093,7 +1087,12 @@ class Streamer:
         self._inflight_bytes -= size
         self._last_answer = time.monotonic()
         if line != "ok":
-            text = self._error_text(item, _code(line))
+            code = _code(line)
+            if code == GC_LOCKED and not self._stopping:
+                # the lines in flight with the lost alarm got no answer: not this item's
+                self._journal.write("error", code=code)
+                raise self._lock_fault(f"error:{code} ({error_meaning(code)})")
+            text = self._error_text(item, code)
             if self._stopping:
                 self.on_message(text)
                 return True
@@ -1159,6 +1158,28 @@ class Streamer:
         where = self._soft_limit_line() if code == 2 else self._after_line()
         self._alarm_text = f"ALARM:{code} ({meaning}) {where}"
         return _Fault(f"{self._alarm_text}; the controller stopped the job", kind="alarm")
+
+    def _lock_fault(self, error: str = "") -> _Fault:
+        """The fault of a controller found in Alarm mid-job without its ALARM or reset message.
+
+        A status report says Alarm, or ``error:9`` came (``error``: it and its meaning),
+        which GRBL answers only in Alarm (the sender never jogs) and which can come before
+        the next report. The ALARM:N or reset banner was lost on the line, and GRBL's reset
+        flushed the lines in flight unanswered: they never run, the ``error:9`` answers a
+        later line (which one is not known), and the position may be lost. Nothing runs:
+        the stop resets without a feed hold (kind ``lock``).
+        """
+        after = self._after_line()
+        said = (
+            f"{error} came {after}, so the controller is in Alarm"
+            if error
+            else f"the controller reports Alarm {after}"
+        )
+        return _Fault(
+            f"{said} (its ALARM or reset message was lost on the line); it stopped the job: "
+            "home it or check the zero, then --resume",
+            kind="lock",
+        )
 
     def _soft_limit_line(self) -> str:
         """Which line's target left GRBL's travel, for ``ALARM:2``'s message.
