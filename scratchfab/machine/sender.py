@@ -69,10 +69,12 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import errno
 import math
 import os
 import re
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -193,7 +195,67 @@ def open_port(port: str, baud: int) -> Any:
     try:
         return serial.serial_for_url(port, baudrate=baud, timeout=0.01, write_timeout=5.0, **extra)
     except (serial.SerialException, ValueError, OSError) as exc:
-        raise ScratchfabError(f"cannot open port {port!r}: {exc}") from None
+        raise ScratchfabError(f"cannot open port {port!r}: {port_trouble(port, exc)}") from None
+
+
+#: How to list the serial ports, per ``sys.platform`` prefix.
+_LIST_PORTS = {
+    "linux": "list them with `ls /dev/ttyUSB* /dev/ttyACM*`",
+    "darwin": "list them with `ls /dev/cu.*`",
+    "win": "Windows names them COM3, COM4...: see the Device Manager's Ports (COM & LPT)",
+}
+
+
+def port_trouble(port: str, exc: BaseException, platform: str = sys.platform) -> str:
+    """Why a serial device would not open, and what a maker does about it (one line).
+
+    A missing port names the ports pyserial sees and how to list them; a refused one the
+    Linux ``dialout`` group; a port held by another program says so. A ``://`` URL gets
+    pyserial's message alone.
+    """
+    code = getattr(exc, "errno", None)
+    text = str(exc)
+    if "://" in port:
+        return text
+    windows = platform.startswith("win")
+    if code == errno.ENOENT or "FileNotFoundError" in text:
+        listing = next((v for k, v in _LIST_PORTS.items() if platform.startswith(k)), "")
+        why = os.strerror(errno.ENOENT) if code else text
+        return f"no such port ({why}); {_ports_seen()}" + (f"; {listing}" if listing else "")
+    if (
+        code in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EBUSY)
+        or "exclusively lock" in text
+        or (windows and "PermissionError" in text)
+    ):
+        return (
+            "another program has the port open (another stream, a serial monitor, a G-code "
+            "sender): close it first"
+        )
+    if code in (errno.EACCES, errno.EPERM):
+        if platform.startswith("linux"):
+            return (
+                f"{os.strerror(code)}: your user may not open serial ports; add it to the "
+                "dialout group (sudo usermod -aG dialout $USER, then log out and in)"
+            )
+        return f"{os.strerror(code)}: your user may not open this port"
+    return text
+
+
+def _ports_seen() -> str:
+    """The serial ports pyserial sees here, as a clause."""
+    try:
+        from serial.tools.list_ports import comports
+
+        devices = sorted({p.device for p in comports()})
+    except Exception:  # noqa: BLE001 (a listing that fails only loses the hint)
+        return "the ports here could not be listed"
+    if not devices:
+        return (
+            "no serial port is seen here: is the controller plugged in and powered? (a CH340 "
+            "board may need its driver)"
+        )
+    more = f" and {len(devices) - 8} more" if len(devices) > 8 else ""
+    return f"ports seen here: {', '.join(devices[:8])}{more}"
 
 
 @dataclass
