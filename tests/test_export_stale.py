@@ -260,3 +260,25 @@ def test_a_design_written_again_with_the_same_design_is_current(rng, tmp_path, c
     assert code == 0 and "warning" not in said and "note" not in said, said
     toml.write_text(again.replace("margin_mm = 1.0", "margin_mm = 2.0"))
     refused(job, capsys, f"{toml} changed since")
+
+
+def test_a_toolpath_taken_away_from_its_job_exports_with_a_note(rng, tmp_path, capsys):
+    """toolpath.json copied alone (to the machine's computer, say) has no job around it to
+    check: it exports with a note, as a toolpath of given files moved away does, instead of
+    a refusal whose toolpath command has no job to plan."""
+    job = make_job(tmp_path, rng, optimize=True)
+    assert toolpath(job, BUNDLED, capsys)[0] == 0
+    alone = tmp_path / "elsewhere" / "deeper"
+    alone.mkdir(parents=True)
+    shutil.copy(job / "toolpath" / "toolpath.json", alone)
+    out = tmp_path / "b.gcode"
+    args = ["export", "--toolpath", str(alone / "toolpath.json"), "-o", str(out)]
+    code, said = cli_said(args, capsys)
+    assert code == 0, said
+    assert (
+        f"note: {alone / 'toolpath.json'}: the job folder it names, {tmp_path / 'elsewhere'},"
+        in said
+    )
+    assert "not checked" in said and "warning" not in said
+    assert export_gcode(job, capsys)[0] == 0
+    assert out.read_bytes() == (job / "export" / "board.gcode").read_bytes()

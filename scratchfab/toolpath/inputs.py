@@ -182,10 +182,17 @@ def input_changes(
     notes: list[str] = []
     picked: tuple[Path, Path] | None = None  # the job's (design, layout) now
     if "job" in inputs:
-        try:
-            picked = job_inputs(_resolve(inputs["job"], folder))
-        except ConfigError as exc:  # the job lost its design or every layout
-            changes.append(str(exc))
+        job = _resolve(inputs["job"], folder)
+        if not JobLayout(job).design.design_toml.is_file():  # moved away from its job
+            notes.append(
+                f"the job folder it names, {os.path.abspath(job)}, holds no "
+                "design/design.toml (moved away from its job?): not checked"
+            )
+        else:
+            try:
+                picked = job_inputs(job)
+            except ConfigError as exc:  # the job lost every layout
+                changes.append(str(exc))
     for role in ("scratches", "design") if picked or "job" not in inputs else ():
         entry = inputs[role]
         file = _resolve(entry["file"], folder)
