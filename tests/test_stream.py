@@ -651,12 +651,13 @@ def test_recut_unsure_needs_resume(tmp_path, capsys):
 
 
 def test_fresh_stream_over_an_unfinished_journal_warns(tmp_path, capsys):
+    """An unfinished stream that had no line accepted: --yes streams from the top, said.
+    (One that had: tests/test_stream_restart.py, refused under --yes.)"""
     job = tmp_path / "job.gcode"
     write_job(job, 3)
     journal = default_journal_path(job)
     j = Journal(journal).open()
     j.start(load_program(job), resume=False)
-    j.write("ack", i=0, line=2)
     j.close()
     args = ["stream", str(job), "--port", "grblsim://?baud=0&time_scale=0.001", "--yes"]
     main(args)

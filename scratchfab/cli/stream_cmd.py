@@ -225,8 +225,6 @@ def stream(
         return "resume" if answer == "r" else "stop"
 
     def confirm(question: str) -> bool:
-        if yes:
-            return True
         try:
             return click.confirm(question, default=False, err=True)
         except click.exceptions.Abort as exc:
@@ -240,7 +238,10 @@ def stream(
 
     try:
         progress = emulator_progress(port, baud, gcode, bar, message)
-        stream_file(request, StreamCallbacks(progress, message, ask_interrupt, confirm, outcome))
+        callbacks = StreamCallbacks(
+            progress, message, ask_interrupt, None if yes else confirm, outcome
+        )
+        stream_file(request, callbacks)
     finally:
         bar.end()
 

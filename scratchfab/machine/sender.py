@@ -129,6 +129,13 @@ END_WAIT = "G4P0"
 COARSE_STEP_MM = 0.025
 #: GRBL's ``error:9``: G-code locked out, which it answers only in Alarm (or a jog).
 GC_LOCKED = 9
+#: What to do after a lost connection, once the machine stands still.
+LINK_LOST_NEXT = (
+    "then reconnect, re-home or re-zero the machine (opening the port reboots an "
+    "Arduino-based controller, which loses its position) and run the same command with "
+    "--resume, adding --recut-unsure ([stream] recut_unsure = true in a pipeline) if the "
+    "board's lights went out with the cable"
+)
 
 
 class StreamFault(ScratchfabError):
@@ -1563,7 +1570,7 @@ class Streamer:
                 fault.args = (
                     f"{fault}; a controller that kept power goes on running the lines it had "
                     "received (up to a planner full of moves, spindle on): wait until it stops "
-                    "or press its reset before going near it" + _clause(lifted),
+                    f"or press its reset before going near it{_clause(lifted)}; {LINK_LOST_NEXT}",
                 )
         except _Fault:
             self._journal.write(

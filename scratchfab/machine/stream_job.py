@@ -34,6 +34,7 @@ from scratchfab.machine.sender_journal import (
     default_journal_path,
     done_blocks,
     interrupted,
+    last_fresh_start,
     read_journal,
     run_zero,
     run_zero_in_inches,
@@ -105,14 +106,16 @@ class StreamCallbacks:
         progress: Called with progress reports (lines acknowledged, state, position).
         say: Called with one line per event.
         ask_interrupt: After Ctrl-C and a feed hold: returns "resume" or "stop".
-        confirm: Asked before anything moves; False aborts with nothing sent.
+        confirm: Asked before anything moves; False aborts with nothing sent. None: nobody
+            is asked (``--yes``): what needs a person's word is refused (a stream from the
+            top over an unfinished one).
         result: Called with the outcome lines (resume point, done); default ``say``.
     """
 
     progress: Callable[[StreamProgress], Any]
     say: Say
     ask_interrupt: Callable[[], str]
-    confirm: Confirm
+    confirm: Confirm | None
     result: Say | None = None
 
     def outcome(self, text: str) -> None:
@@ -348,10 +351,17 @@ def _stream_locked(
                 raise  # only a fresh stream can do without its journal
     unfinished = events is not None and interrupted(events, program.sha256)
     resume = req.resume or (req.resume_interrupted and unfinished)
+    again = ""  # the question's clause for a stream from the top over an unfinished one
     if not resume and unfinished:
+        assert events is not None
+        _refuse_from_the_top(events, program, journal_file, cb.confirm)
         cb.say(
             f"warning: {journal_file} shows an unfinished stream of this file; this run starts "
             "again from the top (--resume continues where it stopped)"
+        )
+        again = (
+            " from the top, cutting again what the unfinished stream cut (--resume continues "
+            "where it stopped)"
         )
     if resume:
         assert events is not None  # a resume reads the journal or raises
@@ -425,9 +435,9 @@ def _stream_locked(
             raise ScratchfabError(findings.refusals[-1] + " (nothing was sent)")
         if req.check:
             _check(streamer, program, req.gcode, cb.say)
-        if not cb.confirm(
-            f"Stream {len(program.blocks) - start} lines of {req.gcode} to {req.port}? The "
-            "machine moves: board clamped and set up as README step 5 says, area clear"
+        if cb.confirm is not None and not cb.confirm(
+            f"Stream {len(program.blocks) - start} lines of {req.gcode} to {req.port}{again}? "
+            "The machine moves: board clamped and set up as README step 5 says, area clear"
         ):
             raise ScratchfabError("not confirmed; nothing was sent")
         try:
@@ -441,6 +451,34 @@ def _stream_locked(
                 _say_lost_position(events, cb.say, again=True)
     finally:
         ser.close()
+
+
+def _refuse_from_the_top(
+    events: list[dict[str, Any]], program: Program, journal_file: Path, confirm: Confirm | None
+) -> None:
+    """Under ``--yes`` (``confirm`` None), refuse to cut again what an unfinished stream cut.
+
+    A job must survive a dropped cable: rerunning the command without ``--resume`` would
+    start from line 1 and cut the strokes already done a second time, with nobody asked.
+    An unfinished stream that had no line accepted is no reason to refuse.
+
+    Raises:
+        ScratchfabError: Naming the line it reached, ``--resume``, and how to start over.
+    """
+    if confirm is not None:
+        return
+    first = last_fresh_start(events)
+    acked = [ev["i"] for ev in events[first:] if ev.get("ev") == "ack" and "i" in ev]
+    if not acked:
+        return
+    reached = program.blocks[min(max(acked), len(program.blocks) - 1)].lineno
+    raise ScratchfabError(
+        f"{journal_file} shows an unfinished stream of this file that reached line {reached}; "
+        "streaming it from the top would cut those strokes again: continue it with --resume "
+        "(after re-homing or re-zeroing if its position was lost), or to start over on "
+        "purpose run without --yes and answer the question, or move the journal aside; "
+        "nothing was sent"
+    )
 
 
 def _check_same_zero(
@@ -637,13 +675,14 @@ def run_stream_job(
     machine: str | MachineProfile | None = None,
     recut_unsure: bool = False,
     say: Say = lambda _: None,
-    confirm: Confirm = lambda _: True,
+    confirm: Confirm | None = lambda _: True,
 ) -> Path:
     """The pipeline's stream stage: JOB/export/board.gcode to ``port``.
 
     ``confirm`` is asked after the settings check (and check mode), as ``stream`` asks;
-    the default answers yes (the caller has consent). A Ctrl-C stops safely. A run
-    after an interrupted stream of the same G-code resumes it from the journal.
+    the default answers yes (the caller has consent), None asks nobody. A Ctrl-C stops
+    safely. A run after an interrupted stream of the same G-code resumes it from the
+    journal.
     """
     lines = ProgressLines()
     layout = JobLayout(job)
