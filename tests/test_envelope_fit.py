@@ -252,3 +252,20 @@ def test_fitting_offset_follows_every_origin_and_turn(origin, rotation):
         is (rotation % 180 == 0)
         is (not len(brute_force_offsets(table, (100.0, 200.0))))
     )
+
+
+def test_advice_for_a_bundled_profile_says_to_copy_it_and_for_a_file_does_not(tmp_path):
+    """The bundled file lives in the package: the advice says where the change must go."""
+    from scratchfab.bundled import bundled_dir
+    from scratchfab.machine.profile import load_profile
+    from scratchfab.toolpath.plan import fit_advice
+
+    bundled = load_profile("grbl-3018-diamond")
+    source = bundled_dir("machine_profiles") / "grbl-3018-diamond.toml"
+    mine = tmp_path / "my-3018.toml"
+    mine.write_text(source.read_text())
+    for board in ((250.0, 160.0), (400.0, 100.0)):  # needs an offset; larger than the travel
+        said = fit_advice(bundled, board)
+        assert f"is a bundled profile: copy {source} to a file of your own" in said
+        assert "give that file as --machine" in said
+        assert "bundled profile" not in fit_advice(load_profile(mine), board)

@@ -22,6 +22,7 @@ import shapely
 from PIL import Image, ImageDraw
 
 from scratchfab import figures
+from scratchfab.bundled import bundled_dir
 from scratchfab.console import duration_text
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import decode_json, read_input, save_png, write_text
@@ -111,7 +112,7 @@ def fit_advice(profile: MachineProfile, board_size: tuple[float, float]) -> str:
     too_big = oversize_text(profile, board_size)
     offset = profile.fitting_offset(board_size)
     if too_big is not None or offset is None:
-        return too_big or OUTSIDE_ADVICE
+        return (too_big or OUTSIDE_ADVICE) + _copy_advice(profile)
     (x0, x1), (y0, y1) = profile.offset_range(profile.board_outline(board_size))
     place = profile.board
     corner = "centre" if place.origin == "center" else f"{place.origin} corner"
@@ -120,6 +121,21 @@ def fit_advice(profile: MachineProfile, board_size: tuple[float, float]) -> str:
         f"set the profile's [board] offset_mm = {_offset_text(offset)}, where the "
         f"board's {corner}{turned} then lies: the whole board fits with any offset_mm "
         f"from X {x0:g} to {x1:g} and Y {y0:g} to {y1:g}"
+    ) + _copy_advice(profile)
+
+
+def _copy_advice(profile: MachineProfile) -> str:
+    """For a bundled profile: where the change goes (a copy), else nothing.
+
+    The bundled file lives inside the installed package: an edit there is lost on the
+    next install, and a copy elsewhere is not read by ``--machine NAME``.
+    """
+    source = Path(profile.source)
+    if source.parent.resolve() != bundled_dir("machine_profiles").resolve():
+        return ""
+    return (
+        f" ('{source.stem}' is a bundled profile: copy {source} to a file of your own, make "
+        "the change there and give that file as --machine, or a pipeline's [toolpath] machine)"
     )
 
 
