@@ -1,19 +1,27 @@
-"""What `stream` says and does after a dropped cable.
+"""What `stream` says and does after a dropped cable, and before a partial board.
 
 A job survives a dropped cable: the message says what to do next (re-home or re-zero,
 then the same command with --resume); rerunning without --resume under --yes refuses
 rather than cutting again the strokes already done, and the question asked without --yes
-says that it starts from the top.
+says that it starts from the top. A board the machine's envelope cuts short (a toolpath
+planned with force) is said, and on a machine asked about (refused under --yes).
 """
 
 from __future__ import annotations
 
+import json
+
+import numpy as np
 import pytest
-from test_stream import cut_counts, read_record, write_job
+from test_stream import SIM, cut_counts, read_record, write_job
 from test_stream_cli_input import _gcode_received, _stream
 
+from scratchfab.export.gcode import gcode_lines
+from scratchfab.machine.profile import load_profile
 from scratchfab.machine.sender_journal import default_journal_path, read_journal
 from scratchfab.machine.sender_program import load_program
+from scratchfab.model.job import JobLayout
+from scratchfab.toolpath.plan import Toolpath
 
 _QUICK = "grblsim://?baud=0&time_scale=0.002"
 
@@ -91,3 +99,76 @@ def test_the_question_over_a_finished_journal_says_nothing_of_the_top(tmp_path):
     assert code == 0
     question = next(ln for ln in err.splitlines() if ln.startswith("Stream "))
     assert "from the top" not in question and "unfinished" not in err
+
+
+def _partial_job(tmp_path, outside: int, clipped: int) -> tuple[JobLayout, dict]:
+    """A job folder whose toolpath.json (3018 profile) says ``outside`` of its scratches
+    lay off the envelope and ``clipped`` were clipped, and the G-code exported from it."""
+    layout = JobLayout(tmp_path / "job")
+    profile = load_profile("grbl-3018-diamond")
+    env = profile.envelope
+    rng = np.random.default_rng(5)
+    lo = np.array([env.x_mm[0], env.y_mm[0]]) + 20.0
+    hi = np.array([env.x_mm[1], env.y_mm[1]]) - 20.0
+    a = rng.uniform(lo, hi, (6, 2))
+    strokes = np.stack([a, a + rng.uniform(-5.0, 5.0, (6, 2))], axis=1).round(3)
+    outline = np.array([lo, [hi[0], lo[1]], hi, [lo[0], hi[1]]])
+    stats = {"input_count": 6 + outside, "outside_count": outside, "clipped_count": clipped}
+    tp = Toolpath(strokes, np.arange(6), (100.0, 100.0), outline, profile, stats)
+    layout.toolpath_json.parent.mkdir(parents=True)
+    tp.save(layout.toolpath_json)
+    gcode = layout.export_file("gcode")
+    gcode.parent.mkdir(parents=True)
+    gcode.write_text("\n".join(gcode_lines(tp)) + "\n")
+    return layout, stats
+
+
+@pytest.mark.parametrize(
+    ("real", "flags", "answers", "refusal"),
+    [
+        (True, ["--yes"], "", "refusing to cut a partial board with --yes: "),
+        (True, [], "n\n", "not confirmed; nothing was sent"),
+        (True, [], "y\ny\n", None),  # the partial board, then the usual question
+        (False, ["--yes"], "", None),  # the emulator: said, neither asked nor refused
+    ],
+)
+def test_a_partial_board_is_said_and_on_a_machine_asked_about(
+    tmp_path, monkeypatch, real, flags, answers, refusal
+):
+    layout, stats = _partial_job(tmp_path, outside=3, clipped=1)
+    monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: not real)
+    rec = tmp_path / "rec.jsonl"
+    code, out, err = _stream([str(layout.root), "--port", f"{SIM}&record={rec}", *flags], answers)
+    assert "Traceback" not in err
+    lost = (
+        f"{stats['outside_count']} of {stats['input_count']} scratches lie outside the "
+        f"machine's envelope (not cut) and {stats['clipped_count']} are clipped to it "
+        f"({layout.toolpath_preview})"
+    )
+    assert f"warning: a partial board: {lost}" in err
+    assert ("Cut a partial board? " + lost in err) == (real and not flags)
+    if refusal is not None:
+        assert code == 2 and refusal in err
+        assert not rec.exists() and not layout.journal.exists()  # asked before connecting
+    else:
+        assert code == 0, err
+        assert "done:" in out and _gcode_received(read_record(rec))
+
+
+def test_a_whole_board_is_neither_said_nor_asked_about(tmp_path, monkeypatch):
+    layout, _ = _partial_job(tmp_path, outside=0, clipped=0)
+    monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: False)
+    code, _, err = _stream([str(layout.root), "--port", SIM], "y\n")
+    assert code == 0, err
+    assert "partial board" not in err
+
+
+def test_a_broken_toolpath_json_with_machine_given_streams_without_the_partial_check(tmp_path):
+    layout, _ = _partial_job(tmp_path, outside=3, clipped=0)
+    layout.toolpath_json.write_text(json.dumps({"format": "nonsense"}))
+    args = [str(layout.root), "--port", SIM, "--yes"]
+    code, _, err = _stream(args, "")
+    assert code == 2 and f"{layout.toolpath_json}: not a scratchfab toolpath" in err
+    code, _, err = _stream([*args, "--machine", "grbl-3018-diamond"], "")
+    assert code == 0, err
+    assert "partial board" not in err

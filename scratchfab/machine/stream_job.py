@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 from scratchfab.console import Confirm, Say, clock
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
-from scratchfab.machine.protocol_grblsim import sim_options
+from scratchfab.machine.protocol_grblsim import grblsim_query, sim_options
 from scratchfab.machine.sender import (
     Streamer,
     StreamOptions,
@@ -52,6 +52,7 @@ from scratchfab.model.job import JobLayout
 if TYPE_CHECKING:
     from scratchfab.machine.grblsim import SimOptions
     from scratchfab.machine.profile import MachineProfile
+    from scratchfab.toolpath import Toolpath
 
 
 @dataclass(frozen=True)
@@ -107,8 +108,8 @@ class StreamCallbacks:
         say: Called with one line per event.
         ask_interrupt: After Ctrl-C and a feed hold: returns "resume" or "stop".
         confirm: Asked before anything moves; False aborts with nothing sent. None: nobody
-            is asked (``--yes``): what needs a person's word is refused (a stream from the
-            top over an unfinished one).
+            is asked (``--yes``): what needs a person's word is refused (a partial board on
+            a machine, a stream from the top over an unfinished one).
         result: Called with the outcome lines (resume point, done); default ``say``.
     """
 
@@ -308,7 +309,10 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     """
     journal_file = req.journal or default_journal_path(req.gcode)
     check_journal_file(journal_file, req.gcode)
-    profile = _profile_for(req, cb.say)
+    planned = _planned(req)
+    profile = _profile_for(req, planned, cb.say)
+    if planned is not None:
+        ask_before_a_partial_board(planned, req.port, cb.confirm, cb.say)
     z_threshold = req.z_threshold
     if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
         z_threshold = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
@@ -481,6 +485,51 @@ def _refuse_from_the_top(
     )
 
 
+def is_emulator(port: str) -> bool:
+    """True for the built-in GRBL emulator (``grblsim://...``), which moves nothing."""
+    return grblsim_query(port) is not None
+
+
+def ask_before_a_partial_board(
+    planned: tuple[JobLayout, Toolpath], port: str, confirm: Confirm | None, say: Say
+) -> None:
+    """A board the envelope cuts short goes to a real machine only when a person says so.
+
+    The toolpath stage plans one only when forced, with a warning (its preview shows what
+    is lost); under ``--yes`` (``confirm`` None) nobody reads that, and the machine would
+    cut a board that cannot be finished. Said as a warning in any case; the emulator
+    (:func:`is_emulator`) is neither asked nor refused.
+
+    Args:
+        planned: The job and the toolpath its G-code was exported from.
+        port: Where the G-code goes.
+        confirm: Asks a person; None: nobody is asked.
+        say: Gets the warning.
+
+    Raises:
+        ScratchfabError: Under ``--yes`` on a machine, or when the person says no; nothing
+            is sent.
+    """
+    from scratchfab.toolpath.plan import partial_text
+
+    layout, toolpath = planned
+    cut_short = partial_text(toolpath.stats)
+    if cut_short is None:
+        return
+    lost = f"{cut_short} ({layout.toolpath_preview})"
+    say(f"warning: a partial board: {lost}")
+    if is_emulator(port):
+        return
+    if confirm is None:
+        raise ScratchfabError(
+            f"refusing to cut a partial board with --yes: {lost}; fix the machine profile's "
+            "[board] offset_mm or [envelope] and plan the toolpath again, or run without --yes "
+            "to be asked; nothing was sent"
+        )
+    if not confirm(f"Cut a partial board? {lost}"):
+        raise ScratchfabError("not confirmed; nothing was sent")
+
+
 def _check_same_zero(
     events: list[dict[str, Any]],
     wco: tuple[float, float, float] | None,
@@ -630,24 +679,41 @@ def _say_unsure(program: Program, unsure_blocks: set[int], recut_unsure: bool, s
         )
 
 
-def _profile_for(req: StreamRequest, say: Say) -> Any:
+def _planned(req: StreamRequest) -> tuple[JobLayout, Toolpath] | None:
+    """The job and toolpath a G-code file in ``JOB/export/`` was exported from, else None.
+
+    Raises:
+        ConfigError: ``JOB/toolpath/toolpath.json`` does not load, and no ``--machine``
+            makes do without it (with one, the partial-board check is skipped).
+    """
+    job = JobLayout.for_export_file(req.gcode.resolve())
+    if job is None or not job.toolpath_json.is_file():
+        return None
+    from scratchfab.toolpath import Toolpath
+
+    try:
+        return job, Toolpath.load(job.toolpath_json)
+    except ConfigError:
+        if req.machine is None:
+            raise
+        return None
+
+
+def _profile_for(req: StreamRequest, planned: tuple[JobLayout, Toolpath] | None, say: Say) -> Any:
     """The machine profile to check against: the one asked for, else the job's own.
 
     A G-code file in ``JOB/export/`` was planned for the profile recorded in
-    ``JOB/toolpath/toolpath.json``; streaming it is checked against that envelope even
-    when no ``--machine`` is given.
+    ``JOB/toolpath/toolpath.json`` (``planned``); streaming it is checked against that
+    envelope even when no ``--machine`` is given.
     """
     if req.machine is not None:
         from scratchfab.machine.profile import load_profile
 
         return load_profile(req.machine)
-    job = JobLayout.for_export_file(req.gcode.resolve())
-    if job is not None and job.toolpath_json.is_file():
-        from scratchfab.toolpath import Toolpath
-
-        planned = job.toolpath_json
-        profile = Toolpath.load(planned).profile
-        say(f"checking against machine '{profile.name}' of {planned}")
+    if planned is not None:
+        job, toolpath = planned
+        profile = toolpath.profile
+        say(f"checking against machine '{profile.name}' of {job.toolpath_json}")
         return profile
     return None
 
@@ -679,10 +745,11 @@ def run_stream_job(
 ) -> Path:
     """The pipeline's stream stage: JOB/export/board.gcode to ``port``.
 
-    ``confirm`` is asked after the settings check (and check mode), as ``stream`` asks;
-    the default answers yes (the caller has consent), None asks nobody. A Ctrl-C stops
-    safely. A run after an interrupted stream of the same G-code resumes it from the
-    journal.
+    ``confirm`` is asked about a partial board on a machine, and after the settings check
+    (and check mode), as ``stream`` asks; the default answers yes (the caller has
+    consent); None asks nobody and refuses a partial board on a machine
+    (:func:`ask_before_a_partial_board`). A Ctrl-C stops safely. A run after an
+    interrupted stream of the same G-code resumes it from the journal.
     """
     lines = ProgressLines()
     layout = JobLayout(job)
