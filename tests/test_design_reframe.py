@@ -209,3 +209,39 @@ def test_a_record_of_the_design_files_bytes_still_matches_an_unchanged_design(tm
     assert design_changed_since_optimize(job) == []
     _edit(file, f0="0.5")
     assert design_changed_since_optimize(job) == ["design/design.toml"]
+
+
+def test_a_frame_no_fov_can_widen_to_the_board_says_to_move_the_camera(tmp_path, capsys):
+    """A camera low over a tall board has part of it behind: "auto" fails there too (the
+    design says so when given it), so the warning says to move the camera instead."""
+    job = tmp_path / "job"
+    _run(["design", *QUICK, "--out", str(job)], capsys)
+    file = tmp_path / "low.toml"
+    shutil.copy(job / "design" / "design.toml", file)
+    text = file.read_text()
+    text = re.sub(
+        r"(?m)^(position_mm = \[0\.0, 0\.0, .*\])$", "position_mm = [0.0, -60.0, 5.0]", text
+    )
+    file.write_text(text)
+    _edit(file, height_mm="200.0", fov_deg="60.0")
+    view = load_design(file).views[0]
+    assert view.position_mm == (0.0, -60.0, 5.0)
+    corners = [(x, y, 0.0) for x in (-15.0, 15.0) for y in (-100.0, 100.0)]
+    behind = [
+        c for c in corners if np.dot(np.subtract(c, view.position_mm), (0.0, 60.0, -5.0)) <= 0
+    ]
+    assert behind  # worked out here: the board's lower corners lie behind the camera
+    with pytest.raises(SystemExit):
+        main(["design", str(file), "--out", str(tmp_path / "low")])
+    out = capsys.readouterr().out
+    line = next(x for x in out.splitlines() if "warning: view 'sun' sees" in x)
+    assert 'fov_deg = "auto"' not in line, line
+    assert "part of the board lies behind the camera" in line
+    assert (
+        f"move views[0]'s camera farther from the board (its position_mm or distance_mm in {file})"
+    ) in line
+    # what it no longer says: "auto" is refused from there
+    _edit(file, fov_deg='"auto"')
+    with pytest.raises(SystemExit):
+        main(["design", str(file), "--out", str(tmp_path / "low")])
+    assert "the board is not in front of the camera" in capsys.readouterr().err

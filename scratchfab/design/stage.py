@@ -435,14 +435,25 @@ def _check_frame(source: str, index: int, view: View, board: Board, say: Say) ->
     if share >= FRAME_SHARE:
         return
     try:
-        fix = f" ({auto_fov(view, board):.6g} degrees here)"
-    except ValueError:  # a board corner behind the camera: auto cannot frame it either
-        fix = ""
+        auto: float | None = auto_fov(view, board)
+        why = "it would need 170 degrees or more"
+    except ValueError:
+        auto, why = None, "part of the board lies behind the camera"
+    if auto is not None and auto < 170:
+        fix = (
+            f'to frame the whole board, set views[{index}] fov_deg = "auto" in {source} '
+            f"({auto:.6g} degrees here)"
+        )
+    else:  # "auto" is refused from there too (resolve_view)
+        fix = (
+            f"no fov frames the whole board from where it stands ({why}): move "
+            f"views[{index}]'s camera farther from the board (its position_mm or "
+            f"distance_mm in {source})"
+        )
     say(
         f"  warning: view '{view.name}' sees {math.floor(share * 100)} % of the "
         f"{board.width_mm:g} x {board.height_mm:g} mm board (fov_deg = {view.fov:.6g}), so it "
-        f"shows only that part of its picture; to frame the whole board, set views[{index}] "
-        f'fov_deg = "auto" in {source}{fix}'
+        f"shows only that part of its picture; {fix}"
     )
 
 
