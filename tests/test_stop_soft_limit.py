@@ -10,6 +10,8 @@ which (``lost``: the speed it stopped from); the sender must tell the user the s
 
 from __future__ import annotations
 
+import time
+
 import pytest
 from stream_helpers import FAST, executed_blocks, interrupt_after, stream_program
 
@@ -42,11 +44,19 @@ def _stream(tmp_path, stop_after: int | None, ask: str = "stop"):
                 load_program(job),
                 tmp_path / "j.jsonl",
                 on_progress=progress,
-                ask_interrupt=lambda: ask,
+                ask_interrupt=lambda: _answer(ask),
             )
     finally:
         port.close()
     return exc.value, read_journal(tmp_path / "j.jsonl"), port.sim.record
+
+
+def _answer(ask: str) -> str:
+    """``ask`` after a person's pause: the hold slows for about 2 s (20 mm/s at GRBL's
+    default 10 mm/s^2), so the alarm comes while the question waits, as it would for a
+    person, and not after an instant "resume" on a machine busy with other work."""
+    time.sleep(0.5)
+    return ask
 
 
 def _alarms(record) -> list[dict]:
