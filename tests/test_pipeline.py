@@ -425,6 +425,7 @@ def test_real_port_asks_before_streaming(
     record = tmp_path / "received.jsonl"
     real = _real_port_pipeline(path, record, monkeypatch)
     monkeypatch.setattr(runner, "is_emulator", lambda port: False)  # as a real machine
+    monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: False)
     monkeypatch.setattr(run_cmd, "_interactive", lambda: interactive)
     monkeypatch.setattr("sys.stdin", io.StringIO(answer))
     code = 0
@@ -493,6 +494,7 @@ def test_real_port_cuts_a_board_the_envelope_cuts_short_only_when_asked(
     record = tmp_path / "received.jsonl"
     real = _real_port_pipeline(path, record, monkeypatch)
     monkeypatch.setattr(runner, "is_emulator", lambda port: False)  # as a real machine
+    monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: False)
     monkeypatch.setattr(run_cmd, "_interactive", lambda: True)
     monkeypatch.setattr("sys.stdin", io.StringIO(answers))
     capsys.readouterr()

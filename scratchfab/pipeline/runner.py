@@ -35,10 +35,14 @@ from scratchfab.pipeline.report import write_report
 
 
 def is_emulator(port: str) -> bool:
-    """True for the built-in GRBL emulator (``grblsim://...``), which moves nothing."""
-    from scratchfab.machine.protocol_grblsim import grblsim_query
+    """True for the built-in GRBL emulator (``grblsim://...``), which moves nothing.
 
-    return grblsim_query(port) is not None
+    :func:`scratchfab.machine.stream_job.is_emulator`, imported when asked: the sender's
+    modules load with the stream stage, not with every ``run``.
+    """
+    from scratchfab.machine.stream_job import is_emulator as emulator
+
+    return emulator(port)
 
 
 def as_run_advice(text: str) -> str:
@@ -312,8 +316,6 @@ class _Stages:
 
         s = self.pipe.stream
         assert s.port is not None
-        if not is_emulator(s.port):
-            self._ask_before_a_partial_board()
         try:
             run_stream_job(
                 self.job,
@@ -324,41 +326,14 @@ class _Stages:
                 machine=self.pipe.profile,
                 recut_unsure=s.recut_unsure,
                 say=self._say_in,
-                confirm=self.confirm
-                if self.confirm is not None and not is_emulator(s.port)
-                else lambda _: True,
+                # None (--yes): nobody is asked, and a partial board is refused
+                confirm=(lambda _: True) if is_emulator(s.port) else self.confirm,
             )
         except ScratchfabError as exc:  # the sender's advice names `stream`'s option
             if exc.args:
                 exc.args = (as_run_advice(str(exc.args[0])), *exc.args[1:])
             raise
         return self._relative(self.layout.journal)
-
-    def _ask_before_a_partial_board(self) -> None:
-        """A board the envelope cuts short goes to a real machine only when a person says so.
-
-        The toolpath stage plans one only under ``[pipeline] force = true``, with a warning
-        (its preview shows what is lost); under ``--yes`` nobody reads that, and the machine
-        would cut a board that cannot be finished.
-
-        Raises:
-            ScratchfabError: Under ``--yes``, or when the person says no; nothing is sent.
-        """
-        from scratchfab.toolpath import Toolpath
-        from scratchfab.toolpath.plan import partial_text
-
-        cut_short = partial_text(Toolpath.load(self.layout.toolpath_json).stats)
-        if cut_short is None:
-            return
-        lost = f"{cut_short} ({self.layout.toolpath_preview})"
-        if self.confirm is None:
-            raise ScratchfabError(
-                f"[stream] refusing to cut a partial board with --yes: {lost}; fix the "
-                "profile's [board] offset_mm or [envelope], or run without --yes to be "
-                "asked; nothing was sent"
-            )
-        if not self.confirm(f"Cut a partial board? {lost}"):
-            raise ScratchfabError("not confirmed; nothing was sent")
 
 
 def run_pipeline(
