@@ -306,3 +306,14 @@ def test_every_view_stays_visible_where_the_rho_curves_coincide(tmp_path, n):
         mine = is_color(panel, VIEW_RGB[k])[ys[on_line], xs[on_line]].sum()
         assert mine >= 0.5 * total / n, (k, mine, total)
     assert AXIS_RGB not in VIEW_RGB[:n]  # a curve in the frame's colour would read as the frame
+
+
+def test_side_by_side_is_wide_enough_for_a_long_view_name(tmp_path):
+    """A row's title (view name and rho) ends before the picture's right edge."""
+    target = np.linspace(0.0, 1.0, 16 * 16).reshape(16, 16)
+    name = "a_rather_long_view_name_from_its_file"
+    save_side_by_side(tmp_path / "sbs.png", {name: target}, {name: target})
+    img = pixels(tmp_path / "sbs.png")
+    title = img[: MIN_CELL_PX // 8]  # the first row's title band, above its cells
+    ink = np.flatnonzero((title.min(axis=-1) < 200).any(axis=0))
+    assert ink.size and ink.max() < img.shape[1] - 4, (ink.max(), img.shape[1])

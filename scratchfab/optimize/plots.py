@@ -352,7 +352,12 @@ def save_side_by_side(
     ]
     if glinting:
         caption.insert(1, f"outlined: {GLINT_KEY} (left out of the image error)")
-    width = max(2 * cell_w + 3 * gap, 330, *(text_size(c, TEXT_PX - 2)[0] + 40 for c in caption))
+    width = max(
+        2 * cell_w + 3 * gap,
+        330,
+        *(text_size(c, TEXT_PX - 2)[0] + 40 for c in caption),
+        *(text_size(r[0])[0] + 2 * gap for r in rows),
+    )
     height = len(rows) * (cell_h + label + gap) + len(caption) * (TEXT_PX + 4) + gap
     img = Image.new("RGB", (width, height), "white")
     draw = ImageDraw.Draw(img)
