@@ -73,11 +73,11 @@ def test_stand_text_is_what_the_report_says_for_the_demo():
 def test_stand_lines_name_the_light_once_when_shared_else_per_view(tmp_path):
     design = _demo_design()
     lines = stand_lines(design)
-    assert lines[0].startswith("where to stand (angles from the board's front")
+    assert lines[0].startswith("where to stand (angles from the board’s front")
     assert lines[1:] == [
         f"  sun: {stand_text(design, design.views[0], light=False)}",
         f"  house: {stand_text(design, design.views[1], light=False)}",
-        "  light: straight in front of the board, 22° above its centre, 50 cm away",
+        "  the light: straight in front of the board, 22° above its centre, 50 cm away",
     ]
     # A view with a light of its own: each line names its light.
     data = {
@@ -142,7 +142,7 @@ def test_design_prints_where_to_stand_from_its_own_design_file(tmp_path, capsys)
         assert ("left" in line) == (azimuth < 0)
     lx, ly, lz = design.light.position_mm
     assert lines[start + 3] == (
-        f"  light: straight in front of the board, "
+        f"  the light: straight in front of the board, "
         f"{math.degrees(math.atan2(ly, math.hypot(lx, lz))):.0f}° above its centre, "
         f"{math.sqrt(lx * lx + ly * ly + lz * lz) / 10:.0f} cm away"
     )

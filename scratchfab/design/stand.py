@@ -64,11 +64,12 @@ def stand_lines(design: Design) -> list[str]:
     """
     lights = {tuple(design.light_for(view).tolist()) for view in design.views}
     lines = [
-        "where to stand (angles from the board's front, its normal, with its top edge up; "
+        f"where to stand (angles from {FRONT}, its normal, with its top edge up; "
         "distances from its centre):"
     ]
     for view in design.views:
         lines.append(f"  {view.name}: {stand_text(design, view, light=len(lights) > 1)}")
     if len(lights) == 1:
-        lines.append(f"  light: {place(next(iter(lights)), BOARD)}")
+        # "the light", not "light": a view may be named "light" (from light.png)
+        lines.append(f"  the light: {place(next(iter(lights)), BOARD)}")
     return lines
