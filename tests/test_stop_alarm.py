@@ -10,6 +10,7 @@ a soft-limit alarm at speed is journaled as a maybe lost position, which a resum
 
 from __future__ import annotations
 
+import json
 import re
 import signal
 
@@ -246,3 +247,33 @@ def test_a_resumed_session_stopped_before_its_first_line_names_that_line(tmp_pat
         f"stopped by the user before GRBL accepted line {prog.blocks[start].lineno}, the first "
         "line of this resumed session; machine held, then soft-reset"
     )
+
+
+@pytest.mark.parametrize(
+    ("state", "own", "lost"),
+    [
+        ("Run", False, "maybe"),  # a hold button's hold may begin and end between reports
+        ("Hold:1", False, "maybe"),  # GRBL's own soft-limit hold, or the button's
+        ("Hold:0", False, None),  # held: standing when the line was read
+        ("Idle", False, None),  # standing: GRBL alarms before any motion
+        ("Run", True, True),  # the sender's own hold, not yet seen complete
+    ],
+)
+def test_a_soft_limit_is_journaled_lost_unless_the_machine_was_last_seen_standing(
+    tmp_path, state, own, lost
+):
+    """With a fast deceleration a hold the sender did not send may start and end between
+    two status reports: where the last one showed the machine moving, the position is
+    maybe lost (GRBL may have stopped the motors at speed), as where it showed Hold:1."""
+    from scratchfab.machine.sender import Status
+
+    streamer = Streamer.__new__(Streamer)  # the alarm's rule alone: no port
+    streamer.status = Status(state=state)
+    streamer._hold_unseen = own
+    streamer._journal = Journal(tmp_path / "j.jsonl").open()
+    streamer._soft_limit_line = lambda: "on a line not known"  # type: ignore[method-assign]
+    fault = streamer._alarm_fault(2)
+    streamer._journal.close()
+    (alarm,) = [json.loads(line) for line in (tmp_path / "j.jsonl").read_text().splitlines()]
+    assert alarm["ev"] == "alarm" and alarm.get("lost") == lost
+    assert ("home it ($H)" in str(fault)) is (lost is not None)

@@ -1197,13 +1197,14 @@ class Streamer:
         the hold running, kills the steppers at speed ("position has likely been lost") and
         only ``ALARM:2`` is reported. The sender takes the position as likely lost where it
         sent a feed hold that no report since showed complete (journaled ``lost: true``),
-        and as unsure where the last report said ``Hold:1`` without one (GRBL's own
-        soft-limit hold, or the controller's feed hold button: ``lost: "maybe"``). A hard
+        and as unsure where the last report said ``Hold:1`` or ``Run`` without one (GRBL's
+        own soft-limit hold, or the controller's feed hold button, whose hold may have
+        begun and ended between two reports: ``lost: "maybe"``). A hard
         limit (``ALARM:1``) and a reset in motion (``ALARM:3``) lose it (``lost: true``).
         The message names the line whose target left the travel (:meth:`_soft_limit_line`).
         """
         own = self._hold_unseen
-        slowing = own or self.status.state == "Hold:1"
+        slowing = own or self.status.state in ("Hold:1", "Run")
         lost: bool | str = code in (1, 3) or (code == 2 and own)
         if code == 2 and slowing and not own:
             lost = "maybe"
@@ -1217,8 +1218,9 @@ class Streamer:
             )
         elif lost == "maybe":
             meaning = (
-                "soft limit: a target beyond the machine travel, while the machine was "
-                "slowing down (Hold:1): the position is kept if that was GRBL's own "
+                f"soft limit: a target beyond the machine travel, while the machine was "
+                f"{'slowing down (Hold:1)' if self.status.state == 'Hold:1' else 'moving'}: "
+                "the position is kept if that was GRBL's own "
                 "soft-limit hold, but likely lost if the controller's feed hold button "
                 "was slowing it (GRBL then stopped the motors at speed); home it ($H) "
                 "before --resume unless you know which"
