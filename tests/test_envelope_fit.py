@@ -269,3 +269,32 @@ def test_advice_for_a_bundled_profile_says_to_copy_it_and_for_a_file_does_not(tm
         assert f"is a bundled profile: copy {source} to a file of your own" in said
         assert "give that file as --machine" in said
         assert "bundled profile" not in fit_advice(load_profile(mine), board)
+
+
+def test_a_stroke_ending_on_the_envelopes_edge_is_not_counted_as_clipped():
+    """A board as large as the travel: a stroke that ends on the envelope's edge is kept
+    half a written digit inside it (rounding), which is no clipping by the envelope."""
+    from dataclasses import replace
+
+    from scratchfab.machine.profile import load_profile
+    from scratchfab.model.design import Board
+    from scratchfab.model.scratches import ScratchSet
+    from scratchfab.toolpath.order import OrderOptions
+    from scratchfab.toolpath.plan import plan_toolpath
+
+    profile = load_profile("grbl-plotter-scribe")
+    profile = replace(profile, board=replace(profile.board, offset_mm=(0.0, 0.0)))
+    width = profile.envelope.x_mm[1] - profile.envelope.x_mm[0]
+    height = profile.envelope.y_mm[1] - profile.envelope.y_mm[0]
+    end = width / 2  # the board's right edge, on the envelope's
+    scratches = ScratchSet(
+        np.array([[end - 10.0, 0.0], [end - 30.0, 5.0]]),
+        np.array([[end, 0.0], [end + 5.0, 5.0]]),  # the second crosses it: clipped
+        np.full(2, 0.1),
+        np.full(2, 0.01),
+    )
+    board = Board(width_mm=width, height_mm=height, margin_mm=0.0)
+    planned = plan_toolpath(scratches, board, profile, None, OrderOptions(passes=0, kicks=0))
+    assert planned.stats["outside_count"] == 0
+    assert planned.stats["clipped_count"] == 1
+    assert planned.strokes[:, :, 0].max() <= profile.envelope.x_mm[1]

@@ -401,8 +401,10 @@ def plan_toolpath(
     m0 = profile.board_to_machine(scratches.p0, size)
     m1 = profile.board_to_machine(scratches.p1, size)
     keep, q0, q1 = clip_strokes(m0, m1, region)
-    # Clipped by the envelope: an end beyond it (the board's own edge clips only rounding).
-    beyond = ~(inner.contains_xy(m0) & inner.contains_xy(m1))
+    # Clipped by the envelope: an end beyond it. An end within the slack of its edge is
+    # only kept clear of rounding (a board as large as the travel fits), as is one that the
+    # board's own edge clips.
+    beyond = ~(env.contains_xy(m0, 1e-9) & env.contains_xy(m1, 1e-9))
     clipped = int(np.count_nonzero(beyond[keep]))
     lengths = np.hypot(*(q1 - q0).T)
     # A stroke must also survive rounding to the written decimals with a non-zero length.
