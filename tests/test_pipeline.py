@@ -1167,7 +1167,7 @@ def test_a_board_the_envelope_cuts_short_stops_the_run_at_toolpath_with_the_offs
     said: list[str] = []
     with pytest.raises(ScratchfabError) as info:
         run_pipeline(load_pipeline(path), job, until="toolpath", say=said.append)
-    assert "will stop there unless [pipeline] force = true" in said[0]
+    assert "will stop there if a scratch lies beyond it, unless [pipeline] force = true" in said[0]
     refusal = str(info.value)
     assert "or give [pipeline] force = true to plan only the part it reaches" in refusal
     assert not (job / "toolpath" / "toolpath.json").exists()
@@ -1203,3 +1203,27 @@ def test_a_refused_design_names_the_pipeline_key_that_overrides_it(tmp_path, for
     assert "the picture is black on the board" in said
     assert f"(set [pipeline] force = true in {path} to design anyway)" in said
     assert "--force" not in said
+
+
+@pytest.mark.parametrize(("x", "warned"), [(-29.0, False), (-28.0, True)])
+def test_a_board_overhanging_by_less_than_its_margin_is_not_warned_of(tmp_path, x, warned):
+    """The tiny board is 30 mm wide with a 1.5 mm margin: its scratches end 1.5 mm inside
+    its edge, so an overhang of 1 mm past X 0 leaves every scratch reachable (the toolpath
+    stage plans it whole) and the start says nothing; 2 mm is said."""
+    from scratchfab.bundled import bundled_dir
+
+    profile = (bundled_dir("machine_profiles") / "grbl-3018-diamond.toml").read_text()
+    old = "offset_mm = [-220.0, -150.0]"
+    (tmp_path / "edge.toml").write_text(profile.replace(old, f"offset_mm = [{x}, -150.0]"))
+    path = write_pipeline(
+        tmp_path, edits={'machine = "grbl-3018-diamond"': 'machine = "edge.toml"'}
+    )
+    said: list[str] = []
+    # warned: the toolpath stage may then refuse, if a scratch lies beyond X 0
+    with contextlib.suppress(ScratchfabError) if warned else contextlib.nullcontext():
+        run_pipeline(load_pipeline(path), tmp_path / "job", until="toolpath", say=said.append)
+    assert any("board (corners" in line for line in said) is warned
+    if not warned:
+        stats = json.loads((tmp_path / "job" / "toolpath" / "toolpath.json").read_text())
+        assert stats["statistics"]["outside_count"] == 0
+        assert stats["statistics"]["clipped_count"] == 0

@@ -399,17 +399,23 @@ def _job_lock(path: Path) -> Iterator[None]:
 def _board_overhang(pipe: Pipeline) -> str | None:
     """The warning for a board the machine cannot reach whole, or None when it can.
 
-    The toolpath stage leaves out or clips the scratches of a board that overhangs the
-    envelope, and refuses one wholly outside it; said before design and optimize run, a
-    person can fix the board or the profile before minutes of work.
+    The toolpath stage refuses a board whose scratches the envelope cuts short (unless
+    ``[pipeline] force``), and one wholly outside it; said before design and optimize run,
+    a person can fix the board or the profile before minutes of work. Scratches keep
+    ``[board] margin_mm`` inside the board's edges, so a board that overhangs by less says
+    nothing.
     """
+    import numpy as np
+
     from scratchfab.toolpath.plan import envelope_text, fit_advice, xy_text
 
     board, profile = pipe.design.board, pipe.profile
     size = (board.width_mm, board.height_mm)
     corners = profile.board_outline(size)
     env = profile.envelope
-    if env.contains_xy(corners).all():
+    # The board turns by quarter turns only: its outline is an axis-aligned rectangle.
+    laid = np.stack([corners.min(axis=0) + board.margin_mm, corners.max(axis=0) - board.margin_mm])
+    if env.contains_xy(laid).all():
         return None
     where = (
         f"warning: the {board.width_mm:g} x {board.height_mm:g} mm board (corners "
@@ -431,7 +437,8 @@ def _board_overhang(pipe: Pipeline) -> str | None:
         "will leave out the scratches beyond it and clip those across its edge "
         f"({PARTIAL_OVERRIDE})"
         if pipe.pipeline.force
-        else f"will stop there unless {PARTIAL_OVERRIDE}, which cuts only the part it reaches"
+        else f"will stop there if a scratch lies beyond it, unless {PARTIAL_OVERRIDE}, "
+        "which cuts only the part it reaches"
     )
     return (
         f"{where} reaches beyond {envelope}: the toolpath stage {when}. To cut the whole "
