@@ -92,7 +92,8 @@ def test_the_checkpoint_tells_the_options_the_pipeline_file_gave(
     checkpoint = read_checkpoint(job / "optimize" / "checkpoint.npz")
     own = {**checkpoint_settings(checkpoint), **checkpoint_request(job, checkpoint)}
     assert replace(table, **own) == table
-    # all but the time budget, which counts a session's time, and the resume itself
+    # all but the time budget, each command's own (it counts the run's time in all), and
+    # the resume itself
     assert set(own) == {f.name for f in fields(OptimizeOptions)} - {"time_budget_s", "resume"}
 
 
@@ -116,6 +117,11 @@ def test_resume_alone_ends_as_the_run_without_a_stop(
     logs = [(j / "optimize" / "log.csv").read_text().splitlines() for j in (job, reference)]
     drop_seconds = [[row.split(",")[:2] + row.split(",")[3:] for row in log] for log in logs]
     assert drop_seconds[0] == drop_seconds[1]
+    # `run` afterwards finds the run finished and says so (not "interrupted")
+    said_by_run: list[str] = []
+    run_pipeline(load_pipeline(stopped[0]), job, until="optimize", say=said_by_run.append)
+    assert any("it had finished: its outputs are kept" in line for line in said_by_run)
+    assert (job / "optimize" / "scratches.csv").read_bytes() == made
 
 
 @pytest.mark.parametrize(

@@ -684,7 +684,7 @@ def test_ctrl_c_in_optimize_stops_the_run_and_the_next_run_continues_it(
     said: list[str] = []
     result = run_pipeline(load_pipeline(path), job, until="optimize", say=said.append)
     assert result.ran == ["optimize"]
-    assert any("continuing the interrupted run" in line for line in said)
+    assert any("continuing the run from" in line for line in said)
     scratches = "optimize/scratches.csv"
     assert (job / scratches).read_bytes() == (reference / scratches).read_bytes()
     assert Manifest.load(job).stages["optimize"]["status"] == "done"
@@ -895,7 +895,7 @@ def test_damaged_checkpoint_of_an_interrupted_optimize_starts_it_afresh(
     said: list[str] = []
     result = run_pipeline(load_pipeline(path), copy, until="optimize", say=said.append)
     assert result.ran == ["optimize"]
-    assert f"  continuing the interrupted run from {ckpt}" in said
+    assert f"  continuing the run from {ckpt}" in said
     assert (
         f"  cannot continue it ({ckpt}: not a NumPy .npz file (it begins with b'garbage')); "
         "optimizing from the start"

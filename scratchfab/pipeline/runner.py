@@ -224,15 +224,17 @@ class _Stages:
 
     def _run_optimize(self) -> Sequence[str]:
         from scratchfab.optimize.progress import progress_printer
-        from scratchfab.optimize.stage import ResumeRefused, run_optimize
+        from scratchfab.optimize.stage import NOTHING_TO_DO, ResumeRefused, run_optimize
 
         progress = progress_printer(self._say_in)
         layout = self.layout
         options = self.pipe.optimize
         if self.resume and layout.optimize_checkpoint.is_file():
-            self._say_in(f"continuing the interrupted run from {layout.optimize_checkpoint}")
+            self._say_in(f"continuing the run from {layout.optimize_checkpoint}")
             try:
                 result = run_optimize(self.job, replace(options, resume=True), progress=progress)
+                if result.stopped == NOTHING_TO_DO:  # finished by `optimize --resume` since
+                    self._say_in("it had finished: its outputs are kept")
             except ConfigError as exc:
                 why = str(exc)
                 if isinstance(exc, ResumeRefused):  # its advice is for `optimize --resume`
