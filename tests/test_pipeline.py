@@ -1227,3 +1227,18 @@ def test_a_board_overhanging_by_less_than_its_margin_is_not_warned_of(tmp_path, 
         stats = json.loads((tmp_path / "job" / "toolpath" / "toolpath.json").read_text())
         assert stats["statistics"]["outside_count"] == 0
         assert stats["statistics"]["clipped_count"] == 0
+
+
+def test_the_design_stage_of_a_run_says_where_to_stand(tmp_path):
+    """As ``design`` ends: where each view stands and where the light goes."""
+    from scratchfab.design.stand import stand_lines
+    from scratchfab.model.design import load_design
+
+    path = write_pipeline(tmp_path)
+    said: list[str] = []
+    run_pipeline(load_pipeline(path), tmp_path / "job", until="design", say=said.append)
+    design = load_design(tmp_path / "job" / "design" / "design.toml")
+    lines = stand_lines(design)
+    assert len(lines) == 4 and lines[1].startswith("  disc: stand 22° to the left")
+    shown = [line.strip() for line in said]
+    assert all(line.strip() in shown for line in lines), said

@@ -203,10 +203,11 @@ class _Stages:
     def _run_design(self) -> Sequence[str]:
         from scratchfab.design.feasibility import DESIGN_ANYWAY
         from scratchfab.design.stage import run_design
+        from scratchfab.design.stand import stand_lines
 
         opts = self.pipe.pipeline
         try:
-            run_design(
+            result = run_design(
                 replace(self.pipe.design, source=str(self.pipe.path)),
                 self.job,
                 force=opts.force,
@@ -219,6 +220,8 @@ class _Stages:
                 anyway = f"(set [pipeline] force = true in {self.pipe.path} to design anyway)"
                 exc.args = (str(exc.args[0]).replace(DESIGN_ANYWAY, anyway), *exc.args[1:])
             raise
+        for line in stand_lines(result.design):  # as `design` ends (also in the report)
+            self._say_in(line)
         design = self.layout.design
         return self._relative(design.design_toml, design.initial_scratches, design.targets_dir)
 
