@@ -621,9 +621,10 @@ def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
     code = alarms[-1].get("code")
     if alarms[-1]["lost"] == "maybe":
         return (
-            f"the interrupted run ended with ALARM:{code} (a soft limit) while a feed "
-            "hold the sender did not send was slowing the machine down: GRBL's own soft-limit "
-            "hold keeps the position, the controller's feed hold button would have lost it "
+            f"the run before this resume ended with ALARM:{code} (a soft limit) while the "
+            "machine moved or slowed down under a feed hold the sender did not send: GRBL's own "
+            "soft-limit hold keeps the position, the controller's feed hold button would have "
+            "lost it "
             "(the motors stopped at speed); go on only if the machine was homed ($H) since, or "
             "you know the hold was GRBL's own; after an unlock ($X) alone the strokes may land off"
         )
@@ -633,7 +634,7 @@ def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
         3: "a reset while the machine moved",
     }.get(code if isinstance(code, int) else -1, "an alarm")
     return (
-        f"the interrupted run ended with ALARM:{code}, which stopped the motors at "
+        f"the run before this resume ended with ALARM:{code}, which stopped the motors at "
         f"speed ({why}), so its position was likely lost: go on only if the machine was "
         "homed ($H) since; after an unlock ($X) alone the strokes would land off"
     )
