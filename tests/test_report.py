@@ -283,25 +283,69 @@ def test_a_view_short_where_the_bare_board_glints_is_told_the_glint_not_more_ste
     path.write_text(json.dumps(feasibility))
     page = write_report(job, min_rho=0.8).read_text()
     _, head, lines = _verdict(page)
-    said = f"(the bare board glints into it on {100 * share:.1f}% of the board)"
-    assert f"left rho -0.060 below 0.8 {said}" in head
-    assert "right rho 0.500 below 0.8;" in head + ";" and head.count("glints") == 1
+    said = (
+        f"; the bare board glints into left (design warned; on {100 * share:.1f}% of the "
+        "board): no scratch shows the image there and the glint outshines the rest, so "
+        "optimizing longer does not help: move the camera or the light as design's warning "
+        "says"
+    )
+    assert "left rho -0.060 below 0.8 (the bare board outshines its grooves)" in head
+    assert "right rho 0.500 below 0.8;" in head + ";" and head.count("outshines") == 1
     left = [t for _, t in lines if "left looks like" in t]
     assert left == [
         f"✘ no left looks like its target: rho_kk -0.060 < 0.8 ([verify] min_rho; "
-        f"1 = perfect) {said}"
+        f"1 = perfect){said}"
     ]
     steps = _steps(page)
-    glint = [s for s in steps if s.startswith("The bare board glints")]
-    assert len(glint) == 1 and "Move the camera or the light" in glint[0]
-    assert "does not help" in glint[0]
+    glint = [s for s in steps if s.startswith("The bare board outshines")]
+    assert len(glint) == 1 and "does not help" in glint[0]
     assert sum("run optimize longer" in s for s in steps) == 1  # right's, once
     # Only the glinting view failing: no step sends anyone to optimize longer.
     job2 = fake_job(tmp_path / "two", rho=(-0.06, 0.9))
     (job2 / "design" / "feasibility.json").write_text(json.dumps(feasibility))
     steps = _steps(write_report(job2, min_rho=0.8).read_text())
     assert not any("run optimize longer" in s for s in steps)
-    assert any(s.startswith("The bare board glints") for s in steps)
+    assert any(s.startswith("The bare board outshines") for s in steps)
+
+
+def test_a_view_short_where_design_warned_of_the_glints_shoulder_is_told_the_count(tmp_path):
+    """A maker's case: a speck of glint (0.1 %) beside a warned shoulder (17 %): the
+    verdict names the shoulder, its share and design's count, not the glint's 'move the
+    camera or the light'; a view whose shoulder is under the warn share and whose glint is
+    not a speck keeps the glint's words; a glint at the warn share is named beside the
+    shoulder."""
+    from scratchfab.design.feasibility import SHOULDER_WARN_FRACTION
+
+    job = fake_job(tmp_path, rho=(0.257, 0.3))
+    path = job / "design" / "feasibility.json"
+    feasibility = json.loads(path.read_text())
+    below = SHOULDER_WARN_FRACTION / 2
+    feasibility.update(shoulder_count=14233, groove_coverage=0.0412)
+    feasibility["views"] = {
+        "left": {"glint_fraction": 0.001, "shoulder_fraction": 0.17},
+        "right": {"glint_fraction": 0.001, "shoulder_fraction": below},
+    }
+    path.write_text(json.dumps(feasibility))
+    _, head, lines = _verdict(write_report(job, min_rho=0.8).read_text())
+    left = next(t for _, t in lines if "left looks like" in t)
+    assert (
+        "; past the glint the bare board still outshines the sparse grooves at groove "
+        "coverage 0.04 (the glint's shoulder; design warned): left on 17.0% of the board; "
+        "optimizing longer does not help, more scratches do: set [scratch] count to at least "
+        "14233" in left
+    )
+    assert "glints into" not in left
+    right = next(t for _, t in lines if "right looks like" in t)
+    assert "the bare board glints into right (design warned; on 0.1% of the board)" in right
+    assert "shoulder" not in right
+    # A glint at the warn share matters beside a shoulder: both are named.
+    feasibility["views"]["left"]["glint_fraction"] = SHOULDER_WARN_FRACTION
+    feasibility["shoulder_count"] = None
+    path.write_text(json.dumps(feasibility))
+    _, _, lines = _verdict(write_report(job, min_rho=0.8).read_text())
+    left = next(t for _, t in lines if "left looks like" in t)
+    assert "no scratch count clears it: move the cameras or the light" in left
+    assert f"glints into left (design warned; on {100 * SHOULDER_WARN_FRACTION:.1f}%" in left
 
 
 def test_optimization_section_says_which_views_glint_was_left_out(tmp_path):

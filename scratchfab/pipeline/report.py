@@ -27,7 +27,13 @@ from scratchfab.fileio import decode_json, write_text
 from scratchfab.metrics import rho_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
 from scratchfab.model.job import JobLayout
-from scratchfab.verify.noise import diff_noise_advice, noise_advice, noise_explains
+from scratchfab.verify.noise import (
+    diff_noise_advice,
+    noise_advice,
+    noise_explains,
+    outshine_advice,
+    shoulder_shares,
+)
 
 _MIME = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
 
@@ -328,13 +334,11 @@ def _glint_shares(data: Any) -> dict[str, float]:
     return shares
 
 
-#: The next step for a view that falls short where the bare board glints into it.
-_GLINT_FIX = (
-    "The bare board glints into a view that looks too little like its target (the "
-    "feasibility warning above says where): no scratch shows the image there and the glint "
-    "outshines the rest, so optimizing longer or adding scratches does not help. Move the "
-    "camera or the light as that warning says (or stand both farther away in proportion to "
-    "the board)."
+#: The next step for a view that falls short where the bare board outshines its grooves.
+_OUTSHONE_FIX = (
+    "The bare board outshines the grooves of a view that looks too little like its target "
+    "(the feasibility warning above says where): do as that view's line says; optimizing "
+    "longer does not help."
 )
 
 
@@ -343,9 +347,15 @@ def _rho_checks(
     metrics: dict[str, Any] | None,
     min_rho: float | None,
     glint: dict[str, float] | None = None,
+    feasibility: Any = None,
 ) -> list[_Check]:
-    """One line per view on its rho; ``glint``: :func:`_glint_shares`, for the advice."""
+    """One line per view on its rho.
+
+    ``glint`` (:func:`_glint_shares`) and ``feasibility`` (``design/feasibility.json``)
+    give the advice where the bare board outshines a failing view's grooves.
+    """
     glint = glint or {}
+    shoulders = shoulder_shares(feasibility)
     views = (metrics or {}).get("views")
     if not isinstance(views, dict):
         return [
@@ -392,20 +402,22 @@ def _rho_checks(
                 )
             )
         else:
-            share = glint.get(name)
-            glints = (
-                f" (the bare board glints into it on {100 * share:.1f}% of the board)"
-                if share
-                else ""
+            outshone = outshine_advice(
+                {name: glint[name]} if name in glint else {},
+                {name: shoulders[name]} if name in shoulders else {},
+                feasibility,
+                "[scratch] count",
             )
+            why = "".join(f"; {a}" for a in outshone)
             checks.append(
                 _Check(
                     "fail",
                     f"{label} {rho_text(rho, min_rho)} &lt; {min_rho:g} ([verify] min_rho; "
-                    f"1 = perfect){glints}{noisy_html}",
-                    f"{name} rho {rho_text(rho, min_rho)} below {min_rho:g}{glints}",
-                    _GLINT_FIX
-                    if share
+                    f"1 = perfect){html.escape(why)}{noisy_html}",
+                    f"{name} rho {rho_text(rho, min_rho)} below {min_rho:g}"
+                    + (" (the bare board outshines its grooves)" if outshone else ""),
+                    _OUTSHONE_FIX
+                    if outshone
                     else "A view looks too little like its target: run optimize longer "
                     "([optimize] iterations), add scratches ([scratch] count), or move the "
                     "views further apart. To cut the board as it is, lower [verify] "
@@ -1185,7 +1197,7 @@ def write_report(
     checks = stages + [
         c
         for c in _feasibility_checks(feasibility)
-        + _rho_checks(names, metrics, min_rho, _glint_shares(feasibility))
+        + _rho_checks(names, metrics, min_rho, _glint_shares(feasibility), feasibility)
         + _crosstalk_check(names, metrics)
         + _toolpath_checks(toolpath)
         + _gcode_check(job)

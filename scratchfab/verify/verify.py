@@ -11,6 +11,7 @@ render. Quality measures follow SPEC section 7 (:mod:`scratchfab.metrics`).
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import time
@@ -39,7 +40,13 @@ from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.glint import ViewGlint, view_glint
 from scratchfab.verify.diffmap import write_diff_map
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
-from scratchfab.verify.noise import diff_noise_advice, noise_advice, noise_explains
+from scratchfab.verify.noise import (
+    diff_noise_advice,
+    noise_advice,
+    noise_explains,
+    outshine_advice,
+    shoulder_shares,
+)
 from scratchfab.verify.scene import Sky, board_bsdf, render_view, scene_dict, use_variant
 from scratchfab.verify.sweep import nearest_frames, sweep_gif, sweep_path
 
@@ -75,26 +82,29 @@ class VerifyGateError(ScratchfabError):
         metrics_file: Path,
         setting: str = "--min-rho",
         source: str | None = None,
-        glinting: tuple[str, ...] = (),
+        glints: Mapping[str, float] | None = None,
         entry: Mapping[str, Any] | None = None,
+        feasibility: Mapping[str, Any] | None = None,
     ) -> None:
         self.view, self.rho, self.min_rho = view, rho, min_rho
         self.failing, self.views, self.metrics_file = failing, views, metrics_file
-        self.glinting, self.entry = glinting, entry
+        self.glints, self.entry, self.feasibility = dict(glints or {}), entry, feasibility
         where = f"{source}: " if source else ""
         cli = setting.startswith("--")
         noise = noise_advice(
             entry or {}, min_rho, "--spp" if cli else setting.replace("min_rho", "spp")
         )
         advice = [noise] if noise else []
-        if glinting:
-            advice.append(
-                f"the bare board glints into {', '.join(glinting)} (design warned; outlined in "
-                f"{metrics_file.parent / 'diff'}): no scratch shows the image there and the "
-                "glint outshines the rest, so optimizing longer does not help: move the camera "
-                "or the light as design's warning says"
-            )
-        elif not noise_explains(entry or {}, min_rho):
+        shoulders = {n: s for n, s in shoulder_shares(feasibility).items() if n in self.glints}
+        outshone = outshine_advice(
+            self.glints,
+            shoulders,
+            feasibility,
+            "design --count" if cli else "[scratch] count",
+            str(metrics_file.parent / "diff"),
+        )
+        advice += outshone
+        if not outshone and not noise_explains(entry or {}, min_rho):
             advice.append(
                 "optimize longer or add scratches ("
                 + (
@@ -121,9 +131,15 @@ class VerifyGateError(ScratchfabError):
             self.metrics_file,
             setting,
             source,
-            self.glinting,
+            self.glints,
             self.entry,
+            self.feasibility,
         )
+
+    @property
+    def glinting(self) -> tuple[str, ...]:
+        """The failing views into which the bare board glints, whether named or not."""
+        return tuple(n for n, g in self.glints.items() if g > 0)
 
 
 def bad_sweep_frames(frames: int) -> str | None:
@@ -390,6 +406,7 @@ def run_verify(
     targets: Mapping[str, np.ndarray] | None = None,
     cross: Mapping[tuple[str, str], np.ndarray] | None = None,
     progress: Say | None = None,
+    feasibility: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Render every view in Mitsuba, compare with the analytic render, write the results.
 
@@ -410,6 +427,8 @@ def run_verify(
             quality measures.
         cross: T_j->k keyed (k, j) for the crosstalk matrix.
         progress: Called with one line per finished piece of work.
+        feasibility: ``design/feasibility.json`` of the job, for the gate's advice (the
+            glint's shoulder and the count that clears it).
 
     Returns:
         The metrics (also in ``metrics.json``).
@@ -559,8 +578,9 @@ def run_verify(
             len(failing),
             len(names),
             out / "metrics.json",
-            glinting=tuple(n for n in failing if views[n]["glint_share"] > 0),
+            glints={n: views[n]["glint_share"] for n in failing},
             entry=views[worst],
+            feasibility=feasibility,
         )
     return metrics
 
@@ -792,4 +812,14 @@ def run_verify_job(
         targets=targets,
         cross=cross,
         progress=progress,
+        feasibility=_read_feasibility(layout.design.feasibility_json),
     )
+
+
+def _read_feasibility(path: Path) -> dict[str, Any] | None:
+    """``design/feasibility.json`` for the gate's advice; None where missing or unreadable."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
