@@ -74,3 +74,31 @@ def stopped_after(journal_path, prog, acks: int, url: str) -> tuple[list[dict], 
     events = read_journal(journal_path)
     assert events[-1]["ev"] == "stop"
     return events, port.sim.record
+
+
+def stroke_job(path, strokes: int) -> None:
+    """Write a G-code job of ``strokes`` 8 mm strokes along Y, 2 mm apart: each a travel,
+    a plunge, a cut and a lift (four lines), after two lines of setup."""
+    lines = ["G21 G90", "G0 Z2"]
+    for k in range(strokes):
+        x = 2.0 * k
+        lines += [f"G0 X{x:.3f} Y0", "G1 Z-0.05 F200", f"G1 X{x:.3f} Y8 F600", "G0 Z2"]
+    path.write_text("\n".join(lines) + "\n")
+
+
+class PortProxy:
+    """A port passing everything to ``inner``; a test's subclass changes ``read``."""
+
+    def __init__(self, inner) -> None:
+        self.inner = inner
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    @property
+    def timeout(self):
+        return self.inner.timeout
+
+    @timeout.setter
+    def timeout(self, value):
+        self.inner.timeout = value

@@ -15,7 +15,14 @@ import re
 import signal
 
 import pytest
-from stream_helpers import FAST, executed_blocks, interrupt_after, stream_program
+from stream_helpers import (
+    FAST,
+    PortProxy,
+    executed_blocks,
+    interrupt_after,
+    stream_program,
+    stroke_job,
+)
 
 from scratchfab.machine.sender import (
     StopSignal,
@@ -102,23 +109,13 @@ def test_a_line_out_of_travel_after_a_g92_is_said_to_be_unknown(tmp_path):
     assert "whose target lies beyond" not in text
 
 
-class _CtrlCAfterAlarm:
+class _CtrlCAfterAlarm(PortProxy):
     """A port raising ``exc`` (a second Ctrl-C, a signal) on the first read after an
     ``ALARM:`` line came through, once."""
 
     def __init__(self, inner, exc: BaseException) -> None:
-        self.inner, self._exc, self._got, self.fired = inner, exc, b"", False
-
-    def __getattr__(self, name):
-        return getattr(self.inner, name)
-
-    @property
-    def timeout(self):
-        return self.inner.timeout
-
-    @timeout.setter
-    def timeout(self, value):
-        self.inner.timeout = value
+        super().__init__(inner)
+        self._exc, self._got, self.fired = exc, b"", False
 
     def read(self, size=1):
         if b"ALARM:" in self._got and not self.fired:
@@ -172,31 +169,13 @@ def test_the_controllers_hold_button_before_a_soft_limit_is_journaled_as_maybe_l
     assert set(range(1, through + 1)) <= executed_blocks(record)
 
 
-def _stop_line_job(path, strokes: int) -> None:
-    lines = ["G21 G90", "G0 Z2"]
-    for k in range(strokes):
-        x = 2.0 * k
-        lines += [f"G0 X{x:.3f} Y0", "G1 Z-0.05 F200", f"G1 X{x:.3f} Y8 F600", "G0 Z2"]
-    path.write_text("\n".join(lines) + "\n")
-
-
-class _OksUpTo:
+class _OksUpTo(PortProxy):
     """A port passing the controller's first ``n`` ``ok`` answers and dropping later ones:
     the sender sees no file line accepted."""
 
     def __init__(self, inner, n: int) -> None:
-        self.inner, self._left, self._buf = inner, n, b""
-
-    def __getattr__(self, name):
-        return getattr(self.inner, name)
-
-    @property
-    def timeout(self):
-        return self.inner.timeout
-
-    @timeout.setter
-    def timeout(self, value):
-        self.inner.timeout = value
+        super().__init__(inner)
+        self._left, self._buf = n, b""
 
     @property
     def in_waiting(self):
@@ -220,7 +199,7 @@ def test_a_resumed_session_stopped_before_its_first_line_names_that_line(tmp_pat
     dropped on the way): the message names the line the session starts at, not
     'line none'."""
     job = tmp_path / "job.gcode"
-    _stop_line_job(job, 6)
+    stroke_job(job, 6)
     prog = load_program(job)
     start = next(a for a, _ in prog.strokes if a > 8)
     port = _OksUpTo(open_port("grblsim://?baud=0&time_scale=0.05", 115200), 10**6)

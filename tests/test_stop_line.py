@@ -11,24 +11,16 @@ from __future__ import annotations
 
 import re
 
-from stream_helpers import executed_blocks, interrupt_after, stream_program
+from stream_helpers import executed_blocks, interrupt_after, stream_program, stroke_job
 
 from scratchfab.machine.sender import StreamStopped, open_port
 from scratchfab.machine.sender_journal import done_blocks, read_journal
 from scratchfab.machine.sender_program import load_program, resume_point
 
 
-def _job(path, strokes: int) -> None:
-    lines = ["G21 G90", "G0 Z2"]
-    for k in range(strokes):
-        x = 2.0 * k
-        lines += [f"G0 X{x:.3f} Y0", "G1 Z-0.05 F200", f"G1 X{x:.3f} Y8 F600", "G0 Z2"]
-    path.write_text("\n".join(lines) + "\n")
-
-
 def test_the_users_stop_names_the_line_the_machine_ran_to_and_the_resumes_start(tmp_path):
     job = tmp_path / "job.gcode"
-    _job(job, 30)
+    stroke_job(job, 30)
     prog = load_program(job)
     progress = interrupt_after(40)
     port = open_port("grblsim://?baud=0&time_scale=0.05", 115200)
