@@ -20,7 +20,7 @@ import drjit as dr
 import numpy as np
 import pytest
 from conftest import FULL, make_design, pasted_words
-from test_optimize_helpers import cross_of, make_job, make_layout
+from test_optimize_helpers import cross_of, make_job, make_layout, stopped_at_three_of_four
 
 from scratchfab.bundled import bundled_dir
 from scratchfab.cli import main
@@ -1096,15 +1096,7 @@ def test_resume_alone_of_an_extended_run_goes_on_to_its_extended_total(job: Path
     from the summary written from it; without that summary the total is not known."""
     from scratchfab.optimize.stage import checkpoint_request
 
-    main(["optimize", str(job), "--iterations", "2"])
-    steps: list[int] = []
-    run_optimize(
-        job,
-        OptimizeOptions(iterations=4, resume=True),
-        progress=lambda p: steps.append(p.iteration) if not p.message else None,
-        should_stop=lambda: True,
-    )
-    assert steps == [3]
+    stopped_at_three_of_four(job)
     ckpt = job / "optimize" / "checkpoint.npz"
     state, meta, rows = load_checkpoint(ckpt)
     assert meta["fingerprint"]["lr_schedule"]["iterations"] == 2

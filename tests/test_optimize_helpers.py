@@ -98,3 +98,20 @@ def make_job(root: Path, design: Design, count: int = 300, seed: int = 3) -> Pat
         np.save(folder / "targets" / f"{name}.npy", t.astype(np.float32))
     make_layout(design, count, seed).save(folder / "scratches.csv", design.scratch)
     return root
+
+
+def stopped_at_three_of_four(job: Path) -> None:
+    """Optimize ``job`` 2 steps (the CLI), then extend it to 4 and stop it after step 3."""
+    from scratchfab.cli import main
+    from scratchfab.optimize.options import OptimizeOptions
+    from scratchfab.optimize.stage import run_optimize
+
+    main(["optimize", str(job), "--iterations", "2"])
+    steps: list[int] = []
+    run_optimize(
+        job,
+        OptimizeOptions(iterations=4, resume=True),
+        progress=lambda p: steps.append(p.iteration) if not p.message else None,
+        should_stop=lambda: True,
+    )
+    assert steps == [3]

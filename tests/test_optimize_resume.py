@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 from conftest import make_design
 from test_optimize_glint import glint_design
-from test_optimize_helpers import make_job
+from test_optimize_helpers import make_job, stopped_at_three_of_four
 
 import scratchfab.optimize.checkpoint as checkpoint_module
 from scratchfab.cli import main
@@ -89,15 +89,7 @@ def test_a_killed_run_whose_total_is_not_kept_needs_iterations_and_says_so(
     schedule's 2) and killed at 3 (no summary): a bare resume says the total is not known
     and to give --iterations, before compiling anything; given, it goes on. Either reads
     the checkpoint once."""
-    main(["optimize", str(job), "--iterations", "2"])
-    steps: list[int] = []
-    run_optimize(
-        job,
-        OptimizeOptions(iterations=4, resume=True),
-        progress=lambda p: steps.append(p.iteration) if not p.message else None,
-        should_stop=lambda: True,
-    )
-    assert steps == [3]
+    stopped_at_three_of_four(job)
     _edit_checkpoint(job, EARLIER, iterations=None, prune_tolerance=None)
     (job / "optimize" / "summary.json").unlink()
     reads: list[Path] = []
