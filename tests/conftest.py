@@ -233,8 +233,8 @@ def white(tmp_path: Path) -> Path:
     return path
 
 
-def cli_said(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
-    """Run ``scratchfab ARGV``: its exit code (0: ran through) and everything it said."""
+def cli_run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    """Run ``scratchfab ARGV``: its exit code (0: ran through), its stdout and its stderr."""
     from scratchfab.cli import main
 
     try:
@@ -243,4 +243,10 @@ def cli_said(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, 
     except SystemExit as exc:
         code = int(exc.code or 0)
     out = capsys.readouterr()
-    return code, out.out + out.err
+    return code, out.out, out.err
+
+
+def cli_said(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    """Run ``scratchfab ARGV``: its exit code (0: ran through) and everything it said."""
+    code, out, err = cli_run(argv, capsys)
+    return code, out + err

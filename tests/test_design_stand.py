@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import cli_run
 from PIL import Image
 
 from scratchfab.bundled import bundled_dir
-from scratchfab.cli import main
 from scratchfab.design.stage import BRIGHT_TARGET_MEAN, load_source
 from scratchfab.design.stand import place, side, stand_lines, stand_text
 from scratchfab.model.design import design_from_mapping, load_design, position_from_polar
@@ -103,16 +103,6 @@ def test_stand_lines_name_the_light_once_when_shared_else_per_view(tmp_path):
     )
 
 
-def _said(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    try:
-        main(args)
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
 def _board_mean(job: Path, name: str) -> float:
     """The mean linear brightness of a view's board picture, decoded here from its PNG."""
     codes = np.asarray(Image.open(job / "design" / "board" / f"{name}.png"), dtype=np.float64)
@@ -122,7 +112,7 @@ def _board_mean(job: Path, name: str) -> float:
 
 def test_design_prints_where_to_stand_from_its_own_design_file(tmp_path, capsys):
     job = tmp_path / "job"
-    code, out, _ = _said(
+    code, out, _ = cli_run(
         ["design", str(DEMO / "sun.png"), str(DEMO / "moon.png"), "--board", "50x40",
          "--count", "200", "--resolution", "24", "--out", str(job)],
         capsys,
@@ -169,7 +159,7 @@ def test_mostly_bright_targets_are_warned_of_and_dark_grounds_are_not(tmp_path, 
         _shares(tmp_path, 0.55, "over"),
     ]
     job = tmp_path / "job"
-    code, out, _ = _said(
+    code, out, _ = cli_run(
         ["design", *map(str, pictures), "--board", "50x40", "--count", "200",
          "--resolution", "24", "--out", str(job)],
         capsys,
@@ -186,7 +176,7 @@ def test_mostly_bright_targets_are_warned_of_and_dark_grounds_are_not(tmp_path, 
 
 
 def test_the_demo_targets_are_not_warned_of(tmp_path, capsys):
-    code, out, _ = _said(
+    code, out, _ = cli_run(
         ["design", str(DEMO_TOML), "--count", "100", "--resolution", "16", "--out",
          str(tmp_path / "job")],
         capsys,
@@ -200,10 +190,10 @@ def test_a_black_logo_on_a_transparent_ground_is_refused_unless_forced(tmp_path,
     logo.save(tmp_path / "logo.png")
     args = ["design", str(tmp_path / "logo.png"), str(DEMO / "sun.png"), "--board", "40x40",
             "--count", "100", "--resolution", "16", "--out", str(tmp_path / "job")]  # fmt: skip
-    code, _, err = _said(args, capsys)
+    code, _, err = cli_run(args, capsys)
     assert code == 2 and not (tmp_path / "job").exists()
     assert err.startswith(f"error: {tmp_path / 'logo.png'}: the picture is black on the board")
     assert "make the logo white" in err and "use --force" in err
-    code, out, _ = _said([*args, "--force"], capsys)
+    code, out, _ = cli_run([*args, "--force"], capsys)
     assert code == 0 and "warning: target 'logo' is uniform (brightness 0.000" in out
     assert _board_mean(tmp_path / "job", "logo") == 0.0
