@@ -21,6 +21,7 @@ from scratchfab.console import Say
 from scratchfab.design.feasibility import DESIGN_ANYWAY, FeasibilityReport, check_feasibility
 from scratchfab.design.images import load_image
 from scratchfab.design.layout import initial_layout
+from scratchfab.design.quick import quick_mapping
 from scratchfab.design.targets import (
     FITS,
     board_image_png,
@@ -148,7 +149,11 @@ def _origin_comment(
     lines = [
         ORIGIN_HEADER,
         f"# the picture named below ({options}),",
-        "# so a run from this file reproduces targets/*.npy; layout seed = " + str(seed) + ".",
+        "# so a run from this file reproduces targets/*.npy; layout seed = "
+        + str(seed)
+        + "; "
+        + _board_text(design.board)
+        + ".",
     ]
     for view in design.views:
         path = design.target_path(view)
@@ -160,6 +165,98 @@ def _origin_comment(
             if path in refitted:
                 lines.append(REFITTED)
     return "\n".join(lines) + "\n"
+
+
+def _board_text(board: Board) -> str:
+    """``board W x H mm``, as the heading comment records the board it was designed for."""
+    return f"board {board.width_mm:g} x {board.height_mm:g} mm"
+
+
+def _earlier_board(source: str) -> str | None:
+    """The board (:func:`_board_text`) the heading comment of ``source`` was written for.
+
+    None where ``source`` is no design.toml that ``design`` wrote, or one written before
+    the comment recorded the board.
+    """
+    try:
+        with open(source, encoding="utf-8") as file:
+            head = [file.readline().rstrip("\n") for _ in range(3)]
+    except (OSError, UnicodeDecodeError):
+        return None
+    found = re.search(r"; (board \S+ x \S+ mm)\.$", head[2])
+    return found.group(1) if head[0] == ORIGIN_HEADER and found else None
+
+
+def _cm(distances: list[float]) -> str:
+    """Distances (mm) in whole centimetres: one figure, or the least to the most."""
+    low, high = round(min(distances) / 10), round(max(distances) / 10)
+    return f"{low} cm" if low == high else f"{low}-{high} cm"
+
+
+def resized_board_note(
+    design: Design,
+    earlier: str | None,
+    reshaped: bool,
+    count: int | None = None,
+    resolution: tuple[int, int] | None = None,
+) -> str | None:
+    """A note on the values a rerun on another board keeps that the quick form sets by board.
+
+    A job's design.toml keeps its scratch count, its cameras' and light's distances and
+    its views' resolutions when its board is edited; the quick form would choose them
+    anew for this board (:func:`scratchfab.design.quick.quick_mapping`). Nothing is
+    changed.
+
+    Args:
+        design: The design being run.
+        earlier: The board its heading comment was written for (:func:`_earlier_board`).
+        reshaped: A target picture was made for a board of another shape (known without
+            ``earlier`` in a file written before the comment recorded the board).
+        count: The count given on the command line (then not kept).
+        resolution: The resolution given on the command line (then not kept).
+
+    Returns:
+        The note, or None where the board is the earlier one or every kept value is the
+        quick form's.
+    """
+    board = design.board
+    if earlier == _board_text(board) or (earlier is None and not reshaped):
+        return None
+    quick = quick_mapping(
+        [Path(f"view{i}.png") for i in range(len(design.views))],
+        (board.width_mm, board.height_mm),
+    )
+    kept = []
+    if count is None and design.scratch.count != quick["scratch"]["count"]:
+        kept.append(
+            f"[scratch] count {design.scratch.count} (the quick form lays "
+            f"{quick['scratch']['count']} here)"
+        )
+    far = float(quick["views"][0]["distance_mm"])
+    cameras = [
+        float(np.linalg.norm(v.camera_position - np.asarray(v.look_at_mm))) for v in design.views
+    ]
+    lights = [
+        float(np.linalg.norm(v.light_position_mm or design.light.position_mm)) for v in design.views
+    ]
+    if _cm(cameras + lights) != _cm([far]):
+        stand = (
+            f"the cameras' and the light's {_cm(cameras)}"
+            if _cm(cameras) == _cm(lights)
+            else f"the cameras' {_cm(cameras)} and the light's {_cm(lights)}"
+        )
+        kept.append(f"{stand} (it stands them at {_cm([far])})")
+    wanted = list(quick["views"][0]["resolution"])
+    shown = sorted({str(list(v.resolution)) for v in design.views})
+    if resolution is None and shown != [str(wanted)]:
+        kept.append(f"resolution {', '.join(shown)} (it would use {wanted})")
+    if not kept:
+        return None
+    what = f"the {earlier[len('board ') :]} one" if earlier else "the earlier board"
+    return (
+        f"note: the board is now {board.width_mm:g} x {board.height_mm:g} mm; kept from "
+        f"{what}: {'; '.join(kept)}; change them in {design.source} if you want"
+    )
 
 
 def _earlier_origin(picture: Path) -> str | None:
@@ -350,6 +447,11 @@ def run_design(
         boards[view.name] = cache[path]
         _check_brightness(design.source, i, view.name, path, boards[view.name], force, progress)
     progress(f"  loaded {len(cache)} target image(s)")
+    note = resized_board_note(
+        design, _earlier_board(design.source), bool(refitted), count, resolution
+    )
+    if note is not None:
+        progress(f"  {note}")
 
     report = check_feasibility(design, boards=boards)
     # Without --force the errors end the stage in one message of their own.
