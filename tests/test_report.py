@@ -331,8 +331,8 @@ def test_a_view_short_where_design_warned_of_the_glints_shoulder_is_told_the_cou
     assert (
         "; past the glint the bare board still outshines the sparse grooves at groove "
         "coverage 0.04 (the glint's shoulder; design warned): left on 17.0% of the board; "
-        "optimizing longer does not help, more scratches do: set [scratch] count to at least "
-        "14233" in left
+        "optimizing longer does not help, more scratches do: [scratch] count = 14233 "
+        "or more" in left
     )
     assert "glints into" not in left
     right = next(t for _, t in lines if "right looks like" in t)

@@ -406,7 +406,7 @@ def _rho_checks(
                 {name: glint[name]} if name in glint else {},
                 {name: shoulders[name]} if name in shoulders else {},
                 feasibility,
-                "[scratch] count",
+                "[scratch] count =",
             )
             why = "".join(f"; {a}" for a in outshone)
             checks.append(

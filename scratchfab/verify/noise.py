@@ -179,7 +179,7 @@ def outshine_advice(
         feasibility: ``design/feasibility.json`` as read, for ``shoulder_count`` and
             ``groove_coverage``.
         count_setting: How the user sets the scratch count (``design --count``,
-            ``[scratch] count``).
+            ``[scratch] count =``).
         outlined: Where the glint is outlined (the diff maps' folder), if anywhere.
 
     Returns:
@@ -192,8 +192,8 @@ def outshine_advice(
         count, coverage = data.get("shoulder_count"), data.get("groove_coverage")
         at = f" at groove coverage {coverage:.2f}" if isinstance(coverage, int | float) else ""
         fix = (
-            f"set {count_setting} to at least {count} (design's shoulder warning names it), or "
-            "move the cameras or the light as that warning says"
+            f"{count_setting} {count} or more (the count design's shoulder warning names), "
+            "or move the cameras or the light as that warning says"
             if isinstance(count, int)
             else "no scratch count clears it: move the cameras or the light as design's "
             "shoulder warning says"

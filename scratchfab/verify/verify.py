@@ -100,7 +100,7 @@ class VerifyGateError(ScratchfabError):
             self.glints,
             shoulders,
             feasibility,
-            "design --count" if cli else "[scratch] count",
+            "design --count" if cli else "[scratch] count =",
             str(metrics_file.parent / "diff"),
         )
         advice += outshone
