@@ -523,8 +523,8 @@ def ask_before_a_partial_board(
     if confirm is None:
         raise ScratchfabError(
             f"refusing to cut a partial board with --yes: {lost}; fix the machine profile's "
-            "[board] offset_mm or [envelope] and plan the toolpath again, or run without --yes "
-            "to be asked; nothing was sent"
+            "[board] offset_mm or [envelope], plan the toolpath and export again, or run "
+            "without --yes to be asked; nothing was sent"
         )
     if not confirm(f"Cut a partial board? {lost}"):
         raise ScratchfabError("not confirmed; nothing was sent")
