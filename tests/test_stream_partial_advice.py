@@ -14,6 +14,8 @@ from test_stream import SIM, read_record
 from test_stream_cli_input import _gcode_received, _stream
 from test_stream_restart import _partial_job
 
+from scratchfab.cli import main
+
 
 def test_the_partial_board_refusal_says_to_export_again_and_following_it_streams(
     tmp_path, monkeypatch
@@ -33,3 +35,39 @@ def test_the_partial_board_refusal_says_to_export_again_and_following_it_streams
     assert code == 0, err
     assert "partial board" not in err and "done:" in out
     assert _gcode_received(read_record(rec))
+
+
+def test_a_gcode_exported_from_an_earlier_plan_is_named_and_refused_under_yes(
+    tmp_path, monkeypatch
+):
+    """Toolpath planned again (another seed: another order) without an export: the G-code's
+    header still names the earlier strokes. On a machine under --yes the stream is refused
+    with the export to run; run, it streams unasked. The emulator is only warned of."""
+    from conftest import write_pipeline
+
+    from scratchfab.export.gcode import strokes_id_of
+    from scratchfab.pipeline.config import load_pipeline
+    from scratchfab.pipeline.runner import run_pipeline
+    from scratchfab.toolpath import Toolpath
+
+    path = write_pipeline(tmp_path)
+    job = tmp_path / "job"
+    run_pipeline(load_pipeline(path), job, until="export", say=lambda _: None)
+    gcode = job / "export" / "board.gcode"
+    planned = Toolpath.load(job / "toolpath" / "toolpath.json")
+    assert strokes_id_of(gcode.read_text().splitlines()) == planned.strokes_id
+    main(["toolpath", str(job), "--machine", "grbl-3018-diamond", "--seed", "7"])
+    again = Toolpath.load(job / "toolpath" / "toolpath.json")
+    assert again.strokes_id != planned.strokes_id  # another order of the same strokes
+    code, _, err = _stream([str(job), "--port", SIM], "")  # the emulator: a warning
+    assert "was exported from another plan than" in err
+    monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: False)
+    code, _, err = _stream([str(job), "--port", SIM, "--yes"], "")
+    refusal = err.rstrip().splitlines()[-1]
+    assert code == 2 and refusal.startswith("error: refusing to stream with --yes: ")
+    assert f"run `scratchfab export {job} --format gcode` first" in refusal
+    main(["export", str(job), "--format", "gcode"])
+    rec = tmp_path / "rec.jsonl"
+    code, out, err = _stream([str(job), "--port", f"{SIM}&record={rec}", "--yes"], "")
+    assert code == 0, err
+    assert "another plan" not in err and _gcode_received(read_record(rec))

@@ -15,8 +15,10 @@ What the writer guarantees, because GRBL rejects or misreads anything else:
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -106,6 +108,22 @@ def check_envelope(strokes: np.ndarray, rows: np.ndarray, profile: MachineProfil
         )
 
 
+#: The header comment's key for :attr:`~scratchfab.toolpath.plan.Toolpath.strokes_id`.
+STROKES_ID = "toolpath strokes"
+
+
+def strokes_id_of(lines: Iterable[str]) -> str | None:
+    """The strokes id a G-code's header comment names (:data:`STROKES_ID`), else None.
+
+    Read from the first lines only: the header is written before any move.
+    """
+    for line in itertools.islice(lines, 12):
+        found = re.fullmatch(rf"\(\s*{STROKES_ID} ([0-9a-f]{{16}})\s*\)", line.strip())
+        if found:
+            return found[1]
+    return None
+
+
 def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> list[str]:
     """The program as lines (without line ends), after the envelope check.
 
@@ -131,6 +149,7 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
         f"travel {stats.get('travel_length_mm', 0.0):.1f} mm, "
         f"about {estimate_time(toolpath.strokes, prof) / 60:.1f} min",
         f"board top edge, design +y, faces machine {prof.board_top()}",
+        f"{STROKES_ID} {toolpath.strokes_id}",
     ]
     if partial_text(stats) is not None:  # short: a comment is cut at max_line_length
         notes.append(

@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from scratchfab.console import Confirm, Say, clock
+from scratchfab.console import Confirm, Say, clock, command_line
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
 from scratchfab.machine.protocol_grblsim import grblsim_query, sim_options
@@ -313,6 +313,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     profile = _profile_for(req, planned, cb.say)
     if planned is not None:
         ask_before_a_partial_board(planned, req.port, cb.confirm, cb.say)
+        ask_before_an_earlier_export(planned, req.gcode, req.port, cb.confirm, cb.say)
     z_threshold = req.z_threshold
     if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
         z_threshold = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
@@ -517,16 +518,70 @@ def ask_before_a_partial_board(
     if cut_short is None:
         return
     lost = f"{cut_short} ({layout.toolpath_preview})"
-    say(f"warning: a partial board: {lost}")
+    _ask_on_a_machine(
+        f"a partial board: {lost}",
+        f"refusing to cut a partial board with --yes: {lost}; fix the machine profile's "
+        "[board] offset_mm or [envelope], plan the toolpath and export again",
+        f"Cut a partial board? {lost}",
+        port,
+        confirm,
+        say,
+    )
+
+
+def ask_before_an_earlier_export(
+    planned: tuple[JobLayout, Toolpath], gcode: Path, port: str, confirm: Confirm | None, say: Say
+) -> None:
+    """A G-code exported from another plan than the job's toolpath.json is named first.
+
+    ``toolpath`` planned again (another offset, a whole board after a partial one, a new
+    layout) leaves ``export/board.gcode`` as it was until ``export`` runs: streaming it
+    would cut the earlier plan. The header's strokes id
+    (:attr:`~scratchfab.toolpath.plan.Toolpath.strokes_id`) tells; a file without one (an
+    earlier version's export, a foreign file) is not checked.
+
+    Raises:
+        ScratchfabError: Under ``--yes`` on a machine, or when the person says no; nothing
+            is sent.
+    """
+    from scratchfab.export.gcode import strokes_id_of
+
+    layout, toolpath = planned
+    with gcode.open(encoding="utf-8", errors="replace") as handle:
+        made_from = strokes_id_of(handle)
+    if made_from is None or made_from == toolpath.strokes_id:
+        return
+    export = command_line(["scratchfab", "export", layout.root, "--format", "gcode"])
+    earlier = (
+        f"{gcode} was exported from another plan than {layout.toolpath_json} (planned again since)"
+    )
+    _ask_on_a_machine(
+        f"{earlier}: it cuts that plan, not the current one; `{export}` writes the current one",
+        f"refusing to stream with --yes: {earlier}; run `{export}` first",
+        f"{earlier}. Stream the earlier plan anyway?",
+        port,
+        confirm,
+        say,
+    )
+
+
+def _ask_on_a_machine(
+    warning: str, refusal: str, question: str, port: str, confirm: Confirm | None, say: Say
+) -> None:
+    """Say ``warning``; on a machine, ask ``question`` (under ``--yes``: refuse).
+
+    The emulator moves nothing: it is neither asked nor refused. Under ``--yes``
+    (``confirm`` None) nobody is asked: ``refusal`` ends with how to be asked.
+
+    Raises:
+        ScratchfabError: Refused, or the person said no; nothing was sent.
+    """
+    say(f"warning: {warning}")
     if is_emulator(port):
         return
     if confirm is None:
-        raise ScratchfabError(
-            f"refusing to cut a partial board with --yes: {lost}; fix the machine profile's "
-            "[board] offset_mm or [envelope], plan the toolpath and export again, or run "
-            "without --yes to be asked; nothing was sent"
-        )
-    if not confirm(f"Cut a partial board? {lost}"):
+        raise ScratchfabError(f"{refusal}, or run without --yes to be asked; nothing was sent")
+    if not confirm(question):
         raise ScratchfabError("not confirmed; nothing was sent")
 
 

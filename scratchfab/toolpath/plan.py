@@ -10,6 +10,7 @@ write.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from collections.abc import Callable
@@ -188,6 +189,17 @@ class Toolpath:
     def start(self) -> np.ndarray:
         """The machine's start (and end) position, XY mm."""
         return np.asarray(self.profile.start_mm, dtype=np.float64)
+
+    @property
+    def strokes_id(self) -> str:
+        """16 hex digits of the SHA-256 of the ordered strokes (float64, machine mm).
+
+        The G-code's header carries it, so that ``stream JOB`` can tell a G-code exported
+        from an earlier plan than ``toolpath.json``'s (floats are written exactly, so a
+        loaded toolpath gives its planned strokes' id).
+        """
+        data = np.ascontiguousarray(self.strokes, dtype=np.float64).tobytes()
+        return hashlib.sha256(data).hexdigest()[:16]
 
     def to_json(self) -> str:
         """The toolpath as JSON text (floats written exactly)."""
