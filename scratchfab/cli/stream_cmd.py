@@ -80,7 +80,12 @@ def _job_gcode(path: Path) -> Path:
 @click.option(
     "--port", required=True, help="Serial device, pty path or pyserial URL (grblsim://...)."
 )
-@click.option("--yes", is_flag=True, help="Do not ask for confirmation before motion.")
+@click.option(
+    "--yes",
+    is_flag=True,
+    help="Do not ask before motion; what needs a person's word is refused instead (a partial "
+    "board, an earlier plan's G-code, an unfinished job from the top).",
+)
 @click.option(
     "--baud",
     type=click.IntRange(min=1),
