@@ -34,7 +34,14 @@ from scratchfab.design.targets import (
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import atomic_folder, save_npy, save_png, write_json, write_text
 from scratchfab.model.camera import Camera
-from scratchfab.model.design import Board, Design, View, auto_fov, design_from_mapping
+from scratchfab.model.design import (
+    MAX_FOV_DEG,
+    Board,
+    Design,
+    View,
+    auto_fov,
+    design_from_mapping,
+)
 from scratchfab.model.job import DesignFolder, JobLayout
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
@@ -538,10 +545,10 @@ def _check_frame(source: str, index: int, view: View, board: Board, say: Say) ->
         return
     try:
         auto: float | None = auto_fov(view, board)
-        why = "it would need 170 degrees or more"
+        why = f"it would need {MAX_FOV_DEG:g} degrees or more"
     except ValueError:
         auto, why = None, "part of the board lies behind the camera"
-    if auto is not None and auto < 170:
+    if auto is not None and auto < MAX_FOV_DEG:
         fix = (
             f'to frame the whole board, set views[{index}] fov_deg = "auto" in {source} '
             f"({auto:.6g} degrees here)"

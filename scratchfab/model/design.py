@@ -38,6 +38,8 @@ MAX_SCRATCHES = 10_000_000
 MAX_RESOLUTION = 16384
 #: Any length or coordinate (1 km): keeps the camera arithmetic far from overflow.
 MAX_MM = 1e6
+#: A view's vertical field of view lies in (0, MAX_FOV_DEG) degrees.
+MAX_FOV_DEG = 170.0
 _COORD = spec(ge=-MAX_MM, le=MAX_MM)
 
 _NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")  # fullmatch: no "sun\n"
@@ -180,8 +182,10 @@ class View:
                     f"view '{self.name}': fov_deg must be a number or \"auto\", "
                     f"got {self.fov_deg!r}"
                 )
-        elif not 0 < self.fov_deg < 170:
-            raise ValueError(f"view '{self.name}': fov_deg must be in (0, 170), got {self.fov_deg}")
+        elif not 0 < self.fov_deg < MAX_FOV_DEG:
+            raise ValueError(
+                f"view '{self.name}': fov_deg must be in (0, {MAX_FOV_DEG:g}), got {self.fov_deg}"
+            )
         if min(self.resolution) < 1 or max(self.resolution) > MAX_RESOLUTION:
             raise ValueError(
                 f"view '{self.name}': resolution must be two integers in 1..{MAX_RESOLUTION}, "
@@ -433,7 +437,7 @@ def resolve_view(view: View, board: Board) -> View:
         raise ValueError(f"view '{view.name}': up is parallel to the viewing direction")
     if view.fov_deg == "auto":
         fov = auto_fov(view, board)
-        if not 0 < fov < 170:
+        if not 0 < fov < MAX_FOV_DEG:
             raise ValueError(f"view '{view.name}': the board cannot fit in the frame")
         view = replace(view, fov_deg=fov)
     return view
