@@ -8,11 +8,14 @@ line, which the reader skips). Events:
   messages only: a resume knows its file by ``sha256``
 - ``{"ev": "ack", "i": block, "line": file_line}`` for each ``ok`` of a file block
   (``{"ev": "ack", "pre": k}`` for the k-th resume preamble block)
-- ``{"ev": "error", "i": block, "line": file_line, "code": N}`` / ``{"ev": "alarm", "code": N}``
+- ``{"ev": "error", "i": block, "line": file_line, "code": N}`` (``"pre": k`` for a resume
+  preamble block; no block where none can be named, e.g. ``error:9`` mid-job, the
+  controller locked in an Alarm whose message was lost) / ``{"ev": "alarm", "code": N}``
   (with ``"lost": true`` where GRBL stopped the machine at speed: a soft limit during the
   sender's feed hold still slowing down, a hard limit, a reset in motion; the position is
-  likely lost. ``"lost": "maybe"``: a soft limit while a hold the sender did not send
-  slowed the machine down, GRBL's own soft-limit hold or the controller's hold button)
+  likely lost. ``"lost": "maybe"``: a soft limit while the last report showed the machine
+  moving, or slowing down under a hold the sender did not send: GRBL's own soft-limit hold
+  or the controller's hold button)
 - ``{"ev": "stop", "reason": ..., "executed_through": i|null}``: the controller was reset and
   its queue flushed; blocks after ``executed_through`` may not have run although acknowledged.
   With the sender's lift on it also holds ``"lift"``: ``{"result": "raised"|"up", "z":
