@@ -224,7 +224,8 @@ def optimize(
         click.echo(
             f"stopped by --time-budget {options.time_budget_s:g}, which counts the run's "
             f"optimizing in all, its earlier sessions' too; `{go_on}` goes on to its "
-            f"{options.iterations} iterations (add a larger --time-budget to stop sooner)"
+            f"{options.iterations} iterations (with --time-budget S, S more than the time "
+            "spent, it stops before that)"
         )
     if result.stopped == "interrupted":  # exit 130: `optimize && toolpath` stops here
         again: list[str | Path] = ["scratchfab", "optimize", job, *_given_flags(ctx), "--resume"]
