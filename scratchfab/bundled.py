@@ -29,6 +29,16 @@ def bundled_names(kind: str) -> list[str]:
     return sorted(p.stem for p in folder.glob("*.toml"))
 
 
+def bundled_name(kind: str, path: str | Path) -> str | None:
+    """The name of the bundled file of ``kind`` that ``path`` is, else None (another file)."""
+    file = Path(path)
+    try:
+        shipped = file.suffix == ".toml" and file.resolve().parent == bundled_dir(kind).resolve()
+    except OSError:
+        return None
+    return file.stem if shipped else None
+
+
 def names_a_file(ref: str) -> bool:
     """Whether a value names a file (else a bundled file's name)."""
     return ref.endswith(".toml") or "/" in ref or "\\" in ref

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from scratchfab.bundled import bundled_name
 from scratchfab.console import command_line, duration_text
 from scratchfab.design.stand import side, stand_text
 from scratchfab.errors import ConfigError
@@ -1020,16 +1021,6 @@ def _stream_state(job: Path, port: str | None) -> tuple[_Stream, str]:
     return state, text
 
 
-def _is_bundled(pipeline_file: Path) -> bool:
-    """Whether a pipeline file is one the package ships (``scratchfab run demo``)."""
-    from scratchfab.bundled import bundled_dir
-
-    try:
-        return pipeline_file.resolve().parent == bundled_dir("pipelines").resolve()
-    except OSError:
-        return False
-
-
 def _copied_title(title: str, pipeline_file: Path | None) -> str:
     """A muted line where the title is a bundled pipeline's name, kept in a copy of it.
 
@@ -1039,7 +1030,7 @@ def _copied_title(title: str, pipeline_file: Path | None) -> str:
 
     from scratchfab.bundled import bundled_dir
 
-    if pipeline_file is None or _is_bundled(pipeline_file):
+    if pipeline_file is None or bundled_name("pipelines", pipeline_file) is not None:
         return ""
     for bundled in sorted(bundled_dir("pipelines").glob("*.toml")):
         try:
@@ -1081,9 +1072,9 @@ def _setup_step(job: Path) -> str:
 
 def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: Path | None) -> str:
     """Steps chosen from the job's state: fix, resume, cut, or look at the cut board."""
-    bundled = pipeline_file is not None and _is_bundled(pipeline_file)
-    if pipeline_file is not None and bundled:
-        pipe = pipeline_file.stem  # `scratchfab run demo` finds it by name anywhere
+    bundled = None if pipeline_file is None else bundled_name("pipelines", pipeline_file)
+    if bundled is not None:
+        pipe = bundled  # `scratchfab run demo` finds it by name anywhere
     elif pipeline_file is not None:
         # Whichever works from the job folder and is shorter to type (no relative path
         # between two Windows drives).

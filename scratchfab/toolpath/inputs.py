@@ -18,7 +18,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from scratchfab.bundled import bundled_dir
+from scratchfab.bundled import bundled_name
 from scratchfab.console import command_line
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, file_sha256
@@ -45,8 +45,9 @@ def _resolve(recorded: str, folder: Path) -> Path:
 def _machine_record(profile: MachineProfile, folder: Path) -> dict[str, str] | None:
     """A bundled profile by name, a profile file by its path; None for one made in memory."""
     source = Path(profile.source)
-    if source.parent == bundled_dir("machine_profiles") and source.suffix == ".toml":
-        return {"name": source.stem}
+    name = bundled_name("machine_profiles", source)
+    if name is not None:
+        return {"name": name}
     if source.is_file():
         return {"file": _relative(source, folder)}
     return None

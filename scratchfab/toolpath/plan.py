@@ -23,7 +23,7 @@ import shapely
 from PIL import Image, ImageDraw
 
 from scratchfab import figures
-from scratchfab.bundled import bundled_dir
+from scratchfab.bundled import bundled_name
 from scratchfab.console import duration_text
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import decode_json, read_input, save_png, write_text
@@ -131,11 +131,11 @@ def _copy_advice(profile: MachineProfile) -> str:
     The bundled file lives inside the installed package: an edit there is lost on the
     next install, and a copy elsewhere is not read by ``--machine NAME``.
     """
-    source = Path(profile.source)
-    if source.parent.resolve() != bundled_dir("machine_profiles").resolve():
+    name = bundled_name("machine_profiles", profile.source)
+    if name is None:
         return ""
     return (
-        f" ('{source.stem}' is a bundled profile: copy {source} to a file of your own, make "
+        f" ('{name}' is a bundled profile: copy {profile.source} to a file of your own, make "
         "the change there and give that file as --machine, or a pipeline's [toolpath] machine)"
     )
 
