@@ -80,6 +80,21 @@ class DesignFolder:
         """The files an optimized layout is made from (optimize records their digests)."""
         return self.design_toml, self.initial_scratches
 
+    def pictures(self) -> list[Path]:
+        """Each view's target and board picture, which optimize reads too.
+
+        Empty when ``design.toml`` does not load: its own digest tells the change then.
+        """
+        try:
+            views = load_design(self.design_toml).views
+        except ConfigError:
+            return []
+        return [p for v in views for p in (self.target_npy(v.name), self.board_png(v.name))]
+
+    def relative(self, path: Path) -> str:
+        """``path`` relative to the design folder, with forward slashes."""
+        return path.relative_to(self.path).as_posix()
+
 
 @dataclass(frozen=True)
 class JobLayout:
@@ -248,15 +263,20 @@ def job_inputs(job: str | Path) -> tuple[Path, Path]:
 
 
 def design_digest(job: str | Path) -> dict[str, str]:
-    """SHA-256 of each of the job's :attr:`DesignFolder.digested` files, by file name.
+    """SHA-256 of each file of the job's design that optimize reads, by design-folder path.
 
     ``design.toml``'s is of what optimize's steps depend on (:func:`design_content_sha256`),
-    so a rerun of design that rewrites only its comments and paths changes nothing.
+    so a rerun of design that rewrites only its comments and paths changes nothing; the
+    others' (:attr:`DesignFolder.digested`, and each view's target and board picture:
+    :meth:`DesignFolder.pictures`) of their bytes, so a picture swapped by hand counts.
     """
     folder = JobLayout(Path(job)).design
+    files = [*folder.digested, *folder.pictures()]
     return {
-        path.name: design_content_sha256(path) if path == folder.design_toml else file_sha256(path)
-        for path in folder.digested
+        folder.relative(path): (
+            design_content_sha256(path) if path == folder.design_toml else file_sha256(path)
+        )
+        for path in files
     }
 
 
@@ -292,12 +312,16 @@ def design_changed_since_optimize(job: str | Path) -> list[str]:
         return []
     if not isinstance(recorded, dict):
         return []
+    folder = layout.design
     now = design_digest(layout.root)
-    return [
-        layout.relative(path)
-        for path in layout.design.digested
-        if recorded.get(path.name) not in (now[path.name], file_sha256(path))
-    ]
+    # A record of an earlier scratchfab lacks the pictures: the files it has are compared.
+    pictures = [p for p in folder.pictures() if folder.relative(p) in recorded]
+    changed = []
+    for path in [*folder.digested, *pictures]:
+        key = folder.relative(path)
+        if recorded.get(key) not in (now[key], file_sha256(path)):
+            changed.append(layout.relative(path))
+    return changed
 
 
 def stale_layout_warning(job: str | Path) -> str | None:
