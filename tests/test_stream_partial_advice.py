@@ -45,7 +45,7 @@ def test_a_gcode_exported_from_an_earlier_plan_is_named_and_refused_under_yes(
     with the export to run; run, it streams unasked. The emulator is only warned of."""
     from conftest import write_pipeline
 
-    from scratchfab.export.gcode import strokes_id_of
+    from scratchfab.export.gcode import read_header
     from scratchfab.pipeline.config import load_pipeline
     from scratchfab.pipeline.runner import run_pipeline
     from scratchfab.toolpath import Toolpath
@@ -55,7 +55,7 @@ def test_a_gcode_exported_from_an_earlier_plan_is_named_and_refused_under_yes(
     run_pipeline(load_pipeline(path), job, until="export", say=lambda _: None)
     gcode = job / "export" / "board.gcode"
     planned = Toolpath.load(job / "toolpath" / "toolpath.json")
-    assert strokes_id_of(gcode.read_text().splitlines()) == planned.strokes_id
+    assert read_header(gcode.read_text().splitlines()).strokes_id == planned.strokes_id
     main(["toolpath", str(job), "--machine", "grbl-3018-diamond", "--seed", "7"])
     again = Toolpath.load(job / "toolpath" / "toolpath.json")
     assert again.strokes_id != planned.strokes_id  # another order of the same strokes

@@ -21,7 +21,7 @@ from scratchfab.machine.profile import load_profile
 from scratchfab.machine.sender_journal import default_journal_path, read_journal
 from scratchfab.machine.sender_program import load_program
 from scratchfab.model.job import JobLayout
-from scratchfab.toolpath.plan import Toolpath
+from scratchfab.toolpath.plan import Toolpath, partial_text
 
 _QUICK = "grblsim://?baud=0&time_scale=0.002"
 
@@ -163,12 +163,17 @@ def test_a_whole_board_is_neither_said_nor_asked_about(tmp_path, monkeypatch):
     assert "partial board" not in err
 
 
-def test_a_broken_toolpath_json_with_machine_given_streams_without_the_partial_check(tmp_path):
-    layout, _ = _partial_job(tmp_path, outside=3, clipped=0)
+def test_a_broken_toolpath_json_with_machine_given_streams_on_the_headers_partial_check(
+    tmp_path,
+):
+    """The toolpath unread, the G-code's own header still says the board is partial."""
+    layout, stats = _partial_job(tmp_path, outside=3, clipped=0)
     layout.toolpath_json.write_text(json.dumps({"format": "nonsense"}))
     args = [str(layout.root), "--port", SIM, "--yes"]
     code, _, err = _stream(args, "")
     assert code == 2 and f"{layout.toolpath_json}: not a scratchfab toolpath" in err
     code, _, err = _stream([*args, "--machine", "grbl-3018-diamond"], "")
     assert code == 0, err
-    assert "partial board" not in err
+    gcode = layout.export_file("gcode")
+    lost = f"{partial_text(stats)} (the header of {gcode} says so)"
+    assert f"warning: a partial board: {lost}" in err

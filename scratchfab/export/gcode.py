@@ -19,6 +19,7 @@ import itertools
 import math
 import re
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -110,18 +111,83 @@ def check_envelope(strokes: np.ndarray, rows: np.ndarray, profile: MachineProfil
 
 #: The header comment's key for :attr:`~scratchfab.toolpath.plan.Toolpath.strokes_id`.
 STROKES_ID = "toolpath strokes"
+#: The header comments' key for a board the envelope cut short (:func:`partial_notes`).
+PARTIAL_BOARD = "PARTIAL BOARD"
+#: How many lines from the top :func:`read_header` reads: the header precedes any move.
+HEADER_LINES = 12
 
 
-def strokes_id_of(lines: Iterable[str]) -> str | None:
-    """The strokes id a G-code's header comment names (:data:`STROKES_ID`), else None.
+@dataclass(frozen=True)
+class GcodeHeader:
+    """What a G-code file's header comments say (:func:`read_header`).
 
-    Read from the first lines only: the header is written before any move.
+    Attributes:
+        strokes_id: The strokes id it was exported from (:data:`STROKES_ID`), else None.
+        partial: What the envelope cut off the board (:func:`partial_text`'s words, or a
+            plain account where the counts were not written), else None.
     """
-    for line in itertools.islice(lines, 12):
-        found = re.fullmatch(rf"\(\s*{STROKES_ID} ([0-9a-f]{{16}})\s*\)", line.strip())
-        if found:
-            return found[1]
-    return None
+
+    strokes_id: str | None = None
+    partial: str | None = None
+
+
+def partial_notes(stats: dict[str, Any], max_length: int) -> list[str]:
+    """The header comments of a board the envelope cut short; none for a whole board.
+
+    Two comments, each whole within ``max_length`` (a count cut short would misstate it):
+    where one would not fit, the bare :data:`PARTIAL_BOARD`, which :func:`read_header`
+    still recognises.
+    """
+    if partial_text(stats) is None:
+        return []
+    notes = [
+        f"{PARTIAL_BOARD}: {stats.get('outside_count', 0)} of {stats.get('input_count', '?')} "
+        "scratches outside the envelope",
+        f"{PARTIAL_BOARD}: {stats.get('clipped_count', 0)} clipped",
+    ]
+    return [note if len(comment(note)) <= max_length else PARTIAL_BOARD for note in notes]
+
+
+# an earlier export wrote one comment: "..., N clipped" at the end of the first
+_OUTSIDE = re.compile(
+    rf"{PARTIAL_BOARD}: (\d+) of (\d+|\?) scratches outside the envelope(?:, (\d+) clipped)?"
+)
+_CLIPPED = re.compile(rf"{PARTIAL_BOARD}: (\d+) clipped")
+
+
+def read_header(lines: Iterable[str]) -> GcodeHeader:
+    """What the header comments of a G-code file's first lines say (:data:`HEADER_LINES`).
+
+    Reads what :func:`gcode_lines` writes, and the single ``PARTIAL BOARD`` comment of
+    earlier exports; a file without these comments (a foreign one) gives an empty header.
+    """
+    strokes_id: str | None = None
+    partial = False
+    stats: dict[str, Any] = {}
+    for line in itertools.islice(lines, HEADER_LINES):
+        text = line.strip()
+        if not (text.startswith("(") and text.endswith(")")):
+            continue
+        body = text[1:-1].strip()
+        if found := re.fullmatch(rf"{STROKES_ID} ([0-9a-f]{{16}})", body):
+            strokes_id = found[1]
+        if not body.startswith(PARTIAL_BOARD):
+            continue
+        partial = True
+        if found := _OUTSIDE.match(body):
+            stats["outside_count"], stats["input_count"] = int(found[1]), found[2]
+            if found[3] is not None:
+                stats["clipped_count"] = int(found[3])
+        if found := _CLIPPED.match(body):
+            stats["clipped_count"] = int(found[1])
+    if not partial:
+        return GcodeHeader(strokes_id)
+    # both counts, or neither: a count missing would read as 0
+    counted = partial_text(stats) if {"outside_count", "clipped_count"} <= stats.keys() else None
+    return GcodeHeader(
+        strokes_id,
+        counted or f"the envelope cut the board short (its header says {PARTIAL_BOARD})",
+    )
 
 
 def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> list[str]:
@@ -151,11 +217,7 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
         f"board top edge, design +y, faces machine {prof.board_top()}",
         f"{STROKES_ID} {toolpath.strokes_id}",
     ]
-    if partial_text(stats) is not None:  # short: a comment is cut at max_line_length
-        notes.append(
-            f"PARTIAL BOARD: {stats.get('outside_count', 0)} of {stats.get('input_count', '?')} "
-            f"scratches outside the envelope, {stats.get('clipped_count', 0)} clipped"
-        )
+    notes += partial_notes(stats, limit)
     lines = ["G21 G90 G17 G94", *(comment(text, limit) for text in notes)]
     modal_feed: list[float | None] = [None]
 

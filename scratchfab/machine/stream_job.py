@@ -50,6 +50,7 @@ from scratchfab.machine.sender_program import (
 from scratchfab.model.job import JobLayout
 
 if TYPE_CHECKING:
+    from scratchfab.export.gcode import GcodeHeader
     from scratchfab.machine.grblsim import SimOptions
     from scratchfab.machine.profile import MachineProfile
     from scratchfab.toolpath import Toolpath
@@ -311,9 +312,10 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     check_journal_file(journal_file, req.gcode)
     planned = _planned(req)
     profile = _profile_for(req, planned, cb.say)
+    header = _read_header(req.gcode)
+    ask_before_a_partial_board(planned, header, req.gcode, req.port, cb.confirm, cb.say)
     if planned is not None:
-        ask_before_a_partial_board(planned, req.port, cb.confirm, cb.say)
-        ask_before_an_earlier_export(planned, req.gcode, req.port, cb.confirm, cb.say)
+        ask_before_an_earlier_export(planned, header, req.gcode, req.port, cb.confirm, cb.say)
     z_threshold = req.z_threshold
     if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
         z_threshold = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
@@ -492,17 +494,26 @@ def is_emulator(port: str) -> bool:
 
 
 def ask_before_a_partial_board(
-    planned: tuple[JobLayout, Toolpath], port: str, confirm: Confirm | None, say: Say
+    planned: tuple[JobLayout, Toolpath] | None,
+    header: GcodeHeader,
+    gcode: Path,
+    port: str,
+    confirm: Confirm | None,
+    say: Say,
 ) -> None:
     """A board the envelope cuts short goes to a real machine only when a person says so.
 
     The toolpath stage plans one only when forced, with a warning (its preview shows what
     is lost); under ``--yes`` (``confirm`` None) nobody reads that, and the machine would
-    cut a board that cannot be finished. Said as a warning in any case; the emulator
-    (:func:`is_emulator`) is neither asked nor refused.
+    cut a board that cannot be finished. Told by the job's toolpath (``planned``) and by
+    the G-code's own header (``PARTIAL BOARD``), which a copy of the file keeps wherever it
+    is streamed from. Said as a warning in any case; the emulator (:func:`is_emulator`) is
+    neither asked nor refused.
 
     Args:
-        planned: The job and the toolpath its G-code was exported from.
+        planned: The job and the toolpath its G-code was exported from, else None.
+        header: The G-code's header comments.
+        gcode: The G-code file.
         port: Where the G-code goes.
         confirm: Asks a person; None: nobody is asked.
         say: Gets the warning.
@@ -513,11 +524,14 @@ def ask_before_a_partial_board(
     """
     from scratchfab.toolpath.plan import partial_text
 
-    layout, toolpath = planned
-    cut_short = partial_text(toolpath.stats)
-    if cut_short is None:
+    cut_short = None if planned is None else partial_text(planned[1].stats)
+    if cut_short is not None:
+        assert planned is not None
+        lost = f"{cut_short} ({planned[0].toolpath_preview})"
+    elif header.partial is not None:
+        lost = f"{header.partial} (the header of {gcode} says so)"
+    else:
         return
-    lost = f"{cut_short} ({layout.toolpath_preview})"
     _ask_on_a_machine(
         f"a partial board: {lost}",
         f"refusing to cut a partial board with --yes: {lost}; fix the machine profile's "
@@ -530,7 +544,12 @@ def ask_before_a_partial_board(
 
 
 def ask_before_an_earlier_export(
-    planned: tuple[JobLayout, Toolpath], gcode: Path, port: str, confirm: Confirm | None, say: Say
+    planned: tuple[JobLayout, Toolpath],
+    header: GcodeHeader,
+    gcode: Path,
+    port: str,
+    confirm: Confirm | None,
+    say: Say,
 ) -> None:
     """A G-code exported from another plan than the job's toolpath.json is named first.
 
@@ -544,11 +563,8 @@ def ask_before_an_earlier_export(
         ScratchfabError: Under ``--yes`` on a machine, or when the person says no; nothing
             is sent.
     """
-    from scratchfab.export.gcode import strokes_id_of
-
     layout, toolpath = planned
-    with gcode.open(encoding="utf-8", errors="replace") as handle:
-        made_from = strokes_id_of(handle)
+    made_from = header.strokes_id
     if made_from is None or made_from == toolpath.strokes_id:
         return
     export = command_line(["scratchfab", "export", layout.root, "--format", "gcode"])
@@ -733,6 +749,17 @@ def _say_unsure(program: Program, unsure_blocks: set[int], recut_unsure: bool, s
             "out, a board powered over USB), stop and resume with --recut-unsure "
             "([stream] recut_unsure = true in a pipeline)"
         )
+
+
+def _read_header(gcode: Path) -> GcodeHeader:
+    """The G-code's header comments; empty where the file cannot be read (loading it says why)."""
+    from scratchfab.export.gcode import GcodeHeader, read_header
+
+    try:
+        with gcode.open(encoding="utf-8", errors="replace") as handle:
+            return read_header(handle)
+    except OSError:
+        return GcodeHeader()
 
 
 def _planned(req: StreamRequest) -> tuple[JobLayout, Toolpath] | None:
