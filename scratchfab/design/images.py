@@ -12,6 +12,11 @@ space the file declares (SPEC section 5 makes sRGB the default):
   weights of those primaries, Bradford-adapted to D65);
 * anything else is sRGB, decoded with the exact piecewise transfer function
   (IEC 61966-2-1).
+
+16-bit PNGs keep their 16 bits: grey ones Pillow reads as such; colour and grey-with-alpha
+ones (which Pillow opens at 8 bits) are read a second time for the low bytes. Through a
+matrix/TRC RGB profile (sRGB, Adobe RGB, Display P3, ProPhoto) they are decoded from
+per-channel tables; a LUT-based RGB profile converts their high bytes, as for 8 bits.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ import struct
 import warnings
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError, features
@@ -48,7 +53,8 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     return np.where(v <= 0.0031308, v * 12.92, 1.055 * v ** (1 / 2.4) - 0.055)
 
 
-def _open(path: Path) -> Image.Image:
+def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
+    """The upright image, and a 16-bit PNG's samples where Pillow keeps only 8 bits."""
     data = read_input(path, "an image file", missing="image file not found")
     if not data:
         raise ConfigError(f"{path}: empty file, expected an image")
@@ -58,16 +64,55 @@ def _open(path: Path) -> Image.Image:
             # of large images; the pixels decode or the file is refused below, in one line.
             warnings.simplefilter("ignore")
             opened = Image.open(io.BytesIO(data))
+            tile = opened.tile[0] if opened.format == "PNG" and len(opened.tile) == 1 else None
             opened.load()
             image = ImageOps.exif_transpose(opened)
             image.format = opened.format  # exif_transpose returns a copy without it
-            return image
+            deep = None
+            if tile is not None and tile[3] in _PNG16_RAWMODES:
+                deep = _upright(_png16_samples(data, opened, tile), opened)
+            return image, deep
     except UnidentifiedImageError:
         raise ConfigError(f"{path}: not an image file Pillow can read") from None
     except Image.DecompressionBombError:
         raise ConfigError(f"{path}: image is too large (decompression bomb check)") from None
     except (OSError, ValueError, SyntaxError, EOFError) as exc:
         raise ConfigError(f"{path}: corrupt or truncated image ({exc})") from None
+
+
+#: 16-bit PNG layouts that Pillow decodes to 8 bits (it has no 16-bit colour mode), by the
+#: rawmode it reads them with, and a rawmode that reads the same rows keeping the low
+#: bytes: "RGB;16L" takes each big-endian sample's second byte, and for grey with alpha a
+#: 4-byte "RGBA" pixel is all of them (grey high, grey low, alpha high, alpha low).
+_PNG16_RAWMODES = {"RGB;16B": "RGB;16L", "RGBA;16B": "RGBA;16L", "LA;16B": "RGBA"}
+
+
+def _png16_samples(data: bytes, opened: Image.Image, tile: tuple) -> np.ndarray:
+    """A 16-bit colour or grey-and-alpha PNG's samples, (h, w, channels) uint16.
+
+    Pillow's own PNG decoder (filters, interlacing) reads the rows a second time with the
+    rawmode of ``_PNG16_RAWMODES``; ``opened`` holds the high bytes of the first reading.
+    """
+    rawmode = _PNG16_RAWMODES[tile[3]]
+    again = Image.open(io.BytesIO(data))
+    again.tile = [cast(Any, (*again.tile[0][:3], rawmode))]  # (codec, box, offset, rawmode)
+    again.load()
+    raw = np.asarray(again)
+    if rawmode == "RGBA":  # grey and alpha: every byte
+        high, low = raw[..., 0::2], raw[..., 1::2]
+    else:
+        high, low = np.asarray(opened), raw
+    return (high.astype(np.uint16) << 8) | low
+
+
+def _upright(samples: np.ndarray, opened: Image.Image) -> np.ndarray:
+    """Samples turned as ``ImageOps.exif_transpose`` turns ``opened`` (each channel by it)."""
+    channels = []
+    for c in range(samples.shape[2]):
+        channel = Image.fromarray(np.ascontiguousarray(samples[..., c]))
+        channel.info = dict(opened.info)  # where Pillow finds the orientation (EXIF, XMP)
+        channels.append(np.asarray(ImageOps.exif_transpose(channel)))
+    return np.stack(channels, axis=-1)
 
 
 #: Linear values of every 8-bit and 16-bit code (decoding by table is exact and fast).
@@ -102,7 +147,9 @@ class _Decoding:
         return np.interp(v, np.linspace(0.0, 1.0, 65536), self.lut16)
 
 
-def _kind(image: Image.Image) -> str:
+def _kind(image: Image.Image, deep: np.ndarray | None) -> str:
+    if deep is not None:
+        return "grayscale" if deep.shape[2] == 2 else "RGB"
     if image.mode in _GRAY_MODES:
         return "grayscale"
     if image.mode == "CMYK":
@@ -145,7 +192,7 @@ def _srgb_gray_profile() -> bytes:
     return header + bytes(128 - len(header)) + struct.pack(">I", len(tags)) + table + body
 
 
-def _embedded_profile(image: Image.Image, file: Path) -> ImageCmsProfile | None:
+def _embedded_profile(image: Image.Image, file: Path, kind: str) -> ImageCmsProfile | None:
     """The image's ICC profile, checked against its pixels, or None when it has none."""
     icc = image.info.get("icc_profile")
     if not icc:
@@ -173,7 +220,6 @@ def _embedded_profile(image: Image.Image, file: Path) -> ImageCmsProfile | None:
             "profile (re-save the image, or without a profile for sRGB)"
         ) from None
     space = profile.profile.xcolor_space.strip()
-    kind = _kind(image)
     expected = _SPACE_OF_KIND.get(kind)
     if expected is None:
         raise ConfigError(
@@ -237,6 +283,42 @@ def _gray_decoding(file: Path, profile: ImageCmsProfile) -> _Decoding:
         assert out is not None
         tables.append(_LUT16[np.asarray(out).astype(np.int64)[0]])
     return _Decoding(lut8=tables[0], lut16=tables[1])
+
+
+def _matrix_shaper_decoding(file: Path, profile: ImageCmsProfile) -> _Decoding | None:
+    """Per-channel tables of 16-bit codes' luminance through a matrix/TRC RGB profile.
+
+    Relative colorimetric to sRGB is ``M_srgb^-1 M @ TRC(codes)`` (M: the D50 colorants),
+    so luminance is ``sum_c k_c TRC_c(code_c)`` with ``k = LUMA_709 M_srgb^-1 M``: one
+    table per channel. littleCMS gives ``Y_c TRC_c`` at the 256 8-bit codes (that channel
+    alone, converted without optimisation to 16-bit gray on the sRGB curve), and the
+    16-bit codes fall between them, by linear interpolation. None for a LUT profile.
+    """
+    from PIL import ImageCms
+
+    def colorants(p: ImageCmsProfile) -> np.ndarray | None:
+        xyz = [p.profile.red_colorant, p.profile.green_colorant, p.profile.blue_colorant]
+        return np.array([c[0] for c in xyz if c is not None]).T if None not in xyz else None
+
+    source = colorants(profile)
+    srgb = colorants(ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")))
+    if not profile.profile.is_matrix_shaper or source is None or np.any(source[1] <= 0):
+        return None
+    assert srgb is not None
+    k = LUMA_709 @ np.linalg.solve(srgb, source)
+    codes = np.arange(256, dtype=np.uint8)
+    ramps = np.zeros((3, 256, 3), np.uint8)
+    for c in range(3):
+        ramps[c, :, c] = codes
+    gray = ImageCms.ImageCmsProfile(io.BytesIO(_srgb_gray_profile()))
+    transform = _build(file, profile, gray, ("RGB", "I;16"), exact=True)
+    out = ImageCms.applyTransform(Image.fromarray(ramps), transform)
+    assert out is not None
+    trc = _LUT16[np.asarray(out).astype(np.int64)] / source[1][:, None]
+    lut16 = np.column_stack(
+        [k[c] * np.interp(np.arange(65536) / 65535.0, codes / 255.0, trc[c]) for c in range(3)]
+    )
+    return _Decoding(lut16=lut16, weights=np.ones(3))
 
 
 def _to_srgb(image: Image.Image, file: Path, profile: ImageCmsProfile) -> Image.Image:
@@ -310,7 +392,7 @@ def _chrm_weights(file: Path, chromaticity: tuple[float, ...]) -> np.ndarray:
     return np.asarray((adapt @ (primaries * scale))[1])
 
 
-def _png_decoding(image: Image.Image, file: Path) -> _Decoding | None:
+def _png_decoding(image: Image.Image, file: Path, kind: str) -> _Decoding | None:
     """The decoding a PNG's gAMA / cHRM chunks ask for, or None for sRGB.
 
     An ``sRGB`` chunk means sRGB whatever else is there (PNG specification, 3rd ed.,
@@ -320,7 +402,7 @@ def _png_decoding(image: Image.Image, file: Path) -> _Decoding | None:
         return None
     gamma = image.info.get("gamma")
     chromaticity = image.info.get("chromaticity")
-    if gamma is None and (chromaticity is None or _kind(image) == "grayscale"):
+    if gamma is None and (chromaticity is None or kind == "grayscale"):
         return None
     decoding = _Decoding()
     if gamma is not None:
@@ -332,7 +414,7 @@ def _png_decoding(image: Image.Image, file: Path) -> _Decoding | None:
         exponent = 1.0 / gamma
         decoding.lut8 = (np.arange(256) / 255.0) ** exponent
         decoding.lut16 = (np.arange(65536) / 65535.0) ** exponent
-    if chromaticity is not None and _kind(image) == "RGB":
+    if chromaticity is not None and kind == "RGB":
         decoding.weights = _chrm_weights(file, chromaticity)
     return decoding
 
@@ -362,6 +444,27 @@ def _high_bit_gray(image: Image.Image, file: Path, decoding: _Decoding) -> np.nd
             )
         return decoding.unit(np.clip(values, 0.0, 1.0))
     return None
+
+
+def _luminance_16bit(samples: np.ndarray, decoding: _Decoding) -> np.ndarray:
+    """Linear luminance of (h, w, c) 16-bit samples: grey or RGB, then alpha if c is even.
+
+    ``decoding.lut16`` is one table for every channel or, (65536, 3), one per channel.
+    """
+    table = decoding.lut16.reshape(65536, -1)
+    columns = np.arange(3) % table.shape[1]
+    colour = samples.shape[2] >= 3
+    lin = np.empty(samples.shape[:2])
+    for r0 in range(0, samples.shape[0], _CHUNK_ROWS):
+        block = samples[r0 : r0 + _CHUNK_ROWS]
+        if colour:
+            lum = table[block[..., :3], columns] @ decoding.weights
+        else:
+            lum = table[block[..., 0], 0]
+        if samples.shape[2] % 2 == 0:
+            lum *= block[..., -1] / 65535.0
+        lin[r0 : r0 + _CHUNK_ROWS] = lum
+    return lin
 
 
 def _luminance_8bit(image: Image.Image, file: Path, decoding: _Decoding) -> np.ndarray:
@@ -396,18 +499,23 @@ def load_image(path: str | Path) -> np.ndarray:
         ScratchfabError: The file has an ICC profile and Pillow lacks littleCMS.
     """
     file = Path(path)
-    image = _open(file)
-    decoding = _Decoding()
-    profile = _embedded_profile(image, file)
-    if profile is not None and _kind(image) == "grayscale":
+    image, deep = _open(file)
+    kind = _kind(image, deep)
+    decoding: _Decoding | None = _Decoding()
+    profile = _embedded_profile(image, file, kind)
+    if profile is not None and kind == "grayscale":
         decoding = _gray_decoding(file, profile)
     elif profile is not None:
-        image = _to_srgb(image, file, profile)
+        decoding = _matrix_shaper_decoding(file, profile) if deep is not None else None
+        if decoding is None:  # 8 bits through littleCMS
+            image, deep, decoding = _to_srgb(image, file, profile), None, _Decoding()
     else:
-        decoding = _png_decoding(image, file) or decoding
-    lin = _high_bit_gray(image, file, decoding)
-    if lin is None:
-        lin = _luminance_8bit(image, file, decoding)
+        decoding = _png_decoding(image, file, kind) or _Decoding()
+    if deep is not None:
+        lin = _luminance_16bit(deep, decoding)
+    else:
+        high = _high_bit_gray(image, file, decoding)
+        lin = high if high is not None else _luminance_8bit(image, file, decoding)
     if lin.ndim != 2 or lin.size == 0:
         raise ConfigError(f"{file}: image has no pixels")
     return np.clip(lin, 0.0, 1.0)

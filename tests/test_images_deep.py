@@ -1,0 +1,178 @@
+"""16-bit colour PNGs: Pillow opens them at 8 bits; load_image keeps all 16."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from test_images import (
+    LUMA,
+    P3_COLORANTS,
+    P3_LUMA,
+    SRGB_CURV,
+    _chrm,
+    curv_gamma,
+    eotf,
+    gamma_of,
+    gray_icc,
+    needs_lcms,
+    rgb_icc,
+    srgb_colorants,
+)
+
+from scratchfab.design.images import load_image
+from scratchfab.errors import ConfigError
+
+#: PNG colour types with 16-bit samples: grey and alpha, RGB, RGBA.
+CHANNELS = {4: 2, 2: 3, 6: 4}
+
+
+def _paeth(a: int, b: int, c: int) -> int:
+    p = a + b - c
+    pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+    return a if pa <= pb and pa <= pc else b if pb <= pc else c
+
+
+def _filtered(rows: list[bytes], bpp: int) -> bytes:
+    """Each row filtered with type (row % 5): None, Sub, Up, Average, Paeth (PNG spec 9.2)."""
+    out = b""
+    prior = bytes(len(rows[0]))
+    for r, row in enumerate(rows):
+        kind = r % 5
+        line = bytearray()
+        for i, x in enumerate(row):
+            a = row[i - bpp] if i >= bpp else 0
+            b = prior[i]
+            c = prior[i - bpp] if i >= bpp else 0
+            predictor = (0, a, b, (a + b) // 2, _paeth(a, b, c))[kind]
+            line.append((x - predictor) % 256)
+        out += bytes([kind]) + bytes(line)
+        prior = row
+    return out
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def write_png16(path: Path, samples: np.ndarray, *chunks: tuple[bytes, bytes]) -> None:
+    """A 16-bit PNG written by hand (Pillow cannot), chunks before IDAT except eXIf after."""
+    h, w, c = samples.shape
+    colour_type = {v: k for k, v in CHANNELS.items()}[c]
+    rows = [samples[r].astype(">u2").tobytes() for r in range(h)]
+    head = _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, colour_type, 0, 0, 0))
+    before = b"".join(_chunk(k, d) for k, d in chunks if k != b"eXIf")
+    after = b"".join(_chunk(k, d) for k, d in chunks if k == b"eXIf")
+    idat = _chunk(b"IDAT", zlib.compress(_filtered(rows, 2 * c)))
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + head + before + idat + after + _chunk(b"IEND", b""))
+
+
+def reference(samples: np.ndarray, decode=None, weights=LUMA) -> np.ndarray:
+    """Luminance written out pixel by pixel: decode each sample, weigh, times alpha."""
+    decode = decode or eotf
+    h, w, c = samples.shape
+    out = np.empty((h, w))
+    for r in range(h):
+        for col in range(w):
+            s = [int(v) / 65535 for v in samples[r, col]]
+            colour = s[:3] if c >= 3 else s[:1]
+            lum = sum(wt * decode(v) for wt, v in zip(weights, colour, strict=True))
+            out[r, col] = lum * (s[-1] if c % 2 == 0 else 1.0)
+    return out
+
+
+def random_samples(c: int, shape=(9, 13), seed=5) -> np.ndarray:
+    samples = np.random.default_rng(seed).integers(0, 65536, (*shape, c), dtype=np.uint16)
+    samples[0, :3] = 1000  # neighbours one code apart, that 8 bits would merge
+    samples[0, 1] = 1001
+    return samples
+
+
+@pytest.mark.parametrize("colour_type", [2, 6, 4])
+def test_16bit_colour_png_keeps_every_bit(tmp_path, colour_type):
+    c = CHANNELS[colour_type]
+    samples = random_samples(c)
+    path = tmp_path / "deep.png"
+    write_png16(path, samples)
+    with Image.open(path) as im:  # what Pillow alone gives: 8 bits
+        assert im.mode in ("RGB", "RGBA")
+    got = load_image(path)
+    weights = LUMA if c >= 3 else (1.0,)
+    np.testing.assert_allclose(got, reference(samples, weights=weights), rtol=0, atol=1e-12)
+    assert got[0, 0] < got[0, 1]  # codes 1000 and 1001 stay apart
+
+
+def test_16bit_png_gama_and_chrm_apply(tmp_path):
+    samples = random_samples(3)
+    path = tmp_path / "g.png"
+    write_png16(path, samples, (b"gAMA", struct.pack(">I", 100000)))
+    np.testing.assert_allclose(
+        load_image(path), reference(samples, decode=lambda v: v), rtol=0, atol=1e-12
+    )
+    p3 = _chrm((0.3127, 0.3290), (0.680, 0.320), (0.265, 0.690), (0.150, 0.060))
+    write_png16(path, samples, (b"gAMA", struct.pack(">I", 100000)), (b"cHRM", p3))
+    expected = reference(samples, decode=lambda v: v, weights=P3_LUMA)
+    np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=1e-4)
+
+
+@pytest.mark.parametrize("orientation", [3, 6, 8])
+def test_16bit_png_exif_orientation_turns_it_upright(tmp_path, orientation):
+    samples = random_samples(3, shape=(6, 10))
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    path = tmp_path / "turned.png"
+    write_png16(path, samples, (b"eXIf", exif.tobytes()))
+    # 3: half a turn; 6: a quarter turn clockwise to display; 8: anticlockwise.
+    turns = {3: 2, 6: -1, 8: 1}[orientation]
+    np.testing.assert_allclose(
+        load_image(path), np.rot90(reference(samples), turns), rtol=0, atol=1e-12
+    )
+
+
+@needs_lcms
+def test_16bit_png_with_srgb_profile_reads_like_no_profile(tmp_path):
+    samples = random_samples(3)
+    path = tmp_path / "s.png"
+    write_png16(
+        path, samples, (b"iCCP", b"x\0\0" + zlib.compress(rgb_icc(SRGB_CURV, srgb_colorants())))
+    )
+    got = load_image(path)
+    # The profile's curve is a 4096-entry table; 8-bit decoding would be off by ~1e-3.
+    np.testing.assert_allclose(got, reference(samples), rtol=0, atol=5e-5)
+    assert got[0, 0] < got[0, 1]
+
+
+@needs_lcms
+def test_16bit_display_p3_gamma_profile(tmp_path):
+    samples = random_samples(4)
+    icc = rgb_icc(curv_gamma(1.8), P3_COLORANTS)
+    path = tmp_path / "p3.png"
+    write_png16(path, samples, (b"iCCP", b"x\0\0" + zlib.compress(icc)))
+    expected = reference(samples, decode=lambda v: v ** gamma_of(1.8), weights=P3_LUMA)
+    got = load_image(path)
+    # P3_LUMA is the published D65 figure; the profile's colorants are rounded D50 ones.
+    np.testing.assert_allclose(got, expected, rtol=0, atol=2e-4)
+    assert got[0, 0] < got[0, 1]
+
+
+@needs_lcms
+def test_16bit_gray_and_alpha_with_gray_profile(tmp_path):
+    samples = random_samples(2)
+    path = tmp_path / "la.png"
+    write_png16(path, samples, (b"iCCP", b"x\0\0" + zlib.compress(gray_icc(curv_gamma(1.8)))))
+    expected = reference(samples, decode=lambda v: v ** gamma_of(1.8), weights=(1.0,))
+    np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=3e-5)
+
+
+def test_truncated_16bit_png_fails_with_one_line(tmp_path):
+    path = tmp_path / "cut.png"
+    write_png16(path, random_samples(3, shape=(40, 40)))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ConfigError) as info:
+        load_image(path)
+    assert str(path) in str(info.value) and "\n" not in str(info.value)
