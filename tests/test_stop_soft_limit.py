@@ -13,7 +13,7 @@ from __future__ import annotations
 import time
 
 import pytest
-from stream_helpers import FAST, executed_blocks, interrupt_after, stream_program
+from stream_helpers import FAST, PortProxy, executed_blocks, interrupt_after, stream_program
 
 from scratchfab.machine.sender import Streamer, StreamFault, StreamStopped, open_port
 from scratchfab.machine.sender_journal import read_journal
@@ -36,7 +36,8 @@ def _stream(tmp_path, stop_after: int | None, ask: str = "stop"):
     job.write_text(_JOB)
     progress = interrupt_after(stop_after) if stop_after is not None else None
 
-    port = open_port(_URL, 115200)
+    inner = open_port(_URL, 115200)
+    port = _OutsideAfterHold(inner) if stop_after is not None else inner
     try:
         with pytest.raises((StreamStopped, StreamFault)) as exc:
             stream_program(
@@ -44,18 +45,48 @@ def _stream(tmp_path, stop_after: int | None, ask: str = "stop"):
                 load_program(job),
                 tmp_path / "j.jsonl",
                 on_progress=progress,
-                ask_interrupt=lambda: _answer(ask),
+                ask_interrupt=lambda: _answer(ask, inner.sim.record),
             )
     finally:
         port.close()
-    return exc.value, read_journal(tmp_path / "j.jsonl"), port.sim.record
+    return exc.value, read_journal(tmp_path / "j.jsonl"), inner.sim.record
 
 
-def _answer(ask: str) -> str:
-    """``ask`` after a person's pause: the hold slows for about 2 s (20 mm/s at GRBL's
-    default 10 mm/s^2), so the alarm comes while the question waits, as it would for a
-    person, and not after an instant "resume" on a machine busy with other work."""
-    time.sleep(0.5)
+class _OutsideAfterHold(PortProxy):
+    """The link holds back the line outside the travel (and what follows) until the
+    sender's feed hold has passed, so GRBL reads it while the hold slows the machine,
+    however late the sender's Ctrl-C comes on a loaded machine (its progress report, up
+    to a poll period after the ok, and the scheduler's delays; in real time the emulator
+    would otherwise read it in the cycle, a few 0.1 s blocks after the trigger's ok)."""
+
+    def __init__(self, inner) -> None:
+        super().__init__(inner)
+        self.held = b""
+        self.released = False
+
+    def write(self, data: bytes) -> int:
+        if self.released or (len(data) == 1 and (data in b"?~\x18" or data[0] >= 0x80)):
+            return self.inner.write(data)  # realtime bytes pass
+        if data == b"!":
+            self.inner.write(data)
+            self.released = True
+            if self.held:
+                self.inner.write(self.held)
+            return 1
+        if self.held or data.startswith(b"G1X10"):
+            self.held += data
+            return len(data)
+        return self.inner.write(data)
+
+
+def _answer(ask: str, record: list[dict]) -> str:
+    """``ask`` once the emulator has raised its alarm (at most 10 s): the hold slows for
+    about 2 s (20 mm/s at GRBL's default 10 mm/s^2), so the alarm comes while the question
+    waits, as it would for a person, and not after an instant "resume" on a machine busy
+    with other work."""
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and not _alarms(list(record)):
+        time.sleep(0.01)
     return ask
 
 
@@ -112,7 +143,7 @@ def test_after_the_alarm_at_speed_a_resume_is_refused_until_homed(tmp_path):
     is refused until the machine is homed or unlocked, as after ALARM:3."""
     job = tmp_path / "job.gcode"
     job.write_text(_JOB)
-    port = open_port(_URL, 115200)
+    port = _OutsideAfterHold(open_port(_URL, 115200))
     try:
         progress = interrupt_after(19)
         with pytest.raises(StreamStopped):
