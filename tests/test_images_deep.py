@@ -71,6 +71,68 @@ def write_png16(path: Path, samples: np.ndarray, *chunks: tuple[bytes, bytes]) -
     path.write_bytes(b"\x89PNG\r\n\x1a\n" + head + before + idat + after + _chunk(b"IEND", b""))
 
 
+def write_tiff(
+    path: Path,
+    samples: np.ndarray,
+    order: str = "<",
+    deflate: bool = False,
+    rows_per_strip: int | None = None,
+    orientation: int | None = None,
+) -> None:
+    """A TIFF of the samples' type written by hand (Pillow cannot write 16-bit colour).
+
+    Deflate comes with horizontal differencing (integer samples only).
+    """
+    h, w, c = samples.shape
+    rows_per_strip = rows_per_strip or h
+    arr = samples.astype(np.int64) if deflate else samples
+    if deflate:  # predictor 2: each sample minus its left neighbour, modulo 2**16
+        arr[:, 1:] = (arr[:, 1:] - arr[:, :-1]) % 65536
+    strips = [
+        arr[r : r + rows_per_strip].astype(samples.dtype.newbyteorder(order)).tobytes()
+        for r in range(0, h, rows_per_strip)
+    ]
+    if deflate:
+        strips = [zlib.compress(strip) for strip in strips]
+    n = len(strips)
+    tags = {
+        256: (4, [w]),
+        257: (4, [h]),
+        258: (3, [samples.dtype.itemsize * 8] * c),
+        259: (3, [8 if deflate else 1]),
+        262: (3, [2 if c >= 3 else 1]),
+        273: (4, [0] * n),
+        277: (3, [c]),
+        278: (4, [rows_per_strip]),
+        279: (4, [len(strip) for strip in strips]),
+        284: (3, [1]),
+        317: (3, [2 if deflate else 1]),
+        339: (3, [3 if samples.dtype.kind == "f" else 1] * c),
+    }
+    if c % 2 == 0:
+        tags[338] = (3, [2])  # unassociated alpha
+    if orientation:
+        tags[274] = (3, [orientation])
+
+    def layout(data_at: int) -> tuple[bytes, bytes]:
+        tags[273] = (4, list(data_at + np.cumsum([0] + [len(x) for x in strips[:-1]])))
+        extra_at = 8 + 2 + 12 * len(tags) + 4
+        ifd, extra = struct.pack(order + "H", len(tags)), b""
+        for tag, (kind, values) in sorted(tags.items()):
+            raw = struct.pack(order + ("H" if kind == 3 else "I") * len(values), *values)
+            if len(raw) <= 4:
+                ifd += struct.pack(order + "HHI", tag, kind, len(values)) + raw.ljust(4, b"\0")
+            else:
+                ifd += struct.pack(order + "HHII", tag, kind, len(values), extra_at + len(extra))
+                extra += raw
+        return ifd + bytes(4), extra
+
+    ifd, extra = layout(0)
+    ifd, extra = layout(8 + len(ifd) + len(extra))
+    head = (b"II*\0" if order == "<" else b"MM\0*") + struct.pack(order + "I", 8)
+    path.write_bytes(head + ifd + extra + b"".join(strips))
+
+
 def reference(samples: np.ndarray, decode=None, weights=LUMA) -> np.ndarray:
     """Luminance written out pixel by pixel: decode each sample, weigh, times alpha."""
     decode = decode or eotf
@@ -176,3 +238,39 @@ def test_truncated_16bit_png_fails_with_one_line(tmp_path):
     with pytest.raises(ConfigError) as info:
         load_image(path)
     assert str(path) in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("c", "order", "deflate", "rows"),
+    [(3, "<", False, None), (3, ">", False, 2), (3, "<", True, None), (4, ">", True, 4)],
+)
+def test_16bit_colour_tiff_keeps_every_bit(tmp_path, c, order, deflate, rows):
+    samples = random_samples(c)
+    path = tmp_path / "deep.tif"
+    write_tiff(path, samples, order, deflate, rows)
+    with Image.open(path) as im:  # what Pillow alone gives: 8 bits
+        assert im.mode in ("RGB", "RGBA")
+    got = load_image(path)
+    np.testing.assert_allclose(got, reference(samples), rtol=0, atol=1e-12)
+    assert got[0, 0] < got[0, 1]
+
+
+def test_16bit_tiff_orientation_tag_turns_it_upright(tmp_path):
+    samples = random_samples(3, shape=(6, 10))
+    path = tmp_path / "turned.tif"
+    write_tiff(path, samples, deflate=True, orientation=6)
+    np.testing.assert_allclose(load_image(path), np.rot90(reference(samples), -1), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "samples",
+    [np.full((2, 3, 3), 0.5, np.float32), np.full((2, 3, 1), 0.5, np.float16)],
+    ids=["float-rgb", "half-float-grey"],
+)
+def test_float_tiff_pillow_cannot_read_is_a_clear_error(tmp_path, samples):
+    path = tmp_path / "float.tif"
+    write_tiff(path, samples)
+    with pytest.raises(ConfigError) as info:
+        load_image(path)
+    text = str(info.value)
+    assert str(path) in text and "TIFF" in text and "expected" in text and "\n" not in text

@@ -13,8 +13,9 @@ space the file declares (SPEC section 5 makes sRGB the default):
 * anything else is sRGB, decoded with the exact piecewise transfer function
   (IEC 61966-2-1).
 
-16-bit PNGs keep their 16 bits: grey ones Pillow reads as such; colour and grey-with-alpha
-ones (which Pillow opens at 8 bits) are read a second time for the low bytes. Through a
+16-bit PNGs and TIFFs keep their 16 bits: grey ones Pillow reads as such; colour ones and
+grey-with-alpha PNGs (which Pillow opens at 8 bits) are read a second time for the low
+bytes, and EXIF orientation turns them as it turns the image. Through a
 matrix/TRC RGB profile (sRGB, Adobe RGB, Display P3, ProPhoto) they are decoded from
 per-channel tables; a LUT-based RGB profile converts their high bytes, as for 8 bits.
 """
@@ -23,13 +24,14 @@ from __future__ import annotations
 
 import io
 import struct
+import sys
 import warnings
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from PIL import Image, ImageOps, UnidentifiedImageError, features
+from PIL import ExifTags, Image, ImageFile, ImageOps, UnidentifiedImageError, features
 
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import read_input
@@ -54,7 +56,7 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
 
 
 def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
-    """The upright image, and a 16-bit PNG's samples where Pillow keeps only 8 bits."""
+    """The upright image, and its 16-bit samples where Pillow keeps only 8 bits."""
     data = read_input(path, "an image file", missing="image file not found")
     if not data:
         raise ConfigError(f"{path}: empty file, expected an image")
@@ -64,53 +66,94 @@ def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
             # of large images; the pixels decode or the file is refused below, in one line.
             warnings.simplefilter("ignore")
             opened = Image.open(io.BytesIO(data))
-            tile = opened.tile[0] if opened.format == "PNG" and len(opened.tile) == 1 else None
+            low = _low_byte_tiles(opened)  # before load(), which drops the tiles
             opened.load()
             image = ImageOps.exif_transpose(opened)
             image.format = opened.format  # exif_transpose returns a copy without it
-            deep = None
-            if tile is not None and tile[3] in _PNG16_RAWMODES:
-                deep = _upright(_png16_samples(data, opened, tile), opened)
+            deep = None if low is None else _upright(_deep_samples(data, opened, low), opened)
             return image, deep
     except UnidentifiedImageError:
-        raise ConfigError(f"{path}: not an image file Pillow can read") from None
+        raise ConfigError(f"{path}: not an image file Pillow can read{_hint(data)}") from None
     except Image.DecompressionBombError:
         raise ConfigError(f"{path}: image is too large (decompression bomb check)") from None
     except (OSError, ValueError, SyntaxError, EOFError) as exc:
         raise ConfigError(f"{path}: corrupt or truncated image ({exc})") from None
 
 
-#: 16-bit PNG layouts that Pillow decodes to 8 bits (it has no 16-bit colour mode), by the
-#: rawmode it reads them with, and a rawmode that reads the same rows keeping the low
-#: bytes: "RGB;16L" takes each big-endian sample's second byte, and for grey with alpha a
-#: 4-byte "RGBA" pixel is all of them (grey high, grey low, alpha high, alpha low).
-_PNG16_RAWMODES = {"RGB;16B": "RGB;16L", "RGBA;16B": "RGBA;16L", "LA;16B": "RGBA"}
+def _hint(data: bytes) -> str:
+    """What to do with a file that looks like a TIFF Pillow cannot read, else nothing."""
+    if data[:4] not in (b"II*\0", b"MM\0*"):
+        return ""
+    return (
+        " (a TIFF in a layout Pillow does not decode, such as floating-point colour or "
+        "16/64-bit floats: Pillow reads float TIFFs as one 32-bit grey channel only); "
+        "expected 8- or 16-bit integer samples or 32-bit float grey (re-save it so)"
+    )
 
 
-def _png16_samples(data: bytes, opened: Image.Image, tile: tuple) -> np.ndarray:
-    """A 16-bit colour or grey-and-alpha PNG's samples, (h, w, channels) uint16.
+#: 16-bit colour layouts that Pillow decodes to 8 bits (it has no 16-bit colour mode),
+#: by the rawmode it reads them with (PNG, TIFF), and a rawmode that reads the same rows
+#: keeping the low bytes: "RGB;16L" takes each big-endian sample's second byte ("N" is the
+#: computer's own order), and for grey with alpha a 4-byte "RGBA" pixel is all of them
+#: (grey high, grey low, alpha high, alpha low).
+_LOW_BYTES = {
+    "LA;16B": "RGBA",
+    **{
+        f"{mode};16{order}": f"{mode};16{other}"
+        for mode in ("RGB", "RGBA")
+        for order, other in (
+            ("B", "L"),
+            ("L", "B"),
+            ("N", "B" if sys.byteorder == "little" else "L"),
+        )
+    },
+}
 
-    Pillow's own PNG decoder (filters, interlacing) reads the rows a second time with the
-    rawmode of ``_PNG16_RAWMODES``; ``opened`` holds the high bytes of the first reading.
+
+def _low_byte_tiles(opened: Image.Image) -> list[Any] | None:
+    """The image's tiles set to read the low bytes, or None unless it is 16-bit colour."""
+    tiles = []
+    for tile in getattr(opened, "tile", []):
+        args = tile[3]
+        rawmode = args if isinstance(args, str) else args[0] if args else None
+        if rawmode not in _LOW_BYTES:
+            return None
+        low = _LOW_BYTES[rawmode]
+        new = low if isinstance(args, str) else (low, *args[1:])
+        # Pillow 11 on: named tuples (a file of several strips reads their offsets).
+        tiles.append(tile._replace(args=new) if hasattr(tile, "_replace") else (*tile[:3], new))
+    return tiles or None
+
+
+def _deep_samples(data: bytes, opened: Image.Image, low: list[Any]) -> np.ndarray:
+    """A 16-bit colour or grey-and-alpha image's samples, (h, w, channels) uint16.
+
+    Pillow's own decoder (PNG filters and interlacing, TIFF compressions) reads the file a
+    second time with the ``low`` tiles; ``opened`` holds the high bytes of the first.
     """
-    rawmode = _PNG16_RAWMODES[tile[3]]
     again = Image.open(io.BytesIO(data))
-    again.tile = [cast(Any, (*again.tile[0][:3], rawmode))]  # (codec, box, offset, rawmode)
+    assert isinstance(again, ImageFile.ImageFile)
+    again.tile = low
     again.load()
     raw = np.asarray(again)
-    if rawmode == "RGBA":  # grey and alpha: every byte
-        high, low = raw[..., 0::2], raw[..., 1::2]
+    if low[0][3] == "RGBA":  # grey and alpha: every byte
+        high, lows = raw[..., 0::2], raw[..., 1::2]
     else:
-        high, low = np.asarray(opened), raw
-    return (high.astype(np.uint16) << 8) | low
+        high, lows = np.asarray(opened), raw
+    return (high.astype(np.uint16) << 8) | lows
 
 
 def _upright(samples: np.ndarray, opened: Image.Image) -> np.ndarray:
     """Samples turned as ``ImageOps.exif_transpose`` turns ``opened`` (each channel by it)."""
+    exif = Image.Exif()
+    orientation = opened.getexif().get(ExifTags.Base.Orientation)  # EXIF, TIFF tag or XMP
+    if orientation is None:
+        return samples
+    exif[ExifTags.Base.Orientation] = orientation
     channels = []
     for c in range(samples.shape[2]):
         channel = Image.fromarray(np.ascontiguousarray(samples[..., c]))
-        channel.info = dict(opened.info)  # where Pillow finds the orientation (EXIF, XMP)
+        channel.info["exif"] = exif.tobytes()
         channels.append(np.asarray(ImageOps.exif_transpose(channel)))
     return np.stack(channels, axis=-1)
 
