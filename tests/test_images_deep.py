@@ -1,4 +1,4 @@
-"""16-bit colour PNGs: Pillow opens them at 8 bits; load_image keeps all 16."""
+"""Deep images: 16-bit colour PNGs and TIFFs (Pillow opens them at 8 bits), float TIFFs."""
 
 from __future__ import annotations
 
@@ -274,3 +274,32 @@ def test_float_tiff_pillow_cannot_read_is_a_clear_error(tmp_path, samples):
         load_image(path)
     text = str(info.value)
     assert str(path) in text and "TIFF" in text and "expected" in text and "\n" not in text
+
+
+def test_float_tiff_without_profile_is_srgb_encoded_per_spec(tmp_path):
+    values = np.array([[0.0, 0.02, 0.5, 1.0, 1.004, -0.004]], np.float32)
+    path = tmp_path / "f.tif"
+    Image.fromarray(values).save(path)
+    expected = [eotf(min(max(float(v), 0.0), 1.0)) for v in values[0]]
+    np.testing.assert_allclose(load_image(path)[0], expected, rtol=0, atol=1e-7)
+
+
+@needs_lcms
+def test_float_tiff_with_linear_profile_is_linear(tmp_path):
+    values = np.linspace(0.0, 1.0, 201, dtype=np.float32)[None]
+    path = tmp_path / "lin.tif"
+    Image.fromarray(values).save(path, icc_profile=gray_icc(curv_gamma(1.0)))
+    np.testing.assert_allclose(load_image(path)[0], values[0], rtol=0, atol=3e-5)
+
+
+def test_hdr_float_tiff_is_refused_not_clipped(tmp_path):
+    values = np.full((3, 4), 0.5, np.float32)
+    values[1, 2] = 3.5
+    values[2, 0] = -0.2
+    path = tmp_path / "hdr.tif"
+    Image.fromarray(values).save(path)
+    with pytest.raises(ConfigError) as info:
+        load_image(path)
+    text = str(info.value)
+    assert text.startswith(f"{path}: pixel (row 1, column 2) is 3.5; expected brightness in [0, 1]")
+    assert "(2 pixels are outside)" in text and "SPEC section 5" in text and "\n" not in text

@@ -11,7 +11,11 @@ space the file declares (SPEC section 5 makes sRGB the default):
   (linear = stored ** (1 / gamma)) and its ``cHRM`` primaries and white (luminance
   weights of those primaries, Bradford-adapted to D65);
 * anything else is sRGB, decoded with the exact piecewise transfer function
-  (IEC 61966-2-1).
+  (IEC 61966-2-1). That includes floating-point (32-bit grey TIFF) pixels: SPEC section 5
+  makes a target's pixel values sRGB-encoded brightness, whatever their type, so a float
+  file without a profile must hold values in [0, 1] (beyond 0.01 outside, it is refused:
+  an HDR image clipped would be mostly white); a gray profile with a linear curve marks
+  linear values.
 
 16-bit PNGs and TIFFs keep their 16 bits: grey ones Pillow reads as such; colour ones and
 grey-with-alpha PNGs (which Pillow opens at 8 bits) are read a second time for the low
@@ -161,6 +165,9 @@ def _upright(samples: np.ndarray, opened: Image.Image) -> np.ndarray:
 #: Linear values of every 8-bit and 16-bit code (decoding by table is exact and fast).
 _LUT8 = srgb_to_linear(np.arange(256) / 255.0)
 _LUT16 = srgb_to_linear(np.arange(65536) / 65535.0)
+#: How far floating-point pixels may stray outside [0, 1] (rounding, filters' overshoot)
+#: before the file is refused rather than clipped.
+_FLOAT_SLACK = 0.01
 #: Rows converted at a time, so that large photos do not need several float copies.
 _CHUNK_ROWS = 256
 
@@ -477,14 +484,25 @@ def _high_bit_gray(image: Image.Image, file: Path, decoding: _Decoding) -> np.nd
         return decoding.unit(np.clip(arr / float(max(arr.max(), 1)), 0.0, 1.0))
     if image.mode == "F":
         values = np.asarray(image, dtype=np.float64)
-        bad = np.argwhere(~np.isfinite(values))
-        if len(bad):
-            row, col = (int(v) for v in bad[0])
-            raise ConfigError(
-                f"{file}: pixel (row {row}, column {col}) is "
-                f"{values[row, col]}; expected finite brightness values ({len(bad)} pixels "
-                "are NaN or infinite)"
-            )
+        with np.errstate(invalid="ignore"):
+            outside = (values < -_FLOAT_SLACK) | (values > 1.0 + _FLOAT_SLACK)
+        for bad, expected in (
+            (~np.isfinite(values), "finite brightness values ({} pixels are NaN or infinite)"),
+            (
+                outside,
+                "brightness in [0, 1] ({} pixels are outside): floating-point pixels are "
+                "sRGB-encoded like any image without a colour profile (SPEC section 5); scale "
+                "the image to [0, 1] (tone-map an HDR image first), or embed a gray profile "
+                "with a linear curve (gamma 1.0) for linear values",
+            ),
+        ):
+            where = np.argwhere(bad)
+            if len(where):
+                row, col = (int(v) for v in where[0])
+                raise ConfigError(
+                    f"{file}: pixel (row {row}, column {col}) is {values[row, col]:.6g}; "
+                    f"expected {expected.format(len(where))}"
+                )
         return decoding.unit(np.clip(values, 0.0, 1.0))
     return None
 
