@@ -134,17 +134,26 @@ def noise_effect(render: np.ndarray, target: np.ndarray, variance: np.ndarray) -
 def noise_share(render: np.ndarray, target: np.ndarray, variance: np.ndarray) -> float:
     """Share of the exposed difference ``s R - T``'s squared size that is render noise.
 
-    The expected |s R - T|^2 is the noise-free difference's plus s^2 times the summed
-    pixel variance; this is the second over the whole (0 for a render equal to the target
-    only where no noise is either; NaN without board pixels).
+    With R = R_0 + N over the board, the exposure fitted to R shrinks as the noise adds
+    V (the summed pixel variance) to |R|^2, and |s R - T|^2 = |T|^2 - (R T)^2 / |R|^2
+    exceeds the noise-free difference's by (R T)^2 V / (|R|^2 (|R|^2 - V)), that is
+    s^2 V |R|^2 / (|R|^2 - V): s^2 V alone (the noise of the exposed render) leaves out
+    what the noise does to s, and undercounts a noisy render's share (16 spp on the demo:
+    0.6 against 0.98 measured). This is that excess over the whole (1 where the noise is
+    all of |R|^2; 0 for a render equal to the target only where no noise is either; NaN
+    without board pixels).
     """
     diff, s = exposed_difference(render, target)
     ok = np.isfinite(diff) & np.isfinite(variance)
     if not ok.any():
         return math.nan
     total = float(np.sum(diff[ok] ** 2))
-    noise = s * s * float(np.sum(variance[ok]))
-    return min(1.0, noise / total) if total > 0 else 0.0
+    noise = float(np.sum(variance[ok]))
+    size = float(np.sum(np.asarray(render, np.float64)[ok] ** 2))
+    if not size > noise:
+        return 1.0 if noise > 0 else 0.0
+    excess = s * s * noise * size / (size - noise)
+    return min(1.0, excess / total) if total > 0 else 0.0
 
 
 def quality_report(
