@@ -11,6 +11,17 @@ from scratchfab.segments import sample_along
 # importing the toolpath package (the CLI's help, the exporters) does not need it.
 
 
+def onto_box(points: np.ndarray, lo: np.ndarray, hi: np.ndarray, slack: float) -> np.ndarray:
+    """(N, 2) ``points`` with each coordinate at most ``slack`` beyond the box moved onto its edge.
+
+    The box is [lo, hi] per axis. Coordinates inside it, or further out (for clipping to
+    cut), stay as they are.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    p = np.where((p < lo) & (p >= lo - slack), lo, p)
+    return np.where((p > hi) & (p <= hi + slack), hi, p)
+
+
 def clip_strokes(
     p0: np.ndarray, p1: np.ndarray, region: shapely.Polygon
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -28,14 +28,13 @@ from scratchfab.console import duration_text
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import decode_json, read_input, save_png, write_text
 from scratchfab.machine.profile import (
-    Envelope,
     MachineProfile,
     gcode_number,
     profile_from_mapping,
 )
 from scratchfab.model.design import Board, ScratchTool
 from scratchfab.model.scratches import ScratchSet
-from scratchfab.toolpath.geometry import clip_strokes, merge_collinear
+from scratchfab.toolpath.geometry import clip_strokes, merge_collinear, onto_box
 from scratchfab.toolpath.inputs import checked_record
 from scratchfab.toolpath.order import OrderOptions, order_strokes, tour_travel
 from scratchfab.toolpath.timing import path_times
@@ -108,13 +107,22 @@ def fit_advice(profile: MachineProfile, board_size: tuple[float, float]) -> str:
     :func:`oversize_text` for a board larger than the travel, else the ``[board]
     offset_mm`` nearest the profile's that fits
     (:meth:`~scratchfab.machine.profile.MachineProfile.fitting_offset`) and the range
-    of those that do, in the profile's convention (its origin corner, its rotation).
+    of those that do, in the profile's convention (its origin corner, its rotation); for
+    a board that lies inside the envelope as placed, that no offset is to change.
     """
     too_big = oversize_text(profile, board_size)
     offset = profile.fitting_offset(board_size)
     if too_big is not None or offset is None:
         return (too_big or OUTSIDE_ADVICE) + _copy_advice(profile)
     (x0, x1), (y0, y1) = profile.offset_range(profile.board_outline(board_size))
+    now = profile.board.offset_mm
+    if x0 <= now[0] <= x1 and y0 <= now[1] <= y1:
+        # No offset to name: the board lies inside the envelope where it is.
+        return (
+            f"the profile's [board] offset_mm = {_offset_text(now)} already puts the whole "
+            "board inside the envelope: what is cut short lies beyond the board's own edges "
+            "(check the scratches against the design's [board] width_mm and height_mm)"
+        )
     place = profile.board
     corner = "centre" if place.origin == "center" else f"{place.origin} corner"
     turned = f" (turned by rotation_deg = {place.rotation_deg})" if place.rotation_deg else ""
@@ -395,28 +403,27 @@ def plan_toolpath(
     size = (board.width_mm, board.height_mm)
     outline = profile.board_outline(size)
     env = profile.envelope
-    # Shrink the envelope by half a unit of the last written digit, so that rounding the
-    # coordinates for G-code can never push one outside.
-    slack = profile.envelope_slack_mm
-    inner = Envelope(
-        (env.x_mm[0] + slack, env.x_mm[1] - slack), (env.y_mm[0] + slack, env.y_mm[1] - slack)
-    )
-    region = shapely.Polygon(outline).intersection(
-        shapely.box(inner.x_mm[0], inner.y_mm[0], inner.x_mm[1], inner.y_mm[1])
-    )
-    if region.is_empty or region.area <= 0:
+    # The board turns by quarter turns only: its outline is an axis-aligned rectangle, and
+    # so is its part within the envelope, the region the strokes are clipped to.
+    lo = np.maximum(outline.min(axis=0), [env.x_mm[0], env.y_mm[0]])
+    hi = np.minimum(outline.max(axis=0), [env.x_mm[1], env.y_mm[1]])
+    if np.any(lo >= hi):
         raise ScratchfabError(
             f"{profile.source}: the {size[0]:g} x {size[1]:g} mm board (corners "
             f"{xy_text(outline)}) lies wholly outside {envelope_text(profile)}, so nothing "
             f"can be cut; {fit_advice(profile, size)}"
         )
-    m0 = profile.board_to_machine(scratches.p0, size)
-    m1 = profile.board_to_machine(scratches.p1, size)
-    keep, q0, q1 = clip_strokes(m0, m1, region)
-    # Clipped by the envelope: an end beyond it. An end within the slack of its edge is
-    # only kept clear of rounding (a board as large as the travel fits), as is one that the
+    # An end within half a written digit beyond the region's edge lies on it as the G-code
+    # writes it: it is moved onto the edge, not cut off (a stroke along the edge of a board
+    # as large as the travel is kept). The G-code writer rounds a value on the edge to the
+    # nearest written value inside the envelope.
+    slack = profile.envelope_slack_mm
+    m0 = onto_box(profile.board_to_machine(scratches.p0, size), lo, hi, slack)
+    m1 = onto_box(profile.board_to_machine(scratches.p1, size), lo, hi, slack)
+    keep, q0, q1 = clip_strokes(m0, m1, shapely.box(*lo, *hi))
+    # Clipped by the envelope: an end beyond it (further than the slack), not one that the
     # board's own edge clips.
-    beyond = ~(env.contains_xy(m0, 1e-9) & env.contains_xy(m1, 1e-9))
+    beyond = ~(env.contains_xy(m0) & env.contains_xy(m1))
     clipped = int(np.count_nonzero(beyond[keep]))
     lengths = np.hypot(*(q1 - q0).T)
     # A stroke must also survive rounding to the written decimals with a non-zero length.
@@ -424,6 +431,9 @@ def plan_toolpath(
     long_enough = lengths >= min_length
     keep, q0, q1 = keep[long_enough], q0[long_enough], q1[long_enough]
     r0, r1, groups = merge_collinear(q0, q1, profile.tool.tolerance_mm)
+    # Never beyond the region: clipped ends lie on its edges up to float rounding, and a
+    # merged stroke runs along its longest member's line, within the tolerance of the rest.
+    r0, r1 = np.clip(r0, lo, hi), np.clip(r1, lo, hi)
     rows = np.array(
         [keep[g[np.argmax(lengths[long_enough][g])]] for g in groups], dtype=np.int64
     ).reshape(-1)
