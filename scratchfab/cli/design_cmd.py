@@ -50,6 +50,13 @@ if TYPE_CHECKING:
     help="Contrast about the mean (1: unchanged).",
 )
 @click.option(
+    "--invert",
+    is_flag=True,
+    default=False,
+    help="Invert every target (black becomes white) before fitting: bright = cut, so a "
+    "dark-on-white image shows best inverted; a design file's view can say invert = true.",
+)
+@click.option(
     "--count",
     type=click.IntRange(min=1),
     default=None,
@@ -83,6 +90,7 @@ def design(
     fit: str | None,
     gamma: float,
     contrast: float,
+    invert: bool,
     count: int | None,
     resolution: tuple[int, int] | None,
     seed: int | None,
@@ -132,6 +140,7 @@ def design(
             resolution=res,
             seed=seed,
             progress=click.echo,
+            invert=invert,
         )
     except ConfigError as exc:
         if isinstance(source, str):

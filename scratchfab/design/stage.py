@@ -7,6 +7,7 @@ folder (or none) and never half of a new one.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
@@ -21,6 +22,7 @@ from scratchfab.console import Say
 from scratchfab.design.feasibility import DESIGN_ANYWAY, FeasibilityReport, check_feasibility
 from scratchfab.design.images import load_image
 from scratchfab.design.layout import initial_layout
+from scratchfab.design.quick import SOURCE as QUICK_SOURCE
 from scratchfab.design.quick import quick_mapping
 from scratchfab.design.targets import (
     FITS,
@@ -134,8 +136,11 @@ ORIGIN_HEADER = "# Resolved by `scratchfab design`. Each target is the board-spa
 EARLIER = "#   the board picture an earlier design made from "
 #: The line after it when that image was fitted anew to this board's shape.
 REFITTED = "#   refitted from that image to this board's shape, each step's options in turn"
-#: One design's options in the heading comment: fit, gamma, contrast.
-_STEP = r"\(fit = (contain|cover), gamma = ([^,()]+), contrast = ([^,()]+)\)"
+#: The last line under a view's picture when this design inverted it (``invert``).
+INVERTED = "#   inverted (1 - its sRGB-encoded value) before the options above"
+#: One design's options in the heading comment: fit, gamma, contrast, and whether it
+#: inverted the picture first.
+_STEP = r"\(fit = (contain|cover), gamma = ([^,()]+), contrast = ([^,()]+)(, inverted)?\)"
 
 
 def _origin_comment(
@@ -145,12 +150,14 @@ def _origin_comment(
     contrast: float,
     seed: int,
     refitted: frozenset[Path] = frozenset(),
+    inverted: frozenset[str] = frozenset(),
 ) -> str:
     """The comment heading ``design.toml``: each view's picture and the options applied to it.
 
     A picture that is an earlier design's board picture (a rerun from ``JOB/design/
     design.toml``) gets a second line naming the image that design started from, as its
-    own comment named it, and a third when that image was fitted anew (``refitted``).
+    own comment named it, and a third when that image was fitted anew (``refitted``); a
+    view named in ``inverted`` a last line saying its picture was inverted first.
     """
     options = f"fit = {fit}, gamma = {gamma:g}, contrast = {contrast:g}"
     lines = [
@@ -171,6 +178,8 @@ def _origin_comment(
             lines.append(EARLIER + earlier)
             if path in refitted:
                 lines.append(REFITTED)
+        if view.name in inverted:
+            lines.append(INVERTED)
     return "\n".join(lines) + "\n"
 
 
@@ -272,9 +281,9 @@ def _earlier_origin(picture: Path) -> str | None:
     Read from the comment heading the design.toml beside ``board/`` (written by
     :func:`_origin_comment`): the image its line names with that design's options, or,
     when that was a rerun too, what its own second line names, followed by that design's
-    options where they changed the picture (gamma or contrast other than 1; the fit of a
-    board picture changes nothing). None for any other picture, or a design.toml without
-    the comment.
+    options where they changed the picture (an inversion, gamma or contrast other than 1;
+    the fit of a board picture changes nothing). None for any other picture, or a
+    design.toml without the comment.
     """
     if picture.parent.name != DesignFolder(picture.parent.parent).boards_dir.name:
         return None
@@ -288,33 +297,39 @@ def _earlier_origin(picture: Path) -> str | None:
     found = re.search(r"\((fit = [^)]*)\)", lines[1])
     options = f"({found.group(1)})" if found else ""
     own = f"# {picture.stem}: "
-    for line, after in zip(lines, [*lines[1:], ""], strict=True):
+    for i, line in enumerate(lines):
         if not line.startswith("#"):
             break
         if line.startswith(own):
-            if not after.startswith(EARLIER):
+            below = list(itertools.takewhile(lambda s: s.startswith("#   "), lines[i + 1 :]))
+            if options and INVERTED in below:
+                options = f"{options[:-1]}, inverted)"
+            earlier = next((s[len(EARLIER) :] for s in below if s.startswith(EARLIER)), None)
+            if earlier is None:
                 return " ".join(filter(None, [line[len(own) :], options]))
-            earlier = after[len(EARLIER) :]
             if not options or options.endswith("gamma = 1, contrast = 1)"):
                 return earlier
             return f"{earlier}, then {options}"
     return None
 
 
-def _steps(origin: str) -> tuple[Path, list[tuple[str, float, float]]] | None:
-    """The image and each design's (fit, gamma, contrast) in turn, from :func:`_earlier_origin`'s text."""
+def _steps(origin: str) -> tuple[Path, list[tuple[str, float, float, bool]]] | None:
+    """The image and each design's (fit, gamma, contrast, inverted), from :func:`_earlier_origin`."""
     found = re.fullmatch(rf"(.*?) {_STEP}((?:, then {_STEP})*)", origin)
     if not found:
         return None
     try:
-        steps = [(f, float(g), float(c)) for f, g, c in re.findall(_STEP, origin[found.end(1) :])]
+        steps = [
+            (f, float(g), float(c), bool(i))
+            for f, g, c, i in re.findall(_STEP, origin[found.end(1) :])
+        ]
     except ValueError:
         return None
     return Path(found.group(1)), steps
 
 
 def target_picture(
-    path: Path, board: Board, fit: str, gamma: float, contrast: float
+    path: Path, board: Board, fit: str, gamma: float, contrast: float, invert: bool = False
 ) -> tuple[np.ndarray, Path | None]:
     """A view's target file as a linear board-space image (``targets.board_image``).
 
@@ -355,10 +370,10 @@ def target_picture(
                 f"{where}, and the image it was made from cannot be read ({exc}); set the "
                 "target to that image, or another, to fit it to this board"
             ) from None
-        for step_fit, step_gamma, step_contrast in options:
-            step = fit_picture(picture, board, step_fit, step_gamma, step_contrast)
+        for step_fit, step_gamma, step_contrast, step_invert in options:
+            step = fit_picture(picture, board, step_fit, step_gamma, step_contrast, step_invert)
             picture = quantize_like_png(step)
-    return fit_picture(picture, board, fit, gamma, contrast), made_from
+    return fit_picture(picture, board, fit, gamma, contrast, invert), made_from
 
 
 def _comment_safe(text: str) -> str:
@@ -380,6 +395,7 @@ def run_design(
     resolution: tuple[int, int] | None = None,
     seed: int | None = None,
     progress: Say = lambda _: None,
+    invert: bool = False,
 ) -> DesignResult:
     """Run the design stage.
 
@@ -396,6 +412,8 @@ def run_design(
         resolution: Overrides every view's ``resolution`` (W, H); file sources only.
         seed: Seed of the initial layout, at least 0 (default 0).
         progress: Called with one line per step.
+        invert: Invert every view's target first (``targets.invert_picture``), as a
+            view's ``invert = true`` inverts its own.
 
     Raises:
         ConfigError: One line naming the file and what is wrong; nothing is written.
@@ -430,20 +448,22 @@ def run_design(
     for i, view in enumerate(design.views):
         _check_frame(design.source, i, view, design.board, progress)
     boards: dict[str, np.ndarray] = {}
-    cache: dict[Path, np.ndarray] = {}
+    cache: dict[tuple[Path, bool], np.ndarray] = {}
     refitted: set[Path] = set()
+    inverted = frozenset(v.name for v in design.views if invert or v.invert)
     for i, view in enumerate(design.views):
         path = design.target_path(view)
         assert path is not None
-        if path not in cache:
+        key = (path, view.name in inverted)
+        if key not in cache:
             try:
-                image, made_from = target_picture(path, design.board, fit, gamma, contrast)
+                image, made_from = target_picture(path, design.board, fit, gamma, contrast, key[1])
             except ConfigError as exc:
                 # The image's own message names the file; say which key pointed at it.
                 raise ConfigError(
                     f"{design.source}: views[{i}].target ('{view.name}'): {exc}"
                 ) from None
-            cache[path] = quantize_like_png(image)
+            cache[key] = quantize_like_png(image)
             if made_from is not None:
                 refitted.add(path)
                 progress(
@@ -451,8 +471,10 @@ def run_design(
                     f"made anew from {made_from}, fitted to this "
                     f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
                 )
-        boards[view.name] = cache[path]
-        _check_brightness(design.source, i, view.name, path, boards[view.name], force, progress)
+        boards[view.name] = cache[key]
+        _check_brightness(
+            design.source, i, view.name, path, boards[view.name], force, progress, key[1]
+        )
     progress(f"  loaded {len(cache)} target image(s)")
     note = resized_board_note(
         design, _earlier_board(design.source), bool(refitted), count, resolution
@@ -485,13 +507,14 @@ def run_design(
     )
     progress(f"  initial layout: {len(scratches)} scratches ({time.perf_counter() - t0:.1f} s)")
 
+    # the board pictures are inverted already: a rerun from the file keeps them as they are
     resolved = design.with_views(
-        tuple(replace(v, target=str(files.board_png(v.name))) for v in design.views)
+        tuple(replace(v, target=str(files.board_png(v.name)), invert=False) for v in design.views)
     )
     resolved = replace(resolved, base_dir=folder, source=str(files.design_toml))
 
     # read before the new folder replaces the old one, whose design.toml it may read
-    comment = _origin_comment(design, fit, gamma, contrast, seed, frozenset(refitted))
+    comment = _origin_comment(design, fit, gamma, contrast, seed, frozenset(refitted), inverted)
     with atomic_folder(folder) as tmp:
         staged = DesignFolder(tmp)
         write_text(staged.design_toml, comment + resolved.to_toml())
@@ -567,27 +590,38 @@ def _check_frame(source: str, index: int, view: View, board: Board, say: Say) ->
 
 
 def _check_brightness(
-    source: str, index: int, name: str, path: Path, board: np.ndarray, force: bool, say: Say
+    source: str,
+    index: int,
+    name: str,
+    path: Path,
+    board: np.ndarray,
+    force: bool,
+    say: Say,
+    inverted: bool = False,
 ) -> None:
     """Refuse a black target unless forced; warn of a uniform or a mostly bright one.
 
     Bright parts of a target are cut and dark parts stay bare board. A black target
     shows nothing and asks nothing of the layout (its best exposure is 0, so its error
     is 0 whatever the render); a uniform one asks for an even glow; a mostly bright
-    one (text dark on white) shows poorly.
+    one (text dark on white) shows poorly: the warning names the option that inverts
+    it, or, where the picture was ``inverted``, says to leave that off.
 
     Raises:
         ConfigError: A black target without ``force``, naming the view's key and file.
     """
     spread = float(np.ptp(board))
     mean = float(board.mean())
+    option = "--invert" if source == QUICK_SOURCE else f"--invert or views[{index}] invert = true"
     if float(board.max()) < UNIFORM_TARGET_SPREAD and not force:
         raise ConfigError(
             f"{source}: views[{index}].target ('{name}'): {path}: the picture is black on "
-            f"the board (brightest {float(board.max()):.3f}), so the view would show nothing: "
-            "bright parts are cut, dark ones stay bare board, and transparent pixels read "
-            "as black; give a picture with light shapes on a dark ground (a dark logo on a "
-            f"transparent ground: make the logo white) {DESIGN_ANYWAY}"
+            f"the board (brightest {float(board.max()):.3f}"
+            + (f", inverted by {option}" if inverted else "")
+            + "), so the view would show nothing: bright parts are cut, dark ones stay bare "
+            "board, and transparent pixels read as black; give a picture with light shapes "
+            "on a dark ground (a dark logo on a transparent ground: make the logo white) "
+            + DESIGN_ANYWAY
         )
     if spread < UNIFORM_TARGET_SPREAD:
         say(
@@ -596,11 +630,17 @@ def _check_brightness(
             "black (bare board)"
         )
     elif mean > BRIGHT_TARGET_MEAN:
+        fix = (
+            f"it was inverted ({option}), so the image is light on dark already: design "
+            "again without inverting it; transparent pixels read black and turn white when "
+            "inverted"
+            if inverted
+            else f"to invert a dark-on-white image, design again with {option}"
+        )
         say(
             f"  warning: target '{name}' is mostly bright (mean linear brightness {mean:.2f} "
             f"on the board, above {BRIGHT_TARGET_MEAN:g}) and will show poorly: bright = cut, "
-            "dark = bare board, so light shapes on a dark ground show best; invert a "
-            "dark-on-white image (in an image editor) and design again"
+            f"dark = bare board, so light shapes on a dark ground show best; {fix}"
         )
 
 

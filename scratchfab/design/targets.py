@@ -81,6 +81,19 @@ def adjust(image: np.ndarray, gamma: float = 1.0, contrast: float = 1.0) -> np.n
     return out
 
 
+def invert_picture(picture: np.ndarray) -> np.ndarray:
+    """A linear picture turned negative as it looks: ``1 - v`` on sRGB-encoded values.
+
+    Inverted in the encoding, as an image editor inverts a file (8-bit code ``255 - c``),
+    not in linear light: there a mid grey (encoded 0.5, linear 0.21) would become linear
+    0.79 (encoded 0.9), and the dark outline of a light-on-dark picture's shapes a bright
+    halo. In the encoding black and white swap and grey stays grey, as the eye sees it.
+    The picture is what :func:`scratchfab.design.images.load_image` reads: transparent
+    pixels read black there, so they turn white.
+    """
+    return srgb_to_linear(1.0 - linear_to_srgb(picture))
+
+
 def fit_to_board(picture: np.ndarray, board: Board, fit: str = "contain") -> np.ndarray:
     """Place a linear picture (h, w) on the board: ``contain`` pads with black, ``cover`` crops.
 
@@ -139,6 +152,7 @@ def board_image(
     fit: str = "contain",
     gamma: float = 1.0,
     contrast: float = 1.0,
+    invert: bool = False,
 ) -> np.ndarray:
     """The target file as a linear board-space image.
 
@@ -149,17 +163,28 @@ def board_image(
             filled, picture cropped).
         gamma: Exponent applied to linear values.
         contrast: Scale of the deviation from the picture's mean (1 = unchanged).
+        invert: Invert the picture first (:func:`invert_picture`).
 
     Returns:
         (rows, cols) float64 in [0, 1]; top edge +y, left edge -x (SPEC section 5).
     """
-    return fit_picture(load_image(path), board, fit, gamma, contrast)
+    return fit_picture(load_image(path), board, fit, gamma, contrast, invert)
 
 
 def fit_picture(
-    picture: np.ndarray, board: Board, fit: str, gamma: float = 1.0, contrast: float = 1.0
+    picture: np.ndarray,
+    board: Board,
+    fit: str,
+    gamma: float = 1.0,
+    contrast: float = 1.0,
+    invert: bool = False,
 ) -> np.ndarray:
-    """A linear picture toned by :func:`adjust`, then placed by :func:`fit_to_board`."""
+    """A linear picture inverted if asked, toned and placed on the board.
+
+    :func:`invert_picture` first (as an image editor would), then :func:`adjust`, then
+    :func:`fit_to_board`, whose bars stay black.
+    """
+    picture = invert_picture(picture) if invert else picture
     return fit_to_board(adjust(picture, gamma, contrast), board, fit)
 
 
@@ -285,15 +310,16 @@ def board_pixels(board: Board, view: View) -> np.ndarray:
 def _board_images(
     design: Design, views: Iterable[View], fit: str, gamma: float, contrast: float
 ) -> dict[str, np.ndarray]:
-    cache: dict[Path, np.ndarray] = {}
+    cache: dict[tuple[Path, bool], np.ndarray] = {}
     images: dict[str, np.ndarray] = {}
     for view in views:
         path = design.target_path(view)
         if path is None:
             continue
-        if path not in cache:
-            cache[path] = board_image(path, design.board, fit, gamma, contrast)
-        images[view.name] = cache[path]
+        key = (path, view.invert)
+        if key not in cache:
+            cache[key] = board_image(path, design.board, fit, gamma, contrast, view.invert)
+        images[view.name] = cache[key]
     return images
 
 

@@ -138,7 +138,8 @@ class View:
     Either ``position_mm`` or all of ``azimuth_deg``, ``elevation_deg`` and
     ``distance_mm`` are given. Azimuth turns from +z toward +x (positive: the viewer
     stands to the right), elevation from the board's horizontal toward +y, both about
-    ``look_at_mm``.
+    ``look_at_mm``. ``invert`` turns the target picture's black to white and white to
+    black before it is fitted (:func:`scratchfab.design.targets.invert_picture`).
     """
 
     name: str
@@ -152,6 +153,7 @@ class View:
     fov_deg: float | str = 12.0
     resolution: tuple[int, int] = (256, 256)
     light_position_mm: Vec3 | None = field(default=None, metadata=_COORD)
+    invert: bool = False
 
     def __post_init__(self) -> None:
         check_bounds(self)
@@ -557,9 +559,12 @@ def load_design(path: str | Path, require_views: bool = True) -> Design:
 
 
 #: Design fields that no step depends on: the tool's count (the design stage's; the
-#: layout is ``scratches.csv``), a view's name (its key), target picture (its
-#: ``targets/<view>.npy`` counts) and polar position (resolved into ``position_mm``).
-NOT_IN_RUN = frozenset({"count", "name", "target", "azimuth_deg", "elevation_deg", "distance_mm"})
+#: layout is ``scratches.csv``), a view's name (its key), target picture and its
+#: inversion (its ``targets/<view>.npy`` counts) and polar position (resolved into
+#: ``position_mm``).
+NOT_IN_RUN = frozenset(
+    {"count", "name", "target", "invert", "azimuth_deg", "elevation_deg", "distance_mm"}
+)
 
 
 def design_fields(design: Design) -> dict[str, Any]:
