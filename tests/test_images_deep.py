@@ -181,20 +181,6 @@ def test_16bit_png_gama_and_chrm_apply(tmp_path):
     np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=1e-4)
 
 
-@pytest.mark.parametrize("orientation", [3, 6, 8])
-def test_16bit_png_exif_orientation_turns_it_upright(tmp_path, orientation):
-    samples = random_samples(3, shape=(6, 10))
-    exif = Image.Exif()
-    exif[0x0112] = orientation
-    path = tmp_path / "turned.png"
-    write_png16(path, samples, (b"eXIf", exif.tobytes()))
-    # 3: half a turn; 6: a quarter turn clockwise to display; 8: anticlockwise.
-    turns = {3: 2, 6: -1, 8: 1}[orientation]
-    np.testing.assert_allclose(
-        load_image(path), np.rot90(reference(samples), turns), rtol=0, atol=1e-12
-    )
-
-
 @needs_lcms
 def test_16bit_png_with_srgb_profile_reads_like_no_profile(tmp_path):
     samples = random_samples(3)

@@ -22,6 +22,8 @@ grey-with-alpha PNGs (which Pillow opens at 8 bits) are read a second time for t
 bytes, and EXIF orientation turns them as it turns the image. Through a
 matrix/TRC RGB profile (sRGB, Adobe RGB, Display P3, ProPhoto) they are decoded from
 per-channel tables; a LUT-based RGB profile converts their high bytes, as for 8 bits.
+A PNG ``tRNS`` colour key makes its pixels transparent at 16 bits too; a CIELAB TIFF is
+read by its L* channel.
 """
 
 from __future__ import annotations
@@ -84,14 +86,31 @@ def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
         raise ConfigError(f"{path}: corrupt or truncated image ({exc})") from None
 
 
+#: ISO media brands of still images (HEIF, HEIC as iPhones write it, AVIF).
+_HEIF_BRANDS = (b"heic", b"heix", b"heim", b"heis", b"hevc", b"hevx", b"mif1", b"msf1", b"avif")
+
+
 def _hint(data: bytes) -> str:
-    """What to do with a file that looks like a TIFF Pillow cannot read, else nothing."""
-    if data[:4] not in (b"II*\0", b"MM\0*"):
+    """What a file Pillow cannot identify seems to be, and what to save instead."""
+    head = data[:1024].lstrip()
+    if data[:4] in (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+"):
+        what = (
+            "a TIFF in a layout Pillow does not decode: floating-point colour, 16- or "
+            "64-bit floats (Pillow reads float TIFFs as one 32-bit grey channel only)"
+        )
+    elif data[4:8] == b"ftyp" and data[8:12] in _HEIF_BRANDS:
+        what = "a HEIF/HEIC or AVIF photo, which this Pillow does not decode"
+    elif data[:4] == b"%PDF":
+        what = "a PDF document"
+    elif head.startswith(b"<?xml") or b"<svg" in head:
+        what = "an SVG drawing (vector, not pixels)"
+    elif data[:4] == b"\x76\x2f\x31\x01":
+        what = "an OpenEXR image"
+    else:
         return ""
     return (
-        " (a TIFF in a layout Pillow does not decode, such as floating-point colour or "
-        "16/64-bit floats: Pillow reads float TIFFs as one 32-bit grey channel only); "
-        "expected 8- or 16-bit integer samples or 32-bit float grey (re-save it so)"
+        f" ({what}); expected PNG, JPEG, TIFF (8- or 16-bit integer samples) or WebP pixels "
+        "(export the picture as one)"
     )
 
 
@@ -199,7 +218,7 @@ class _Decoding:
 
 def _kind(image: Image.Image, deep: np.ndarray | None) -> str:
     if deep is not None:
-        return "grayscale" if deep.shape[2] == 2 else "RGB"
+        return "grayscale" if deep.shape[2] <= 2 else "RGB"
     if image.mode in _GRAY_MODES:
         return "grayscale"
     if image.mode == "CMYK":
@@ -472,15 +491,49 @@ def _png_decoding(image: Image.Image, file: Path, kind: str) -> _Decoding | None
 # -- pixels -------------------------------------------------------------------------------
 
 
-def _high_bit_gray(image: Image.Image, file: Path, decoding: _Decoding) -> np.ndarray | None:
-    """Linear gray values of 16-bit / 32-bit integer and float images, else None."""
+def _gray16(image: Image.Image) -> np.ndarray | None:
+    """A 16-bit grey image's samples, (h, w, 1) uint16, else None.
+
+    Pillow opens 16-bit grey as "I;16" (or "I" in some versions: any "I" image within
+    the 16-bit range counts).
+    """
     if image.mode.startswith("I;16"):
-        return decoding.lut16[np.asarray(image).astype(np.uint16)]
+        return np.asarray(image).astype(np.uint16)[..., None]
     if image.mode == "I":
-        arr = np.asarray(image, dtype=np.int64)
-        # Pillow opens 16-bit grayscale PNGs as "I" in some versions; their range is 16-bit.
+        arr = np.asarray(image)
         if arr.min(initial=0) >= 0 and arr.max(initial=0) <= 65535:
-            return decoding.lut16[arr]
+            return arr.astype(np.uint16)[..., None]
+    return None
+
+
+def _keyed(samples: np.ndarray, image: Image.Image) -> np.ndarray:
+    """16-bit samples with an alpha channel added where a PNG ``tRNS`` colour key applies.
+
+    The key (Pillow's ``transparency``: a grey value, or R, G, B) holds 16-bit values for
+    a 16-bit PNG; pixels equal to it are transparent, all others opaque.
+    """
+    key = np.atleast_1d(np.asarray(image.info.get("transparency", ()), dtype=np.int64))
+    if samples.shape[2] % 2 == 0 or key.shape != (samples.shape[2],):
+        return samples
+    opaque = np.any(samples != key, axis=-1)
+    return np.concatenate([samples, (opaque * np.uint16(65535))[..., None]], axis=-1)
+
+
+def _lab_luminance(image: Image.Image) -> np.ndarray | None:
+    """Luminance of a CIELAB image (its L* channel, CIE 1976), else None.
+
+    Y = ((L* + 16) / 116) ** 3, or L* 27 / 24389 at or below L* = 8 (relative to white).
+    """
+    if image.mode != "LAB":
+        return None
+    lstar = np.asarray(image.getchannel("L"), dtype=np.float64) * (100.0 / 255.0)
+    return np.where(lstar > 8.0, ((lstar + 16.0) / 116.0) ** 3, lstar * (27.0 / 24389.0))
+
+
+def _high_bit_gray(image: Image.Image, file: Path, decoding: _Decoding) -> np.ndarray | None:
+    """Linear gray values of 32-bit integer and float images, else None."""
+    if image.mode == "I":  # beyond 16 bits (_gray16 takes the rest): scaled to its maximum
+        arr = np.asarray(image, dtype=np.int64)
         return decoding.unit(np.clip(arr / float(max(arr.max(), 1)), 0.0, 1.0))
     if image.mode == "F":
         values = np.asarray(image, dtype=np.float64)
@@ -549,18 +602,24 @@ def load_image(path: str | Path) -> np.ndarray:
 
     Args:
         path: Any format Pillow reads (PNG incl. 16-bit and palette, JPEG incl. CMYK,
-            TIFF, WebP, ...), with or without an ICC profile.
+            TIFF incl. 16-bit, float grey and CIELAB, WebP, ...), with or without an ICC
+            profile.
 
     Returns:
         (h, w) float64 array in [0, 1], row 0 at the top of the (upright) picture.
 
     Raises:
-        ConfigError: One line naming the file when it is missing, unreadable or corrupt,
-            or when its colour profile or PNG colour chunks are unusable.
+        ConfigError: One line naming the file when it is missing, unreadable (saying what
+            it seems to be: HEIC, PDF, SVG, EXR, a float TIFF) or corrupt, when its colour
+            profile or PNG colour chunks are unusable, or when float pixels are NaN or
+            outside [0, 1].
         ScratchfabError: The file has an ICC profile and Pillow lacks littleCMS.
     """
     file = Path(path)
     image, deep = _open(file)
+    deep = deep if deep is not None else _gray16(image)
+    if deep is not None:
+        deep = _keyed(deep, image)
     kind = _kind(image, deep)
     decoding: _Decoding | None = _Decoding()
     profile = _embedded_profile(image, file, kind)
@@ -576,6 +635,8 @@ def load_image(path: str | Path) -> np.ndarray:
         lin = _luminance_16bit(deep, decoding)
     else:
         high = _high_bit_gray(image, file, decoding)
+        if high is None:
+            high = _lab_luminance(image)
         lin = high if high is not None else _luminance_8bit(image, file, decoding)
     if lin.ndim != 2 or lin.size == 0:
         raise ConfigError(f"{file}: image has no pixels")
