@@ -59,15 +59,34 @@ def _chunk(kind: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
 
-def write_png16(path: Path, samples: np.ndarray, *chunks: tuple[bytes, bytes]) -> None:
+#: Adam7 passes: first column, first row, column step, row step (PNG spec 8.2).
+ADAM7 = (
+    (0, 0, 8, 8),
+    (4, 0, 8, 8),
+    (0, 4, 4, 8),
+    (2, 0, 4, 4),
+    (0, 2, 2, 4),
+    (1, 0, 2, 2),
+    (0, 1, 1, 2),
+)
+
+
+def write_png16(
+    path: Path, samples: np.ndarray, *chunks: tuple[bytes, bytes], interlace: bool = False
+) -> None:
     """A 16-bit PNG written by hand (Pillow cannot), chunks before IDAT except eXIf after."""
     h, w, c = samples.shape
     colour_type = {v: k for k, v in CHANNELS.items()}[c]
-    rows = [samples[r].astype(">u2").tobytes() for r in range(h)]
-    head = _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, colour_type, 0, 0, 0))
+    passes = ADAM7 if interlace else ((0, 0, 1, 1),)
+    body = b""
+    for x0, y0, dx, dy in passes:
+        sub = samples[y0::dy, x0::dx]
+        if sub.size:  # each pass filtered on its own (an empty pass has no rows)
+            body += _filtered([row.astype(">u2").tobytes() for row in sub], 2 * c)
+    head = _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, colour_type, 0, 0, int(interlace)))
     before = b"".join(_chunk(k, d) for k, d in chunks if k != b"eXIf")
     after = b"".join(_chunk(k, d) for k, d in chunks if k == b"eXIf")
-    idat = _chunk(b"IDAT", zlib.compress(_filtered(rows, 2 * c)))
+    idat = _chunk(b"IDAT", zlib.compress(body))
     path.write_bytes(b"\x89PNG\r\n\x1a\n" + head + before + idat + after + _chunk(b"IEND", b""))
 
 
@@ -154,12 +173,13 @@ def random_samples(c: int, shape=(9, 13), seed=5) -> np.ndarray:
     return samples
 
 
+@pytest.mark.parametrize("interlace", [False, True])
 @pytest.mark.parametrize("colour_type", [2, 6, 4])
-def test_16bit_colour_png_keeps_every_bit(tmp_path, colour_type):
+def test_16bit_colour_png_keeps_every_bit(tmp_path, colour_type, interlace):
     c = CHANNELS[colour_type]
     samples = random_samples(c)
     path = tmp_path / "deep.png"
-    write_png16(path, samples)
+    write_png16(path, samples, interlace=interlace)
     with Image.open(path) as im:  # what Pillow alone gives: 8 bits
         assert im.mode in ("RGB", "RGBA")
     got = load_image(path)
