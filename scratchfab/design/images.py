@@ -544,9 +544,9 @@ def _high_bit_gray(image: Image.Image, file: Path, decoding: _Decoding) -> np.nd
             (
                 outside,
                 "brightness in [0, 1] ({} pixels are outside): floating-point pixels are "
-                "sRGB-encoded like any image without a colour profile (SPEC section 5); scale "
-                "the image to [0, 1] (tone-map an HDR image first), or embed a gray profile "
-                "with a linear curve (gamma 1.0) for linear values",
+                "brightness, sRGB-encoded unless a colour profile says otherwise (SPEC "
+                "section 5); scale the image to [0, 1] (tone-map an HDR image first), and "
+                "embed a gray profile with a linear curve (gamma 1.0) for linear values",
             ),
         ):
             where = np.argwhere(bad)
