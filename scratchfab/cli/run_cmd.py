@@ -50,7 +50,15 @@ def _confirm(question: str) -> bool:
     "--yes",
     is_flag=True,
     help="Do not ask for confirmation before streaming to a machine (a board the envelope "
-    "cuts short is then refused).",
+    "cuts short, or a resume after an alarm that may have lost the position without "
+    "--homed, is then refused).",
+)
+@click.option(
+    "--homed",
+    is_flag=True,
+    help="The stream being resumed ended in an alarm that may have lost the position, and "
+    "the machine was homed ($H), or unlocked ($X) and its work zero set again, since (else "
+    "asked; refused under --yes).",
 )
 def run(
     pipeline: str,
@@ -59,6 +67,7 @@ def run(
     until: str | None,
     force: bool,
     yes: bool,
+    homed: bool,
 ) -> None:
     """Run design -> optimize -> verify-render -> toolpath -> export (-> stream) into a job.
 
@@ -82,6 +91,7 @@ def run(
             force=force,
             say=click.echo,
             confirm=None if yes else _confirm,
+            homed=homed,
         )
     finally:
         report = JobLayout(job).report_html

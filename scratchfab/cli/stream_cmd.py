@@ -84,7 +84,8 @@ def _job_gcode(path: Path) -> Path:
     "--yes",
     is_flag=True,
     help="Do not ask before motion; what needs a person's word is refused instead (a partial "
-    "board, an earlier plan's G-code, an unfinished job from the top).",
+    "board, an earlier plan's G-code, an unfinished job from the top, a resume after an "
+    "alarm that may have lost the position without --homed).",
 )
 @click.option(
     "--baud",
@@ -114,6 +115,13 @@ def _job_gcode(path: Path) -> Path:
     is_flag=True,
     help="With --resume after a lost link: also cut again what the controller acknowledged "
     "but may not have run (a board that lost power with the USB cable).",
+)
+@click.option(
+    "--homed",
+    is_flag=True,
+    help="With --resume after an alarm that may have lost the position: the machine was "
+    "homed ($H), or unlocked ($X) and its work zero set again, since (else asked; refused "
+    "under --yes).",
 )
 @click.option(
     "--check",
@@ -175,6 +183,7 @@ def stream(
     journal_path: Path | None,
     resume: bool,
     recut_unsure: bool,
+    homed: bool,
     check_first: bool,
     machine: str | None,
     margin: int,
@@ -192,6 +201,8 @@ def stream(
     """
     if recut_unsure and not resume:
         raise click.UsageError("--recut-unsure only applies with --resume")
+    if homed and not resume:
+        raise click.UsageError("--homed only applies with --resume")
     gcode = _job_gcode(gcode)
     request = StreamRequest(
         gcode=gcode,
@@ -208,6 +219,7 @@ def stream(
         banner_timeout=banner_timeout,
         z_threshold=z_threshold,
         lift=lift,
+        homed=homed,
     )
     bar = _ProgressLine()
 

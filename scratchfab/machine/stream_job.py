@@ -81,6 +81,8 @@ class StreamRequest:
         lift: After a stop (an error, a stall, Ctrl-C's stop, SIGTERM) that ended in a soft
             reset of a machine standing still, raise the tool once the controller is Idle
             (:attr:`StreamOptions.lift`).
+        homed: The machine was homed, or its work zero set again, since an alarm that may
+            have lost its position (:func:`ask_if_homed`).
     """
 
     gcode: Path
@@ -98,6 +100,7 @@ class StreamRequest:
     banner_timeout: float = 2.5
     z_threshold: float | None = None
     lift: bool = True
+    homed: bool = False
 
 
 @dataclass(frozen=True)
@@ -346,6 +349,7 @@ def _stream_locked(
     start = 0
     preamble: list[str] = []
     events = None
+    lost = False  # warn of a lost position once connected and at the end
     if req.resume and journal.created:
         raise ConfigError(
             f"{journal_file}: no journal to resume from (stream without --resume first)"
@@ -392,6 +396,7 @@ def _stream_locked(
                 f"{req.gcode}: every line is done according to {journal_file}; nothing to do"
             )
             return
+        lost = ask_if_homed(events, req.homed, req.port, cb.confirm, cb.say)
         preamble = resume_preamble(program, start)
         n_done = sum(1 for a, b in program.strokes if all(i in done for i in range(a, b + 1)))
         cb.outcome(
@@ -421,7 +426,8 @@ def _stream_locked(
         if resume and events is not None:
             inches = info.inch_reports
             _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
-            _say_lost_position(events, cb.say)
+            if lost:
+                _say_lost_position(events, cb.say)
         program = program.timed_for(eta_settings(info.settings, profile))  # the ETA's times
         wpos = info.status.wpos if start == 0 else None  # a fresh stream starts there
         findings = compare(
@@ -454,7 +460,8 @@ def _stream_locked(
                 f"done: {len(program.blocks) - start} lines acknowledged; journal {journal_file}"
             )
         finally:
-            if resume and events is not None:
+            if lost:
+                assert events is not None
                 _say_lost_position(events, cb.say, again=True)
     finally:
         ser.close()
@@ -673,6 +680,14 @@ def _check_strokes(program: Program, gcode: Path) -> None:
     )
 
 
+def _lost_alarm(events: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The journal's last session's last ``alarm`` event with ``lost``, else None."""
+    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
+    last = events[starts[-1] :] if starts else events
+    alarms = [ev for ev in last if ev.get("ev") == "alarm" and ev.get("lost")]
+    return alarms[-1] if alarms else None
+
+
 def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
     """The warning where the interrupted run ended with an alarm that may have lost the position.
 
@@ -684,13 +699,11 @@ def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
     answers ``$H`` and ``$X`` alike): an unlock keeps the lost position, so the resumed
     strokes would land off. None where no such alarm ended it.
     """
-    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
-    last = events[starts[-1] :] if starts else events
-    alarms = [ev for ev in last if ev.get("ev") == "alarm" and ev.get("lost")]
-    if not alarms:
+    alarm = _lost_alarm(events)
+    if alarm is None:
         return None
-    code = alarms[-1].get("code")
-    if alarms[-1]["lost"] == "maybe":
+    code = alarm.get("code")
+    if alarm["lost"] == "maybe":
         return (
             f"the run before this resume ended with ALARM:{code} (a soft limit) while the "
             "machine moved or slowed down under a feed hold the sender did not send: GRBL's own "
@@ -709,6 +722,54 @@ def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
         f"speed ({why}), so its position was likely lost: go on only if the machine was "
         "homed ($H) since; after an unlock ($X) alone the strokes would land off"
     )
+
+
+def ask_if_homed(
+    events: list[dict[str, Any]], homed: bool, port: str, confirm: Confirm | None, say: Say
+) -> bool:
+    """Before a resume after an alarm that may have lost the position: was it homed since?
+
+    GRBL needs ``$H`` or ``$X`` after such an alarm and answers both alike, so only a
+    person can tell; after ``$X`` alone the strokes land off. ``homed`` (``--homed``) says
+    the machine was homed, or its work zero set again, since. Otherwise, on a machine, the
+    person is asked before anything is sent, and under ``--yes`` (``confirm`` None) the
+    resume is refused. The emulator moves nothing: it is neither asked nor refused.
+
+    Returns:
+        True where :func:`lost_position_warning` is to be said once connected and again at
+        the end (the emulator); False where there is none, or a person answered for it.
+
+    Raises:
+        ScratchfabError: Under ``--yes`` on a machine without ``homed``, or the person
+            said no; nothing was sent.
+    """
+    warning = lost_position_warning(events)
+    if warning is None:
+        return False
+    if homed:
+        code = (_lost_alarm(events) or {}).get("code")
+        say(
+            f"note: the run before this resume ended with ALARM:{code}, which may have lost the "
+            "position; --homed: the machine was homed, or its work zero set again, since"
+        )
+        return False
+    if is_emulator(port):
+        return True
+    then = (
+        "home the machine ($H), or unlock it ($X) and set the work zero again on the board's "
+        "origin, then run the same command with --homed"
+    )
+    if confirm is None:
+        raise ScratchfabError(
+            f"refusing to resume with --yes: {warning}; {then} (or without --yes to be "
+            "asked); nothing was sent"
+        )
+    if not confirm(
+        f"{warning[0].upper()}{warning[1:]}. Was the machine homed ($H), or its work zero set "
+        "again on the board's origin, since then (--homed says so)?"
+    ):
+        raise ScratchfabError(f"not confirmed; nothing was sent: {then}")
+    return False
 
 
 def _say_lost_position(events: list[dict[str, Any]], say: Say, again: bool = False) -> None:
@@ -823,6 +884,7 @@ def run_stream_job(
     check: bool = False,
     machine: str | MachineProfile | None = None,
     recut_unsure: bool = False,
+    homed: bool = False,
     say: Say = lambda _: None,
     confirm: Confirm | None = lambda _: True,
 ) -> Path:
@@ -832,7 +894,8 @@ def run_stream_job(
     (and check mode), as ``stream`` asks; the default answers yes (the caller has
     consent); None asks nobody and refuses a partial board on a machine
     (:func:`ask_before_a_partial_board`). A Ctrl-C stops safely. A run after an
-    interrupted stream of the same G-code resumes it from the journal.
+    interrupted stream of the same G-code resumes it from the journal; after an alarm that
+    may have lost the position only with ``homed`` or a person's word (:func:`ask_if_homed`).
     """
     lines = ProgressLines()
     layout = JobLayout(job)
@@ -855,5 +918,6 @@ def run_stream_job(
         recut_unsure=recut_unsure,
         check=check,
         machine=machine,
+        homed=homed,
     )
     return stream_file(req, StreamCallbacks(progress, say, lambda: "stop", confirm))

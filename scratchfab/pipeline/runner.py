@@ -81,12 +81,15 @@ PARTIAL_OVERRIDE = "[pipeline] force = true"
 class _Stages:
     """The stage table: inputs, action and outputs of each stage of one pipeline."""
 
-    def __init__(self, pipe: Pipeline, job: Path, say: Say, confirm: Confirm | None) -> None:
+    def __init__(
+        self, pipe: Pipeline, job: Path, say: Say, confirm: Confirm | None, homed: bool = False
+    ) -> None:
         self.pipe = pipe
         self.job = job
         self.layout = JobLayout(job)
         self.say = say
         self.confirm = confirm
+        self.homed = homed  # the stream stage's resume after a lost position (--homed)
         self.resume = False  # continue the stage's interrupted work (optimize's checkpoint)
 
     # -- inputs -----------------------------------------------------------------------
@@ -330,6 +333,7 @@ class _Stages:
                 check=s.check,
                 machine=self.pipe.profile,
                 recut_unsure=s.recut_unsure,
+                homed=self.homed,
                 say=self._say_in,
                 # None (--yes): nobody is asked, and a partial board is refused
                 confirm=(lambda _: True) if is_emulator(s.port) else self.confirm,
@@ -349,6 +353,7 @@ def run_pipeline(
     force: bool = False,
     say: Say = lambda _: None,
     confirm: Confirm | None = None,
+    homed: bool = False,
 ) -> RunResult:
     """Run the pipeline's stages into ``job``.
 
@@ -362,6 +367,9 @@ def run_pipeline(
         confirm: Asked before the stream stage moves a real machine (any port but the
             emulator), after its settings check as ``stream`` asks; False stops with
             nothing sent. None: the caller has consent.
+        homed: The machine was homed, or its work zero set again, since an alarm that may
+            have lost its position in the stream being resumed (``run --homed``; without
+            it the stream stage asks, and refuses where ``confirm`` is None).
 
     A stage is marked running in the manifest before it starts, so one killed midway is
     run again next time. An optimize stopped by Ctrl-C (or killed) on the same inputs
@@ -379,7 +387,7 @@ def run_pipeline(
         raise ScratchfabError(f"--from {start} comes after --until {until}; nothing to run")
     job.mkdir(parents=True, exist_ok=True)
     with _job_lock(JobLayout(job).run_lock):
-        return _run_stages(pipe, job, start, until, force, say, confirm)
+        return _run_stages(pipe, job, start, until, force, say, confirm, homed)
 
 
 @contextlib.contextmanager
@@ -459,11 +467,12 @@ def _run_stages(
     force: bool,
     say: Say,
     confirm: Confirm | None,
+    homed: bool,
 ) -> RunResult:
     """The body of :func:`run_pipeline`, under the job's lock."""
     t0 = time.perf_counter()
     manifest = Manifest.load(job)
-    stages = _Stages(pipe, job, say, confirm)
+    stages = _Stages(pipe, job, say, confirm, homed)
     result = RunResult(job)
     last = STAGES.index(until) if until else len(STAGES) - 1
     # Said once, before the first stage of the run that comes ahead of toolpath (the
