@@ -101,6 +101,60 @@ def test_the_question_over_a_finished_journal_says_nothing_of_the_top(tmp_path):
     assert "from the top" not in question and "unfinished" not in err
 
 
+def test_an_unfinished_stream_that_began_no_stroke_is_no_reason_to_refuse(tmp_path):
+    """The stream stopped during the set-up lines: no stroke was begun, so a stream from
+    the top under --yes cuts nothing twice and goes ahead, and its question says no
+    'again'."""
+    job = tmp_path / "job.gcode"
+    cuts = write_job(job, 6)
+    assert _stream([str(job), "--port", _QUICK, "--yes"], "")[0] == 0
+    first_stroke = load_program(job).strokes[0][0]
+    journal = default_journal_path(job)
+    kept = [  # the run's start and its set-up lines' acknowledgements, as a killed sender's
+        line
+        for line in journal.read_text().splitlines()
+        if json.loads(line)["ev"] == "start"
+        or (json.loads(line)["ev"] == "ack" and json.loads(line).get("i", 0) < first_stroke)
+    ]
+    assert len(kept) > 2
+    journal.write_text("\n".join(kept) + "\n")
+    rec = tmp_path / "r1.jsonl"
+    code, out, err = _stream([str(job), "--port", f"{_QUICK}&record={rec}"], "n\n")
+    question = next(ln for ln in err.splitlines() if ln.startswith("Stream "))
+    assert code == 2 and "cutting again" not in question
+    code, out, err = _stream([str(job), "--port", f"{_QUICK}&record={rec}", "--yes"], "")
+    assert code == 0, err
+    assert "done:" in out and cut_counts([read_record(rec)], cuts) == [1] * len(cuts)
+
+
+def test_an_unfinished_stream_with_every_line_acknowledged_is_not_told_to_continue(tmp_path):
+    """Every line acknowledged, the journal not closed (the link lost at its very end): a
+    stream from the top under --yes is refused without 'continue it with --resume', which
+    has nothing left to cut; --resume closes the journal."""
+    job = tmp_path / "job.gcode"
+    write_job(job, 4)
+    assert _stream([str(job), "--port", _QUICK, "--yes"], "")[0] == 0
+    journal = default_journal_path(job)
+    lines = journal.read_text().splitlines()
+    assert json.loads(lines[-1])["ev"] == "end"
+    end_block = len(load_program(job).blocks) - 1
+    lost = {"ev": "lost", "reason": "connection lost", "executed_through": end_block}
+    lines[-1] = json.dumps(lost)  # the link went after the last line, before the end
+    journal.write_text("\n".join(lines) + "\n")
+    before = journal.read_bytes()
+    rec = tmp_path / "r1.jsonl"
+    code, _, err = _stream([str(job), "--port", f"{_QUICK}&record={rec}", "--yes"], "")
+    last = err.rstrip().splitlines()[-1]
+    assert code == 2 and "every line acknowledged" in last and "cut the whole board again" in last
+    assert "continue it with --resume" not in last and last.endswith("nothing was sent")
+    assert not rec.exists() and journal.read_bytes() == before
+    code, _, err = _stream([str(job), "--port", f"{_QUICK}&record={rec}"], "n\n")
+    question = next(ln for ln in err.splitlines() if ln.startswith("Stream "))
+    assert code == 2 and "cutting again" in question and "continues where" not in question
+    code, out, _ = _stream([str(job), "--port", _QUICK, "--yes", "--resume"], "")
+    assert code == 0 and "every line is done" in out and "nothing to do" in out
+
+
 def _partial_job(tmp_path, outside: int, clipped: int) -> tuple[JobLayout, dict]:
     """A job folder whose toolpath.json (3018 profile) says ``outside`` of its scratches
     lay off the envelope and ``clipped`` were clipped, and the G-code exported from it."""

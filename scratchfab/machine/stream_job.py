@@ -365,15 +365,17 @@ def _stream_locked(
     again = ""  # the question's clause for a stream from the top over an unfinished one
     if not resume and unfinished:
         assert events is not None
-        _refuse_from_the_top(events, program, journal_file, cb.confirm)
+        before = _unfinished_run(events, program, journal_file)
+        _refuse_from_the_top(before, journal_file, cb.confirm)
         cb.say(
             f"warning: {journal_file} shows an unfinished stream of this file; this run starts "
-            "again from the top (--resume continues where it stopped)"
+            f"again from the top ({before.resume_does})"
         )
-        again = (
-            " from the top, cutting again what the unfinished stream cut (--resume continues "
-            "where it stopped)"
-        )
+        if before.cut:
+            again = (
+                " from the top, cutting again what the unfinished stream cut "
+                f"({before.resume_does})"
+            )
     if resume:
         assert events is not None  # a resume reads the journal or raises
         _check_strokes(program, req.gcode)
@@ -467,31 +469,74 @@ def _stream_locked(
         ser.close()
 
 
-def _refuse_from_the_top(
-    events: list[dict[str, Any]], program: Program, journal_file: Path, confirm: Confirm | None
-) -> None:
+@dataclass(frozen=True)
+class _Unfinished:
+    """What the unfinished stream of a file did, as a stream from the top would repeat it.
+
+    Attributes:
+        reached: The line number of the last line it had acknowledged (0: none).
+        cut: It began a stroke (or the program shows none, so it may have).
+        left: A resume has lines left to send.
+    """
+
+    reached: int
+    cut: bool
+    left: bool
+
+    @property
+    def resume_does(self) -> str:
+        """What ``--resume`` would do instead."""
+        if self.left:
+            return "--resume continues where it stopped"
+        return "--resume only closes it: every line was acknowledged"
+
+
+def _unfinished_run(
+    events: list[dict[str, Any]], program: Program, journal_file: Path
+) -> _Unfinished:
+    """:class:`_Unfinished` of the journal's runs of ``program`` since its last fresh start."""
+    first = last_fresh_start(events)
+    acked = {ev["i"] for ev in events[first:] if ev.get("ev") == "ack" and "i" in ev}
+    if not acked:
+        return _Unfinished(0, cut=False, left=True)
+    reached = program.blocks[min(max(acked), len(program.blocks) - 1)].lineno
+    cut = not program.strokes or any(
+        any(i in acked for i in range(a, b + 1)) for a, b in program.strokes
+    )
+    try:
+        done = done_blocks(events, program.sha256, journal_file, program=program)
+    except ConfigError:  # a resume would say why; here it only words the advice
+        return _Unfinished(reached, cut, left=True)
+    return _Unfinished(reached, cut, left=resume_point(program, done) < len(program.blocks))
+
+
+def _refuse_from_the_top(before: _Unfinished, journal_file: Path, confirm: Confirm | None) -> None:
     """Under ``--yes`` (``confirm`` None), refuse to cut again what an unfinished stream cut.
 
     A job must survive a dropped cable: rerunning the command without ``--resume`` would
     start from line 1 and cut the strokes already done a second time, with nobody asked.
-    An unfinished stream that had no line accepted is no reason to refuse.
+    An unfinished stream that began no stroke is no reason to refuse.
 
     Raises:
         ScratchfabError: Naming the line it reached, ``--resume``, and how to start over.
     """
-    if confirm is not None:
+    if confirm is not None or not before.cut:
         return
-    first = last_fresh_start(events)
-    acked = [ev["i"] for ev in events[first:] if ev.get("ev") == "ack" and "i" in ev]
-    if not acked:
-        return
-    reached = program.blocks[min(max(acked), len(program.blocks) - 1)].lineno
+    over = (
+        "to start over on purpose run without --yes and answer the question, or move the "
+        "journal aside; nothing was sent"
+    )
+    if not before.left:
+        raise ScratchfabError(
+            f"{journal_file} shows a stream of this file that had every line acknowledged but "
+            "did not end: streaming it from the top would cut the whole board again; nothing is "
+            f"left to cut (--resume only closes the journal), or {over}"
+        )
     raise ScratchfabError(
-        f"{journal_file} shows an unfinished stream of this file that reached line {reached}; "
-        "streaming it from the top would cut those strokes again: continue it with --resume "
-        "(after re-homing or re-zeroing if its position was lost), or to start over on "
-        "purpose run without --yes and answer the question, or move the journal aside; "
-        "nothing was sent"
+        f"{journal_file} shows an unfinished stream of this file that reached line "
+        f"{before.reached}; streaming it from the top would cut those strokes again: continue "
+        "it with --resume (after re-homing or re-zeroing if its position was lost), or "
+        f"{over}"
     )
 
 
