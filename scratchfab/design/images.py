@@ -566,15 +566,16 @@ def _luminance_16bit(samples: np.ndarray, decoding: _Decoding) -> np.ndarray:
     ``decoding.lut16`` is one table for every channel or, (65536, 3), one per channel.
     """
     table = decoding.lut16.reshape(65536, -1)
-    columns = np.arange(3) % table.shape[1]
     colour = samples.shape[2] >= 3
+    weights = decoding.weights if colour else np.ones(1)
+    # One contiguous table per channel: a 1-D lookup is ~4x faster than a 2-D one.
+    luts = [np.ascontiguousarray(table[:, c % table.shape[1]]) for c in range(len(weights))]
     lin = np.empty(samples.shape[:2])
     for r0 in range(0, samples.shape[0], _CHUNK_ROWS):
         block = samples[r0 : r0 + _CHUNK_ROWS]
-        if colour:
-            lum = table[block[..., :3], columns] @ decoding.weights
-        else:
-            lum = table[block[..., 0], 0]
+        lum = np.zeros(block.shape[:2])
+        for c, (weight, lut) in enumerate(zip(weights, luts, strict=True)):
+            lum += weight * lut[block[..., c]]
         if samples.shape[2] % 2 == 0:
             lum *= block[..., -1] / 65535.0
         lin[r0 : r0 + _CHUNK_ROWS] = lum
