@@ -129,12 +129,22 @@ END_WAIT = "G4P0"
 COARSE_STEP_MM = 0.025
 #: GRBL's ``error:9``: G-code locked out, which it answers only in Alarm (or a jog).
 GC_LOCKED = 9
-#: What to do after a lost connection, once the machine stands still.
-LINK_LOST_NEXT = (
+#: What to do once a controller that was lost (its link, or its answers) stands still.
+RECONNECT_NEXT = (
     "then reconnect, re-home or re-zero the machine (opening the port reboots an "
     "Arduino-based controller, which loses its position) and run the same command with "
-    "--resume, adding --recut-unsure ([stream] recut_unsure = true in a pipeline) if the "
-    "board's lights went out with the cable"
+    "--resume"
+)
+#: What to do after a lost connection, once the machine stands still.
+LINK_LOST_NEXT = (
+    f"{RECONNECT_NEXT}, adding --recut-unsure ([stream] recut_unsure = true in a pipeline) "
+    "if the board's lights went out with the cable"
+)
+#: What to do after the controller fell silent (no status reports): the hold and the
+#: reset sent may not have reached it.
+SILENT_NEXT = (
+    "it may have hung or lost power: if the machine still moves, wait until it stops or "
+    f"press its reset before going near it; {RECONNECT_NEXT}"
 )
 
 
@@ -391,6 +401,12 @@ class StreamOptions:
         busy_timeout: Seconds to wait on connecting for a controller still running (another
             sender's queue, e.g. a killed one) to finish before it is held and reset.
         stroke_barrier: Send a stroke's first block only when the previous stroke is acked.
+        rests: At most this many times a session, feed nothing after a move whose end
+            GRBL's step rounding leaves open (the work offset is known to a digit) until
+            the controller reports Idle at it: the step it stands on there is learnt, so
+            that a stop at such an end is matched in whole steps (:meth:`Streamer._rest_at`),
+            not cut again on ``--resume``. Each rest stops the machine at that end (a
+            fraction of a second). 0 (the default): never.
         lift: Raise the tool after a stop (an error, a stall, silence, the user's stop)
             that ended in a soft reset of a machine that stood still, once the controller
             is Idle with its position known; never after an alarm, a lost link or with
@@ -413,6 +429,7 @@ class StreamOptions:
     hold_timeout: float = 30.0
     busy_timeout: float = 120.0
     stroke_barrier: bool = True
+    rests: int = 0
     lift: bool = False
     profile: MachineProfile | None = None
 
@@ -937,6 +954,11 @@ class Streamer:
         self._program = program
         self._acked_blocks = []
         self._acks_at_status = 0
+        self._rests = ({}, {}, {})
+        self._counted = steps_counted_until(program.blocks)
+        self._rests_left = self.options.rests
+        self._resting = -1
+        self.rest_seconds = 0.0
         self._hold_alarm = None
         self._session_start = start
         self._stopped_through = None
@@ -1023,6 +1045,7 @@ class Streamer:
         self._last_answer = time.monotonic()
         self._last_ack_time = 0.0
         nxt = 0
+        rest_since = 0.0
         idle_since: float | None = None
         paused_since: float | None = None
         door = ""  # the last Door:N reported, "" when not in a door state
@@ -1032,7 +1055,7 @@ class Streamer:
         while self._acked_items < total or not self._finished():
             try:
                 # ---- feed
-                while nxt < total:
+                while nxt < total and self._resting < 0:
                     item = items[nxt]
                     size = len(item.text) + 1
                     one_at_a_time = simple or (item.block is not None and item.block.system)
@@ -1051,12 +1074,17 @@ class Streamer:
                     self.max_inflight_bytes = max(self.max_inflight_bytes, self._inflight_bytes)
                     self.max_inflight_lines = max(self.max_inflight_lines, len(self._inflight))
                     nxt += 1
+                    if item.block is not None and self._wants_rest(item.block.index):
+                        self._resting, rest_since = item.block.index, time.monotonic()
                     if one_at_a_time:
                         break
                 # ---- answers
                 # all answered: ask for the report that ends the job now, not a period later
+                # resting: ask every 20 ms once the move is acknowledged, to go on soon
+                waiting = self._resting >= 0 and not self._inflight
                 self._poll(
-                    force=self._acked_items >= total and self._last_poll < self._last_ack_time
+                    force=(self._acked_items >= total and self._last_poll < self._last_ack_time)
+                    or (waiting and time.monotonic() - self._last_poll >= 0.02)
                 )
                 for line in self._read_lines(0.005 if self._inflight else 0.02):
                     if self._answer(line):
@@ -1065,6 +1093,9 @@ class Streamer:
                         self._note_status(line)
                         if self.status.state.startswith("Alarm"):
                             raise self._lock_fault()
+                        if self._resting >= 0 and self._rest_at(self.status):
+                            self._resting = -1
+                            self.rest_seconds += time.monotonic() - rest_since
                         if self._inflight and self.status.state == "Idle":
                             idle_since = idle_since or time.monotonic()
                         else:
@@ -1185,6 +1216,13 @@ class Streamer:
     _hold_alarm: _Fault | None = None  # an alarm that came while waiting for a hold
     _alarm_text = ""  # the last alarm: its code, meaning and line
     _session_start = 0  # the first file block of this session (a resume's restart)
+    # rests (StreamOptions.rests), each session's own (stream() sets them): per axis, the
+    # work targets (mm) seen at rest and their step; none here (a Streamer not streaming)
+    _rests: tuple[dict[float, int], ...] = ({}, {}, {})
+    _rests_left = 0
+    _resting = -1  # the block rested at, -1 while none
+    _counted = 0  # steps_counted_until of the program streamed
+    rest_seconds = 0.0  # the session's time resting (from each rested block's send)
     _stopped_through: int | None = None  # the safe stop's executed-through
 
     def _alarm_fault(self, code: int) -> _Fault:
@@ -1523,8 +1561,10 @@ class Streamer:
             elif fault.kind == "silent":
                 self._write(REALTIME_HOLD)
                 tool = self._safe_stop(str(fault), wait=2.0)
-                alarm = "" if self._hold_alarm is None else f"; {self._held_text()}"
-                fault.args = (str(fault) + alarm + tool,)
+                if self._hold_alarm is None:
+                    fault.args = (f"{fault}{tool}; {SILENT_NEXT}",)
+                else:  # it answered after all, with an alarm
+                    fault.args = (f"{fault}; {self._held_text()}{tool}; {self._go_on()}",)
             elif fault.kind == "alarm":
                 # the alarm already stopped motion and flushed the queue; a critical alarm
                 # answers nothing until reset
@@ -1997,14 +2037,11 @@ class Streamer:
         ``$#`` (no report printed ``WCO:`` yet: a build without the field, or early in a
         job) adds up to three rounded parts (the system's, G92, the tool length offset).
         None where a step or the report's offset is not known, or the position lies on no
-        step (the offset is not the one the machine ran under).
+        step (the offset is not the one the machine ran under). The steps learnt at rest
+        (:meth:`_rest_at`) narrow the offset, and tell the step of a target met there.
         """
-        step = self._step_mm()
-        p = report.wpos
-        if report.wco is None or p is None or min(step) <= 0.0:
+        if report.wco is None or report.wpos is None or min(self._step_mm()) <= 0.0:
             return None
-        digit = REPORT_DIGIT_MM[self.info.inch_reports]
-        off = digit / 2.0 if report.wco_printed else 1.5 * digit  # how far WCO may be off
         blocks = self._program.blocks
         end = self._session_xyz(i)
         # a session's first move starts where the resume preamble took the machine, its
@@ -2012,15 +2049,120 @@ class Streamer:
         first = i == next((j for j in self._acked_blocks if blocks[j].motion), i)
         start = self._session_xyz(i - 1) if i > 0 and not first else (None, None, None)
         out = []
-        for k, w in enumerate(report.wco):
-            at = step_span(p[k] + w, digit / 2.0 + (0.0 if report.mpos_given else off), step[k])
+        for k in range(3):
+            at = self._report_steps(k, report)
             if at[0] > at[1]:
                 return None
             u, v = start[k], end[k]
-            ends = [None if e is None else step_span(e + w, off, step[k], True) for e in (u, v)]
+            ends = [None if e is None else self._target_steps(k, e, report) for e in (u, v)]
             way = 0 if u is None or v is None else (v > u) - (v < u)
             out.append(_AxisSteps(at, ends[0], ends[1], way))
         return out
+
+    def _offset_window(self, k: int, report: Status) -> tuple[float, float]:
+        """The work offset's span (mm) on axis ``k``: ``report``'s, narrowed by the rests.
+
+        ``report``'s ``WCO`` is rounded to a digit (0.001 mm; 0.00254 mm in inch reports);
+        one summed from ``$#`` (no report printed ``WCO:`` yet: a build without the field,
+        or early in a job) adds up to three rounded parts (the system's, G92, the tool
+        length offset). Each rest (a target ``t`` whose step ``n`` was seen) puts the
+        offset where ``t`` rounds to ``n`` (GRBL's ``lround``, in single precision); rests
+        that contradict it (an offset changed behind the sender's back) are not counted.
+        """
+        assert report.wco is not None
+        digit = REPORT_DIGIT_MM[self.info.inch_reports]
+        w = report.wco[k]
+        off = digit / 2.0 if report.wco_printed else 1.5 * digit
+        step = self._step_mm()[k]
+        lo, hi = w - off, w + off
+        for t, n in self._rests[k].items():
+            slack = FLOAT32_SLACK * (abs(t + w) + 1.0)
+            lo, hi = max(lo, (n - 0.5) * step - t - slack), min(hi, (n + 0.5) * step - t + slack)
+        return (lo, hi) if lo <= hi else (w - off, w + off)
+
+    def _target_steps(self, k: int, mm: float, report: Status) -> tuple[int, int]:
+        """The steps (first, last) GRBL may round work target ``mm`` on axis ``k`` to.
+
+        A target the machine was seen at rest on (:meth:`_rest_at`) is that step: GRBL
+        reckons the same number under the same offset the same way.
+        """
+        if mm in self._rests[k]:
+            n = self._rests[k][mm]
+            return n, n
+        lo, hi = self._offset_window(k, report)
+        return step_span(mm + (lo + hi) / 2.0, (hi - lo) / 2.0, self._step_mm()[k], True)
+
+    def _report_steps(self, k: int, report: Status) -> tuple[int, int]:
+        """The steps (first, last) ``report``'s position on axis ``k`` may stand for.
+
+        ``MPos`` is rounded to a digit; a machine position counted as ``WPos`` plus the
+        offset is known to the offset's span as well (:meth:`_offset_window`).
+        """
+        assert report.wpos is not None and report.wco is not None
+        half = REPORT_DIGIT_MM[self.info.inch_reports] / 2.0
+        step = self._step_mm()[k]
+        if report.mpos_given:
+            return step_span(report.wpos[k] + report.wco[k], half, step)
+        lo, hi = self._offset_window(k, report)
+        return step_span(report.wpos[k] + (lo + hi) / 2.0, half + (hi - lo) / 2.0, step)
+
+    def _wants_rest(self, j: int) -> bool:
+        """Whether to feed nothing after block ``j`` until the machine rests at its end.
+
+        So where GRBL's rounding of a target to a step is open on an axis (a stop at that
+        end could not be told from one a step short of it, and its move would be cut
+        again), while rests are left (``StreamOptions.rests``): a followed move before
+        the steps stop telling (:func:`steps_counted_until`).
+        """
+        blocks = self._program.blocks
+        if (
+            self._rests_left <= 0
+            or self._wco is None
+            or min(self._step_mm()) <= 0.0
+            or not blocks[j].motion
+            or j >= self._counted
+            or not followed_move(blocks, j)
+        ):
+            return False
+        report = Status(wco=self._wco, wco_printed=self._wco_printed)
+        step = self._step_mm()
+        for k, t in enumerate(self._session_xyz(j)):
+            if t is None or t in self._rests[k]:
+                continue
+            first, last = self._target_steps(k, t, report)
+            lo, hi = self._offset_window(k, report)
+            flip = (first + 0.5) * step[k] - t  # the offset where t's step turns to first + 1
+            slack = 2.0 * FLOAT32_SLACK * (abs(t + flip) + 1.0)
+            if last > first + 1 or (last > first and lo + slack < flip < hi - slack):
+                self._rests_left -= 1  # the rest narrows the window (else only repeats tell)
+                return True
+        return False
+
+    def _rest_at(self, report: Status) -> bool:
+        """Learn the steps of the resting block's end from ``report``, once it shows them.
+
+        The machine stands at the end of the block rested at (the last one sent) once it
+        is acknowledged and a report after its answer says Idle: GRBL answers a move once
+        it is queued, and Idle has nothing queued. Each axis whose target is known and
+        whose step the report tells is kept (:meth:`_target_steps`).
+
+        Returns:
+            Whether the rest is over (learnt, or the block was not the last answered).
+        """
+        acked = self._acked_blocks
+        if self._inflight or not acked or self._acks_at_status < len(acked):
+            return False
+        if acked[-1] != self._resting:
+            return True  # not met (cannot happen: nothing is sent after it)
+        if report.state != "Idle":
+            return False
+        if report.wpos is None or report.wco is None:
+            return True
+        for k, t in enumerate(self._session_xyz(self._resting)):
+            at = self._report_steps(k, report)
+            if t is not None and at[0] == at[1]:
+                self._rests[k][t] = at[0]
+        return True
 
     def _session_xyz(self, j: int) -> tuple[float | None, float | None, float | None]:
         """Where block ``j`` leaves the machine (work mm) in this session, where known.

@@ -1,0 +1,81 @@
+"""A stop standing exactly at a move's end, on fine steps, the work offset only from ``$#``.
+
+``$#`` prints the offsets to 0.001 mm, so at 800 steps/mm (0.00125 mm a step) GRBL's
+rounding of a target to a step is open over three steps: a stop at the end cannot be told
+from one a step short of it. The sender rests once at such an end (it feeds nothing until
+the controller reports Idle there) and learns the step; a later stop at the same target is
+then matched in whole steps. The truth is the emulator's record of the moves it finished.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+from stream_helpers import FAST, executed_blocks, stream_program
+
+from scratchfab.machine.sender import StreamStopped, open_port
+from scratchfab.machine.sender_journal import read_journal
+from scratchfab.machine.sender_program import load_program
+
+#: 800 steps/mm, an offset with more digits than $# prints, no WCO: field in the reports
+URL = (
+    "grblsim://?baud=0&time_scale=0.05&wco=-100.12345,-80.54321,-30.98765&wco_field=0"
+    "&$100=800&$101=800&$102=800"
+)
+
+
+def _dwell_job(path, strokes: int) -> list[int]:
+    """Strokes each plunging to Z-0.05 then dwelling 10 s; the plunges' block indices."""
+    lines = ["G21 G90", "G0 Z2"]
+    plunges = []
+    for k in range(strokes):
+        lines += [f"G0 X{3.0 * k + 1.0:.3f} Y1", "G1 Z-0.05 F200"]
+        plunges.append(len(lines) - 1)
+        lines += ["G4 P10", f"G1 X{3.0 * k + 1.0:.3f} Y6 F600", "G0 Z2"]
+    path.write_text("\n".join(lines) + "\n")
+    return plunges
+
+
+def _stop_in_dwell(tmp_path, rests: int) -> tuple[int, int, int]:
+    """Ctrl-C during the second stroke's dwell, the machine Idle at its plunge's end:
+    the journal's executed-through, the emulator's last finished block, the plunge."""
+    plunges = _dwell_job(tmp_path / "job.gcode", 3)
+    prog = load_program(tmp_path / "job.gcode")
+    plunge = plunges[1]
+    fired: list[int] = []
+
+    def progress(p):
+        if p.acked == plunge + 1 and p.state == "Idle" and not fired:
+            fired.append(1)
+            raise KeyboardInterrupt
+
+    port = open_port(URL, 115200)
+    options = dataclasses.replace(FAST, rests=rests)
+    try:
+        with pytest.raises(StreamStopped):
+            stream_program(
+                port,
+                prog,
+                tmp_path / "j.jsonl",
+                options,
+                on_progress=progress,
+                ask_interrupt=lambda: "stop",
+            )
+    finally:
+        port.close()
+    assert fired
+    ran = executed_blocks(port.sim.record)
+    return read_journal(tmp_path / "j.jsonl")[-1]["executed_through"], max(ran), plunge
+
+
+def test_stop_at_a_rested_end_counts_the_move_run(tmp_path):
+    through, truth, plunge = _stop_in_dwell(tmp_path, rests=24)
+    assert truth == plunge  # the emulator stands at the plunge's end, dwelling
+    assert through == truth  # not cut again on --resume
+
+
+def test_without_rests_the_same_stop_is_cut_again(tmp_path):
+    through, truth, plunge = _stop_in_dwell(tmp_path, rests=0)
+    assert truth == plunge
+    assert through < truth  # never past it; the move is cut again
