@@ -309,3 +309,18 @@ def test_hdr_float_tiff_is_refused_not_clipped(tmp_path):
     text = str(info.value)
     assert text.startswith(f"{path}: pixel (row 1, column 2) is 3.5; expected brightness in [0, 1]")
     assert "(2 pixels are outside)" in text and "SPEC section 5" in text and "\n" not in text
+
+
+@needs_lcms
+def test_8bit_and_16bit_with_matrix_profile_agree_even_out_of_srgb_gamut(tmp_path):
+    codes = np.random.default_rng(8).integers(0, 256, (6, 7, 3), dtype=np.uint8)
+    codes[0, 0] = (0, 255, 0)  # Display P3's green: far outside sRGB's gamut
+    icc = rgb_icc(curv_gamma(1.8), P3_COLORANTS)
+    Image.fromarray(codes).save(tmp_path / "p8.png", icc_profile=icc)
+    deep = codes.astype(np.uint16) * 257  # the same colours at 16 bits
+    write_png16(tmp_path / "p16.png", deep, (b"iCCP", b"x\0\0" + zlib.compress(icc)))
+    expected = reference(deep, decode=lambda v: v ** gamma_of(1.8), weights=P3_LUMA)
+    got8 = load_image(tmp_path / "p8.png")
+    # Not rounded to 8-bit sRGB (up to 0.0045 off) nor clipped to its gamut.
+    np.testing.assert_allclose(got8, expected, rtol=0, atol=2e-4)
+    np.testing.assert_allclose(load_image(tmp_path / "p16.png"), got8, rtol=0, atol=1e-12)

@@ -5,8 +5,9 @@ channels), alpha is composited over black, and pixel values are decoded in the c
 space the file declares (SPEC section 5 makes sRGB the default):
 
 * an embedded ICC profile (any format) is converted to sRGB with littleCMS through
-  Pillow's ImageCms, relative colorimetric intent: RGB and CMYK images to 8-bit sRGB,
-  gray images to 16-bit values on the sRGB tone curve;
+  Pillow's ImageCms, relative colorimetric intent: RGB (LUT-based profiles) and CMYK
+  images to 8-bit sRGB, gray images to 16-bit values on the sRGB tone curve, matrix/TRC
+  RGB profiles by tables (below);
 * a PNG without ``iCCP`` or ``sRGB`` chunk is decoded with its ``gAMA`` exponent
   (linear = stored ** (1 / gamma)) and its ``cHRM`` primaries and white (luminance
   weights of those primaries, Bradford-adapted to D65);
@@ -19,9 +20,11 @@ space the file declares (SPEC section 5 makes sRGB the default):
 
 16-bit PNGs and TIFFs keep their 16 bits: grey ones Pillow reads as such; colour ones and
 grey-with-alpha PNGs (which Pillow opens at 8 bits) are read a second time for the low
-bytes, and EXIF orientation turns them as it turns the image. Through a
-matrix/TRC RGB profile (sRGB, Adobe RGB, Display P3, ProPhoto) they are decoded from
-per-channel tables; a LUT-based RGB profile converts their high bytes, as for 8 bits.
+bytes, and EXIF orientation turns them as it turns the image. RGB pixels with a
+matrix/TRC profile (sRGB, Adobe RGB, Display P3, ProPhoto), 8- or 16-bit, are decoded
+from per-channel tables of their luminance, without rounding to 8-bit sRGB or clipping
+to its gamut (so 8 and 16 bits agree); a LUT-based RGB profile converts 8 bits (a
+16-bit image's high bytes) to 8-bit sRGB.
 A PNG ``tRNS`` colour key makes its pixels transparent at 16 bits too; a CIELAB TIFF is
 read by its L* channel.
 """
@@ -582,17 +585,22 @@ def _luminance_16bit(samples: np.ndarray, decoding: _Decoding) -> np.ndarray:
     return lin
 
 
-def _luminance_8bit(image: Image.Image, file: Path, decoding: _Decoding) -> np.ndarray:
+def _rgb_codes(image: Image.Image, file: Path) -> np.ndarray:
+    """The image's 8-bit R, G, B codes, (h, w, 3), and alpha (h, w, 4) where it has one."""
     has_alpha = image.mode in ("RGBA", "LA", "PA", "RGBa", "La") or ("transparency" in image.info)
     try:
-        rgba = np.asarray(image.convert("RGBA" if has_alpha else "RGB"))
+        return np.asarray(image.convert("RGBA" if has_alpha else "RGB"))
     except (OSError, ValueError) as exc:
         raise ConfigError(f"{file}: cannot convert {image.mode} image to RGB ({exc})") from None
+
+
+def _luminance_8bit(image: Image.Image, file: Path, decoding: _Decoding) -> np.ndarray:
+    rgba = _rgb_codes(image, file)
     lin = np.empty(rgba.shape[:2])
     for r0 in range(0, rgba.shape[0], _CHUNK_ROWS):
         block = rgba[r0 : r0 + _CHUNK_ROWS]
         lum = decoding.lut8[block[..., :3]] @ decoding.weights
-        if has_alpha:
+        if rgba.shape[2] == 4:
             lum *= block[..., 3] / 255.0
         lin[r0 : r0 + _CHUNK_ROWS] = lum
     return lin
@@ -627,9 +635,11 @@ def load_image(path: str | Path) -> np.ndarray:
     if profile is not None and kind == "grayscale":
         decoding = _gray_decoding(file, profile)
     elif profile is not None:
-        decoding = _matrix_shaper_decoding(file, profile) if deep is not None else None
+        decoding = _matrix_shaper_decoding(file, profile) if kind == "RGB" else None
         if decoding is None:  # 8 bits through littleCMS
             image, deep, decoding = _to_srgb(image, file, profile), None, _Decoding()
+        elif deep is None:  # 8-bit codes c are the 16-bit codes 257 c, on the tables' grid
+            deep = _rgb_codes(image, file).astype(np.uint16) * np.uint16(257)
     else:
         decoding = _png_decoding(image, file, kind) or _Decoding()
     if deep is not None:
