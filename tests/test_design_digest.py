@@ -8,6 +8,7 @@ over a job whose record an earlier scratchfab made of ``design.toml``'s bytes.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -75,3 +76,47 @@ def test_a_record_without_the_pictures_compares_the_files_it_has(job: Path) -> N
     old = {p.name: file_sha256(p) for p in layout.design.digested}
     _as_optimized(job, old)
     assert stale_layout(job) is None
+
+
+def _as_the_version_before(job: Path) -> str:
+    """The job as the scratchfab before "auto" was kept left it; its design.toml's fov.
+
+    That version wrote each view's fov_deg as auto's number, and optimize recorded the
+    bytes' SHA-256 of design.toml and scratches.csv.
+    """
+    file = JobLayout(job).design.design_toml
+    numbers = re.subn(
+        r'(?m)^fov_deg = "auto"  # (\S+) degrees on this .*$', r"fov_deg = \1", file.read_text()
+    )
+    text, n = numbers
+    assert n == 1
+    file.write_text(text)
+    layout = JobLayout(job)
+    _as_optimized(job, {p.name: file_sha256(p) for p in layout.design.digested})
+    assert stale_layout(job) is None
+    return re.search(r"(?m)^fov_deg = (\S+)$", text).group(1)
+
+
+def test_the_first_rerun_over_a_job_of_the_version_before_keeps_its_layout_current(
+    job: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The rerun writes fov_deg = "auto" where the file had the number: the same design."""
+    number = _as_the_version_before(job)
+    out = _run(["design", *QUICK, "--out", str(job)], capsys)
+    file = JobLayout(job).design.design_toml
+    assert f'fov_deg = "auto"  # {number} degrees' in file.read_text()
+    assert "note:" not in out and stale_layout(job) is None
+    # and from the job's own design.toml, as README's edit loop reruns it
+    _as_the_version_before(job)
+    out = _run(["design", str(file), "--out", str(job)], capsys)
+    assert "note:" not in out and stale_layout(job) is None
+
+
+def test_a_rerun_over_a_job_of_the_version_before_that_changes_the_design_notes_it(
+    job: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _as_the_version_before(job)
+    file = JobLayout(job).design.design_toml
+    file.write_text(file.read_text().replace("roughness = 0.05\n", "roughness = 0.08\n"))
+    out = _run(["design", str(file), "--out", str(job)], capsys)
+    assert "note:" in out and stale_layout(job) is not None

@@ -44,7 +44,7 @@ from scratchfab.model.design import (
     auto_fov,
     design_from_mapping,
 )
-from scratchfab.model.job import DesignFolder, JobLayout
+from scratchfab.model.job import DesignFolder, JobLayout, carry_optimize_record, earlier_design
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.pipeline.config import PipelineOptions, parse_stage_tables
@@ -513,8 +513,9 @@ def run_design(
     )
     resolved = replace(resolved, base_dir=folder, source=str(files.design_toml))
 
-    # read before the new folder replaces the old one, whose design.toml it may read
+    # read before the new folder replaces the old one, whose design.toml they may read
     comment = _origin_comment(design, fit, gamma, contrast, seed, frozenset(refitted), inverted)
+    earlier = earlier_design(job)
     with atomic_folder(folder) as tmp:
         staged = DesignFolder(tmp)
         write_text(staged.design_toml, comment + resolved.to_toml())
@@ -525,6 +526,7 @@ def run_design(
             save_png(staged.feasibility_png(view.name), report.map_image(view.name))
         scratches.save(staged.initial_scratches, design.scratch)
         write_json(staged.feasibility_json, report.to_json())
+    carry_optimize_record(job, earlier)
     progress(f"design: wrote {folder} ({time.perf_counter() - start:.1f} s)")
     return DesignResult(folder, resolved, targets, scratches, report)
 

@@ -397,14 +397,30 @@ def auto_fov(view: View, board: Board, margin: float = 1.08) -> float:
     return math.degrees(2 * math.atan(max(ty, tx) * margin))
 
 
+#: Relative difference of two floats that is rounding: a number written out and read back,
+#: or computed again (no one types 15 digits).
+SAME_TO_ROUNDING = 1e-12
+
+
+def same_to_rounding(a: Any, b: Any) -> bool:
+    """Whether two trees of values (dicts, lists, tuples) are equal, floats to rounding."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(same_to_rounding(a[k], b[k]) for k in a)
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        return len(a) == len(b) and all(map(same_to_rounding, a, b))
+    if isinstance(a, float) and isinstance(b, float):
+        return math.isclose(a, b, rel_tol=SAME_TO_ROUNDING)
+    return bool(a == b)
+
+
 def fov_is_auto(view: View, board: Board) -> bool:
     """Whether a resolved view's fov is the one ``"auto"`` gives it on ``board``.
 
-    To rounding: a number that close is ``"auto"``'s, copied from a resolved design
-    (no one types 15 digits), so a copy written with ``"auto"`` frames an edited board anew.
+    To rounding (:data:`SAME_TO_ROUNDING`): a number that close is ``"auto"``'s, copied from
+    a resolved design, so a copy written with ``"auto"`` frames an edited board anew.
     """
     try:
-        return math.isclose(view.fov, auto_fov(view, board), rel_tol=1e-12)
+        return math.isclose(view.fov, auto_fov(view, board), rel_tol=SAME_TO_ROUNDING)
     except ValueError:  # the board is not in front of the camera
         return False
 

@@ -6,11 +6,12 @@ import hashlib
 import json
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 from scratchfab.console import command_line
 from scratchfab.errors import ConfigError
-from scratchfab.fileio import decode_json, file_sha256
-from scratchfab.model.design import Design, design_fields, load_design
+from scratchfab.fileio import decode_json, file_sha256, write_json
+from scratchfab.model.design import Design, design_fields, load_design, same_to_rounding
 
 _EXPORT_STEM = "board"  # JOB/export/board.<format>
 
@@ -291,8 +292,67 @@ def design_content_sha256(path: Path) -> str:
         design = load_design(path)
     except ConfigError:
         return file_sha256(path)
+    return _fields_sha256(design)
+
+
+def _fields_sha256(design: Design) -> str:
     text = json.dumps(design_fields(design), sort_keys=True)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+@dataclass(frozen=True)
+class EarlierDesign:
+    """A job's ``design.toml`` as it was before design wrote it again.
+
+    Attributes:
+        digests: Its bytes' and its fields' SHA-256: either is what optimize recorded of
+            it when the layout was made from it (an earlier scratchfab recorded the bytes).
+        fields: Its :func:`~scratchfab.model.design.design_fields`.
+    """
+
+    digests: frozenset[str]
+    fields: dict[str, Any]
+
+
+def earlier_design(job: str | Path) -> EarlierDesign | None:
+    """The job's ``design.toml`` before a rerun of design, or None (none, or it does not load)."""
+    file = JobLayout(Path(job)).design.design_toml
+    try:
+        design = load_design(file) if file.is_file() else None
+    except ConfigError:
+        return None
+    if design is None:
+        return None
+    digests = frozenset({file_sha256(file), _fields_sha256(design)})
+    return EarlierDesign(digests, design_fields(design))
+
+
+def carry_optimize_record(job: str | Path, earlier: EarlierDesign | None) -> None:
+    """Keep an optimized layout current over a rerun of design that changed no resolved value.
+
+    Optimize records ``design.toml``'s digest. A record of an earlier scratchfab is of its
+    bytes, and a file of before ``fov_deg = "auto"`` was kept (auto's number written out)
+    is rewritten with ``"auto"``: the record then matches neither digest of the new file,
+    and the layout would read stale. Where the record is of the ``earlier`` file and the
+    new file resolves to the same values (floats to rounding, as ``"auto"`` is told from a
+    number: :func:`~scratchfab.model.design.same_to_rounding`), the record becomes the new
+    file's; else it is left as it is.
+    """
+    if earlier is None:
+        return
+    layout = JobLayout(Path(job))
+    name = layout.design.design_toml.name
+    try:
+        summary = decode_json(layout.optimize_summary.read_text(encoding="utf-8"))
+        recorded = summary["design_sha256"]
+        if recorded[name] not in earlier.digests:
+            return
+        design = load_design(layout.design.design_toml)
+    except (OSError, ValueError, TypeError, KeyError, ConfigError):
+        return
+    if same_to_rounding(design_fields(design), earlier.fields):
+        recorded[name] = _fields_sha256(design)
+        write_json(layout.optimize_summary, summary)
 
 
 def design_changed_since_optimize(job: str | Path) -> list[str]:
