@@ -62,9 +62,10 @@ def export(
 ) -> None:
     """Write JOB/export/board.gcode, .dxf or .svg from JOB/toolpath/toolpath.json.
 
-    A toolpath planned from other inputs than there are now (optimize or design ran
-    again, the scratch CSV or the machine profile was edited) is refused, naming what
-    changed and the toolpath command to rerun; --force exports it as it was planned.
+    Says the machine profile it writes for. A toolpath planned from other inputs than
+    there are now (optimize or design ran again, the scratch CSV or the machine profile
+    was edited) is refused, naming what changed and the toolpath command to rerun;
+    --force exports it as it was planned.
     G-code is checked before anything is written: every coordinate inside the machine's
     envelope, every line within its length limit.
     """
@@ -72,6 +73,7 @@ def export(
     from scratchfab.export import export as export_toolpath
     from scratchfab.machine.profile import load_profile
     from scratchfab.toolpath import Toolpath
+    from scratchfab.toolpath.inputs import planned_for
     from scratchfab.toolpath.plan import partial_text
 
     if toolpath_file is None:
@@ -97,7 +99,10 @@ def export(
         )
     else:
         detail = f"{len(tp)} scratches, {stats['bytes']} bytes"
-    click.echo(f"wrote {output}: {detail}")
+    target = planned_for(tp)
+    if profile is not None:
+        target = f"machine '{profile.name}' ({machine}), planned for {target}"
+    click.echo(f"wrote {output} for {target}: {detail}")
     for note in stats["notes"]:
         click.echo(f"note: {note}", err=True)
     if stats["stale"] is not None:

@@ -128,8 +128,10 @@ def toolpath(
     Clips the scratches to the board, drops those shorter than the tool's minimum,
     merges collinear duplicates, orders them to minimise pen-up travel from the start
     position and estimates the machining time. A board that the machine's envelope cuts
-    short is refused, with the offset_mm that fits it or the largest board that fits;
-    --force plans the part within reach, and export repeats the warning. So is a layout
+    short is refused, with the offset_mm that fits it or the largest board that fits (an
+    earlier plan in the output folder stays; one for other machine settings is named,
+    with its profile); --force
+    plans the part within reach, and export repeats the warning. So is a layout
     optimized from an earlier design (rerun optimize; --force plans it as it is).
     """
     refuse = None if force else "--force"

@@ -220,6 +220,32 @@ def input_changes(
     return changes, notes
 
 
+def machine_argument(record: dict[str, str] | None, folder: Path) -> str | None:
+    """A toolpath's recorded machine profile as ``--machine`` takes it, or None (none recorded).
+
+    Args:
+        record: The record's ``"machine"`` entry (:func:`record_inputs`): a bundled
+            profile's name, else a file's path relative to ``folder``.
+        folder: The toolpath's folder.
+    """
+    if not record:
+        return None
+    if "name" in record:
+        return record["name"]
+    return str(_resolve(record["file"], folder)) if "file" in record else None
+
+
+def planned_for(toolpath: Toolpath) -> str:
+    """``machine 'NAME' (grbl-3018-diamond)``: the profile a toolpath was planned for.
+
+    In brackets the profile as its record names it (:func:`machine_argument`), where it
+    names one.
+    """
+    folder = toolpath.file.parent if toolpath.file is not None else Path(".")
+    where = machine_argument((toolpath.inputs or {}).get("machine"), folder)
+    return f"machine '{toolpath.profile.name}'" + (f" ({where})" if where else "")
+
+
 def rerun_command(
     inputs: dict[str, Any] | None, folder: Path, profile: MachineProfile | None = None
 ) -> str:
@@ -232,10 +258,8 @@ def rerun_command(
         profile: The profile to name (``export --machine``'s); None: the recorded one.
     """
     record = inputs or {}
-    held = (_machine_record(profile, folder) if profile else None) or record.get("machine") or {}
-    machine = held.get("name") or (
-        str(_resolve(held["file"], folder)) if "file" in held else "PROFILE"
-    )
+    held = (_machine_record(profile, folder) if profile else None) or record.get("machine")
+    machine = machine_argument(held, folder) or "PROFILE"
     args: list[str | Path] = ["scratchfab", "toolpath"]
     if "job" in record or inputs is None:
         job = _resolve(record.get("job", ".."), folder)

@@ -6,12 +6,12 @@ from dataclasses import replace
 from pathlib import Path
 
 from scratchfab.console import Say, command_line, duration_text
-from scratchfab.errors import ScratchfabError
+from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
 from scratchfab.model.job import JobLayout, job_inputs, stale_layout, stale_layout_warning
 from scratchfab.model.scratches import load_scratches
-from scratchfab.toolpath.inputs import record_inputs
+from scratchfab.toolpath.inputs import check_current, planned_for, profile_changes, record_inputs
 from scratchfab.toolpath.order import OrderOptions
 from scratchfab.toolpath.plan import (
     Toolpath,
@@ -50,7 +50,8 @@ def run_toolpath(
     ``machine`` is a profile name or file, or a profile already loaded. A board that the
     machine's envelope cuts short (scratches left out or clipped) is planned for what
     fits, with a warning, unless ``refuse_partial`` names the override (``--force``) that
-    would allow it: then it is refused and nothing is written. toolpath.json records
+    would allow it: then it is refused and nothing is written (an earlier toolpath.json
+    planned for other machine settings is named, with its profile). toolpath.json records
     the inputs (:func:`~scratchfab.toolpath.inputs.record_inputs`; ``job``: the job
     folder whose layout picked the two files), which export checks.
 
@@ -76,7 +77,7 @@ def run_toolpath(
         if refuse_partial is not None:
             raise ScratchfabError(
                 f"{lost}; or give {refuse_partial} to plan only the part it reaches; "
-                "nothing written"
+                f"nothing written{_kept_plan(out_dir / 'toolpath.json', profile)}"
             )
     result = replace(result, inputs=record_inputs(scratch_file, design_file, profile, out_dir, job))
     result.save(out_dir / "toolpath.json")
@@ -85,6 +86,26 @@ def run_toolpath(
     if lost is not None:
         say(f"warning: {lost} (see preview.png)")
     return result
+
+
+def _kept_plan(file: Path, profile: MachineProfile) -> str:
+    """What a refused plan leaves in ``file``, when planned for another profile, else "".
+
+    The earlier toolpath stays as it was; planned for other machine settings than the
+    ones refused, export would write it for those, so the refusal says so.
+    """
+    try:
+        earlier = Toolpath.load(file) if file.is_file() else None
+    except ConfigError:  # not a toolpath export can write either
+        return ""
+    if earlier is None or not profile_changes(earlier.profile, profile):
+        return ""
+    # One that no longer matches its inputs export refuses, and says why.
+    exported = "; export writes that plan" if check_current(earlier)[0] is None else ""
+    return (
+        f": {file} keeps its earlier plan, for {planned_for(earlier)}, not for "
+        f"'{profile.name}' ({profile.source}){exported}"
+    )
 
 
 def job_toolpath_inputs(
