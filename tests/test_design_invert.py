@@ -92,8 +92,26 @@ def test_the_mostly_bright_warning_names_the_option(pictures, capsys):
     assert re.search(r"warning: target 'logo' is mostly bright .*design again with --invert", out)
     out = _run(["design", str(by_hand), *BOARD, "--invert", "--out", "b"], capsys)
     assert re.search(
-        r"warning: target 'logo' is mostly bright .*it was inverted \(--invert\), so the image "
-        "is light on dark already",
+        r"warning: target 'logo' is mostly bright .*it was inverted \(--invert\): leave that "
+        "off for an image that is light on dark already",
+        out,
+    )
+
+
+def test_a_dark_logo_on_a_transparent_ground_inverted_says_what_became_of_the_ground(
+    tmp_path, capsys
+):
+    """Transparent pixels read black, so inverted they turn white with the logo: all white."""
+    rgba = np.zeros((36, 48, 4), dtype=np.uint8)
+    rgba[6:30, 6:20, 3] = 255  # an opaque black block on a transparent ground
+    Image.fromarray(rgba).save(tmp_path / "logo.png")
+    logo = str(tmp_path / "logo.png")
+    out = _run(["design", logo, *BOARD, "--fit", "cover", "--invert", "--out", "a"], capsys)
+    board, _target, _layout = _made(Path("a"))
+    assert board.min() == board.max() == 65535  # white everywhere on the board
+    assert re.search(
+        r"warning: target 'logo' is uniform .*transparent pixels read as black, and "
+        "inverting turns them white",
         out,
     )
 

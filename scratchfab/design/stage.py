@@ -625,17 +625,21 @@ def _check_brightness(
             "on a dark ground (a dark logo on a transparent ground: make the logo white) "
             + DESIGN_ANYWAY
         )
+    transparent = (
+        "transparent pixels read as black, and inverting turns them white"
+        if inverted
+        else "transparent pixels read as black (bare board)"
+    )
     if spread < UNIFORM_TARGET_SPREAD:
         say(
             f"  warning: target '{name}' is uniform (brightness {mean:.3f} everywhere, spread "
-            f"{spread:.4f}): the view will show an even board; transparent pixels read as "
-            "black (bare board)"
+            f"{spread:.4f}): the view will show an even board; {transparent}"
         )
     elif mean > BRIGHT_TARGET_MEAN:
         fix = (
-            f"it was inverted ({option}), so the image is light on dark already: design "
-            "again without inverting it; transparent pixels read black and turn white when "
-            "inverted"
+            f"it was inverted ({option}): leave that off for an image that is light on dark "
+            f"already; {transparent} (a dark logo on a transparent ground: make the logo "
+            "white instead)"
             if inverted
             else f"to invert a dark-on-white image, design again with {option}"
         )
