@@ -440,9 +440,11 @@ class MachineProfile:
 
     @property
     def envelope_slack_mm(self) -> float:
-        """Half a unit of the last written digit: how far inside the envelope strokes are kept.
+        """Half a unit of the last written digit: the G-code's precision.
 
-        Rounding a coordinate kept this far inside for the G-code cannot push it outside.
+        A stroke's end this close beyond the envelope's edge lies on it as written: the
+        toolpath stage moves it onto the edge. :meth:`fitting_offset` keeps a board this
+        far inside where it can, clear of the very limit.
         """
         return 0.5 * 10.0 ** (-self.gcode.decimals)
 
