@@ -515,16 +515,28 @@ class GrblSim:
                 "".join(json.dumps(e, separators=(",", ":")) + "\n" for e in self.record),
             )
 
+    def _now(self) -> float:
+        """The clock's time, the controller run up to it first (under the lock).
+
+        A switch or button acts on the state of its instant: the emulator's thread may not
+        have run the events before it yet (a hold completed, a move ended), and acting on
+        the state before them would mix instants (a cycle start lost on a hold already
+        complete, a door stopping a move that had ended).
+        """
+        t = self._clock()
+        self._advance(t)
+        return t
+
     def open_door(self) -> None:
         """The safety door switch opens (as the ``0x84`` realtime command does)."""
         with self._cond:
-            self._door_event(self._clock())
+            self._door_event(self._now())
             self._cond.notify_all()
 
     def close_door(self) -> None:
         """The safety door switch closes: ``Door:1`` becomes ``Door:0`` (resumable)."""
         with self._cond:
-            t = self._clock()
+            t = self._now()
             self._door_ajar = False
             if self.state == "Door":
                 self._set_state(t, "Door")
@@ -533,7 +545,7 @@ class GrblSim:
     def cycle_start(self) -> None:
         """The controller's cycle start button (as ``~``)."""
         with self._cond:
-            self._realtime(self._clock(), CMD_START)
+            self._realtime(self._now(), CMD_START)
             self._cond.notify_all()
 
     def _busy(self) -> bool:
@@ -544,7 +556,7 @@ class GrblSim:
     def drop_link(self) -> None:
         """Cut the link now (like pulling the USB cable of an externally powered board)."""
         with self._cond:
-            self._drop_link(self._clock())
+            self._drop_link(self._now())
 
     def _drop_link(self, t: float) -> None:
         if not self.link_up:
