@@ -79,7 +79,8 @@ class NoiseEffect:
     the board pixels the noise leaves the covariance with the target as it is but adds
     its variance to the render's, so rho = rho_inf sqrt(signal / (signal + noise)),
     with ``noise`` the summed pixel variance and ``signal`` the render's summed squared
-    deviation less it. Noise falls as 1 / spp.
+    deviation less it. More samples divide the noise variance by a factor
+    (:func:`scratchfab.verify.noise.variance_ratio` tells it for a sample count).
 
     Attributes:
         rho: The measured rho.
@@ -95,13 +96,13 @@ class NoiseEffect:
     noise: float
 
     def rho_at(self, factor: float) -> float | None:
-        """The rho expected with ``factor`` times the samples (None without an estimate)."""
+        """The rho expected with ``factor`` times less noise variance (None without an estimate)."""
         if self.rho_free is None:
             return None
         return self.rho_free * math.sqrt(self.signal / (self.signal + self.noise / factor))
 
-    def samples_factor(self, loss: float = NOISE_RHO_LOSS) -> float | None:
-        """How many times the samples make noise cost rho at most ``loss``.
+    def variance_factor(self, loss: float = NOISE_RHO_LOSS) -> float | None:
+        """How many times less noise variance makes the noise cost rho at most ``loss``.
 
         1 when it already does; None without an estimate.
         """

@@ -15,7 +15,14 @@ from test_verify_render import half_board, two_view_design, write_targets
 
 from scratchfab.cli import main
 from scratchfab.metrics import exposed_difference, noise_effect, noise_share, pearson
-from scratchfab.verify.noise import diff_noise_advice, more_spp, noise_advice, noise_explains
+from scratchfab.verify.noise import (
+    diff_noise_advice,
+    more_spp,
+    noise_advice,
+    noise_explains,
+    spp_for,
+    variance_ratio,
+)
 from scratchfab.verify.verify import BoardRenderer, VerifyGateError, design_targets
 
 LOW_SPP = 64  # about 40 % noise on the 32 px test views: rho visibly lowered
@@ -51,7 +58,7 @@ def test_noise_estimate_predicts_the_rho_and_the_map_of_a_render_with_more_sampl
             low = renderer.render(view, LOW_SPP, seed=10 * seed + i)
             effect = noise_effect(low.image, target, low.variance)
             assert effect.rho == pytest.approx(pearson(low.image, target), abs=1e-12)
-            rho_high_predicted = effect.rho_at(high.spp / low.spp)
+            rho_high_predicted = effect.rho_at(variance_ratio(low.spp, high.spp, low.knee_spp))
             assert rho_high_predicted is not None and effect.rho_free is not None
             assert effect.rho_free > rho_high_predicted > effect.rho
             measured.append(effect.rho)
@@ -84,20 +91,20 @@ def test_noise_effect_of_a_noise_free_render_is_its_rho():
     render = 3 * target + rng.normal(0, 0.2, target.shape)
     effect = noise_effect(render, target, np.zeros_like(render))
     assert effect.rho_free == effect.rho == pytest.approx(pearson(render, target))
-    assert effect.samples_factor() == 1.0
+    assert effect.variance_factor() == 1.0
     # Noise as large as the whole spread leaves nothing to estimate from.
     swamped = noise_effect(render, target, np.full(render.shape, 100.0))
     assert swamped.rho_free is None and swamped.rho_at(4.0) is None
 
 
-def test_samples_factor_brings_the_noise_cost_to_the_asked_loss():
+def test_variance_factor_brings_the_noise_cost_to_the_asked_loss():
     rng = np.random.default_rng(8)
     target = rng.uniform(0, 1, (30, 30))
     render = target + rng.normal(0, 0.3, target.shape)  # noise the estimate is told of
     effect = noise_effect(render, target, np.full(render.shape, 0.09))
     assert effect.rho_free is not None
     for loss in (0.05, 0.005, 0.0005):
-        factor = effect.samples_factor(loss)
+        factor = effect.variance_factor(loss)
         assert factor is not None and factor > 1
         assert effect.rho_free - effect.rho_at(factor) == pytest.approx(loss, rel=1e-9)
 
@@ -127,7 +134,7 @@ def test_a_gate_failed_for_noise_names_the_spp_that_passes_it(board, tmp_path, c
     assert "sampling noise" in err and "explains it" in err
     assert "optimize longer" not in err  # the board is not what falls short
     spp = int(re.search(r"--spp (\d+) brings the noise", err).group(1))
-    assert spp > LOW_SPP and spp == 1 << int(math.log2(spp))
+    assert spp > LOW_SPP and spp in TYPED
     again = [a if a != str(LOW_SPP) else str(spp) for a in args]
     with contextlib.suppress(SystemExit):  # the other view may still fall short
         main([*again, "--out", str(tmp_path / "more"), "--min-rho", str(gate)])
@@ -160,6 +167,18 @@ def test_a_pipeline_refusal_names_the_pipeline_settings():
     assert "explains it" in said and "[optimize] iterations" not in said
 
 
+#: The counts the advice names: eight steps an octave (8 to 15 times a power of two).
+TYPED = sorted({m << k for m in range(8, 16) for k in range(16)} | set(range(1, 8)))
+
+
+def gain(spp: int, more: int, knee: float | None) -> float:
+    """The noise variance at ``spp`` over that at ``more``: V(n) ~ 1 / (n (1 + n / knee))."""
+    if knee is None:
+        return more / spp
+    return more * (1 + more / knee) / (spp * (1 + spp / knee))
+
+
+@pytest.mark.parametrize("knee", [None, 300.0, 5000.0])
 @pytest.mark.parametrize(
     "rho, free, ratio, gate, explains",
     [
@@ -170,26 +189,27 @@ def test_a_pipeline_refusal_names_the_pipeline_settings():
         (0.3, None, None, 0.5, True),  # mostly noise: nothing says the board is short
     ],
 )
-def test_noise_advice_rounds_to_a_power_of_two_that_does_what_it_says(
-    rho, free, ratio, gate, explains
+def test_noise_advice_names_the_fewest_typed_samples_that_do_what_it_says(
+    rho, free, ratio, gate, explains, knee
 ):
     entry = {"rho": rho, "rho_noise_free": free, "noise_to_signal": ratio}
-    entry |= {"noise": 0.14, "spp": 512, "seconds": 10.0}
+    entry |= {"noise": 0.14, "spp": 512, "seconds": 10.0, "noise_knee_spp": knee}
     assert noise_explains(entry, gate) is explains
     said = noise_advice(entry, gate, "--spp")
     spp = int(re.search(r"--spp (\d+)", said).group(1))
-    assert spp == 1 << int(math.log2(spp)) and spp > 512
+    assert spp in TYPED and spp > 512
     noise = float(re.search(r"noise to about ([\d.]+) %", said).group(1))
-    assert noise == pytest.approx(14 * math.sqrt(512 / spp), abs=0.051)
+    assert noise == pytest.approx(14 / math.sqrt(gain(512, spp, knee)), abs=0.051)
     if free is None:
         assert "outweighs the picture" in said and spp == 16 * 512
         return
     # rho at that spp, from the model the estimate rests on (rho_inf / sqrt(1 + n/s))
-    expect = free / math.sqrt(1 + ratio * 512 / spp)
+    expect = free / math.sqrt(1 + ratio / gain(512, spp, knee))
     assert f"rho to about {expect:.3f}" in said
-    assert free - expect <= (min(0.005, (free - gate) / 2) if explains else 0.005) + 1e-12
-    half = free / math.sqrt(1 + ratio * 512 / (spp // 2))  # the next power of two down
-    assert free - half > (min(0.005, (free - gate) / 2) if explains else 0.005)
+    allowed = min(0.005, (free - gate) / 2) if explains else 0.005
+    assert free - expect <= allowed + 1e-12
+    fewer = TYPED[TYPED.index(spp) - 1]  # the next count down
+    assert free - free / math.sqrt(1 + ratio / gain(512, fewer, knee)) > allowed
 
 
 def test_noise_that_costs_little_says_nothing():
@@ -199,19 +219,25 @@ def test_noise_that_costs_little_says_nothing():
     assert noise_advice({"rho": 0.9}, 0.8, "--spp") == ""  # a metrics.json from before
 
 
-def test_a_map_mostly_noise_names_the_spp_that_quiets_it():
+@pytest.mark.parametrize("knee", [None, 300.0])
+def test_a_map_mostly_noise_names_the_spp_that_quiets_it(knee):
     for share in (0.25, 0.5, 0.8, 0.95):
-        said = diff_noise_advice({"diff_noise_share": share, "spp": 1024}, "spp")
+        entry = {"diff_noise_share": share, "spp": 1024, "noise_knee_spp": knee}
+        said = diff_noise_advice(entry, "spp")
         spp = int(re.search(r"spp (\d+) brings it under 20 %", said).group(1))
         assert f"about {100 * share:.0f} % of these differences" in said
-        k = spp / 1024
-        assert (share / k) / (share / k + 1 - share) <= 0.2  # noise falls as 1 / spp
-        k /= 2
+        k = gain(1024, spp, knee)  # the noise's part falls with its variance
+        assert (share / k) / (share / k + 1 - share) <= 0.2 + 1e-12
+        k = gain(1024, TYPED[TYPED.index(spp) - 1], knee)
         assert k < 1 or (share / k) / (share / k + 1 - share) > 0.2
     assert diff_noise_advice({"diff_noise_share": 0.24, "spp": 1024}, "spp") == ""
     assert diff_noise_advice({"diff_noise_share": 0.3, "spp": 1}, "spp").startswith("sampling")
     assert "spp 16384 at least" in diff_noise_advice({"diff_noise_share": 1.0, "spp": 1024}, "spp")
-    assert more_spp(70, 1.0) == 128 and more_spp(64, 1.0) == 64
+    assert more_spp(70) == 72 and more_spp(64) == 64 and more_spp(1025) == 1152
+    assert all(more_spp(n) in TYPED and n <= more_spp(n) <= n * 1.125 for n in range(1, 5000))
+    assert spp_for(100, 4.0, None) == pytest.approx(400.0)
+    assert gain(100, spp_for(100, 4.0, 300.0), 300.0) == pytest.approx(4.0)
+    assert variance_ratio(100, 700, 300.0) == pytest.approx(gain(100, 700, 300.0))
 
 
 def test_the_maps_noise_note_adds_a_title_line_per_clause(monkeypatch):

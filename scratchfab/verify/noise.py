@@ -3,9 +3,17 @@
 :func:`scratchfab.metrics.noise_effect` estimates, from the renders' own batch spread,
 the rho a noise-free render would reach; this module turns the figures ``metrics.json``
 records for a view (``rho``, ``rho_noise_free``, ``noise_to_signal``, ``noise``, ``spp``,
-``seconds``, ``seconds_per_spp``, ``diff_noise_share``) into advice: whether the noise
-explains a failed gate, and the sample count that would end it (and about how long that
-takes). It imports no renderer, so the report uses it.
+``seconds``, ``seconds_per_spp``, ``diff_noise_share``, ``noise_knee_spp``) into advice:
+whether the noise explains a failed gate, and the sample count that would end it (and
+about how long that takes). It imports no renderer, so the report uses it.
+
+The stratified sampler's noise falls faster than 1 / spp once its strata resolve the
+scratches (:func:`knee_spp`): on the demo from 264 spp up, the count that 1 / spp names
+for a given noise was 1.5 to 4 times the one needed; the knee's model names it within
+about a tenth (a maker's board alike; within a fifth to a third on a coarse test board,
+for 4 to 16 times the samples). Without a knee (a metrics.json from before, or too few
+samples to show one: two batches of 8 samples rarely do) the advice takes 1 / spp, which
+asks for more than needed.
 
 It also words what design's feasibility check found about the bare board outshining a
 failing view's grooves (:func:`outshine_advice`): its glint, and the glint's shoulder at
@@ -23,7 +31,7 @@ from scratchfab.design.feasibility import SHOULDER_WARN_FRACTION
 from scratchfab.metrics import NOISE_RHO_LOSS, NoiseEffect
 
 #: Without a noise-free estimate (the render is mostly noise), the named sample count is
-#: this many times the one taken.
+#: (at least) this many times the one taken.
 NOISY_SPP_FACTOR = 16
 #: A difference map at least this much noise (a share of its squared size) says so ...
 NOISY_MAP_SHARE = 0.25
@@ -31,9 +39,53 @@ NOISY_MAP_SHARE = 0.25
 QUIET_MAP_SHARE = 0.2
 
 
-def more_spp(spp: int, factor: float) -> int:
-    """The power of two at or above ``factor`` times ``spp`` (counts a maker types)."""
-    return 1 << max(0, math.ceil(math.log2(max(1.0, spp * factor)) - 1e-9))
+def knee_spp(spp: int, variance: float, unstratified: float) -> float | None:
+    """The sample count past which a render's noise falls faster than 1 / spp.
+
+    The multi-jitter sampler stratifies each pixel: while its strata are wider than the
+    scratches' lobes a pixel's noise falls as unstratified samples' would, as 1 / spp;
+    once they resolve the lobes it falls faster. The noise's variance at n spp is taken
+    as V(n) = U(n) / (1 + n / knee), U(n) the variance that n unstratified samples
+    leave (their own spread over n), so one render, which measures both V and U, fixes
+    the knee. Fitted on the demo and a maker's 100 x 80 mm board, 16 to 16560 spp: the
+    fall steepens from 1 / spp^1.05 to 1 / spp^1.7 near 4096 spp, as this does.
+
+    Args:
+        spp: The samples per pixel taken.
+        variance: The render's noise variance (summed over the pixels).
+        unstratified: What ``spp`` unstratified samples would leave (summed alike).
+
+    Returns:
+        The knee in samples per pixel; None where the render shows no gain over 1 / spp.
+    """
+    if not (unstratified > 0 and 0 < variance < unstratified):
+        return None
+    gain = variance / unstratified
+    return spp * gain / (1 - gain)
+
+
+def variance_ratio(spp: int, more: float, knee: float | None) -> float:
+    """How many times less noise variance ``more`` spp leave than ``spp`` (the knee's model)."""
+    slope = 0.0 if knee is None else 1.0 / knee
+    return more * (1 + more * slope) / (spp * (1 + spp * slope))
+
+
+def spp_for(spp: int, factor: float, knee: float | None) -> float:
+    """The samples per pixel that leave ``1 / factor`` of ``spp``'s noise variance."""
+    goal = factor * spp * (1 + spp / knee) if knee is not None else factor * spp
+    if knee is None:
+        return goal
+    return knee / 2 * (math.sqrt(1 + 4 * goal / knee) - 1)
+
+
+def more_spp(spp: float) -> int:
+    """``spp`` rounded up to a count a maker types, at most an eighth above it.
+
+    Eight steps an octave: 1024, 1152, 1280, ..., 1920, 2048.
+    """
+    need = max(1.0, spp * (1 - 1e-9))
+    step = 1 << max(0, math.floor(math.log2(need)) - 3)
+    return step * math.ceil(need / step)
 
 
 def render_seconds(entry: Mapping[str, Any], spp: int) -> float | None:
@@ -49,6 +101,14 @@ def render_seconds(entry: Mapping[str, Any], spp: int) -> float | None:
     if isinstance(per_spp, float) and math.isfinite(per_spp) and per_spp >= 0:
         return seconds + max(0, spp - taken) * per_spp
     return seconds * spp / taken
+
+
+def _knee(entry: Mapping[str, Any]) -> float | None:
+    """The view's ``noise_knee_spp`` (None where missing, or not a number above 0)."""
+    knee = entry.get("noise_knee_spp")
+    if not isinstance(knee, int | float) or isinstance(knee, bool):
+        return None
+    return float(knee) if math.isfinite(knee) and knee > 0 else None
 
 
 def _effect(entry: Mapping[str, Any]) -> NoiseEffect | None:
@@ -87,19 +147,20 @@ def noise_advice(entry: Mapping[str, Any], min_rho: float | None, spp_setting: s
     if effect is None or not spp or noise is None:
         return ""
     free = effect.rho_free
+    knee = _knee(entry)
     if free is None:
-        factor = float(NOISY_SPP_FACTOR)
+        more = more_spp(spp * NOISY_SPP_FACTOR)
     else:
         # Where the gate fails for noise alone, half the way from the gate to the
         # noise-free rho is left to the noise, so the named count passes it.
         loss = NOISE_RHO_LOSS
         if min_rho is not None and effect.rho < min_rho < free:
             loss = min(loss, (free - min_rho) / 2)
-        factor = effect.samples_factor(loss) or 1.0
+        factor = effect.variance_factor(loss) or 1.0
         if factor <= 1.0:
             return ""
-    more = more_spp(spp, factor)
-    ratio = more / spp
+        more = more_spp(spp_for(spp, factor, knee))
+    ratio = variance_ratio(spp, more, knee)
     took = render_seconds(entry, more)
     later = f", about {duration_text(took)} a view" if took is not None else ""
     then = f"{spp_setting} {more} brings the noise to about {100 * noise / math.sqrt(ratio):.1f} %"
@@ -119,15 +180,18 @@ def noise_advice(entry: Mapping[str, Any], min_rho: float | None, spp_setting: s
 def diff_noise_advice(entry: Mapping[str, Any], spp_setting: str) -> str:
     """A line for a difference map that is in good part sampling noise ("" otherwise).
 
-    The noise's part of the map's squared size falls as 1 / spp while the board's stays:
-    at k times the samples a share p becomes (p / k) / (p / k + 1 - p).
+    The noise's part of the map's squared size falls with its variance while the board's
+    stays: at k times less variance a share p becomes (p / k) / (p / k + 1 - p).
     """
     share, spp = entry.get("diff_noise_share"), entry.get("spp")
     if not isinstance(share, int | float) or not share >= NOISY_MAP_SHARE or not spp:
         return ""
     quiet = QUIET_MAP_SHARE
-    factor = share * (1 - quiet) / (quiet * (1 - share)) if share < 1 else float(NOISY_SPP_FACTOR)
-    more = more_spp(spp, factor)
+    if share < 1:
+        factor = share * (1 - quiet) / (quiet * (1 - share))
+        more = more_spp(spp_for(spp, factor, _knee(entry)))
+    else:
+        more = more_spp(spp * NOISY_SPP_FACTOR)
     then = f"brings it under {100 * quiet:.0f} %" if share < 1 else "at least"
     return (
         f"{'mostly ' if share >= 0.5 else ''}sampling noise: about {100 * share:.0f} % of "

@@ -162,6 +162,16 @@ def samples_per_pass(pixels: int, spp: int, limit: int = MAX_WAVEFRONT) -> int:
 def render_view(scene: Any, spp: int, seed: int, max_wavefront: int = MAX_WAVEFRONT) -> np.ndarray:
     """Render the scene's sensor like ``mi.render(scene, spp=spp, seed=seed)``, reproducibly.
 
+    The image of :func:`render_view_spread` (see there).
+    """
+    return render_view_spread(scene, spp, seed, max_wavefront)[0]
+
+
+def render_view_spread(
+    scene: Any, spp: int, seed: int, max_wavefront: int = MAX_WAVEFRONT
+) -> tuple[np.ndarray, np.ndarray]:
+    """Render the scene's sensor like ``mi.render(scene, spp=spp, seed=seed)``, reproducibly.
+
     The samples (positions, rays, sampler state) are Mitsuba's own, so the image is
     ``mi.render``'s up to rounding: each pixel is the float64 mean of its samples'
     luminance, summed in a fixed order. Passes of ``samples_per_pass`` samples per pixel
@@ -175,7 +185,9 @@ def render_view(scene: Any, spp: int, seed: int, max_wavefront: int = MAX_WAVEFR
         max_wavefront: Most samples per kernel launch.
 
     Returns:
-        (H, W) float64 image.
+        (H, W) float64 image, and (H, W) the variance of one sample about its pixel's mean
+        (unbiased; 0 with one sample): the spread of a render without stratification,
+        that verify holds its own against to tell how the noise falls with ``spp``.
     """
     import drjit as dr
     import mitsuba as mi
@@ -201,6 +213,7 @@ def render_view(scene: Any, spp: int, seed: int, max_wavefront: int = MAX_WAVEFR
     scale = mi.ScalarVector2f(1.0 / width, 1.0 / height)
     shift = mi.ScalarVector2f(-ox / width, -oy / height)
     total = np.zeros(pixels, dtype=np.float64)
+    squares = np.zeros(pixels, dtype=np.float64)
     passes = spp // per_pass
     with dr.suspend_grad():
         for k in range(passes):
@@ -223,7 +236,10 @@ def render_view(scene: Any, spp: int, seed: int, max_wavefront: int = MAX_WAVEFR
             dr.eval(lum)
             samples = np.asarray(lum, dtype=np.float32).reshape(pixels, per_pass)
             total += samples.sum(axis=1, dtype=np.float64)
-    return (total / spp).reshape(height, width)
+            squares += np.einsum("ij,ij->i", samples, samples, dtype=np.float64)
+    mean = total / spp
+    spread = np.maximum(squares - spp * mean * mean, 0.0) / max(1, spp - 1)
+    return mean.reshape(height, width), spread.reshape(height, width)
 
 
 def sky_emitter(design: Design, sky: Sky) -> dict:

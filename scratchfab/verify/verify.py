@@ -42,12 +42,13 @@ from scratchfab.verify.diffmap import write_diff_map
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
 from scratchfab.verify.noise import (
     diff_noise_advice,
+    knee_spp,
     noise_advice,
     noise_explains,
     outshine_advice,
     shoulder_shares,
 )
-from scratchfab.verify.scene import Sky, board_bsdf, render_view, scene_dict, use_variant
+from scratchfab.verify.scene import Sky, board_bsdf, render_view_spread, scene_dict, use_variant
 from scratchfab.verify.sweep import nearest_frames, sweep_gif, sweep_path
 
 #: Samples per pixel by default: about 1 % noise where a pixel's footprint spans up to
@@ -199,6 +200,9 @@ class ViewRender:
         seconds_per_spp: Wall time one more sample per pixel (of ``render``'s ``spp``)
             costs, timed on each part's batches after its first, whose time also holds
             compiling and loading the scene.
+        knee_spp: The sample count past which the stratified sampler's noise falls
+            faster than 1 / spp (:func:`scratchfab.verify.noise.knee_spp`; None: it
+            does not, as far as this render shows).
     """
 
     image: np.ndarray
@@ -207,6 +211,7 @@ class ViewRender:
     seconds: float
     variance: np.ndarray
     seconds_per_spp: float
+    knee_spp: float | None = None
 
 
 def half_spp(spp: int) -> int:
@@ -279,15 +284,17 @@ class BoardRenderer:
         start = time.perf_counter()
         means = []
         variance: np.ndarray | float = 0.0
+        unstratified = 0.0
         taken = 0
         per_spp = 0.0
         for p, (bsdf, fraction) in enumerate(self.parts):
             part_spp = max(MIN_PART_SPP, round(fraction * spp))
-            mean, var, n, per_sample = self._batches(
+            mean, var, loose, n, per_sample = self._batches(
                 view, bsdf, part_spp, 4096 * seed + 64 * p, max_noise if p == 0 else None
             )
             means.append(mean)
             variance += var
+            unstratified += loose
             taken = max(taken, n)
             per_spp += fraction * per_sample  # a part takes ``fraction`` of each spp
         if self.mode == "spec":
@@ -298,15 +305,18 @@ class BoardRenderer:
         noise = math.sqrt(float(np.sum(variance))) / norm if norm > 0 else 0.0
         seconds = time.perf_counter() - start
         per_pixel = np.broadcast_to(np.asarray(variance, np.float64), image.shape).copy()
-        return ViewRender(image.astype(np.float32), noise, taken, seconds, per_pixel, per_spp)
+        knee = knee_spp(taken, float(np.sum(per_pixel)), unstratified)
+        return ViewRender(image.astype(np.float32), noise, taken, seconds, per_pixel, per_spp, knee)
 
     def _batches(
         self, view: View, bsdf: Any, spp: int, seed: int, max_noise: float | None
-    ) -> tuple[np.ndarray, np.ndarray, int, float]:
-        """Batches' mean, its squared standard error per pixel, spp taken, seconds per sample.
+    ) -> tuple[np.ndarray, np.ndarray, float, int, float]:
+        """Mean, squared standard error, the unstratified error, spp taken, seconds per sample.
 
-        The seconds per sample are timed on the batches after the first, whose time also
-        holds compiling the kernels and the scene's first use.
+        The batches' mean and its squared standard error per pixel; that error summed over
+        the pixels as unstratified samples would leave it (the samples' own spread over
+        their count). The seconds per sample are timed on the batches after the first,
+        whose time also holds compiling the kernels and the scene's first use.
         """
         mi = self.mi
         half = half_spp(spp)
@@ -314,11 +324,14 @@ class BoardRenderer:
             scene_dict(self.design, self.scratches, view, half, sky=self.sky, bsdf=bsdf)
         )
         batches: list[np.ndarray] = []
+        spread = 0.0  # the samples' own variance, summed over the pixels and the batches
         limit = max(2, (MAX_SPP_FACTOR * spp) // half)
         later = 0.0  # the batches after the first: no compiling, no first use of the scene
         while True:
             start = time.perf_counter()
-            batches.append(render_view(scene, half, (seed + len(batches)) % (1 << 32)))
+            image, samples = render_view_spread(scene, half, (seed + len(batches)) % (1 << 32))
+            batches.append(image)
+            spread += float(np.sum(samples))
             if len(batches) > 1:
                 later += time.perf_counter() - start
             if len(batches) < 2:
@@ -327,7 +340,9 @@ class BoardRenderer:
             norm = float(np.linalg.norm(mean))
             noise = math.sqrt(float(np.sum(var))) / norm if norm > 0 else 0.0
             if max_noise is None or noise <= max_noise or len(batches) >= limit:
-                return mean, var, half * len(batches), later / (half * (len(batches) - 1))
+                k = len(batches)
+                loose = spread / k / (half * k)
+                return mean, var, loose, half * k, later / (half * (k - 1))
 
 
 def _batch_stats(batches: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -490,6 +505,7 @@ def run_verify(
             "seconds": r.seconds,
             "seconds_per_spp": r.seconds_per_spp,
             "noise": r.noise,
+            "noise_knee_spp": r.knee_spp,
             "rel_l2": None,
             "resolution": [view.width, view.height],
             "glint_share": glints[view.name].board_share,
