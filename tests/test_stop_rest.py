@@ -9,12 +9,13 @@ then matched in whole steps. The truth is the emulator's record of the moves it 
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 
 import pytest
 from stream_helpers import FAST, executed_blocks, stream_program
 
-from scratchfab.machine.sender import StreamStopped, open_port
+from scratchfab.machine.sender import Status, Streamer, StreamStopped, open_port
 from scratchfab.machine.sender_journal import read_journal
 from scratchfab.machine.sender_program import load_program
 
@@ -23,6 +24,11 @@ URL = (
     "grblsim://?baud=0&time_scale=0.05&wco=-100.12345,-80.54321,-30.98765&wco_field=0"
     "&$100=800&$101=800&$102=800"
 )
+
+
+def _lround(v: float) -> int:
+    """C's lround: halves away from zero."""
+    return int(v + 0.5) if v >= 0 else -int(-v + 0.5)
 
 
 def _dwell_job(path, strokes: int) -> list[int]:
@@ -79,3 +85,39 @@ def test_without_rests_the_same_stop_is_cut_again(tmp_path):
     through, truth, plunge = _stop_in_dwell(tmp_path, rests=0)
     assert truth == plunge
     assert through < truth  # never past it; the move is cut again
+
+
+def test_the_first_report_after_the_rested_moves_answer_is_not_trusted(tmp_path):
+    """Grbl 1.1 reports status in the main loop's pass that answered the line before that
+    pass starts the cycle (protocol_auto_cycle_start, then protocol_execute_realtime, whose
+    report comes before the cycle start): the first report after the answer may say Idle
+    with the move still queued. Only a later one's Idle is learnt, as GRBL's steps there:
+    lround((target + offset) * steps/mm)."""
+    plunges = _dwell_job(tmp_path / "job.gcode", 2)
+    prog = load_program(tmp_path / "job.gcode")
+    spm, wco = 800.0, (-100.12345, -80.54321, -30.98765)
+    streamer = Streamer(port=None)
+    streamer.info.settings = {100: spm, 101: spm, 102: spm}
+    streamer._program = prog
+    streamer._inflight = collections.deque()
+    j = plunges[0]
+    streamer._resting = j
+    streamer._acked_blocks = list(range(j + 1))
+    streamer._acks_at_status = j + 1
+    streamer._rests = ({}, {}, {})
+    target = (1.0, 1.0, -0.05)
+    steps = [_lround((t + w) * spm) for t, w in zip(target, wco, strict=True)]
+    mpos = tuple(round(n / spm, 3) for n in steps)
+    printed = tuple(round(w, 3) for w in wco)
+    idle = Status(
+        state="Idle",
+        mpos=mpos,
+        wpos=tuple(m - w for m, w in zip(mpos, printed, strict=True)),
+        wco=printed,
+        mpos_given=True,
+    )
+    assert not streamer._rest_at(idle)  # maybe from the pass that answered it
+    assert streamer._rests == ({}, {}, {}) and streamer._rested_through == -1
+    assert streamer._rest_at(idle)
+    assert streamer._rests == tuple({t: n} for t, n in zip(target, steps, strict=True))
+    assert streamer._rested_through == j

@@ -957,6 +957,7 @@ class Streamer:
         self._rests = ({}, {}, {})
         self._counted = steps_counted_until(program.blocks)
         self._rests_left = self.options.rests
+        self._rested_through = -1
         self._resting = -1
         self.rest_seconds = 0.0
         self._hold_alarm = None
@@ -1076,6 +1077,7 @@ class Streamer:
                     nxt += 1
                     if item.block is not None and self._wants_rest(item.block.index):
                         self._resting, rest_since = item.block.index, time.monotonic()
+                        self._rest_reports = 0  # reports after its answer
                     if one_at_a_time:
                         break
                 # ---- answers
@@ -1221,6 +1223,8 @@ class Streamer:
     _rests: tuple[dict[float, int], ...] = ({}, {}, {})
     _rests_left = 0
     _resting = -1  # the block rested at, -1 while none
+    _rest_reports = 0  # the reports since its answer
+    _rested_through = -1  # the last block rested at: it and all before it ran
     _counted = 0  # steps_counted_until of the program streamed
     rest_seconds = 0.0  # the session's time resting (from each rested block's send)
     _stopped_through: int | None = None  # the safe stop's executed-through
@@ -1980,7 +1984,7 @@ class Streamer:
         resume preamble's moves, which the sender does not follow). Only blocks
         acknowledged before the position report can match it: a later block passing
         through the same point (an old report) had not run. Once END_WAIT is acknowledged
-        every acknowledged block ran.
+        every acknowledged block ran, and so did every block up to the last rest.
         """
         acked = self._acked_blocks
         if not acked:
@@ -1991,6 +1995,7 @@ class Streamer:
         surely = last_surely_run(
             blocks, acked, self.info.planner_blocks, self.info.laser_mode, self._step_mm()
         )
+        surely = max(surely, self._rested_through)  # Idle there (:meth:`_rest_at`)
         window = [i for i in acked if i > surely]
         wpos = None if report is None else report.wpos
         if report is None or wpos is None or self._acks_at_status == 0:
@@ -2142,9 +2147,11 @@ class Streamer:
         """Learn the steps of the resting block's end from ``report``, once it shows them.
 
         The machine stands at the end of the block rested at (the last one sent) once it
-        is acknowledged and a report after its answer says Idle: GRBL answers a move once
-        it is queued, and Idle has nothing queued. Each axis whose target is known and
-        whose step the report tells is kept (:meth:`_target_steps`).
+        is acknowledged and a later report than the first after its answer says Idle:
+        GRBL answers a move once it is queued, and Idle has nothing queued, but the first
+        report may come from the pass that answered it, before that pass starts the cycle
+        (``protocol_auto_cycle_start``: its report comes first). Each axis whose target is
+        known and whose step the report tells is kept (:meth:`_target_steps`).
 
         Returns:
             Whether the rest is over (learnt, or the block was not the last answered).
@@ -2154,8 +2161,10 @@ class Streamer:
             return False
         if acked[-1] != self._resting:
             return True  # not met (cannot happen: nothing is sent after it)
-        if report.state != "Idle":
+        self._rest_reports += 1
+        if report.state != "Idle" or self._rest_reports < 2:
             return False
+        self._rested_through = self._resting  # it and every block before it ran
         if report.wpos is None or report.wco is None:
             return True
         for k, t in enumerate(self._session_xyz(self._resting)):
