@@ -350,8 +350,9 @@ def carry_optimize_record(job: str | Path, earlier: EarlierDesign | None) -> Non
         design = load_design(layout.design.design_toml)
     except (OSError, ValueError, TypeError, KeyError, ConfigError):
         return
-    if same_to_rounding(design_fields(design), earlier.fields):
-        recorded[name] = _fields_sha256(design)
+    now = _fields_sha256(design)
+    if recorded[name] != now and same_to_rounding(design_fields(design), earlier.fields):
+        recorded[name] = now
         write_json(layout.optimize_summary, summary)
 
 
