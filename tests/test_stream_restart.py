@@ -40,13 +40,30 @@ def dropped(tmp_path):
 
 
 def test_a_dropped_cable_says_to_re_home_and_resume(dropped):
+    """A short error line, then the advice, a line each: first the machine stands still,
+    then re-home or re-zero and the same command with --resume."""
     _, _, _, err = dropped
-    last = err.rstrip().splitlines()[-1]
-    assert last.startswith("error: connection lost")
-    assert "wait until it stops or press its reset" in last  # first the machine stands still
-    tail = last[last.index("press its reset") :]
-    assert "re-home or re-zero" in tail and "the same command with --resume" in tail
-    assert "--recut-unsure" in tail
+    lines = err.rstrip().splitlines()
+    first = next(k for k, line in enumerate(lines) if line.startswith("error: "))
+    error, advice = lines[first], lines[first + 1 :]
+    assert error.startswith("error: connection lost") and len(error) <= 100
+    assert len(advice) >= 2 and all(line.startswith("  ") for line in advice)
+    wait = next(k for k, line in enumerate(advice) if "wait until it stops or press" in line)
+    then = next(k for k, line in enumerate(advice) if "re-home or re-zero" in line)
+    assert wait < then and "the same command with --resume" in advice[then]
+    assert "--recut-unsure" in advice[then]
+
+
+def test_a_faults_clauses_go_on_lines_of_their_own_outside_parentheses():
+    from scratchfab.machine.stream_job import fault_lines
+
+    text = "lost: x (a; b); held (spindle off; tool up); then (c) run --resume"
+    assert fault_lines(text).splitlines() == [
+        "lost: x (a; b)",
+        "  held (spindle off; tool up)",
+        "  then (c) run --resume",
+    ]
+    assert fault_lines("one clause (a; b)") == "one clause (a; b)"
 
 
 def test_a_rerun_under_yes_without_resume_refuses_instead_of_cutting_again(dropped, tmp_path):

@@ -22,6 +22,7 @@ from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
 from scratchfab.machine.protocol_grblsim import grblsim_query, sim_options
 from scratchfab.machine.sender import (
     Streamer,
+    StreamFault,
     StreamOptions,
     StreamProgress,
     open_port,
@@ -456,7 +457,11 @@ def _stream_locked(
         ):
             raise ScratchfabError("not confirmed; nothing was sent")
         try:
-            streamer.stream(program, journal, start=start, preamble=preamble, resume=resume)
+            try:
+                streamer.stream(program, journal, start=start, preamble=preamble, resume=resume)
+            except StreamFault as exc:
+                exc.args = (fault_lines(str(exc)), *exc.args[1:])
+                raise
             journal.close()
             cb.outcome(
                 f"done: {len(program.blocks) - start} lines acknowledged; journal {journal_file}"
@@ -508,6 +513,27 @@ def _unfinished_run(
     except ConfigError:  # a resume would say why; here it only words the advice
         return _Unfinished(reached, cut, left=True)
     return _Unfinished(reached, cut, left=resume_point(program, done) < len(program.blocks))
+
+
+def fault_lines(text: str) -> str:
+    """A stream fault's message as its error line, then one indented line per clause.
+
+    The sender words a fault as clauses joined by ``"; "``: what happened, what became of
+    the machine and the tool, what to do next. On one line that ran to 600 characters
+    after a lost link; here each clause (split outside parentheses) starts a line.
+    """
+    clauses: list[str] = []
+    depth = begin = 0
+    for k, c in enumerate(text):
+        if c == "(":
+            depth += 1
+        elif c == ")":
+            depth = max(0, depth - 1)
+        elif depth == 0 and text.startswith("; ", k):
+            clauses.append(text[begin:k])
+            begin = k + 2
+    clauses.append(text[begin:])
+    return "\n  ".join(clauses)
 
 
 def _refuse_from_the_top(before: _Unfinished, journal_file: Path, confirm: Confirm | None) -> None:
