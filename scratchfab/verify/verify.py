@@ -40,14 +40,8 @@ from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.glint import ViewGlint, view_glint
 from scratchfab.verify.diffmap import write_diff_map
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
-from scratchfab.verify.noise import (
-    diff_noise_advice,
-    knee_spp,
-    noise_advice,
-    noise_explains,
-    outshine_advice,
-    shoulder_shares,
-)
+from scratchfab.verify.noise import diff_noise_advice, knee_spp, noise_advice, noise_explains
+from scratchfab.verify.outshine import outshine_advice, shoulder_shares
 from scratchfab.verify.scene import Sky, board_bsdf, render_view_spread, scene_dict, use_variant
 from scratchfab.verify.sweep import nearest_frames, sweep_gif, sweep_path
 
