@@ -956,6 +956,7 @@ class Streamer:
         self._acks_at_status = 0
         self._rests = ({}, {}, {})
         self._counted = steps_counted_until(program.blocks)
+        self._repeated = _repeated_targets(program.blocks[start : self._counted])
         self._rests_left = self.options.rests
         self._rested_through = -1
         self._resting = -1
@@ -1226,6 +1227,7 @@ class Streamer:
     _rest_reports = 0  # the reports since its answer
     _rested_through = -1  # the last block rested at: it and all before it ran
     _counted = 0  # steps_counted_until of the program streamed
+    _repeated: tuple[set[float], ...] = (set(), set(), set())  # targets met twice, per axis
     rest_seconds = 0.0  # the session's time resting (from each rested block's send)
     _stopped_through: int | None = None  # the safe stop's executed-through
 
@@ -2117,7 +2119,9 @@ class Streamer:
         So where GRBL's rounding of a target to a step is open on an axis (a stop at that
         end could not be told from one a step short of it, and its move would be cut
         again), while rests are left (``StreamOptions.rests``): a followed move before
-        the steps stop telling (:func:`steps_counted_until`).
+        the steps stop telling (:func:`steps_counted_until`), where a report tells its
+        step, and the rest narrows the offset or the target is met again later (a rest
+        that tells nothing more is not taken).
         """
         blocks = self._program.blocks
         if (
@@ -2131,15 +2135,21 @@ class Streamer:
             return False
         report = Status(wco=self._wco, wco_printed=self._wco_printed)
         step = self._step_mm()
+        # a report tells the step where its rounding is finer than a step (a WPos report
+        # counts the offset's as well, :meth:`_report_steps`)
+        digit = REPORT_DIGIT_MM[self.info.inch_reports]
+        seen = digit if self.status.mpos_given else 4.0 * digit
         for k, t in enumerate(self._session_xyz(j)):
-            if t is None or t in self._rests[k]:
+            if t is None or t in self._rests[k] or seen >= step[k]:
                 continue
             first, last = self._target_steps(k, t, report)
             lo, hi = self._offset_window(k, report)
             flip = (first + 0.5) * step[k] - t  # the offset where t's step turns to first + 1
             slack = 2.0 * FLOAT32_SLACK * (abs(t + flip) + 1.0)
-            if last > first + 1 or (last > first and lo + slack < flip < hi - slack):
-                self._rests_left -= 1  # the rest narrows the window (else only repeats tell)
+            if last > first + 1 or (
+                last > first and (lo + slack < flip < hi - slack or t in self._repeated[k])
+            ):
+                self._rests_left -= 1
                 return True
         return False
 
@@ -2374,6 +2384,21 @@ def steps_counted_until(blocks: Sequence[Block]) -> int:
             return j
         before = m
     return len(blocks)
+
+
+def _repeated_targets(blocks: Sequence[Block]) -> tuple[set[float], ...]:
+    """Per axis, the work targets (mm) that two or more motion blocks move that axis to."""
+    seen: list[set[float]] = [set(), set(), set()]
+    again: list[set[float]] = [set(), set(), set()]
+    before: tuple[float | None, ...] = (None, None, None)
+    for b in blocks:
+        xyz = known_xyz(b.modal)
+        if b.motion:
+            for k, v in enumerate(xyz):
+                if v is not None and v != before[k]:
+                    (again if v in seen[k] else seen)[k].add(v)
+        before = xyz
+    return again[0], again[1], again[2]
 
 
 #: G10 and G92 (G92.1 too) in a block's text (upper case, no spaces).
