@@ -114,7 +114,8 @@ class StreamCallbacks:
         ask_interrupt: After Ctrl-C and a feed hold: returns "resume" or "stop".
         confirm: Asked before anything moves; False aborts with nothing sent. None: nobody
             is asked (``--yes``): what needs a person's word is refused (a partial board on
-            a machine, a stream from the top over an unfinished one).
+            a machine, a stream from the top over an unfinished one, a resume after an
+            alarm that may have lost the position unless ``homed``).
         result: Called with the outcome lines (resume point, done); default ``say``.
     """
 
