@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import struct
 import zlib
 from pathlib import Path
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image
 from test_images import (
+    D50,
     LUMA,
     P3_COLORANTS,
     P3_LUMA,
@@ -19,9 +21,11 @@ from test_images import (
     eotf,
     gamma_of,
     gray_icc,
+    icc,
     needs_lcms,
     rgb_icc,
     srgb_colorants,
+    xyz_tag,
 )
 
 from scratchfab.design.images import load_image
@@ -97,10 +101,12 @@ def write_tiff(
     deflate: bool = False,
     rows_per_strip: int | None = None,
     orientation: int | None = None,
+    extra_samples: int = 2,
 ) -> None:
     """A TIFF of the samples' type written by hand (Pillow cannot write 16-bit colour).
 
-    Deflate comes with horizontal differencing (integer samples only).
+    Deflate comes with horizontal differencing (integer samples only); a fourth (second)
+    sample is ``extra_samples`` (TIFF 6.0: 0 unspecified, 1 associated alpha, 2 alpha).
     """
     h, w, c = samples.shape
     rows_per_strip = rows_per_strip or h
@@ -129,7 +135,7 @@ def write_tiff(
         339: (3, [3 if samples.dtype.kind == "f" else 1] * c),
     }
     if c % 2 == 0:
-        tags[338] = (3, [2])  # unassociated alpha
+        tags[338] = (3, [extra_samples])
     if orientation:
         tags[274] = (3, [orientation])
 
@@ -324,3 +330,77 @@ def test_8bit_and_16bit_with_matrix_profile_agree_even_out_of_srgb_gamut(tmp_pat
     # Not rounded to 8-bit sRGB (up to 0.0045 off) nor clipped to its gamut.
     np.testing.assert_allclose(got8, expected, rtol=0, atol=2e-4)
     np.testing.assert_allclose(load_image(tmp_path / "p16.png"), got8, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("h", "w"), [(1, 1), (1, 2), (2, 1), (3, 3), (5, 7), (1, 9), (9, 1), (9, 9)]
+)
+@pytest.mark.parametrize("colour_type", [2, 6, 4])
+def test_tiny_interlaced_16bit_pngs_with_empty_adam7_passes(tmp_path, colour_type, h, w):
+    c = CHANNELS[colour_type]
+    samples = np.random.default_rng(h * 31 + w).integers(0, 65536, (h, w, c), dtype=np.uint16)
+    samples.reshape(-1, c)[0] = 0
+    samples.reshape(-1, c)[-1] = 65535
+    path = tmp_path / "tiny.png"
+    write_png16(path, samples, interlace=True)
+    weights = LUMA if c >= 3 else (1.0,)
+    np.testing.assert_allclose(
+        load_image(path), reference(samples, weights=weights), rtol=0, atol=1e-12
+    )
+
+
+def test_16bit_tiff_with_unspecified_fourth_sample_ignores_it(tmp_path):
+    samples = random_samples(4)
+    path = tmp_path / "rgbx.tif"
+    write_tiff(path, samples, ">", deflate=True, extra_samples=0)
+    got = load_image(path)
+    np.testing.assert_allclose(got, reference(samples[..., :3]), rtol=0, atol=1e-12)
+    assert got[0, 0] < got[0, 1]
+
+
+def _mft2_linear(colorants, swap: bool) -> bytes:
+    """An ICC lut16Type (A2B0) table: linear R, G, B (B, G, R when ``swap``) to PCS XYZ.
+
+    A 2-point grid interpolates a linear map exactly; XYZ is encoded 1.0 = 0x8000.
+    """
+    m = np.array(colorants).T
+    head = b"mft2" + bytes(4) + bytes([3, 3, 2, 0])
+    head += b"".join(struct.pack(">i", 65536 * (i % 4 == 0)) for i in range(9))
+    ramp = struct.pack(">HHHHHHHH", 2, 2, 0, 65535, 0, 65535, 0, 65535)
+    grid = []
+    for r, g, b in itertools.product((0, 1), repeat=3):
+        grid += [min(65535, round(v * 32768)) for v in m @ ((b, g, r) if swap else (r, g, b))]
+    return head + ramp + struct.pack(f">{len(grid)}H", *grid) + ramp[4:]
+
+
+@needs_lcms
+def test_profile_with_matrix_and_a2b0_table_follows_the_table(tmp_path):
+    # littleCMS converts by A2B0 when a profile has both; the table swaps red and blue.
+    tags = {b"wtpt": xyz_tag(D50), b"A2B0": _mft2_linear(srgb_colorants(), swap=True)}
+    for ch, xyz in zip("rgb", srgb_colorants(), strict=True):
+        tags[f"{ch}XYZ".encode()] = xyz_tag(xyz)
+        tags[f"{ch}TRC".encode()] = curv_gamma(1.0)
+    codes = np.random.default_rng(3).integers(0, 256, (5, 6, 3), dtype=np.uint8)
+    codes[0, :3] = np.eye(3, dtype=np.uint8) * 255  # red, green, blue
+    path = tmp_path / "a2b.png"
+    Image.fromarray(codes).save(path, icc_profile=icc(b"RGB ", tags))
+    expected = (codes[..., ::-1] / 255.0) @ LUMA  # linear and swapped, then Rec. 709
+    # Through 8-bit sRGB: within half an 8-bit code (0.0045 of full scale near white).
+    np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=5e-3)
+
+
+@needs_lcms
+def test_lut_profile_keeps_alpha_and_16bit_colour_key(tmp_path):
+    profile = icc(b"RGB ", {b"wtpt": xyz_tag(D50), b"A2B0": _mft2_linear(srgb_colorants(), False)})
+    rgba = np.array([[[255, 255, 255, 255], [255, 255, 255, 51], [0, 0, 255, 128]]], np.uint8)
+    Image.fromarray(rgba).save(tmp_path / "a.png", icc_profile=profile)
+    iccp = b"x\0\0" + zlib.compress(profile)
+    expected = (rgba[0, :, :3] / 255.0) @ LUMA * rgba[0, :, 3] / 255.0
+    np.testing.assert_allclose(load_image(tmp_path / "a.png")[0], expected, rtol=0, atol=5e-3)
+    # The key's 8-bit high bytes (156) and low bytes (64) are both other pixels' colours.
+    deep = np.array([[[40000] * 3, [156 * 257] * 3, [64 * 257] * 3, [30000, 20000, 10000]]])
+    key = (b"tRNS", struct.pack(">3H", *deep[0, 0]))
+    write_png16(tmp_path / "k.png", deep.astype(np.uint16), (b"iCCP", iccp), key)
+    expected = (deep[0] / 65535.0) @ LUMA
+    expected[0] = 0.0  # the key colour: transparent, and only it
+    np.testing.assert_allclose(load_image(tmp_path / "k.png")[0], expected, rtol=0, atol=5e-3)

@@ -23,8 +23,9 @@ grey-with-alpha PNGs (which Pillow opens at 8 bits) are read a second time for t
 bytes, and EXIF orientation turns them as it turns the image. RGB pixels with a
 matrix/TRC profile (sRGB, Adobe RGB, Display P3, ProPhoto), 8- or 16-bit, are decoded
 from per-channel tables of their luminance, without rounding to 8-bit sRGB or clipping
-to its gamut (so 8 and 16 bits agree); a LUT-based RGB profile converts 8 bits (a
-16-bit image's high bytes) to 8-bit sRGB.
+to its gamut (so 8 and 16 bits agree); a LUT-based RGB profile (or one with both a table
+and a matrix, which littleCMS converts by the table) converts 8 bits (a 16-bit image's
+high bytes) to 8-bit sRGB.
 A PNG ``tRNS`` colour key makes its pixels transparent at 16 bits too; a CIELAB TIFF is
 read by its L* channel.
 """
@@ -118,15 +119,16 @@ def _hint(data: bytes) -> str:
 
 
 #: 16-bit colour layouts that Pillow decodes to 8 bits (it has no 16-bit colour mode),
-#: by the rawmode it reads them with (PNG, TIFF), and a rawmode that reads the same rows
-#: keeping the low bytes: "RGB;16L" takes each big-endian sample's second byte ("N" is the
-#: computer's own order), and for grey with alpha a 4-byte "RGBA" pixel is all of them
-#: (grey high, grey low, alpha high, alpha low).
+#: by the rawmode it reads them with (PNG, TIFF; "RGBX" is a TIFF's RGB with an unspecified
+#: fourth sample), and a rawmode that reads the same rows keeping the low bytes: "RGB;16L"
+#: takes each big-endian sample's second byte ("N" is the computer's own order), and for
+#: grey with alpha a 4-byte "RGBA" pixel is all of them (grey high, grey low, alpha high,
+#: alpha low).
 _LOW_BYTES = {
     "LA;16B": "RGBA",
     **{
         f"{mode};16{order}": f"{mode};16{other}"
-        for mode in ("RGB", "RGBA")
+        for mode in ("RGB", "RGBA", "RGBX")
         for order, other in (
             ("B", "L"),
             ("L", "B"),
@@ -162,11 +164,15 @@ def _deep_samples(data: bytes, opened: Image.Image, low: list[Any]) -> np.ndarra
     again.tile = low
     again.load()
     raw = np.asarray(again)
+    del again  # a 12-MP photo: each copy of it is 36 MB or more
     if low[0][3] == "RGBA":  # grey and alpha: every byte
         high, lows = raw[..., 0::2], raw[..., 1::2]
     else:
         high, lows = np.asarray(opened), raw
-    return (high.astype(np.uint16) << 8) | lows
+    samples = high.astype(np.uint16)
+    samples <<= 8
+    samples |= lows
+    return samples
 
 
 def _upright(samples: np.ndarray, opened: Image.Image) -> np.ndarray:
@@ -357,6 +363,18 @@ def _gray_decoding(file: Path, profile: ImageCmsProfile) -> _Decoding:
     return _Decoding(lut8=tables[0], lut16=tables[1])
 
 
+#: Tags of device-to-PCS tables: littleCMS converts relative colorimetric input by one of
+#: them rather than by the matrix and curves when a profile has both.
+_DEVICE_TO_PCS_LUTS = {b"A2B0", b"A2B1", b"D2B0", b"D2B1"}
+
+
+def _has_device_to_pcs_lut(icc: bytes) -> bool:
+    """Whether an ICC profile's tag table holds an A2B0/A2B1 or D2B0/D2B1 table."""
+    (count,) = struct.unpack_from(">I", icc, 128)
+    count = min(count, (len(icc) - 132) // 12)
+    return any(icc[132 + 12 * i : 136 + 12 * i] in _DEVICE_TO_PCS_LUTS for i in range(count))
+
+
 def _matrix_shaper_decoding(file: Path, profile: ImageCmsProfile) -> _Decoding | None:
     """Per-channel tables of 16-bit codes' luminance through a matrix/TRC RGB profile.
 
@@ -364,7 +382,8 @@ def _matrix_shaper_decoding(file: Path, profile: ImageCmsProfile) -> _Decoding |
     so luminance is ``sum_c k_c TRC_c(code_c)`` with ``k = LUMA_709 M_srgb^-1 M``: one
     table per channel. littleCMS gives ``Y_c TRC_c`` at the 256 8-bit codes (that channel
     alone, converted without optimisation to 16-bit gray on the sRGB curve), and the
-    16-bit codes fall between them, by linear interpolation. None for a LUT profile.
+    16-bit codes fall between them, by linear interpolation. None for a LUT profile,
+    including one with matrix and curves too (littleCMS converts by its table).
     """
     from PIL import ImageCms
 
@@ -374,7 +393,12 @@ def _matrix_shaper_decoding(file: Path, profile: ImageCmsProfile) -> _Decoding |
 
     source = colorants(profile)
     srgb = colorants(ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")))
-    if not profile.profile.is_matrix_shaper or source is None or np.any(source[1] <= 0):
+    if (
+        not profile.profile.is_matrix_shaper
+        or _has_device_to_pcs_lut(profile.tobytes())
+        or source is None
+        or np.any(source[1] <= 0)
+    ):
         return None
     assert srgb is not None
     k = LUMA_709 @ np.linalg.solve(srgb, source)
@@ -405,13 +429,11 @@ def _to_srgb(image: Image.Image, file: Path, profile: ImageCmsProfile) -> Image.
     if image.mode == "CMYK":
         rgb, alpha = image, None
     else:
-        has_alpha = image.mode in ("RGBA", "PA", "RGBa") or "transparency" in image.info
-        try:
-            converted = image.convert("RGBA" if has_alpha else "RGB")
-        except (OSError, ValueError) as exc:
-            raise ConfigError(f"{file}: cannot convert {image.mode} image to RGB ({exc})") from None
-        rgb = converted.convert("RGB") if has_alpha else converted
-        alpha = converted.getchannel("A") if has_alpha else None
+        codes = _rgb_codes(image, file)
+        rgb = Image.fromarray(np.ascontiguousarray(codes[..., :3]))
+        alpha = (
+            Image.fromarray(np.ascontiguousarray(codes[..., 3])) if codes.shape[2] == 4 else None
+        )
     srgb = ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB"))
     transform = _build(file, profile, srgb, (rgb.mode, "RGB"), exact=False)
     try:
@@ -637,6 +659,8 @@ def load_image(path: str | Path) -> np.ndarray:
     elif profile is not None:
         decoding = _matrix_shaper_decoding(file, profile) if kind == "RGB" else None
         if decoding is None:  # 8 bits through littleCMS
+            if deep is not None:  # the high bytes, with the alpha a 16-bit colour key gave
+                image = Image.fromarray((deep >> 8).astype(np.uint8))
             image, deep, decoding = _to_srgb(image, file, profile), None, _Decoding()
         elif deep is None:  # 8-bit codes c are the 16-bit codes 257 c, on the tables' grid
             deep = _rgb_codes(image, file).astype(np.uint16) * np.uint16(257)
