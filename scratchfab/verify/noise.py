@@ -8,12 +8,12 @@ whether the noise explains a failed gate, and the sample count that would end it
 about how long that takes). It imports no renderer, so the report uses it.
 
 The stratified sampler's noise falls faster than 1 / spp once its strata resolve the
-scratches (:func:`knee_spp`): on the demo from 264 spp up, the count that 1 / spp names
-for a given noise was 1.5 to 4 times the one needed; the knee's model names it within
-about a tenth (a maker's board alike; within a fifth to a third on a coarse test board,
-for 4 to 16 times the samples). Without a knee (a metrics.json from before, or too few
-samples to show one: two batches of 8 samples rarely do) the advice takes 1 / spp, which
-asks for more than needed.
+scratches (:func:`knee_spp`). Measured on the demo (from 264 spp) and a maker's 100 x 80
+mm board (from 70 spp), aiming at the noise that 4 to 16 times the samples measured: the
+count 1 / spp names was 1.2 to 4.7 times the one that measured it, the knee's model's
+0.87 to 1.03 times (on the tests' coarse 32 px board up to 1.3 times, the noise falling
+faster still). Without a knee (a metrics.json from before, or too few samples to show
+one: two batches of 8 samples seldom do) the advice takes 1 / spp and asks for more.
 """
 
 from __future__ import annotations
