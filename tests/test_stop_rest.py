@@ -44,19 +44,21 @@ def _dwell_job(path, strokes: int) -> list[int]:
 
 
 def _stop_in_dwell(tmp_path, rests: int) -> tuple[int, int, int]:
-    """Ctrl-C during the second stroke's dwell, the machine Idle at its plunge's end:
+    """Ctrl-C during the second stroke's dwell, the machine standing at its plunge's end:
     the journal's executed-through, the emulator's last finished block, the plunge."""
     plunges = _dwell_job(tmp_path / "job.gcode", 3)
     prog = load_program(tmp_path / "job.gcode")
     plunge = plunges[1]
     fired: list[int] = []
 
+    port = open_port(URL, 115200)
+
     def progress(p):
-        if p.acked == plunge + 1 and p.state == "Idle" and not fired:
+        # the emulator finished the plunge: the machine dwells at its end
+        if plunge in executed_blocks(port.sim.record) and not fired:
             fired.append(1)
             raise KeyboardInterrupt
 
-    port = open_port(URL, 115200)
     options = dataclasses.replace(FAST, rests=rests)
     try:
         with pytest.raises(StreamStopped):

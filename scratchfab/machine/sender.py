@@ -957,6 +957,7 @@ class Streamer:
         self._rests = ({}, {}, {})
         self._counted = steps_counted_until(program.blocks)
         self._repeated = _repeated_targets(program.blocks[start : self._counted])
+        self._given_from = _first_given(program.blocks, start)
         self._rests_left = self.options.rests
         self._rested_through = -1
         self._resting = -1
@@ -1228,6 +1229,7 @@ class Streamer:
     _rested_through = -1  # the last block rested at: it and all before it ran
     _counted = 0  # steps_counted_until of the program streamed
     _repeated: tuple[set[float], ...] = (set(), set(), set())  # targets met twice, per axis
+    _given_from = (0, 0, 0)  # per axis, the session's first block giving it (_first_given)
     rest_seconds = 0.0  # the session's time resting (from each rested block's send)
     _stopped_through: int | None = None  # the safe stop's executed-through
 
@@ -2140,7 +2142,7 @@ class Streamer:
         digit = REPORT_DIGIT_MM[self.info.inch_reports]
         seen = digit if self.status.mpos_given else 4.0 * digit
         for k, t in enumerate(self._session_xyz(j)):
-            if t is None or t in self._rests[k] or seen >= step[k]:
+            if t is None or t in self._rests[k] or seen >= step[k] or j < self._given_from[k]:
                 continue
             first, last = self._target_steps(k, t, report)
             lo, hi = self._offset_window(k, report)
@@ -2161,7 +2163,9 @@ class Streamer:
         GRBL answers a move once it is queued, and Idle has nothing queued, but the first
         report may come from the pass that answered it, before that pass starts the cycle
         (``protocol_auto_cycle_start``: its report comes first). Each axis whose target is
-        known and whose step the report tells is kept (:meth:`_target_steps`).
+        known and whose step the report tells is kept (:meth:`_target_steps`), where a
+        block of the session gave it (GRBL's target; not the position the job was placed
+        at, which the machine stands on unrounded: :func:`_first_given`).
 
         Returns:
             Whether the rest is over (learnt, or the block was not the last answered).
@@ -2179,7 +2183,7 @@ class Streamer:
             return True
         for k, t in enumerate(self._session_xyz(self._resting)):
             at = self._report_steps(k, report)
-            if t is not None and at[0] == at[1]:
+            if t is not None and at[0] == at[1] and self._resting >= self._given_from[k]:
                 self._rests[k][t] = at[0]
         return True
 
@@ -2384,6 +2388,25 @@ def steps_counted_until(blocks: Sequence[Block]) -> int:
             return j
         before = m
     return len(blocks)
+
+
+def _first_given(blocks: Sequence[Block], start: int) -> tuple[int, int, int]:
+    """Per axis, the first motion block from ``start`` on that gives it (len: none).
+
+    Before it the axis stands where the session found it (a stream from the top, placed
+    there: :meth:`Program.placed_at`). A resumed session's preamble gives every axis
+    before block ``start``.
+    """
+    if start > 0:
+        return start, start, start
+    first = [len(blocks)] * 3
+    for b in blocks:
+        if b.motion:
+            for letter, _ in block_words(b.text):
+                k = "XYZ".find(letter)
+                if k >= 0:
+                    first[k] = min(first[k], b.index)
+    return first[0], first[1], first[2]
 
 
 def _repeated_targets(blocks: Sequence[Block]) -> tuple[set[float], ...]:
