@@ -129,6 +129,17 @@ UNREADABLE = [
     ("doc.pdf", lambda p: p.write_bytes(b"%PDF-1.7\n" + bytes(64)), "PDF"),
     ("art.svg", lambda p: p.write_text('<?xml version="1.0"?>\n<svg width="10"/>'), "SVG"),
     ("hdr.exr", lambda p: p.write_bytes(b"\x76\x2f\x31\x01" + bytes(64)), "OpenEXR"),
+    (
+        "page.png",
+        lambda p: p.write_text("\n<!DOCTYPE html>\n<html><body>404</body></html>"),
+        "HTML",
+    ),
+    ("meta.xmp", lambda p: p.write_text('<?xml version="1.0"?>\n<x:xmpmeta/>'), "XML document"),
+    (
+        "drawn.svg",  # a long preamble (licence comment) before <svg>
+        lambda p: p.write_text('<?xml version="1.0"?>\n<!-- ' + "x" * 1500 + " -->\n<svg/>"),
+        "SVG",
+    ),
 ]
 
 

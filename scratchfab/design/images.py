@@ -106,8 +106,12 @@ def _hint(data: bytes) -> str:
         what = "a HEIF/HEIC or AVIF photo, which this Pillow does not decode"
     elif data[:4] == b"%PDF":
         what = "a PDF document"
-    elif head.startswith(b"<?xml") or b"<svg" in head:
+    elif b"<svg" in data[:4096]:
         what = "an SVG drawing (vector, not pixels)"
+    elif head[:14].lower() == b"<!doctype html" or head[:5].lower() == b"<html":
+        what = "a web page (HTML), perhaps saved in place of the picture it shows"
+    elif head.startswith(b"<?xml"):
+        what = "an XML document, not pixels"
     elif data[:4] == b"\x76\x2f\x31\x01":
         what = "an OpenEXR image"
     else:
