@@ -15,7 +15,7 @@ import dataclasses
 import pytest
 from stream_helpers import FAST, executed_blocks, stream_program
 
-from scratchfab.machine.sender import Status, Streamer, StreamStopped, open_port
+from scratchfab.machine.sender import Status, Streamer, StreamStopped, _first_given, open_port
 from scratchfab.machine.sender_journal import read_journal
 from scratchfab.machine.sender_program import load_program
 
@@ -89,6 +89,31 @@ def test_without_rests_the_same_stop_is_cut_again(tmp_path):
     assert through < truth  # never past it; the move is cut again
 
 
+SPM, WCO = 800.0, (-100.12345, -80.54321, -30.98765)
+
+
+def _resting(prog, j: int) -> Streamer:
+    """A Streamer of ``prog`` (a stream from the top) resting at block ``j``, answered."""
+    streamer = Streamer(port=None)
+    streamer.info.settings = {100: SPM, 101: SPM, 102: SPM}
+    streamer._program = prog
+    streamer._inflight = collections.deque()
+    streamer._resting = j
+    streamer._acked_blocks = list(range(j + 1))
+    streamer._acks_at_status = j + 1
+    streamer._rests = ({}, {}, {})
+    streamer._given_from = _first_given(prog.blocks, 0)
+    return streamer
+
+
+def _idle(steps) -> Status:
+    """An Idle report at machine ``steps`` (MPos to 0.001 mm, the offset from $#)."""
+    mpos = tuple(round(n / SPM, 3) for n in steps)
+    printed = tuple(round(w, 3) for w in WCO)
+    wpos = tuple(m - w for m, w in zip(mpos, printed, strict=True))
+    return Status(state="Idle", mpos=mpos, wpos=wpos, wco=printed, mpos_given=True)
+
+
 def test_the_first_report_after_the_rested_moves_answer_is_not_trusted(tmp_path):
     """Grbl 1.1 reports status in the main loop's pass that answered the line before that
     pass starts the cycle (protocol_auto_cycle_start, then protocol_execute_realtime, whose
@@ -97,29 +122,27 @@ def test_the_first_report_after_the_rested_moves_answer_is_not_trusted(tmp_path)
     lround((target + offset) * steps/mm)."""
     plunges = _dwell_job(tmp_path / "job.gcode", 2)
     prog = load_program(tmp_path / "job.gcode")
-    spm, wco = 800.0, (-100.12345, -80.54321, -30.98765)
-    streamer = Streamer(port=None)
-    streamer.info.settings = {100: spm, 101: spm, 102: spm}
-    streamer._program = prog
-    streamer._inflight = collections.deque()
     j = plunges[0]
-    streamer._resting = j
-    streamer._acked_blocks = list(range(j + 1))
-    streamer._acks_at_status = j + 1
-    streamer._rests = ({}, {}, {})
+    streamer = _resting(prog, j)
     target = (1.0, 1.0, -0.05)
-    steps = [_lround((t + w) * spm) for t, w in zip(target, wco, strict=True)]
-    mpos = tuple(round(n / spm, 3) for n in steps)
-    printed = tuple(round(w, 3) for w in wco)
-    idle = Status(
-        state="Idle",
-        mpos=mpos,
-        wpos=tuple(m - w for m, w in zip(mpos, printed, strict=True)),
-        wco=printed,
-        mpos_given=True,
-    )
+    steps = [_lround((t + w) * SPM) for t, w in zip(target, WCO, strict=True)]
+    idle = _idle(steps)
     assert not streamer._rest_at(idle)  # maybe from the pass that answered it
     assert streamer._rests == ({}, {}, {}) and streamer._rested_through == -1
     assert streamer._rest_at(idle)
     assert streamer._rests == tuple({t: n} for t, n in zip(target, steps, strict=True))
     assert streamer._rested_through == j
+
+
+def test_a_rest_before_the_first_xy_learns_z_only(tmp_path):
+    """The job placed where the machine was found (work X3.5 Y2.25): before its first X
+    and Y the machine stands on the steps it was found on, not GRBL's rounding of the
+    placed start, so only Z (given by the rested G0 Z2) is learnt there."""
+    _dwell_job(tmp_path / "job.gcode", 1)
+    prog = load_program(tmp_path / "job.gcode").placed_at((3.5, 2.25))
+    streamer = _resting(prog, 1)  # G0 Z2
+    found = (-77299, -62602)  # any steps near work (3.5, 2.25)
+    steps = [*found, _lround((2.0 + WCO[2]) * SPM)]
+    assert not streamer._rest_at(_idle(steps))
+    assert streamer._rest_at(_idle(steps))
+    assert streamer._rests == ({}, {}, {2.0: steps[2]})
