@@ -19,8 +19,8 @@ from gcode_interp import cuts, interpret
 
 from scratchfab.export.gcode import gcode_lines
 from scratchfab.machine.profile import load_profile, profile_from_mapping
-from scratchfab.model.design import Board, design_from_mapping
-from scratchfab.model.scratches import ScratchSet
+from scratchfab.model.design import Board, ScratchTool, design_from_mapping
+from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.toolpath import Toolpath, plan_toolpath
 from scratchfab.toolpath.plan import fit_advice, partial_text
 
@@ -171,3 +171,31 @@ def test_the_advice_never_names_the_offset_already_in_use():
     table["board"]["offset_mm"] = [-299.0, -180.0]
     moved = fit_advice(profile_from_mapping(table, "<moved>"), size)
     assert "set the profile's [board] offset_mm = [-300, -180]" in moved, moved
+
+
+def test_an_end_the_scratch_file_may_hold_beyond_the_edge_is_kept_at_six_decimals(tmp_path):
+    """A scratch file's end may lie up to its on-board tolerance (1e-6 mm) beyond the board.
+
+    With six decimals half a written digit is 5e-7 mm, less than that: such an end must
+    still be moved onto the edge (the envelope's, here), not clipped as if the envelope
+    cut the board short.
+    """
+    table, size = travel_sized("lower-left")
+    table["gcode"]["decimals"] = 6
+    profile = profile_from_mapping(table, "<travel>")
+    board = Board(width_mm=size[0], height_mm=size[1], margin_mm=0.0)
+    tool = ScratchTool()
+    # Top edge y = 90 on the board (machine y = 0), right edge x = 150 (machine x = 0):
+    # 9e-7 mm beyond each, within the file's tolerance, beyond half a written digit.
+    beyond = 9e-7
+    assert profile.envelope_slack_mm < beyond
+    p0 = np.array([[-50.0, 80.0], [140.0, 0.0]])
+    p1 = np.array([[-50.0, 90.0 + beyond], [150.0 + beyond, 0.0]])
+    file = tmp_path / "scratches.csv"
+    ScratchSet.from_arrays(p0, p1, tool.width_mm, tool.depth_mm).save(file, tool)
+    scratches = load_scratches(file, tool, board)  # the file is on the board as read
+    tp = plan_toolpath(scratches, board, profile)
+    assert (tp.stats["outside_count"], tp.stats["clipped_count"]) == (0, 0), tp.stats
+    assert partial_text(tp.stats) is None
+    want = np.array([[[-200.0, -10.0], [-200.0, 0.0]], [[-10.0, -90.0], [0.0, -90.0]]])
+    assert same_segments(tp.strokes, want, 1e-12)

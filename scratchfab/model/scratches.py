@@ -17,6 +17,8 @@ from scratchfab.model.design import Board, ScratchTool, dent_problem
 
 REQUIRED_COLUMNS = ("x0", "y0", "x1", "y1")
 OPTIONAL_COLUMNS = ("width", "depth")
+#: How far beyond the board a scratch file's end may lie (rounding in the file), in mm.
+ON_BOARD_TOLERANCE_MM = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,7 +126,10 @@ class ScratchSet:
 
 
 def load_scratches(
-    path: str | Path, tool: ScratchTool, board: Board | None = None, tolerance_mm: float = 1e-6
+    path: str | Path,
+    tool: ScratchTool,
+    board: Board | None = None,
+    tolerance_mm: float = ON_BOARD_TOLERANCE_MM,
 ) -> ScratchSet:
     """Read a scratch CSV (SPEC section 5), checking every row.
 

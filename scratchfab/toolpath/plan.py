@@ -33,7 +33,7 @@ from scratchfab.machine.profile import (
     profile_from_mapping,
 )
 from scratchfab.model.design import Board, ScratchTool
-from scratchfab.model.scratches import ScratchSet
+from scratchfab.model.scratches import ON_BOARD_TOLERANCE_MM, ScratchSet
 from scratchfab.toolpath.geometry import clip_strokes, merge_collinear, onto_box
 from scratchfab.toolpath.inputs import checked_record
 from scratchfab.toolpath.order import OrderOptions, order_strokes, tour_travel
@@ -414,10 +414,11 @@ def plan_toolpath(
             f"can be cut; {fit_advice(profile, size)}"
         )
     # An end within half a written digit beyond the region's edge lies on it as the G-code
-    # writes it: it is moved onto the edge, not cut off (a stroke along the edge of a board
-    # as large as the travel is kept). The G-code writer rounds a value on the edge to the
-    # nearest written value inside the envelope.
-    slack = profile.envelope_slack_mm
+    # writes it, and one within a scratch file's tolerance lies on the board as read: it
+    # is moved onto the edge, not cut off (a stroke along the edge of a board as large as
+    # the travel is kept). The G-code writer rounds a value on the edge to the nearest
+    # written value inside the envelope.
+    slack = max(profile.envelope_slack_mm, ON_BOARD_TOLERANCE_MM)
     m0 = onto_box(profile.board_to_machine(scratches.p0, size), lo, hi, slack)
     m1 = onto_box(profile.board_to_machine(scratches.p1, size), lo, hi, slack)
     keep, q0, q1 = clip_strokes(m0, m1, shapely.box(*lo, *hi))
