@@ -28,13 +28,8 @@ from scratchfab.fileio import decode_json, write_text
 from scratchfab.metrics import rho_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
 from scratchfab.model.job import JobLayout
-from scratchfab.verify.noise import (
-    diff_noise_advice,
-    noise_advice,
-    noise_explains,
-    outshine_advice,
-    shoulder_shares,
-)
+from scratchfab.verify.noise import diff_noise_advice, noise_advice, noise_explains
+from scratchfab.verify.outshine import outshine_advice, shoulder_shares
 
 _MIME = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
 

@@ -25,10 +25,6 @@ from typing import Any
 from scratchfab.console import duration_text
 from scratchfab.metrics import NOISE_RHO_LOSS, NoiseEffect
 
-# Re-exported while the report imports them from here (they live in verify.outshine).
-from scratchfab.verify.outshine import outshine_advice as outshine_advice
-from scratchfab.verify.outshine import shoulder_shares as shoulder_shares
-
 #: Without a noise-free estimate (the render is mostly noise), the named sample count is
 #: (at least) this many times the one taken.
 NOISY_SPP_FACTOR = 16
