@@ -276,10 +276,14 @@ def test_16bit_tiff_orientation_tag_turns_it_upright(tmp_path):
 
 @pytest.mark.parametrize(
     "samples",
-    [np.full((2, 3, 3), 0.5, np.float32), np.full((2, 3, 1), 0.5, np.float16)],
-    ids=["float-rgb", "half-float-grey"],
+    [
+        np.full((2, 3, 3), 0.5, np.float32),
+        np.full((2, 3, 1), 0.5, np.float16),
+        np.full((2, 3, 2), 30000, np.uint16),
+    ],
+    ids=["float-rgb", "half-float-grey", "16bit-grey-alpha"],
 )
-def test_float_tiff_pillow_cannot_read_is_a_clear_error(tmp_path, samples):
+def test_tiff_pillow_cannot_read_is_a_clear_error(tmp_path, samples):
     path = tmp_path / "float.tif"
     write_tiff(path, samples)
     with pytest.raises(ConfigError) as info:

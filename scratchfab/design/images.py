@@ -99,8 +99,9 @@ def _hint(data: bytes) -> str:
     head = data[:1024].lstrip()
     if data[:4] in (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+"):
         what = (
-            "a TIFF in a layout Pillow does not decode: floating-point colour, 16- or "
-            "64-bit floats (Pillow reads float TIFFs as one 32-bit grey channel only)"
+            "a TIFF in a layout Pillow does not decode, such as floating-point colour, 16- "
+            "or 64-bit floats (it reads floats only as one 32-bit grey channel) or 16-bit "
+            "grey with alpha"
         )
     elif data[4:8] == b"ftyp" and data[8:12] in _HEIF_BRANDS:
         what = "a HEIF/HEIC or AVIF photo, which this Pillow does not decode"
@@ -117,8 +118,8 @@ def _hint(data: bytes) -> str:
     else:
         return ""
     return (
-        f" ({what}); expected PNG, JPEG, TIFF (8- or 16-bit integer samples) or WebP pixels "
-        "(export the picture as one)"
+        f" ({what}); expected PNG, JPEG, TIFF (8-bit; 16-bit grey, RGB or RGBA; 32-bit "
+        "float grey) or WebP pixels (export the picture as one)"
     )
 
 
