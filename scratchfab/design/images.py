@@ -231,6 +231,7 @@ class _Decoding:
 
 
 def _kind(image: Image.Image, deep: np.ndarray | None) -> str:
+    """What the pixels are: "grayscale", "RGB", "CMYK", or Pillow's mode for anything else."""
     if deep is not None:
         return "grayscale" if deep.shape[2] <= 2 else "RGB"
     if image.mode in _GRAY_MODES:
@@ -622,6 +623,7 @@ def _rgb_codes(image: Image.Image, file: Path) -> np.ndarray:
 
 
 def _luminance_8bit(image: Image.Image, file: Path, decoding: _Decoding) -> np.ndarray:
+    """Linear luminance of an 8-bit image's R, G, B codes (grey ones too), times alpha."""
     rgba = _rgb_codes(image, file)
     lin = np.empty(rgba.shape[:2])
     for r0 in range(0, rgba.shape[0], _CHUNK_ROWS):
