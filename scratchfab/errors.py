@@ -1,10 +1,10 @@
-"""Exceptions that mean "the user asked for something wrong", reported as one line."""
+"""Exceptions that mean "the user asked for something wrong", reported without a traceback."""
 
 from __future__ import annotations
 
 
 class ScratchfabError(Exception):
-    """A user-facing error: the CLI prints its message on one line and exits non-zero."""
+    """A user-facing error: the CLI prints its message (a line, a stream's fault with its advice lines) and exits non-zero."""
 
     exit_code = 2
 
