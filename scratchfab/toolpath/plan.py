@@ -375,15 +375,17 @@ def plan_toolpath(
 
     Args:
         scratches: The scratches in board coordinates (SPEC section 3).
-        board: The board (its size; scratches are clipped to it).
+        board: The board (its size; scratches are clipped to it, and those with no part
+            on it are left out as off the board).
         profile: The machine.
         design_tool: The design's ``[scratch]`` table; its width and depth must match the
             profile's tool.
         options: Ordering options (deterministic for given options).
 
     Returns:
-        The toolpath; ``stats`` holds ``input_count``, ``outside_count`` (no part on the
-        board within the envelope), ``clipped_count``, ``short_count``, ``merged_count``
+        The toolpath; ``stats`` holds ``input_count``, ``off_board_count`` (no part on
+        the board), ``outside_count`` (on the board, no part of it within the envelope),
+        ``clipped_count``, ``short_count``, ``merged_count``
         (strokes absorbed by duplicates), ``count``, ``cut_length_mm``,
         ``travel_length_mm``, ``travel_input_order_mm``, ``travel_greedy_mm``,
         ``kept_input_order``, ``local_search_moves`` and ``estimated_time_s``.
@@ -422,6 +424,11 @@ def plan_toolpath(
     m0 = onto_box(profile.board_to_machine(scratches.p0, size), lo, hi, slack)
     m1 = onto_box(profile.board_to_machine(scratches.p1, size), lo, hi, slack)
     keep, q0, q1 = clip_strokes(m0, m1, shapely.box(*lo, *hi))
+    # Left out: those with no part on the board (given in memory: a scratch file's are
+    # checked when read) are off the board, the rest outside the envelope.
+    left_out = np.setdiff1d(np.arange(len(scratches)), keep)
+    board_box = shapely.box(*outline.min(axis=0), *outline.max(axis=0))
+    outside = left_out[clip_strokes(m0[left_out], m1[left_out], board_box)[0]]
     # Clipped by the envelope: an end beyond it (further than the slack), not one that the
     # board's own edge clips.
     beyond = ~(env.contains_xy(m0) & env.contains_xy(m1))
@@ -446,7 +453,8 @@ def plan_toolpath(
     travel = tour_travel(strokes[:, 0], strokes[:, 1], np.asarray(profile.start_mm))
     stats: dict[str, Any] = {
         "input_count": len(scratches),
-        "outside_count": int(len(scratches) - len(long_enough)),
+        "off_board_count": int(len(left_out) - len(outside)),
+        "outside_count": len(outside),
         "clipped_count": clipped,
         "short_count": int(np.count_nonzero(~long_enough)),
         "merged_count": int(len(q0) - len(r0)),

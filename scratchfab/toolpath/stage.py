@@ -23,11 +23,17 @@ from scratchfab.toolpath.plan import (
 
 
 def summary(toolpath: Toolpath) -> str:
-    """One line: strokes kept and dropped, cut and travel lengths, estimated time."""
+    """One line: strokes kept and dropped, cut and travel lengths, estimated time.
+
+    Scratches off the board are named where there are any (planned in memory: a scratch
+    file's are checked when read).
+    """
     s = toolpath.stats
-    dropped = s["outside_count"] + s["short_count"] + s["merged_count"]
+    off = int(s.get("off_board_count", 0))
+    dropped = off + s["outside_count"] + s["short_count"] + s["merged_count"]
     return (
-        f"{s['count']} strokes ({dropped} dropped: {s['outside_count']} outside, "
+        f"{s['count']} strokes ({dropped} dropped: "
+        f"{f'{off} off the board, ' if off else ''}{s['outside_count']} outside, "
         f"{s['short_count']} too short, {s['merged_count']} duplicates); "
         f"cut {s['cut_length_mm']:.1f} mm, travel {s['travel_length_mm']:.1f} mm "
         f"(input order {s['travel_input_order_mm']:.1f} mm); "
