@@ -3,7 +3,8 @@
 ``toolpath.json`` records its inputs under ``"inputs"``: the scratch CSV and the design
 (each by its path relative to the toolpath's own folder and its SHA-256; the design also
 by what the plan depends on, ``fields_sha256``: a rerun of design that rewrites only its
-comments and target paths changes nothing), the machine
+comments and target paths changes nothing; a record of an earlier scratchfab, without it,
+is compared by the board's size and the tool the plan holds), the machine
 profile (a bundled one by name, a file by its path), and the job folder when the job
 picked the layout (its optimized one, else the initial one). Paths are relative so that
 a job moved or copied whole keeps its record. ``export`` compares the record with the
@@ -23,6 +24,7 @@ from scratchfab.console import command_line
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, file_sha256
 from scratchfab.machine.profile import MachineProfile, load_profile
+from scratchfab.model.design import load_design, same_to_rounding
 from scratchfab.model.job import JobLayout, design_content_sha256, job_inputs
 
 if TYPE_CHECKING:
@@ -153,11 +155,44 @@ def _machine_now(record: Any, folder: Path) -> tuple[MachineProfile | None, str]
     return (load_profile(path) if path.is_file() else None), str(path)
 
 
+def _same_design(
+    entry: dict[str, Any],
+    file: Path,
+    planned: MachineProfile,
+    board_mm: tuple[float, float] | None,
+) -> bool:
+    """Whether the design ``file``, its bytes changed, is still the one a plan was made from.
+
+    A record with ``fields_sha256`` compares what it resolves to (a rerun of design that
+    rewrites its comments and target paths changes nothing). One of an earlier scratchfab
+    holds the bytes' digest alone, and the first rerun of design rewrites them (``fov_deg
+    = "auto"`` for auto's number): then the file is compared with what the plan holds of
+    it, the board's size (floats to rounding,
+    :func:`~scratchfab.model.design.same_to_rounding`) and the tool (the machine's, which
+    the design's must match); neither known (``board_mm`` None), it has changed.
+    """
+    if "fields_sha256" in entry:
+        return bool(entry["fields_sha256"] == design_content_sha256(file))
+    if board_mm is None:
+        return False
+    from scratchfab.toolpath.plan import tool_mismatch  # plan imports this module
+
+    try:
+        design = load_design(file, require_views=False)
+    except ConfigError:
+        return False
+    size = (float(design.board.width_mm), float(design.board.height_mm))
+    return same_to_rounding(size, tuple(map(float, board_mm))) and (
+        tool_mismatch(planned, design.scratch) is None
+    )
+
+
 def input_changes(
     inputs: dict[str, Any] | None,
     planned: MachineProfile,
     folder: Path,
     check_machine: bool = True,
+    board_mm: tuple[float, float] | None = None,
 ) -> tuple[list[str], list[str]]:
     """What differs between a toolpath's recorded inputs and the files as they are now.
 
@@ -168,6 +203,8 @@ def input_changes(
         folder: The toolpath's folder, which the record's paths are relative to.
         check_machine: Compare the recorded machine profile too (not when exporting for
             another profile: ``export --machine``).
+        board_mm: The board's size the toolpath holds: a design recorded by its bytes
+            alone is compared with it (and the tool) where the bytes changed.
 
     Returns:
         (changes, notes): each change in words (a file changed, another layout picked,
@@ -203,7 +240,7 @@ def input_changes(
         elif not now.is_file():  # a file given, not the job's: moved away with its toolpath
             notes.append(f"{file}, planned from, is not found: not checked")
         elif file_sha256(now) != entry["sha256"] and (
-            role != "design" or entry.get("fields_sha256") != design_content_sha256(now)
+            role != "design" or not _same_design(entry, now, planned, board_mm)
         ):
             changes.append(f"{now} changed since")
     machine = inputs.get("machine")
@@ -302,7 +339,9 @@ def check_current(
     if toolpath.file is None:
         return None, []
     folder = toolpath.file.parent
-    changes, notes = input_changes(toolpath.inputs, toolpath.profile, folder, profile is None)
+    changes, notes = input_changes(
+        toolpath.inputs, toolpath.profile, folder, profile is None, toolpath.board_mm
+    )
     if toolpath.inputs is None:
         command = "scratchfab toolpath"
         if JobLayout(folder.parent).design.design_toml.is_file():  # in its job's folder

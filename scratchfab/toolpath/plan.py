@@ -269,6 +269,24 @@ class Toolpath:
         return cls(strokes, rows, board, outline, profile, stats, inputs, file)
 
 
+def _differs(a: float | np.ndarray, b: float) -> Any:
+    """Whether a tool size differs from the machine's ``b`` (beyond 0.1 %)."""
+    return np.abs(np.asarray(a) - b) > 1e-3 * b + 1e-12
+
+
+def tool_mismatch(profile: MachineProfile, design_tool: ScratchTool) -> str | None:
+    """Why the design's ``[scratch]`` tool is not the machine's, or None (it is)."""
+    for key in ("width_mm", "depth_mm"):
+        want, have = getattr(profile.tool, key), getattr(design_tool, key)
+        if _differs(have, want):
+            return (
+                f"the design's [scratch] {key} = {have:g} but machine '{profile.name}' "
+                f"({profile.source}) cuts tool.{key} = {want:g}; use a matching machine "
+                "profile or design"
+            )
+    return None
+
+
 def check_tool(
     profile: MachineProfile, design_tool: ScratchTool | None, scratches: ScratchSet
 ) -> None:
@@ -278,24 +296,13 @@ def check_tool(
         ScratchfabError: Naming both values (and the first differing scratch row).
     """
     tool = profile.tool
-
-    def differs(a: float | np.ndarray, b: float) -> Any:
-        return np.abs(np.asarray(a) - b) > 1e-3 * b + 1e-12
-
-    if design_tool is not None:
-        for key in ("width_mm", "depth_mm"):
-            want, have = getattr(tool, key), getattr(design_tool, key)
-            if differs(have, want):
-                raise ScratchfabError(
-                    f"the design's [scratch] {key} = {have:g} but machine '{profile.name}' "
-                    f"({profile.source}) cuts tool.{key} = {want:g}; use a matching machine "
-                    "profile or design"
-                )
+    if design_tool is not None and (why := tool_mismatch(profile, design_tool)) is not None:
+        raise ScratchfabError(why)
     for column, values, want in (
         ("width", scratches.width, tool.width_mm),
         ("depth", scratches.depth, tool.depth_mm),
     ):
-        bad = np.flatnonzero(differs(values, want))
+        bad = np.flatnonzero(_differs(values, want))
         if len(bad):
             row = int(bad[0])
             raise ScratchfabError(
