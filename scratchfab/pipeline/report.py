@@ -1042,7 +1042,11 @@ def _copied_title(title: str, pipeline_file: Path | None) -> str:
 
 
 def _setup_step(job: Path) -> str:
-    """How to set the machine up: the profile's placement, and README step 5."""
+    """How to set the machine up, for the profile the toolpath was planned with.
+
+    README step 5, the board's placement and the tool's height, and the zeroing the
+    profile's ``[envelope] coordinates`` calls for (none on the board, or the work zero).
+    """
     text = (
         "Set the machine up as README step 5 (<b>Cut.</b>) says for your profile: the G-code "
         "moves in the profile's own coordinates"
@@ -1055,14 +1059,41 @@ def _setup_step(job: Path) -> str:
     except ConfigError:  # no toolpath yet, or a damaged one: the pointer alone
         return text + "."
     x, y = profile.board.offset_mm
-    return text + (
-        f" ('{html.escape(profile.name)}'): the board's {html.escape(profile.board.origin)} "
-        f"corner at X <span data-stat='setup.x'>{x:g}</span> Y "
-        f"<span data-stat='setup.y'>{y:g}</span>, the tool cutting at Z "
-        f"<span data-stat='setup.z'>{profile.z.engrave_mm:g}</span> mm. Make both true on "
-        "your machine before streaming (bundled grbl-3018-diamond: machine coordinates after "
-        "homing, G54 offset cleared; do not zero the work coordinates on the board)."
+    origin = profile.board.origin
+    corner = "centre" if origin == "center" else f"{origin} corner"
+    servo = profile.tool_control.mode == "servo"
+    tool = (
+        f"the tool lowered by its on command ({_code(profile.tool_control.command('on'))})"
+        if servo
+        else f"the tool cutting at Z <span data-stat='setup.z'>{profile.z.engrave_mm:g}</span> mm"
     )
+    placed = (
+        f" ('{html.escape(profile.name)}'): the board's {html.escape(corner)} at X "
+        f"<span data-stat='setup.x'>{x:g}</span> Y <span data-stat='setup.y'>{y:g}</span>, "
+        f"{tool}. "
+    )
+    if profile.envelope.coordinates == "machine":
+        advice = (
+            "Make both true on your machine before streaming: these are GRBL's machine "
+            "coordinates after homing, with the G54 work offset cleared "
+            f"({_code('G10 L2 P1 X0 Y0 Z0')}, check with {_code('$#')}; the profile's "
+            "[envelope] <code>coordinates = &quot;machine&quot;</code>): do not zero the work "
+            "coordinates on the board."
+        )
+        return text + placed + advice
+    z_zero = (
+        ""
+        if servo
+        else f"; with the tool touching the board's surface, {_code('G10 L20 P1 Z0')} "
+        "makes that surface Z 0"
+    )
+    advice = (
+        "These are work coordinates: set them on the board before streaming. Jog the tool "
+        f"to the board's {html.escape(corner)} and send {_code(f'G10 L20 P1 X{x:g} Y{y:g}')} "
+        f"there (that point becomes X {x:g} Y {y:g}){z_zero}; not {_code('G92')}: every "
+        "soft reset clears a G92 zero."
+    )
+    return text + placed + advice
 
 
 def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: Path | None) -> str:

@@ -1,0 +1,86 @@
+"""report.html's set-up step: the advice follows the profile the toolpath was planned with."""
+
+from __future__ import annotations
+
+import html
+import re
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from test_report import fake_job
+
+from scratchfab.machine.profile import MachineProfile, load_profile
+from scratchfab.pipeline.report import _setup_step, write_report
+from scratchfab.toolpath import Toolpath
+
+
+def _plan(job: Path, profile: MachineProfile) -> None:
+    """A toolpath.json of one stroke planned for ``profile`` (its statistics kept)."""
+    import json
+
+    file = job / "toolpath" / "toolpath.json"
+    stats = json.loads(file.read_text())["statistics"]
+    x, y = profile.board.offset_mm
+    outline = np.array([[x, y], [x + 60, y], [x + 60, y + 40], [x, y + 40]], dtype=np.float64)
+    stroke = np.array([[[x + 1, y + 1], [x + 5, y + 5]]], dtype=np.float64)
+    Toolpath(stroke, np.zeros(1, np.int64), (60.0, 40.0), outline, profile, stats).save(file)
+
+
+def _words(fragment: str) -> str:
+    return " ".join(html.unescape(re.sub(r"<[^>]+>", "", fragment)).split())
+
+
+def test_machine_coordinates_profile_says_do_not_zero_on_the_board(tmp_path):
+    job = fake_job(tmp_path)
+    profile = load_profile("grbl-3018-diamond")
+    assert profile.envelope.coordinates == "machine"
+    _plan(job, profile)
+    step = _words(_setup_step(job))
+    assert "do not zero the work coordinates on the board" in step
+    assert "G10 L2 P1 X0 Y0 Z0" in step and "G10 L20" not in step
+    x, y = profile.board.offset_mm
+    assert f"lower-left corner at X {x:g} Y {y:g}" in step
+    assert f"Z {profile.z.engrave_mm:g} mm" in step
+
+
+def test_work_coordinates_profile_is_told_to_set_the_zero_on_the_board(tmp_path):
+    job = fake_job(tmp_path)
+    base = load_profile("grbl-3018-diamond")
+    profile = replace(
+        base,
+        name="lab engraver",
+        envelope=replace(base.envelope, coordinates="work"),
+        board=replace(base.board, origin="upper-right"),
+    )
+    _plan(job, profile)
+    step = _words(_setup_step(job))
+    x, y = profile.board.offset_mm
+    assert "do not zero" not in step and "G10 L2 P1" not in step
+    assert "'lab engraver'" in step
+    # The work zero is set where the board lies: its corner gets the profile's offset.
+    assert f"upper-right corner and send G10 L20 P1 X{x:g} Y{y:g} there" in step
+    assert "G92" in step  # named as the one not to use (a soft reset clears it)
+    assert f"Z {profile.z.engrave_mm:g} mm" in step and "G10 L20 P1 Z0" in step
+
+
+def test_a_servo_profile_is_not_told_a_z_height(tmp_path):
+    job = fake_job(tmp_path)
+    profile = load_profile("grbl-plotter-scribe")
+    assert profile.envelope.coordinates == "work" and profile.tool_control.mode == "servo"
+    _plan(job, profile)
+    step = _words(_setup_step(job))
+    assert "do not zero" not in step
+    assert "lower-left corner and send G10 L20 P1 X20 Y20 there" in step
+    assert " Z " not in step and "setup.z" not in _setup_step(job)
+    assert profile.tool_control.command("on") in step
+
+
+def test_the_report_shows_the_work_coordinates_advice(tmp_path):
+    job = fake_job(tmp_path)
+    _plan(job, load_profile("grbl-plotter-scribe"))
+    page = write_report(job, "tiny").read_text()
+    steps = re.search(r"<ol data-next='[^']+'>(.*?)</ol>", page)
+    assert steps is not None
+    assert "do not zero the work coordinates" not in page
+    assert "G10 L20 P1 X20 Y20" in _words(steps.group(1))
