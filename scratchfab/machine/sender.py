@@ -2075,8 +2075,8 @@ class Streamer:
         one summed from ``$#`` (no report printed ``WCO:`` yet: a build without the field,
         or early in a job) adds up to three rounded parts (the system's, G92, the tool
         length offset). Each rest (a target ``t`` whose step ``n`` was seen) puts the
-        offset where ``t`` rounds to ``n`` (GRBL's ``lround``, in single precision); rests
-        that contradict it (an offset changed behind the sender's back) are not counted.
+        offset where ``t`` rounds to ``n`` (GRBL's ``lround``, in single precision). Where
+        they leave no offset (one changed behind the sender's back), none is counted.
         """
         assert report.wco is not None
         digit = REPORT_DIGIT_MM[self.info.inch_reports]
