@@ -98,20 +98,64 @@ def test_the_mostly_bright_warning_names_the_option(pictures, capsys):
     )
 
 
-def test_a_dark_logo_on_a_transparent_ground_inverted_says_what_became_of_the_ground(
-    tmp_path, capsys
+@pytest.fixture
+def transparent_logo(tmp_path: Path) -> tuple[Path, Path]:
+    """A dark logo on a transparent ground, and by hand its white logo on black, opaque."""
+    grey = _logo()
+    opaque = grey < 128  # the logo's strokes (codes 0 and 20) and the ramp's dark end
+    rgba = np.zeros((*grey.shape, 4), dtype=np.uint8)
+    rgba[..., :3] = np.where(opaque, grey, 255)[..., None]  # white under the transparency
+    rgba[..., 3] = np.where(opaque, 255, 0)
+    image, by_hand = (tmp_path / "transparent" / name / "logo.png" for name in ("a", "b"))
+    image.parent.mkdir(parents=True)
+    by_hand.parent.mkdir()
+    Image.fromarray(rgba, "RGBA").save(image)
+    Image.fromarray(np.where(opaque, 255 - grey, 0).astype(np.uint8)).save(by_hand)
+    return image, by_hand
+
+
+def test_a_dark_logo_on_a_transparent_ground_inverted_turns_white_on_the_bare_board(
+    transparent_logo, capsys
 ):
-    """Transparent pixels read black, so inverted they turn white with the logo: all white."""
-    rgba = np.zeros((36, 48, 4), dtype=np.uint8)
-    rgba[6:30, 6:20, 3] = 255  # an opaque black block on a transparent ground
-    Image.fromarray(rgba).save(tmp_path / "logo.png")
-    logo = str(tmp_path / "logo.png")
-    out = _run(["design", logo, *BOARD, "--fit", "cover", "--invert", "--out", "a"], capsys)
-    board, _target, _layout = _made(Path("a"))
-    assert board.min() == board.max() == 65535  # white everywhere on the board
+    """The colours are inverted, then composited over black: the ground stays black."""
+    image, by_hand = transparent_logo
+    tone = ["--gamma", "1.4", "--contrast", "1.2"]
+    out = _run(["design", str(image), *BOARD, *tone, "--invert", "--out", "a"], capsys)
+    _run(["design", str(by_hand), *BOARD, *tone, "--out", "b"], capsys)
+    _assert_same(Path("a"), Path("b"))
+    assert "warning: target" not in out
+
+
+def test_a_dark_logo_on_a_transparent_ground_is_refused_naming_invert(tmp_path, capsys):
+    """Its strokes (codes 0 and 20) below the black limit, the ground transparent."""
+    grey = _logo()
+    rgba = np.zeros((*grey.shape, 4), dtype=np.uint8)
+    rgba[..., :3] = grey[..., None]
+    rgba[..., 3] = np.where(grey <= 20, 255, 0)
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "logo.png")
+    with pytest.raises(SystemExit):
+        main(["design", str(tmp_path / "logo.png"), *BOARD, "--out", "a"])
+    err = capsys.readouterr().err
+    assert "the picture is black on the board" in err
+    assert (
+        "a dark logo on a transparent ground: make the logo white, or design again with "
+        "--invert" in err
+    )
+
+
+def test_a_transparent_ground_is_named_bare_board_inverted_or_not(tmp_path, capsys):
+    """A fully transparent picture, inverted, is still black: refused, then uniform if forced."""
+    Image.fromarray(np.zeros((36, 48, 4), dtype=np.uint8), "RGBA").save(tmp_path / "clear.png")
+    clear = str(tmp_path / "clear.png")
+    with pytest.raises(SystemExit):
+        main(["design", clear, *BOARD, "--invert", "--out", "a"])
+    err = capsys.readouterr().err
+    assert "(brightest 0.000, inverted by --invert)" in err
+    assert "(leave --invert off for one that is light on dark already)" in err
+    out = _run(["design", clear, *BOARD, "--invert", "--force", "--out", "a"], capsys)
     assert re.search(
-        r"warning: target 'logo' is uniform .*transparent pixels read as black, and "
-        "inverting turns them white",
+        r"warning: target 'clear' is uniform .*transparent pixels read as black \(bare "
+        r"board\), inverted or not",
         out,
     )
 
@@ -133,9 +177,15 @@ def test_a_views_invert_key_inverts_that_view_alone(pictures, capsys):
     _assert_same(Path("a"), Path("b"), names[0], names[0])
 
 
-def test_a_rerun_on_a_board_of_another_shape_inverts_the_first_image_again(pictures, capsys):
-    """The board picture is made anew from the image the first design inverted."""
-    image, by_hand = pictures
+@pytest.mark.parametrize("kind", ["opaque", "transparent"])
+def test_a_rerun_on_a_board_of_another_shape_inverts_the_first_image_again(
+    kind, pictures, transparent_logo, capsys
+):
+    """The board picture is made anew from the image the first design inverted.
+
+    A transparent ground stays black in the picture made anew too.
+    """
+    image, by_hand = pictures if kind == "opaque" else transparent_logo
     tone = ["--gamma", "0.8"]
     _run(["design", str(image), *BOARD, *tone, "--invert", "--out", "a"], capsys)
     _run(["design", str(by_hand), *BOARD, *tone, "--out", "b"], capsys)

@@ -1,8 +1,9 @@
 """Loading target images: any Pillow format to linear luminance in [0, 1].
 
 EXIF orientation is honoured, colour becomes luminance (Rec. 709 weights on linear
-channels), alpha is composited over black, and pixel values are decoded in the colour
-space the file declares (SPEC section 5 makes sRGB the default):
+channels), alpha is composited over black (after the colour is inverted, when asked), and
+pixel values are decoded in the colour space the file declares (SPEC section 5 makes sRGB
+the default):
 
 * an embedded ICC profile (any format) is converted to sRGB with littleCMS through
   Pillow's ImageCms, relative colorimetric intent: RGB (LUT-based profiles) and CMYK
@@ -63,6 +64,20 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     """Inverse of :func:`srgb_to_linear` (values clipped to [0, 1] first)."""
     v = np.clip(np.asarray(v, dtype=np.float64), 0.0, 1.0)
     return np.where(v <= 0.0031308, v * 12.92, 1.055 * v ** (1 / 2.4) - 0.055)
+
+
+def invert_picture(picture: np.ndarray) -> np.ndarray:
+    """A linear picture turned negative as it looks: ``1 - v`` on sRGB-encoded values.
+
+    Inverted in the encoding, as an image editor inverts a file (8-bit code ``255 - c``),
+    not in linear light: there a mid grey (encoded 0.5, linear 0.21) would become linear
+    0.79 (encoded 0.9), and the dark outline of a light-on-dark picture's shapes a bright
+    halo. In the encoding black and white swap and grey stays grey, as the eye sees it.
+    Values are clipped to [0, 1] first. A file's transparency is no part of the picture
+    here: ``load_image(path, invert=True)`` inverts the colours and then composites them
+    over black, so a transparent ground stays black.
+    """
+    return srgb_to_linear(1.0 - linear_to_srgb(picture))
 
 
 def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
@@ -591,10 +606,13 @@ def _high_bit_gray(image: Image.Image, file: Path, decoding: _Decoding) -> np.nd
     return None
 
 
-def _luminance_16bit(samples: np.ndarray, decoding: _Decoding) -> np.ndarray:
-    """Linear luminance of (h, w, c) 16-bit samples: grey or RGB, then alpha if c is even.
+def _luminance_16bit(
+    samples: np.ndarray, decoding: _Decoding
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Linear luminance of (h, w, c) 16-bit samples (grey or RGB), and alpha if c is even.
 
     ``decoding.lut16`` is one table for every channel or, (65536, 3), one per channel.
+    The luminance is the colour's, not composited: alpha (in [0, 1]) comes apart.
     """
     table = decoding.lut16.reshape(65536, -1)
     colour = samples.shape[2] >= 3
@@ -607,10 +625,9 @@ def _luminance_16bit(samples: np.ndarray, decoding: _Decoding) -> np.ndarray:
         lum = np.zeros(block.shape[:2])
         for c, (weight, lut) in enumerate(zip(weights, luts, strict=True)):
             lum += weight * lut[block[..., c]]
-        if samples.shape[2] % 2 == 0:
-            lum *= block[..., -1] / 65535.0
         lin[r0 : r0 + _CHUNK_ROWS] = lum
-    return lin
+    alpha = samples[..., -1] / 65535.0 if samples.shape[2] % 2 == 0 else None
+    return lin, alpha
 
 
 def _rgb_codes(image: Image.Image, file: Path) -> np.ndarray:
@@ -622,26 +639,30 @@ def _rgb_codes(image: Image.Image, file: Path) -> np.ndarray:
         raise ConfigError(f"{file}: cannot convert {image.mode} image to RGB ({exc})") from None
 
 
-def _luminance_8bit(image: Image.Image, file: Path, decoding: _Decoding) -> np.ndarray:
-    """Linear luminance of an 8-bit image's R, G, B codes (grey ones too), times alpha."""
+def _luminance_8bit(
+    image: Image.Image, file: Path, decoding: _Decoding
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Linear luminance of an 8-bit image's R, G, B codes (grey ones too), and its alpha."""
     rgba = _rgb_codes(image, file)
     lin = np.empty(rgba.shape[:2])
     for r0 in range(0, rgba.shape[0], _CHUNK_ROWS):
         block = rgba[r0 : r0 + _CHUNK_ROWS]
-        lum = decoding.lut8[block[..., :3]] @ decoding.weights
-        if rgba.shape[2] == 4:
-            lum *= block[..., 3] / 255.0
-        lin[r0 : r0 + _CHUNK_ROWS] = lum
-    return lin
+        lin[r0 : r0 + _CHUNK_ROWS] = decoding.lut8[block[..., :3]] @ decoding.weights
+    return lin, rgba[..., 3] / 255.0 if rgba.shape[2] == 4 else None
 
 
-def load_image(path: str | Path) -> np.ndarray:
+def load_image(path: str | Path, invert: bool = False) -> np.ndarray:
     """Read an image file as linear luminance, in the colour space the file declares.
+
+    Transparency is composited over black (straight alpha, in linear light: ``alpha *
+    colour``): a transparent ground is the bare board.
 
     Args:
         path: Any format Pillow reads (PNG incl. 16-bit and palette, JPEG incl. CMYK,
             TIFF incl. 16-bit, float grey and CIELAB, WebP, ...), with or without an ICC
             profile.
+        invert: Turn the colours negative (:func:`invert_picture`) before compositing,
+            so that a dark logo on a transparent ground becomes a light logo on black.
 
     Returns:
         (h, w) float64 array in [0, 1], row 0 at the top of the (upright) picture.
@@ -673,13 +694,21 @@ def load_image(path: str | Path) -> np.ndarray:
             deep = _rgb_codes(image, file).astype(np.uint16) * np.uint16(257)
     else:
         decoding = _png_decoding(image, file, kind) or _Decoding()
+    alpha: np.ndarray | None = None
     if deep is not None:
-        lin = _luminance_16bit(deep, decoding)
+        lin, alpha = _luminance_16bit(deep, decoding)
     else:
         high = _high_bit_gray(image, file, decoding)
         if high is None:
             high = _lab_luminance(image)
-        lin = high if high is not None else _luminance_8bit(image, file, decoding)
+        if high is not None:
+            lin = high
+        else:
+            lin, alpha = _luminance_8bit(image, file, decoding)
     if lin.ndim != 2 or lin.size == 0:
         raise ConfigError(f"{file}: image has no pixels")
+    if invert:
+        lin = invert_picture(lin)
+    if alpha is not None:
+        lin *= alpha
     return np.clip(lin, 0.0, 1.0)

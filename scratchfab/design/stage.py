@@ -336,7 +336,9 @@ def target_picture(
     An earlier design's board picture made for a board of another shape would be fitted
     again, its own bars or crop inside the new ones; it is made anew instead from the
     image that design started from, with each design's options in turn (as its heading
-    comment names them), then this run's.
+    comment names them), then this run's. A file is inverted (``invert``, or the first
+    design's) as it is read, its colours alone: a transparent ground stays black
+    (``load_image``).
 
     Returns:
         (image, the image it was made anew from, or None).
@@ -345,7 +347,7 @@ def target_picture(
         ConfigError: A file is unreadable; for a picture to make anew, naming it and the
             image it was made from.
     """
-    picture = load_image(path)
+    picture = load_image(path, invert)
     rows, cols = picture.shape
     aspect = board.width_mm / board.height_mm
     origin = _earlier_origin(path)
@@ -364,16 +366,19 @@ def target_picture(
             )
         made_from, options = steps
         try:
-            picture = load_image(made_from)
+            picture = load_image(made_from, options[0][3])
         except ConfigError as exc:
             raise ConfigError(
                 f"{where}, and the image it was made from cannot be read ({exc}); set the "
                 "target to that image, or another, to fit it to this board"
             ) from None
-        for step_fit, step_gamma, step_contrast, step_invert in options:
+        # later steps, and this run, invert the opaque picture the one before made
+        for k, (step_fit, step_gamma, step_contrast, step_invert) in enumerate(options):
+            step_invert = step_invert and k > 0
             step = fit_picture(picture, board, step_fit, step_gamma, step_contrast, step_invert)
             picture = quantize_like_png(step)
-    return fit_picture(picture, board, fit, gamma, contrast, invert), made_from
+        return fit_picture(picture, board, fit, gamma, contrast, invert), made_from
+    return fit_picture(picture, board, fit, gamma, contrast), made_from
 
 
 def _comment_safe(text: str) -> str:
@@ -621,15 +626,18 @@ def _check_brightness(
             f"the board (brightest {float(board.max()):.3f}"
             + (f", inverted by {option}" if inverted else "")
             + "), so the view would show nothing: bright parts are cut, dark ones stay bare "
-            "board, and transparent pixels read as black; give a picture with light shapes "
-            "on a dark ground (a dark logo on a transparent ground: make the logo white) "
+            "board, and transparent pixels read as black (inverted or not); give a picture "
+            "with light shapes on a dark ground ("
+            + (
+                f"leave {option} off for one that is light on dark already"
+                if inverted
+                else "a dark logo on a transparent ground: make the logo white, or design "
+                f"again with {option}"
+            )
+            + ") "
             + DESIGN_ANYWAY
         )
-    transparent = (
-        "transparent pixels read as black, and inverting turns them white"
-        if inverted
-        else "transparent pixels read as black (bare board)"
-    )
+    transparent = "transparent pixels read as black (bare board), inverted or not"
     if spread < UNIFORM_TARGET_SPREAD:
         say(
             f"  warning: target '{name}' is uniform (brightness {mean:.3f} everywhere, spread "
@@ -638,8 +646,7 @@ def _check_brightness(
     elif mean > BRIGHT_TARGET_MEAN:
         fix = (
             f"it was inverted ({option}): leave that off for an image that is light on dark "
-            f"already; {transparent} (a dark logo on a transparent ground: make the logo "
-            "white instead)"
+            f"already; {transparent}"
             if inverted
             else f"to invert a dark-on-white image, design again with {option}"
         )

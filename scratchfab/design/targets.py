@@ -15,7 +15,7 @@ from typing import Literal
 import numpy as np
 from PIL import Image
 
-from scratchfab.design.images import linear_to_srgb, load_image, srgb_to_linear
+from scratchfab.design.images import invert_picture, linear_to_srgb, load_image, srgb_to_linear
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.figures import gray_rgb
 from scratchfab.model.camera import Camera
@@ -79,19 +79,6 @@ def adjust(image: np.ndarray, gamma: float = 1.0, contrast: float = 1.0) -> np.n
         mean = float(out.mean())
         out = np.clip(mean + contrast * (out - mean), 0.0, 1.0)
     return out
-
-
-def invert_picture(picture: np.ndarray) -> np.ndarray:
-    """A linear picture turned negative as it looks: ``1 - v`` on sRGB-encoded values.
-
-    Inverted in the encoding, as an image editor inverts a file (8-bit code ``255 - c``),
-    not in linear light: there a mid grey (encoded 0.5, linear 0.21) would become linear
-    0.79 (encoded 0.9), and the dark outline of a light-on-dark picture's shapes a bright
-    halo. In the encoding black and white swap and grey stays grey, as the eye sees it.
-    The picture is what :func:`scratchfab.design.images.load_image` reads: transparent
-    pixels read black there, so they turn white.
-    """
-    return srgb_to_linear(1.0 - linear_to_srgb(picture))
 
 
 def fit_to_board(picture: np.ndarray, board: Board, fit: str = "contain") -> np.ndarray:
@@ -163,12 +150,13 @@ def board_image(
             filled, picture cropped).
         gamma: Exponent applied to linear values.
         contrast: Scale of the deviation from the picture's mean (1 = unchanged).
-        invert: Invert the picture first (:func:`invert_picture`).
+        invert: Invert the picture's colours first (:func:`invert_picture`); a
+            transparent ground stays black (``load_image(path, invert)``).
 
     Returns:
         (rows, cols) float64 in [0, 1]; top edge +y, left edge -x (SPEC section 5).
     """
-    return fit_picture(load_image(path), board, fit, gamma, contrast, invert)
+    return fit_picture(load_image(path, invert), board, fit, gamma, contrast)
 
 
 def fit_picture(
@@ -182,7 +170,9 @@ def fit_picture(
     """A linear picture inverted if asked, toned and placed on the board.
 
     :func:`invert_picture` first (as an image editor would), then :func:`adjust`, then
-    :func:`fit_to_board`, whose bars stay black.
+    :func:`fit_to_board`, whose bars stay black. The picture is opaque here: a file with
+    transparency is inverted as it is read (``load_image(path, invert=True)``), which
+    keeps its transparent ground black.
     """
     picture = invert_picture(picture) if invert else picture
     return fit_to_board(adjust(picture, gamma, contrast), board, fit)
