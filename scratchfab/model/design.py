@@ -138,8 +138,8 @@ class View:
     Either ``position_mm`` or all of ``azimuth_deg``, ``elevation_deg`` and
     ``distance_mm`` are given. Azimuth turns from +z toward +x (positive: the viewer
     stands to the right), elevation from the board's horizontal toward +y, both about
-    ``look_at_mm``. ``invert`` turns the target picture's black to white and white to
-    black before it is fitted (:func:`scratchfab.design.targets.invert_picture`).
+    ``look_at_mm``. ``invert`` turns the target picture's colours negative before it is
+    fitted; a transparent ground stays black (:func:`scratchfab.design.images.invert_picture`).
     """
 
     name: str
