@@ -213,11 +213,15 @@ def optimize(
         click.echo(
             f"pruned {p.removed} scratches: {p.length_saved_mm:.0f} mm of cutting, about "
             f"{clock(p.time_saved_s)} of machining saved (at {p.feed_mm_min:g} mm/min + "
-            f"{p.stroke_overhead_s:g} s per stroke)"
+            f"{p.stroke_overhead_s:g} s per stroke); loss {p.loss_before:.5f} -> "
+            f"{p.loss_after:.5f}"
         )
+    # A step gives the loss of the layout it started from; the layout after the last step
+    # (and pruning) is evaluated afresh, so this loss is not the last progress line's.
+    after = "after the last step" + (" and pruning" if result.prune is not None else "")
     click.echo(
-        f"{result.iterations} iterations ({result.stopped}), loss {result.loss:.5f}; "
-        f"wrote {result.out_dir}"
+        f"{result.iterations} iterations ({result.stopped}), loss {result.loss:.5f} {after} "
+        f"(a progress line shows the loss its step started from); wrote {result.out_dir}"
     )
     if result.stopped == "time budget":  # a resume given the same budget would take no step
         go_on = command_line(["scratchfab", "optimize", job, "--resume"])
