@@ -276,8 +276,8 @@ def test_cli_toolpath_and_export(rng, tmp_path, capsys):
 def test_cli_toolpath_job_inputs_note_and_given_files(rng, tmp_path, capsys):
     job = make_job(tmp_path, rng, optimize=False)
     main(["toolpath", str(job), "--machine", "grbl-3018-diamond"])
-    err = capsys.readouterr().err
-    assert "optimize has not run" in err and str(job / "design" / "scratches.csv") in err
+    said = capsys.readouterr().out
+    assert "optimize has not run" in said and str(job / "design" / "scratches.csv") in said
     assert Toolpath.load(job / "toolpath" / "toolpath.json").stats["input_count"] == 120
     # Given files win: the JOB folder need not hold a design or a layout of its own.
     other = tmp_path / "other"
@@ -285,7 +285,7 @@ def test_cli_toolpath_job_inputs_note_and_given_files(rng, tmp_path, capsys):
     given = ["--scratches", str(job / "design" / "scratches.csv")]
     given += ["--design", str(job / "design" / "design.toml")]
     main(["toolpath", str(other), "--machine", "grbl-3018-diamond", *given])
-    assert "optimize has not run" not in capsys.readouterr().err
+    assert "optimize has not run" in capsys.readouterr().out  # the initial layout still
     assert Toolpath.load(other / "toolpath" / "toolpath.json").stats["input_count"] == 120
 
 
@@ -325,7 +325,7 @@ def test_cli_toolpath_refuses_an_option_out_of_range(rng, tmp_path, capsys, opti
 def test_cli_falls_back_to_design_scratches_and_standalone(rng, tmp_path, capsys):
     job = make_job(tmp_path, rng, optimize=False)
     main(["toolpath", str(job), "--machine", "grbl-plotter-scribe"])
-    assert "note:" in capsys.readouterr().err
+    assert "is the design's initial layout, not optimized" in capsys.readouterr().out
     assert Toolpath.load(job / "toolpath" / "toolpath.json").stats["input_count"] == 120
     out = tmp_path / "alone"
     main(

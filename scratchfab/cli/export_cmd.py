@@ -62,7 +62,8 @@ def export(
 ) -> None:
     """Write JOB/export/board.gcode, .dxf or .svg from JOB/toolpath/toolpath.json.
 
-    Says the machine profile it writes for. A toolpath planned from other inputs than
+    Says the machine profile it writes for, and where the toolpath was planned from the
+    design's initial layout (optimize had not run), that too. A toolpath planned from other inputs than
     there are now (optimize or design ran again, the scratch CSV or the machine profile
     was edited) is refused, naming what changed and the toolpath command to rerun;
     --force exports it as it was planned.
@@ -73,7 +74,7 @@ def export(
     from scratchfab.export import export as export_toolpath
     from scratchfab.machine.profile import load_profile
     from scratchfab.toolpath import Toolpath
-    from scratchfab.toolpath.inputs import planned_for
+    from scratchfab.toolpath.inputs import initial_layout, planned_for
     from scratchfab.toolpath.plan import partial_text
 
     if toolpath_file is None:
@@ -102,6 +103,8 @@ def export(
     target = planned_for(tp)
     if profile is not None:
         target = f"machine '{profile.name}' ({machine}), planned for {target}"
+    if initial_layout(tp) is not None:
+        target += ", from the design's initial layout (not optimized)"
     click.echo(f"wrote {output} for {target}: {detail}")
     for note in stats["notes"]:
         click.echo(f"note: {note}", err=True)

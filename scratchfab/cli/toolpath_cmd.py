@@ -122,8 +122,10 @@ def toolpath(
 ) -> None:
     """Order the strokes for a machine: JOB/toolpath/toolpath.json and preview.png.
 
-    Either JOB (reads JOB/optimize/scratches.csv, else JOB/design/scratches.csv with a
-    note, and JOB/design/design.toml) or all of --scratches, --design and --out.
+    Either JOB (reads JOB/optimize/scratches.csv, else JOB/design/scratches.csv, and
+    JOB/design/design.toml) or all of --scratches, --design and --out. A plan of the
+    design's initial layout (optimize has not run) is warned of, naming the optimize to
+    run first; export and the G-code header then say it is not optimized.
 
     Clips the scratches to the board, drops those shorter than the tool's minimum,
     merges collinear duplicates, orders them to minimise pen-up travel from the start

@@ -28,6 +28,7 @@ import numpy as np
 from scratchfab.errors import ScratchfabError
 from scratchfab.fileio import write_bytes
 from scratchfab.machine.profile import MachineProfile, gcode_number
+from scratchfab.toolpath.inputs import initial_layout
 from scratchfab.toolpath.plan import Toolpath, estimate_time, partial_text
 
 _COMMENT_SAFE = re.compile(r"[^A-Za-z0-9 .,:_+=/-]")
@@ -113,6 +114,9 @@ def check_envelope(strokes: np.ndarray, rows: np.ndarray, profile: MachineProfil
 STROKES_ID = "toolpath strokes"
 #: The header comments' key for a board the envelope cut short (:func:`partial_notes`).
 PARTIAL_BOARD = "PARTIAL BOARD"
+#: The header comment of a toolpath planned from the design's initial layout.
+NOT_OPTIMIZED = "NOT OPTIMIZED"
+_NOT_OPTIMIZED_NOTE = f"{NOT_OPTIMIZED}: from the initial layout of the design"
 #: How many lines from the top :func:`read_header` reads: the header precedes any move.
 HEADER_LINES = 12
 
@@ -125,10 +129,12 @@ class GcodeHeader:
         strokes_id: The strokes id it was exported from (:data:`STROKES_ID`), else None.
         partial: What the envelope cut off the board (:func:`partial_text`'s words, or a
             plain account where the counts were not written), else None.
+        not_optimized: Planned from the design's initial layout (:data:`NOT_OPTIMIZED`).
     """
 
     strokes_id: str | None = None
     partial: str | None = None
+    not_optimized: bool = False
 
 
 def partial_notes(stats: dict[str, Any], max_length: int) -> list[str]:
@@ -162,7 +168,7 @@ def read_header(lines: Iterable[str]) -> GcodeHeader:
     earlier exports; a file without these comments (a foreign one) gives an empty header.
     """
     strokes_id: str | None = None
-    partial = False
+    partial = not_optimized = False
     stats: dict[str, Any] = {}
     for line in itertools.islice(lines, HEADER_LINES):
         text = line.strip()
@@ -171,6 +177,7 @@ def read_header(lines: Iterable[str]) -> GcodeHeader:
         body = text[1:-1].strip()
         if found := re.fullmatch(rf"{STROKES_ID} ([0-9a-f]{{16}})", body):
             strokes_id = found[1]
+        not_optimized = not_optimized or body.startswith(NOT_OPTIMIZED)
         if not body.startswith(PARTIAL_BOARD):
             continue
         partial = True
@@ -181,12 +188,13 @@ def read_header(lines: Iterable[str]) -> GcodeHeader:
         if found := _CLIPPED.match(body):
             stats["clipped_count"] = int(found[1])
     if not partial:
-        return GcodeHeader(strokes_id)
+        return GcodeHeader(strokes_id, None, not_optimized)
     # both counts, or neither: a count missing would read as 0
     counted = partial_text(stats) if {"outside_count", "clipped_count"} <= stats.keys() else None
     return GcodeHeader(
         strokes_id,
         counted or f"the envelope cut the board short (its header says {PARTIAL_BOARD})",
+        not_optimized,
     )
 
 
@@ -218,6 +226,9 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
         f"{STROKES_ID} {toolpath.strokes_id}",
     ]
     notes += partial_notes(stats, limit)
+    if initial_layout(toolpath) is not None:
+        fits = len(comment(_NOT_OPTIMIZED_NOTE)) <= limit
+        notes.append(_NOT_OPTIMIZED_NOTE if fits else NOT_OPTIMIZED)
     lines = ["G21 G90 G17 G94", *(comment(text, limit) for text in notes)]
     modal_feed: list[float | None] = [None]
 

@@ -85,6 +85,31 @@ def record_inputs(
     return record
 
 
+def initial_layout(toolpath: Toolpath, folder: Path | None = None) -> Path | None:
+    """The design's initial layout a toolpath was planned from, else None.
+
+    ``JOB/design/scratches.csv`` with its ``design.toml``; None for an optimized layout,
+    other files, or no record. Optimize had not run on the job, or the files were given so: the toolpath stage
+    warns, and export and the G-code header say the board is not optimized.
+
+    Args:
+        toolpath: The toolpath, its ``inputs`` as :func:`record_inputs` writes them.
+        folder: The folder its record's paths are relative to; default that of the file
+            it was loaded from (None for one planned in memory: no record to read).
+    """
+    folder = folder or (toolpath.file.parent if toolpath.file is not None else None)
+    inputs = toolpath.inputs
+    if not inputs or folder is None:
+        return None
+    design = _resolve(inputs["design"]["file"], folder)
+    scratches = _resolve(inputs["scratches"]["file"], folder)
+    job = _resolve(inputs["job"], folder) if "job" in inputs else design.parent.parent
+    own = JobLayout(job).design
+    pairs = ((own.design_toml, design), (own.initial_scratches, scratches))
+    same = all(os.path.abspath(a) == os.path.abspath(b) for a, b in pairs)
+    return scratches if same else None
+
+
 def checked_record(data: Any, where: str) -> dict[str, Any] | None:
     """A toolpath.json's ``"inputs"`` as :func:`record_inputs` writes it (None: absent).
 

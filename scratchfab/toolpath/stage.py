@@ -11,7 +11,13 @@ from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
 from scratchfab.model.job import JobLayout, job_inputs, stale_layout, stale_layout_warning
 from scratchfab.model.scratches import load_scratches
-from scratchfab.toolpath.inputs import check_current, planned_for, profile_changes, record_inputs
+from scratchfab.toolpath.inputs import (
+    check_current,
+    initial_layout,
+    planned_for,
+    profile_changes,
+    record_inputs,
+)
 from scratchfab.toolpath.order import OrderOptions
 from scratchfab.toolpath.plan import (
     Toolpath,
@@ -89,9 +95,32 @@ def run_toolpath(
     result.save(out_dir / "toolpath.json")
     write_preview(result, out_dir / "preview.png")
     say(summary(result))
+    initial = initial_layout(result, out_dir)
+    if initial is not None:
+        say(unoptimized_warning(initial))
     if lost is not None:
         say(f"warning: {lost} (see preview.png)")
     return result
+
+
+def unoptimized_warning(initial: Path) -> str:
+    """The warning of a toolpath planned from the design's ``initial`` layout.
+
+    Where optimize has not run on the job it names the command; where it has (the
+    files given), the job's optimized layout. Export and the G-code header mark it.
+    """
+    job = JobLayout(initial.parent.parent)
+    optimized = job.optimized_scratches
+    if optimized.is_file():
+        why, advice = f"{job.root}'s optimized layout is {optimized}", ""
+    else:
+        rerun = command_line(["scratchfab", "optimize", job.root])
+        why = f"optimize has not run on {job.root}"
+        advice = f"to cut the optimized board, run `{rerun}` first, then toolpath again; "
+    return (
+        f"warning: {initial} is the design's initial layout, not optimized ({why}); {advice}"
+        "planned as it is, export and the G-code header say it is not optimized"
+    )
 
 
 def _kept_plan(file: Path, profile: MachineProfile) -> str:
@@ -123,9 +152,9 @@ def job_toolpath_inputs(
     """The scratch CSV and design a toolpath on ``job`` uses; given files win over the job's.
 
     Returns:
-        (scratches, design, note): ``note`` says so when the job's layout is the initial
-        one because optimize has not run, or an optimized one of an earlier design
-        (:func:`~scratchfab.model.job.stale_layout_warning`), else None.
+        (scratches, design, note): ``note`` warns of an optimized layout of an earlier
+        design (:func:`~scratchfab.model.job.stale_layout_warning`), else None (the
+        initial layout, optimize not run, :func:`run_toolpath` warns of after planning).
 
     Raises:
         ScratchfabError: The job's optimized layout was made from an earlier design and
@@ -134,11 +163,8 @@ def job_toolpath_inputs(
     if scratches is not None and design is not None:
         return scratches, design, None
     design_file, scratch_file = job_inputs(job)
-    optimized = JobLayout(job).optimized_scratches
     note = None
-    if scratches is None and scratch_file != optimized:
-        note = f"note: {optimized} not found (optimize has not run); using {scratch_file}"
-    elif scratches is None:
+    if scratches is None and scratch_file == JobLayout(job).optimized_scratches:
         stale = stale_layout(job)
         if stale is not None and refuse_stale is not None:
             rerun = command_line(["scratchfab", "optimize", job])
@@ -157,7 +183,7 @@ def run_toolpath_job(
     say: Say = lambda _: None,
     refuse_partial: str | None = None,
 ) -> Toolpath:
-    """``toolpath JOB``: the job's optimized layout (else the initial one) into JOB/toolpath.
+    """``toolpath JOB``: the job's optimized layout (else the initial one, warned) into JOB/toolpath.
 
     ``refuse_partial`` as :func:`run_toolpath`'s.
     """
