@@ -29,6 +29,7 @@ from scratchfab.design.targets import (
     board_image_png,
     board_pixels,
     fit_picture,
+    picture_area,
     preview_png,
     quantize_like_png,
     warp_to_view,
@@ -52,8 +53,9 @@ from scratchfab.pipeline.config import PipelineOptions, parse_stage_tables
 #: A target whose brightness varies less than this (linear, 0..1) is uniform: a warning,
 #: or, when it is black too (nothing brighter than this), refused unless forced.
 UNIFORM_TARGET_SPREAD = 0.01
-#: A target whose mean linear brightness on the board is above this gets a warning:
-#: bright parts are cut, and a picture that is mostly cut shows poorly. Measured (two
+#: A target whose mean linear brightness over its picture's part of the board (the bars
+#: of a ``contain`` fit left out) is above this gets a warning: bright parts are cut, and
+#: a picture that is mostly cut shows poorly. Measured on pictures filling the board (two
 #: quick-form views on 100 x 80 mm, 60 steps, the other view a light star on dark):
 #: bars of bright share 0.1 / 0.3 / 0.4 / 0.5 / 0.6 / 0.7 / 0.9 reached rho 0.84 / 0.92 /
 #: 0.93 / 0.92 / 0.91 / 0.88 / 0.73, the other view's light leaking into them ever more
@@ -330,7 +332,7 @@ def _steps(origin: str) -> tuple[Path, list[tuple[str, float, float, bool]]] | N
 
 def target_picture(
     path: Path, board: Board, fit: str, gamma: float, contrast: float, invert: bool = False
-) -> tuple[np.ndarray, Path | None]:
+) -> tuple[np.ndarray, np.ndarray, Path | None]:
     """A view's target file as a linear board-space image (``targets.board_image``).
 
     An earlier design's board picture made for a board of another shape would be fitted
@@ -341,7 +343,8 @@ def target_picture(
     (``load_image``).
 
     Returns:
-        (image, the image it was made anew from, or None).
+        (image, the picture's own part of it: bool, False on the bars of a ``contain``
+        fit, an earlier design's too; the image it was made anew from, or None).
 
     Raises:
         ConfigError: A file is unreadable; for a picture to make anew, naming it and the
@@ -351,10 +354,9 @@ def target_picture(
     rows, cols = picture.shape
     aspect = board.width_mm / board.height_mm
     origin = _earlier_origin(path)
-    made_from = None
+    steps = _steps(origin) if origin is not None else None
     # one pixel of the short side: the rounding of a picture fitted to this shape
     if origin is not None and abs(math.log(cols / rows / aspect)) > 1.0 / min(rows, cols):
-        steps = _steps(origin)
         where = (
             f"{path} is the board picture an earlier design made for a board of another shape "
             f"({cols} x {rows} pixels, this board is {board.width_mm:g} x {board.height_mm:g} mm)"
@@ -372,13 +374,41 @@ def target_picture(
                 f"{where}, and the image it was made from cannot be read ({exc}); set the "
                 "target to that image, or another, to fit it to this board"
             ) from None
+        fits = [step[0] for step in options]
+        area = picture_area(picture.shape, board, [*fits, fit])
         # later steps, and this run, invert the opaque picture the one before made
         for k, (step_fit, step_gamma, step_contrast, step_invert) in enumerate(options):
             step_invert = step_invert and k > 0
             step = fit_picture(picture, board, step_fit, step_gamma, step_contrast, step_invert)
             picture = quantize_like_png(step)
-        return fit_picture(picture, board, fit, gamma, contrast, invert), made_from
-    return fit_picture(picture, board, fit, gamma, contrast), made_from
+        return fit_picture(picture, board, fit, gamma, contrast, invert), area, made_from
+    image = fit_picture(picture, board, fit, gamma, contrast)
+    area = picture_area(picture.shape, board, [fit])
+    if steps is not None:  # an earlier design's board picture: its bars are in it
+        area &= _on_grid(_earlier_area(steps, board), image.shape)
+    return image, area, None
+
+
+def _earlier_area(
+    steps: tuple[Path, list[tuple[str, float, float, bool]]], board: Board
+) -> np.ndarray:
+    """The part of this board an earlier design's picture covers, from its image's fits.
+
+    The whole board where the image it was made from cannot be read (as it need not be).
+    """
+    made_from, options = steps
+    try:
+        shape = load_image(made_from).shape
+    except ConfigError:
+        return np.ones((1, 1), dtype=bool)
+    return picture_area(shape, board, [step[0] for step in options])
+
+
+def _on_grid(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """A board-space mask on another grid of the same board (nearest cell centre)."""
+    rows = (np.arange(shape[0]) + 0.5) * mask.shape[0] // shape[0]
+    cols = (np.arange(shape[1]) + 0.5) * mask.shape[1] // shape[1]
+    return mask[np.ix_(rows.astype(np.intp), cols.astype(np.intp))]
 
 
 def _comment_safe(text: str) -> str:
@@ -453,7 +483,7 @@ def run_design(
     for i, view in enumerate(design.views):
         _check_frame(design.source, i, view, design.board, progress)
     boards: dict[str, np.ndarray] = {}
-    cache: dict[tuple[Path, bool], np.ndarray] = {}
+    cache: dict[tuple[Path, bool], tuple[np.ndarray, np.ndarray]] = {}
     refitted: set[Path] = set()
     inverted = frozenset(v.name for v in design.views if invert or v.invert)
     for i, view in enumerate(design.views):
@@ -462,13 +492,15 @@ def run_design(
         key = (path, view.name in inverted)
         if key not in cache:
             try:
-                image, made_from = target_picture(path, design.board, fit, gamma, contrast, key[1])
+                image, area, made_from = target_picture(
+                    path, design.board, fit, gamma, contrast, key[1]
+                )
             except ConfigError as exc:
                 # The image's own message names the file; say which key pointed at it.
                 raise ConfigError(
                     f"{design.source}: views[{i}].target ('{view.name}'): {exc}"
                 ) from None
-            cache[key] = quantize_like_png(image)
+            cache[key] = quantize_like_png(image), area
             if made_from is not None:
                 refitted.add(path)
                 progress(
@@ -476,9 +508,9 @@ def run_design(
                     f"made anew from {made_from}, fitted to this "
                     f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
                 )
-        boards[view.name] = cache[key]
+        boards[view.name], area = cache[key]
         _check_brightness(
-            design.source, i, view.name, path, boards[view.name], force, progress, key[1]
+            design.source, i, view.name, path, boards[view.name], area, force, progress, key[1]
         )
     progress(f"  loaded {len(cache)} target image(s)")
     note = resized_board_note(
@@ -602,6 +634,7 @@ def _check_brightness(
     name: str,
     path: Path,
     board: np.ndarray,
+    area: np.ndarray,
     force: bool,
     say: Say,
     inverted: bool = False,
@@ -612,13 +645,17 @@ def _check_brightness(
     shows nothing and asks nothing of the layout (its best exposure is 0, so its error
     is 0 whatever the render); a uniform one asks for an even glow; a mostly bright
     one (text dark on white) shows poorly: the warning names the option that inverts
-    it, or, where the picture was ``inverted``, says to leave that off.
+    it, or, where the picture was ``inverted``, says to leave that off. Brightness is
+    measured over the picture's own ``area`` of the board: the bars of a ``contain``
+    fit would dilute a letterboxed photo's (:data:`BRIGHT_TARGET_MEAN` was measured on
+    pictures filling their board).
 
     Raises:
         ConfigError: A black target without ``force``, naming the view's key and file.
     """
     spread = float(np.ptp(board))
     mean = float(board.mean())
+    own = float(board[area].mean()) if area.any() else mean
     option = "--invert" if source == QUICK_SOURCE else f"--invert or views[{index}] invert = true"
     if float(board.max()) < UNIFORM_TARGET_SPREAD and not force:
         raise ConfigError(
@@ -643,16 +680,21 @@ def _check_brightness(
             f"  warning: target '{name}' is uniform (brightness {mean:.3f} everywhere, spread "
             f"{spread:.4f}): the view will show an even board; {transparent}"
         )
-    elif mean > BRIGHT_TARGET_MEAN:
+    elif own > BRIGHT_TARGET_MEAN:
         fix = (
             f"it was inverted ({option}): leave that off for an image that is light on dark "
             f"already; {transparent}"
             if inverted
             else f"to invert a dark-on-white image, design again with {option}"
         )
+        where = (
+            "on the board"
+            if area.all()
+            else f"on its part of the board, the fit's black bars left out ({mean:.2f} with them)"
+        )
         say(
-            f"  warning: target '{name}' is mostly bright (mean linear brightness {mean:.2f} "
-            f"on the board, above {BRIGHT_TARGET_MEAN:g}) and will show poorly: bright = cut, "
+            f"  warning: target '{name}' is mostly bright (mean linear brightness {own:.2f} "
+            f"{where}, above {BRIGHT_TARGET_MEAN:g}) and will show poorly: bright = cut, "
             f"dark = bare board, so light shapes on a dark ground show best; {fix}"
         )
 

@@ -133,6 +133,21 @@ def fit_to_board(picture: np.ndarray, board: Board, fit: str = "contain") -> np.
     return canvas
 
 
+def picture_area(shape: tuple[int, int], board: Board, fits: Iterable[str]) -> np.ndarray:
+    """Where a picture of ``shape`` (h, w) lies on the board once fitted by each of ``fits``.
+
+    The picture's own part of the board, without the black bars ``contain`` adds: a
+    picture of ones through the same :func:`fit_to_board` steps.
+
+    Returns:
+        (rows, cols) bool on the board-space grid of the last step, True on the picture.
+    """
+    area = np.ones(shape)
+    for fit in fits:
+        area = fit_to_board(area, board, fit)
+    return area > 0.5
+
+
 def board_image(
     path: str | Path,
     board: Board,
