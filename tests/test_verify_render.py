@@ -362,7 +362,7 @@ def test_job_mode_compares_with_the_optimize_renders(half_job, tmp_path, capsys,
     main(["verify-render", "../job", "--spp", "4", "--out", str(tmp_path / "o2")])
     (line,) = [s for s in capsys.readouterr().out.splitlines() if "verifying" in s]
     scratch_named, renders_named = re.fullmatch(
-        r"  verifying (\S+) \(\d+ scratches\) against the optimizer's renders in (\S+)", line
+        r"verifying (\S+) \(\d+ scratches\) against the optimizer's renders in (\S+)", line
     ).groups()
     assert (cwd / scratch_named).resolve() == (job / "optimize" / "scratches.csv").resolve()
     assert (cwd / renders_named).resolve() == (job / "optimize" / "renders").resolve()

@@ -140,14 +140,11 @@ def verify_render(
     )
     start = time.perf_counter()
 
-    def say(line: str) -> None:
-        click.echo(f"  {line}")
-
     inputs = job_or_files(job, design_file, scratch_file, out_dir)
     if isinstance(inputs, tuple):
         design_file, scratch_file, out = inputs
-        run_verify_files(design_file, scratch_file, out, settings, progress=say)
+        run_verify_files(design_file, scratch_file, out, settings, progress=click.echo)
     else:
         out = out_dir if out_dir is not None else JobLayout(inputs).verify_dir
-        run_verify_job(inputs, settings, progress=say, out_dir=out)
+        run_verify_job(inputs, settings, progress=click.echo, out_dir=out)
     click.echo(f"wrote {out} in {time.perf_counter() - start:.1f} s")

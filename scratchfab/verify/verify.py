@@ -754,8 +754,21 @@ def run_verify_files(
     if progress is not None:
         progress(f"verifying {len(scratches)} scratches, {len(design.views)} views")
     return run_verify(
-        design, scratches, out_dir, settings, targets=targets, cross=cross, progress=progress
+        design,
+        scratches,
+        out_dir,
+        settings,
+        targets=targets,
+        cross=cross,
+        progress=_under(progress),
     )
+
+
+def _under(progress: Say | None) -> Say | None:
+    """``progress`` for a view's lines: indented under the heading (``verifying ...``)."""
+    if progress is None:
+        return None
+    return lambda line: progress(f"  {line}")
 
 
 def run_verify_job(
@@ -821,7 +834,7 @@ def run_verify_job(
         analytic_source=source,
         targets=targets,
         cross=cross,
-        progress=progress,
+        progress=_under(progress),
         feasibility=_read_feasibility(layout.design.feasibility_json),
     )
 
