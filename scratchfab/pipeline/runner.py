@@ -25,6 +25,7 @@ from scratchfab.fileio import try_lock
 from scratchfab.model.job import JobLayout
 from scratchfab.pipeline.config import STAGES, Pipeline, design_options
 from scratchfab.pipeline.manifest import (
+    MANIFEST_NAME,
     Legacy,
     Manifest,
     file_digest,
@@ -459,6 +460,19 @@ def _board_overhang(pipe: Pipeline) -> str | None:
     )
 
 
+def _has_stage_outputs(layout: JobLayout) -> bool:
+    """Whether the job folder holds a folder a stage writes (design/, optimize/, ...)."""
+    folders = (
+        layout.design.path,
+        layout.optimize_dir,
+        layout.verify_dir,
+        layout.toolpath_dir,
+        layout.export_dir,
+        layout.stream_dir,
+    )
+    return any(folder.is_dir() for folder in folders)
+
+
 def _run_stages(
     pipe: Pipeline,
     job: Path,
@@ -479,6 +493,9 @@ def _run_stages(
     # toolpath stage says what it left out itself; a run with nothing to do says nothing).
     overhang = _board_overhang(pipe) if last >= STAGES.index("toolpath") else None
     rerun = force
+    # A folder the single commands made (they keep no manifest): said once, where a stage
+    # is checked, so that the run does not seem to redo their work for no reason.
+    unrecorded = not (job / MANIFEST_NAME).exists() and _has_stage_outputs(stages.layout)
     try:
         for index, stage in enumerate(STAGES[: last + 1]):
             if not stages.wanted(stage):
@@ -512,6 +529,12 @@ def _run_stages(
                     "scratchfab recorded them (by absolute path and file time); they do not "
                     "match the files now: running it again"
                 )
+            if checked and unrecorded:
+                say(
+                    f"no record of earlier runs in {job} (only `scratchfab run` keeps one, its "
+                    f"{MANIFEST_NAME}), so every stage runs"
+                )
+                unrecorded = False
             if overhang is not None and index < STAGES.index("toolpath"):
                 say(overhang)
             overhang = None
