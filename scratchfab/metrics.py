@@ -200,6 +200,13 @@ def quality_report(
     return {"names": names, "views": views, "crosstalk_matrix": matrix}
 
 
+#: What a crosstalk x_kj measures, after "j's picture showing in view k" (SPEC: rho_kj
+#: less the correlation the two target pictures have anyway).
+CROSSTALK_MEANING = (
+    "beyond what the two pictures share; 0 = none, 1 = fully, below 0 = less than they share"
+)
+
+
 def rho_text(rho: float, min_rho: float | None = None) -> str:
     """``rho`` rounded down to 3 decimals, or to as many as ``min_rho`` is written with.
 

@@ -13,6 +13,7 @@ import click
 from scratchfab.cli.options import FiniteFloat, RedrawnLine, backend_option
 from scratchfab.console import command_line
 from scratchfab.errors import ConfigError, Interrupted
+from scratchfab.metrics import CROSSTALK_MEANING
 from scratchfab.model.job import JobLayout
 from scratchfab.optimize.checkpoint import Checkpoint, read_checkpoint
 from scratchfab.optimize.progress import clock, progress_printer
@@ -196,7 +197,7 @@ def optimize(
         return
     views = result.quality["views"]
     for name, v in views.items():
-        cross = ", ".join(f"x_{name},{j} = {x:.3f}" for j, x in v["crosstalk"].items())
+        cross = ", ".join(f"crosstalk from {j} {x:.3f}" for j, x in v["crosstalk"].items())
         glint = (
             f" (over every pixel, its glint on {100 * result.glint[name]:.1f}% of the board too, "
             "which optimize left out)"
@@ -208,6 +209,8 @@ def optimize(
             + (f", {cross}" if cross else "")
             + glint
         )
+    if any(v["crosstalk"] for v in views.values()):
+        click.echo(f"crosstalk from j: j's picture showing in the view, {CROSSTALK_MEANING}")
     if result.prune is not None:
         p = result.prune
         click.echo(

@@ -25,7 +25,7 @@ from scratchfab.console import command_line, duration_text
 from scratchfab.design.stand import side, stand_text
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, write_text
-from scratchfab.metrics import rho_text
+from scratchfab.metrics import CROSSTALK_MEANING, rho_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
 from scratchfab.model.job import JobLayout
 from scratchfab.verify.noise import diff_noise_advice, noise_advice, noise_explains
@@ -439,7 +439,7 @@ def _crosstalk_check(names: list[str], metrics: dict[str, Any] | None) -> list[_
         _Check(
             "info",
             f"crosstalk: at most {x:.3f} ({html.escape(j)}'s picture showing in view "
-            f"{html.escape(k)}, beyond what the two pictures share; 0 = none, 1 = fully). "
+            f"{html.escape(k)}, {CROSSTALK_MEANING}). "
             "No crosstalk limit is configured, so it does not decide the verdict.",
         )
     ]
