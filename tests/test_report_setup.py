@@ -61,7 +61,8 @@ def test_work_coordinates_profile_is_told_to_set_the_zero_on_the_board(tmp_path)
     # The work zero is set where the board lies: its corner gets the profile's offset.
     assert f"upper-right corner and send G10 L20 P1 X{x:g} Y{y:g} there" in step
     assert "G92" in step  # named as the one not to use (a soft reset clears it)
-    assert f"Z {profile.z.engrave_mm:g} mm" in step and "G10 L20 P1 Z0" in step
+    assert f"Z {profile.z.engrave_mm:g} mm" in step and "G10 L20 P1 Z0 there" in step
+    assert f"Z {profile.z.engrave_mm:g} must lie a little below" in step
 
 
 def test_a_servo_profile_is_not_told_a_z_height(tmp_path):

@@ -1084,14 +1084,15 @@ def _setup_step(job: Path) -> str:
     z_zero = (
         ""
         if servo
-        else f"; with the tool touching the board's surface, {_code('G10 L20 P1 Z0')} "
-        "makes that surface Z 0"
+        else f" For Z, touch the tool on the board's surface: Z {profile.z.engrave_mm:g} must "
+        f"lie a little below that height (e.g. {_code('G10 L20 P1 Z0')} there, with [z] "
+        "<code>engrave_mm</code> a little below 0)."
     )
     advice = (
         "These are work coordinates: set them on the board before streaming. Jog the tool "
         f"to the board's {html.escape(corner)} and send {_code(f'G10 L20 P1 X{x:g} Y{y:g}')} "
-        f"there (that point becomes X {x:g} Y {y:g}){z_zero}; not {_code('G92')}: every "
-        "soft reset clears a G92 zero."
+        f"there (that point becomes X {x:g} Y {y:g}; G10 L20, not {_code('G92')}, whose "
+        f"zero every soft reset clears).{z_zero}"
     )
     return text + placed + advice
 
