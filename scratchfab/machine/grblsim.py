@@ -10,7 +10,9 @@ The emulator reproduces what a sender can observe on the serial line of a Grbl 1
 - the main loop moves characters into an 80-byte line buffer (stripping spaces, control
   characters and comments, upper-casing), treats CR and LF each as a line end (so CRLF
   gets two ``ok``), and answers ``error:11`` for lines over 79 characters;
-- a 15-block planner: ``ok`` means "queued", so it lags while the planner is full. Motion
+- a 15-block planner: ``ok`` means "queued", so it lags while the planner is full; a
+  block frees (``Bf:``, a waiting line's ``ok``) once the stepper has prepared its last
+  segment, 40-50 ms before it ends (sooner for blocks shorter than that). Motion
   is timed as Grbl's planner runs it, by the ETA's model (:mod:`scratchfab.toolpath.timing`):
   per-axis rates and accelerations (``$110``-``$112``, ``$120``-``$122``), corners at the
   junction speed of ``$11``, look-ahead over the blocks queued when it plans (the newest
@@ -384,9 +386,12 @@ class GrblSim:
         self._seg_origin = 0.0  # where the segments of the head block's run start (s)
         self._seg_last = 0.0  # the last segment end counted (the head's run start at least)
         # [segment ends left after _seg_last, kind, what]: "stop", "replan" (the feed and
-        # rapid overrides), "block" (a new block), "probe" (a list that gets the speed)
+        # rapid overrides), "block" (a new block), "probe" (a list that gets the time and
+        # the speed there)
         self._deferred: list[list[Any]] = []
         self._land_at = math.inf  # when the first of them acts (:meth:`_schedule`)
+        self._free_at: float | None = None  # when a block frees for a waiting line (None: unknown)
+        self._wake_at = math.inf  # the waiting line looks again (:meth:`_block_free`)
         self._door_ajar = False  # the door switch
         self._restore_until = math.inf  # Door:3: spindle/coolant restoring before resuming
         self._door_saved: tuple[str, float, frozenset[str]] = ("M5", 0.0, frozenset())
@@ -588,7 +593,7 @@ class GrblSim:
 
     def _next_event(self) -> float:
         t = min(self._head_end(), self._reset_at, self._boot_at, self._restore_until)
-        t = min(t, self._land_at)
+        t = min(t, self._land_at, self._wake_at)
         if self._wire:
             t = min(t, self._wire[0][0])
         if self._pending is not None and self._pending.until > 0.0:
@@ -617,6 +622,8 @@ class GrblSim:
                 self._door_resume(t)
             elif t == self._land_at:
                 self._segment_end(t)
+            elif t == self._wake_at:
+                self._wake_at = math.inf
             elif t == self._head_end():
                 self._finish_head(t)
             elif self._pending is not None and t == self._pending.until:
@@ -942,7 +949,7 @@ class GrblSim:
         if act.kind == "motion":
             # Grbl's mc_line waits for a free block, then drops a move of no step, which so
             # takes none
-            if self._blocks() >= PLANNER_BLOCKS:
+            if not self._block_free(t):
                 return False
             self._plan(t, act, p.line)
             p.index += 1
@@ -1047,8 +1054,23 @@ class GrblSim:
         )
 
     def _blocks(self) -> int:
-        """Planner blocks in use (``Bf:``); a move of no whole step takes none (Grbl drops it)."""
+        """Planner blocks queued; a move of no whole step takes none (Grbl drops it)."""
         return sum(1 for b in self._planner if b.length > 0.0)
+
+    def _block_free(self, t: float) -> bool:
+        """Whether the planner has a free block at ``t`` for a line that waits for one.
+
+        Grbl frees a block once ``st_prep_buffer`` has prepared its last segment
+        (``plan_discard_current_block``: 40-50 ms before it ends, sooner for short blocks),
+        not when it ends. Waiting, the line looks again when the next block frees
+        (``_wake_at``), found again after any change of the plan (:meth:`_schedule`).
+        """
+        if self._blocks() < PLANNER_BLOCKS:
+            return True
+        if self._free_at is None:
+            self._free_at = self._next_free(t, self._blocks() - PLANNER_BLOCKS + 1)
+        self._wake_at = self._free_at if self._free_at > t else math.inf
+        return t >= self._free_at
 
     def _head_progress(self, t: float) -> tuple[float, float]:
         """Distance (mm) into the head's current profile and its speed (mm/s) at ``t``."""
@@ -1062,41 +1084,99 @@ class GrblSim:
             (t - self._head_start) / scale, head.span, head.v0, head.v1, head.vmax, head.accel
         )
 
-    def _prepared_speed(self, t: float) -> float:
-        """The speed (mm/s) where the segments prepared by ``t`` end: Grbl's ``FS:`` rate.
+    def _prepared_speed(self, t: float) -> tuple[float, int]:
+        """The speed (mm/s) where the segments prepared by ``t`` end, and the blocks freed.
 
-        ``st_get_realtime_rate`` reports ``prep.current_speed``, the speed at the end of
-        the last segment ``st_prep_buffer`` prepared (5 with the one running: 40-50 ms
-        ahead; 0 once the profile to a stop or the end is all prepared). Found by running a
-        copy of the motion on, changes still deferred acting as they will.
+        The speed is Grbl's ``FS:`` rate: ``st_get_realtime_rate`` reports
+        ``prep.current_speed``, the speed at the end of the last segment ``st_prep_buffer``
+        prepared (5 with the one running: 40-50 ms ahead; 0 once the profile to a stop or the
+        end is all prepared). The blocks are those whose segments are all prepared (Grbl has
+        discarded them: free in ``Bf:``). Found by running a copy of the motion on, changes
+        still deferred acting as they will.
         """
         if not self._running() or self.options.time_scale <= 0.0:
-            return self._head_progress(t)[1]
+            return self._head_progress(t)[1], 0
         most = self._ends(self._seg_last, t)[0] + SEGMENTS_PREPARED
         count, last = self._ends(self._seg_last, math.inf, most)
-        if count == most and last <= self._land_at:  # within the head's profile as it is
-            return self._head_progress(last)[1]
+        if count == most and last <= self._land_at and last < self._head_end():
+            return self._head_progress(last)[1], 0  # within the head's profile as it is
+        time_speed, freed, _, _ = self._ahead(most, math.inf)
+        return (time_speed[1] if time_speed else 0.0), freed
+
+    def _next_free(self, t: float, blocks: int) -> float:
+        """When the first ``blocks`` queued blocks have all their segments prepared (inf: never).
+
+        A block's last segment is prepared 5 segment ends (the buffer, the running one
+        included) before it ends: when the segment 5 ends earlier has run.
+        """
+        if not self._running() or self.options.time_scale <= 0.0:
+            return math.inf
+        head = self._planner[0]
+        if blocks == 1 and head.length > 0.0 and head.span >= head.length - head.done:
+            # the head's profile runs to its end: no copy needed unless a change lands first
+            ends = self._ends(self._seg_last, self._head_end())[0]
+            if ends <= SEGMENTS_PREPARED:
+                return t
+            free = self._ends(self._seg_last, math.inf, ends - SEGMENTS_PREPARED)[1]
+            if free < self._land_at:
+                return free
+        _, freed, ends, tail = self._ahead(math.inf, blocks)
+        if freed < blocks:
+            return math.inf  # a stop comes first
+        if tail is not None:
+            return tail
+        if ends <= SEGMENTS_PREPARED:
+            return t  # prepared since the head's run started
+        time_speed = self._ahead(ends - SEGMENTS_PREPARED, math.inf)[0]
+        return time_speed[0] if time_speed else t
+
+    def _ahead(
+        self, most: float, blocks: float
+    ) -> tuple[tuple[float, float] | None, int, int, float | None]:
+        """Run a copy of the motion on to a segment end or the end of some blocks.
+
+        To the ``most``-th segment end after ``_seg_last``, or until ``blocks`` blocks ran
+        to their end, whichever comes first.
+
+        Returns:
+            The time and speed at that segment end (None: the motion stopped or ended before),
+            the blocks of motion that ran to their end by then (one ending there included),
+            the segment ends counted and, when the last of ``blocks`` ended, the time of the
+            segment end 5 before its end where its last profile has it (else None).
+        """
         ahead = copy.copy(self)
-        blocks = {id(b): copy.copy(b) for b in self._planner}
-        ahead._planner = collections.deque(blocks[id(b)] for b in self._planner)
+        queued = {id(b): copy.copy(b) for b in self._planner}
+        ahead._planner = collections.deque(queued[id(b)] for b in self._planner)
         ahead._deferred = [
-            [n, kind, blocks.get(id(what), what)] for n, kind, what in self._deferred
+            [n, kind, queued.get(id(what), what)] for n, kind, what in self._deferred
         ]
         ahead._gc = dataclasses.replace(self._gc)
         ahead.record = []
         ahead.link_up = False  # it says nothing
-        speed: list[float] = []
-        ahead._defer(t, "probe", speed)
-        while not speed:
+        found: list[tuple[float, float]] = []
+        ends = 0
+        if most < math.inf:
+            ahead._deferred.append([most, "probe", found])
+            ahead._schedule()
+        freed = 0
+        tail = None
+        while not found and freed < blocks:
             end = ahead._head_end()
             landing = ahead._land_at
             if min(end, landing) == math.inf:
-                return 0.0  # stopped or ended before: the profile is all prepared
-            if landing <= end:
+                break  # stopped or ended: the profile is all prepared
+            stretch = ahead._ends(ahead._seg_last, min(end, landing))[0]
+            ends += stretch
+            if landing < end:
                 ahead._segment_end(landing)
             else:
+                head = ahead._planner[0]
+                whole = head.length > 0.0 and head.span >= head.length - head.done
+                if whole and freed + 1 == blocks and stretch > SEGMENTS_PREPARED:
+                    tail = ahead._ends(ahead._seg_last, end, stretch - SEGMENTS_PREPARED)[1]
                 ahead._finish_head(end)
-        return speed[0]
+                freed += whole
+        return (found[0] if found else None), freed, ends, tail
 
     def _cruise(self, block: _Block) -> float:
         """A block's nominal speed (mm/s) under the overrides (``plan_compute_profile_nominal_speed``).
@@ -1227,7 +1307,8 @@ class GrblSim:
         that is less than ``REQ_MM_INCREMENT_SCALAR`` (1.25) steps of the block (slow
         moves, a start from rest: its "very slow segments" rule), and at the profile's end.
         The speed of a profile is least at the ends of any span of it, so where both ends
-        are fast enough the 10 ms segments are counted at once.
+        are fast enough the 10 ms segments are counted at once (the last grid point fast
+        enough found by bisection: the speed rises, then falls).
         """
         head = self._planner[0]
         scale = self.options.time_scale
@@ -1253,11 +1334,17 @@ class GrblSim:
         while count < most:
             stop = min(until, end)
             far = math.floor((stop - self._seg_origin) / dt + 1e-9)  # the last whole grid point
-            if (
-                far > k + 1
-                and speed * dt >= need
-                and at(self._seg_origin + far * dt)[1] * dt >= need
-            ):
+            if far > k + 1 and speed * dt >= need:
+                if at(self._seg_origin + far * dt)[1] * dt < need:
+                    # the speed rises, then falls: the grid points fast enough lead the span
+                    lo, hi = k, far
+                    while hi - lo > 1:
+                        mid = (lo + hi) // 2
+                        if at(self._seg_origin + mid * dt)[1] * dt >= need:
+                            lo = mid
+                        else:
+                            hi = mid
+                    far = lo
                 jump = min(far - k - 1, int(min(most - count, 1e9)) - 1)
                 if jump > 0:  # all 10 ms segments: to one before the far point at once
                     k += jump
@@ -1285,7 +1372,11 @@ class GrblSim:
         return 1.25 * block.length / events if events and block.length > 0.0 else 0.0
 
     def _schedule(self) -> None:
-        """When the first deferred change acts, if the head's segments run on to it."""
+        """When the first deferred change acts, if the head's segments run on to it.
+
+        The plan changed (or may have): when a block frees is found again.
+        """
+        self._free_at = None
         self._land_at = math.inf
         if self._deferred and self._running():
             left = min(item[0] for item in self._deferred)
@@ -1336,7 +1427,7 @@ class GrblSim:
     def _apply_deferred(self, t: float, kind: str, what: Any = None) -> None:
         """A deferred change acts: an override's or new block's re-plan, or the stop."""
         if kind == "probe":
-            what.append(self._head_progress(t)[1])
+            what.append((t, self._head_progress(t)[1]))
             return
         if kind in ("replan", "block"):
             if kind == "replan":
@@ -1363,6 +1454,7 @@ class GrblSim:
         self._planned_overrides = self._overrides[:2]
         self._deferred = []
         self._land_at = math.inf
+        self._free_at = None
         self._stop_due = False
         for block in self._planner:
             block.seen = True
@@ -1669,9 +1761,11 @@ class GrblSim:
             self._state_name(),
             ("MPos:" if int(self.settings[10]) & 1 else "WPos:") + _fmt(pos, inches),
         ]
+        speed, freed = self._prepared_speed(t)
         if int(self.settings[10]) & 2:
-            fields_.append(f"Bf:{PLANNER_BLOCKS - self._blocks()},{RX_BUFFER_SIZE - len(self._rx)}")
-        rate = self._prepared_speed(t) * 60.0
+            free = PLANNER_BLOCKS - self._blocks() + freed
+            fields_.append(f"Bf:{free},{RX_BUFFER_SIZE - len(self._rx)}")
+        rate = speed * 60.0
         if inches:
             fields_.append(f"FS:{rate / MM_PER_INCH:.1f},{self._spindle_speed:.0f}")
         else:
