@@ -165,6 +165,11 @@ class Placement:
         if self.rotation_deg not in (0, 90, 180, 270):
             raise ValueError(f"rotation_deg: expected 0, 90, 180 or 270, got {self.rotation_deg}")
 
+    @property
+    def origin_text(self) -> str:
+        """The board point ``offset_mm`` places, in words: "centre" or "lower-left corner"."""
+        return "centre" if self.origin == "center" else f"{self.origin} corner"
+
 
 @dataclass(frozen=True)
 class Heights:

@@ -75,7 +75,7 @@ class Progress:
     Attributes:
         iteration: Steps done.
         total: Steps asked for.
-        loss: Loss of the last step.
+        loss: Loss of the layout the last step started from.
         elapsed_s: Optimizing time so far (including resumed sessions).
         eta_s: Estimated time to finish (NaN before the first step).
         message: A status line instead of a step ("" for steps).

@@ -1059,8 +1059,7 @@ def _setup_step(job: Path) -> str:
     except ConfigError:  # no toolpath yet, or a damaged one: the pointer alone
         return text + "."
     x, y = profile.board.offset_mm
-    origin = profile.board.origin
-    corner = "centre" if origin == "center" else f"{origin} corner"
+    corner = profile.board.origin_text
     servo = profile.tool_control.mode == "servo"
     tool = (
         f"the tool lowered by its on command ({_code(profile.tool_control.command('on'))})"

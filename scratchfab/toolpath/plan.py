@@ -124,7 +124,7 @@ def fit_advice(profile: MachineProfile, board_size: tuple[float, float]) -> str:
             "(check the scratches against the design's [board] width_mm and height_mm)"
         )
     place = profile.board
-    corner = "centre" if place.origin == "center" else f"{place.origin} corner"
+    corner = place.origin_text
     turned = f" (turned by rotation_deg = {place.rotation_deg})" if place.rotation_deg else ""
     return (
         f"set the profile's [board] offset_mm = {_offset_text(offset)}, where the "
