@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from scratchfab.console import Say
+from scratchfab.design.cost import cut_line
 from scratchfab.design.feasibility import DESIGN_ANYWAY, FeasibilityReport, check_feasibility
 from scratchfab.design.images import load_image
 from scratchfab.design.layout import initial_layout
@@ -48,7 +49,7 @@ from scratchfab.model.design import (
 from scratchfab.model.job import DesignFolder, JobLayout, carry_optimize_record, earlier_design
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
-from scratchfab.pipeline.config import PipelineOptions, parse_stage_tables
+from scratchfab.pipeline.config import StageTables, _machine_ref, parse_stage_tables
 
 #: A target whose brightness varies less than this (linear, 0..1) is uniform: a warning,
 #: or, when it is black too (nothing brighter than this), refused unless forced.
@@ -93,14 +94,15 @@ def load_source(
     source: str | Path | Design,
     count: int | None = None,
     resolution: tuple[int, int] | None = None,
-) -> tuple[Design, PipelineOptions]:
+) -> tuple[Design, StageTables]:
     """The design to work on, with command-line overrides applied as if written in the file.
 
     A file's stage tables are parsed as ``scratchfab run`` parses them, so a mistake in
     them is refused here too.
 
     Returns:
-        (design, the file's ``[pipeline]`` options; the defaults for a Design).
+        (design, the file's stage tables, ``[toolpath] machine`` a bundled name or a path
+        resolved against the file as ``run`` resolves it; the defaults for a Design).
 
     Raises:
         ConfigError: Naming the file and the key.
@@ -117,7 +119,7 @@ def load_source(
                 design = replace(design, scratch=replace(design.scratch, count=count))
             except ValueError as exc:
                 raise ConfigError(f"{design.source}: count: {exc}") from None
-        return design, PipelineOptions()
+        return design, StageTables()
     file = Path(source)
     data = load_toml(file)
     if count is not None:
@@ -129,7 +131,9 @@ def load_source(
             if isinstance(view, dict):
                 view["resolution"] = list(resolution)
     design = design_from_mapping(data, str(file), file.resolve().parent)
-    return design, parse_stage_tables(data, str(file)).pipeline
+    tables = parse_stage_tables(data, str(file))
+    machine = _machine_ref(tables.toolpath.machine, file.resolve())
+    return design, replace(tables, toolpath=replace(tables.toolpath, machine=machine))
 
 
 #: The origin comment's first line, by which a later design knows its own design.toml.
@@ -431,6 +435,7 @@ def run_design(
     seed: int | None = None,
     progress: Say = lambda _: None,
     invert: bool = False,
+    machine: str | None = None,
 ) -> DesignResult:
     """Run the design stage.
 
@@ -449,12 +454,16 @@ def run_design(
         progress: Called with one line per step.
         invert: Invert every view's target first (``targets.invert_picture``), as a
             view's ``invert = true`` inverts its own.
+        machine: The machine whose time to cut the layout is told (a bundled profile's
+            name or a profile file); default: a file's ``[toolpath] machine``, else the
+            bundled default.
 
     Raises:
         ConfigError: One line naming the file and what is wrong; nothing is written.
     """
     start = time.perf_counter()
-    design, defaults = load_source(source, count, resolution)
+    design, tables = load_source(source, count, resolution)
+    defaults = tables.pipeline
     _check_job_folder(Path(out_job))
     fit = fit if fit is not None else defaults.fit
     seed = seed if seed is not None else defaults.seed
@@ -543,6 +552,14 @@ def run_design(
         design, {k: v.astype(np.float64) for k, v in targets.items()}, seed, progress
     )
     progress(f"  initial layout: {len(scratches)} scratches ({time.perf_counter() - t0:.1f} s)")
+    if design.source == QUICK_SOURCE:
+        fewer = "--count"
+    elif isinstance(source, Design):  # a pipeline's design: `run` takes no --count
+        fewer = f"[scratch] count in {design.source}"
+    else:
+        fewer = f"--count or [scratch] count in {design.source}"
+    machine = machine if machine is not None else tables.toolpath.machine
+    progress(f"  {cut_line(scratches, design.board, machine, fewer)}")
 
     # the board pictures are inverted already: a rerun from the file keeps them as they are
     resolved = design.with_views(
