@@ -102,3 +102,35 @@ class PortProxy:
     @timeout.setter
     def timeout(self, value):
         self.inner.timeout = value
+
+
+class HeldUntilFeedHold(PortProxy):
+    """A link that holds back the line starting with ``line`` (and all written after it)
+    until the sender's feed hold (``!``) has passed, then sends them.
+
+    So the controller reads that line only once the hold came, however late the sender's
+    Ctrl-C comes on a loaded machine (at its next progress report, up to a poll period
+    after the ok that triggers it, plus the scheduler's delays): in real time the emulator
+    would otherwise read it in the cycle, a few blocks after the trigger's ok. Realtime
+    bytes pass at once.
+    """
+
+    def __init__(self, inner, line: bytes) -> None:
+        super().__init__(inner)
+        self.line = line
+        self.held = b""
+        self.released = False
+
+    def write(self, data: bytes) -> int:
+        if self.released or (len(data) == 1 and (data in b"?~\x18" or data[0] >= 0x80)):
+            return self.inner.write(data)
+        if data == b"!":
+            self.inner.write(data)
+            self.released = True
+            if self.held:
+                self.inner.write(self.held)
+            return 1
+        if self.held or data.startswith(self.line):
+            self.held += data
+            return len(data)
+        return self.inner.write(data)

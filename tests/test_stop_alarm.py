@@ -17,6 +17,7 @@ import signal
 import pytest
 from stream_helpers import (
     FAST,
+    HeldUntilFeedHold,
     PortProxy,
     executed_blocks,
     interrupt_after,
@@ -81,7 +82,8 @@ def test_an_alarm_during_the_users_hold_is_told_first_with_the_line_out_of_trave
     stops the motors itself (the emulator records the speed). The message names that
     line (the only one beyond machine X 0) and, stopped, says the hold was cut short
     rather than 'machine held'; the journal counts as run only moves that ran."""
-    exc, events, record = _stream(tmp_path, _JOB, interrupt_after(19), ask)
+    port = HeldUntilFeedHold(open_port(_URL, 115200), b"G1X10")  # read in the hold, always
+    exc, events, record = _stream(tmp_path, _JOB, interrupt_after(19), ask, port=port)
     alarms = [e for e in record if e["ev"] == "alarm"]
     assert [a["code"] for a in alarms] == [2] and alarms[0]["lost"] > 0.0
     text = str(exc)

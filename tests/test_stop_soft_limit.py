@@ -13,7 +13,13 @@ from __future__ import annotations
 import time
 
 import pytest
-from stream_helpers import FAST, PortProxy, executed_blocks, interrupt_after, stream_program
+from stream_helpers import (
+    FAST,
+    HeldUntilFeedHold,
+    executed_blocks,
+    interrupt_after,
+    stream_program,
+)
 
 from scratchfab.machine.sender import Streamer, StreamFault, StreamStopped, open_port
 from scratchfab.machine.sender_journal import read_journal
@@ -37,7 +43,8 @@ def _stream(tmp_path, stop_after: int | None, ask: str = "stop"):
     progress = interrupt_after(stop_after) if stop_after is not None else None
 
     inner = open_port(_URL, 115200)
-    port = _OutsideAfterHold(inner) if stop_after is not None else inner
+    # the outside line is read only once the sender's hold came, however late
+    port = HeldUntilFeedHold(inner, b"G1X10") if stop_after is not None else inner
     try:
         with pytest.raises((StreamStopped, StreamFault)) as exc:
             stream_program(
@@ -50,33 +57,6 @@ def _stream(tmp_path, stop_after: int | None, ask: str = "stop"):
     finally:
         port.close()
     return exc.value, read_journal(tmp_path / "j.jsonl"), inner.sim.record
-
-
-class _OutsideAfterHold(PortProxy):
-    """The link holds back the line outside the travel (and what follows) until the
-    sender's feed hold has passed, so GRBL reads it while the hold slows the machine,
-    however late the sender's Ctrl-C comes on a loaded machine (its progress report, up
-    to a poll period after the ok, and the scheduler's delays; in real time the emulator
-    would otherwise read it in the cycle, a few 0.1 s blocks after the trigger's ok)."""
-
-    def __init__(self, inner) -> None:
-        super().__init__(inner)
-        self.held = b""
-        self.released = False
-
-    def write(self, data: bytes) -> int:
-        if self.released or (len(data) == 1 and (data in b"?~\x18" or data[0] >= 0x80)):
-            return self.inner.write(data)  # realtime bytes pass
-        if data == b"!":
-            self.inner.write(data)
-            self.released = True
-            if self.held:
-                self.inner.write(self.held)
-            return 1
-        if self.held or data.startswith(b"G1X10"):
-            self.held += data
-            return len(data)
-        return self.inner.write(data)
 
 
 def _answer(ask: str, record: list[dict]) -> str:
@@ -143,7 +123,7 @@ def test_after_the_alarm_at_speed_a_resume_is_refused_until_homed(tmp_path):
     is refused until the machine is homed or unlocked, as after ALARM:3."""
     job = tmp_path / "job.gcode"
     job.write_text(_JOB)
-    port = _OutsideAfterHold(open_port(_URL, 115200))
+    port = HeldUntilFeedHold(open_port(_URL, 115200), b"G1X10")
     try:
         progress = interrupt_after(19)
         with pytest.raises(StreamStopped):
