@@ -808,7 +808,7 @@ def test_stage_table_bounds_accept_the_valid_forms(tmp_path, edit, check):
     assert check(load_pipeline(path))
 
 
-def test_machine_ref_is_the_bundled_name_or_the_resolved_path(tmp_path):
+def testresolve_machine_ref_is_the_bundled_name_or_the_resolved_path(tmp_path):
     from scratchfab.bundled import bundled_dir
     from scratchfab.machine.profile import load_profile
 
@@ -837,10 +837,10 @@ def test_machine_ref_is_the_bundled_name_or_the_resolved_path(tmp_path):
     ],
 )
 def test_toolpath_machine_is_a_name_or_a_file_beside_the_pipeline(tmp_path, ref, is_file):
-    from scratchfab.pipeline.config import _machine_ref
+    from scratchfab.pipeline.config import resolve_machine_ref
 
     pipeline = tmp_path / "p.toml"
-    assert _machine_ref(ref, pipeline) == (str(tmp_path / ref) if is_file else ref)
+    assert resolve_machine_ref(ref, pipeline) == (str(tmp_path / ref) if is_file else ref)
 
 
 def _killed_optimize(finished_job, tmp_path, monkeypatch) -> tuple[Path, Path, Path]:

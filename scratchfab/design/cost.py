@@ -44,28 +44,32 @@ def cut_seconds(scratches: ScratchSet, board: Board, profile: MachineProfile) ->
     return estimate_time(np.stack([first, last], axis=1), profile)
 
 
-def cut_line(scratches: ScratchSet, board: Board, machine: str, fewer: str) -> str:
+def cut_line(scratches: ScratchSet, board: Board, machine: str | MachineProfile, fewer: str) -> str:
     """One line: the scratch count, the length of cut, and the time on ``machine``.
 
     Args:
         scratches: The layout.
         board: Its board.
-        machine: A bundled profile's name or a profile file (``[toolpath] machine``).
+        machine: A bundled profile's name or a profile file (``[toolpath] machine``), or
+            the profile itself, loaded (``run`` reads its profile once).
         fewer: What sets the count (``--count``), named as the way to a shorter cut.
     """
     n = len(scratches)
     length_m = float(np.hypot(*(scratches.p1 - scratches.p0).T).sum()) / 1000.0
     head = f"cut: {n} scratches, {length_m:.1f} m of cut"
-    try:
-        profile = load_profile(machine)
-    except ConfigError as exc:
-        return f"{head}; no time estimate, toolpath.machine: {exc}"
+    if isinstance(machine, MachineProfile):
+        profile, name = machine, machine.name
+    else:
+        try:
+            profile, name = load_profile(machine), machine
+        except ConfigError as exc:
+            return f"{head}; no time estimate, toolpath.machine: {exc}"
     seconds = cut_seconds(scratches, board, profile)
     feeds = [f"engrave {profile.feeds.engrave_mm_min:g} mm/min"]
     if profile.tool_control.mode != "servo":
         feeds.append(f"plunge {profile.feeds.plunge_mm_min:g} mm/min")
     return (
         f"{head}; about {duration_text(seconds)} ({seconds / max(n, 1):.1f} s a scratch with "
-        f"its travel) on machine '{machine}' ({', '.join(feeds)}), as toolpath estimates this "
+        f"its travel) on machine '{name}' ({', '.join(feeds)}), as toolpath estimates this "
         f"layout; {fewer} lays fewer, the time falls about with the count"
     )

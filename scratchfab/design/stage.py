@@ -37,6 +37,7 @@ from scratchfab.design.targets import (
 )
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import atomic_folder, save_npy, save_png, write_json, write_text
+from scratchfab.machine.profile import MachineProfile
 from scratchfab.model.camera import Camera
 from scratchfab.model.design import (
     MAX_FOV_DEG,
@@ -49,7 +50,7 @@ from scratchfab.model.design import (
 from scratchfab.model.job import DesignFolder, JobLayout, carry_optimize_record, earlier_design
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
-from scratchfab.pipeline.config import StageTables, _machine_ref, parse_stage_tables
+from scratchfab.pipeline.config import StageTables, parse_stage_tables, resolve_machine_ref
 
 #: A target whose brightness varies less than this (linear, 0..1) is uniform: a warning,
 #: or, when it is black too (nothing brighter than this), refused unless forced.
@@ -132,7 +133,7 @@ def load_source(
                 view["resolution"] = list(resolution)
     design = design_from_mapping(data, str(file), file.resolve().parent)
     tables = parse_stage_tables(data, str(file))
-    machine = _machine_ref(tables.toolpath.machine, file.resolve())
+    machine = resolve_machine_ref(tables.toolpath.machine, file.resolve())
     return design, replace(tables, toolpath=replace(tables.toolpath, machine=machine))
 
 
@@ -435,7 +436,7 @@ def run_design(
     seed: int | None = None,
     progress: Say = lambda _: None,
     invert: bool = False,
-    machine: str | None = None,
+    machine: str | MachineProfile | None = None,
 ) -> DesignResult:
     """Run the design stage.
 
@@ -455,7 +456,7 @@ def run_design(
         invert: Invert every view's target first (``targets.invert_picture``), as a
             view's ``invert = true`` inverts its own.
         machine: The machine whose time to cut the layout is told (a bundled profile's
-            name or a profile file); default: a file's ``[toolpath] machine``, else the
+            name, a profile file, or the profile loaded); default: a file's ``[toolpath] machine``, else the
             bundled default.
 
     Raises:

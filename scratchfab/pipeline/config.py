@@ -224,10 +224,10 @@ class Pipeline:
 
     def machine_ref(self) -> str:
         """The toolpath machine as named: a bundled name, or its path (resolved)."""
-        return _machine_ref(self.toolpath.machine, self.path)
+        return resolve_machine_ref(self.toolpath.machine, self.path)
 
 
-def _machine_ref(ref: str, pipeline_file: Path) -> str:
+def resolve_machine_ref(ref: str, pipeline_file: Path) -> str:
     """``[toolpath] machine``: a bundled name, or a path resolved against ``pipeline_file``."""
     if names_a_file(ref):
         candidate = Path(ref)
@@ -250,7 +250,7 @@ def load_pipeline(path: str | Path) -> Pipeline:
     tables = parse_stage_tables(data, str(file))
     from scratchfab.machine.profile import load_profile
 
-    machine = _machine_ref(tables.toolpath.machine, file.resolve())
+    machine = resolve_machine_ref(tables.toolpath.machine, file.resolve())
     try:
         profile = load_profile(machine)
     except ConfigError as exc:

@@ -218,6 +218,7 @@ class _Stages:
                 fit=opts.fit,
                 seed=opts.seed,
                 progress=self._say_in,
+                machine=self.pipe.profile,
             )
         except ScratchfabError as exc:  # `run --force` reruns stages: name the file's key
             if exc.args and DESIGN_ANYWAY in str(exc.args[0]):
