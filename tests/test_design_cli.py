@@ -448,3 +448,17 @@ def test_quick_form_errors_name_the_image_as_typed(tmp_path, capsys, monkeypatch
         err = _fail(["design", *images, "--board", "20x20", "--out", "job"], capsys)
         assert err == f"error: {typed}: {why}"
     assert not (tmp_path / "job" / "design").exists()
+
+
+def test_a_bundled_pipelines_name_designs_as_its_file(tmp_path, capsys):
+    """`design demo` takes the bundled pipeline's name, as `run demo` does: the same layout
+    as the file's path gives; a name that is no bundled pipeline stays an image's name."""
+    by_name, by_path = tmp_path / "by-name", tmp_path / "by-path"
+    _run(["design", "demo", "--out", str(by_name)], capsys)
+    _run(["design", str(bundled_dir("pipelines") / "demo.toml"), "--out", str(by_path)], capsys)
+    made = [JobLayout(job).design.initial_scratches.read_bytes() for job in (by_name, by_path)]
+    assert made[0] == made[1] and made[0].count(b"\n") > 100
+    with pytest.raises(SystemExit) as exc:
+        main(["design", "no-such-pipeline", "--out", str(tmp_path / "none")])
+    assert exc.value.code != 0
+    assert "no-such-pipeline: image file not found" in capsys.readouterr().err

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from scratchfab.bundled import bundled_dir, is_file, names_a_file
 from scratchfab.cli.options import FiniteFloat, SizePair
 from scratchfab.errors import ConfigError
 
@@ -112,6 +113,7 @@ def design(
     from scratchfab.model.job import redesigned_note
 
     res = resolution
+    inputs = _bundled_pipeline(inputs)
     toml = [p for p in inputs if p.lower().endswith(".toml")]
     if toml:
         if len(inputs) != 1:
@@ -152,6 +154,14 @@ def design(
     note = redesigned_note(result.folder.parent)
     if note:
         click.echo(note)
+
+
+def _bundled_pipeline(inputs: tuple[str, ...]) -> tuple[str, ...]:
+    """A lone bundled pipeline's name (``demo``, as ``run demo`` takes it) as its file."""
+    if len(inputs) != 1 or names_a_file(inputs[0]) or is_file(Path(inputs[0])):
+        return inputs
+    bundled = bundled_dir("pipelines") / f"{inputs[0]}.toml"
+    return (str(bundled),) if is_file(bundled) else inputs
 
 
 def _as_typed(exc: ConfigError, design: Design, images: Sequence[str]) -> ConfigError:
