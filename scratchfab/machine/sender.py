@@ -406,7 +406,9 @@ class StreamOptions:
             the controller reports Idle at it: the step it stands on there is learnt, so
             that a stop at such an end is matched in whole steps (:meth:`Streamer._rest_at`),
             not cut again on ``--resume``. Each rest stops the machine at that end (a
-            fraction of a second). 0 (the default): never.
+            fraction of a second), only where the tool is up (a travel's or a lift's end,
+            outside every stroke; none in a program whose strokes are not known). 0 (the
+            default): never.
         lift: Raise the tool after a stop (an error, a stall, silence, the user's stop)
             that ended in a soft reset of a machine that stood still, once the controller
             is Idle with its position known; never after an alarm, a lost link or with
@@ -958,6 +960,7 @@ class Streamer:
         self._counted = steps_counted_until(program.blocks)
         self._repeated = _repeated_targets(program.blocks[start : self._counted])
         self._given_from = _first_given(program.blocks, start)
+        self._down = _tool_down(program.strokes)
         self._rests_left = self.options.rests
         self._rested_through = -1
         self._resting = -1
@@ -1230,6 +1233,7 @@ class Streamer:
     _counted = 0  # steps_counted_until of the program streamed
     _repeated: tuple[set[float], ...] = (set(), set(), set())  # targets met twice, per axis
     _given_from = (0, 0, 0)  # per axis, the session's first block giving it (_first_given)
+    _down: frozenset[int] = frozenset()  # blocks leaving the tool down (_tool_down)
     rest_seconds = 0.0  # the session's time resting (from each rested block's send)
     _stopped_through: int | None = None  # the safe stop's executed-through
 
@@ -2075,7 +2079,8 @@ class Streamer:
         one summed from ``$#`` (no report printed ``WCO:`` yet: a build without the field,
         or early in a job) adds up to three rounded parts (the system's, G92, the tool
         length offset). Each rest (a target ``t`` whose step ``n`` was seen) puts the
-        offset where ``t`` rounds to ``n`` (GRBL's ``lround``, in single precision). Where
+        offset where ``t`` rounds to ``n`` (GRBL's ``lround``, in single precision: its
+        error grows with ``t`` and the offset, not with their sum). Where
         they leave no offset (one changed behind the sender's back), none is counted.
         """
         assert report.wco is not None
@@ -2085,7 +2090,7 @@ class Streamer:
         step = self._step_mm()[k]
         lo, hi = w - off, w + off
         for t, n in self._rests[k].items():
-            slack = FLOAT32_SLACK * (abs(t + w) + 1.0)
+            slack = FLOAT32_SLACK * (abs(t) + abs(w) + 1.0)
             lo, hi = max(lo, (n - 0.5) * step - t - slack), min(hi, (n + 0.5) * step - t + slack)
         return (lo, hi) if lo <= hi else (w - off, w + off)
 
@@ -2099,7 +2104,11 @@ class Streamer:
             n = self._rests[k][mm]
             return n, n
         lo, hi = self._offset_window(k, report)
-        return step_span(mm + (lo + hi) / 2.0, (hi - lo) / 2.0, self._step_mm()[k], True)
+        w = (lo + hi) / 2.0
+        # GRBL sums target and offset in single precision: an error of the operands' size
+        # (a work X290 with an offset of -290 lands near 0 but is rounded as 290 is)
+        f32 = FLOAT32_SLACK * (abs(mm) + abs(w) - abs(mm + w))
+        return step_span(mm + w, (hi - lo) / 2.0 + f32, self._step_mm()[k], True)
 
     def _report_steps(self, k: int, report: Status) -> tuple[int, int]:
         """The steps (first, last) ``report``'s position on axis ``k`` may stand for.
@@ -2120,7 +2129,7 @@ class Streamer:
 
         So where GRBL's rounding of a target to a step is open on an axis (a stop at that
         end could not be told from one a step short of it, and its move would be cut
-        again), while rests are left (``StreamOptions.rests``): a followed move before
+        again), with the tool up after it (:func:`_tool_down`), while rests are left (``StreamOptions.rests``): a followed move before
         the steps stop telling (:func:`steps_counted_until`), where a report tells its
         step, and the rest narrows the offset or the target is met again later (a rest
         that tells nothing more is not taken).
@@ -2131,6 +2140,8 @@ class Streamer:
             or self._wco is None
             or min(self._step_mm()) <= 0.0
             or not blocks[j].motion
+            or not self._program.strokes  # where the tool is, is not known
+            or j in self._down  # the tool stays down and still while the machine rests
             or j >= self._counted
             or not followed_move(blocks, j)
         ):
@@ -2147,7 +2158,7 @@ class Streamer:
             first, last = self._target_steps(k, t, report)
             lo, hi = self._offset_window(k, report)
             flip = (first + 0.5) * step[k] - t  # the offset where t's step turns to first + 1
-            slack = 2.0 * FLOAT32_SLACK * (abs(t + flip) + 1.0)
+            slack = 2.0 * FLOAT32_SLACK * (abs(t) + abs(flip) + 1.0)
             if last > first + 1 or (
                 last > first and (lo + slack < flip < hi - slack or t in self._repeated[k])
             ):
@@ -2407,6 +2418,16 @@ def _first_given(blocks: Sequence[Block], start: int) -> tuple[int, int, int]:
                 if k >= 0:
                     first[k] = min(first[k], b.index)
     return first[0], first[1], first[2]
+
+
+def _tool_down(strokes: Sequence[tuple[int, int]]) -> frozenset[int]:
+    """The blocks after which the tool is down: a stroke's tool-down block up to its end.
+
+    A stroke (first, last) lowers the tool at ``first`` and raises it at ``last``: after
+    any block from ``first`` to ``last - 1`` the tool touches the board (a plunge's end,
+    a cut's), where a drag tool held still marks it.
+    """
+    return frozenset(j for first, last in strokes for j in range(first, last))
 
 
 def _repeated_targets(blocks: Sequence[Block]) -> tuple[set[float], ...]:
