@@ -21,7 +21,7 @@ import numpy as np
 from scratchfab.console import Say
 from scratchfab.design.cost import cut_line
 from scratchfab.design.feasibility import DESIGN_ANYWAY, FeasibilityReport, check_feasibility
-from scratchfab.design.images import load_image
+from scratchfab.design.images import invert_picture, load_image
 from scratchfab.design.layout import initial_layout
 from scratchfab.design.quick import SOURCE as QUICK_SOURCE
 from scratchfab.design.quick import quick_mapping
@@ -345,7 +345,8 @@ def target_picture(
     image that design started from, with each design's options in turn (as its heading
     comment names them), then this run's. A file is inverted (``invert``, or the first
     design's) as it is read, its colours alone: a transparent ground stays black
-    (``load_image``).
+    (``load_image``). A picture an earlier design fitted is inverted on its own part
+    alone: the black bars of a ``contain`` fit stay black, bare board.
 
     Returns:
         (image, the picture's own part of it: bool, False on the bars of a ``contain``
@@ -355,11 +356,12 @@ def target_picture(
         ConfigError: A file is unreadable; for a picture to make anew, naming it and the
             image it was made from.
     """
-    picture = load_image(path, invert)
-    rows, cols = picture.shape
-    aspect = board.width_mm / board.height_mm
     origin = _earlier_origin(path)
     steps = _steps(origin) if origin is not None else None
+    # an earlier design's board picture is opaque: inverted below, its bars left black
+    picture = load_image(path, invert and steps is None)
+    rows, cols = picture.shape
+    aspect = board.width_mm / board.height_mm
     # one pixel of the short side: the rounding of a picture fitted to this shape
     if origin is not None and abs(math.log(cols / rows / aspect)) > 1.0 / min(rows, cols):
         where = (
@@ -380,18 +382,35 @@ def target_picture(
                 "target to that image, or another, to fit it to this board"
             ) from None
         fits = [step[0] for step in options]
-        area = picture_area(picture.shape, board, [*fits, fit])
-        # later steps, and this run, invert the opaque picture the one before made
+        shape = picture.shape
+        # later steps, and this run, invert the opaque picture the one before made, on
+        # the picture's own part of it (the steps' fits of a picture of ones)
         for k, (step_fit, step_gamma, step_contrast, step_invert) in enumerate(options):
-            step_invert = step_invert and k > 0
-            step = fit_picture(picture, board, step_fit, step_gamma, step_contrast, step_invert)
+            if step_invert and k > 0:
+                picture = _invert_within(picture, picture_area(shape, board, fits[:k]))
+            step = fit_picture(picture, board, step_fit, step_gamma, step_contrast)
             picture = quantize_like_png(step)
-        return fit_picture(picture, board, fit, gamma, contrast, invert), area, made_from
+        if invert:
+            picture = _invert_within(picture, picture_area(shape, board, fits))
+        area = picture_area(shape, board, [*fits, fit])
+        return fit_picture(picture, board, fit, gamma, contrast), area, made_from
+    earlier = None if steps is None else _earlier_area(steps, board)
+    if invert and earlier is not None:
+        picture = _invert_within(picture, _on_grid(earlier, picture.shape))
     image = fit_picture(picture, board, fit, gamma, contrast)
     area = picture_area(picture.shape, board, [fit])
-    if steps is not None:  # an earlier design's board picture: its bars are in it
-        area &= _on_grid(_earlier_area(steps, board), image.shape)
+    if earlier is not None:  # an earlier design's board picture: its bars are in it
+        area &= _on_grid(earlier, image.shape)
     return image, area, None
+
+
+def _invert_within(picture: np.ndarray, area: np.ndarray) -> np.ndarray:
+    """``picture`` inverted (:func:`invert_picture`) on ``area`` alone, black elsewhere kept.
+
+    ``area`` is on the picture's grid: where an earlier fit put the picture, so that the
+    black bars it added stay black (bare board) when a rerun inverts its picture.
+    """
+    return np.where(area, invert_picture(picture), picture)
 
 
 def _earlier_area(
