@@ -114,8 +114,9 @@ class StreamCallbacks:
         ask_interrupt: After Ctrl-C and a feed hold: returns "resume" or "stop".
         confirm: Asked before anything moves; False aborts with nothing sent. None: nobody
             is asked (``--yes``): what needs a person's word is refused (a partial board on
-            a machine, a stream from the top over an unfinished one, a resume after an
-            alarm that may have lost the position unless ``homed``).
+            a machine, a G-code of an earlier plan or of a toolpath planned from other
+            inputs than there are now, a stream from the top over an unfinished one, a
+            resume after an alarm that may have lost the position unless ``homed``).
         result: Called with the outcome lines (resume point, done); default ``say``.
     """
 
@@ -320,6 +321,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     header = _read_header(req.gcode)
     ask_before_a_partial_board(planned, header, req.gcode, req.port, cb.confirm, cb.say)
     if planned is not None:
+        ask_before_a_stale_toolpath(planned, req.gcode, req.port, cb.confirm, cb.say)
         ask_before_an_earlier_export(planned, header, req.gcode, req.port, cb.confirm, cb.say)
     z_threshold = req.z_threshold
     if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
@@ -616,6 +618,52 @@ def ask_before_a_partial_board(
         f"refusing to cut a partial board with --yes: {lost}; fix the machine profile's "
         "[board] offset_mm or [envelope], plan the toolpath and export again",
         f"Cut a partial board? {lost}",
+        port,
+        confirm,
+        say,
+    )
+
+
+def ask_before_a_stale_toolpath(
+    planned: tuple[JobLayout, Toolpath],
+    gcode: Path,
+    port: str,
+    confirm: Confirm | None,
+    say: Say,
+) -> None:
+    """A job's toolpath planned from other inputs than there are now is named first.
+
+    ``optimize`` or ``design`` run again leave ``toolpath/toolpath.json`` and
+    ``export/board.gcode`` as they were: ``toolpath`` and ``export`` refuse such inputs,
+    and streaming would cut the earlier layout without a word. The check is export's
+    (:func:`~scratchfab.toolpath.inputs.check_current`); where the optimized layout comes
+    from an earlier design too (:func:`~scratchfab.model.job.stale_layout`), optimize is
+    named before toolpath and export.
+
+    Raises:
+        ScratchfabError: Under ``--yes`` on a machine, or when the person says no; nothing
+            is sent.
+    """
+    from scratchfab.model.job import stale_layout
+    from scratchfab.toolpath.inputs import check_current
+
+    layout, toolpath = planned
+    stale, _ = check_current(toolpath)
+    if stale is None:
+        return
+    export = command_line(["scratchfab", "export", layout.root, "--format", "gcode"])
+    layout_stale = stale_layout(layout.root)
+    first = (
+        ""
+        if layout_stale is None
+        else f"{layout_stale}: rerun `{command_line(['scratchfab', 'optimize', layout.root])}` "
+        "first; "
+    )
+    what = f"{gcode} cuts an out-of-date plan: {first}{stale} (`{export}`)"
+    _ask_on_a_machine(
+        what,
+        f"refusing to stream with --yes: {what}",
+        f"{what}. Stream it anyway?",
         port,
         confirm,
         say,
