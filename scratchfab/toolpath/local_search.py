@@ -49,6 +49,16 @@ def _d(pts: np.ndarray, a: int, b: int) -> float:
 
 
 @njit(inline="always")
+def _wrap(i: int, m: int) -> int:
+    """``i % m`` for ``-m <= i < 2 * m``, without a division (the hot loops' positions)."""
+    if i < 0:
+        return i + m
+    if i >= m:
+        return i - m
+    return i
+
+
+@njit(inline="always")
 def _note(log: np.ndarray, first: int, count: int) -> None:
     """Record that ``count`` positions from ``first`` on (cyclic) are about to change.
 
@@ -74,8 +84,8 @@ def _reverse(ent: np.ndarray, pos: np.ndarray, first: int, last: int, log: np.nd
         length = m - length
     _note(log, first, length)
     for k in range((length + 1) // 2):
-        a = (first + k) % m
-        b = (last - k) % m
+        a = _wrap(first + k, m)
+        b = _wrap(last - k, m)
         ea = ent[a] ^ 1
         eb = ent[b] ^ 1
         ent[a] = eb
@@ -137,8 +147,8 @@ def _partner(ent: np.ndarray, pos: np.ndarray, e: int) -> int:
     m = ent.shape[0]
     q = pos[e >> 1]
     if ent[q] == e:
-        return ent[(q - 1) % m] ^ 1
-    return ent[(q + 1) % m]
+        return ent[_wrap(q - 1, m)] ^ 1
+    return ent[_wrap(q + 1, m)]
 
 
 @njit(inline="always")
@@ -150,9 +160,9 @@ def _place(
     q = pos[e >> 1]
     entry = ent[q] == e
     for k in range(n):
-        o = (q - first[k]) % m
+        o = _wrap(q - first[k], m)
         if o < length[k]:
-            q = (first[k] + length[k] - 1 - o) % m
+            q = _wrap(first[k] + length[k] - 1 - o, m)
             entry = not entry
     return q, entry
 
@@ -163,8 +173,8 @@ def _flip(ent: np.ndarray, pos: np.ndarray, x: int, f: int, log: np.ndarray) -> 
     m = ent.shape[0]
     qx = pos[x >> 1]
     qf = pos[f >> 1]
-    first = qx if ent[qx] == x else (qx + 1) % m
-    _reverse(ent, pos, first, (first + (qf - qx) % m - 1) % m, log)
+    first = qx if ent[qx] == x else _wrap(qx + 1, m)
+    _reverse(ent, pos, first, _wrap(first + _wrap(qf - qx, m) - 1, m), log)
 
 
 @njit()
@@ -207,7 +217,7 @@ def _chain(
         qx, ex = _place(ent, pos, x, first, length, n)
         if n == 0:
             qf, ef = _place(ent, pos, f, first, length, n)
-            if ef != ex or (qf - qx) % m == 0:
+            if ef != ex or qf == qx:
                 break
         else:
             # The neighbour of x with the best look-ahead |f, partner(f)| - |x, f|, among
@@ -228,7 +238,7 @@ def _chain(
                 if used:
                     continue
                 qc, ec = _place(ent, pos, c, first, length, n)
-                span = (qc - qx) % m
+                span = _wrap(qc - qx, m)
                 if ec != ex or span == 0:
                     continue
                 look = _d(pts, c, _partner(ent, pos, c)) - dc
@@ -238,11 +248,11 @@ def _chain(
                     qf = qc
             if f < 0:
                 break
-        span = (qf - qx) % m
+        span = _wrap(qf - qx, m)
         # x's partner is t1 (the closing edge); f's partner b gets joined to t1.
         b = _partner(ent, pos, f)
         g += _d(pts, f, b) - _d(pts, x, f)
-        first[n] = qx if ex else (qx + 1) % m
+        first[n] = qx if ex else _wrap(qx + 1, m)
         length[n] = span
         chain[n, 0] = x
         chain[n, 1] = f
@@ -288,7 +298,7 @@ def _search(
     scratch = np.empty((3, 2 * depth + 2), dtype=np.int64)
     while size > 0 and budget > 0:
         item = queue[head]
-        head = (head + 1) % m
+        head = _wrap(head + 1, m)
         size -= 1
         queued[item] = False
         budget -= 1
@@ -302,7 +312,7 @@ def _search(
                 if improved:
                     break
                 x0 = ent[p] ^ 1 if side == 0 else ent[p]
-                t1 = ent[(p + 1) % m] if side == 0 else ent[(p - 1) % m] ^ 1
+                t1 = ent[_wrap(p + 1, m)] if side == 0 else ent[_wrap(p - 1, m)] ^ 1
                 g0 = _d(pts, x0, t1)
                 for kk in range(k_near):
                     f1 = near[x0, kk]
@@ -343,9 +353,9 @@ def _search(
                     if improved or m < s + 3:
                         break
                     c0 = p
-                    c1 = (p + s - 1) % m
-                    prev = (c0 - 1) % m
-                    nxt = (c1 + 1) % m
+                    c1 = _wrap(p + s - 1, m)
+                    prev = _wrap(c0 - 1, m)
+                    nxt = _wrap(c1 + 1, m)
                     a_s = ent[c0]
                     b_s = ent[c1] ^ 1
                     b_prev = ent[prev] ^ 1
@@ -365,13 +375,13 @@ def _search(
                             q = pos[f >> 1]
                             is_entry = ent[q] == f
                             # f is the exit B(g) (f before the chain) or the entry A(g+1).
-                            g = (q - 1) % m if is_entry else q
-                            if (g - prev) % m <= s:
+                            g = _wrap(q - 1, m) if is_entry else q
+                            if _wrap(g - prev, m) <= s:
                                 continue
                             # Joining x to an exit: x must be the chain's entry side.
                             flip = (end == 0) == is_entry
                             bg = ent[g] ^ 1
-                            ag1 = ent[(g + 1) % m]
+                            ag1 = ent[_wrap(g + 1, m)]
                             if flip:
                                 add = _d(pts, bg, b_s) + _d(pts, a_s, ag1)
                             else:
@@ -395,7 +405,7 @@ def _search(
                     it = touched[t]
                     if not queued[it] and it != item:
                         queued[it] = True
-                        queue[(head + size) % m] = it
+                        queue[_wrap(head + size, m)] = it
                         size += 1
     while size > 0:
         queued[queue[head]] = False
@@ -490,7 +500,9 @@ def improve(
             p = (a1 + k) % m
             ent[p] = tmp[k]
             pos[tmp[k] >> 1] = p
-        size = 0
+        # Not a literal 0: typing the loop, numba would also compile _search for a
+        # Literal[int](0) size, which is never run but adds ~4 s to a cold compile.
+        size = np.int64(0)
         for it in (
             ent[a] >> 1,
             ent[a1] >> 1,
