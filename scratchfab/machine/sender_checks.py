@@ -133,10 +133,16 @@ def _axis_values(program: Program, k: int) -> Iterator[tuple[Block, list[float]]
 
 def _first_outside(program: Program, k: int, lo: float, hi: float) -> str:
     """``file:line`` of the first block whose axis ``k`` leaves ``lo..hi`` (mm), else ``file``."""
+    line = _line_outside(program, k, lo, hi)
+    return str(program.path) if line is None else f"{program.path}:{line}"
+
+
+def _line_outside(program: Program, k: int, lo: float, hi: float) -> int | None:
+    """The line number of the first block whose axis ``k`` leaves ``lo..hi`` (mm), else None."""
     for b, values in _axis_values(program, k):
         if min(values) < lo or max(values) > hi:
-            return f"{program.path}:{b.lineno}"
-    return str(program.path)
+            return b.lineno
+    return None
 
 
 def _first_spanning(program: Program, k: int, span: float) -> str:
@@ -216,12 +222,16 @@ def compare(
     system ``wcs`` (the status report's ``WPos`` and ``$G``, as the stream reads them): the
     job's first moves are checked from there (:meth:`Program.placed_at`), as the machine
     runs them. None (a resume, or not known): the positions the file counts from where
-    its job began (work X0 Y0 until it gives X or Y in absolute mode) are left out.
+    its job began (work X0 Y0 until it gives X or Y in absolute mode) are left out. A job
+    that leaves the envelope only from there is refused naming the machine's position as
+    such (:func:`_envelope_refusals`); where a work-coordinate profile meets a work offset
+    of 0 on an axis refused, the last refusal says how to set the work zero.
 
     ``tlo``: the tool length offset on Z the machine has (mm, ``$#``'s ``[TLO:]``). The
     parse takes the file's first G49 (or G43.1 Z0) for GRBL's 0 after a reset, no change;
     with an offset set on the machine it moves work Z by it: refused as not followed.
     """
+    own = program  # the file's own positions, without where the machine stands
     if start_xy is not None:
         program = program.placed_at(start_xy, wcs)
     out = Findings()
@@ -237,6 +247,7 @@ def compare(
     if settings and not settings.get(22, 0):
         out.warnings.append("GRBL homing is off ($22=0): machine coordinates are not referenced")
     lo, hi = job_extent(program)
+    unset = ""  # axes refused where a work-coordinate profile meets a work offset of 0
     if profile is not None or settings:
         unfollowed = [block for block in program.blocks if block.unfollowed]
         first = next((b for b in program.blocks if b.modal.tlo is not None), None)
@@ -256,17 +267,8 @@ def compare(
             out.refusals.append(f"{path}: ... and {len(unfollowed) - 3} more such lines")
     if profile is not None:
         env = profile.envelope
-        ranges = (env.x_mm, env.y_mm, env.z_mm)
-        for k, axis in enumerate(_AXES):
-            if lo[k] > hi[k]:
-                continue
-            a, b = ranges[k]
-            if lo[k] < a - tolerance or hi[k] > b + tolerance:
-                where = _first_outside(program, k, a - tolerance, b + tolerance)
-                out.refusals.append(
-                    f"{where}: the job's {axis} range [{lo[k]:g}, {hi[k]:g}] mm leaves the "
-                    f"envelope [{a:g}, {b:g}] of machine '{profile.name}'"
-                )
+        refusals, unset = _envelope_refusals(own, program, profile, start_xy, wco, tolerance)
+        out.refusals += refusals
         for k, axis in enumerate(_AXES):
             need = env.max_travel_mm[k]
             have = travel[k]
@@ -343,6 +345,8 @@ def compare(
                     f"{where}: the job's {axis} range is {m_lo:g}..{m_hi:g} mm in machine "
                     f"coordinates (work offset {wco[k]:g}); " + limit.format(t=t)
                 )
+                work = profile is not None and profile.envelope.coordinates == "work"
+                unset += axis if work and _zero(wco[k]) else ""
     if profile is not None and profile.envelope.coordinates == "machine":
         out.refusals.extend(
             f"{path}: {text}"
@@ -354,7 +358,109 @@ def compare(
                 f"the job moves {_AXES[k]} at up to {asked:g} mm/min but GRBL's "
                 f"${110 + k}={rate:g} mm/min: GRBL clamps it, the job runs slower"
             )
+    if unset:  # said once, last: the error line
+        out.refusals.append(f"{path}: {_unset_zero(''.join(a for a in _AXES if a in unset))}")
     return out
+
+
+def _envelope_refusals(
+    own: Program,
+    placed: Program,
+    profile: MachineLike,
+    start_xy: Sequence[float] | None,
+    wco: tuple[float, float, float] | None,
+    tolerance: float,
+) -> tuple[list[str], str]:
+    """Where the job leaves the profile's envelope, each from its first line that does.
+
+    Where the file's own positions (``own``) leave it, their range is named per axis.
+    Where only the moves from where the machine stands do (``placed``, as
+    :meth:`Program.placed_at` draws them), that position is named as such, once for X
+    and Y, with what to do: a homed machine whose work offset is still 0 stands at the
+    machine's own zero, not on the board, in a work-coordinate profile.
+
+    Returns:
+        The refusals, and the axes where a work offset of 0 explains the start's position
+        (:func:`_unset_zero` says what to do, once for every check).
+    """
+    env = profile.envelope
+    envelope = f"machine '{profile.name}'"
+    lo, hi = job_extent(own)
+    p_lo, p_hi = job_extent(placed)
+    out: list[str] = []
+    started: list[int] = []  # axes that leave the envelope only from the start
+    for k, (a, b) in enumerate((env.x_mm, env.y_mm, env.z_mm)):
+        if lo[k] <= hi[k] and (lo[k] < a - tolerance or hi[k] > b + tolerance):
+            where = _first_outside(own, k, a - tolerance, b + tolerance)
+            out.append(
+                f"{where}: the job's {_AXES[k]} range [{lo[k]:g}, {hi[k]:g}] mm leaves the "
+                f"envelope [{a:g}, {b:g}] of {envelope}"
+            )
+        elif p_lo[k] <= p_hi[k] and (p_lo[k] < a - tolerance or p_hi[k] > b + tolerance):
+            started.append(k)  # (only X and Y are placed)
+    if not started:
+        return out, ""
+    assert start_xy is not None
+    ranges = (env.x_mm, env.y_mm)
+    lines = [
+        _line_outside(placed, k, ranges[k][0] - tolerance, ranges[k][1] + tolerance)
+        for k in started
+    ]
+    first = min((n for n in lines if n is not None), default=None)
+    where = str(placed.path) if first is None else f"{placed.path}:{first}"
+    at = " ".join(f"{_AXES[k]}{start_xy[k]:g}" for k in range(2))
+    bounds = ", ".join(f"{_AXES[k]} [{ranges[k][0]:g}, {ranges[k][1]:g}]" for k in started)
+    own_ranges = ", ".join(
+        f"{_AXES[k]} [{lo[k]:g}, {hi[k]:g}]" if lo[k] <= hi[k] else f"no {_AXES[k]} of its own"
+        for k in started
+    )
+    if all(ranges[k][0] - tolerance <= start_xy[k] <= ranges[k][1] + tolerance for k in started):
+        spans = ", ".join(f"{_AXES[k]} [{p_lo[k]:g}, {p_hi[k]:g}]" for k in started)
+        text = (
+            f"{where}: run from where the machine stands now (work {at}), the job's moves "
+            f"reach {spans} mm, outside the envelope ({bounds}) of {envelope}"
+        )
+    else:
+        text = (
+            f"{where}: the machine stands at work {at} now, outside the envelope ({bounds}) of "
+            f"{envelope}, and the job's first moves run from there (the file itself: "
+            f"{own_ranges} mm)"
+        )
+    if env.coordinates == "machine":
+        return [*out, f"{text}; jog the tool into the envelope, then stream again"], ""
+    unset = "".join(_AXES[k] for k in started if wco is not None and _zero(wco[k]))
+    if unset:
+        return [*out, text], unset
+    advice = (
+        "jog the tool into the envelope, or, if the work zero is not at the profile's X0 Y0, "
+        "jog there and send `G10 L20 P1 X0 Y0`, then stream again"
+    )
+    return [*out, f"{text}; {advice}"], ""
+
+
+def _zero(offset: float) -> bool:
+    """Whether one axis of GRBL's work offset reads 0 (to a report digit, either unit)."""
+    return abs(offset) <= offset_tolerance_mm(True)
+
+
+def _unset_zero(axes: str) -> str:
+    """What to do where a work-coordinate profile meets a work offset of 0 on ``axes``."""
+    how = []
+    if "X" in axes or "Y" in axes:
+        how.append(
+            "jog the tool to the profile's X0 Y0 (the board's corner lies at [board] "
+            "offset_mm from it) and send `G10 L20 P1 X0 Y0`"
+        )
+    if "Z" in axes:
+        how.append(
+            "lower the tool to the profile's Z0 (where the tool touches the board, for the "
+            "[z] heights) and send `G10 L20 P1 Z0`"
+        )
+    named = " and ".join(filter(None, [", ".join(axes[:-1]), axes[-1]]))
+    return (
+        f"GRBL's work offset is 0 on {named}, so the work coordinates there are the machine's "
+        f"own (no work zero set?): {'; '.join(how)}, then stream again"
+    )
 
 
 def eta_settings(
