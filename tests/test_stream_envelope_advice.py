@@ -95,6 +95,7 @@ def test_a_homed_machine_with_no_work_zero_is_named_where_it_stands(lab):
     assert last.endswith("(nothing was sent)")
     assert sum("G10 L20" in line for line in err.splitlines()) == 1  # the advice once
     assert not _g_sent(rec)
+    assert "allows more Z travel" not in err  # z_mm is a work range here
 
 
 def test_the_advice_followed_the_job_streams(lab):
@@ -168,3 +169,39 @@ def test_relative_moves_from_an_inside_start_that_go_out_name_the_start(tmp_path
         f"{job}:3: run from where the machine stands now (work X0 Y0), the job's moves reach "
         "X [0, 15] mm, outside the envelope (X [-10, 10]) of machine 'bench'"
     )
+
+
+@pytest.mark.parametrize(
+    ("coordinates", "z_mm", "warned"),
+    [("work", (-1.0, 5.0), False), ("machine", (-40.0, 0.0), True)],
+)
+def test_more_z_travel_than_the_profile_is_told_in_machine_coordinates_only(
+    tmp_path, coordinates, z_mm, warned
+):
+    """A work-coordinate z_mm is the work-Z range the job may use, not the machine's
+    travel; a machine-coordinate one is the travel, and the warning names both fixes."""
+    profile = SimpleNamespace(
+        name="m",
+        envelope=SimpleNamespace(
+            x_mm=(0.0, 300.0) if coordinates == "work" else (-300.0, 0.0),
+            y_mm=(0.0, 300.0) if coordinates == "work" else (-300.0, 0.0),
+            z_mm=z_mm, max_travel_mm=(300.0, 300.0, z_mm[1] - z_mm[0]), coordinates=coordinates,
+        ),
+        motion=SimpleNamespace(
+            max_rate_mm_min=(2000.0, 2000.0, 600.0), acceleration_mm_s2=(100.0, 100.0, 50.0)
+        ),
+    )  # fmt: skip
+    job = tmp_path / "j.gcode"
+    job.write_text("G21 G90\nG0 X10 Y10\n")
+    settings = {130: 300.0, 131: 300.0, 132: 45.0}
+    warnings = [
+        w for w in compare(settings, None, load_program(job), profile).warnings if "$132" in w
+    ]
+    if not warned:
+        assert warnings == []
+        return
+    assert warnings == [
+        "GRBL $132=45 allows more Z travel than machine 'm' has in its profile ([envelope] "
+        "z_mm = [-40, 0], 40 mm): if the machine travels 45 mm, set z_mm = [-45, 0]; if not, "
+        "set $132=40 so that GRBL's soft limits stop where it ends"
+    ]

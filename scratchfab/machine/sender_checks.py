@@ -207,8 +207,10 @@ def compare(
     unless the work offset is known to be zero. With any of those checks to make, refuses
     a job holding a block whose position the sender cannot follow (G92, G10, another work
     coordinate system, a change of the tool length offset (G43.1, G49), G53, G28/G30,
-    arcs outside G17): past it every check would be wrong. Warns about GRBL max rates
-    slower than the profile's or the job's feeds, accelerations lower than the profile's,
+    arcs outside G17): past it every check would be wrong. Warns about a GRBL travel
+    longer than a machine-coordinate profile's envelope (a work-coordinate one names where
+    the job may go, not the travel), GRBL max rates slower than the profile's or the
+    job's feeds, accelerations lower than the profile's,
     a junction deviation ``$11`` other than the profile's that moves the job's time
     (:func:`junction_time_change`), and soft limits or homing being off. Every refusal
     starts with the G-code file (``file:line:`` at the first line that goes too far,
@@ -283,10 +285,16 @@ def compare(
                     out.refusals.append(f"{path}: {text}")
                 else:
                     out.warnings.append(text)
-            elif have > need + 1.0:
+            elif have > need + 1.0 and env.coordinates == "machine":
+                # (a work-coordinate envelope is where the job may go, not the travel)
+                name = f"{axis.lower()}_mm"
+                a, b = (env.x_mm, env.y_mm, env.z_mm)[k]
                 out.warnings.append(
                     f"GRBL ${130 + k}={have:g} allows more {axis} travel than machine "
-                    f"'{profile.name}' ({need:g} mm): check the profile"
+                    f"'{profile.name}' has in its profile ([envelope] {name} = [{a:g}, {b:g}], "
+                    f"{need:g} mm): if the machine travels {have:g} mm, set {name} = "
+                    f"[{-have:g}, 0]; if not, set ${130 + k}={need:g} so that GRBL's soft "
+                    "limits stop where it ends"
                 )
             rate = rates[k]
             want = profile.motion.max_rate_mm_min[k]
