@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scratchfab.bundled import bundled_name
 from scratchfab.console import Say
 from scratchfab.design.cost import cut_line
 from scratchfab.design.feasibility import DESIGN_ANYWAY, FeasibilityReport, check_feasibility
@@ -572,12 +573,14 @@ def run_design(
         design, {k: v.astype(np.float64) for k, v in targets.items()}, seed, progress
     )
     progress(f"  initial layout: {len(scratches)} scratches ({time.perf_counter() - t0:.1f} s)")
+    # a bundled pipeline lives in the installed package: its count is set in a copy
+    copy = "a copy of " if bundled_name("pipelines", design.source) is not None else ""
+    ways = [f"[scratch] count in {copy}{design.source}"]
     if design.source == QUICK_SOURCE:
-        fewer = "--count"
-    elif isinstance(source, Design):  # a pipeline's design: `run` takes no --count
-        fewer = f"[scratch] count in {design.source}"
-    else:
-        fewer = f"--count or [scratch] count in {design.source}"
+        ways = ["--count"]
+    elif not isinstance(source, Design):  # a pipeline's design: `run` takes no --count
+        ways.insert(0, "--count")
+    fewer = " or ".join(ways)
     machine = machine if machine is not None else tables.toolpath.machine
     progress(f"  {cut_line(scratches, design.board, machine, fewer)}")
 
