@@ -85,3 +85,14 @@ def test_the_report_shows_the_work_coordinates_advice(tmp_path):
     assert steps is not None
     assert "do not zero the work coordinates" not in page
     assert "G10 L20 P1 X20 Y20" in _words(steps.group(1))
+
+
+def test_the_work_zero_command_is_written_as_the_export_writes_numbers(tmp_path):
+    """A tiny or long offset gives a command GRBL takes: fixed decimals, no exponent."""
+    job = fake_job(tmp_path)
+    base = load_profile("grbl-plotter-scribe")
+    profile = replace(base, board=replace(base.board, offset_mm=(0.00001, 123.4567891)))
+    _plan(job, profile)
+    step = _words(_setup_step(job))
+    assert "send G10 L20 P1 X0 Y123.457 there" in step, step
+    assert "e-05" not in step and "corner at X 0 Y 123.457" in step

@@ -25,6 +25,7 @@ from scratchfab.console import command_line, duration_text
 from scratchfab.design.stand import side, stand_text
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, write_text
+from scratchfab.machine.profile import gcode_number
 from scratchfab.metrics import CROSSTALK_MEANING, rho_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
 from scratchfab.model.job import JobLayout
@@ -1058,7 +1059,8 @@ def _setup_step(job: Path) -> str:
         profile = Toolpath.load(JobLayout(job).toolpath_json).profile
     except ConfigError:  # no toolpath yet, or a damaged one: the pointer alone
         return text + "."
-    x, y = profile.board.offset_mm
+    # as the G-code writes numbers (a command to send; no 1e-05)
+    x, y = (gcode_number(v, profile.gcode.decimals) for v in profile.board.offset_mm)
     corner = profile.board.origin_text
     servo = profile.tool_control.mode == "servo"
     tool = (
@@ -1068,7 +1070,7 @@ def _setup_step(job: Path) -> str:
     )
     placed = (
         f" ('{html.escape(profile.name)}'): the board's {html.escape(corner)} at X "
-        f"<span data-stat='setup.x'>{x:g}</span> Y <span data-stat='setup.y'>{y:g}</span>, "
+        f"<span data-stat='setup.x'>{x}</span> Y <span data-stat='setup.y'>{y}</span>, "
         f"{tool}. "
     )
     if profile.envelope.coordinates == "machine":
@@ -1089,8 +1091,8 @@ def _setup_step(job: Path) -> str:
     )
     advice = (
         "These are work coordinates: set them on the board before streaming. Jog the tool "
-        f"to the board's {html.escape(corner)} and send {_code(f'G10 L20 P1 X{x:g} Y{y:g}')} "
-        f"there (that point becomes X {x:g} Y {y:g}; G10 L20, not {_code('G92')}, whose "
+        f"to the board's {html.escape(corner)} and send {_code(f'G10 L20 P1 X{x} Y{y}')} "
+        f"there (that point becomes X {x} Y {y}; G10 L20, not {_code('G92')}, whose "
         f"zero every soft reset clears).{z_zero}"
     )
     return text + placed + advice
