@@ -18,7 +18,14 @@ from scratchfab.model.design import Board, ScratchTool
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.toolpath import OrderOptions, Toolpath, order_strokes, plan_toolpath
 from scratchfab.toolpath.geometry import clip_strokes, merge_collinear
-from scratchfab.toolpath.local_search import _chain, _flip, cut_region, expand_region, improve
+from scratchfab.toolpath.local_search import (
+    _chain,
+    _flip,
+    _wrap,
+    cut_region,
+    expand_region,
+    improve,
+)
 from scratchfab.toolpath.order import tour_travel
 from scratchfab.toolpath.timing import path_times
 
@@ -95,6 +102,13 @@ def test_local_search_is_optimal_on_tiny_sets(rng):
         )
         got = order_strokes(p0, p1, start).travel_mm
         assert got == pytest.approx(best, rel=1e-9)
+
+
+def test_wrap_is_modulo_on_the_positions_it_is_given():
+    """The local search's division-free wrap equals i % m for -m <= i < 2m."""
+    for m in (1, 2, 7, 100):
+        span = range(-m, 2 * m)
+        assert [_wrap(i, m) for i in span] == [i % m for i in span]
 
 
 def test_ordering_is_deterministic_and_seeded(rng):
