@@ -501,7 +501,7 @@ def improve(
             ent[p] = tmp[k]
             pos[tmp[k] >> 1] = p
         # Not a literal 0: typing the loop, numba would also compile _search for a
-        # Literal[int](0) size, which is never run but adds ~4 s to a cold compile.
+        # Literal[int](0) size, which is never run but adds ~1 s to a cold compile.
         size = np.int64(0)
         for it in (
             ent[a] >> 1,
