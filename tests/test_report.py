@@ -651,7 +651,8 @@ def test_verdict_names_a_failed_stage_from_the_manifest(tmp_path):
     }
     (job / "manifest.json").write_text(json.dumps({"stages": stages}))
     _, head, lines = _verdict(write_report(job).read_text())
-    assert head == "Not ready: stage verify failed"  # stream's state is its own line
+    # the stream's state is its own line
+    assert head == "Not ready: stage verify failed; the stream was interrupted"
     assert any(s == "fail" and reason in t for s, t in lines)
 
 

@@ -33,6 +33,11 @@ Legacy = Callable[[Any], bool]
 """Whether a stage's inputs as recorded in format 1 describe its inputs now."""
 
 
+def _now() -> str:
+    """Local time as the manifest and the stream's journal record it (to the second)."""
+    return time.strftime("%Y-%m-%dT%H:%M:%S")
+
+
 def file_digest(path: Path, with_mtime: bool = False) -> str:
     """SHA-256 of a file's bytes (and its mtime when ``with_mtime``); "missing" if absent.
 
@@ -233,20 +238,35 @@ class Manifest:
             "inputs": dict(inputs),
             "outputs": sorted(outputs),
             "seconds": round(seconds, 3),
-            "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
+            "finished": _now(),
         }
         if digests := {_key(f, self.job): file_digest(f) for f in written}:
             self.stages[stage]["written"] = digests
         self.save()
 
     def start(self, stage: str, inputs: Mapping[str, Any]) -> None:
-        """Mark ``stage`` as running on ``inputs``, so a kill leaves it not done."""
-        self.stages[stage] = {"status": "running", "inputs": dict(inputs)}
+        """Mark ``stage`` as running on ``inputs``, so a kill leaves it not done.
+
+        Its ``started`` time is kept while it fails or is interrupted, so a reader can tell
+        this run's output (a stream's journal session) from an earlier run's.
+        """
+        self.stages[stage] = {"status": "running", "inputs": dict(inputs), "started": _now()}
         self.save()
+
+    def _started(self, stage: str) -> dict[str, str]:
+        """``{"started": time}`` of a stage :meth:`start` marked running, else ``{}``."""
+        entry = self.stages.get(stage) or {}
+        started = entry.get("started") if entry.get("status") == "running" else None
+        return {"started": started} if isinstance(started, str) else {}
 
     def interrupt(self, stage: str, inputs: Mapping[str, Any], reason: str) -> None:
         """Mark ``stage`` as stopped by the person on ``inputs``, its work so far saved."""
-        self.stages[stage] = {"status": "interrupted", "inputs": dict(inputs), "reason": reason}
+        self.stages[stage] = {
+            "status": "interrupted",
+            "inputs": dict(inputs),
+            "reason": reason,
+            **self._started(stage),
+        }
         self.save()
 
     def digest(self, stage: str, file: Path, table: Literal["read", "written"]) -> str | None:
@@ -274,5 +294,5 @@ class Manifest:
 
     def invalidate(self, stage: str, reason: str) -> None:
         """Mark ``stage`` as not done (it failed or its inputs changed)."""
-        self.stages[stage] = {"status": "failed", "reason": reason}
+        self.stages[stage] = {"status": "failed", "reason": reason, **self._started(stage)}
         self.save()

@@ -129,6 +129,21 @@ class _Stream:
     total: int = 0
     port: str | None = None
     note: str = ""
+    session: Literal["latest", "earlier", "unsure"] = "latest"
+
+
+@dataclass(frozen=True)
+class _Stopped:
+    """A stage the manifest says failed, was interrupted or died.
+
+    ``said``: as the verdict says it ("failed", "was interrupted"); ``why``: the reason
+    the manifest records ("" without); ``started``: when that run of it began (None:
+    not recorded, a manifest of an earlier scratchfab).
+    """
+
+    said: str
+    why: str = ""
+    started: str | None = None
 
 
 def _img(path: Path, alt: str) -> str:
@@ -250,39 +265,40 @@ def _view_order(design: Design | None, metrics: dict[str, Any] | None, job: Path
 # --- the verdict ------------------------------------------------------------------
 
 
-def _stopped_stages(job: Path) -> dict[str, tuple[str, str]]:
-    """Stages before stream that failed, stopped or never finished (from the manifest).
-
-    Returns:
-        Per such stage, what the report says of it ("failed", "was interrupted") and the
-        reason the manifest records ("" without).
-    """
+def _stopped_stages(job: Path) -> dict[str, _Stopped]:
+    """Stages whose latest run failed, stopped or never finished (from the manifest)."""
     manifest = _read_json(job / "manifest.json")
     if not isinstance(manifest, dict) or not isinstance(manifest.get("stages"), dict):
         return {}
     stopped = {}
     for stage, entry in manifest["stages"].items():
-        if stage == "stream" or not isinstance(entry, dict) or entry.get("status") == "done":
+        if not isinstance(entry, dict) or entry.get("status") == "done":
             continue
         status = str(entry.get("status"))
-        stopped[stage] = (_STAGE_STATUS.get(status, status), str(entry.get("reason") or ""))
+        started = entry.get("started")
+        stopped[stage] = _Stopped(
+            _STAGE_STATUS.get(status, status),
+            str(entry.get("reason") or ""),
+            started if isinstance(started, str) else None,
+        )
     return stopped
 
 
-def _stage_checks(stopped: Mapping[str, tuple[str, str]]) -> list[_Check]:
-    """The verdict's line for each of :func:`_stopped_stages`."""
+def _stage_checks(stopped: Mapping[str, _Stopped]) -> list[_Check]:
+    """The verdict's line for each of :func:`_stopped_stages` before stream."""
     return [
         _Check(
             "fail",
             # Phrased as a claim like every other line, so that "✘ no" reads as its answer.
-            f"every stage finished: stage {html.escape(stage)} {html.escape(said)}"
-            + (f": {html.escape(why)}" if why else "")
+            f"every stage finished: stage {html.escape(stage)} {html.escape(it.said)}"
+            + (f": {html.escape(it.why)}" if it.why else "")
             + " (files after it may be from an earlier run)",
-            f"stage {stage} {said}",
+            f"stage {stage} {it.said}",
             f"Fix what stage {html.escape(stage)} reports above.",
             stage=stage,
         )
-        for stage, (said, why) in stopped.items()
+        for stage, it in stopped.items()
+        if stage != "stream"  # its own line (_stream_check)
     ]
 
 
@@ -495,16 +511,38 @@ def _gcode_check(job: Path) -> list[_Check]:
     return [_Check("fail", "G-code: export has not run", "no G-code yet", not_run="export")]
 
 
-def _stream_check(state: _Stream) -> list[_Check]:
+#: How the verdict and the Stream section name a journal session not the latest run's.
+_SESSION = {
+    "latest": "",
+    "earlier": "an earlier run's session: ",
+    "unsure": "the journal's last session (perhaps an earlier run's): ",
+}
+
+
+def _stream_check(state: _Stream, outcome: _Stopped | None = None) -> list[_Check]:
+    """The verdict's stream lines: the latest run's failure (``outcome``), then the journal's."""
+    checks = []
+    if outcome is not None:
+        checks.append(
+            _Check(
+                "fail",
+                # a claim like every other line, so that "✘ no" reads as its answer
+                f"the last stream finished: it {html.escape(outcome.said)}"
+                + (f": {html.escape(outcome.why)}" if outcome.why else ""),
+                f"the stream {outcome.said}",
+                "Deal with what stopped the stream: its line above says what happened "
+                "and what to do.",
+            )
+        )
     if state.kind == "none":
-        return [_Check("info", f"not streamed{state.note}")]
+        return [*checks, _Check("info", f"not streamed{state.note}")]
     end = "to the end" if state.finished else f"{state.done} of {state.total} lines, unfinished"
     text = {
         "emulator": f"streamed to the built-in GRBL emulator ({end}): nothing was cut",
         "real": f"streamed to the machine on {html.escape(state.port or '')} ({end})",
         "unknown": f"streamed ({end}) to a port this report does not know",
     }[state.kind]
-    return [_Check("info", text)]
+    return [*checks, _Check("info", _SESSION[state.session] + text)]
 
 
 def _verdict(checks: list[_Check]) -> str:
@@ -953,8 +991,46 @@ def _files_section(job: Path, stopped: Mapping[str, str]) -> str:
     return f"<ul>{''.join(items)}</ul>{table}"
 
 
-def _stream_state(job: Path, port: str | None) -> tuple[_Stream, str]:
-    """The stream's state and the Stream section's paragraph."""
+def _stream_outcome(outcome: _Stopped | None) -> str:
+    """The Stream section's first paragraph: how the latest run's stream ended, if badly."""
+    if outcome is None:
+        return ""
+    why = f": {html.escape(outcome.why)}" if outcome.why else ""
+    return (
+        f"<p class='bad' data-stream-outcome>The last stream {html.escape(outcome.said)}{why}.</p>"
+    )
+
+
+def _session(
+    start: Mapping[str, Any], outcome: _Stopped | None
+) -> Literal["latest", "earlier", "unsure"]:
+    """Whether the journal's last session (its ``start`` event) is the latest run's.
+
+    Without a failed or stopped latest run (``outcome``) it is. Else the session is that
+    run's when it began no earlier than the run did (both times to the second, local).
+    """
+    if outcome is None:
+        return "latest"
+    began = start.get("time")
+    if outcome.started is None or not isinstance(began, str):
+        return "unsure"
+    return "latest" if began >= outcome.started else "earlier"
+
+
+def _stream_state(
+    job: Path, port: str | None, outcome: _Stopped | None = None
+) -> tuple[_Stream, str]:
+    """The stream's state and the Stream section's paragraphs.
+
+    ``outcome``: the manifest's word where the latest run's stream failed or stopped;
+    said first, and the journal's session is told as an earlier run's where it is one.
+    """
+    state, text = _journal_state(job, port, outcome)
+    return state, _stream_outcome(outcome) + text
+
+
+def _journal_state(job: Path, port: str | None, outcome: _Stopped | None) -> tuple[_Stream, str]:
+    """The journal's state and its paragraph (see :func:`_stream_state`)."""
     from scratchfab.fileio import file_sha256
     from scratchfab.machine.sender_journal import (
         default_journal_path,
@@ -967,7 +1043,8 @@ def _stream_state(job: Path, port: str | None) -> tuple[_Stream, str]:
     gcode = JobLayout(job).export_file("gcode")
     journal = default_journal_path(gcode)
     if not journal.is_file() or not gcode.is_file():
-        return _Stream("none"), "<p class='muted'>not streamed.</p>"
+        said = "the journal records no stream" if outcome is not None else "not streamed"
+        return _Stream("none"), f"<p class='muted'>{said}.</p>"
     try:
         events = read_journal(journal)
         starts = [ev for ev in events if ev.get("ev") == "start"]
@@ -990,7 +1067,8 @@ def _stream_state(job: Path, port: str | None) -> tuple[_Stream, str]:
     kind: Literal["emulator", "real", "unknown"] = (
         "unknown" if port is None else "emulator" if is_emulator(port) else "real"
     )
-    state = _Stream(kind, finished, done, total, port)
+    session = _session(starts[-1], outcome)
+    state = _Stream(kind, finished, done, total, port, session=session)
     progress = "finished" if finished else "unfinished (the next run resumes it)"
     counted = (
         f"<span data-stat='stream.acknowledged'>{done}</span> of "
@@ -1014,6 +1092,17 @@ def _stream_state(job: Path, port: str | None) -> tuple[_Stream, str]:
             f"({rel}). The pipeline names no [stream] port, so this report cannot tell a "
             "machine from the emulator.</p>"
         )
+    if session != "latest":
+        began = html.escape(str(starts[-1].get("time") or "at a time it does not record"))
+        said = html.escape(outcome.said if outcome else "")
+        head = (
+            f"The journal's last session, started {began}, is an earlier run's, not the one "
+            f"that {said}:"
+            if session == "earlier"
+            else f"The journal's last session, started {began}, may be an earlier run's than "
+            f"the one that {said} (the manifest does not say when that one began):"
+        )
+        text = f"<p data-session='{session}'>{head}</p>{text}"
     return state, text
 
 
@@ -1118,7 +1207,8 @@ def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: 
     again = _code(command_line([*run, "--from", "stream"]))
     steps: list[str] = []
     state_kind = "not-streamed"
-    if state.kind == "real" and not state.finished:
+    mine = state.session == "latest"  # an earlier run's session says nothing of this one
+    if mine and state.kind == "real" and not state.finished:
         state_kind = "resume"
         steps += [
             f"The cut stopped after {state.done} of {state.total} lines: leave the board "
@@ -1126,7 +1216,7 @@ def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: 
             f"Resume: run {rerun} again: it continues from the journal. If the controller "
             "lost power, set <code>recut_unsure = true</code> in [stream] first.",
         ]
-    elif state.kind == "real":
+    elif mine and state.kind == "real":
         state_kind = "cut"
         steps += [
             "The board is cut. Lift the tool, take the board off, wipe it clean (no "
@@ -1209,10 +1299,11 @@ def write_report(
         min_rho = metrics["gate"].get("min_rho")
     design = _read_design(job)
     names = _view_order(design, metrics, job)
-    state, stream_text = _stream_state(job, port)
     stopped_stages = _stopped_stages(job)
+    outcome = stopped_stages.get("stream")
+    state, stream_text = _stream_state(job, port, outcome)
     stages = _stage_checks(stopped_stages)
-    stopped = {stage: said for stage, (said, _) in stopped_stages.items()}
+    stopped = {stage: s.said for stage, s in stopped_stages.items() if stage != "stream"}
     checks = stages + [
         c
         for c in _feasibility_checks(feasibility)
@@ -1220,7 +1311,7 @@ def write_report(
         + _crosstalk_check(names, metrics)
         + _toolpath_checks(toolpath)
         + _gcode_check(job)
-        + _stream_check(state)
+        + _stream_check(state, outcome)
         if c.not_run not in stopped
     ]
     body = [
