@@ -1398,12 +1398,16 @@ class Streamer:
         """The fault of a controller that reset itself (its banner came) ``when``.
 
         Lines already on the way would run from a lost position: a soft reset flushes them.
+        Named as a stop names them: the last line GRBL accepted, the last it surely ran (no
+        position to judge by: a planner full and the stepper's few before the last
+        acknowledgement, :meth:`_executed_guess`) and where a resume restarts.
         """
         with contextlib.suppress(_Fault):
             self._write(REALTIME_RESET)
+        self._stopped_through = self._executed_guess(None)
         return _Fault(
-            f"the controller reset itself {when} (banner received "
-            f"{self._after_line()}); its position may be lost: re-home or re-zero, then "
+            f"the controller reset itself {when} (its banner came) {self._after_line()}"
+            f"{self._ran_clause()}; its position may be lost: re-home or re-zero, then "
             "--resume",
             kind="reset",
         )
@@ -1542,7 +1546,10 @@ class Streamer:
                 "lost", reason=reason, executed_through=self._executed_guess(self.status)
             )
             return
-        lifted = self._no_lift(f"{reason} cut the stop short; jog Z up")
+        why = f"{reason} cut the stop short; jog Z up"
+        lifted = self._no_lift(why)
+        if lifted is not None:  # no message carries its clause
+            self._tell(f"the tool was NOT raised: {why}")
         self._journal_quietly(
             "stop", reason=reason, executed_through=self._executed_guess(held), **_journaled(lifted)
         )
@@ -1608,6 +1615,7 @@ class Streamer:
                     "stop",
                     reason=str(fault),
                     executed_through=self._executed_guess(None),
+                    lost=True,  # a resume asks whether it was homed since
                     **_journaled(lifted),
                 )
                 fault.args = (str(fault) + _clause(lifted),)
@@ -1724,11 +1732,15 @@ class Streamer:
             return self._not_raised(f"{fault} while raising it", "failed")
 
     def _no_lift(self, reason: str) -> _Lifted | None:
-        """A stop after which the tool is never raised: say why (None with the lift off)."""
-        return self._not_raised(reason) if self.options.lift else None
+        """A stop after which the tool is never raised, and why (None with the lift off).
 
-    def _not_raised(self, reason: str, result: str = "skipped") -> _Lifted:
-        self._tell(f"the tool was NOT raised: {reason}")
+        Not told as it happens (no lift was tried): the fault's message carries its clause.
+        """
+        return self._not_raised(reason, tell=False) if self.options.lift else None
+
+    def _not_raised(self, reason: str, result: str = "skipped", tell: bool = True) -> _Lifted:
+        if tell:  # the lift's own account, as it happens
+            self._tell(f"the tool was NOT raised: {reason}")
         return _Lifted(
             f"; the tool was NOT raised ({reason})", {"result": result, "reason": reason}
         )

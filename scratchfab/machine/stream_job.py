@@ -82,8 +82,8 @@ class StreamRequest:
         lift: After a stop (an error, a stall, Ctrl-C's stop, SIGTERM) that ended in a soft
             reset of a machine standing still, raise the tool once the controller is Idle
             (:attr:`StreamOptions.lift`).
-        homed: The machine was homed, or its work zero set again, since an alarm that may
-            have lost its position (:func:`ask_if_homed`).
+        homed: The machine was homed, or its work zero set again, since an alarm or a
+            reset of the controller that may have lost its position (:func:`ask_if_homed`).
     """
 
     gcode: Path
@@ -116,7 +116,8 @@ class StreamCallbacks:
             is asked (``--yes``): what needs a person's word is refused (a partial board on
             a machine, a G-code of an earlier plan or of a toolpath planned from other
             inputs than there are now, a stream from the top over an unfinished one, a
-            resume after an alarm that may have lost the position unless ``homed``).
+            resume after an alarm or a controller reset that may have lost the position
+            unless ``homed``).
         result: Called with the outcome lines (resume point, done); default ``say``.
     """
 
@@ -800,16 +801,27 @@ def _check_strokes(program: Program, gcode: Path) -> None:
     )
 
 
-def _lost_alarm(events: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The journal's last session's last ``alarm`` event with ``lost``, else None."""
+def _lost_event(events: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The journal's last session's last ``alarm`` or ``stop`` event with ``lost``, else None.
+
+    A ``stop`` holds ``lost`` where the controller reset itself (its banner came: a power
+    or USB glitch, its reset button), which may have lost the position.
+    """
     starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
     last = events[starts[-1] :] if starts else events
-    alarms = [ev for ev in last if ev.get("ev") == "alarm" and ev.get("lost")]
-    return alarms[-1] if alarms else None
+    lost = [ev for ev in last if ev.get("ev") in ("alarm", "stop") and ev.get("lost")]
+    return lost[-1] if lost else None
+
+
+def _lost_by(event: dict[str, Any]) -> str:
+    """What ended the run in ``event`` (:func:`_lost_event`): ``ALARM:2``, a reset."""
+    if event.get("ev") == "stop":
+        return "a reset of the controller it did not send (its banner came)"
+    return f"ALARM:{event.get('code')}"
 
 
 def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
-    """The warning where the interrupted run ended with an alarm that may have lost the position.
+    """The warning where the interrupted run ended in a way that may have lost the position.
 
     The journal's last session's ``alarm`` with ``lost``: ``true`` where GRBL stopped the
     motors at speed (a soft limit while the sender's feed hold slowed the machine down, a
@@ -817,11 +829,19 @@ def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
     controller's feed hold button, or GRBL's own soft-limit hold) was slowing it. GRBL stays
     locked until homed or unlocked, and the sender cannot tell which was done (Grbl 1.1
     answers ``$H`` and ``$X`` alike): an unlock keeps the lost position, so the resumed
-    strokes would land off. None where no such alarm ended it.
+    strokes would land off. The last session's ``stop`` with ``lost``: the controller
+    reset itself. None where neither ended it.
     """
-    alarm = _lost_alarm(events)
+    alarm = _lost_event(events)
     if alarm is None:
         return None
+    if alarm.get("ev") == "stop":
+        return (
+            f"the run before this resume ended with {_lost_by(alarm)}: a power or USB glitch "
+            "loses the position (a reset button pressed while the machine stood still keeps "
+            "it); go on only if the machine was homed ($H), or its work zero set again on the "
+            "board's origin, since"
+        )
     code = alarm.get("code")
     if alarm["lost"] == "maybe":
         return (
@@ -847,10 +867,11 @@ def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
 def ask_if_homed(
     events: list[dict[str, Any]], homed: bool, port: str, confirm: Confirm | None, say: Say
 ) -> bool:
-    """Before a resume after an alarm that may have lost the position: was it homed since?
+    """Before a resume after an alarm or a reset that may have lost the position: homed since?
 
-    GRBL needs ``$H`` or ``$X`` after such an alarm and answers both alike, so only a
-    person can tell; after ``$X`` alone the strokes land off. ``homed`` (``--homed``) says
+    GRBL needs ``$H`` or ``$X`` after such an alarm and answers both alike, and a
+    controller that reset itself (:func:`lost_position_warning`) may boot at another
+    position, so only a person can tell; after ``$X`` alone the strokes land off. ``homed`` (``--homed``) says
     the machine was homed, or its work zero set again, since. Otherwise, on a machine, the
     person is asked before anything is sent, and under ``--yes`` (``confirm`` None) the
     resume is refused. The emulator moves nothing: it is neither asked nor refused.
@@ -867,9 +888,9 @@ def ask_if_homed(
     if warning is None:
         return False
     if homed:
-        code = (_lost_alarm(events) or {}).get("code")
+        by = _lost_by(_lost_event(events) or {})
         say(
-            f"note: the run before this resume ended with ALARM:{code}, which may have lost the "
+            f"note: the run before this resume ended with {by}, which may have lost the "
             "position; --homed: the machine was homed, or its work zero set again, since"
         )
         return False
@@ -1014,8 +1035,8 @@ def run_stream_job(
     (and check mode), as ``stream`` asks; the default answers yes (the caller has
     consent); None asks nobody and refuses a partial board on a machine
     (:func:`ask_before_a_partial_board`). A Ctrl-C stops safely. A run after an
-    interrupted stream of the same G-code resumes it from the journal; after an alarm that
-    may have lost the position only with ``homed`` or a person's word (:func:`ask_if_homed`).
+    interrupted stream of the same G-code resumes it from the journal; after an alarm or a
+    controller reset that may have lost the position only with ``homed`` or a person's word (:func:`ask_if_homed`).
     """
     lines = ProgressLines()
     layout = JobLayout(job)
