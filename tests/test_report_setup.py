@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 from test_report import fake_job
 
 from scratchfab.machine.profile import MachineProfile, load_profile
@@ -96,3 +97,21 @@ def test_the_work_zero_command_is_written_as_the_export_writes_numbers(tmp_path)
     step = _words(_setup_step(job))
     assert "send G10 L20 P1 X0 Y123.457 there" in step, step
     assert "e-05" not in step and "corner at X 0 Y 123.457" in step
+
+
+@pytest.mark.parametrize("rotation", [0, 90, 180, 270])
+def test_the_set_up_step_says_which_way_the_boards_top_edge_faces(tmp_path, rotation):
+    """The views hold with the board's top edge up: the step says where it lies to mark it."""
+    job = fake_job(tmp_path)
+    base = load_profile("grbl-plotter-scribe")
+    profile = replace(base, board=replace(base.board, rotation_deg=rotation))
+    _plan(job, profile)
+    # Independently: where the board's top-edge midpoint lands from its centre.
+    centre, top = profile.board_to_machine(np.array([[0.0, 0.0], [0.0, 20.0]]), (60.0, 40.0))
+    dx, dy = np.round(top - centre).astype(int)
+    axis = "X" if dx else "Y"
+    expected = ("+" if (dx or dy) > 0 else "-") + axis
+    step = _words(_setup_step(job))
+    assert f"top edge (the design's +y) faces machine {expected} (" in step
+    side = {"+Y": "away from you", "-Y": "toward you", "+X": "to your right", "-X": "to your left"}
+    assert side[expected] in step and "before you unclamp it" in step

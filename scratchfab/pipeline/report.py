@@ -1131,11 +1131,21 @@ def _copied_title(title: str, pipeline_file: Path | None) -> str:
     return ""
 
 
+#: Where a machine direction lies for a person at a desktop engraver's front (a 3018's).
+_TOWARD = {
+    "+Y": "away from you, at the back, on a 3018 and most desktop engravers",
+    "-Y": "toward you, at the front, on a 3018 and most desktop engravers",
+    "+X": "to your right on a 3018 and most desktop engravers",
+    "-X": "to your left on a 3018 and most desktop engravers",
+}
+
+
 def _setup_step(job: Path) -> str:
     """How to set the machine up, for the profile the toolpath was planned with.
 
-    README step 5, the board's placement and the tool's height, and the zeroing the
-    profile's ``[envelope] coordinates`` calls for (none on the board, or the work zero).
+    README step 5, the board's placement and the tool's height, the zeroing the profile's
+    ``[envelope] coordinates`` calls for (none on the board, or the work zero), and which
+    way the board's top edge faces (as the G-code's header says), to mark before unclamping.
     """
     text = (
         "Set the machine up as README step 5 (<b>Cut.</b>) says for your profile: the G-code "
@@ -1162,6 +1172,13 @@ def _setup_step(job: Path) -> str:
         f"<span data-stat='setup.x'>{x}</span> Y <span data-stat='setup.y'>{y}</span>, "
         f"{tool}. "
     )
+    top = profile.board_top()
+    marked = (
+        f" The board's top edge (the design's +y) faces machine "
+        f"<span data-stat='setup.top'>{top}</span> ({_TOWARD[top]}): mark it on the board "
+        "before you unclamp it, since every place under <i>Where to stand</i> holds with "
+        "that edge up."
+    )
     if profile.envelope.coordinates == "machine":
         advice = (
             "Make both true on your machine before streaming: these are GRBL's machine "
@@ -1170,7 +1187,7 @@ def _setup_step(job: Path) -> str:
             "[envelope] <code>coordinates = &quot;machine&quot;</code>): do not zero the work "
             "coordinates on the board."
         )
-        return text + placed + advice
+        return text + placed + advice + marked
     z_zero = (
         ""
         if servo
@@ -1184,7 +1201,7 @@ def _setup_step(job: Path) -> str:
         f"there (that point becomes X {x} Y {y}; G10 L20, not {_code('G92')}, whose "
         f"zero every soft reset clears).{z_zero}"
     )
-    return text + placed + advice
+    return text + placed + advice + marked
 
 
 def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: Path | None) -> str:
