@@ -283,3 +283,41 @@ def test_segments_of_less_than_a_step_and_a_quarter_run_longer():
         assert machine.report(t)[2] == pytest.approx(
             60.0 * _prepared_end(segments, t)[1], abs=0.6
         ), t
+
+
+@pytest.mark.parametrize("feed", [1.0, 3.0, 6.0, 20.0])  # AMASS levels 3, 2, 1, 0
+def test_a_report_counts_the_step_on_the_tick_that_takes_it_not_the_distance_run(feed):
+    """``sys_position`` is counted on the interrupt tick that decides a step (its pulse
+    goes out on the next tick), and the tick that loads a segment runs at once, where the
+    exact distance left is a whole number of steps. So Grbl reports a step before the
+    distance run reaches it: the major axis's step ``k`` on event ``k``'s first tick
+    (``k - 1`` events run) without AMASS, on its middle tick (``k - 1/2``) with it, the
+    last one so before the move ends. G1 at 1000 steps/mm to (50.12, 18.38, -10.27) steps
+    (lround: 50, 18, -10) at 1-20 mm/s ($120-$122 so high that it cruises at once):
+    against the reference's ticks at 100 instants of the cruise, and 0.4 of an event
+    before the end, where the floor of the steps run is one X step short, Grbl reports and
+    a reset leaves the move's end (ALARM:3, the record's partial move ends there)."""
+    spm, accel = 1000.0, 1e7
+    settings = {100 + k: spm for k in range(3)} | {110 + k: 6000.0 for k in range(3)}
+    machine = _Machine(settings | {120 + k: accel for k in range(3)})
+    machine.at(0.0, f"G1X0.05012Y0.01838Z-0.01027F{60.0 * feed:g}\n".encode())
+    end, count = (0.05, 0.018, -0.01), 50
+    length = math.sqrt(sum(v * v for v in end))
+    shed = feed**2 / (2.0 * accel * length / end[0])  # X's share limits the acceleration
+
+    def at_events(e: float) -> tuple[float, float]:  # the instant e events run, and the mm
+        return (e / count * length + shed) / feed, e / count * length
+
+    for e in [0.05 + k * (count - 0.1) / 100 for k in range(101)]:
+        t, done = at_events(e)
+        want = ticks_taken((0.0,) * 3, end, done, feed, (spm,) * 3)
+        assert machine.report(t)[1] == pytest.approx(want, abs=1e-9), e
+    t, done = at_events(count - 0.4)
+    assert math.floor(done / length * end[0] * spm) == end[0] * spm - 1  # floor: X short
+    assert ticks_taken((0.0,) * 3, end, done, feed, (spm,) * 3) == pytest.approx(end)
+    assert machine.report(t)[1] == pytest.approx(end, abs=1e-9)
+    machine.at(t, b"\x18")
+    machine.until_still()
+    assert "ALARM:3" in machine.text and machine.sim.mpos == pytest.approx(end, abs=1e-12)
+    partial = [e for e in machine.sim.record if e["ev"] == "partial"]
+    assert [e["to"] for e in partial] == [pytest.approx(list(end), abs=1e-9)]

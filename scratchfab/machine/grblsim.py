@@ -1540,6 +1540,9 @@ class GrblSim:
         Bresenham counters scaled by 8 (``stepper.c``'s ISR: each axis's counter starts at
         half the events, adds its steps each tick and steps the axis when it exceeds the
         events), so a minor axis may step within an event before the major one does.
+        A report so leads the distance run, as Grbl's does (the interrupt counts a step on
+        the tick that decides it; its pulse goes out on the next): the major axis's step
+        ``k`` counts once ``k - 1`` events ran (``k - 1/2`` under AMASS), not at ``k``.
         """
         if not self._planner:
             return self.mpos
