@@ -322,7 +322,8 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     header = _read_header(req.gcode)
     ask_before_a_partial_board(planned, header, req.gcode, req.port, cb.confirm, cb.say)
     if planned is not None:
-        ask_before_a_stale_toolpath(planned, req.gcode, req.port, cb.confirm, cb.say)
+        loaded = None if req.machine is None or isinstance(req.machine, str) else profile
+        ask_before_a_stale_toolpath(planned, req.gcode, req.port, cb.confirm, cb.say, loaded)
         ask_before_an_earlier_export(planned, header, req.gcode, req.port, cb.confirm, cb.say)
     z_threshold = req.z_threshold
     if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
@@ -631,6 +632,7 @@ def ask_before_a_stale_toolpath(
     port: str,
     confirm: Confirm | None,
     say: Say,
+    profile: MachineProfile | None = None,
 ) -> None:
     """A job's toolpath planned from other inputs than there are now is named first.
 
@@ -639,7 +641,9 @@ def ask_before_a_stale_toolpath(
     and streaming would cut the earlier layout without a word. The check is export's
     (:func:`~scratchfab.toolpath.inputs.check_current`); where the optimized layout comes
     from an earlier design too (:func:`~scratchfab.model.job.stale_layout`), optimize is
-    named before toolpath and export.
+    named before toolpath and export. ``profile``: the machine profile the caller loaded
+    for this run (the pipeline's), compared with nothing again and not read twice; None
+    (``stream JOB``): the recorded machine file is read and compared.
 
     Raises:
         ScratchfabError: Under ``--yes`` on a machine, or when the person says no; nothing
@@ -649,7 +653,7 @@ def ask_before_a_stale_toolpath(
     from scratchfab.toolpath.inputs import check_current
 
     layout, toolpath = planned
-    stale, _ = check_current(toolpath)
+    stale, _ = check_current(toolpath, profile)
     if stale is None:
         return
     export = command_line(["scratchfab", "export", layout.root, "--format", "gcode"])
