@@ -320,6 +320,8 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     planned = _planned(req)
     profile = _profile_for(req, planned, cb.say)
     header = _read_header(req.gcode)
+    if header.not_optimized:  # planned so on purpose, or not: said, never refused
+        cb.say(f"note: {req.gcode}: this G-code cuts the design's initial layout (not optimized)")
     ask_before_a_partial_board(planned, header, req.gcode, req.port, cb.confirm, cb.say)
     if planned is not None:
         loaded = None if req.machine is None or isinstance(req.machine, str) else profile
