@@ -516,6 +516,7 @@ def run_design(
     cache: dict[tuple[Path, bool], tuple[np.ndarray, np.ndarray]] = {}
     refitted: set[Path] = set()
     inverted = frozenset(v.name for v in design.views if invert or v.invert)
+    cli = design.source == QUICK_SOURCE or not isinstance(source, Design)  # takes --invert
     for i, view in enumerate(design.views):
         path = design.target_path(view)
         assert path is not None
@@ -539,8 +540,19 @@ def run_design(
                     f"{design.board.width_mm:g} x {design.board.height_mm:g} mm board"
                 )
         boards[view.name], area = cache[key]
+        flipped = key[1]
+        option = _invert_option(design.source, i, len(design.views), cli, invert and flipped)
         _check_brightness(
-            design.source, i, view.name, path, boards[view.name], area, force, progress, key[1]
+            design.source,
+            i,
+            view.name,
+            path,
+            boards[view.name],
+            area,
+            force,
+            progress,
+            flipped,
+            option,
         )
     progress(f"  loaded {len(cache)} target image(s)")
     note = resized_board_note(
@@ -668,6 +680,32 @@ def _check_frame(source: str, index: int, view: View, board: Board, say: Say) ->
     )
 
 
+def _invert_option(source: str, index: int, views: int, cli: bool, flag: bool) -> str:
+    """What inverts view ``index``'s picture alone, as the brightness messages name it.
+
+    Args:
+        source: The design's source (the quick form, a design file or a pipeline's).
+        index: The view's index.
+        views: How many views the design has: with more than one, ``--invert`` turns
+            every view's picture negative, a light one too.
+        cli: The command takes ``--invert`` (``design``; ``run`` does not).
+        flag: ``--invert`` inverted it (the option to leave off).
+    """
+    key = f"views[{index}] invert = true"
+    if flag or (source == QUICK_SOURCE and views == 1):
+        return "--invert"
+    if cli and views == 1:
+        return f"--invert or {key} in {source}"
+    if source == QUICK_SOURCE:
+        return (
+            f"{key} in the job's design/design.toml, as the file to design from "
+            f"(--invert would turn all {views} views negative)"
+        )
+    return f"{key} in {source}" + (
+        f" (--invert would turn all {views} views negative)" if cli else ""
+    )
+
+
 def _check_brightness(
     source: str,
     index: int,
@@ -678,6 +716,7 @@ def _check_brightness(
     force: bool,
     say: Say,
     inverted: bool = False,
+    option: str = "--invert",
 ) -> None:
     """Refuse a black target unless forced; warn of a uniform or a mostly bright one.
 
@@ -688,7 +727,8 @@ def _check_brightness(
     it, or, where the picture was ``inverted``, says to leave that off. Brightness is
     measured over the picture's own ``area`` of the board: the bars of a ``contain``
     fit would dilute a letterboxed photo's (:data:`BRIGHT_TARGET_MEAN` was measured on
-    pictures filling their board).
+    pictures filling their board). ``option``: what inverts this view's picture, or
+    what did (:func:`_invert_option`).
 
     Raises:
         ConfigError: A black target without ``force``, naming the view's key and file.
@@ -696,7 +736,6 @@ def _check_brightness(
     spread = float(np.ptp(board))
     mean = float(board.mean())
     own = float(board[area].mean()) if area.any() else mean
-    option = "--invert" if source == QUICK_SOURCE else f"--invert or views[{index}] invert = true"
     if float(board.max()) < UNIFORM_TARGET_SPREAD and not force:
         raise ConfigError(
             f"{source}: views[{index}].target ('{name}'): {path}: the picture is black on "
@@ -708,8 +747,9 @@ def _check_brightness(
             + (
                 f"leave {option} off for one that is light on dark already"
                 if inverted
+                # a refused quick form wrote no design.toml to set a view's invert in
                 else "a dark logo on a transparent ground: make the logo white, or design "
-                f"again with {option}"
+                f"again with {'--invert' if source == QUICK_SOURCE else option}"
             )
             + ") "
             + DESIGN_ANYWAY
