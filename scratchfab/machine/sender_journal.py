@@ -23,7 +23,10 @@ line, which the reader skips). Events:
   height), ``{"result": "raised"|"reset", "up": command}`` for a servo scribe, or
   ``{"result": "skipped"|"failed"|"interrupted", "reason": ...}``. It is written after the
   lift, so a sender killed during it leaves an unclosed session (read cautiously, below);
-  resuming never reads it. A ``lost`` event may hold a skipped ``"lift"`` too.
+  resuming never reads it. A ``lost`` event may hold a skipped ``"lift"`` too. ``"lost":
+  true`` on a ``stop``: the controller reset itself (its banner came unasked: a power or USB
+  glitch, its reset button), which may have lost the position; a resume asks whether the
+  machine was homed since (``--homed``).
 - ``{"ev": "lost", "reason": ..., "executed_through": i}``: the link dropped. A controller
   that keeps power runs every block it acknowledged; one powered over the USB cable stops
   with it, and the blocks after ``executed_through`` (judged from the last position report)
