@@ -71,7 +71,10 @@ def test_design_tells_the_cut_length_and_time_at_the_bundled_profiles_feeds(tmp_
     # the feeds named are the bundled profile's, read here from its file
     profile = tomllib.loads((PROFILES / "grbl-3018-diamond.toml").read_text(encoding="utf-8"))
     feeds = profile["feeds"]
-    assert f"machine 'grbl-3018-diamond' (engrave {feeds['engrave_mm_min']:g} mm/min" in line
+    assert (
+        f"machine '{profile['name']}' (grbl-3018-diamond; engrave {feeds['engrave_mm_min']:g} "
+        "mm/min" in line
+    )
     assert f"plunge {feeds['plunge_mm_min']:g} mm/min" in line
     assert "--count" in line
     said = _seconds(re.search(r"about (.+?) \(", line).group(1))
@@ -101,7 +104,8 @@ def test_a_pipeline_files_own_machine_is_the_one_timed(tmp_path, capsys):
     )  # fmt: skip
     assert code == 0
     line = _cut_line(out)
-    assert "(engrave 150 mm/min" in line and "[scratch] count" in line
+    assert f"({tmp_path / 'machines' / 'slow.toml'}; engrave 150 mm/min" in line, line
+    assert "[scratch] count" in line
     said = _seconds(re.search(r"about (.+?) \(", line).group(1))
     reference = _toolpath_seconds(job, tmp_path / "machines" / "slow.toml")
     assert abs(said - reference) <= 0.3 * reference, (said, reference)
@@ -115,4 +119,5 @@ def test_a_pipeline_files_own_machine_is_the_one_timed(tmp_path, capsys):
         machine=pipe.machine_ref(),
     )
     line = _cut_line("\n".join(said_lines))
-    assert "(engrave 150 mm/min" in line and "; [scratch] count in " in line
+    assert f"({tmp_path / 'machines' / 'slow.toml'}; engrave 150 mm/min" in line, line
+    assert "; [scratch] count in " in line

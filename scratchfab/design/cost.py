@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from scratchfab.bundled import bundled_name
 from scratchfab.console import duration_text
 from scratchfab.errors import ConfigError
 from scratchfab.machine.profile import MachineProfile, load_profile
@@ -57,19 +58,27 @@ def cut_line(scratches: ScratchSet, board: Board, machine: str | MachineProfile,
     n = len(scratches)
     length_m = float(np.hypot(*(scratches.p1 - scratches.p0).T).sum()) / 1000.0
     head = f"cut: {n} scratches, {length_m:.1f} m of cut"
-    if isinstance(machine, MachineProfile):
-        profile, name = machine, machine.name
-    else:
-        try:
-            profile, name = load_profile(machine), machine
-        except ConfigError as exc:
-            return f"{head}; no time estimate, toolpath.machine: {exc}"
+    try:
+        profile = load_profile(machine)
+    except ConfigError as exc:
+        return f"{head}; no time estimate, toolpath.machine: {exc}"
     seconds = cut_seconds(scratches, board, profile)
     feeds = [f"engrave {profile.feeds.engrave_mm_min:g} mm/min"]
     if profile.tool_control.mode != "servo":
         feeds.append(f"plunge {profile.feeds.plunge_mm_min:g} mm/min")
+    said = [_profile_file(profile), ", ".join(feeds)]
     return (
         f"{head}; about {duration_text(seconds)} ({seconds / max(n, 1):.1f} s a scratch with "
-        f"its travel) on machine '{name}' ({', '.join(feeds)}), as toolpath estimates this "
-        f"layout; {fewer} lays fewer, the time falls about with the count"
+        f"its travel) on machine '{profile.name}' ({'; '.join(s for s in said if s)}), as "
+        f"toolpath estimates this layout; {fewer} lays fewer, the time falls about with the count"
     )
+
+
+def _profile_file(profile: MachineProfile) -> str:
+    """The profile's file as export names it after the profile's name.
+
+    A bundled profile's name, else its file ("" for a profile built in code).
+    """
+    if profile.source == MachineProfile.source:  # the field's default: no file
+        return ""
+    return bundled_name("machine_profiles", profile.source) or profile.source

@@ -1,0 +1,49 @@
+"""The cut line names the machine one way, whether ``design`` or ``run`` made the layout.
+
+The quick form passed the bundled name (``'grbl-3018-diamond'``), ``run`` the loaded
+profile (``'GRBL 3018 engraver, diamond drag bit'``). Both now say the profile's name and,
+in brackets, the bundled name or the file, as export's line does. The reference is the
+profile file itself.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from dataclasses import replace
+
+from conftest import cli_run
+
+from scratchfab.bundled import bundled_dir
+from scratchfab.design.stage import run_design
+from scratchfab.pipeline.config import load_pipeline
+
+DEMO = bundled_dir("demo")
+PROFILE = bundled_dir("machine_profiles") / "grbl-3018-diamond.toml"
+
+
+def _machine(lines: list[str]) -> str:
+    found = [line for line in lines if line.startswith("  cut: ")]
+    assert len(found) == 1, lines
+    named = re.search(r" on (machine '.*?' \([^;)]*);", found[0])
+    assert named, found[0]
+    return named.group(1)
+
+
+def test_design_and_run_name_the_machine_alike(tmp_path, capsys):
+    name = tomllib.loads(PROFILE.read_text(encoding="utf-8"))["name"]
+    expected = f"machine '{name}' ({PROFILE.stem}"
+    code, out, _ = cli_run(
+        ["design", str(DEMO / "sun.png"), "--board", "40x30", "--count", "40",
+         "--resolution", "16", "--out", str(tmp_path / "a")],
+        capsys,
+    )  # fmt: skip
+    assert code == 0, out
+    assert _machine(out.splitlines()) == expected
+    pipe = load_pipeline(bundled_dir("pipelines") / "demo.toml")
+    design = replace(pipe.design, source=str(pipe.path))
+    design = replace(design, scratch=replace(design.scratch, count=40))
+    said: list[str] = []
+    run_design(design, tmp_path / "b", resolution=None, progress=said.append, machine=pipe.profile)
+    assert pipe.profile.name == name
+    assert _machine(said) == expected
