@@ -129,23 +129,48 @@ END_WAIT = "G4P0"
 COARSE_STEP_MM = 0.025
 #: GRBL's ``error:9``: G-code locked out, which it answers only in Alarm (or a jog).
 GC_LOCKED = 9
-#: What to do once a controller that was lost (its link, or its answers) stands still.
-RECONNECT_NEXT = (
-    "then reconnect, re-home or re-zero the machine (opening the port reboots an "
-    "Arduino-based controller, which loses its position) and run the same command with "
-    "--resume"
-)
-#: What to do after a lost connection, once the machine stands still.
-LINK_LOST_NEXT = (
-    f"{RECONNECT_NEXT}, adding --recut-unsure ([stream] recut_unsure = true in a pipeline) "
-    "if the board's lights went out with the cable"
-)
-#: What to do after the controller fell silent (no status reports): the hold and the
-#: reset sent may not have reached it.
-SILENT_NEXT = (
-    "it may have hung or lost power: if the machine still moves, wait until it stops or "
-    f"press its reset before going near it; {RECONNECT_NEXT}"
-)
+
+
+def machine_coordinates(profile: MachineProfile | None) -> bool:
+    """Whether ``profile`` works in GRBL's machine coordinates (``[envelope] coordinates``).
+
+    Such a machine finds its position again by homing alone: it refuses a work offset, so
+    setting a work zero is no advice for it. None (no profile known): False.
+    """
+    return profile is not None and profile.envelope.coordinates == "machine"
+
+
+def rehome(profile: MachineProfile | None) -> str:
+    """``re-home`` for a machine-coordinate profile, else ``re-home or re-zero``."""
+    return "re-home" if machine_coordinates(profile) else "re-home or re-zero"
+
+
+def reconnect_next(profile: MachineProfile | None) -> str:
+    """What to do once a controller that was lost (its link, or its answers) stands still."""
+    return (
+        f"then reconnect, {rehome(profile)} the machine (opening the port reboots an "
+        "Arduino-based controller, which loses its position) and run the same command with "
+        "--resume"
+    )
+
+
+def link_lost_next(profile: MachineProfile | None) -> str:
+    """What to do after a lost connection, once the machine stands still."""
+    return (
+        f"{reconnect_next(profile)}, adding --recut-unsure ([stream] recut_unsure = true in a "
+        "pipeline) if the board's lights went out with the cable"
+    )
+
+
+def silent_next(profile: MachineProfile | None) -> str:
+    """What to do after the controller fell silent (no status reports).
+
+    The hold and the reset sent may not have reached it.
+    """
+    return (
+        "it may have hung or lost power: if the machine still moves, wait until it stops or "
+        f"press its reset before going near it; {reconnect_next(profile)}"
+    )
 
 
 class StreamFault(ScratchfabError):
@@ -1296,9 +1321,12 @@ class Streamer:
             if error
             else f"the controller reports Alarm {after}"
         )
+        find = (
+            "home it" if machine_coordinates(self.options.profile) else "home it or check the zero"
+        )
         return _Fault(
             f"{said} (its ALARM or reset message was lost on the line); it stopped the job: "
-            "home it or check the zero, then --resume",
+            f"{find}, then --resume",
             kind="lock",
         )
 
@@ -1407,8 +1435,8 @@ class Streamer:
         self._stopped_through = self._executed_guess(None)
         return _Fault(
             f"the controller reset itself {when} (its banner came) {self._after_line()}"
-            f"{self._ran_clause()}; its position may be lost: re-home or re-zero, then "
-            "--resume",
+            f"{self._ran_clause()}; its position may be lost: {rehome(self.options.profile)}, "
+            "then --resume",
             kind="reset",
         )
 
@@ -1581,7 +1609,7 @@ class Streamer:
                 self._write(REALTIME_HOLD)
                 tool = self._safe_stop(str(fault), wait=2.0)
                 if self._hold_alarm is None:
-                    fault.args = (f"{fault}{tool}; {SILENT_NEXT}",)
+                    fault.args = (f"{fault}{tool}; {silent_next(self.options.profile)}",)
                 else:  # it answered after all, with an alarm
                     fault.args = (f"{fault}; {self._held_text()}{tool}; {self._go_on()}",)
             elif fault.kind == "alarm":
@@ -1632,7 +1660,8 @@ class Streamer:
                 fault.args = (
                     f"{fault}; a controller that kept power goes on running the lines it had "
                     "received (up to a planner full of moves, spindle on): wait until it stops "
-                    f"or press its reset before going near it{_clause(lifted)}; {LINK_LOST_NEXT}",
+                    f"or press its reset before going near it{_clause(lifted)}; "
+                    f"{link_lost_next(self.options.profile)}",
                 )
         except _Fault:
             self._journal.write(

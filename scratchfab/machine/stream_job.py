@@ -25,6 +25,7 @@ from scratchfab.machine.sender import (
     StreamFault,
     StreamOptions,
     StreamProgress,
+    machine_coordinates,
     open_port,
     xyz_text,
 )
@@ -406,7 +407,7 @@ def _stream_locked(
                 f"{req.gcode}: every line is done according to {journal_file}; nothing to do"
             )
             return
-        lost = ask_if_homed(events, req.homed, req.port, cb.confirm, cb.say)
+        lost = ask_if_homed(events, req.homed, req.port, cb.confirm, cb.say, profile)
         preamble = resume_preamble(program, start)
         n_done = sum(1 for a, b in program.strokes if all(i in done for i in range(a, b + 1)))
         cb.outcome(
@@ -437,7 +438,7 @@ def _stream_locked(
             inches = info.inch_reports
             _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
             if lost:
-                _say_lost_position(events, cb.say)
+                _say_lost_position(events, cb.say, profile=profile)
         program = program.timed_for(eta_settings(info.settings, profile))  # the ETA's times
         wpos = info.status.wpos if start == 0 else None  # a fresh stream starts there
         findings = compare(
@@ -476,7 +477,7 @@ def _stream_locked(
         finally:
             if lost:
                 assert events is not None
-                _say_lost_position(events, cb.say, again=True)
+                _say_lost_position(events, cb.say, again=True, profile=profile)
     finally:
         ser.close()
 
@@ -826,7 +827,30 @@ def _lost_by(event: dict[str, Any]) -> str:
     return f"ALARM:{event.get('code')}"
 
 
-def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
+def _rehomed(profile: MachineProfile | None) -> tuple[str, str]:
+    """(what was done since, what to do) after a lost position, for ``profile``'s frame.
+
+    A machine-coordinate profile (``[envelope] coordinates = "machine"``) is found again
+    by homing alone: it refuses a work offset, so setting a work zero is not advice for it.
+    A work-coordinate profile, or none known (a foreign file, no ``--machine``): homing,
+    or the work zero set again on the board's origin.
+    """
+    if machine_coordinates(profile):
+        return (
+            "homed ($H)",
+            "home the machine ($H) (its profile works in GRBL's machine coordinates: set no "
+            "work zero)",
+        )
+    return (
+        "homed ($H), or its work zero set again on the board's origin",
+        "home the machine ($H), or unlock it ($X) and set the work zero again on the "
+        "board's origin",
+    )
+
+
+def lost_position_warning(
+    events: list[dict[str, Any]], profile: MachineProfile | None = None
+) -> str | None:
     """The warning where the interrupted run ended in a way that may have lost the position.
 
     The journal's last session's ``alarm`` with ``lost``: ``true`` where GRBL stopped the
@@ -836,7 +860,8 @@ def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
     locked until homed or unlocked, and the sender cannot tell which was done (Grbl 1.1
     answers ``$H`` and ``$X`` alike): an unlock keeps the lost position, so the resumed
     strokes would land off. The last session's ``stop`` with ``lost``: the controller
-    reset itself. None where neither ended it.
+    reset itself (what to do as :func:`_rehomed` says for ``profile``). None where neither
+    ended it.
     """
     alarm = _lost_event(events)
     if alarm is None:
@@ -845,8 +870,7 @@ def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
         return (
             f"the run before this resume ended with {_lost_by(alarm)}: a power or USB glitch "
             "loses the position (a reset button pressed while the machine stood still keeps "
-            "it); go on only if the machine was homed ($H), or its work zero set again on the "
-            "board's origin, since"
+            f"it); go on only if the machine was {_rehomed(profile)[0]} since"
         )
     code = alarm.get("code")
     if alarm["lost"] == "maybe":
@@ -871,7 +895,12 @@ def lost_position_warning(events: list[dict[str, Any]]) -> str | None:
 
 
 def ask_if_homed(
-    events: list[dict[str, Any]], homed: bool, port: str, confirm: Confirm | None, say: Say
+    events: list[dict[str, Any]],
+    homed: bool,
+    port: str,
+    confirm: Confirm | None,
+    say: Say,
+    profile: MachineProfile | None = None,
 ) -> bool:
     """Before a resume after an alarm or a reset that may have lost the position: homed since?
 
@@ -880,7 +909,8 @@ def ask_if_homed(
     position, so only a person can tell; after ``$X`` alone the strokes land off. ``homed`` (``--homed``) says
     the machine was homed, or its work zero set again, since. Otherwise, on a machine, the
     person is asked before anything is sent, and under ``--yes`` (``confirm`` None) the
-    resume is refused. The emulator moves nothing: it is neither asked nor refused.
+    resume is refused. The emulator moves nothing: it is neither asked nor refused. What
+    to do is said for ``profile``'s coordinates (:func:`_rehomed`).
 
     Returns:
         True where :func:`lost_position_warning` is to be said once connected and again at
@@ -890,42 +920,44 @@ def ask_if_homed(
         ScratchfabError: Under ``--yes`` on a machine without ``homed``, or the person
             said no; nothing was sent.
     """
-    warning = lost_position_warning(events)
+    warning = lost_position_warning(events, profile)
     if warning is None:
         return False
+    since, do = _rehomed(profile)
     if homed:
         by = _lost_by(_lost_event(events) or {})
         say(
             f"note: the run before this resume ended with {by}, which may have lost the "
-            "position; --homed: the machine was homed, or its work zero set again, since"
+            f"position; --homed: the machine was {since} since"
         )
         return False
     if is_emulator(port):
         return True
-    then = (
-        "home the machine ($H), or unlock it ($X) and set the work zero again on the board's "
-        "origin, then run the same command with --homed"
-    )
+    then = f"{do}, then run the same command with --homed"
     if confirm is None:
         raise ScratchfabError(
             f"refusing to resume with --yes: {warning}; {then} (or without --yes to be "
             "asked); nothing was sent"
         )
     if not confirm(
-        f"{warning[0].upper()}{warning[1:]}. Was the machine homed ($H), or its work zero set "
-        "again on the board's origin, since then (--homed says so)?"
+        f"{warning[0].upper()}{warning[1:]}. Was the machine {since} since then (--homed says so)?"
     ):
         raise ScratchfabError(f"not confirmed; nothing was sent: {then}")
     return False
 
 
-def _say_lost_position(events: list[dict[str, Any]], say: Say, again: bool = False) -> None:
+def _say_lost_position(
+    events: list[dict[str, Any]],
+    say: Say,
+    again: bool = False,
+    profile: MachineProfile | None = None,
+) -> None:
     """Say :func:`lost_position_warning`, where there is one; ``again`` in the closing lines.
 
     Said once connected, and again when the resumed stream ends (done, stopped or failed):
     with ``--yes`` nothing waits after the first, which scrolls past under the progress.
     """
-    warning = lost_position_warning(events)
+    warning = lost_position_warning(events, profile)
     if warning is not None:
         say(f"warning{' (repeated)' if again else ''}: {warning}")
 
