@@ -78,11 +78,14 @@ def test_after_optimize_resume_the_old_gcode_is_named_asked_about_and_refused_un
     assert "run without --yes to be asked" in refusal and "nothing was sent" in refusal
     assert not rec.exists()  # never connected
 
-    # a machine, a person asked: the question names the change and the commands; no
+    # a machine, a person asked: the warning names the change and the commands, once (the
+    # ~300-character text was printed again in full as the question); the question is short
     code, _, err = _stream([str(job), "--port", f"{SIM}&record={rec}"], "n\n")
     assert code == 2 and "not confirmed; nothing was sent" in err
-    question = next(line for line in err.splitlines() if "Stream it anyway?" in line)
-    assert "scratches.csv changed since" in question and f"`{export}`" in question
+    assert err.count("scratches.csv changed since") == 1 and err.count(f"`{export}`") == 1, err
+    question = next(line for line in err.splitlines() if "anyway" in line)
+    assert "Stream the out-of-date plan of " in question and STALE not in question
+    assert err.index("warning: ") < err.index(question)
     assert not rec.exists()
 
     # the advice followed: toolpath and export again, and it streams unasked
@@ -114,3 +117,18 @@ def test_after_a_design_change_optimize_is_named_first(exported, tmp_path, monke
         < refusal.index(f"`scratchfab toolpath {job}")
         < refusal.index(f"`scratchfab export {job} --format gcode`")
     )
+
+
+def test_a_job_given_relative_is_named_relative(exported, tmp_path, monkeypatch):
+    """Given as a path relative to the current directory, the job's files are named so in
+    the warning and the commands it gives (not one path as given, the others absolute)."""
+    job = _copy(exported, tmp_path)
+    assert main(["optimize", str(job), "--resume", "--iterations", "6"]) in (None, 0)
+    monkeypatch.chdir(tmp_path)
+    code, _, err = _stream(["job", "--port", SIM, "--yes"], "")
+    assert code == 0, err
+    warning = next(line for line in err.splitlines() if STALE in line)
+    assert str(tmp_path) not in warning, warning
+    assert warning.startswith("warning: job/export/board.gcode cuts an out-of-date plan: ")
+    assert "job/toolpath/toolpath.json was planned from" in warning
+    assert "`scratchfab export job --format gcode`" in warning

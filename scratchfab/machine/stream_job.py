@@ -671,7 +671,7 @@ def ask_before_a_stale_toolpath(
     _ask_on_a_machine(
         what,
         f"refusing to stream with --yes: {what}",
-        f"{what}. Stream it anyway?",
+        f"Stream the out-of-date plan of {gcode} anyway (the warning above says why)?",
         port,
         confirm,
         say,
@@ -1009,7 +1009,8 @@ def _planned(req: StreamRequest) -> tuple[JobLayout, Toolpath] | None:
         ConfigError: ``JOB/toolpath/toolpath.json`` does not load, and no ``--machine``
             makes do without it (with one, the partial-board check is skipped).
     """
-    job = JobLayout.for_export_file(req.gcode.resolve())
+    # the job's paths as the G-code was given (relative stays relative), where they tell it
+    job = JobLayout.for_export_file(req.gcode) or JobLayout.for_export_file(req.gcode.resolve())
     if job is None or not job.toolpath_json.is_file():
         return None
     from scratchfab.toolpath import Toolpath
