@@ -309,6 +309,12 @@ def emulator_progress(
     return EmulatorProgress(port, baud, gcode, progress, say)
 
 
+#: The rests a stream session may take (:attr:`StreamOptions.rests`): each stops the
+#: machine, tool up, for a fraction of a second to learn GRBL's step at a move's end, so
+#: that a stop there is matched in whole steps and not cut again on ``--resume``.
+REST_LIMIT = 24
+
+
 def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     """Stream ``req.gcode``; returns the journal file.
 
@@ -420,6 +426,7 @@ def _stream_locked(
         rx_buffer=profile.serial.rx_buffer_bytes if profile is not None else None,
         stall_timeout=req.stall_timeout,
         banner_timeout=req.banner_timeout,
+        rests=REST_LIMIT,
         lift=req.lift,
         profile=profile,
     )
