@@ -119,9 +119,9 @@ def _job_gcode(path: Path) -> Path:
 @click.option(
     "--homed",
     is_flag=True,
-    help="With --resume after an alarm that may have lost the position: the machine was "
-    "homed ($H), or unlocked ($X) and its work zero set again, since (else asked; refused "
-    "under --yes).",
+    help="With --resume after an alarm or a controller reset that may have lost the "
+    "position: the machine was homed ($H) since, or (a work-coordinate profile) unlocked "
+    "($X) and its work zero set again (else asked; refused under --yes).",
 )
 @click.option(
     "--check",
