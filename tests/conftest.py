@@ -250,3 +250,18 @@ def cli_said(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, 
     """Run ``scratchfab ARGV``: its exit code (0: ran through) and everything it said."""
     code, out, err = cli_run(argv, capsys)
     return code, out + err
+
+
+def design_sun_and_moon(
+    job: Path, board: str, count: int, capsys: pytest.CaptureFixture[str]
+) -> str:
+    """``scratchfab design`` (quick form) on the bundled demo's sun and moon, 24 px views,
+    into ``job``: what it printed (it must exit 0)."""
+    from scratchfab.bundled import bundled_dir
+
+    demo = bundled_dir("demo")
+    images = [str(demo / "sun.png"), str(demo / "moon.png")]
+    argv = ["design", *images, "--board", board, "--count", str(count), "--resolution", "24"]
+    code, out, err = cli_run([*argv, "--out", str(job)], capsys)
+    assert code == 0, err
+    return out

@@ -13,7 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from conftest import cli_run
+from conftest import cli_run, design_sun_and_moon
 
 from scratchfab.bundled import bundled_dir
 from scratchfab.design.stage import run_design
@@ -51,12 +51,7 @@ def _toolpath_seconds(job: Path, machine: str | Path) -> float:
 
 def test_design_tells_the_cut_length_and_time_at_the_bundled_profiles_feeds(tmp_path, capsys):
     job = tmp_path / "job"
-    code, out, _ = cli_run(
-        ["design", str(DEMO / "sun.png"), str(DEMO / "moon.png"), "--board", "60x50",
-         "--count", "400", "--resolution", "24", "--out", str(job)],
-        capsys,
-    )  # fmt: skip
-    assert code == 0
+    out = design_sun_and_moon(job, "60x50", 400, capsys)
     line = _cut_line(out)
     # after the layout is made
     lines = out.splitlines()

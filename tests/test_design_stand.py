@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cli_run
+from conftest import cli_run, design_sun_and_moon
 from PIL import Image
 
 from scratchfab.bundled import bundled_dir
@@ -112,12 +112,7 @@ def _board_mean(job: Path, name: str) -> float:
 
 def test_design_prints_where_to_stand_from_its_own_design_file(tmp_path, capsys):
     job = tmp_path / "job"
-    code, out, _ = cli_run(
-        ["design", str(DEMO / "sun.png"), str(DEMO / "moon.png"), "--board", "50x40",
-         "--count", "200", "--resolution", "24", "--out", str(job)],
-        capsys,
-    )  # fmt: skip
-    assert code == 0
+    out = design_sun_and_moon(job, "50x40", 200, capsys)
     lines = out.splitlines()
     design = load_design(job / "design" / "design.toml", require_views=False)
     start = lines.index(stand_lines(design)[0])
