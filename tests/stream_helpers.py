@@ -7,8 +7,8 @@ import math
 import pytest
 
 from scratchfab.machine.sender import Streamer, StreamOptions, StreamStopped, open_port
-from scratchfab.machine.sender_journal import Journal, read_journal
-from scratchfab.machine.sender_program import resume_preamble
+from scratchfab.machine.sender_journal import Journal, default_journal_path, read_journal
+from scratchfab.machine.sender_program import load_program, resume_preamble
 
 #: Short timeouts for emulator ports (which send a banner's messages with it, at once).
 FAST = StreamOptions(banner_timeout=0.5, banner_settle=0.02, stall_timeout=1.0)
@@ -84,6 +84,49 @@ def stroke_job(path, strokes: int) -> None:
         x = 2.0 * k
         lines += [f"G0 X{x:.3f} Y0", "G1 Z-0.05 F200", f"G1 X{x:.3f} Y8 F600", "G0 Z2"]
     path.write_text("\n".join(lines) + "\n")
+
+
+def alarmed_job(path, lost, code: int) -> str:
+    """Write :func:`stroke_job` (12 strokes) to ``path``, stop it on the emulator after 12
+    acknowledged lines and journal an ``ALARM:code`` with ``lost`` before the stop (as the
+    sender journals one): the lost-position warning a resume then gives."""
+    import json
+
+    from scratchfab.machine.stream_job import lost_position_warning
+
+    stroke_job(path, 12)
+    journal = default_journal_path(path)
+    stopped_after(journal, load_program(path), 12, "grblsim://?baud=0&time_scale=0.02")
+    text = journal.read_text().splitlines()
+    alarm = {"ev": "alarm", "code": code, "lost": lost, "time": "2026-01-01T00:00:00"}
+    journal.write_text("\n".join([*text[:-1], json.dumps(alarm), text[-1]]) + "\n")
+    warning = lost_position_warning(read_journal(journal))
+    assert warning is not None
+    return warning
+
+
+def spy_rests(monkeypatch) -> list[int]:
+    """The blocks the sender rests after (``Streamer._wants_rest`` said yes), as it streams."""
+    rested: list[int] = []
+    wants = Streamer._wants_rest
+
+    def spy(self, j):
+        out = wants(self, j)
+        if out:
+            rested.append(j)
+        return out
+
+    monkeypatch.setattr(Streamer, "_wants_rest", spy)
+    return rested
+
+
+#: A partial board on a machine and on the emulator: (real port, flags, answers, refusal).
+PARTIAL_BOARD_CASES = [
+    (True, ["--yes"], "", "refusing to cut a partial board with --yes: "),
+    (True, [], "n\n", "not confirmed; nothing was sent"),
+    (True, [], "y\ny\n", None),  # the partial board, then the usual question
+    (False, ["--yes"], "", None),  # the emulator: said, neither asked nor refused
+]
 
 
 class PortProxy:

@@ -15,7 +15,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from stream_helpers import FAST, executed_blocks, stream_program
+from stream_helpers import FAST, executed_blocks, spy_rests, stream_program
 
 from scratchfab.export.gcode import gcode_lines
 from scratchfab.machine.profile import load_profile
@@ -122,16 +122,7 @@ def test_rests_land_only_where_the_tool_is_up(tmp_path, monkeypatch, name, spm):
     tp = Toolpath(strokes, np.arange(12), (100.0, 100.0), outline, profile, {})
     (tmp_path / "job.gcode").write_text("\n".join(gcode_lines(tp)) + "\n")
     prog = load_program(tmp_path / "job.gcode")
-    rested: list[int] = []
-    wants = Streamer._wants_rest
-
-    def spy(self, j):
-        out = wants(self, j)
-        if out:
-            rested.append(j)
-        return out
-
-    monkeypatch.setattr(Streamer, "_wants_rest", spy)
+    rested = spy_rests(monkeypatch)
     url = f"grblsim://?baud=0&time_scale=0.01&wco=12.3456,-7.6543,-3.2109&$100={spm}&$101={spm}&$102={spm}"
     port = open_port(url, 115200)
     try:

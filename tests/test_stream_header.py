@@ -12,6 +12,7 @@ from __future__ import annotations
 import shutil
 
 import pytest
+from stream_helpers import PARTIAL_BOARD_CASES
 from test_stream import SIM, read_record, write_job
 from test_stream_cli_input import _gcode_received, _stream
 from test_stream_restart import _partial_job
@@ -61,15 +62,7 @@ def test_an_earlier_exports_single_partial_comment_reads_back():
     assert read_header(["G21 G90", "(no header here)", "G0 Z5"]).partial is None
 
 
-@pytest.mark.parametrize(
-    ("real", "flags", "answers", "refusal"),
-    [
-        (True, ["--yes"], "", "refusing to cut a partial board with --yes: "),
-        (True, [], "n\n", "not confirmed; nothing was sent"),
-        (True, [], "y\ny\n", None),  # the partial board, then the usual question
-        (False, ["--yes"], "", None),  # the emulator: said, neither asked nor refused
-    ],
-)
+@pytest.mark.parametrize(("real", "flags", "answers", "refusal"), PARTIAL_BOARD_CASES)
 def test_a_copy_of_a_partial_board_gcode_is_said_and_on_a_machine_asked_about(
     tmp_path, monkeypatch, real, flags, answers, refusal
 ):

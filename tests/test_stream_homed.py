@@ -12,21 +12,13 @@ from __future__ import annotations
 import json
 
 import pytest
-from stream_helpers import stopped_after
+from stream_helpers import alarmed_job
 from test_stream import SIM, read_record
 from test_stream_cli_input import _gcode_received, _stream
 
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.sender_journal import default_journal_path, read_journal
-from scratchfab.machine.sender_program import load_program
 from scratchfab.machine.stream_job import lost_position_warning
-
-
-def _add_alarm(journal, lost) -> None:
-    """The alarm that ended the journal's last session, put before its closing event."""
-    text = journal.read_text().splitlines()
-    alarm = {"ev": "alarm", "code": 1, "lost": lost, "time": "2026-01-01T00:00:00"}
-    journal.write_text("\n".join([*text[:-1], json.dumps(alarm), text[-1]]) + "\n")
 
 
 @pytest.fixture(params=[True, "maybe"])
@@ -34,16 +26,7 @@ def alarmed(tmp_path, request):
     """A job stopped after 12 acknowledged lines by an alarm that (maybe) lost the position:
     (the G-code, the lost-position warning)."""
     job = tmp_path / "job.gcode"
-    lines = ["G21 G90", "G0 Z2"]
-    for k in range(12):
-        lines += [f"G0 X{2 * k} Y0", "G1 Z-0.05 F200", f"G1 X{2 * k} Y8 F600", "G0 Z2"]
-    job.write_text("\n".join(lines) + "\n")
-    journal = default_journal_path(job)
-    stopped_after(journal, load_program(job), 12, "grblsim://?baud=0&time_scale=0.02")
-    _add_alarm(journal, request.param)
-    warning = lost_position_warning(read_journal(journal))
-    assert warning is not None
-    return job, warning
+    return job, alarmed_job(job, request.param, 1)
 
 
 def _sessions(job) -> int:

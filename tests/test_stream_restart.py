@@ -13,6 +13,7 @@ import json
 
 import numpy as np
 import pytest
+from stream_helpers import PARTIAL_BOARD_CASES
 from test_stream import SIM, cut_counts, read_record, write_job
 from test_stream_cli_input import _gcode_received, _stream
 
@@ -194,15 +195,7 @@ def _partial_job(tmp_path, outside: int, clipped: int) -> tuple[JobLayout, dict]
     return layout, stats
 
 
-@pytest.mark.parametrize(
-    ("real", "flags", "answers", "refusal"),
-    [
-        (True, ["--yes"], "", "refusing to cut a partial board with --yes: "),
-        (True, [], "n\n", "not confirmed; nothing was sent"),
-        (True, [], "y\ny\n", None),  # the partial board, then the usual question
-        (False, ["--yes"], "", None),  # the emulator: said, neither asked nor refused
-    ],
-)
+@pytest.mark.parametrize(("real", "flags", "answers", "refusal"), PARTIAL_BOARD_CASES)
 def test_a_partial_board_is_said_and_on_a_machine_asked_about(
     tmp_path, monkeypatch, real, flags, answers, refusal
 ):

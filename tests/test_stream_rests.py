@@ -9,10 +9,10 @@ where the tool is up, and cuts every stroke once.
 
 from __future__ import annotations
 
+from stream_helpers import spy_rests
 from test_stream import cut_counts, read_record, write_job
 from test_stream_cli_input import _stream
 
-from scratchfab.machine.sender import Streamer
 from scratchfab.machine.sender_program import load_program
 from scratchfab.machine.stream_job import REST_LIMIT
 
@@ -27,16 +27,7 @@ def test_stream_rests_where_the_tool_is_up_and_within_the_limit(tmp_path, monkey
     job = tmp_path / "job.gcode"
     cuts = write_job(job, 40)
     prog = load_program(job)
-    rested: list[int] = []
-    wants = Streamer._wants_rest
-
-    def spy(self, j):
-        out = wants(self, j)
-        if out:
-            rested.append(j)
-        return out
-
-    monkeypatch.setattr(Streamer, "_wants_rest", spy)
+    rested = spy_rests(monkeypatch)
     rec = tmp_path / "rec.jsonl"
     code, out, err = _stream([str(job), "--port", f"{URL}&record={rec}", "--yes"], "")
     assert code == 0, err
