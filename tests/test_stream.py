@@ -1453,7 +1453,7 @@ def test_a_machine_coordinate_profile_refuses_a_work_offset(tmp_path, capsys):
         sent = [e["text"] for e in read_record(rec) if e["ev"] == "rx"]
         assert ("work offset is X-220 Y-150 Z-30 mm" in err) == refused
         assert (first in sent) == (not refused)
-        assert "G10 L2 P1 X0 Y0 Z0" in err or not refused
+        assert "G10 L2 P0 X0 Y0 Z0 for the work system in use, G92.1, G49" in err or not refused
 
 
 @pytest.mark.parametrize(

@@ -91,7 +91,7 @@ def test_a_homed_machine_with_no_work_zero_is_named_where_it_stands(lab):
     assert not any("range [-1," in line for line in refused)  # no range the file never reaches
     last = err.rstrip().splitlines()[-1]
     assert last.startswith(f"error: {job}: GRBL's work offset is 0 on X, Y and Z")
-    assert "`G10 L20 P1 X0 Y0`" in last and "`G10 L20 P1 Z0`" in last
+    assert "`G10 L20 P0 X0 Y0` (P0: the work system in use)" in last and "`G10 L20 P0 Z0`" in last
     assert last.endswith("(nothing was sent)")
     assert sum("G10 L20" in line for line in err.splitlines()) == 1  # the advice once
     assert not _g_sent(rec)
@@ -122,7 +122,8 @@ def test_a_start_outside_with_a_work_zero_set_says_to_jog_or_check_the_zero(tmp_
         f"{tmp_path / 'j.gcode'}:2: the machine stands at work X-4 Y1 now, outside the envelope "
         "(X [2, 10]) of machine 'bench', and the job's first moves run from there (the file "
         "itself: X [5, 8] mm); jog the tool into the envelope, or, if the work zero is not at "
-        "the profile's X0 Y0, jog there and send `G10 L20 P1 X0 Y0`, then stream again"
+        "the profile's X0 Y0, jog there and send `G10 L20 P0 X0 Y0` (P0: the work system in "
+        "use), then stream again"
     )
 
 

@@ -123,7 +123,8 @@ def test_the_envelope_is_checked_from_where_the_job_starts(tmp_path):
         f"{prog.path}:2: the machine stands at work X-4 Y1 now, outside the envelope (X [2, 10]) "
         "of machine 'bench', and the job's first moves run from there (the file itself: X [5, 8] "
         "mm); jog the tool into the envelope, or, if the work zero is not at the profile's X0 "
-        "Y0, jog there and send `G10 L20 P1 X0 Y0`, then stream again"
+        "Y0, jog there and send `G10 L20 P0 X0 Y0` (P0: the work system in use), then stream "
+        "again"
     ]
     # in another work system than the file's the start is not placed: left out
     prog = _load(tmp_path, ["G21 G90 G54", "G0 Z2", "G0 X5 Y0", "G1 Z-0.1 F100", "G0 Z2"])

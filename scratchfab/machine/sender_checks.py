@@ -441,7 +441,7 @@ def _envelope_refusals(
         return [*out, text], unset
     advice = (
         "jog the tool into the envelope, or, if the work zero is not at the profile's X0 Y0, "
-        "jog there and send `G10 L20 P1 X0 Y0`, then stream again"
+        "jog there and send `G10 L20 P0 X0 Y0` (P0: the work system in use), then stream again"
     )
     return [*out, f"{text}; {advice}"], ""
 
@@ -456,13 +456,13 @@ def _unset_zero(axes: str) -> str:
     how = []
     if "X" in axes or "Y" in axes:
         how.append(
-            "jog the tool to the profile's X0 Y0 (the board's corner lies at [board] "
-            "offset_mm from it) and send `G10 L20 P1 X0 Y0`"
+            "jog the tool to the profile's X0 Y0 (the board's [board] origin point lies at "
+            "offset_mm from it) and send `G10 L20 P0 X0 Y0` (P0: the work system in use)"
         )
     if "Z" in axes:
         how.append(
             "lower the tool to the profile's Z0 (where the tool touches the board, for the "
-            "[z] heights) and send `G10 L20 P1 Z0`"
+            "[z] heights) and send `G10 L20 P0 Z0`"
         )
     named = " and ".join(filter(None, [", ".join(axes[:-1]), axes[-1]]))
     return (
@@ -534,7 +534,7 @@ def _machine_frame_refusals(
     Its G-code moves in the work coordinates, which equal the machine's only with the
     offset cleared; otherwise every move lands that far off, Z into the board or above it.
     """
-    fix = "clear it (G10 L2 P1 X0 Y0 Z0, G92.1) and check with $#"
+    fix = "clear it (G10 L2 P0 X0 Y0 Z0 for the work system in use, G92.1, G49) and check with $#"
     if wco is None:
         return [
             f"machine '{name}' is written in GRBL machine coordinates, but the work offset "
