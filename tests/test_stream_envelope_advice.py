@@ -203,6 +203,7 @@ def test_more_z_travel_than_the_profile_is_told_in_machine_coordinates_only(
         return
     assert warnings == [
         "GRBL $132=45 allows more Z travel than machine 'm' has in its profile ([envelope] "
-        "z_mm = [-40, 0], 40 mm): if the machine travels 45 mm, set z_mm = [-45, 0]; if not, "
-        "set $132=40 so that GRBL's soft limits stop where it ends"
+        "z_mm = [-40, 0], 40 mm): if the machine travels 45 mm, set z_mm = [-45, 0] (a stock "
+        "Grbl's travel after homing; a margin inside it is yours to keep); if not, set "
+        "$132=40 so that GRBL's soft limits stop where it ends"
     ]

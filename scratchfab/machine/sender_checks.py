@@ -293,7 +293,8 @@ def compare(
                     f"GRBL ${130 + k}={have:g} allows more {axis} travel than machine "
                     f"'{profile.name}' has in its profile ([envelope] {name} = [{a:g}, {b:g}], "
                     f"{need:g} mm): if the machine travels {have:g} mm, set {name} = "
-                    f"[{-have:g}, 0]; if not, set ${130 + k}={need:g} so that GRBL's soft "
+                    f"[{-have:g}, 0] (a stock Grbl's travel after homing; a margin inside it "
+                    f"is yours to keep); if not, set ${130 + k}={need:g} so that GRBL's soft "
                     "limits stop where it ends"
                 )
             rate = rates[k]
