@@ -1571,7 +1571,10 @@ class Streamer:
             held = self._hold_briefly_then_reset()
         except _Fault:
             self._journal_quietly(
-                "lost", reason=reason, executed_through=self._executed_guess(self.status)
+                "lost",
+                reason=reason,
+                executed_through=self._executed_guess(self.status),
+                **_where(self.status),
             )
             return
         why = f"{reason} cut the stop short; jog Z up"
@@ -1655,6 +1658,7 @@ class Streamer:
                     "lost",
                     reason=str(fault),
                     executed_through=self._executed_guess(self.status),
+                    **_where(self.status),
                     **_journaled(lifted),
                 )
                 fault.args = (
@@ -2519,6 +2523,21 @@ def _clause(lifted: _Lifted | None) -> str:
 def _journaled(lifted: _Lifted | None) -> dict[str, Any]:
     """The stop event's ``lift`` field (none with the lift off)."""
     return {} if lifted is None else {"lift": lifted.record}
+
+
+def _where(status: Status | None) -> dict[str, Any]:
+    """The ``lost`` event's ``mpos`` and ``wco`` (mm) by the last status report, where known.
+
+    A resume compares ``mpos`` with where the controller stands once connected: one that
+    reset (an Arduino resets when its port is opened) boots at machine zero.
+    """
+    if status is None:
+        return {}
+    return {
+        key: [round(v, 4) for v in xyz]
+        for key, xyz in (("mpos", status.mpos), ("wco", status.wco))
+        if xyz is not None
+    }
 
 
 def banner_firmware(line: str) -> str | None:

@@ -31,6 +31,9 @@ line, which the reader skips). Events:
   that keeps power runs every block it acknowledged; one powered over the USB cable stops
   with it, and the blocks after ``executed_through`` (judged from the last position report)
   may not have run. Resume trusts the acknowledgements unless asked to re-cut those blocks.
+  ``"mpos"`` and ``"wco"`` (mm, where a status report told them): where the machine stood
+  by the last report; a resume that finds the controller at machine zero though ``mpos``
+  was not (it reset: an Arduino resets when its port is opened) asks whether it was homed.
 - ``{"ev": "end", "complete": true}``
 
 A block is *done* when a session acknowledged it and did not later flush it with a reset;
@@ -292,10 +295,10 @@ def check_event(ev: dict[str, Any], blocks: int | None, where: str) -> int | Non
         if ev.get("laser") not in (True, False, None):
             raise _expected(where, "laser", "true, false or null (GRBL's $32)", ev.get("laser"))
         for key in ("wco", "g92"):
-            if ev.get(key) is not None and _xyz_of(ev[key]) is None:
+            if ev.get(key) is not None and xyz_of(ev[key]) is None:
                 raise _expected(where, key, "null or [x, y, z] in mm", ev[key])
         steps = ev.get("steps")
-        if steps is not None and not all(0.0 <= v < math.inf for v in _xyz_of(steps) or [-1.0]):
+        if steps is not None and not all(0.0 <= v < math.inf for v in xyz_of(steps) or [-1.0]):
             raise _expected(where, "steps", "null or [x, y, z] mm per step, each 0 or more", steps)
         return int(ev["blocks"])
     last = None if blocks is None else blocks - 1
@@ -326,7 +329,7 @@ def run_zero(
     if not starts:
         return None, None
     last = starts[-1]
-    return _xyz_of(last.get("wco")), _xyz_of(last.get("g92"))
+    return xyz_of(last.get("wco")), xyz_of(last.get("g92"))
 
 
 def run_zero_in_inches(events: Sequence[dict[str, Any]]) -> bool:
@@ -335,7 +338,8 @@ def run_zero_in_inches(events: Sequence[dict[str, Any]]) -> bool:
     return bool(starts) and starts[-1].get("inches") is True
 
 
-def _xyz_of(value: Any) -> tuple[float, float, float] | None:
+def xyz_of(value: Any) -> tuple[float, float, float] | None:
+    """``value`` as (x, y, z) where it is a JSON list of three numbers, else None."""
     if not isinstance(value, list) or len(value) != 3:
         return None
     if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
@@ -558,7 +562,7 @@ def done_blocks(
             closed = False
             planner = int(ev.get("planner", PLANNER_BLOCKS))
             laser = ev.get("laser")  # absent (older journals) or null: unknown
-            steps = _xyz_of(ev.get("steps")) or (0.0, 0.0, 0.0)  # absent or null: unknown
+            steps = xyz_of(ev.get("steps")) or (0.0, 0.0, 0.0)  # absent or null: unknown
             if ev.get("sha256") != sha256:
                 raise ConfigError(
                     f"{path}: the journal was written for a different version of "

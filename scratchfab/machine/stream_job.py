@@ -40,6 +40,7 @@ from scratchfab.machine.sender_journal import (
     read_journal,
     run_zero,
     run_zero_in_inches,
+    xyz_of,
 )
 from scratchfab.machine.sender_program import (
     Program,
@@ -365,6 +366,7 @@ def _stream_locked(
     preamble: list[str] = []
     events = None
     lost = False  # warn of a lost position once connected and at the end
+    asked = False  # the journal's alarm or stop already put the lost-position question
     if req.resume and journal.created:
         raise ConfigError(
             f"{journal_file}: no journal to resume from (stream without --resume first)"
@@ -414,6 +416,7 @@ def _stream_locked(
             )
             return
         lost = ask_if_homed(events, req.homed, req.port, cb.confirm, cb.say, profile)
+        asked = lost_position_warning(events, profile) is not None
         preamble = resume_preamble(program, start)
         n_done = sum(1 for a, b in program.strokes if all(i in done for i in range(a, b + 1)))
         cb.outcome(
@@ -444,6 +447,10 @@ def _stream_locked(
         if resume and events is not None:
             inches = info.inch_reports
             _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
+            reset = None if asked else reset_since_lost_link(events, info.status.mpos)
+            if reset is not None:  # asked here, connected, before anything moves
+                events = [*events, reset]
+                lost = ask_if_homed(events, req.homed, req.port, cb.confirm, cb.say, profile)
             if lost:
                 _say_lost_position(events, cb.say, profile=profile)
         program = program.timed_for(eta_settings(info.settings, profile))  # the ETA's times
@@ -815,22 +822,61 @@ def _check_strokes(program: Program, gcode: Path) -> None:
     )
 
 
+def _last_session(events: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The journal's events from its last ``start`` on (all of them without one)."""
+    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
+    return events[starts[-1] :] if starts else events
+
+
 def _lost_event(events: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The journal's last session's last ``alarm`` or ``stop`` event with ``lost``, else None.
 
     A ``stop`` holds ``lost`` where the controller reset itself (its banner came: a power
-    or USB glitch, its reset button), which may have lost the position.
+    or USB glitch, its reset button), which may have lost the position; a ``lost`` event
+    (a dropped link) holds ``lost`` once :func:`reset_since_lost_link` found a reset since.
     """
-    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
-    last = events[starts[-1] :] if starts else events
-    lost = [ev for ev in last if ev.get("ev") in ("alarm", "stop") and ev.get("lost")]
+    kinds = ("alarm", "stop", "lost")
+    lost = [ev for ev in _last_session(events) if ev.get("ev") in kinds and ev.get("lost")]
     return lost[-1] if lost else None
+
+
+def reset_since_lost_link(
+    events: list[dict[str, Any]], mpos: tuple[float, float, float] | None
+) -> dict[str, Any] | None:
+    """The last session's ``lost`` event marked ``lost``, where the controller reset since.
+
+    A controller without homing (``$22=0``), or unlocked with ``$X``, boots at machine
+    zero: an Arduino resets when its port is opened, a board powered over the cable lost
+    power with it. It then answers as if nothing happened; only where it stood when the
+    link dropped (the event's ``mpos``) tells. One that kept power ran its queue and stands
+    at a move's end, so being elsewhere alone says nothing: a reset is told by ``mpos``
+    (now) within two steps of machine zero on every axis while the recorded one was not
+    (steps from the session's ``start``, else 0.025 mm, plus a report digit).
+
+    Returns:
+        A copy of the event with ``"lost": true`` and ``"mpos_now"``, else None (no
+        ``lost`` event, either position unknown, or no reset seen).
+    """
+    session = _last_session(events)
+    dropped = [ev for ev in session if ev.get("ev") == "lost"]
+    was = xyz_of(dropped[-1].get("mpos")) if dropped else None
+    if was is None or mpos is None:
+        return None
+    steps = xyz_of(session[0].get("steps")) or (0.0, 0.0, 0.0)
+    near = [2.0 * (step or 0.025) + 0.001 for step in steps]
+    if not all(abs(v) <= d for v, d in zip(mpos, near, strict=True)):
+        return None
+    if all(abs(v) <= d for v, d in zip(was, near, strict=True)):
+        return None
+    return {**dropped[-1], "lost": True, "mpos_now": [round(v, 3) for v in mpos]}
 
 
 def _lost_by(event: dict[str, Any]) -> str:
     """What ended the run in ``event`` (:func:`_lost_event`): ``ALARM:2``, a reset."""
     if event.get("ev") == "stop":
         return "a reset of the controller it did not send (its banner came)"
+    if event.get("ev") == "lost":
+        return "a lost link, and the controller reset since (it stands at machine zero)"
     return f"ALARM:{event.get('code')}"
 
 
@@ -873,6 +919,15 @@ def lost_position_warning(
     alarm = _lost_event(events)
     if alarm is None:
         return None
+    if alarm.get("ev") == "lost":
+        return (
+            "the run before this resume ended with a lost link, and the controller now stands "
+            f"at machine zero (MPos {xyz_text(alarm['mpos_now'])}; it stood at "
+            f"{xyz_text(alarm['mpos'])} when the link dropped): it reset since (an Arduino "
+            "resets when its port is opened; a board powered over the cable lost power), "
+            f"which loses the position; go on only if the machine was {_rehomed(profile)[0]} "
+            "since"
+        )
     if alarm.get("ev") == "stop":
         return (
             f"the run before this resume ended with {_lost_by(alarm)}: a power or USB glitch "
