@@ -51,12 +51,14 @@ def test_a_current_toolpath_streams_without_a_word(exported, tmp_path, monkeypat
 
 
 def test_after_optimize_resume_the_old_gcode_is_named_asked_about_and_refused_under_yes(
-    exported, tmp_path, monkeypatch
+    exported, tmp_path, monkeypatch, capsys
 ):
     job = _copy(exported, tmp_path)
+    capsys.readouterr()
     assert main(["optimize", str(job), "--resume", "--iterations", "6"]) in (None, 0)
     stale, _ = check_current(Toolpath.load(job / "toolpath" / "toolpath.json"))
     assert stale is not None and "scratches.csv changed since" in stale  # export's own finding
+    assert f"note: {stale}" in capsys.readouterr().out.splitlines()  # optimize says it at once
     export = f"scratchfab export {job} --format gcode"
     toolpath = f"scratchfab toolpath {job} --machine grbl-3018-diamond"
 

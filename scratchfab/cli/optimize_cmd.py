@@ -226,6 +226,7 @@ def optimize(
         f"{result.iterations} iterations ({result.stopped}), loss {result.loss:.5f} {after} "
         f"(a progress line shows the loss its step started from); wrote {result.out_dir}"
     )
+    _note_stale_toolpath(job)
     if result.stopped == "time budget":  # a resume given the same budget would take no step
         go_on = command_line(["scratchfab", "optimize", job, "--resume"])
         click.echo(
@@ -240,6 +241,26 @@ def optimize(
             f"interrupted after {result.iterations} of {options.iterations} iterations; "
             f"`{command_line(again)}` continues it"
         )
+
+
+def _note_stale_toolpath(job: Path) -> None:
+    """Name a toolpath the new layout left behind, in export's own words (and commands).
+
+    ``toolpath`` and ``export`` refuse it and ``stream`` asks about it, later; a person who
+    re-optimizes is told at once what to plan and export again.
+    """
+    from scratchfab.toolpath import Toolpath
+    from scratchfab.toolpath.inputs import check_current
+
+    file = JobLayout(job).toolpath_json
+    if not file.is_file():
+        return
+    try:
+        stale, _ = check_current(Toolpath.load(file))
+    except ConfigError:  # a damaged toolpath: toolpath and export say so themselves
+        return
+    if stale is not None:
+        click.echo(f"note: {stale}")
 
 
 def _no_total(checkpoint: Checkpoint) -> str:
