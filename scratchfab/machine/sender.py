@@ -989,7 +989,6 @@ class Streamer:
         self._rests_left = self.options.rests
         self._rested_through = -1
         self._resting = -1
-        self.rest_seconds = 0.0
         self._hold_alarm = None
         self._session_start = start
         self._stopped_through = None
@@ -1076,7 +1075,6 @@ class Streamer:
         self._last_answer = time.monotonic()
         self._last_ack_time = 0.0
         nxt = 0
-        rest_since = 0.0
         idle_since: float | None = None
         paused_since: float | None = None
         door = ""  # the last Door:N reported, "" when not in a door state
@@ -1106,7 +1104,7 @@ class Streamer:
                     self.max_inflight_lines = max(self.max_inflight_lines, len(self._inflight))
                     nxt += 1
                     if item.block is not None and self._wants_rest(item.block.index):
-                        self._resting, rest_since = item.block.index, time.monotonic()
+                        self._resting = item.block.index
                         self._rest_reports = 0  # reports after its answer
                     if one_at_a_time:
                         break
@@ -1127,7 +1125,6 @@ class Streamer:
                             raise self._lock_fault()
                         if self._resting >= 0 and self._rest_at(self.status):
                             self._resting = -1
-                            self.rest_seconds += time.monotonic() - rest_since
                         if self._inflight and self.status.state == "Idle":
                             idle_since = idle_since or time.monotonic()
                         else:
@@ -1259,7 +1256,6 @@ class Streamer:
     _repeated: tuple[set[float], ...] = (set(), set(), set())  # targets met twice, per axis
     _given_from = (0, 0, 0)  # per axis, the session's first block giving it (_first_given)
     _down: frozenset[int] = frozenset()  # blocks leaving the tool down (_tool_down)
-    rest_seconds = 0.0  # the session's time resting (from each rested block's send)
     _stopped_through: int | None = None  # the safe stop's executed-through
 
     def _alarm_fault(self, code: int) -> _Fault:
