@@ -924,11 +924,20 @@ def _toolpath_section(job: Path, data: Any, stopped: Mapping[str, str]) -> str:
 
 
 def gcode_statistics(path: Path) -> dict[str, Any]:
-    """The exporter's statistics of a G-code file, plus its G0 and G1 counts."""
+    """The exporter's statistics of a G-code file, plus its G0 and G1 counts.
+
+    ``sent``: the lines the sender sends (its count, which ``stream`` and the journal
+    give: comments and blank lines are not sent), or why it refuses the file.
+    """
     from scratchfab.export.gcode import gcode_stats
+    from scratchfab.machine.sender_program import load_program
 
     lines = path.read_text(encoding="utf-8").splitlines()
     stats = gcode_stats(lines)
+    try:
+        sent: int | str = len(load_program(path).blocks)
+    except ConfigError as exc:
+        sent = f"none: stream refuses the file ({exc})"
     words = [ln.split(";")[0].split("(")[0].upper() for ln in lines]
     extent = {
         k.removesuffix("_mm").upper(): f"{v[0]:g} .. {v[1]:g} mm"
@@ -937,6 +946,7 @@ def gcode_statistics(path: Path) -> dict[str, Any]:
     }
     return {
         "lines": stats["lines"],
+        "sent": sent,
         "bytes": stats["bytes"],
         "longest_line": stats["max_line_length"],
         **{f"{axis} range": text for axis, text in extent.items()},
@@ -946,7 +956,9 @@ def gcode_statistics(path: Path) -> dict[str, Any]:
 
 
 _GCODE_LABELS = {
-    "lines": "lines",
+    "lines": "lines in the file",
+    "sent": "lines sent to the machine (as <code>stream</code> counts them: comments and "
+    "blank lines are not sent)",
     "bytes": "size (bytes)",
     "longest_line": "longest line (characters)",
     "G0": "rapid moves (G0)",
@@ -983,7 +995,7 @@ def _files_section(job: Path, stopped: Mapping[str, str]) -> str:
             "<table>"
             + "".join(
                 f"<tr><th scope='row'>{_GCODE_LABELS.get(k, html.escape(k))}</th>"
-                f"<td data-stat='gcode.{k}'>{v}</td></tr>"
+                f"<td data-stat='gcode.{k}'>{html.escape(str(v))}</td></tr>"
                 for k, v in stats.items()
             )
             + "</table>"
