@@ -29,7 +29,7 @@ from scratchfab.errors import ScratchfabError
 from scratchfab.fileio import write_bytes
 from scratchfab.machine.profile import MachineProfile, gcode_number
 from scratchfab.toolpath.inputs import initial_layout
-from scratchfab.toolpath.plan import Toolpath, estimate_time, partial_text
+from scratchfab.toolpath.plan import Toolpath, edge_slack, estimate_time, partial_text
 
 _COMMENT_SAFE = re.compile(r"[^A-Za-z0-9 .,:_+=/-]")
 
@@ -51,7 +51,8 @@ class _Grid:
 
     A value is rounded to the nearest multiple of 10^-decimals; should that leave the
     envelope (a value within half a unit of its edge), the nearest multiple inside is
-    written instead.
+    written instead. A value further beyond the edge than the toolpath stage moves onto
+    it (:func:`edge_slack`) is a bug, never clamped: it raises.
     """
 
     def __init__(self, profile: MachineProfile) -> None:
@@ -59,7 +60,9 @@ class _Grid:
         unit = 10.0 ** (-self.dec)
         env = profile.envelope
         self.bounds: dict[str, tuple[float, float]] = {}
-        for axis, (lo, hi) in (("X", env.x_mm), ("Y", env.y_mm), ("Z", env.z_mm)):
+        self.envelope = {"X": env.x_mm, "Y": env.y_mm, "Z": env.z_mm}
+        self.slack = edge_slack(profile)
+        for axis, (lo, hi) in self.envelope.items():
             first = math.ceil(lo / unit) - 1
             while float(gcode_number(first * unit, self.dec)) < lo:
                 first += 1
@@ -77,6 +80,20 @@ class _Grid:
             )
 
     def word(self, axis: str, value: float) -> str:
+        """``axis`` and ``value`` as written, e.g. ``X-12.5``.
+
+        Raises:
+            RuntimeError: ``value`` beyond the envelope by more than the edge slack (the
+                envelope check, run first, refuses any such stroke: clamped, it would
+                silently move a cut).
+        """
+        env_lo, env_hi = self.envelope[axis]
+        if not env_lo - self.slack <= value <= env_hi + self.slack:
+            raise RuntimeError(
+                f"internal error: G-code {axis} {value!r} lies beyond the envelope "
+                f"{axis.lower()}_mm {[env_lo, env_hi]} by more than {self.slack:g} mm, "
+                "which the envelope check should have refused; nothing written"
+            )
         lo, hi = self.bounds[axis]
         q = round(value, self.dec)
         if q < lo:
@@ -249,7 +266,8 @@ def gcode_lines(toolpath: Toolpath, profile: MachineProfile | None = None) -> li
             return f"G0 {xy(p)}"
         return feed_move(xy(p), feeds.travel_mm_min)
 
-    safe = f"G0 {grid.word('Z', prof.z.safe_mm)}"
+    # a servo lifts the tool: no Z is written, and its profile's unused heights are unchecked
+    safe = "" if ctl.mode == "servo" else f"G0 {grid.word('Z', prof.z.safe_mm)}"
     start = np.asarray(prof.start_mm, dtype=np.float64)
     if ctl.mode == "servo":
         lines += [ctl.command("off"), *dwell()]

@@ -371,6 +371,16 @@ def estimate_time(strokes: np.ndarray, profile: MachineProfile) -> float:
     return float(seconds.sum() + dwells)
 
 
+def edge_slack(profile: MachineProfile) -> float:
+    """How far beyond the envelope's edge a value may lie and still be on it (mm).
+
+    Half a written digit (:attr:`~scratchfab.machine.profile.MachineProfile.envelope_slack_mm`)
+    or a scratch file's tolerance (:data:`~scratchfab.model.scratches.ON_BOARD_TOLERANCE_MM`),
+    whichever is larger: the toolpath stage moves a stroke's end this close onto the edge.
+    """
+    return max(profile.envelope_slack_mm, ON_BOARD_TOLERANCE_MM)
+
+
 def plan_toolpath(
     scratches: ScratchSet,
     board: Board,
@@ -427,7 +437,7 @@ def plan_toolpath(
     # is moved onto the edge, not cut off (a stroke along the edge of a board as large as
     # the travel is kept). The G-code writer rounds a value on the edge to the nearest
     # written value inside the envelope.
-    slack = max(profile.envelope_slack_mm, ON_BOARD_TOLERANCE_MM)
+    slack = edge_slack(profile)
     m0 = onto_box(profile.board_to_machine(scratches.p0, size), lo, hi, slack)
     m1 = onto_box(profile.board_to_machine(scratches.p1, size), lo, hi, slack)
     keep, q0, q1 = clip_strokes(m0, m1, shapely.box(*lo, *hi))
