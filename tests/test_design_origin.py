@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -99,3 +100,36 @@ def test_an_earlier_reruns_own_options_stay_in_the_chain(pictures, tmp_path, cap
     again = _comment(tmp_path / "job4" / "design" / "design.toml")
     named = again.index(f"# sun: {third / 'design' / 'board' / 'sun.png'}")
     assert again[named + 1] == comment[line + 1]
+
+
+def test_a_view_renamed_in_the_jobs_design_toml_is_headed_by_the_picture_it_has_now(
+    pictures, tmp_path, capsys
+):
+    """A lab technician renames a view in JOB/design/design.toml and reruns in place: the
+    heading names the board picture that exists after the run, under the new name, and
+    still what it was first made from, through a further rerun."""
+    job = tmp_path / "job"
+    quick = [str(p) for p in pictures] + ["--board", "30x30", "--count", "60", "--resolution", "12"]
+    main(["design", *quick, "--out", str(job)])
+    toml = job / "design" / "design.toml"
+    text = toml.read_text(encoding="utf-8")
+    assert text.count('name = "sun"') == 1
+    toml.write_text(text.replace('name = "sun"', 'name = "sol"'), encoding="utf-8")
+    for _ in range(2):
+        main(["design", str(toml), "--out", str(job)])
+        capsys.readouterr()
+        comment = _comment(toml)
+        named = [line.split(": ", 1)[1] for line in comment if re.match(r"# \w+: ", line)]
+        assert named and all(Path(p).is_file() for p in named), named
+        board = job / "design" / "board"
+        line = comment.index(f"# sol: {board / 'sol.png'}")
+        assert comment[line + 1] == (
+            f"#   the board picture an earlier design made from {pictures[0].resolve()} "
+            "(fit = contain, gamma = 1, contrast = 1)"
+        )
+        assert not (board / "sun.png").exists()
+        views = load_design(toml).views
+        assert [(v.name, v.target) for v in views] == [
+            ("sol", str(board / "sol.png")),
+            ("moon", str(board / "moon.png")),
+        ]

@@ -159,13 +159,17 @@ def _origin_comment(
     seed: int,
     refitted: frozenset[Path] = frozenset(),
     inverted: frozenset[str] = frozenset(),
+    rewritten: DesignFolder | None = None,
 ) -> str:
     """The comment heading ``design.toml``: each view's picture and the options applied to it.
 
     A picture that is an earlier design's board picture (a rerun from ``JOB/design/
     design.toml``) gets a second line naming the image that design started from, as its
     own comment named it, and a third when that image was fitted anew (``refitted``); a
-    view named in ``inverted`` a last line saying its picture was inverted first.
+    view named in ``inverted`` a last line saying its picture was inverted first. A
+    picture in the board folder of ``rewritten`` (the design folder this run replaces) is
+    named where this run writes the view's board picture: the old one is gone then, and a
+    view renamed in the file would name its old name's picture.
     """
     options = f"fit = {fit}, gamma = {gamma:g}, contrast = {contrast:g}"
     lines = [
@@ -180,7 +184,10 @@ def _origin_comment(
     for view in design.views:
         path = design.target_path(view)
         assert path is not None
-        lines.append(f"# {view.name}: {_comment_safe(str(path))}")
+        shown = path
+        if rewritten is not None and path.parent.resolve() == rewritten.boards_dir.resolve():
+            shown = rewritten.board_png(view.name)
+        lines.append(f"# {view.name}: {_comment_safe(str(shown))}")
         earlier = _earlier_origin(path)
         if earlier:
             lines.append(EARLIER + earlier)
@@ -603,7 +610,9 @@ def run_design(
     resolved = replace(resolved, base_dir=folder, source=str(files.design_toml))
 
     # read before the new folder replaces the old one, whose design.toml they may read
-    comment = _origin_comment(design, fit, gamma, contrast, seed, frozenset(refitted), inverted)
+    comment = _origin_comment(
+        design, fit, gamma, contrast, seed, frozenset(refitted), inverted, files
+    )
     earlier = earlier_design(job)
     with atomic_folder(folder) as tmp:
         staged = DesignFolder(tmp)
