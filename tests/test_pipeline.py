@@ -274,12 +274,12 @@ def _code_lines(gcode: Path) -> int:
 
 @pytest.mark.parametrize("how", ["force", "from"])
 def test_force_or_from_stream_cuts_the_same_board_again(finished_job, monkeypatch, capsys, how):
-    import scratchfab.cli.run_cmd as run_cmd
+    import io
 
     path, job, _ = finished_job
     run_pipeline(load_pipeline(path), job, say=lambda s: None)
     before = len(_fresh_starts(job))
-    monkeypatch.setattr(run_cmd, "_interactive", lambda: False)  # the emulator never asks
+    monkeypatch.setattr("sys.stdin", io.StringIO(""))  # the emulator never asks
     flags = ["--force"] if how == "force" else ["--from", "stream"]
     main(["run", str(path), "--out", str(job), *flags])
     out = capsys.readouterr().out
@@ -399,21 +399,20 @@ def _real_port_pipeline(path: Path, record: Path, monkeypatch: pytest.MonkeyPatc
 
 
 @pytest.mark.parametrize(
-    ("flags", "interactive", "answer", "refusal"),
+    ("flags", "answer", "refusal"),
     [
-        ([], False, "", "stdin is not a terminal (pass --yes"),
-        ([], True, "n\n", "not confirmed; nothing was sent"),
-        ([], True, "y\n", None),
-        (["--yes"], False, "", None),
+        ([], "", "no answer came to the question (stdin closed): answer y, or pass --yes"),
+        ([], "n\n", "not confirmed; nothing was sent"),
+        ([], "y\n", None),  # a terminal's answer, or a pipe's (echo y | scratchfab run)
+        (["--yes"], "", None),
     ],
 )
 def test_real_port_asks_before_streaming(
-    finished_job, tmp_path, monkeypatch, capsys, flags, interactive, answer, refusal
+    finished_job, tmp_path, monkeypatch, capsys, flags, answer, refusal
 ):
     import io
     import json
 
-    import scratchfab.cli.run_cmd as run_cmd
     import scratchfab.pipeline.runner as runner
     from scratchfab.machine.sender_program import load_program
 
@@ -426,7 +425,6 @@ def test_real_port_asks_before_streaming(
     real = _real_port_pipeline(path, record, monkeypatch)
     monkeypatch.setattr(runner, "is_emulator", lambda port: False)  # as a real machine
     monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: False)
-    monkeypatch.setattr(run_cmd, "_interactive", lambda: interactive)
     monkeypatch.setattr("sys.stdin", io.StringIO(answer))
     code = 0
     try:
@@ -442,7 +440,7 @@ def test_real_port_asks_before_streaming(
     assert got.out.count("up to date, skipped") == len(STAGES) - 1
     assert "[stream] running" in got.out and "connected: Grbl" in got.out
     asked = "The machine moves: board clamped and set up as README step 5 says" in got.err
-    assert asked == interactive
+    assert asked == ("--yes" not in flags)
     events = [json.loads(line) for line in record.read_text().splitlines()]
     received = [e["text"] for e in events if e["ev"] == "rx" and e["g"]]
     after = (copy / "stream" / "journal.jsonl").read_bytes()
@@ -472,7 +470,6 @@ def test_real_port_cuts_a_board_the_envelope_cuts_short_only_when_asked(
     import io
     import json
 
-    import scratchfab.cli.run_cmd as run_cmd
     import scratchfab.pipeline.runner as runner
     from scratchfab.bundled import bundled_dir
 
@@ -495,7 +492,6 @@ def test_real_port_cuts_a_board_the_envelope_cuts_short_only_when_asked(
     real = _real_port_pipeline(path, record, monkeypatch)
     monkeypatch.setattr(runner, "is_emulator", lambda port: False)  # as a real machine
     monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: False)
-    monkeypatch.setattr(run_cmd, "_interactive", lambda: True)
     monkeypatch.setattr("sys.stdin", io.StringIO(answers))
     capsys.readouterr()
     code = 0

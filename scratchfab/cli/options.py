@@ -125,6 +125,28 @@ def job_or_files(
     return design_file, scratch_file, out_dir
 
 
+def confirm(question: str) -> bool:
+    """Ask ``question`` on stderr; the answer comes from stdin, a terminal or a pipe.
+
+    ``stream`` and ``run`` ask alike: ``echo y | scratchfab run ...`` answers as it does
+    for ``stream``. A Ctrl-C at the question stays click's abort (exit 130).
+
+    Raises:
+        ScratchfabError: stdin closed before an answer came (nothing to read, or a pipe
+            that ran out): how to answer; nothing was sent.
+    """
+    try:
+        return click.confirm(question, default=False, err=True)
+    except click.exceptions.Abort as exc:
+        if not isinstance(exc.__context__, EOFError):
+            raise  # Ctrl-C at the question: "aborted", exit 130
+        click.echo("", err=True)  # end the question's line
+        raise ScratchfabError(
+            "no answer came to the question (stdin closed): answer y, or pass --yes to "
+            "stream without asking; nothing was sent"
+        ) from None
+
+
 #: The widest and the narrowest bar :func:`fit_line` draws (characters inside the brackets).
 BAR_WIDEST = 28
 BAR_NARROWEST = 8

@@ -2,30 +2,14 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
 
-from scratchfab.errors import ScratchfabError
+from scratchfab.cli.options import confirm
 from scratchfab.model.job import JobLayout
 from scratchfab.pipeline.config import STAGES, load_pipeline
 from scratchfab.pipeline.runner import run_pipeline
-
-
-def _interactive() -> bool:
-    """True when a person can answer a question on stdin."""
-    return sys.stdin.isatty()
-
-
-def _confirm(question: str) -> bool:
-    """Ask before the stream stage moves a real machine; refuse when nobody can answer."""
-    if not _interactive():
-        raise ScratchfabError(
-            "[stream] refusing to move the machine without confirmation: stdin is not a "
-            "terminal (pass --yes to stream without asking); nothing was sent"
-        )
-    return click.confirm(question, default=False, err=True)
 
 
 @click.command("run")
@@ -90,7 +74,7 @@ def run(
             until=until,
             force=force,
             say=click.echo,
-            confirm=None if yes else _confirm,
+            confirm=None if yes else confirm,
             homed=homed,
         )
     finally:

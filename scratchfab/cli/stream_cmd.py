@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from scratchfab.cli.options import FiniteFloat, RedrawnLine
+from scratchfab.cli.options import FiniteFloat, RedrawnLine, confirm
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.sender import StreamProgress
 from scratchfab.machine.stream_job import (
@@ -240,18 +240,6 @@ def stream(
             err=True,
         )
         return "resume" if answer == "r" else "stop"
-
-    def confirm(question: str) -> bool:
-        try:
-            return click.confirm(question, default=False, err=True)
-        except click.exceptions.Abort as exc:
-            if not isinstance(exc.__context__, EOFError):
-                raise  # Ctrl-C at the question: "aborted", exit 130
-            click.echo("", err=True)  # end the question's line
-            raise ScratchfabError(
-                "no answer came to the question (stdin closed): answer y, or pass --yes to "
-                "stream without asking; nothing was sent"
-            ) from None
 
     try:
         progress = emulator_progress(port, baud, gcode, bar, message)
