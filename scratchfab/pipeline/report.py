@@ -20,12 +20,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+
 from scratchfab.bundled import bundled_name
 from scratchfab.console import command_line, duration_text
 from scratchfab.design.stand import side, stand_text
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, write_text
-from scratchfab.machine.profile import gcode_number
+from scratchfab.machine.profile import MachineProfile, gcode_number
 from scratchfab.metrics import CROSSTALK_MEANING, rho_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
 from scratchfab.model.job import JobLayout
@@ -1143,21 +1145,71 @@ def _copied_title(title: str, pipeline_file: Path | None) -> str:
     return ""
 
 
-#: Where a machine direction lies for a person at a desktop engraver's front (a 3018's).
-_TOWARD = {
-    "+Y": "away from you, at the back, on a 3018 and most desktop engravers",
-    "-Y": "toward you, at the front, on a 3018 and most desktop engravers",
-    "+X": "to your right on a 3018 and most desktop engravers",
-    "-X": "to your left on a 3018 and most desktop engravers",
+#: Which way a machine direction lies for a person at a desktop engraver's front, where
+#: machine +Y runs away from them (the usual set-up; a profile does not say).
+_TOWARD = {"+Y": "away from you", "-Y": "toward you", "+X": "to your right", "-X": "to your left"}
+#: A corner of the board as it lies on the machine (``[board] origin``): its sides, then
+#: how it reads from the machine's front where +Y runs away.
+_MACHINE_CORNER = {
+    "lower-left": ("-X", "-Y", "front left"),
+    "lower-right": ("+X", "-Y", "front right"),
+    "upper-left": ("-X", "+Y", "back left"),
+    "upper-right": ("+X", "+Y", "back right"),
 }
+#: The picture's corners (its top edge up, the design's +y) in the board frame's signs.
+_PICTURE_CORNER = {
+    "bottom-left": (-1, -1),
+    "bottom-right": (1, -1),
+    "top-left": (-1, 1),
+    "top-right": (1, 1),
+}
+
+
+def _toward(axis: str) -> str:
+    """Where machine ``axis`` ("+Y", "-X"...) lies, said so that the user can check it."""
+    return (
+        f"the way the tool moves over the bed when you jog {axis}: {_TOWARD[axis]} on most "
+        "desktop engravers"
+    )
+
+
+def _picture_corner(profile: MachineProfile, board_mm: tuple[float, float]) -> str:
+    """The picture's corner that the board's ``[board] origin`` corner is, once turned."""
+    w, h = board_mm
+    corners = np.array([(sx * w / 2, sy * h / 2) for sx, sy in _PICTURE_CORNER.values()])
+    placed = profile.board_to_machine(corners, board_mm)
+    at = np.linalg.norm(placed - np.asarray(profile.board.offset_mm), axis=1)
+    return list(_PICTURE_CORNER)[int(np.argmin(at))]
+
+
+def _origin_words(profile: MachineProfile, board_mm: tuple[float, float]) -> tuple[str, str]:
+    """The board point ``[board] offset_mm`` places: (what it is, how to jog to it again).
+
+    A corner is named as it lies on the machine (its sides' axes, and where that is from
+    the machine's front), and as the picture's corner it is, whatever the rotation.
+    """
+    if profile.board.origin == "center":
+        return "centre", "the board's centre"
+    x, y, seen = _MACHINE_CORNER[profile.board.origin]
+    turned = profile.board.rotation_deg
+    picture = _picture_corner(profile, board_mm)
+    what = (
+        f"corner at machine {x} {y} ({seen} where machine +Y runs away from you, as on most "
+        "desktop engravers; the picture's "
+        f"<span data-stat='setup.picture_corner'>{picture}</span> corner"
+        + (f", the board being turned {turned}°" if turned else "")
+        + ")"
+    )
+    return what, f"the board's {x} {y} corner"
 
 
 def _setup_step(job: Path) -> str:
     """How to set the machine up, for the profile the toolpath was planned with.
 
     README step 5, the board's placement and the tool's height, the zeroing the profile's
-    ``[envelope] coordinates`` calls for (none on the board, or the work zero), and which
-    way the board's top edge faces (as the G-code's header says), to mark before unclamping.
+    ``[envelope] coordinates`` calls for (none on the board, or the work zero in the work
+    system in use), and which way the board's top edge faces (as the G-code's header
+    says), to mark before unclamping.
     """
     text = (
         "Set the machine up as README step 5 (<b>Cut.</b>) says for your profile: the G-code "
@@ -1167,12 +1219,13 @@ def _setup_step(job: Path) -> str:
     from scratchfab.toolpath import Toolpath
 
     try:
-        profile = Toolpath.load(JobLayout(job).toolpath_json).profile
+        toolpath = Toolpath.load(JobLayout(job).toolpath_json)
     except ConfigError:  # no toolpath yet, or a damaged one: the pointer alone
         return text + "."
+    profile = toolpath.profile
     # as the G-code writes numbers (a command to send; no 1e-05)
     x, y = (gcode_number(v, profile.gcode.decimals) for v in profile.board.offset_mm)
-    corner = profile.board.origin_text
+    corner, jog_to = _origin_words(profile, toolpath.board_mm)
     servo = profile.tool_control.mode == "servo"
     tool = (
         f"the tool lowered by its on command ({_code(profile.tool_control.command('on'))})"
@@ -1180,23 +1233,25 @@ def _setup_step(job: Path) -> str:
         else f"the tool cutting at Z <span data-stat='setup.z'>{profile.z.engrave_mm:g}</span> mm"
     )
     placed = (
-        f" ('{html.escape(profile.name)}'): the board's {html.escape(corner)} at X "
+        f" ('{html.escape(profile.name)}'): the board's {corner} at X "
         f"<span data-stat='setup.x'>{x}</span> Y <span data-stat='setup.y'>{y}</span>, "
         f"{tool}. "
     )
     top = profile.board_top()
     marked = (
-        f" The board's top edge (the design's +y) faces machine "
-        f"<span data-stat='setup.top'>{top}</span> ({_TOWARD[top]}): mark it on the board "
+        f" The board's top edge (the picture's top, the design's +y) faces machine "
+        f"<span data-stat='setup.top'>{top}</span> ({_toward(top)}): mark it on the board "
         "before you unclamp it, since every place under <i>Where to stand</i> holds with "
         "that edge up."
     )
+    # P0: the work system in use, the one the G-code runs in (it selects none)
     if profile.envelope.coordinates == "machine":
         advice = (
             "Make both true on your machine before streaming: these are GRBL's machine "
-            "coordinates after homing, with the G54 work offset cleared "
-            f"({_code('G10 L2 P1 X0 Y0 Z0')}, check with {_code('$#')}; the profile's "
-            "[envelope] <code>coordinates = &quot;machine&quot;</code>): do not zero the work "
+            "coordinates after homing, with the work offset cleared "
+            f"({_code('G10 L2 P0 X0 Y0 Z0')} for the work system in use, {_code('G92.1')}, "
+            f"{_code('G49')}; check with {_code('$#')}; the profile's [envelope] "
+            "<code>coordinates = &quot;machine&quot;</code>): do not zero the work "
             "coordinates on the board."
         )
         return text + placed + advice + marked
@@ -1204,14 +1259,14 @@ def _setup_step(job: Path) -> str:
         ""
         if servo
         else f" For Z, touch the tool on the board's surface: Z {profile.z.engrave_mm:g} must "
-        f"lie a little below that height (e.g. {_code('G10 L20 P1 Z0')} there, with [z] "
+        f"lie a little below that height (e.g. {_code('G10 L20 P0 Z0')} there, with [z] "
         "<code>engrave_mm</code> a little below 0)."
     )
     advice = (
         "These are work coordinates: set them on the board before streaming. Jog the tool "
-        f"to the board's {html.escape(corner)} and send {_code(f'G10 L20 P1 X{x} Y{y}')} "
-        f"there (that point becomes X {x} Y {y}; G10 L20, not {_code('G92')}, whose "
-        f"zero every soft reset clears).{z_zero}"
+        f"to {jog_to} and send {_code(f'G10 L20 P0 X{x} Y{y}')} there (that point becomes "
+        f"X {x} Y {y} in the work system in use, P0, which the G-code runs in as it selects "
+        f"none; G10 L20, not {_code('G92')}, whose zero every soft reset clears).{z_zero}"
     )
     return text + placed + advice + marked
 
