@@ -2616,8 +2616,14 @@ def test_check_mode_refuses_when_its_reset_clears_the_work_zero(tmp_path, zero, 
         if kept:
             assert streamer.check(prog).errors == []
         else:
-            with pytest.raises(StreamFault, match=r"job\.gcode: leaving check mode .* G92"):
+            with pytest.raises(StreamFault, match=r"job\.gcode: leaving check mode .* G92") as exc:
                 streamer.check(prog)
+            # the advice sets the system the job runs in (it selects none), as every stream
+            # message words it
+            assert "set the work zero again with `G10 L20 P0` (P0: the work system in use" in (
+                str(exc.value)
+            )
+            assert "P1" not in str(exc.value)
         with port.sim._cond:
             wco = port.sim._wco()
         assert (wco == pytest.approx((-5.0, 3.0, 0.0))) is kept  # what the emulator runs at
@@ -2631,7 +2637,7 @@ def test_check_mode_refuses_when_its_reset_clears_the_work_zero(tmp_path, zero, 
         ("G92X5Y-3", "", False),
         ("G10L20P1X5Y-3", "", True),
         # zeroed again by hand after the stop, as the refusal asks: never to the hundredth
-        ("G92X5Y-3", "G10L20P1X5.02Y-3", True),
+        ("G92X5Y-3", "G10L20P0X5.02Y-3", True),
     ],
 )
 def test_resume_refuses_when_a_reset_cleared_the_g92_zero(tmp_path, monkeypatch, capsys, zero,
@@ -2675,6 +2681,8 @@ def test_resume_refuses_when_a_reset_cleared_the_g92_zero(tmp_path, monkeypatch,
     assert exc.value.code == 2
     err = capsys.readouterr().err.splitlines()[-1]
     assert err.startswith(f"error: {journal}: the interrupted run's work zero included a G92")
+    assert "set the same zero again with `G10 L20 P0` (P0: the work system in use" in err
+    assert "P1" not in err
     assert len(_received_gcode(port.sim.record)) == sent  # nothing was sent
 
 

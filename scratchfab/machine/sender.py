@@ -86,7 +86,7 @@ import serial
 from scratchfab.errors import Interrupted, ScratchfabError
 from scratchfab.machine.grbl_codes import MM_PER_INCH, alarm_meaning, error_meaning
 from scratchfab.machine.profile import Z_UNLIMITED_MM, gcode_number
-from scratchfab.machine.sender_checks import REPORT_DIGIT_MM, same_offset
+from scratchfab.machine.sender_checks import REPORT_DIGIT_MM, ZERO_KEPT, same_offset
 from scratchfab.machine.sender_journal import Journal, last_surely_run
 from scratchfab.machine.sender_program import (
     DEFAULT_RAPID_MM_MIN,
@@ -930,8 +930,8 @@ class Streamer:
         raise StreamFault(
             f"{program.path}: leaving check mode soft-resets GRBL, which cleared its G92 or "
             f"tool length offset: the work offset was {xyz_text(before)}, now {now} mm, so "
-            "the job would run elsewhere; set the work zero again (G10 L20 P1 keeps it over "
-            "a reset) and stream again; nothing moved"
+            f"the job would run elsewhere; set the work zero again {ZERO_KEPT} and stream "
+            "again; nothing moved"
         )
 
     # ------------------------------------------------------------------ streaming

@@ -447,6 +447,12 @@ def _envelope_refusals(
     return [*out, f"{text}; {advice}"], ""
 
 
+#: How to set a work zero again so that a reset keeps it: G10 L20 sets the offset of a
+#: work system (G54-G59), which GRBL stores, where a reset clears G92; P0 is the system in
+#: use, the one a scratchfab G-code runs in (it selects none).
+ZERO_KEPT = "with `G10 L20 P0` (P0: the work system in use; a reset keeps it, unlike a G92 zero)"
+
+
 def _zero(offset: float) -> bool:
     """Whether one axis of GRBL's work offset reads 0 (to a report digit, either unit)."""
     return abs(offset) <= offset_tolerance_mm(True)

@@ -29,7 +29,7 @@ from scratchfab.machine.sender import (
     open_port,
     xyz_text,
 )
-from scratchfab.machine.sender_checks import compare, eta_settings, same_offset
+from scratchfab.machine.sender_checks import ZERO_KEPT, compare, eta_settings, same_offset
 from scratchfab.machine.sender_journal import (
     Journal,
     check_journal_file,
@@ -784,8 +784,7 @@ def _check_same_zero(
                 f"{journal_file}: the interrupted run's work zero included a G92 offset "
                 f"({xyz_text(g92_before)} mm) that a reset since then cleared (work offset "
                 f"was {was}, now {now} mm): the resumed strokes would land elsewhere; set the "
-                "same zero again (G10 L20 P1 keeps it over a reset), then --resume; nothing "
-                "was sent"
+                f"same zero again {ZERO_KEPT}, then --resume; nothing was sent"
             )
     say(
         f"warning: the work offset changed since the interrupted run (was {was}, now {now} "
