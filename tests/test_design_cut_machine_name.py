@@ -12,11 +12,14 @@ import re
 import tomllib
 from dataclasses import replace
 
+import tomli_w
 from conftest import cli_run
 
 from scratchfab.bundled import bundled_dir
 from scratchfab.design.stage import run_design
 from scratchfab.pipeline.config import load_pipeline
+from scratchfab.toolpath.inputs import planned_for
+from scratchfab.toolpath.plan import Toolpath
 
 DEMO = bundled_dir("demo")
 PROFILE = bundled_dir("machine_profiles") / "grbl-3018-diamond.toml"
@@ -47,3 +50,29 @@ def test_design_and_run_name_the_machine_alike(tmp_path, capsys):
     run_design(design, tmp_path / "b", resolution=None, progress=said.append, machine=pipe.profile)
     assert pipe.profile.name == name
     assert _machine(said) == expected
+
+
+def test_design_and_toolpath_name_a_profile_file_alike(tmp_path, capsys):
+    """A profile file of the user's: design's cut line and a toolpath planned for it (as
+    toolpath and export name it) say the same, the file's own name and its path; the cut
+    line says it times the layout before optimize."""
+    table = tomllib.loads(PROFILE.read_text(encoding="utf-8"))
+    table["name"] = "my engraver"
+    mine = tmp_path / "machines" / "mine.toml"
+    mine.parent.mkdir()
+    mine.write_text(tomli_w.dumps(table), encoding="utf-8")
+    job = tmp_path / "job"
+    said: list[str] = []
+    design_file = tmp_path / "design.toml"
+    pipe = load_pipeline(bundled_dir("pipelines") / "demo.toml")
+    design = replace(pipe.design, scratch=replace(pipe.design.scratch, count=40))
+    design.save(design_file)
+    run_design(design_file, job, resolution=(16, 16), progress=said.append, machine=str(mine))
+    expected = f"machine 'my engraver' ({mine}"
+    assert _machine(said) == expected
+    (cut,) = [line for line in said if line.startswith("  cut: ")]
+    assert "this initial layout, before optimize" in cut, cut
+    code, out, _ = cli_run(["toolpath", str(job), "--machine", str(mine)], capsys)
+    assert code == 0, out
+    planned = planned_for(Toolpath.load(job / "toolpath" / "toolpath.json"))
+    assert planned == expected + ")"

@@ -12,10 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from scratchfab.bundled import bundled_name
 from scratchfab.console import duration_text
 from scratchfab.errors import ConfigError
-from scratchfab.machine.profile import MachineProfile, load_profile
+from scratchfab.machine.profile import MachineProfile, load_profile, machine_named, profile_ref
 from scratchfab.model.design import Board
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.toolpath.order import OrderOptions, order_strokes
@@ -66,19 +65,10 @@ def cut_line(scratches: ScratchSet, board: Board, machine: str | MachineProfile,
     feeds = [f"engrave {profile.feeds.engrave_mm_min:g} mm/min"]
     if profile.tool_control.mode != "servo":
         feeds.append(f"plunge {profile.feeds.plunge_mm_min:g} mm/min")
-    said = [_profile_file(profile), ", ".join(feeds)]
+    machine_text = machine_named(profile.name, profile_ref(profile), ", ".join(feeds))
     return (
         f"{head}; about {duration_text(seconds)} ({seconds / max(n, 1):.1f} s a scratch with "
-        f"its travel) on machine '{profile.name}' ({'; '.join(s for s in said if s)}), as "
-        f"toolpath estimates this layout; {fewer} lays fewer, the time falls about with the count"
+        f"its travel) on {machine_text}, as toolpath estimates this initial layout, before "
+        f"optimize (which usually shortens the cut); {fewer} lays fewer, the time falls about "
+        "with the count"
     )
-
-
-def _profile_file(profile: MachineProfile) -> str:
-    """The profile's file as export names it after the profile's name.
-
-    A bundled profile's name, else its file ("" for a profile built in code).
-    """
-    if profile.source == MachineProfile.source:  # the field's default: no file
-        return ""
-    return bundled_name("machine_profiles", profile.source) or profile.source

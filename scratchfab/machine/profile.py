@@ -78,7 +78,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from scratchfab.bundled import find_bundled
+from scratchfab.bundled import bundled_name, find_bundled
 from scratchfab.model.schema import check_bounds, load_toml, parse_table, spec, to_table
 from scratchfab.toolpath.timing import GRBL_JUNCTION_DEVIATION_MM
 
@@ -543,3 +543,25 @@ def load_profile(name_or_path: str | Path | MachineProfile) -> MachineProfile:
         return name_or_path
     path = find_bundled("machine_profiles", name_or_path, "machine")
     return profile_from_mapping(load_toml(path), str(path))
+
+
+def profile_ref(profile: MachineProfile) -> str | None:
+    """``profile`` as ``--machine`` takes it: a bundled profile's name, else its file.
+
+    None for a profile built in code, or one read from a toolpath's record (no file of its own).
+    """
+    if bundled := bundled_name("machine_profiles", profile.source):
+        return bundled
+    return profile.source if Path(profile.source).is_file() else None
+
+
+def machine_named(name: str, ref: str | None = None, *details: str) -> str:
+    """``machine 'NAME' (REF; DETAILS)``: a machine profile as messages name it.
+
+    Args:
+        name: The profile's ``name``.
+        ref: How the profile is given (:func:`profile_ref`, or a toolpath's record); None: not said.
+        details: More to say in the brackets, after ``ref``.
+    """
+    said = "; ".join(s for s in (ref, *details) if s)
+    return f"machine '{name}'" + (f" ({said})" if said else "")

@@ -23,7 +23,7 @@ from scratchfab.bundled import bundled_name
 from scratchfab.console import command_line
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, file_sha256
-from scratchfab.machine.profile import MachineProfile, load_profile
+from scratchfab.machine.profile import MachineProfile, load_profile, machine_named
 from scratchfab.model.design import load_design, same_to_rounding
 from scratchfab.model.job import JobLayout, design_content_sha256, job_inputs
 
@@ -305,7 +305,7 @@ def planned_for(toolpath: Toolpath) -> str:
     """
     folder = toolpath.file.parent if toolpath.file is not None else Path(".")
     where = machine_argument((toolpath.inputs or {}).get("machine"), folder)
-    return f"machine '{toolpath.profile.name}'" + (f" ({where})" if where else "")
+    return machine_named(toolpath.profile.name, where)
 
 
 def rerun_command(
