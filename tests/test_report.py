@@ -175,13 +175,14 @@ def test_report_is_self_contained_and_shows_metrics(tmp_path):
 
 def test_verdict_ready_lists_every_check_with_the_configured_min_rho(tmp_path):
     job = fake_job(tmp_path)
-    page = write_report(job, min_rho=0.85).read_text()
+    # 0.8: the weaker view (0.877) lies nearer the best (0.912) than the gate, no warning
+    page = write_report(job, min_rho=0.8).read_text()
     verdict, head, lines = _verdict(page)
     assert verdict == "ready" and head == "Ready to cut"
     texts = " | ".join(t for _, t in lines)
     metrics = json.loads((job / "verify" / "metrics.json").read_text())["views"]
     for name in PLACES:
-        assert f"{name} looks like its target: rho_kk {metrics[name]['rho']:.3f} ≥ 0.85" in texts
+        assert f"{name} looks like its target: rho_kk {metrics[name]['rho']:.3f} ≥ 0.8" in texts
     assert "feasibility" in texts and "crosstalk: at most 0.046" in texts
     assert "all 2000 scratches inside it" in texts
     stats = json.loads((job / "toolpath" / "toolpath.json").read_text())["statistics"]

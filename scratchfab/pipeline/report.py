@@ -417,12 +417,7 @@ def _rho_checks(
                 )
             )
         else:
-            outshone = outshine_advice(
-                {name: glint[name]} if name in glint else {},
-                {name: shoulders[name]} if name in shoulders else {},
-                feasibility,
-                "[scratch] count =",
-            )
+            outshone = _outshone(name, glint, shoulders, feasibility)
             why = "".join(f"; {a}" for a in outshone)
             checks.append(
                 _Check(
@@ -433,13 +428,80 @@ def _rho_checks(
                     + (" (the bare board outshines its grooves)" if outshone else ""),
                     _OUTSHONE_FIX
                     if outshone
-                    else "A view looks too little like its target: run optimize longer "
-                    "([optimize] iterations), add scratches ([scratch] count), or move the "
-                    "views further apart. To cut the board as it is, lower [verify] "
-                    "<code>min_rho</code> (-1 never stops the run).",
+                    else f"A view looks too little like its target: {_RAISE}. To cut the "
+                    "board as it is, lower [verify] <code>min_rho</code> (-1 never stops the "
+                    "run).",
                 )
             )
-    return checks
+    return checks + _weakest_check(names, views, min_rho, glint, shoulders, feasibility)
+
+
+#: What raises a view's rho where the bare board does not outshine its grooves.
+_RAISE = (
+    "run optimize longer ([optimize] iterations), add scratches ([scratch] count), or move "
+    "the views further apart"
+)
+
+
+def _outshone(
+    name: str, glint: Mapping[str, float], shoulders: Mapping[str, float], feasibility: Any
+) -> list[str]:
+    """Verify's clauses where the bare board outshines view ``name``'s grooves ([] if not)."""
+    return outshine_advice(
+        {name: glint[name]} if name in glint else {},
+        {name: shoulders[name]} if name in shoulders else {},
+        feasibility,
+        "[scratch] count =",
+    )
+
+
+def _weakest_check(
+    names: list[str],
+    views: Mapping[str, Any],
+    min_rho: float | None,
+    glint: Mapping[str, float],
+    shoulders: Mapping[str, float],
+    feasibility: Any,
+) -> list[_Check]:
+    """Where every view passes, the one that looks least like its target, and how to raise it.
+
+    A warning (the board stays ready to cut) where that view's rho lies nearer the gate
+    than the best view's: one view shows its picture far less clearly than the others.
+    Nothing for fewer than two measured views, or where a view fails (its line says it).
+    """
+    rhos: dict[str, float] = {}
+    for name in names:
+        rho = (views.get(name) or {}).get("rho")
+        if isinstance(rho, int | float) and math.isfinite(rho):
+            rhos[name] = float(rho)
+    gate = min_rho if min_rho is not None and min_rho > -1.0 else None  # -1: no gate
+    if len(rhos) < 2 or (gate is not None and any(not r >= gate for r in rhos.values())):
+        return []
+    weakest = min(rhos, key=rhos.__getitem__)
+    best = max(rhos, key=rhos.__getitem__)
+    rho, top = rhos[weakest], rhos[best]
+    said = (
+        f"weakest view: {html.escape(weakest)}, rho_kk "
+        f"<span data-stat='weakest.rho'>{rho_text(rho, min_rho)}</span> (the best, "
+        f"{html.escape(best)}, {rho_text(top, min_rho)}"
+    )
+    if gate is None:
+        return [_Check("info", said + ")")]
+    margin = rho - gate
+    said += f"; {margin:.3f} above [verify] min_rho {gate:g})"
+    if not margin < top - rho:
+        return [_Check("info", said)]
+    outshone = _outshone(weakest, glint, shoulders, feasibility)
+    how = "; ".join(outshone) if outshone else _RAISE
+    return [
+        _Check(
+            "warn",
+            f"{said}: nearer min_rho than the best view, so {html.escape(weakest)} will show "
+            f"its picture least clearly; to raise it, {html.escape(how) if outshone else how}",
+            fix=f"The board passes as it is. If view {html.escape(weakest)} should look as "
+            f"clear as {html.escape(best)}: {html.escape(how) if outshone else how}.",
+        )
+    ]
 
 
 def _crosstalk_check(names: list[str], metrics: dict[str, Any] | None) -> list[_Check]:
@@ -1317,6 +1379,9 @@ def _next_steps(job: Path, checks: list[_Check], state: _Stream, pipeline_file: 
         steps += seen or ["Run the stages that have not run."]
         steps.append(f"Then run again: {rerun}.")
     elif state_kind == "not-streamed":
+        steps += [
+            f"{c.fix} Then run again: {rerun}." for c in checks if c.status == "warn" and c.fix
+        ]
         if state.kind == "emulator":
             state_kind = "emulator"
             steps.append(
