@@ -19,9 +19,14 @@ the default):
   an HDR image clipped would be mostly white); a gray profile with a linear curve marks
   linear values.
 
-16-bit PNGs and TIFFs keep their 16 bits: grey ones Pillow reads as such; colour ones and
-grey-with-alpha PNGs (which Pillow opens at 8 bits) are read a second time for the low
-bytes, and EXIF orientation turns them as it turns the image. RGB pixels with a
+16-bit PNGs and TIFFs keep their 16 bits: grey ones Pillow reads as such; colour ones
+(RGB, RGBA, CMYK) and grey-with-alpha PNGs, which Pillow opens at 8 bits, are read a
+second time for the low bytes; grey-with-alpha TIFFs, which Pillow refuses, are opened
+with its table of TIFF layouts extended for the call. EXIF orientation turns them as it
+turns the image. A TIFF's associated (premultiplied) alpha is divided out of the 16-bit
+colour where alpha > 0. 16-bit CMYK without a profile becomes RGB as Pillow converts
+CMYK, ``(1 - C)(1 - K)``, at 16 bits; with one, its high bytes go through littleCMS as
+8-bit CMYK (Pillow's ImageCms has no 16-bit CMYK mode). RGB pixels with a
 matrix/TRC profile (sRGB, Adobe RGB, Display P3, ProPhoto), 8- or 16-bit, are decoded
 from per-channel tables of their luminance, without rounding to 8-bit sRGB or clipping
 to its gamut (so 8 and 16 bits agree); a LUT-based RGB profile (or one with both a table
@@ -36,13 +41,22 @@ from __future__ import annotations
 import io
 import struct
 import sys
+import threading
 import warnings
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
-from PIL import ExifTags, Image, ImageFile, ImageOps, UnidentifiedImageError, features
+from PIL import (
+    ExifTags,
+    Image,
+    ImageFile,
+    ImageOps,
+    TiffImagePlugin,
+    UnidentifiedImageError,
+    features,
+)
 
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import read_input
@@ -90,12 +104,14 @@ def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
             # Pillow warns of what it skips (a corrupt EXIF block, a tag past the end) and
             # of large images; the pixels decode or the file is refused below, in one line.
             warnings.simplefilter("ignore")
-            opened = Image.open(io.BytesIO(data))
-            low = _low_byte_tiles(opened)  # before load(), which drops the tiles
-            opened.load()
-            image = ImageOps.exif_transpose(opened)
-            image.format = opened.format  # exif_transpose returns a copy without it
-            deep = None if low is None else _upright(_deep_samples(data, opened, low), opened)
+            image = _pillow_open(data)
+            read = _deep_read(image)  # before load(), which drops the tiles
+            if read is not None:
+                image.tile = read.high
+            image.load()
+            deep = None if read is None else _upright(_deep_samples(data, image, read), image)
+            # In place (a copy of a 12-MP photo is 48 MB), once _upright has read the tag.
+            ImageOps.exif_transpose(image, in_place=True)
             return image, deep
     except UnidentifiedImageError:
         raise ConfigError(f"{path}: not an image file Pillow can read{_hint(data)}") from None
@@ -114,9 +130,8 @@ def _hint(data: bytes) -> str:
     head = data[:1024].lstrip()
     if data[:4] in (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+"):
         what = (
-            "a TIFF in a layout Pillow does not decode, such as floating-point colour, 16- "
-            "or 64-bit floats (it reads floats only as one 32-bit grey channel) or 16-bit "
-            "grey with alpha"
+            "a TIFF in a layout Pillow does not decode, such as floating-point colour or "
+            "16- or 64-bit floats (it reads floats only as one 32-bit grey channel)"
         )
     elif data[4:8] == b"ftyp" and data[8:12] in _HEIF_BRANDS:
         what = "a HEIF/HEIC or AVIF photo, which this Pillow does not decode"
@@ -133,22 +148,29 @@ def _hint(data: bytes) -> str:
     else:
         return ""
     return (
-        f" ({what}); expected PNG, JPEG, TIFF (8-bit; 16-bit grey, RGB or RGBA; 32-bit "
-        "float grey) or WebP pixels (export the picture as one)"
+        f" ({what}); expected PNG, JPEG, TIFF (8-bit; 16-bit grey, grey and alpha, RGB, "
+        "RGBA or CMYK; 32-bit float grey) or WebP pixels (export the picture as one)"
     )
 
 
-#: 16-bit colour layouts that Pillow decodes to 8 bits (it has no 16-bit colour mode),
-#: by the rawmode it reads them with (PNG, TIFF; "RGBX" is a TIFF's RGB with an unspecified
-#: fourth sample), and a rawmode that reads the same rows keeping the low bytes: "RGB;16L"
-#: takes each big-endian sample's second byte ("N" is the computer's own order), and for
-#: grey with alpha a 4-byte "RGBA" pixel is all of them (grey high, grey low, alpha high,
-#: alpha low).
-_LOW_BYTES = {
-    "LA;16B": "RGBA",
+#: 16-bit layouts that Pillow decodes to 8 bits (it has no 16-bit colour mode), by the
+#: rawmode it reads them with (PNG, TIFF; "RGBX" is a TIFF's RGB with an unspecified fourth
+#: sample, "RGBa" RGB with associated alpha), and the rawmodes that read the same rows
+#: keeping the high bytes, then the low ones: "RGB;16L" takes each big-endian sample's
+#: second byte ("N" is the computer's own order), "RGBA;16B" reads "RGBa;16B" rows as they
+#: are stored (Pillow's "RGBa" divides by alpha at 8 bits), and for grey with alpha a
+#: 4-byte "RGBA" pixel is all of them (grey high, grey low, alpha high, alpha low).
+_DEEP_RAWMODES = {
+    "LA;16B": ("LA;16B", "RGBA"),
     **{
-        f"{mode};16{order}": f"{mode};16{other}"
-        for mode in ("RGB", "RGBA", "RGBX")
+        f"{mode};16{order}": (f"{straight};16{order}", f"{straight};16{other}")
+        for mode, straight in (
+            ("RGB", "RGB"),
+            ("RGBA", "RGBA"),
+            ("RGBX", "RGBX"),
+            ("RGBa", "RGBA"),
+            ("CMYK", "CMYK"),
+        )
         for order, other in (
             ("B", "L"),
             ("L", "B"),
@@ -157,42 +179,151 @@ _LOW_BYTES = {
     },
 }
 
-
-def _low_byte_tiles(opened: Image.Image) -> list[Any] | None:
-    """The image's tiles set to read the low bytes, or None unless it is 16-bit colour."""
-    tiles = []
-    for tile in getattr(opened, "tile", []):
-        args = tile[3]
-        rawmode = args if isinstance(args, str) else args[0] if args else None
-        if rawmode not in _LOW_BYTES:
-            return None
-        low = _LOW_BYTES[rawmode]
-        new = low if isinstance(args, str) else (low, *args[1:])
-        # Pillow 11 on: named tuples (a file of several strips reads their offsets).
-        tiles.append(tile._replace(args=new) if hasattr(tile, "_replace") else (*tile[:3], new))
-    return tiles or None
+#: TIFF tags: BitsPerSample, ExtraSamples (0 unspecified, 1 associated alpha, 2 alpha).
+_BITS_PER_SAMPLE, _EXTRA_SAMPLES = 258, 338
+_TIFF_MAGIC = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
+#: Pillow's TIFF format keys (byte order, photometric, sample format, fill order, bits,
+#: extra samples) for 16-bit grey with a second sample, which it does not list: read as
+#: "RGBA" pixels of 4 stored bytes, which :func:`_deep_samples` pairs up.
+_GREY_AND_ALPHA_16 = {
+    (prefix, 1, (1,), 1, (16, 16), (extra,)): ("RGBA", "RGBA")
+    for prefix in (b"II", b"MM")
+    for extra in (0, 1, 2)
+}
+_OPEN_INFO_LOCK = threading.Lock()
 
 
-def _deep_samples(data: bytes, opened: Image.Image, low: list[Any]) -> np.ndarray:
-    """A 16-bit colour or grey-and-alpha image's samples, (h, w, channels) uint16.
+def _pillow_open(data: bytes) -> ImageFile.ImageFile:
+    """The file opened by Pillow (not loaded), 16-bit grey-and-alpha TIFFs included.
 
-    Pillow's own decoder (PNG filters and interlacing, TIFF compressions) reads the file a
-    second time with the ``low`` tiles; ``opened`` holds the high bytes of the first.
+    Pillow refuses those; they are opened with its table of TIFF layouts extended for the
+    call (under a lock: the table is Pillow's, shared by every thread).
     """
-    again = Image.open(io.BytesIO(data))
-    assert isinstance(again, ImageFile.ImageFile)
-    again.tile = low
-    again.load()
-    raw = np.asarray(again)
-    del again  # a 12-MP photo: each copy of it is 36 MB or more
-    if low[0][3] == "RGBA":  # grey and alpha: every byte
-        high, lows = raw[..., 0::2], raw[..., 1::2]
+    try:
+        return Image.open(io.BytesIO(data))
+    except UnidentifiedImageError:
+        if data[:4] not in _TIFF_MAGIC:
+            raise
+    table = TiffImagePlugin.OPEN_INFO
+    with _OPEN_INFO_LOCK:
+        added = [key for key in _GREY_AND_ALPHA_16 if key not in table]
+        table.update({key: _GREY_AND_ALPHA_16[key] for key in added})
+        try:
+            return Image.open(io.BytesIO(data))
+        finally:
+            for key in added:
+                del table[key]
+
+
+class _DeepRead(NamedTuple):
+    """How Pillow reads a 16-bit image's bytes: tiles for the high bytes, then the low."""
+
+    high: list[Any]
+    #: None when the first read takes every byte (a 16-bit grey-and-alpha TIFF).
+    low: list[Any] | None
+
+
+def _rawmode(tile: Any) -> str | None:
+    args = tile[3]
+    return args if isinstance(args, str) else args[0] if args else None
+
+
+def _with_rawmode(tile: Any, rawmode: str) -> Any:
+    args = tile[3]
+    new = rawmode if isinstance(args, str) else (rawmode, *args[1:])
+    # Pillow 11 on: named tuples (a file of several strips reads their offsets).
+    return tile._replace(args=new) if hasattr(tile, "_replace") else (*tile[:3], new)
+
+
+def _tiff_tag(opened: Image.Image, tag: int) -> Any:
+    """A TIFF tag's value, None when absent or the image is no TIFF."""
+    if not isinstance(opened, TiffImagePlugin.TiffImageFile):
+        return None
+    return opened.tag_v2.get(tag)
+
+
+def _deep_read(opened: Image.Image) -> _DeepRead | None:
+    """The tiles that read the image's 16 bits, or None unless it is 16-bit colour or LA."""
+    tiles = list(getattr(opened, "tile", []))
+    if tiles and _tiff_tag(opened, _BITS_PER_SAMPLE) == (16, 16):
+        return _DeepRead(tiles, None)
+    high, low = [], []
+    for tile in tiles:
+        rawmode = _rawmode(tile)
+        if rawmode not in _DEEP_RAWMODES:
+            return None
+        high.append(_with_rawmode(tile, _DEEP_RAWMODES[rawmode][0]))
+        low.append(_with_rawmode(tile, _DEEP_RAWMODES[rawmode][1]))
+    return _DeepRead(high, low) if high else None
+
+
+def _big_endian(opened: Image.Image, tile: Any) -> bool:
+    """Whether a tile reads 16-bit samples high byte first.
+
+    PNG stores them so; a TIFF in its own order, which libtiff (any compression) turns
+    into the computer's.
+    """
+    if not isinstance(opened, TiffImagePlugin.TiffImageFile):
+        return True
+    if tile[0] == "libtiff":
+        return sys.byteorder == "big"
+    return bool(opened.tag_v2.prefix == b"MM")
+
+
+def _deep_samples(data: bytes, opened: Image.Image, read: _DeepRead) -> np.ndarray:
+    """A 16-bit image's samples, (h, w, channels) uint16, colour divided by alpha.
+
+    ``opened`` holds the first read's bytes (the high ones, or all of them); Pillow's own
+    decoder (PNG filters and interlacing, TIFF compressions) reads the file a second time
+    with the ``read.low`` tiles. Associated alpha (a TIFF's premultiplied colour) is
+    divided out; an unspecified second sample of a grey TIFF is dropped.
+    """
+    if read.low is None:
+        raw, every = np.asarray(opened), True
+    else:
+        again = Image.open(io.BytesIO(data))
+        assert isinstance(again, ImageFile.ImageFile)
+        again.tile = read.low
+        again.load()
+        raw, every = np.asarray(again), _rawmode(read.low[0]) == "RGBA"
+        del again  # a 12-MP photo: each copy of it is 36 MB or more
+    if every:  # grey and alpha: every byte
+        first, second = raw[..., 0::2], raw[..., 1::2]
+        big = _big_endian(opened, (read.low or read.high)[0])
+        high, lows = (first, second) if big else (second, first)
     else:
         high, lows = np.asarray(opened), raw
     samples = high.astype(np.uint16)
     samples <<= 8
     samples |= lows
+    extra = _tiff_tag(opened, _EXTRA_SAMPLES)
+    if extra == (1,):
+        _unpremultiply(samples)
+    elif extra == (0,) and samples.shape[2] == 2:
+        samples = samples[..., :1]
     return samples
+
+
+def _unpremultiply(samples: np.ndarray) -> None:
+    """Colour divided by alpha (the last channel) in place, where alpha > 0, rounded."""
+    for r0 in range(0, samples.shape[0], _CHUNK_ROWS):
+        block = samples[r0 : r0 + _CHUNK_ROWS]
+        alpha = block[..., -1:].astype(np.uint32)
+        colour = block[..., :-1].astype(np.uint32)
+        straight = (colour * 65535 + alpha // 2) // np.maximum(alpha, 1)
+        block[..., :-1] = np.where(alpha > 0, np.minimum(straight, 65535), colour)
+
+
+def _naive_rgb(cmyk: np.ndarray) -> np.ndarray:
+    """16-bit CMYK to RGB as Pillow converts CMYK without a profile, ``(1 - C)(1 - K)``.
+
+    Each channel is 1 minus its ink times 1 minus black, rounded to a 16-bit code.
+    """
+    rgb = np.empty((*cmyk.shape[:2], 3), np.uint16)
+    for r0 in range(0, cmyk.shape[0], _CHUNK_ROWS):
+        paper = 65535 - cmyk[r0 : r0 + _CHUNK_ROWS].astype(np.uint32)
+        rgb[r0 : r0 + _CHUNK_ROWS] = (paper[..., :3] * paper[..., 3:] + 32767) // 65535
+    return rgb
 
 
 def _upright(samples: np.ndarray, opened: Image.Image) -> np.ndarray:
@@ -248,7 +379,7 @@ class _Decoding:
 def _kind(image: Image.Image, deep: np.ndarray | None) -> str:
     """What the pixels are: "grayscale", "RGB", "CMYK", or Pillow's mode for anything else."""
     if deep is not None:
-        return "grayscale" if deep.shape[2] <= 2 else "RGB"
+        return "grayscale" if deep.shape[2] <= 2 else "CMYK" if image.mode == "CMYK" else "RGB"
     if image.mode in _GRAY_MODES:
         return "grayscale"
     if image.mode == "CMYK":
@@ -659,7 +790,8 @@ def load_image(path: str | Path, invert: bool = False) -> np.ndarray:
 
     Args:
         path: Any format Pillow reads (PNG incl. 16-bit and palette, JPEG incl. CMYK,
-            TIFF incl. 16-bit, float grey and CIELAB, WebP, ...), with or without an ICC
+            TIFF incl. 16-bit grey, grey and alpha, RGB(A) and CMYK, float grey and
+            CIELAB, WebP, ...), with or without an ICC
             profile.
         invert: Turn the colours negative (:func:`invert_picture`) before compositing,
             so that a dark logo on a transparent ground becomes a light logo on black.
@@ -682,13 +814,20 @@ def load_image(path: str | Path, invert: bool = False) -> np.ndarray:
     kind = _kind(image, deep)
     decoding: _Decoding | None = _Decoding()
     profile = _embedded_profile(image, file, kind)
+    if profile is None and kind == "CMYK" and deep is not None:
+        deep = _naive_rgb(deep)
     if profile is not None and kind == "grayscale":
         decoding = _gray_decoding(file, profile)
     elif profile is not None:
         decoding = _matrix_shaper_decoding(file, profile) if kind == "RGB" else None
         if decoding is None:  # 8 bits through littleCMS
             if deep is not None:  # the high bytes, with the alpha a 16-bit colour key gave
-                image = Image.fromarray((deep >> 8).astype(np.uint8))
+                codes = (deep >> 8).astype(np.uint8)
+                image = (
+                    Image.frombytes("CMYK", image.size, codes.tobytes())
+                    if kind == "CMYK"
+                    else Image.fromarray(codes)
+                )
             image, deep, decoding = _to_srgb(image, file, profile), None, _Decoding()
         elif deep is None:  # 8-bit codes c are the 16-bit codes 257 c, on the tables' grid
             deep = _rgb_codes(image, file).astype(np.uint16) * np.uint16(257)

@@ -1,0 +1,162 @@
+"""16-bit TIFFs Pillow reads at 8 bits or not at all: CMYK, premultiplied alpha, grey+alpha."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image, TiffImagePlugin, UnidentifiedImageError
+from test_images import cmyk_k_only_icc, curv_gamma, eotf, gamma_of, gray_icc, needs_lcms
+from test_images_deep import random_samples, reference, write_tiff
+
+from scratchfab.design.images import load_image
+
+#: Byte order, deflate (libtiff decodes) or not (Pillow's raw reader), rows per strip.
+LAYOUTS = [("<", False, None), (">", False, 2), ("<", True, None), (">", True, 4)]
+
+
+def premultiplied(straight: np.ndarray) -> np.ndarray:
+    """Colour times alpha (the last sample), rounded to 16-bit codes, as associated alpha."""
+    s = straight.astype(np.float64)
+    out = straight.copy()
+    out[..., :-1] = np.round(s[..., :-1] * s[..., -1:] / 65535)
+    return out
+
+
+def reference_premultiplied(stored: np.ndarray, weights) -> np.ndarray:
+    """Luminance of associated-alpha samples, pixel by pixel: colour / alpha, decoded, x alpha."""
+    h, w, _ = stored.shape
+    out = np.zeros((h, w))
+    for r in range(h):
+        for col in range(w):
+            *colour, alpha = (int(v) for v in stored[r, col])
+            if alpha:
+                straight = (min(c / alpha, 1.0) for c in colour)
+                lum = sum(wt * eotf(v) for wt, v in zip(weights, straight, strict=True))
+                out[r, col] = lum * alpha / 65535
+    return out
+
+
+def with_edge_alphas(stored: np.ndarray) -> np.ndarray:
+    """Samples whose first pixels have alpha 0 (with and without colour) and 1 and full."""
+    stored = stored.copy()
+    stored[0, 0, :] = 0
+    stored[0, 1, :-1], stored[0, 1, -1] = 500, 0  # colour where nothing shows: still black
+    stored[0, 2, :-1], stored[0, 2, -1] = 1, 1  # colour = alpha: white at the faintest alpha
+    stored[0, 3, -1] = 65535
+    return stored
+
+
+@pytest.mark.parametrize(("order", "deflate", "rows"), LAYOUTS)
+def test_16bit_grey_and_alpha_tiff_keeps_every_bit(tmp_path, order, deflate, rows):
+    samples = random_samples(2)
+    path = tmp_path / "la.tif"
+    write_tiff(path, samples, order, deflate, rows)
+    got = load_image(path)
+    np.testing.assert_allclose(got, reference(samples, weights=(1.0,)), rtol=0, atol=1e-12)
+    # Read without leaving Pillow's table of TIFF layouts changed: alone, it still refuses.
+    with pytest.raises(UnidentifiedImageError):
+        Image.open(path)
+    assert not any(key[4] == (16, 16) for key in TiffImagePlugin.OPEN_INFO)
+
+
+@pytest.mark.parametrize(("order", "deflate", "rows"), LAYOUTS)
+def test_16bit_grey_tiff_with_associated_alpha_is_divided_out(tmp_path, order, deflate, rows):
+    stored = with_edge_alphas(premultiplied(random_samples(2, seed=11)))
+    path = tmp_path / "la_assoc.tif"
+    write_tiff(path, stored, order, deflate, rows, extra_samples=1)
+    expected = reference_premultiplied(stored, (1.0,))
+    got = load_image(path)
+    # Straight colour rounded to a 16-bit code: half a code times the curve's slope (<2.3).
+    np.testing.assert_allclose(got, expected, rtol=0, atol=2e-5)
+    assert got[0, 1] == 0.0 and got[0, 2] == pytest.approx(1 / 65535, abs=1e-12)
+
+
+def test_16bit_grey_tiff_with_unspecified_second_sample_ignores_it(tmp_path):
+    samples = random_samples(2)
+    path = tmp_path / "lx.tif"
+    write_tiff(path, samples, ">", deflate=True, extra_samples=0)
+    np.testing.assert_allclose(
+        load_image(path), reference(samples[..., :1], weights=(1.0,)), rtol=0, atol=1e-12
+    )
+
+
+def test_16bit_grey_and_alpha_tiff_orientation_turns_it_upright(tmp_path):
+    samples = random_samples(2, shape=(6, 10))
+    path = tmp_path / "turned.tif"
+    write_tiff(path, samples, "<", deflate=True, orientation=8)
+    expected = np.rot90(reference(samples, weights=(1.0,)), 1)
+    np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=1e-12)
+
+
+@needs_lcms
+def test_16bit_grey_and_alpha_tiff_with_gray_profile(tmp_path):
+    samples = random_samples(2)
+    path = tmp_path / "la_icc.tif"
+    write_tiff(path, samples, ">", icc=gray_icc(curv_gamma(1.8)))
+    expected = reference(samples, decode=lambda v: v ** gamma_of(1.8), weights=(1.0,))
+    np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=3e-5)
+
+
+@pytest.mark.parametrize(("order", "deflate", "rows"), LAYOUTS)
+def test_16bit_rgb_tiff_with_associated_alpha_is_divided_out(tmp_path, order, deflate, rows):
+    stored = with_edge_alphas(premultiplied(random_samples(4, seed=12)))
+    path = tmp_path / "rgba_assoc.tif"
+    write_tiff(path, stored, order, deflate, rows, extra_samples=1)
+    with Image.open(path) as im:  # what Pillow alone gives: 8 bits
+        assert im.mode == "RGBA"
+    expected = reference_premultiplied(stored, (0.2126, 0.7152, 0.0722))
+    got = load_image(path)
+    np.testing.assert_allclose(got, expected, rtol=0, atol=2e-5)
+    assert got[0, 1] == 0.0 and got[0, 2] == pytest.approx(1 / 65535, abs=1e-12)
+
+
+def test_16bit_rgb_tiff_with_associated_alpha_inverts_the_straight_colour(tmp_path):
+    # Half-transparent mid grey: straight 0.5 inverts to 0.5, then composites at half.
+    stored = np.array([[[16384, 16384, 16384, 32768], [0, 0, 0, 32768]]], np.uint16)
+    path = tmp_path / "inv.tif"
+    write_tiff(path, stored, extra_samples=1)
+    got = load_image(path, invert=True)[0]
+    np.testing.assert_allclose(got, [eotf(0.5) * 32768 / 65535, 32768 / 65535], atol=2e-5)
+
+
+def naive_cmyk_luminance(cmyk: np.ndarray) -> np.ndarray:
+    """Pillow's conversion without a profile, R = (1 - C)(1 - K), in floats, then Rec. 709."""
+    ink = cmyk / 65535.0
+    rgb = (1.0 - ink[..., :3]) * (1.0 - ink[..., 3:])
+    return np.vectorize(eotf)(rgb) @ np.array([0.2126, 0.7152, 0.0722])
+
+
+@pytest.mark.parametrize(("order", "deflate", "rows"), LAYOUTS)
+def test_16bit_cmyk_tiff_without_profile_keeps_every_bit(tmp_path, order, deflate, rows):
+    cmyk = random_samples(4, seed=13)
+    cmyk[0, :4] = (0, 0, 0, 1000)  # black ink 1000 and 1001 codes: one 8-bit code
+    cmyk[0, 1, 3] = 1001
+    path = tmp_path / "cmyk.tif"
+    write_tiff(path, cmyk, order, deflate, rows, photometric=5)
+    with Image.open(path) as im:  # what Pillow alone gives: 8 bits
+        assert im.mode == "CMYK"
+    got = load_image(path)
+    np.testing.assert_allclose(got, naive_cmyk_luminance(cmyk), rtol=0, atol=2e-5)
+    assert got[0, 0] > got[0, 1]
+
+
+@needs_lcms
+def test_16bit_cmyk_tiff_with_profile_converts_its_high_bytes(tmp_path):
+    k = np.arange(0, 65536, 4369, dtype=np.uint16)  # 16 steps, each 17 8-bit codes
+    cmyk = np.zeros((3, len(k), 4), np.uint16)
+    cmyk[..., 3] = k
+    cmyk[1, :, 3] |= 0x7F  # low bytes that the 8-bit conversion does not see
+    path = tmp_path / "cmyk_icc.tif"
+    write_tiff(path, cmyk, ">", deflate=True, photometric=5, icc=cmyk_k_only_icc())
+    # The profile makes L* = 100 (1 - K); CIE 1976 L* back to relative luminance Y.
+    lstar = 100.0 * (1.0 - (k >> 8) / 255.0)
+    expected = np.where(lstar > 8.0, ((lstar + 16.0) / 116.0) ** 3, lstar / 903.3)
+    got = load_image(path)
+    np.testing.assert_allclose(got, np.repeat(expected[None], 3, 0), atol=0.005)
+    assert np.abs(got[0] - naive_cmyk_luminance(cmyk[:1])[0]).max() > 0.02
+    # Through the same 8-bit path as an 8-bit CMYK file of the high bytes.
+    eight = tmp_path / "cmyk8.tif"
+    Image.frombytes("CMYK", (len(k), 3), (cmyk >> 8).astype(np.uint8).tobytes()).save(
+        eight, icc_profile=cmyk_k_only_icc()
+    )
+    np.testing.assert_array_equal(got, load_image(eight))
