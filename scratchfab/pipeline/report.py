@@ -1001,7 +1001,8 @@ def gcode_statistics(path: Path) -> dict[str, Any]:
     try:
         sent: int | str = len(load_program(path).blocks)
     except ConfigError as exc:
-        sent = f"none: stream refuses the file ({exc})"
+        # the file's name alone: the page names no absolute path (the folder may move)
+        sent = f"none: stream refuses the file ({str(exc).replace(str(path), path.name)})"
     words = [ln.split(";")[0].split("(")[0].upper() for ln in lines]
     extent = {
         k.removesuffix("_mm").upper(): f"{v[0]:g} .. {v[1]:g} mm"
