@@ -30,8 +30,11 @@ move or (on long tours) fewer than one per ``SETTLED_ITEMS_PER_MOVE`` items.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import Any, Literal
 
 import numpy as np
+from numba.core.caching import NullCache
 
 from scratchfab.compiled import njit
 
@@ -621,3 +624,23 @@ def greedy_steps(
         step += 1
         cur = nxt ^ 1
     return step, cur
+
+
+def compile_state(functions: Sequence[Any]) -> Literal["ready", "once", "each run", "unknown"]:
+    """Whether numba compiles any of ``functions`` (compiled here) before it runs.
+
+    Returns:
+        "ready": each is compiled in this process already, or numba's cache holds code of
+        it for its current source and numba version (read from the cache's index files,
+        nothing compiled); "once": one compiles, then is cached; "each run": one
+        compiles, and numba cannot cache it here; "unknown": numba's cache did not answer
+        (its internals changed, or an index unreadable).
+    """
+    pending = [f for f in functions if not f.signatures]
+    if any(isinstance(getattr(f, "_cache", None), NullCache) for f in pending):
+        return "each run"
+    try:
+        cached = all(f._cache._cache_file._load_index() for f in pending)
+    except Exception:  # numba says so itself when it compiles, if it matters
+        return "unknown"
+    return "ready" if cached else "once"

@@ -108,6 +108,23 @@ class OrderResult:
     kept_input: bool
 
 
+def compile_note(options: OrderOptions) -> str | None:
+    """The line to say before ordering with ``options`` when numba compiles first, else None.
+
+    The compiled steps that ordering runs (greedy, and the local search unless
+    ``passes`` is 0) compile once after installing or upgrading, in about 10 s, and are
+    then cached (:func:`~scratchfab.toolpath.local_search.compile_state`).
+    """
+    from scratchfab.toolpath.local_search import compile_state, greedy_steps, improve
+
+    state = compile_state([greedy_steps, *([improve] if options.passes > 0 else [])])
+    if state == "once":
+        return "compiling the ordering code once (about 10 s) ..."
+    if state == "each run":
+        return "compiling the ordering code (about 10 s; numba cannot cache it here) ..."
+    return None
+
+
 def _floats(value: Any, name: str) -> np.ndarray:
     """``value`` as a float64 array; a ValueError naming ``name`` when it holds no numbers."""
     try:

@@ -18,7 +18,7 @@ from scratchfab.toolpath.inputs import (
     profile_changes,
     record_inputs,
 )
-from scratchfab.toolpath.order import OrderOptions
+from scratchfab.toolpath.order import OrderOptions, compile_note
 from scratchfab.toolpath.plan import (
     Toolpath,
     fit_advice,
@@ -75,6 +75,8 @@ def run_toolpath(
     design = load_design(design_file, require_views=False)
     scratches = load_scratches(scratch_file, design.scratch, design.board)
     say(f"ordering {len(scratches)} scratches for {profile.name} ...")
+    if (note := compile_note(options or OrderOptions())) is not None:
+        say(note)
     result = plan_toolpath(scratches, design.board, profile, design.scratch, options)
     lost = partial_text(result.stats)
     if lost is not None:
