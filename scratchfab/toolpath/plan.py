@@ -126,11 +126,28 @@ def fit_advice(profile: MachineProfile, board_size: tuple[float, float]) -> str:
     place = profile.board
     corner = place.origin_text
     turned = f" (turned by rotation_deg = {place.rotation_deg})" if place.rotation_deg else ""
+    dec = profile.gcode.decimals
     return (
         f"set the profile's [board] offset_mm = {_offset_text(offset)}, where the "
         f"board's {corner}{turned} then lies: the whole board fits with any offset_mm "
-        f"from X {x0:g} to {x1:g} and Y {y0:g} to {y1:g}"
+        f"from X {_range_text(x0, x1, dec)} and Y {_range_text(y0, y1, dec)}"
     ) + _copy_advice(profile)
+
+
+def _range_text(lo: float, hi: float, decimals: int) -> str:
+    """``-238.271 to -61.729``: the range ``[lo, hi]``, its ends rounded inward to ``decimals``.
+
+    Each end as written lies in the range (rounded to nearest, one could lie outside it,
+    farther than the toolpath stage keeps on the edge); float noise below 1e-6 of a unit
+    is not rounded inward. Where no value with ``decimals`` lies inside, the ends to 6
+    decimals.
+    """
+    unit = 10.0**-decimals
+    first = math.ceil(round(lo / unit, 6)) * unit
+    last = math.floor(round(hi / unit, 6)) * unit
+    if first > last:
+        first, last, decimals = lo, hi, 6
+    return f"{gcode_number(first, decimals)} to {gcode_number(last, decimals)}"
 
 
 def _copy_advice(profile: MachineProfile) -> str:
