@@ -64,7 +64,7 @@ def test_a_cold_cache_is_announced_once(tmp_path):
     assert run.stdout.strip() == f"None|{ONCE}", run.stdout + run.stderr
 
 
-def test_compiled_in_process_is_ready_and_uncached_compiles_each_run():
+def test_compiled_in_process_is_ready_uncached_compiles_each_run_plain_is_unknown():
     def twice(x: int) -> int:
         return 2 * x
 
@@ -73,3 +73,5 @@ def test_compiled_in_process_is_ready_and_uncached_compiles_each_run():
     assert uncached(3) == 6
     assert compile_state([uncached]) == "ready"
     assert compile_state([]) == "ready"
+    # not numba's (NUMBA_DISABLE_JIT leaves plain functions): nothing to announce
+    assert compile_state([twice]) == "unknown"

@@ -636,11 +636,11 @@ def compile_state(functions: Sequence[Any]) -> Literal["ready", "once", "each ru
         compiles, and numba cannot cache it here; "unknown": numba's cache did not answer
         (its internals changed, or an index unreadable).
     """
-    pending = [f for f in functions if not f.signatures]
-    if any(isinstance(getattr(f, "_cache", None), NullCache) for f in pending):
-        return "each run"
     try:
+        pending = [f for f in functions if not f.signatures]
+        if any(isinstance(f._cache, NullCache) for f in pending):
+            return "each run"
         cached = all(f._cache._cache_file._load_index() for f in pending)
-    except Exception:  # numba says so itself when it compiles, if it matters
+    except Exception:  # NUMBA_DISABLE_JIT, numba's internals changed, an unreadable index
         return "unknown"
     return "ready" if cached else "once"
