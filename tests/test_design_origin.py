@@ -133,3 +133,36 @@ def test_a_view_renamed_in_the_jobs_design_toml_is_headed_by_the_picture_it_has_
             ("sol", str(board / "sol.png")),
             ("moon", str(board / "moon.png")),
         ]
+
+
+def test_a_copied_job_reruns_from_its_own_board_pictures(pictures, tmp_path, capsys):
+    """A copy's design.toml names the original's pictures (SPEC 6, absolute paths); a rerun
+    from the copy reads the copy's own, whether the original is gone or designed anew."""
+    import shutil
+
+    import numpy as np
+
+    job = tmp_path / "job"
+    quick = [str(p) for p in pictures] + ["--board", "30x30", "--count", "40", "--resolution", "12"]
+    main(["design", *quick, "--out", str(job)])
+    copy = tmp_path / "copy"
+    shutil.copytree(job, copy)
+    before = {v: np.load(copy / "design" / "targets" / f"{v}.npy") for v in ("sun", "moon")}
+
+    # the original designed anew (inverted): the copy must not pick that up
+    main(["design", str(job / "design" / "design.toml"), "--invert", "--out", str(job)])
+    main(["design", str(copy / "design" / "design.toml"), "--out", str(copy)])
+    capsys.readouterr()
+    for view, target in before.items():
+        assert np.array_equal(np.load(copy / "design" / "targets" / f"{view}.npy"), target,
+                              equal_nan=True)  # fmt: skip
+    comment = _comment(copy / "design" / "design.toml")
+    assert f"# sun: {copy / 'design' / 'board' / 'sun.png'}" in comment
+
+    # the original gone: the rerun still works from the copy's pictures
+    shutil.rmtree(job)
+    assert main(["design", str(copy / "design" / "design.toml"), "--out", str(copy)]) in (0, None)
+    capsys.readouterr()
+    for view, target in before.items():
+        assert np.array_equal(np.load(copy / "design" / "targets" / f"{view}.npy"), target,
+                              equal_nan=True)  # fmt: skip

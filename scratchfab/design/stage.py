@@ -48,7 +48,13 @@ from scratchfab.model.design import (
     auto_fov,
     design_from_mapping,
 )
-from scratchfab.model.job import DesignFolder, JobLayout, carry_optimize_record, earlier_design
+from scratchfab.model.job import (
+    DesignFolder,
+    JobLayout,
+    carry_optimize_record,
+    earlier_design,
+    own_board_pictures,
+)
 from scratchfab.model.schema import load_toml
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.pipeline.config import StageTables, parse_stage_tables, resolve_machine_ref
@@ -132,7 +138,7 @@ def load_source(
         for view in data["views"]:
             if isinstance(view, dict):
                 view["resolution"] = list(resolution)
-    design = design_from_mapping(data, str(file), file.resolve().parent)
+    design = own_board_pictures(design_from_mapping(data, str(file), file.resolve().parent))
     tables = parse_stage_tables(data, str(file))
     machine = resolve_machine_ref(tables.toolpath.machine, file.resolve())
     return design, replace(tables, toolpath=replace(tables.toolpath, machine=machine))

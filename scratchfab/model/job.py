@@ -435,18 +435,32 @@ def redesigned_note(job: str | Path) -> str | None:
 def load_job_design(design_file: str | Path) -> Design:
     """A job's ``design/design.toml``, each view's target read from the job's own copy.
 
-    The design stage writes every view's board picture to ``design/board/<view>.png``
-    and records its absolute path (SPEC section 6). A job that was moved or copied since
-    would read the pictures at the old place, or none; this reads the ones beside the file.
-
     Raises:
         ConfigError: Naming the file and the key on any mistake.
     """
-    file = Path(design_file)
-    design = load_design(file)
-    folder = DesignFolder(file.parent)
+    return own_board_pictures(load_design(Path(design_file)))
+
+
+def own_board_pictures(design: Design) -> Design:
+    """``design`` with each target in some job's ``design/board/`` read from the file's own.
+
+    A job's ``design.toml`` records its board pictures by absolute path (SPEC section 6);
+    in a copy of the job they name the original's, which may be gone or designed anew
+    since. Where the file is itself a job's ``design/design.toml`` with its own ``board/``
+    picture of that name, as a copied job has, that copy is the target. A target anywhere
+    else stays as the user named it.
+    """
     views = []
     for view in design.views:
-        own = folder.board_png(view.name).resolve()
-        views.append(replace(view, target=str(own)) if own.is_file() else view)
+        path = design.target_path(view)
+        own = design.base_dir / "board" / path.name if path is not None else None
+        in_a_job = (
+            path is not None
+            and path.parent.name == "board"
+            and path.parent.parent.name == "design"
+            and design.base_dir.name == "design"
+        )
+        if own is not None and in_a_job and own.is_file() and own.resolve() != path:
+            view = replace(view, target=str(own.resolve()))
+        views.append(view)
     return design.with_views(tuple(views))
