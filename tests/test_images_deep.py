@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import struct
+import tracemalloc
 import zlib
 from pathlib import Path
 
@@ -412,3 +413,27 @@ def test_lut_profile_keeps_alpha_and_16bit_colour_key(tmp_path):
     expected = (deep[0] / 65535.0) @ LUMA
     expected[0] = 0.0  # the key colour: transparent, and only it
     np.testing.assert_allclose(load_image(tmp_path / "k.png")[0], expected, rtol=0, atol=5e-3)
+
+
+def test_16bit_png_is_read_without_spare_copies(tmp_path):
+    # Python-visible memory at the peak: the file's bytes (6 bytes a pixel, incompressible)
+    # and the 16-bit samples (6) with two 8-bit planes (3 each) while decoding, then the
+    # samples, the luminance (8) and a few rows in hand. A spare copy of the luminance, or
+    # the file's bytes kept past decoding, would pass the budget.
+    h, w = 4000, 250
+    samples = random_samples(3, shape=(h, w))
+    rows = samples.astype(">u2").reshape(h, -1).view(np.uint8)
+    body = np.concatenate([np.zeros((h, 1), np.uint8), rows], axis=1).tobytes()  # filter None
+    head = _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+    idat = _chunk(b"IDAT", zlib.compress(body, 1))
+    path = tmp_path / "big.png"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + head + idat + _chunk(b"IEND", b""))
+    expected = load_image(path)
+    tracemalloc.start()
+    try:
+        got = load_image(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_array_equal(got, expected)
+    assert peak < path.stat().st_size + h * w * 14

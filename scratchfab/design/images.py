@@ -100,11 +100,12 @@ def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
     if not data:
         raise ConfigError(f"{path}: empty file, expected an image")
     try:
-        with warnings.catch_warnings():
+        # Closed on the way out: Pillow keeps the stream it is given, and with it the bytes.
+        with warnings.catch_warnings(), io.BytesIO(data) as stream:
             # Pillow warns of what it skips (a corrupt EXIF block, a tag past the end) and
             # of large images; the pixels decode or the file is refused below, in one line.
             warnings.simplefilter("ignore")
-            image = _pillow_open(data)
+            image = _pillow_open(stream)
             read = _deep_read(image)  # before load(), which drops the tiles
             if read is not None:
                 image.tile = read.high
@@ -193,23 +194,25 @@ _GREY_AND_ALPHA_16 = {
 _OPEN_INFO_LOCK = threading.Lock()
 
 
-def _pillow_open(data: bytes) -> ImageFile.ImageFile:
+def _pillow_open(stream: io.BytesIO) -> ImageFile.ImageFile:
     """The file opened by Pillow (not loaded), 16-bit grey-and-alpha TIFFs included.
 
     Pillow refuses those; they are opened with its table of TIFF layouts extended for the
     call (under a lock: the table is Pillow's, shared by every thread).
     """
     try:
-        return Image.open(io.BytesIO(data))
+        return Image.open(stream)
     except UnidentifiedImageError:
-        if data[:4] not in _TIFF_MAGIC:
+        stream.seek(0)
+        if stream.read(4) not in _TIFF_MAGIC:
             raise
+    stream.seek(0)
     table = TiffImagePlugin.OPEN_INFO
     with _OPEN_INFO_LOCK:
         added = [key for key in _GREY_AND_ALPHA_16 if key not in table]
         table.update({key: _GREY_AND_ALPHA_16[key] for key in added})
         try:
-            return Image.open(io.BytesIO(data))
+            return Image.open(stream)
         finally:
             for key in added:
                 del table[key]
@@ -850,4 +853,4 @@ def load_image(path: str | Path, invert: bool = False) -> np.ndarray:
         lin = invert_picture(lin)
     if alpha is not None:
         lin *= alpha
-    return np.clip(lin, 0.0, 1.0)
+    return np.clip(lin, 0.0, 1.0, out=lin)
