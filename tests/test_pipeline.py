@@ -480,8 +480,8 @@ def test_real_port_cuts_a_board_the_envelope_cuts_short_only_when_asked(
     path = write_pipeline(
         tmp_path,
         edits={
-            'machine = "grbl-3018-diamond"': 'machine = "overhang.toml"',
-            'name = "tiny"': 'name = "tiny"\nforce = true',  # plans the part it reaches
+            # plans the part it reaches
+            'machine = "grbl-3018-diamond"': 'machine = "overhang.toml"\nforce = true',
         },
     )
     job = tmp_path / "job"
@@ -757,6 +757,14 @@ def test_until_and_from(tmp_path):
             ("[toolpath]\n", "[toolpath]\nseed = 4294967296\n"),
             "toolpath.seed: expected a value in [0, 4294967296), got 4294967296",
         ),
+        (
+            ("[toolpath]\n", '[toolpath]\nforce = "yes"\n'),
+            "toolpath.force: expected true or false, got 'yes'",
+        ),
+        (
+            ("[toolpath]\n", "[toolpath]\nforced = true\n"),
+            "toolpath: unknown key 'forced' (did you mean 'force'?)",
+        ),
     ],
 )
 def test_pipeline_errors_are_one_line(tmp_path, capsys, edit, message):
@@ -984,12 +992,12 @@ def test_other_ports_load(tmp_path, port):
 @pytest.mark.parametrize(("width", "warned"), [(30.0, False), (400.0, True)])
 def test_a_board_the_machine_cannot_reach_whole_is_said_before_design(tmp_path, width, warned):
     """The 3018's envelope is 300 x 180 mm: a 400 mm board is said at the start, and the
-    toolpath stage (under ``force``) then finds scratches outside it, as the warning said."""
+    toolpath stage (under ``[toolpath] force``) then finds scratches outside it, as the warning said."""
     path = write_pipeline(
         tmp_path,
         edits={
             "width_mm = 30.0": f"width_mm = {width}",
-            'name = "tiny"': 'name = "tiny"\nforce = true',
+            'machine = "grbl-3018-diamond"': 'machine = "grbl-3018-diamond"\nforce = true',
         },
     )
     said: list[str] = []
@@ -1148,7 +1156,7 @@ def test_a_hand_edited_design_toml_in_a_pipeline_job_is_named_with_where_to_edit
 def test_a_board_the_envelope_cuts_short_stops_the_run_at_toolpath_with_the_offset_that_fits(
     tmp_path,
 ):
-    """Without ``[pipeline] force`` a partial board is refused at toolpath, as the CLI's
+    """Without ``[toolpath] force`` a partial board is refused at toolpath, as the CLI's
     ``toolpath`` refuses it without ``--force``: the start's warning says so, the refusal
     names the offset_mm that fits, nothing is planned, and that offset cuts every scratch."""
     from scratchfab.bundled import bundled_dir
@@ -1163,9 +1171,9 @@ def test_a_board_the_envelope_cuts_short_stops_the_run_at_toolpath_with_the_offs
     said: list[str] = []
     with pytest.raises(ScratchfabError) as info:
         run_pipeline(load_pipeline(path), job, until="toolpath", say=said.append)
-    assert "will stop there if a scratch lies beyond it, unless [pipeline] force = true" in said[0]
+    assert "will stop there if a scratch lies beyond it, unless [toolpath] force = true" in said[0]
     refusal = str(info.value)
-    assert "or give [pipeline] force = true to plan only the part it reaches" in refusal
+    assert "or give [toolpath] force = true to plan only the part it reaches" in refusal
     assert not (job / "toolpath" / "toolpath.json").exists()
     assert (job / "optimize" / "scratches.csv").is_file()  # the work before it is kept
     (offset,) = re.findall(r"offset_mm = (\[[-0-9.]+, [-0-9.]+\])", refusal)

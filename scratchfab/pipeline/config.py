@@ -22,6 +22,10 @@ if TYPE_CHECKING:
     from scratchfab.machine.profile import MachineProfile
 
 STAGES = ("design", "optimize", "verify", "toolpath", "export", "stream")
+#: The key that lets the toolpath stage plan a board the envelope cuts short (a partial board).
+TOOLPATH_FORCE = "[toolpath] force = true"
+#: The design stage's override, which also allows a partial board where TOOLPATH_FORCE is not given.
+PIPELINE_FORCE = "[pipeline] force = true"
 
 
 @dataclass(frozen=True)
@@ -34,8 +38,10 @@ class PipelineOptions:
             ``--out`` (relative to the current directory) overrides.
         fit: How target images meet the board's aspect ("contain" or "cover").
         seed: Seed of the initial layout (as ``scratchfab design --seed``).
-        force: Go on when the feasibility check fails, and plan a board the machine's
-            envelope cuts short (only the part it reaches).
+        force: Go on when the feasibility check fails or a target is black (as
+            ``scratchfab design --force``). Where ``[toolpath] force`` is not given it
+            also plans a board the machine's envelope cuts short, as it did before that
+            key (:meth:`Pipeline.partial_key`), with a note naming the key.
     """
 
     name: str = "scratchfab job"
@@ -70,12 +76,16 @@ class ToolpathOptions:
         passes: Cap on local-search work, in visits per stroke.
         kicks: Perturbation trials in all (None: the default per stroke, capped).
         seed: Seed of the perturbations.
+        force: Plan a board the machine's envelope cuts short: only the part it reaches
+            (as ``scratchfab toolpath --force``). None (not given): ``[pipeline] force``'s
+            value, as an older file meant it.
     """
 
     machine: str = "grbl-3018-diamond"
     passes: int = field(default=50, metadata=spec(ge=0))
     kicks: int | None = field(default=None, metadata=spec(ge=0))
     seed: int = field(default=0, metadata=spec(ge=0, lt=2**32))
+    force: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -221,6 +231,16 @@ class Pipeline:
         if self.pipeline.out is not None:
             return self.path.parent / self.pipeline.out
         return Path(f"job-{self.path.stem}")
+
+    def partial_key(self) -> str | None:
+        """The key that lets the toolpath stage plan a board the envelope cuts short, or None.
+
+        ``[toolpath] force`` where given, else ``[pipeline] force`` (an older file's key for
+        both the design's refusals and a partial board).
+        """
+        if self.toolpath.force is not None:
+            return TOOLPATH_FORCE if self.toolpath.force else None
+        return PIPELINE_FORCE if self.pipeline.force else None
 
     def machine_ref(self) -> str:
         """The toolpath machine as named: a bundled name, or its path (resolved)."""

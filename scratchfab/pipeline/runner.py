@@ -23,7 +23,14 @@ from scratchfab.console import Confirm, Say
 from scratchfab.errors import ConfigError, Interrupted, ScratchfabError
 from scratchfab.fileio import try_lock
 from scratchfab.model.job import JobLayout
-from scratchfab.pipeline.config import STAGES, Pipeline, design_options
+from scratchfab.pipeline.config import (
+    PIPELINE_FORCE,
+    STAGES,
+    TOOLPATH_FORCE,
+    Pipeline,
+    ToolpathOptions,
+    design_options,
+)
 from scratchfab.pipeline.manifest import (
     MANIFEST_NAME,
     Legacy,
@@ -76,7 +83,30 @@ class RunResult:
 
 
 #: What lets the toolpath stage plan a board the machine's envelope cuts short.
-PARTIAL_OVERRIDE = "[pipeline] force = true"
+PARTIAL_OVERRIDE = TOOLPATH_FORCE
+
+
+def partial_by_pipeline_force(path: Path) -> str:
+    """The note of a partial board planned under ``[pipeline] force`` alone (its older meaning)."""
+    return (
+        f"note: the part the machine reaches was planned because of {PIPELINE_FORCE}, which "
+        f"also meant that before a partial board had its own key; set [toolpath] force in "
+        f"{path}: true to keep planning it, false to refuse a partial board"
+    )
+
+
+def _toolpath_options(options: ToolpathOptions, machine: bool) -> dict[str, Any]:
+    """``[toolpath]`` as the toolpath stage's fingerprint records it.
+
+    ``force`` only where given: a job planned before the key keeps its fingerprint (and
+    ``[pipeline] force``, its older meaning, is in the design stage's); ``machine`` only
+    where ``machine`` (a format-1 fingerprint named it; format 2 takes the profile's bytes).
+    """
+    return {
+        k: v
+        for k, v in asdict(options).items()
+        if not (k == "force" and v is None) and (machine or k != "machine")
+    }
 
 
 class _Stages:
@@ -110,7 +140,7 @@ class _Stages:
         if stage == "toolpath":
             files = [layout.design.design_toml, layout.optimized_scratches]
             # the profile by its bytes: a bundled name and a copy of its file are one machine
-            options = {k: v for k, v in asdict(pipe.toolpath).items() if k != "machine"}
+            options = _toolpath_options(pipe.toolpath, machine=False)
             return files, {"machine": Path(pipe.profile.source)}, options
         if stage == "export":
             return [layout.toolpath_json], {}, asdict(pipe.export)
@@ -160,7 +190,7 @@ class _Stages:
         if stage == "design":  # format 1 took the tables whole
             options = {"tables": self.pipe.design_tables}
         elif stage == "toolpath":  # ... and the machine as named
-            options = asdict(self.pipe.toolpath)
+            options = _toolpath_options(self.pipe.toolpath, machine=True)
         elif stage == "verify":  # ... and no machine
             sources = {}
         return lambda recorded: matches_format_1(recorded, files, sources, options, self.job)
@@ -290,17 +320,21 @@ class _Stages:
 
     def _run_toolpath(self) -> Sequence[str]:
         from scratchfab.toolpath import OrderOptions
+        from scratchfab.toolpath.plan import partial_text
         from scratchfab.toolpath.stage import run_toolpath_job
 
         t = self.pipe.toolpath
         options = OrderOptions(passes=t.passes, kicks=t.kicks, seed=t.seed)
-        run_toolpath_job(
+        key = self.pipe.partial_key()
+        plan = run_toolpath_job(
             self.job,
             self.pipe.profile,
             options,
             say=self._say_in,
-            refuse_partial=None if self.pipe.pipeline.force else PARTIAL_OVERRIDE,
+            refuse_partial=None if key else PARTIAL_OVERRIDE,
         )
+        if key == PIPELINE_FORCE and partial_text(plan.stats) is not None:
+            self._say_in(partial_by_pipeline_force(self.pipe.path))
         return self._relative(self.layout.toolpath_json, self.layout.toolpath_preview)
 
     def _run_export(self) -> Sequence[str]:
@@ -415,7 +449,7 @@ def _board_overhang(pipe: Pipeline) -> str | None:
     """The warning for a board the machine cannot reach whole, or None when it can.
 
     The toolpath stage refuses a board whose scratches the envelope cuts short (unless
-    ``[pipeline] force``), and one wholly outside it; said before design and optimize run,
+    :meth:`Pipeline.partial_key`), and one wholly outside it; said before design and optimize run,
     a person can fix the board or the profile before minutes of work. Scratches keep
     ``[board] margin_mm`` inside the board's edges, so a board that overhangs by less says
     nothing.
@@ -448,10 +482,11 @@ def _board_overhang(pipe: Pipeline) -> str | None:
             f"{where} lies wholly outside {envelope}: the toolpath stage will refuse it; "
             f"{fix} ({kept})"
         )
+    key = pipe.partial_key()
+    older = ", [toolpath] force not given: set it to false to refuse it" * (key == PIPELINE_FORCE)
     when = (
-        "will leave out the scratches beyond it and clip those across its edge "
-        f"({PARTIAL_OVERRIDE})"
-        if pipe.pipeline.force
+        f"will leave out the scratches beyond it and clip those across its edge ({key}{older})"
+        if key
         else f"will stop there if a scratch lies beyond it, unless {PARTIAL_OVERRIDE}, "
         "which cuts only the part it reaches"
     )
