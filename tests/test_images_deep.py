@@ -129,7 +129,7 @@ def write_tiff(
         257: (4, [h]),
         258: (3, [samples.dtype.itemsize * 8] * c),
         259: (3, [8 if deflate else 1]),
-        262: (3, [photometric or (2 if c >= 3 else 1)]),
+        262: (3, [(2 if c >= 3 else 1) if photometric is None else photometric]),
         273: (4, [0] * n),
         277: (3, [c]),
         278: (4, [rows_per_strip]),

@@ -160,3 +160,25 @@ def test_16bit_cmyk_tiff_with_profile_converts_its_high_bytes(tmp_path):
         eight, icc_profile=cmyk_k_only_icc()
     )
     np.testing.assert_array_equal(got, load_image(eight))
+
+
+@pytest.mark.parametrize("deflate", [False, True])
+def test_16bit_white_is_zero_grey_tiff_is_inverted_like_8bit(tmp_path, deflate):
+    # PhotometricInterpretation 0: code 0 is white. Pillow inverts 8-bit such files itself.
+    codes = np.array([[[0], [10], [200], [255]]], np.uint8)
+    write_tiff(tmp_path / "w8.tif", codes, "<", deflate, photometric=0)
+    write_tiff(tmp_path / "w16.tif", codes.astype(np.uint16) * 257, "<", deflate, photometric=0)
+    expected = [eotf(1.0 - c / 255) for c in codes.ravel()]
+    np.testing.assert_allclose(load_image(tmp_path / "w8.tif")[0], expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(load_image(tmp_path / "w16.tif")[0], expected, rtol=0, atol=1e-12)
+
+
+def test_16bit_white_is_zero_grey_and_alpha_tiff_inverts_only_the_grey(tmp_path):
+    samples = random_samples(2)
+    path = tmp_path / "wla.tif"
+    write_tiff(path, samples, ">", deflate=True, photometric=0)
+    inverted = samples.copy()
+    inverted[..., 0] = 65535 - samples[..., 0]
+    np.testing.assert_allclose(
+        load_image(path), reference(inverted, weights=(1.0,)), rtol=0, atol=1e-12
+    )

@@ -24,7 +24,8 @@ the default):
 second time for the low bytes; grey-with-alpha TIFFs, which Pillow refuses, are opened
 with its table of TIFF layouts extended for the call. EXIF orientation turns them as it
 turns the image. A TIFF's associated (premultiplied) alpha is divided out of the 16-bit
-colour where alpha > 0. 16-bit CMYK without a profile becomes RGB as Pillow converts
+colour where alpha > 0, and 16-bit WhiteIsZero grey is inverted (Pillow inverts only
+8-bit grey). 16-bit CMYK without a profile becomes RGB as Pillow converts
 CMYK, ``(1 - C)(1 - K)``, at 16 bits; with one, its high bytes go through littleCMS as
 8-bit CMYK (Pillow's ImageCms has no 16-bit CMYK mode). RGB pixels with a
 matrix/TRC profile (sRGB, Adobe RGB, Display P3, ProPhoto), 8- or 16-bit, are decoded
@@ -180,15 +181,17 @@ _DEEP_RAWMODES = {
     },
 }
 
-#: TIFF tags: BitsPerSample, ExtraSamples (0 unspecified, 1 associated alpha, 2 alpha).
-_BITS_PER_SAMPLE, _EXTRA_SAMPLES = 258, 338
+#: TIFF tags: BitsPerSample, PhotometricInterpretation (0 WhiteIsZero, 1 BlackIsZero),
+#: ExtraSamples (0 unspecified, 1 associated alpha, 2 alpha).
+_BITS_PER_SAMPLE, _PHOTOMETRIC, _EXTRA_SAMPLES = 258, 262, 338
 _TIFF_MAGIC = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
 #: Pillow's TIFF format keys (byte order, photometric, sample format, fill order, bits,
 #: extra samples) for 16-bit grey with a second sample, which it does not list: read as
 #: "RGBA" pixels of 4 stored bytes, which :func:`_deep_samples` pairs up.
 _GREY_AND_ALPHA_16 = {
-    (prefix, 1, (1,), 1, (16, 16), (extra,)): ("RGBA", "RGBA")
+    (prefix, photometric, (1,), 1, (16, 16), (extra,)): ("RGBA", "RGBA")
     for prefix in (b"II", b"MM")
+    for photometric in (0, 1)
     for extra in (0, 1, 2)
 }
 _OPEN_INFO_LOCK = threading.Lock()
@@ -812,6 +815,8 @@ def load_image(path: str | Path, invert: bool = False) -> np.ndarray:
     file = Path(path)
     image, deep = _open(file)
     deep = deep if deep is not None else _gray16(image)
+    if deep is not None and _tiff_tag(image, _PHOTOMETRIC) == 0:
+        deep[..., 0] = 65535 - deep[..., 0]  # white is zero: Pillow inverts only 8 bits
     if deep is not None:
         deep = _keyed(deep, image)
     kind = _kind(image, deep)
