@@ -251,8 +251,9 @@ def _tiff_tag(opened: Image.Image, tag: int) -> Any:
 def _deep_read(opened: Image.Image) -> _DeepRead | None:
     """The tiles that read the image's 16 bits, or None unless it is 16-bit colour or LA."""
     tiles = list(getattr(opened, "tile", []))
-    if tiles and _tiff_tag(opened, _BITS_PER_SAMPLE) == (16, 16):
-        return _DeepRead(tiles, None)
+    if _tiff_tag(opened, _BITS_PER_SAMPLE) == (16, 16):  # opened by _GREY_AND_ALPHA_16
+        every = tiles and all(_rawmode(tile) == "RGBA" for tile in tiles)
+        return _DeepRead(tiles, None) if every else None
     high, low = [], []
     for tile in tiles:
         rawmode = _rawmode(tile)
