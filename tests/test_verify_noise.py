@@ -258,3 +258,20 @@ def test_the_maps_noise_note_adds_a_title_line_per_clause(monkeypatch):
     plain, noted = said
     assert noted == [*plain, *note.split("; ")] and len(noted) == len(plain) + 2
     assert not any("exposure" in line for line in noted)  # a maker's words
+
+
+@pytest.mark.parametrize("knee", [None, 300.0])
+def test_the_advice_counts_from_two_batches_as_noisy_as_the_render(knee):
+    """A render whose noise target added batches records the count of two batches that
+    leave its noise (noise_equivalent_spp): the advice names what it names from those two
+    batches, and only the time counts from the samples taken."""
+    two = {"rho": 0.8, "rho_noise_free": 0.86, "noise_to_signal": 0.16, "noise": 0.14}
+    two |= {"spp": 512, "noise_knee_spp": knee, "diff_noise_share": 0.6}
+    more = two | {"spp": 1024, "noise_equivalent_spp": 512.0}
+    for gate in (0.82, None):
+        named = re.sub(r", about .* a view$", "", noise_advice(two, gate, "--spp"))
+        assert named and noise_advice(more, gate, "--spp").startswith(named)
+    assert diff_noise_advice(more, "spp") == diff_noise_advice(two, "spp")
+    bare = {"rho": 0.3, "rho_noise_free": None, "noise_to_signal": None, "noise": 0.9}
+    said = noise_advice(bare | {"spp": 1024, "noise_equivalent_spp": 512.0}, None, "--spp")
+    assert "--spp 8192 " in said  # 16 times the two batches' 512, not the 1024 taken

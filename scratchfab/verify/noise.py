@@ -3,24 +3,33 @@
 :func:`scratchfab.metrics.noise_effect` estimates, from the renders' own batch spread,
 the rho a noise-free render would reach; this module turns the figures ``metrics.json``
 records for a view (``rho``, ``rho_noise_free``, ``noise_to_signal``, ``noise``, ``spp``,
-``seconds``, ``seconds_per_spp``, ``diff_noise_share``, ``noise_knee_spp``) into advice:
-whether the noise explains a failed gate, and the sample count that would end it (and
-about how long that takes). It imports no renderer, so the report uses it.
+``seconds``, ``seconds_per_spp``, ``diff_noise_share``, ``noise_knee_spp``,
+``noise_equivalent_spp``) into advice: whether the noise explains a failed gate, and the
+sample count that would end it (and about how long that takes). It imports no renderer,
+so the report uses it.
 
 The stratified sampler's noise falls faster than 1 / spp once its strata resolve the
 scratches (:func:`knee_spp`). Measured on the demo (from 264 spp) and a maker's 100 x 80
 mm board (from 70 spp), aiming at the noise that 4 to 16 times the samples measured: the
 count 1 / spp names was 1.2 to 4.7 times the one that measured it, the knee's model's
 0.87 to 1.03 times (on the tests' coarse 32 px board up to 1.3 times, the noise falling
-faster still). Without a knee (a metrics.json from before, or too few samples to show
-one: two batches of 8 samples seldom do) the advice takes 1 / spp and asks for more.
+faster still); read from the gain two standard errors up (:data:`KNEE_ERRORS`), 0.9 to
+1.3 times on the demo from 256 spp. Below 64 spp one render does not fix the knee (:data:`MIN_KNEE_BATCH`):
+on the demo the knee read from 32 spp named 0.6 to 0.9 times the count needed, and from
+16 spp half the renders showed none, the others one at random (0.5 to 2.5 times); the
+advice takes 1 / spp there, as for a metrics.json from before the knee, and names 1.4 to
+3.7 times the count (about 2 times for the demo's own gate). A render with a noise
+target's added batches counts as two batches of fewer samples (:func:`render_knee`).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 from scratchfab.console import duration_text
 from scratchfab.metrics import NOISE_RHO_LOSS, NoiseEffect
@@ -34,7 +43,18 @@ NOISY_MAP_SHARE = 0.25
 QUIET_MAP_SHARE = 0.2
 
 
-def knee_spp(spp: int, variance: float, unstratified: float) -> float | None:
+#: The knee is read from batches of at least this many samples: the multi-jitter sampler's
+#: smaller grids gain erratically (on the demo, batches of 8 samples not at all, of 16 more
+#: than the knee that holds past them says: the count named 0.6 to 0.9 times the one needed).
+MIN_KNEE_BATCH = 32
+#: The knee is read from the gain this many standard errors above the one measured (a gain
+#: within the render's own noise of none says 1 / spp): from 64 spp on the demo the count
+#: named fell below 0.9 times the one needed for 5 to 11 % of the renders (31 to 56 % at
+#: the gain measured), at about 1.35 times it in the median (0.95); from 256 spp at 1.0.
+KNEE_ERRORS = 2.0
+
+
+def knee_spp(spp: int, variance: float, unstratified: float, error: float = 0.0) -> float | None:
     """The sample count past which a render's noise falls faster than 1 / spp.
 
     The multi-jitter sampler stratifies each pixel: while its strata are wider than the
@@ -46,27 +66,82 @@ def knee_spp(spp: int, variance: float, unstratified: float) -> float | None:
     fall steepens from 1 / spp^1.05 to 1 / spp^1.7 near 4096 spp, as this does.
 
     Args:
-        spp: The samples per pixel taken.
+        spp: The samples per pixel of the render's two batches.
         variance: The render's noise variance (summed over the pixels).
         unstratified: What ``spp`` unstratified samples would leave (summed alike).
+        error: The standard error of the gain ``variance / unstratified``; the knee is
+            read from the gain :data:`KNEE_ERRORS` of them above it.
 
     Returns:
         The knee in samples per pixel; None where the render shows no gain over 1 / spp.
     """
-    if not (unstratified > 0 and 0 < variance < unstratified):
+    if not (unstratified > 0 and variance > 0):
         return None
-    gain = variance / unstratified
-    return spp * gain / (1 - gain)
+    gain = variance / unstratified + KNEE_ERRORS * error
+    return spp * gain / (1 - gain) if gain < 1 else None
 
 
-def variance_ratio(spp: int, more: float, knee: float | None) -> float:
+@dataclass(frozen=True)
+class PartNoise:
+    """One part of a render, as its noise tells the knee.
+
+    Attributes:
+        batch: Samples per pixel of each batch.
+        batches: How many batches were taken.
+        variance: Per pixel, the squared standard error of the batches' mean.
+        unstratified: Per pixel, what as many unstratified samples would leave.
+    """
+
+    batch: int
+    batches: int
+    variance: np.ndarray
+    unstratified: np.ndarray
+
+
+def render_knee(parts: Sequence[PartNoise]) -> tuple[float | None, float]:
+    """A render's knee, and the samples per pixel at which two batches leave its noise.
+
+    Both are for two batches, as a render of ``--spp`` takes them. Each batch is
+    stratified on its own: k batches of b samples leave 2 / k of the variance two of them
+    leave, at the same gain over unstratified samples, so two batches of b fix the knee
+    (k b samples overstated it k / 2 times), and k batches leave more noise than two of
+    k b / 2 samples: the advice counts from the count of two batches that leave as much,
+    by the knee's model. Each part counts as two of its batches would; the gain's
+    standard error is taken over the pixels (:data:`KNEE_ERRORS`), and batches of fewer
+    than :data:`MIN_KNEE_BATCH` samples fix no knee.
+
+    Args:
+        parts: The render's parts, the first the one whose batches make its spp.
+
+    Returns:
+        The knee (None: the render shows none), and that count (the samples taken where
+        every part took two batches).
+    """
+    spp = 2 * parts[0].batch
+    variance = sum(p.batches / 2 * np.asarray(p.variance, np.float64) for p in parts)
+    loose = sum(p.batches / 2 * np.asarray(p.unstratified, np.float64) for p in parts)
+    total, free = float(np.sum(variance)), float(np.sum(loose))
+    knee = None
+    if parts[0].batch >= MIN_KNEE_BATCH and free > 0:
+        error = math.sqrt(float(np.sum((variance - total / free * loose) ** 2))) / free
+        knee = knee_spp(spp, total, free, error)
+    # Summed as ``total`` is, so that two batches of every part count as the spp exactly.
+    measured = float(np.sum(sum(np.asarray(p.variance, np.float64) for p in parts)))
+    if not measured > 0:
+        return knee, float(parts[0].batch * parts[0].batches)
+    return knee, spp_for(spp, total / measured, knee)
+
+
+def variance_ratio(spp: float, more: float, knee: float | None) -> float:
     """How many times less noise variance ``more`` spp leave than ``spp`` (the knee's model)."""
     slope = 0.0 if knee is None else 1.0 / knee
     return more * (1 + more * slope) / (spp * (1 + spp * slope))
 
 
-def spp_for(spp: int, factor: float, knee: float | None) -> float:
+def spp_for(spp: float, factor: float, knee: float | None) -> float:
     """The samples per pixel that leave ``1 / factor`` of ``spp``'s noise variance."""
+    if factor == 1:
+        return float(spp)
     goal = factor * spp * (1 + spp / knee) if knee is not None else factor * spp
     if knee is None:
         return goal
@@ -100,10 +175,22 @@ def render_seconds(entry: Mapping[str, Any], spp: int) -> float | None:
 
 def _knee(entry: Mapping[str, Any]) -> float | None:
     """The view's ``noise_knee_spp`` (None where missing, or not a number above 0)."""
-    knee = entry.get("noise_knee_spp")
-    if not isinstance(knee, int | float) or isinstance(knee, bool):
+    return _positive(entry.get("noise_knee_spp"))
+
+
+def _counted_from(entry: Mapping[str, Any], spp: float) -> float:
+    """The count the advice counts from: two batches as noisy as the render (:func:`render_knee`).
+
+    ``noise_equivalent_spp`` where recorded, else the render's ``spp``.
+    """
+    return _positive(entry.get("noise_equivalent_spp")) or spp
+
+
+def _positive(value: Any) -> float | None:
+    """``value`` as a float where it is a finite number above 0, else None."""
+    if not isinstance(value, int | float) or isinstance(value, bool):
         return None
-    return float(knee) if math.isfinite(knee) and knee > 0 else None
+    return float(value) if math.isfinite(value) and value > 0 else None
 
 
 def _effect(entry: Mapping[str, Any]) -> NoiseEffect | None:
@@ -142,9 +229,9 @@ def noise_advice(entry: Mapping[str, Any], min_rho: float | None, spp_setting: s
     if effect is None or not spp or noise is None:
         return ""
     free = effect.rho_free
-    knee = _knee(entry)
+    knee, base = _knee(entry), _counted_from(entry, spp)
     if free is None:
-        more = more_spp(spp * NOISY_SPP_FACTOR)
+        more = more_spp(base * NOISY_SPP_FACTOR)
     else:
         # Where the gate fails for noise alone, half the way from the gate to the
         # noise-free rho is left to the noise, so the named count passes it.
@@ -154,8 +241,8 @@ def noise_advice(entry: Mapping[str, Any], min_rho: float | None, spp_setting: s
         factor = effect.variance_factor(loss) or 1.0
         if factor <= 1.0:
             return ""
-        more = more_spp(spp_for(spp, factor, knee))
-    ratio = variance_ratio(spp, more, knee)
+        more = more_spp(spp_for(base, factor, knee))
+    ratio = variance_ratio(base, more, knee)
     took = render_seconds(entry, more)
     later = f", about {duration_text(took)} a view" if took is not None else ""
     then = f"{spp_setting} {more} brings the noise to about {100 * noise / math.sqrt(ratio):.1f} %"
@@ -181,12 +268,12 @@ def diff_noise_advice(entry: Mapping[str, Any], spp_setting: str) -> str:
     share, spp = entry.get("diff_noise_share"), entry.get("spp")
     if not isinstance(share, int | float) or not share >= NOISY_MAP_SHARE or not spp:
         return ""
-    quiet = QUIET_MAP_SHARE
+    quiet, base = QUIET_MAP_SHARE, _counted_from(entry, spp)
     if share < 1:
         factor = share * (1 - quiet) / (quiet * (1 - share))
-        more = more_spp(spp_for(spp, factor, _knee(entry)))
+        more = more_spp(spp_for(base, factor, _knee(entry)))
     else:
-        more = more_spp(spp * NOISY_SPP_FACTOR)
+        more = more_spp(base * NOISY_SPP_FACTOR)
     then = f"brings it under {100 * quiet:.0f} %" if share < 1 else "at least"
     return (
         f"{'mostly ' if share >= 0.5 else ''}sampling noise: about {100 * share:.0f} % of "

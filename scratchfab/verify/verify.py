@@ -40,7 +40,13 @@ from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.glint import ViewGlint, view_glint
 from scratchfab.verify.diffmap import write_diff_map
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
-from scratchfab.verify.noise import diff_noise_advice, knee_spp, noise_advice, noise_explains
+from scratchfab.verify.noise import (
+    PartNoise,
+    diff_noise_advice,
+    noise_advice,
+    noise_explains,
+    render_knee,
+)
 from scratchfab.verify.outshine import outshine_advice, shoulder_shares
 from scratchfab.verify.scene import Sky, board_bsdf, render_view_spread, scene_dict, use_variant
 from scratchfab.verify.sweep import nearest_frames, sweep_gif, sweep_path
@@ -195,8 +201,12 @@ class ViewRender:
             costs, timed on each part's batches after its first, whose time also holds
             compiling and loading the scene.
         knee_spp: The sample count past which the stratified sampler's noise falls
-            faster than 1 / spp (:func:`scratchfab.verify.noise.knee_spp`; None: it
+            faster than 1 / spp (:func:`scratchfab.verify.noise.render_knee`; None: it
             does not, as far as this render shows).
+        equivalent_spp: The samples per pixel at which two batches leave this render's
+            noise: ``spp`` unless batches were added for a noise target (each batch is
+            stratified on its own, so more of them leave more noise than two of the same
+            total); the noise advice counts from it.
     """
 
     image: np.ndarray
@@ -206,6 +216,7 @@ class ViewRender:
     variance: np.ndarray
     seconds_per_spp: float
     knee_spp: float | None = None
+    equivalent_spp: float | None = None
 
 
 def half_spp(spp: int) -> int:
@@ -277,40 +288,40 @@ class BoardRenderer:
         """
         start = time.perf_counter()
         means = []
-        variance: np.ndarray | float = 0.0
-        unstratified = 0.0
-        taken = 0
+        parts: list[PartNoise] = []
         per_spp = 0.0
         for p, (bsdf, fraction) in enumerate(self.parts):
             part_spp = max(MIN_PART_SPP, round(fraction * spp))
-            mean, var, loose, n, per_sample = self._batches(
+            mean, part, per_sample = self._batches(
                 view, bsdf, part_spp, 4096 * seed + 64 * p, max_noise if p == 0 else None
             )
             means.append(mean)
-            variance += var
-            unstratified += loose
-            taken = max(taken, n)
+            parts.append(part)
             per_spp += fraction * per_sample  # a part takes ``fraction`` of each spp
         if self.mode == "spec":
             image = means[0] + np.maximum(means[1], 0.0)
         else:
             image = means[0]
+        variance = np.sum([p.variance for p in parts], axis=0)
         norm = float(np.linalg.norm(image))
         noise = math.sqrt(float(np.sum(variance))) / norm if norm > 0 else 0.0
         seconds = time.perf_counter() - start
         per_pixel = np.broadcast_to(np.asarray(variance, np.float64), image.shape).copy()
-        knee = knee_spp(taken, float(np.sum(per_pixel)), unstratified)
-        return ViewRender(image.astype(np.float32), noise, taken, seconds, per_pixel, per_spp, knee)
+        taken = max(p.batch * p.batches for p in parts)
+        knee, equal = render_knee(parts)
+        return ViewRender(
+            image.astype(np.float32), noise, taken, seconds, per_pixel, per_spp, knee, equal
+        )
 
     def _batches(
         self, view: View, bsdf: Any, spp: int, seed: int, max_noise: float | None
-    ) -> tuple[np.ndarray, np.ndarray, float, int, float]:
-        """Mean, squared standard error, the unstratified error, spp taken, seconds per sample.
+    ) -> tuple[np.ndarray, PartNoise, float]:
+        """The batches' mean, their noise (:class:`PartNoise`), and seconds per sample.
 
-        The batches' mean and its squared standard error per pixel; that error summed over
-        the pixels as unstratified samples would leave it (the samples' own spread over
-        their count). The seconds per sample are timed on the batches after the first,
-        whose time also holds compiling the kernels and the scene's first use.
+        Per pixel the batches' mean, its squared standard error, and that error as
+        unstratified samples would leave it (the samples' own spread over their count).
+        The seconds per sample are timed on the batches after the first, whose time also
+        holds compiling the kernels and the scene's first use.
         """
         mi = self.mi
         half = half_spp(spp)
@@ -318,14 +329,14 @@ class BoardRenderer:
             scene_dict(self.design, self.scratches, view, half, sky=self.sky, bsdf=bsdf)
         )
         batches: list[np.ndarray] = []
-        spread = 0.0  # the samples' own variance, summed over the pixels and the batches
+        spread: np.ndarray | float = 0.0  # per pixel, the samples' own variance, summed
         limit = max(2, (MAX_SPP_FACTOR * spp) // half)
         later = 0.0  # the batches after the first: no compiling, no first use of the scene
         while True:
             start = time.perf_counter()
             image, samples = render_view_spread(scene, half, (seed + len(batches)) % (1 << 32))
             batches.append(image)
-            spread += float(np.sum(samples))
+            spread = spread + np.asarray(samples, np.float64)
             if len(batches) > 1:
                 later += time.perf_counter() - start
             if len(batches) < 2:
@@ -335,8 +346,8 @@ class BoardRenderer:
             noise = math.sqrt(float(np.sum(var))) / norm if norm > 0 else 0.0
             if max_noise is None or noise <= max_noise or len(batches) >= limit:
                 k = len(batches)
-                loose = spread / k / (half * k)
-                return mean, var, loose, half * k, later / (half * (k - 1))
+                loose = np.asarray(spread) / k / (half * k)
+                return mean, PartNoise(half, k, var, loose), later / (half * (k - 1))
 
 
 def _batch_stats(batches: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -500,6 +511,7 @@ def run_verify(
             "seconds_per_spp": r.seconds_per_spp,
             "noise": r.noise,
             "noise_knee_spp": r.knee_spp,
+            "noise_equivalent_spp": r.equivalent_spp,
             "rel_l2": None,
             "resolution": [view.width, view.height],
             "glint_share": glints[view.name].board_share,
