@@ -105,22 +105,37 @@ def write_tiff(
     extra_samples: int = 2,
     photometric: int | None = None,
     icc: bytes | None = None,
+    planar: bool = False,
+    tile: tuple[int, int] | None = None,
 ) -> None:
     """A TIFF of the samples' type written by hand (Pillow cannot write 16-bit colour).
 
     Deflate comes with horizontal differencing (integer samples only); a fourth (second)
     sample is ``extra_samples`` (TIFF 6.0: 0 unspecified, 1 associated alpha, 2 alpha)
     unless ``photometric`` is 5 (CMYK: four inks); ``icc`` is an embedded ICC profile.
+    ``planar`` stores each sample's plane after the other's (PlanarConfiguration 2);
+    ``tile`` (width, length) stores tiles, padded where they overhang, not strips.
     """
     h, w, c = samples.shape
+    assert not (deflate and tile), "the predictor here differences whole rows, not tiles"
     rows_per_strip = rows_per_strip or h
     arr = samples.astype(np.int64) if deflate else samples
     if deflate:  # predictor 2: each sample minus its left neighbour, modulo 2**16
         arr[:, 1:] = (arr[:, 1:] - arr[:, :-1]) % 65536
-    strips = [
-        arr[r : r + rows_per_strip].astype(samples.dtype.newbyteorder(order)).tobytes()
-        for r in range(0, h, rows_per_strip)
-    ]
+    planes = [arr[..., i : i + 1] for i in range(c)] if planar else [arr]
+    if tile:
+        tw, th = tile
+        blocks = []
+        for plane in planes:
+            for y in range(0, h, th):
+                for x in range(0, w, tw):
+                    block = np.zeros((th, tw, plane.shape[2]), arr.dtype)
+                    part = plane[y : y + th, x : x + tw]
+                    block[: part.shape[0], : part.shape[1]] = part
+                    blocks.append(block)
+    else:
+        blocks = [p[r : r + rows_per_strip] for p in planes for r in range(0, h, rows_per_strip)]
+    strips = [block.astype(samples.dtype.newbyteorder(order)).tobytes() for block in blocks]
     if deflate:
         strips = [zlib.compress(strip) for strip in strips]
     n = len(strips)
@@ -130,14 +145,17 @@ def write_tiff(
         258: (3, [samples.dtype.itemsize * 8] * c),
         259: (3, [8 if deflate else 1]),
         262: (3, [(2 if c >= 3 else 1) if photometric is None else photometric]),
-        273: (4, [0] * n),
         277: (3, [c]),
-        278: (4, [rows_per_strip]),
-        279: (4, [len(strip) for strip in strips]),
-        284: (3, [1]),
+        284: (3, [2 if planar else 1]),
         317: (3, [2 if deflate else 1]),
         339: (3, [3 if samples.dtype.kind == "f" else 1] * c),
     }
+    offsets_tag = 324 if tile else 273
+    if tile:
+        tags.update({322: (4, [tile[0]]), 323: (4, [tile[1]]), 325: (4, [len(x) for x in strips])})
+    else:
+        tags.update({278: (4, [rows_per_strip]), 279: (4, [len(x) for x in strips])})
+    tags[offsets_tag] = (4, [0] * n)
     if c % 2 == 0 and photometric != 5:
         tags[338] = (3, [extra_samples])
     if icc is not None:
@@ -146,7 +164,7 @@ def write_tiff(
         tags[274] = (3, [orientation])
 
     def layout(data_at: int) -> tuple[bytes, bytes]:
-        tags[273] = (4, list(data_at + np.cumsum([0] + [len(x) for x in strips[:-1]])))
+        tags[offsets_tag] = (4, list(data_at + np.cumsum([0] + [len(x) for x in strips[:-1]])))
         extra_at = 8 + 2 + 12 * len(tags) + 4
         ifd, extra = struct.pack(order + "H", len(tags)), b""
         for tag, (kind, values) in sorted(tags.items()):

@@ -182,3 +182,44 @@ def test_16bit_white_is_zero_grey_and_alpha_tiff_inverts_only_the_grey(tmp_path)
     np.testing.assert_allclose(
         load_image(path), reference(inverted, weights=(1.0,)), rtol=0, atol=1e-12
     )
+
+
+@pytest.mark.parametrize(
+    ("order", "rows", "tile"), [("<", None, None), (">", 3, None), ("<", None, (16, 16))]
+)
+@pytest.mark.parametrize("c", [3, 4])
+def test_uncompressed_16bit_tiff_of_separate_planes(tmp_path, c, order, rows, tile):
+    # Pillow reads these planes' bytes as 8-bit samples: a wrong picture, not a coarse one.
+    samples = random_samples(c, shape=(20, 35))
+    path = tmp_path / "planar.tif"
+    write_tiff(path, samples, order, rows_per_strip=rows, planar=True, tile=tile)
+    np.testing.assert_allclose(load_image(path), reference(samples), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("extra", [0, 1])
+def test_uncompressed_16bit_planes_with_unspecified_or_associated_fourth(tmp_path, extra):
+    stored = with_edge_alphas(premultiplied(random_samples(4, seed=14)))
+    path = tmp_path / "planar_x.tif"
+    write_tiff(path, stored, ">", rows_per_strip=4, extra_samples=extra, planar=True)
+    if extra == 0:
+        expected = reference(stored[..., :3])
+        np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=1e-12)
+    else:
+        expected = reference_premultiplied(stored, (0.2126, 0.7152, 0.0722))
+        np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=2e-5)
+
+
+def test_uncompressed_16bit_cmyk_planes(tmp_path):
+    cmyk = random_samples(4, seed=15)
+    path = tmp_path / "planar_cmyk.tif"
+    write_tiff(path, cmyk, "<", rows_per_strip=5, photometric=5, planar=True)
+    np.testing.assert_allclose(load_image(path), naive_cmyk_luminance(cmyk), rtol=0, atol=2e-5)
+
+
+def test_compressed_16bit_planes_are_read_at_8_bits(tmp_path):
+    # libtiff hands Pillow each plane's high bytes, whatever it is asked for (a known limit).
+    samples = random_samples(3, seed=16)
+    path = tmp_path / "planar_z.tif"
+    write_tiff(path, samples, ">", deflate=True, rows_per_strip=4, planar=True)
+    expected = reference((samples >> 8) * 257)
+    np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=1e-12)

@@ -22,8 +22,10 @@ the default):
 16-bit PNGs and TIFFs keep their 16 bits: grey ones Pillow reads as such; colour ones
 (RGB, RGBA, CMYK) and grey-with-alpha PNGs, which Pillow opens at 8 bits, are read a
 second time for the low bytes; grey-with-alpha TIFFs, which Pillow refuses, are opened
-with its table of TIFF layouts extended for the call. EXIF orientation turns them as it
-turns the image. A TIFF's associated (premultiplied) alpha is divided out of the 16-bit
+with its table of TIFF layouts extended for the call; an uncompressed TIFF of separate
+16-bit planes, whose bytes Pillow reads as 8-bit samples, is read from the file's bytes (a
+compressed one keeps 8 bits: libtiff hands Pillow each plane's high bytes). EXIF
+orientation turns them as it turns the image. A TIFF's associated (premultiplied) alpha is divided out of the 16-bit
 colour where alpha > 0, and 16-bit WhiteIsZero grey is inverted (Pillow inverts only
 8-bit grey). 16-bit CMYK without a profile becomes RGB as Pillow converts
 CMYK, ``(1 - C)(1 - K)``, at 16 bits; with one, its high bytes go through littleCMS as
@@ -182,8 +184,12 @@ _DEEP_RAWMODES = {
 }
 
 #: TIFF tags: BitsPerSample, PhotometricInterpretation (0 WhiteIsZero, 1 BlackIsZero),
-#: ExtraSamples (0 unspecified, 1 associated alpha, 2 alpha).
-_BITS_PER_SAMPLE, _PHOTOMETRIC, _EXTRA_SAMPLES = 258, 262, 338
+#: ExtraSamples (0 unspecified, 1 associated alpha, 2 alpha), PlanarConfiguration (2:
+#: separate planes), and where the pixels are.
+_BITS_PER_SAMPLE, _PHOTOMETRIC, _EXTRA_SAMPLES, _PLANAR = 258, 262, 338, 284
+_IMAGE_WIDTH, _IMAGE_LENGTH, _COMPRESSION, _SAMPLES_PER_PIXEL = 256, 257, 259, 277
+_STRIP_OFFSETS, _ROWS_PER_STRIP = 273, 278
+_TILE_WIDTH, _TILE_LENGTH, _TILE_OFFSETS = 322, 323, 324
 _TIFF_MAGIC = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
 #: Pillow's TIFF format keys (byte order, photometric, sample format, fill order, bits,
 #: extra samples) for 16-bit grey with a second sample, which it does not list: read as
@@ -225,8 +231,11 @@ class _DeepRead(NamedTuple):
     """How Pillow reads a 16-bit image's bytes: tiles for the high bytes, then the low."""
 
     high: list[Any]
-    #: None when the first read takes every byte (a 16-bit grey-and-alpha TIFF).
+    #: None when the first read takes every byte (a 16-bit grey-and-alpha TIFF) or when
+    #: the samples are read from the file's bytes (``planes``).
     low: list[Any] | None
+    #: An uncompressed TIFF of separate 16-bit planes, which Pillow misreads.
+    planes: bool = False
 
 
 def _rawmode(tile: Any) -> str | None:
@@ -251,6 +260,15 @@ def _tiff_tag(opened: Image.Image, tag: int) -> Any:
 def _deep_read(opened: Image.Image) -> _DeepRead | None:
     """The tiles that read the image's 16 bits, or None unless it is 16-bit colour or LA."""
     tiles = list(getattr(opened, "tile", []))
+    if _tiff_tag(opened, _PLANAR) == 2 and len(opened.getbands()) > 1:
+        deep = set(_tiff_tag(opened, _BITS_PER_SAMPLE) or ()) == {16}
+        raw = _tiff_tag(opened, _COMPRESSION) in (None, 1)
+        # Compressed, libtiff reads each plane's high bytes whatever the rawmode: 8 bits.
+        if not (raw and deep and tiles):
+            return None
+        # The first plane's tiles alone: Pillow has no rawmode for some others ("a").
+        first = [tile for tile in tiles if _rawmode(tile) == _rawmode(tiles[0])]
+        return _DeepRead(first, None, planes=True)
     if _tiff_tag(opened, _BITS_PER_SAMPLE) == (16, 16):  # opened by _GREY_AND_ALPHA_16
         every = tiles and all(_rawmode(tile) == "RGBA" for tile in tiles)
         return _DeepRead(tiles, None) if every else None
@@ -285,6 +303,9 @@ def _deep_samples(data: bytes, opened: Image.Image, read: _DeepRead) -> np.ndarr
     with the ``read.low`` tiles. Associated alpha (a TIFF's premultiplied colour) is
     divided out; an unspecified second sample of a grey TIFF is dropped.
     """
+    if read.planes:
+        assert isinstance(opened, TiffImagePlugin.TiffImageFile)
+        return _unassociated(_planes(data, opened), opened)
     if read.low is None:
         raw, every = np.asarray(opened), True
     else:
@@ -303,11 +324,52 @@ def _deep_samples(data: bytes, opened: Image.Image, read: _DeepRead) -> np.ndarr
     samples = high.astype(np.uint16)
     samples <<= 8
     samples |= lows
+    return _unassociated(samples, opened)
+
+
+def _unassociated(samples: np.ndarray, opened: Image.Image) -> np.ndarray:
+    """A TIFF's samples with associated alpha divided out, an unspecified extra dropped.
+
+    Pillow's "RGBX" rawmodes drop the extra sample themselves: only samples that still
+    have every one the file stores lose it here.
+    """
     extra = _tiff_tag(opened, _EXTRA_SAMPLES)
     if extra == (1,):
         _unpremultiply(samples)
-    elif extra == (0,) and samples.shape[2] == 2:
-        samples = samples[..., :1]
+    elif extra == (0,) and samples.shape[2] == _tiff_tag(opened, _SAMPLES_PER_PIXEL):
+        samples = samples[..., :-1]
+    return samples
+
+
+def _planes(data: bytes, opened: TiffImagePlugin.TiffImageFile) -> np.ndarray:
+    """An uncompressed TIFF's separate 16-bit planes, (h, w, planes) uint16.
+
+    Pillow reads their bytes as 8-bit samples (a wrong picture). Each plane's strips or
+    tiles follow the one before's (TIFF 6.0, PlanarConfiguration 2); a tile's rows are
+    stored whole where it overhangs the image's right edge.
+    """
+    tags = opened.tag_v2
+    width, height = tags[_IMAGE_WIDTH], tags[_IMAGE_LENGTH]
+    if _TILE_OFFSETS in tags:
+        across, down, offsets = tags[_TILE_WIDTH], tags[_TILE_LENGTH], tags[_TILE_OFFSETS]
+    else:
+        across, down, offsets = width, tags.get(_ROWS_PER_STRIP, height), tags[_STRIP_OFFSETS]
+    if not across > 0 < down:
+        raise ValueError(f"strips or tiles of {across} x {down} pixels")
+    per_row = -(-width // across)
+    per_plane = per_row * -(-height // down)
+    planes = tags.get(_SAMPLES_PER_PIXEL, 1)
+    if len(offsets) < planes * per_plane:
+        raise ValueError(f"{len(offsets)} strip or tile offsets for {planes} planes")
+    dtype = np.dtype("<u2" if tags.prefix == b"II" else ">u2")
+    samples = np.empty((height, width, planes), np.uint16)
+    for i, offset in enumerate(offsets[: planes * per_plane]):
+        plane, k = divmod(i, per_plane)
+        row, col = divmod(k, per_row)
+        y0, x0 = row * down, col * across
+        rows = min(down, height - y0)  # those in the image (a tile stores `down`)
+        block = np.frombuffer(data, dtype, rows * across, offset).reshape(rows, across)
+        samples[y0 : y0 + down, x0 : x0 + across, plane] = block[: height - y0, : width - x0]
     return samples
 
 
