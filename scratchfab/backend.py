@@ -118,6 +118,15 @@ def array_module(backend: BackendName = "llvm") -> ModuleType:
     return importlib.import_module(f"drjit.{backend}.ad")
 
 
+def backend_available(backend: BackendName) -> bool:
+    """Whether :func:`array_module` can start ``backend`` here."""
+    try:
+        array_module(backend)
+    except BackendError:
+        return False
+    return True
+
+
 def jit_array(T: type, values: Any, dtype: Any = np.float64) -> Any:
     """A Dr.Jit array of type ``T`` from numpy data copied to a 64-byte aligned buffer.
 

@@ -104,3 +104,16 @@ def test_missing_libllvm_off_linux_is_left_to_drjit(monkeypatch, tmp_path, platf
         assert os.environ["DRJIT_LIBLLVM_PATH"] == ""
     assert fix in backend.llvm_fix()
     assert "LLVM-C.dll" in backend.llvm_fix("win32")
+
+
+def test_backend_available_is_what_array_module_can_start(monkeypatch) -> None:
+    """True where :func:`array_module` starts the backend (Dr.Jit's own answer for CUDA),
+    False where it raises: a DRJIT_LIBLLVM_PATH that does not exist."""
+    import drjit as dr
+
+    from scratchfab.backend import backend_available
+
+    assert backend_available("llvm") is True  # the suite runs on it
+    assert backend_available("cuda") is bool(dr.has_backend(dr.JitBackend.CUDA))
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/nonexistent/libLLVM-19.so")
+    assert backend_available("llvm") is False

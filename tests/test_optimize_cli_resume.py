@@ -176,3 +176,73 @@ def test_a_value_the_checkpoint_holds_out_of_bounds_is_named_not_taken(
     assert "made with different settings (lr_position_mm)" in said
     assert said.rstrip().endswith("; run without --resume to start over")
     assert "give that" not in said
+
+
+def _made_on_cuda(job: Path) -> None:
+    """Mark the job's checkpoint as made on the CUDA backend (as a GPU machine writes it)."""
+    ckpt = job / "optimize" / "checkpoint.npz"
+    state, meta, rows = load_checkpoint(ckpt)
+    assert meta["fingerprint"]["backend"] == "llvm"
+    meta["fingerprint"]["backend"] = "cuda"
+    save_checkpoint(ckpt, state, meta, rows)
+
+
+@pytest.mark.parametrize(
+    ("how", "falls_back"),
+    [
+        ("optimize --resume", True),  # the run's own backend cannot run here: the CPU
+        ("optimize --resume --backend llvm", False),  # the user's flag wins
+        ("run", False),  # the pipeline's [optimize] backend, as its file gives it
+    ],
+)
+def test_a_run_made_on_cuda_resumes_on_the_cpu_with_a_note(
+    stopped: tuple[Path, Path, Path],
+    job: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    how: str,
+    falls_back: bool,
+) -> None:
+    """A checkpoint recording ``cuda`` is resumed on llvm (no GPU here, or asked), not
+    refused: a note says the backend changed. The steps ran on llvm throughout, so the
+    layout is byte for byte the one the run never stopped made."""
+    from scratchfab.cli import optimize_cmd
+
+    monkeypatch.setattr(optimize_cmd, "backend_available", lambda name: name != "cuda")
+    _made_on_cuda(job)
+    if how == "run":
+        lines: list[str] = []
+        run_pipeline(load_pipeline(stopped[0]), job, until="optimize", say=lines.append)
+        said = "\n".join(lines)
+        assert "cannot continue it" not in said and "continuing the run from" in said
+    else:
+        code, said = cli_said(["optimize", str(job), *how.split()[1:]], capsys)
+        assert code == 0, said
+    ckpt = job / "optimize" / "checkpoint.npz"
+    fallback = f"note: {ckpt} was made on the cuda backend, which cannot run here"
+    assert (fallback in said) is falls_back
+    assert (
+        f"note: {ckpt} was made on the cuda backend; its steps go on on llvm, which rounds "
+        "differently" in said
+    )
+    reference = stopped[2] / "optimize" / "scratches.csv"
+    assert (job / "optimize" / "scratches.csv").read_bytes() == reference.read_bytes()
+    assert load_checkpoint(ckpt)[1]["fingerprint"]["backend"] == "llvm"  # as it went on
+
+
+def test_an_unavailable_backend_given_on_resume_is_refused_with_the_fix(
+    job: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--backend cuda`` given where it cannot run is the user's: it fails (no fallback)
+    with the fix, and the checkpoint is left as it was."""
+    import drjit as dr
+
+    if dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("this machine runs CUDA")
+    ckpt = job / "optimize" / "checkpoint.npz"
+    before = ckpt.read_bytes()
+    code, said = cli_said(["optimize", str(job), "--resume", "--backend", "cuda"], capsys)
+    assert code != 0 and "Traceback" not in said
+    assert "the CUDA backend needs an NVIDIA GPU and driver; use --backend llvm" in said
+    assert "which cannot run here" not in said
+    assert ckpt.read_bytes() == before

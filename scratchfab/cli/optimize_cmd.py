@@ -10,6 +10,7 @@ from typing import Any
 
 import click
 
+from scratchfab.backend import backend_available
 from scratchfab.cli.options import FiniteFloat, RedrawnLine, backend_option
 from scratchfab.console import command_line
 from scratchfab.errors import ConfigError, Interrupted
@@ -108,7 +109,8 @@ def _bar() -> Callable[[Progress], None]:
     is_flag=True,
     help="Continue from JOB/optimize/checkpoint.npz with the run's own options where not "
     "given (its total, step sizes, schedule, seed and --prune), as `scratchfab run` "
-    "started it too.",
+    "started it too; its backend too, but llvm where a cuda run finds no GPU (--backend "
+    "may differ: noted).",
 )
 @click.option(
     "--prune",
@@ -176,6 +178,17 @@ def optimize(
         if "iterations" not in own and "iterations" not in given:
             raise ConfigError(_no_total(checkpoint))
         asked.update((k, v) for k, v in own.items() if k not in given)
+        # a run made on a GPU goes on where there is none (--backend given: the user's)
+        if (
+            "backend" not in given
+            and own.get("backend") == "cuda"
+            and not backend_available("cuda")
+        ):
+            click.echo(
+                f"note: {checkpoint.path} was made on the cuda backend, which cannot run "
+                "here (no NVIDIA GPU and driver): resuming on llvm (the CPU)"
+            )
+            asked["backend"] = "llvm"
         if no_prune and own.get("prune_tolerance") is not None:
             click.echo(
                 f"--no-prune: the run's own --prune {own['prune_tolerance']:g} is dropped; "

@@ -53,7 +53,7 @@ from scratchfab.optimize.prune import PruneReport, prune
 from scratchfab.render.layout import write_render_layout
 from scratchfab.render.renderer import ViewRenderer
 
-#: Options that shape the trajectory; a resume must match them.
+#: Options that shape the trajectory; a resume must match them, but for :data:`ROUNDING_KEYS`.
 TRAJECTORY_KEYS = (
     "seed",
     "backend",
@@ -66,6 +66,9 @@ TRAJECTORY_KEYS = (
     "jitter_deg",
     "threads",
 )
+#: Trajectory keys a resume may change, with a note: the steps' arithmetic is the same, only
+#: its rounding differs (a run made on CUDA goes on where no GPU is, or on the CPU as asked).
+ROUNDING_KEYS = ("backend",)
 
 
 @dataclass(frozen=True)
@@ -548,6 +551,16 @@ SCHEDULE_OPTIONS = {
 }
 
 
+def _rounding_notes(made: dict[str, Any], options: OptimizeOptions, ckpt: Path) -> list[str]:
+    """A note per :data:`ROUNDING_KEYS` option a resume changes from its checkpoint's value."""
+    return [
+        f"note: {ckpt} was made on the {made[k]} {k}; its steps go on on {getattr(options, k)}, "
+        f"which rounds differently: the layout is not bit-identical to one run on either alone."
+        for k in ROUNDING_KEYS
+        if k in made and made[k] != getattr(options, k)
+    ]
+
+
 def _changed_keys(made: dict[str, Any], now: dict[str, Any]) -> list[str]:
     """Option names (or "inputs_sha256", or design keys) whose fingerprint values differ.
 
@@ -563,7 +576,7 @@ def _changed_keys(made: dict[str, Any], now: dict[str, Any]) -> list[str]:
         if k == "design":
             out.extend(_design_diff(made, now))
             continue
-        if k in ("inputs", "image_error"):  # inputs_sha256 decides; _image_error_change
+        if k in ("inputs", "image_error", *ROUNDING_KEYS):  # inputs_sha256 decides; ...
             continue
         if k == "lr_schedule":  # a checkpoint may keep a constant scale's shape and total
             a, b = (_schedule_fields(v) if isinstance(v, dict) else v for v in (a, b))
@@ -855,6 +868,8 @@ def _run(
         done = loaded.done
         if done is None:
             raise ConfigError(f"{ckpt}: not a scratchfab checkpoint (no integer 'iteration')")
+        for note in _rounding_notes(made, options, ckpt):
+            report(Progress(done, options.iterations, math.nan, 0.0, math.nan, note))
         if done >= options.iterations and (
             kept := _finished(paths, design, design_files, done, meta.get("elapsed_s"), options)
         ):
