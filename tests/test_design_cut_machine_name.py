@@ -76,3 +76,29 @@ def test_design_and_toolpath_name_a_profile_file_alike(tmp_path, capsys):
     assert code == 0, out
     planned = planned_for(Toolpath.load(job / "toolpath" / "toolpath.json"))
     assert planned == expected + ")"
+
+
+def test_design_machine_option_times_the_cut_on_that_machine(tmp_path, capsys):
+    """The quick form's ``--machine`` (a plotter owner's finding: design timed a plotter job
+    on the 3018): the line names that profile, its seconds are toolpath's estimate for it,
+    and a typo is refused before anything is written."""
+    plotter = bundled_dir("machine_profiles") / "grbl-plotter-scribe.toml"
+    name = tomllib.loads(plotter.read_text(encoding="utf-8"))["name"]
+    quick = [str(DEMO / "sun.png"), "--board", "40x30", "--count", "40", "--resolution", "16"]
+    lines = {}
+    for machine in ("grbl-plotter-scribe", "grbl-3018-diamond"):
+        code, out, err = cli_run(
+            ["design", *quick, "--machine", machine, "--out", str(tmp_path / machine)], capsys
+        )
+        assert code == 0, err
+        lines[machine] = [line for line in out.splitlines() if line.startswith("  cut: ")][0]
+    assert _machine([lines["grbl-plotter-scribe"]]) == f"machine '{name}' ({plotter.stem}"
+    assert lines["grbl-plotter-scribe"] != lines["grbl-3018-diamond"]
+
+    code, out, err = cli_run(
+        ["design", *quick, "--machine", "grbl-plotter-scrib", "--out", str(tmp_path / "typo")],
+        capsys,
+    )
+    assert code != 0
+    assert "grbl-plotter-scrib" in err and "Traceback" not in err
+    assert not (tmp_path / "typo").exists()

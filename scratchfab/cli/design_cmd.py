@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from scratchfab.bundled import bundled_dir, is_file, names_a_file
+from scratchfab.bundled import bundled_dir, bundled_names, is_file, names_a_file
 from scratchfab.cli.options import FiniteFloat, SizePair
 from scratchfab.errors import ConfigError
 
@@ -84,6 +84,14 @@ if TYPE_CHECKING:
     default=None,
     help="Go on despite feasibility errors or a black target.",
 )
+@click.option(
+    "--machine",
+    "-m",
+    default=None,
+    show_default="the file's toolpath.machine, else grbl-3018-diamond",
+    help=f"Machine whose time to cut the layout design tells: bundled profile "
+    f"({', '.join(bundled_names('machine_profiles'))}) or a profile TOML file.",
+)
 def design(
     inputs: tuple[str, ...],
     out: str,
@@ -96,6 +104,7 @@ def design(
     resolution: tuple[int, int] | None,
     seed: int | None,
     force: bool | None,
+    machine: str | None,
 ) -> None:
     """Turn target images and a scene into a job's design folder.
 
@@ -110,9 +119,12 @@ def design(
     from scratchfab.design.quick import count_note, quick_design
     from scratchfab.design.stage import run_design
     from scratchfab.design.stand import stand_lines
+    from scratchfab.machine.profile import load_profile
     from scratchfab.model.job import redesigned_note
 
     res = resolution
+    # A typo in --machine is refused before the design's work, not told after it.
+    profile = load_profile(machine) if machine is not None else None
     inputs = _bundled_pipeline(inputs)
     toml = [p for p in inputs if p.lower().endswith(".toml")]
     if toml:
@@ -143,6 +155,7 @@ def design(
             seed=seed,
             progress=click.echo,
             invert=invert,
+            machine=profile,
         )
     except ConfigError as exc:
         if isinstance(source, str):
