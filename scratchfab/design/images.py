@@ -23,18 +23,19 @@ the default):
 (RGB, RGBA, CMYK) and grey-with-alpha PNGs, which Pillow opens at 8 bits, are read a
 second time for the low bytes; grey-with-alpha TIFFs, which Pillow refuses, are opened
 with its table of TIFF layouts extended for the call; an uncompressed TIFF of separate
-16-bit planes, whose bytes Pillow reads as 8-bit samples, is read from the file's bytes (a
-compressed one keeps 8 bits: libtiff hands Pillow each plane's high bytes). EXIF
-orientation turns them as it turns the image. A TIFF's associated (premultiplied) alpha is divided out of the 16-bit
-colour where alpha > 0, and 16-bit WhiteIsZero grey is inverted (Pillow inverts only
-8-bit grey). 16-bit CMYK without a profile becomes RGB as Pillow converts
-CMYK, ``(1 - C)(1 - K)``, at 16 bits; with one, its high bytes go through littleCMS as
-8-bit CMYK (Pillow's ImageCms has no 16-bit CMYK mode). RGB pixels with a
-matrix/TRC profile (sRGB, Adobe RGB, Display P3, ProPhoto), 8- or 16-bit, are decoded
-from per-channel tables of their luminance, without rounding to 8-bit sRGB or clipping
-to its gamut (so 8 and 16 bits agree); a LUT-based RGB profile (or one with both a table
-and a matrix, which littleCMS converts by the table) converts 8 bits (a 16-bit image's
-high bytes) to 8-bit sRGB.
+16-bit planes, whose bytes Pillow reads as 8-bit samples, is read from the file's bytes
+(a compressed one keeps 8 bits: libtiff hands Pillow each plane's high bytes). EXIF
+orientation turns them as it turns the image. A TIFF's associated (premultiplied) alpha
+is divided out of the 16-bit colour where alpha > 0, and 16-bit WhiteIsZero grey is
+inverted (Pillow inverts only 8-bit grey). 16-bit CMYK without a profile becomes RGB as
+Pillow converts CMYK, ``(1 - C)(1 - K)``, at 16 bits; with one, its high bytes go
+through littleCMS as 8-bit CMYK (Pillow's ImageCms has no 16-bit CMYK mode).
+
+RGB pixels with a matrix/TRC profile (sRGB, Adobe RGB, Display P3, ProPhoto), 8- or
+16-bit, are decoded from per-channel tables of their luminance, without rounding to
+8-bit sRGB or clipping to its gamut (so 8 and 16 bits agree); a LUT-based RGB profile
+(or one with both a table and a matrix, which littleCMS converts by the table) converts
+8 bits (a 16-bit image's high bytes) to 8-bit sRGB.
 A PNG ``tRNS`` colour key makes its pixels transparent at 16 bits too; a CIELAB TIFF is
 read by its L* channel.
 """
