@@ -48,3 +48,19 @@ def test_in_a_run_the_verify_lines_sit_under_the_stage(tmp_path):
     assert re.match(r"  verifying \S+ \(\d+ scratches\) against ", lines[0]), lines
     details = [line for line in lines if line.lstrip().startswith("verify ")]
     assert details and all(line.startswith("    verify ") for line in details), lines
+
+
+def test_a_sample_count_rounded_up_to_the_grid_says_what_was_asked(tmp_path, capsys):
+    """``--spp 20`` takes two batches of 12 (a 3 x 4 grid each): the line says 24 spp and
+    that 20 were asked; ``--spp 16`` (two 2 x 4 grids) says nothing more."""
+    path = write_pipeline(tmp_path)
+    job = tmp_path / "job"
+    run_pipeline(load_pipeline(path), job, until="design")
+    for asked, taken in ((20, 24), (16, 16)):
+        code, said = cli_said(["verify-render", str(job), "--spp", str(asked)], capsys)
+        assert code == 0, said
+        lines = [line for line in said.splitlines() if " px, " in line]
+        assert lines, said
+        for line in lines:
+            assert f" px, {taken} spp" in line, line
+            assert (f"({asked} asked" in line) == (asked != taken), line

@@ -494,8 +494,12 @@ def run_verify(
         result = renderer.render(view, settings.spp, settings.seed + 1000 * i, settings.max_noise)
         results[view.name] = result
         spent = sum(r.seconds for r in results.values())
+        asked = ""
+        if settings.max_noise is None and result.spp != settings.spp:
+            asked = f" ({settings.spp} asked: each batch fills the sampler's square grid)"
         say(
-            f"verify {view.name} ({i + 1}/{n}): {view.width}x{view.height} px, {result.spp} spp, "
+            f"verify {view.name} ({i + 1}/{n}): {view.width}x{view.height} px, {result.spp} spp"
+            f"{asked}, "
             f"noise {100 * result.noise:.2f} %, {result.seconds:.1f} s, "
             f"views left about {clock(spent / (i + 1) * (n - i - 1))}"
         )
