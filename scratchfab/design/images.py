@@ -44,24 +44,25 @@ from __future__ import annotations
 
 import io
 import struct
-import sys
-import threading
 import warnings
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING
 
 import numpy as np
-from PIL import (
-    ExifTags,
-    Image,
-    ImageFile,
-    ImageOps,
-    TiffImagePlugin,
-    UnidentifiedImageError,
-    features,
-)
+from PIL import Image, ImageOps, UnidentifiedImageError, features
 
+from scratchfab.design.images_deep import (
+    CHUNK_ROWS,
+    PHOTOMETRIC,
+    TIFF_MAGIC,
+    deep_read,
+    deep_samples,
+    naive_rgb,
+    open_image,
+    tiff_tag,
+    upright,
+)
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import read_input
 
@@ -109,13 +110,13 @@ def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
             # Pillow warns of what it skips (a corrupt EXIF block, a tag past the end) and
             # of large images; the pixels decode or the file is refused below, in one line.
             warnings.simplefilter("ignore")
-            image = _pillow_open(stream)
-            read = _deep_read(image)  # before load(), which drops the tiles
+            image = open_image(stream)
+            read = deep_read(image)  # before load(), which drops the tiles
             if read is not None:
                 image.tile = read.high
             image.load()
-            deep = None if read is None else _upright(_deep_samples(data, image, read), image)
-            # In place (a copy of a 12-MP photo is 48 MB), once _upright has read the tag.
+            deep = None if read is None else upright(deep_samples(data, image, read), image)
+            # In place (a copy of a 12-MP photo is 48 MB), once upright has read the tag.
             ImageOps.exif_transpose(image, in_place=True)
             return image, deep
     except UnidentifiedImageError:
@@ -133,7 +134,7 @@ _HEIF_BRANDS = (b"heic", b"heix", b"heim", b"heis", b"hevc", b"hevx", b"mif1", b
 def _hint(data: bytes) -> str:
     """What a file Pillow cannot identify seems to be, and what to save instead."""
     head = data[:1024].lstrip()
-    if data[:4] in (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+"):
+    if data[:4] in TIFF_MAGIC:
         what = (
             "a TIFF in a layout Pillow does not decode, such as floating-point colour or "
             "16- or 64-bit floats (it reads floats only as one 32-bit grey channel)"
@@ -158,267 +159,12 @@ def _hint(data: bytes) -> str:
     )
 
 
-#: 16-bit layouts that Pillow decodes to 8 bits (it has no 16-bit colour mode), by the
-#: rawmode it reads them with (PNG, TIFF; "RGBX" is a TIFF's RGB with an unspecified fourth
-#: sample, "RGBa" RGB with associated alpha), and the rawmodes that read the same rows
-#: keeping the high bytes, then the low ones: "RGB;16L" takes each big-endian sample's
-#: second byte ("N" is the computer's own order), "RGBA;16B" reads "RGBa;16B" rows as they
-#: are stored (Pillow's "RGBa" divides by alpha at 8 bits), and for grey with alpha a
-#: 4-byte "RGBA" pixel is all of them (grey high, grey low, alpha high, alpha low).
-_DEEP_RAWMODES = {
-    "LA;16B": ("LA;16B", "RGBA"),
-    **{
-        f"{mode};16{order}": (f"{straight};16{order}", f"{straight};16{other}")
-        for mode, straight in (
-            ("RGB", "RGB"),
-            ("RGBA", "RGBA"),
-            ("RGBX", "RGBX"),
-            ("RGBa", "RGBA"),
-            ("CMYK", "CMYK"),
-        )
-        for order, other in (
-            ("B", "L"),
-            ("L", "B"),
-            ("N", "B" if sys.byteorder == "little" else "L"),
-        )
-    },
-}
-
-#: TIFF tags: BitsPerSample, PhotometricInterpretation (0 WhiteIsZero, 1 BlackIsZero),
-#: ExtraSamples (0 unspecified, 1 associated alpha, 2 alpha), PlanarConfiguration (2:
-#: separate planes), and where the pixels are.
-_BITS_PER_SAMPLE, _PHOTOMETRIC, _EXTRA_SAMPLES, _PLANAR = 258, 262, 338, 284
-_IMAGE_WIDTH, _IMAGE_LENGTH, _COMPRESSION, _SAMPLES_PER_PIXEL = 256, 257, 259, 277
-_STRIP_OFFSETS, _ROWS_PER_STRIP = 273, 278
-_TILE_WIDTH, _TILE_LENGTH, _TILE_OFFSETS = 322, 323, 324
-_TIFF_MAGIC = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
-#: Pillow's TIFF format keys (byte order, photometric, sample format, fill order, bits,
-#: extra samples) for 16-bit grey with a second sample, which it does not list: read as
-#: "RGBA" pixels of 4 stored bytes, which :func:`_deep_samples` pairs up.
-_GREY_AND_ALPHA_16 = {
-    (prefix, photometric, (1,), 1, (16, 16), (extra,)): ("RGBA", "RGBA")
-    for prefix in (b"II", b"MM")
-    for photometric in (0, 1)
-    for extra in (0, 1, 2)
-}
-_OPEN_INFO_LOCK = threading.Lock()
-
-
-def _pillow_open(stream: io.BytesIO) -> ImageFile.ImageFile:
-    """The file opened by Pillow (not loaded), 16-bit grey-and-alpha TIFFs included.
-
-    Pillow refuses those; they are opened with its table of TIFF layouts extended for the
-    call (under a lock: the table is Pillow's, shared by every thread).
-    """
-    try:
-        return Image.open(stream)
-    except UnidentifiedImageError:
-        stream.seek(0)
-        if stream.read(4) not in _TIFF_MAGIC:
-            raise
-    stream.seek(0)
-    table = TiffImagePlugin.OPEN_INFO
-    with _OPEN_INFO_LOCK:
-        added = [key for key in _GREY_AND_ALPHA_16 if key not in table]
-        table.update({key: _GREY_AND_ALPHA_16[key] for key in added})
-        try:
-            return Image.open(stream)
-        finally:
-            for key in added:
-                del table[key]
-
-
-class _DeepRead(NamedTuple):
-    """How Pillow reads a 16-bit image's bytes: tiles for the high bytes, then the low."""
-
-    high: list[Any]
-    #: None when the first read takes every byte (a 16-bit grey-and-alpha TIFF) or when
-    #: the samples are read from the file's bytes (``planes``).
-    low: list[Any] | None
-    #: An uncompressed TIFF of separate 16-bit planes, which Pillow misreads.
-    planes: bool = False
-
-
-def _rawmode(tile: Any) -> str | None:
-    args = tile[3]
-    return args if isinstance(args, str) else args[0] if args else None
-
-
-def _with_rawmode(tile: Any, rawmode: str) -> Any:
-    args = tile[3]
-    new = rawmode if isinstance(args, str) else (rawmode, *args[1:])
-    # Pillow 11 on: named tuples (a file of several strips reads their offsets).
-    return tile._replace(args=new) if hasattr(tile, "_replace") else (*tile[:3], new)
-
-
-def _tiff_tag(opened: Image.Image, tag: int) -> Any:
-    """A TIFF tag's value, None when absent or the image is no TIFF."""
-    if not isinstance(opened, TiffImagePlugin.TiffImageFile):
-        return None
-    return opened.tag_v2.get(tag)
-
-
-def _deep_read(opened: Image.Image) -> _DeepRead | None:
-    """The tiles that read the image's 16 bits, or None unless it is 16-bit colour or LA."""
-    tiles = list(getattr(opened, "tile", []))
-    if _tiff_tag(opened, _PLANAR) == 2 and len(opened.getbands()) > 1:
-        deep = set(_tiff_tag(opened, _BITS_PER_SAMPLE) or ()) == {16}
-        raw = _tiff_tag(opened, _COMPRESSION) in (None, 1)
-        # Compressed, libtiff reads each plane's high bytes whatever the rawmode: 8 bits.
-        if not (raw and deep and tiles):
-            return None
-        # The first plane's tiles alone: Pillow has no rawmode for some others ("a").
-        first = [tile for tile in tiles if _rawmode(tile) == _rawmode(tiles[0])]
-        return _DeepRead(first, None, planes=True)
-    if _tiff_tag(opened, _BITS_PER_SAMPLE) == (16, 16):  # opened by _GREY_AND_ALPHA_16
-        every = tiles and all(_rawmode(tile) == "RGBA" for tile in tiles)
-        return _DeepRead(tiles, None) if every else None
-    high, low = [], []
-    for tile in tiles:
-        rawmode = _rawmode(tile)
-        if rawmode not in _DEEP_RAWMODES:
-            return None
-        high.append(_with_rawmode(tile, _DEEP_RAWMODES[rawmode][0]))
-        low.append(_with_rawmode(tile, _DEEP_RAWMODES[rawmode][1]))
-    return _DeepRead(high, low) if high else None
-
-
-def _big_endian(opened: Image.Image, tile: Any) -> bool:
-    """Whether a tile reads 16-bit samples high byte first.
-
-    PNG stores them so; a TIFF in its own order, which libtiff (any compression) turns
-    into the computer's.
-    """
-    if not isinstance(opened, TiffImagePlugin.TiffImageFile):
-        return True
-    if tile[0] == "libtiff":
-        return sys.byteorder == "big"
-    return bool(opened.tag_v2.prefix == b"MM")
-
-
-def _deep_samples(data: bytes, opened: Image.Image, read: _DeepRead) -> np.ndarray:
-    """A 16-bit image's samples, (h, w, channels) uint16, colour divided by alpha.
-
-    ``opened`` holds the first read's bytes (the high ones, or all of them); Pillow's own
-    decoder (PNG filters and interlacing, TIFF compressions) reads the file a second time
-    with the ``read.low`` tiles. Associated alpha (a TIFF's premultiplied colour) is
-    divided out; an unspecified second sample of a grey TIFF is dropped.
-    """
-    if read.planes:
-        assert isinstance(opened, TiffImagePlugin.TiffImageFile)
-        return _unassociated(_planes(data, opened), opened)
-    if read.low is None:
-        raw, every = np.asarray(opened), True
-    else:
-        again = Image.open(io.BytesIO(data))
-        assert isinstance(again, ImageFile.ImageFile)
-        again.tile = read.low
-        again.load()
-        raw, every = np.asarray(again), _rawmode(read.low[0]) == "RGBA"
-        del again  # a 12-MP photo: each copy of it is 36 MB or more
-    if every:  # grey and alpha: every byte
-        first, second = raw[..., 0::2], raw[..., 1::2]
-        big = _big_endian(opened, (read.low or read.high)[0])
-        high, lows = (first, second) if big else (second, first)
-    else:
-        high, lows = np.asarray(opened), raw
-    samples = high.astype(np.uint16)
-    samples <<= 8
-    samples |= lows
-    return _unassociated(samples, opened)
-
-
-def _unassociated(samples: np.ndarray, opened: Image.Image) -> np.ndarray:
-    """A TIFF's samples with associated alpha divided out, an unspecified extra dropped.
-
-    Pillow's "RGBX" rawmodes drop the extra sample themselves: only samples that still
-    have every one the file stores lose it here.
-    """
-    extra = _tiff_tag(opened, _EXTRA_SAMPLES)
-    if extra == (1,):
-        _unpremultiply(samples)
-    elif extra == (0,) and samples.shape[2] == _tiff_tag(opened, _SAMPLES_PER_PIXEL):
-        samples = samples[..., :-1]
-    return samples
-
-
-def _planes(data: bytes, opened: TiffImagePlugin.TiffImageFile) -> np.ndarray:
-    """An uncompressed TIFF's separate 16-bit planes, (h, w, planes) uint16.
-
-    Pillow reads their bytes as 8-bit samples (a wrong picture). Each plane's strips or
-    tiles follow the one before's (TIFF 6.0, PlanarConfiguration 2); a tile's rows are
-    stored whole where it overhangs the image's right edge.
-    """
-    tags = opened.tag_v2
-    width, height = tags[_IMAGE_WIDTH], tags[_IMAGE_LENGTH]
-    if _TILE_OFFSETS in tags:
-        across, down, offsets = tags[_TILE_WIDTH], tags[_TILE_LENGTH], tags[_TILE_OFFSETS]
-    else:
-        across, down, offsets = width, tags.get(_ROWS_PER_STRIP, height), tags[_STRIP_OFFSETS]
-    if not across > 0 < down:
-        raise ValueError(f"strips or tiles of {across} x {down} pixels")
-    per_row = -(-width // across)
-    per_plane = per_row * -(-height // down)
-    planes = tags.get(_SAMPLES_PER_PIXEL, 1)
-    if len(offsets) < planes * per_plane:
-        raise ValueError(f"{len(offsets)} strip or tile offsets for {planes} planes")
-    dtype = np.dtype("<u2" if tags.prefix == b"II" else ">u2")
-    samples = np.empty((height, width, planes), np.uint16)
-    for i, offset in enumerate(offsets[: planes * per_plane]):
-        plane, k = divmod(i, per_plane)
-        row, col = divmod(k, per_row)
-        y0, x0 = row * down, col * across
-        rows = min(down, height - y0)  # those in the image (a tile stores `down`)
-        block = np.frombuffer(data, dtype, rows * across, offset).reshape(rows, across)
-        samples[y0 : y0 + down, x0 : x0 + across, plane] = block[: height - y0, : width - x0]
-    return samples
-
-
-def _unpremultiply(samples: np.ndarray) -> None:
-    """Colour divided by alpha (the last channel) in place, where alpha > 0, rounded."""
-    for r0 in range(0, samples.shape[0], _CHUNK_ROWS):
-        block = samples[r0 : r0 + _CHUNK_ROWS]
-        alpha = block[..., -1:].astype(np.uint32)
-        colour = block[..., :-1].astype(np.uint32)
-        straight = (colour * 65535 + alpha // 2) // np.maximum(alpha, 1)
-        block[..., :-1] = np.where(alpha > 0, np.minimum(straight, 65535), colour)
-
-
-def _naive_rgb(cmyk: np.ndarray) -> np.ndarray:
-    """16-bit CMYK to RGB as Pillow converts CMYK without a profile, ``(1 - C)(1 - K)``.
-
-    Each channel is 1 minus its ink times 1 minus black, rounded to a 16-bit code.
-    """
-    rgb = np.empty((*cmyk.shape[:2], 3), np.uint16)
-    for r0 in range(0, cmyk.shape[0], _CHUNK_ROWS):
-        paper = 65535 - cmyk[r0 : r0 + _CHUNK_ROWS].astype(np.uint32)
-        rgb[r0 : r0 + _CHUNK_ROWS] = (paper[..., :3] * paper[..., 3:] + 32767) // 65535
-    return rgb
-
-
-def _upright(samples: np.ndarray, opened: Image.Image) -> np.ndarray:
-    """Samples turned as ``ImageOps.exif_transpose`` turns ``opened`` (each channel by it)."""
-    exif = Image.Exif()
-    orientation = opened.getexif().get(ExifTags.Base.Orientation)  # EXIF, TIFF tag or XMP
-    if orientation is None:
-        return samples
-    exif[ExifTags.Base.Orientation] = orientation
-    channels = []
-    for c in range(samples.shape[2]):
-        channel = Image.fromarray(np.ascontiguousarray(samples[..., c]))
-        channel.info["exif"] = exif.tobytes()
-        channels.append(np.asarray(ImageOps.exif_transpose(channel)))
-    return np.stack(channels, axis=-1)
-
-
 #: Linear values of every 8-bit and 16-bit code (decoding by table is exact and fast).
 _LUT8 = srgb_to_linear(np.arange(256) / 255.0)
 _LUT16 = srgb_to_linear(np.arange(65536) / 65535.0)
 #: How far floating-point pixels may stray outside [0, 1] (rounding, filters' overshoot)
 #: before the file is refused rather than clipped.
 _FLOAT_SLACK = 0.01
-#: Rows converted at a time, so that large photos do not need several float copies.
-_CHUNK_ROWS = 256
 
 _GRAY_MODES = ("1", "L", "LA", "La", "I", "F", "I;16", "I;16L", "I;16B", "I;16N")
 _RGB_MODES = ("RGB", "RGBA", "RGBX", "RGBa", "P", "PA")
@@ -821,12 +567,12 @@ def _luminance_16bit(
     # One contiguous table per channel: a 1-D lookup is ~4x faster than a 2-D one.
     luts = [np.ascontiguousarray(table[:, c % table.shape[1]]) for c in range(len(weights))]
     lin = np.empty(samples.shape[:2])
-    for r0 in range(0, samples.shape[0], _CHUNK_ROWS):
-        block = samples[r0 : r0 + _CHUNK_ROWS]
+    for r0 in range(0, samples.shape[0], CHUNK_ROWS):
+        block = samples[r0 : r0 + CHUNK_ROWS]
         lum = np.zeros(block.shape[:2])
         for c, (weight, lut) in enumerate(zip(weights, luts, strict=True)):
             lum += weight * lut[block[..., c]]
-        lin[r0 : r0 + _CHUNK_ROWS] = lum
+        lin[r0 : r0 + CHUNK_ROWS] = lum
     alpha = samples[..., -1] / 65535.0 if samples.shape[2] % 2 == 0 else None
     return lin, alpha
 
@@ -846,9 +592,9 @@ def _luminance_8bit(
     """Linear luminance of an 8-bit image's R, G, B codes (grey ones too), and its alpha."""
     rgba = _rgb_codes(image, file)
     lin = np.empty(rgba.shape[:2])
-    for r0 in range(0, rgba.shape[0], _CHUNK_ROWS):
-        block = rgba[r0 : r0 + _CHUNK_ROWS]
-        lin[r0 : r0 + _CHUNK_ROWS] = decoding.lut8[block[..., :3]] @ decoding.weights
+    for r0 in range(0, rgba.shape[0], CHUNK_ROWS):
+        block = rgba[r0 : r0 + CHUNK_ROWS]
+        lin[r0 : r0 + CHUNK_ROWS] = decoding.lut8[block[..., :3]] @ decoding.weights
     return lin, rgba[..., 3] / 255.0 if rgba.shape[2] == 4 else None
 
 
@@ -879,7 +625,7 @@ def load_image(path: str | Path, invert: bool = False) -> np.ndarray:
     file = Path(path)
     image, deep = _open(file)
     deep = deep if deep is not None else _gray16(image)
-    if deep is not None and _tiff_tag(image, _PHOTOMETRIC) == 0:
+    if deep is not None and tiff_tag(image, PHOTOMETRIC) == 0:
         deep[..., 0] = 65535 - deep[..., 0]  # white is zero: Pillow inverts only 8 bits
     if deep is not None:
         deep = _keyed(deep, image)
@@ -887,7 +633,7 @@ def load_image(path: str | Path, invert: bool = False) -> np.ndarray:
     decoding: _Decoding | None = _Decoding()
     profile = _embedded_profile(image, file, kind)
     if profile is None and kind == "CMYK" and deep is not None:
-        deep = _naive_rgb(deep)
+        deep = naive_rgb(deep)
     if profile is not None and kind == "grayscale":
         decoding = _gray_decoding(file, profile)
     elif profile is not None:
