@@ -86,10 +86,12 @@ def stroke_job(path, strokes: int) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
-def alarmed_job(path, lost, code: int) -> str:
+def alarmed_job(path, lost, code: int, homing: bool = True) -> str:
     """Write :func:`stroke_job` (12 strokes) to ``path``, stop it on the emulator after 12
     acknowledged lines and journal an ``ALARM:code`` with ``lost`` before the stop (as the
-    sender journals one): the lost-position warning a resume then gives."""
+    sender journals one): the lost-position warning a resume then gives. The journal says
+    GRBL's homing was ``homing`` ($22; a soft limit needs it on, which the emulator's
+    defaults leave off)."""
     import json
 
     from scratchfab.machine.stream_job import lost_position_warning
@@ -98,9 +100,12 @@ def alarmed_job(path, lost, code: int) -> str:
     journal = default_journal_path(path)
     stopped_after(journal, load_program(path), 12, "grblsim://?baud=0&time_scale=0.02")
     text = journal.read_text().splitlines()
+    start = json.loads(text[0])
+    assert start["ev"] == "start" and start["homing"] is False  # the emulator's $22=0
+    text[0] = json.dumps({**start, "homing": homing})
     alarm = {"ev": "alarm", "code": code, "lost": lost, "time": "2026-01-01T00:00:00"}
     journal.write_text("\n".join([*text[:-1], json.dumps(alarm), text[-1]]) + "\n")
-    warning = lost_position_warning(read_journal(journal))
+    warning = lost_position_warning(read_journal(journal), homing=homing)
     assert warning is not None
     return warning
 

@@ -10,6 +10,7 @@ the end of its queue and resumes unasked.
 
 from __future__ import annotations
 
+import json
 import re
 import time
 
@@ -162,3 +163,69 @@ def test_reset_since_lost_link_bounds(was, now, steps, reset):
     if reset:
         assert found["lost"] is True and found["mpos_now"] == list(now)
     assert reset_since_lost_link(events, None) is None
+
+
+def _without_position(job) -> None:
+    """The journal's ``lost`` event without ``mpos`` and ``wco``: as a journal written before
+    they were recorded, or a drop before any status report, leaves it."""
+    journal = default_journal_path(job)
+    events = [json.loads(line) for line in journal.read_text().splitlines()]
+    assert events[-1]["ev"] == "lost" and "mpos" in events[-1]
+    for key in ("mpos", "wco"):
+        events[-1].pop(key)
+    journal.write_text("".join(json.dumps(ev) + "\n" for ev in events))
+
+
+NO_POSITION = "ended with a lost link before any position of the machine was recorded"
+
+
+@pytest.mark.parametrize(
+    ("flags", "answers", "refusal"),
+    [
+        (["--yes"], "", "error: refusing to resume with --yes: "),
+        ([], "n\n", "error: not confirmed; nothing was sent: "),
+        ([], "y\ny\n", None),  # kept power (or homed), then the usual question
+        (["--yes", "--homed"], "", None),
+    ],
+)
+def test_a_drop_with_no_position_recorded_asks_before_connecting(tmp_path, flags, answers, refusal):
+    """Whether the controller reset cannot be told without the position it had: asked as
+    after a reset, even of one that kept power; nothing is sent before the answer."""
+    job, pty, _ = _drop_link(tmp_path)
+    where = _settled(pty)
+    pty.close()
+    _without_position(job)
+    rec = tmp_path / "r1.jsonl"
+    kept = GrblPty(SimOptions(**QUICK, record=str(rec)))
+    kept.sim.mpos = kept.sim._target = kept.sim._gc.position = where  # it kept power
+    with kept:
+        kept.start()
+        code, out, err = _stream([str(job), "--port", kept.path, "--resume", *flags], answers)
+    assert "Traceback" not in err
+    asked = "Was the machine" in err and "or did its controller keep power" in err
+    assert asked == ("--yes" not in flags)
+    if refusal is not None:
+        assert code == 2
+        last = err.rstrip().splitlines()[-1]
+        assert last.startswith(refusal) and "--homed" in last
+        assert NO_POSITION in last or "--yes" not in flags
+        assert not _gcode_rx(rec)  # nothing but the connect's queries, if that
+        return
+    assert code == 0, err
+    assert "done:" in out + err and _gcode_rx(rec)
+    if "--homed" in flags:
+        note = "note: the run before this resume ended with a lost link, with no position"
+        assert note in err
+
+
+def test_a_drop_with_no_position_recorded_warns_on_the_emulator(tmp_path, capsys):
+    job = tmp_path / "job.gcode"
+    write_job(job, 40)
+    with pytest.raises(SystemExit):
+        main(["stream", str(job), "--port", f"{SIM}&disconnect_after=151", "--yes", *COMMON])
+    _without_position(job)
+    capsys.readouterr()
+    _resume(job, SIM, "--yes")
+    err = capsys.readouterr().err
+    assert f"warning: the run before this resume {NO_POSITION}" in err
+    assert f"warning (repeated): the run before this resume {NO_POSITION}" in err

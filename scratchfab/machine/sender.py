@@ -77,7 +77,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
@@ -140,36 +140,115 @@ def machine_coordinates(profile: MachineProfile | None) -> bool:
     return profile is not None and profile.envelope.coordinates == "machine"
 
 
-def rehome(profile: MachineProfile | None) -> str:
-    """``re-home`` for a machine-coordinate profile, else ``re-home or re-zero``."""
-    return "re-home" if machine_coordinates(profile) else "re-home or re-zero"
+def homing_of(settings: Mapping[int, float]) -> bool | None:
+    """GRBL's homing cycle as ``$$`` gave it (``$22``): on, off, or None where not read."""
+    return bool(settings[22]) if 22 in settings else None
 
 
-def reconnect_next(profile: MachineProfile | None) -> str:
+#: Why ``$H`` is no advice where GRBL's homing is off.
+HOMING_OFF = "homing is off, $22=0: $H answers error:5"
+
+
+class Refind(NamedTuple):
+    """How a lost position is found again, for a profile's frame and GRBL's ``$22``.
+
+    Attributes:
+        verb: What to do, short: ``re-home``, ``re-home or re-zero``, ``re-zero``.
+        done: What was done since, for a question: ``homed ($H)``...
+        do: What to do, in full.
+        again: What finds the position after an unlock (``$X``) where homing is off.
+    """
+
+    verb: str
+    done: str
+    do: str
+    again: str
+
+
+def refind(profile: MachineProfile | None, homing: bool | None = None) -> Refind:
+    """:class:`Refind` for ``profile`` and ``homing`` (``$22``; None: not known).
+
+    A machine-coordinate profile (``[envelope] coordinates = "machine"``) is found again
+    by homing alone: it refuses a work offset, so setting a work zero is no advice for it;
+    with homing off it needs homing turned on first. A work-coordinate profile, or none
+    known (a foreign file, no ``--machine``): homing, or the work zero set again on the
+    board's origin; with homing off (``$22=0``, where ``$H`` answers ``error:5``) only the
+    work zero, after an unlock (``$X``).
+    """
+    zero = "set the work zero again on the board's origin"
+    if machine_coordinates(profile):
+        frame = "its profile works in GRBL's machine coordinates"
+        if homing is False:
+            again = f"turn homing on ($22=1) and home it ($H) ({frame}, which homing sets)"
+            return Refind(
+                "turn homing on ($22=1) and re-home",
+                "homed ($H) with homing turned on ($22=1)",
+                f"{again}: set no work zero",
+                again,
+            )
+        do = f"home the machine ($H) ({frame}: set no work zero)"
+        return Refind("re-home", "homed ($H)", do, "home it ($H)")
+    if homing is False:
+        return Refind(
+            "re-zero",
+            "unlocked ($X) and its work zero set again on the board's origin",
+            f"unlock it ($X) and {zero} ({HOMING_OFF})",
+            zero,
+        )
+    return Refind(
+        "re-home or re-zero",
+        "homed ($H), or its work zero set again on the board's origin",
+        f"home the machine ($H), or unlock it ($X) and {zero}",
+        zero,
+    )
+
+
+def unlock_advice(
+    profile: MachineProfile | None, homing: bool | None, lost: bool | None = None
+) -> str | None:
+    """How to leave an Alarm where homing is off (``$22=0``): unlock, find the position again.
+
+    ``lost``: True, the position is likely lost; otherwise it may be. None where homing
+    is on or not known: ``home it ($H)`` holds, in the caller's own words.
+    """
+    if homing is not False:
+        return None
+    again = refind(profile, False).again
+    if lost:
+        return f"unlock it ($X) and {again} ({HOMING_OFF})"
+    return f"unlock it ($X), and if its position may be lost {again} ({HOMING_OFF})"
+
+
+def rehome(profile: MachineProfile | None, homing: bool | None = None) -> str:
+    """``re-home`` for a machine-coordinate profile, else ``re-home or re-zero`` (:func:`refind`)."""
+    return refind(profile, homing).verb
+
+
+def reconnect_next(profile: MachineProfile | None, homing: bool | None = None) -> str:
     """What to do once a controller that was lost (its link, or its answers) stands still."""
     return (
-        f"then reconnect, {rehome(profile)} the machine (opening the port reboots an "
+        f"then reconnect, {rehome(profile, homing)} the machine (opening the port reboots an "
         "Arduino-based controller, which loses its position) and run the same command with "
         "--resume"
     )
 
 
-def link_lost_next(profile: MachineProfile | None) -> str:
+def link_lost_next(profile: MachineProfile | None, homing: bool | None = None) -> str:
     """What to do after a lost connection, once the machine stands still."""
     return (
-        f"{reconnect_next(profile)}, adding --recut-unsure ([stream] recut_unsure = true in a "
-        "pipeline) if the board's lights went out with the cable"
+        f"{reconnect_next(profile, homing)}, adding --recut-unsure ([stream] recut_unsure = "
+        "true in a pipeline) if the board's lights went out with the cable"
     )
 
 
-def silent_next(profile: MachineProfile | None) -> str:
+def silent_next(profile: MachineProfile | None, homing: bool | None = None) -> str:
     """What to do after the controller fell silent (no status reports).
 
     The hold and the reset sent may not have reached it.
     """
     return (
         "it may have hung or lost power: if the machine still moves, wait until it stops or "
-        f"press its reset before going near it; {reconnect_next(profile)}"
+        f"press its reset before going near it; {reconnect_next(profile, homing)}"
     )
 
 
@@ -695,9 +774,11 @@ class Streamer:
         except _Fault as fault:
             raise StreamFault(str(fault)) from None
         if self.info.status.state.startswith(("Alarm", "Sleep")):
+            leave = self._unlock_advice() or (
+                "home it ($H) or, if the position is known, unlock it ($X) first"
+            )
             raise StreamFault(
-                f"controller is in {self.info.status.state}: home it ($H) or, if the position "
-                "is known, unlock it ($X) first; nothing was sent"
+                f"controller is in {self.info.status.state}: {leave}; nothing was sent"
             )
         try:
             self._read_work_offset()
@@ -976,6 +1057,7 @@ class Streamer:
             self.info.g92,
             self.info.inch_reports,
             self._step_mm(),
+            self._homing(),
         )
         self._journal = journal
         self._program = program
@@ -1317,7 +1399,8 @@ class Streamer:
             if error
             else f"the controller reports Alarm {after}"
         )
-        find = (
+        off = self._unlock_advice()
+        find = off or (
             "home it" if machine_coordinates(self.options.profile) else "home it or check the zero"
         )
         return _Fault(
@@ -1431,7 +1514,7 @@ class Streamer:
         self._stopped_through = self._executed_guess(None)
         return _Fault(
             f"the controller reset itself {when} (its banner came) {self._after_line()}"
-            f"{self._ran_clause()}; its position may be lost: {rehome(self.options.profile)}, "
+            f"{self._ran_clause()}; its position may be lost: {self._rehome()}, "
             "then --resume",
             kind="reset",
         )
@@ -1517,6 +1600,18 @@ class Streamer:
             f"the feed hold was cut short: {self._alarm_text}; GRBL stopped the machine "
             "itself and is locked, and the sender soft-reset it (spindle off)"
         )
+
+    def _homing(self) -> bool | None:
+        """GRBL's ``$22`` as the connect's ``$$`` gave it (None: not read)."""
+        return homing_of(self.info.settings)
+
+    def _rehome(self) -> str:
+        """:func:`rehome` for this machine's profile and ``$22``."""
+        return rehome(self.options.profile, self._homing())
+
+    def _unlock_advice(self, lost: bool | None = None) -> str | None:
+        """:func:`unlock_advice` for this machine (None: homing on or not known)."""
+        return unlock_advice(self.options.profile, self._homing(), lost)
 
     def _go_on(self) -> str:
         """The stop's advice on going on: after an alarm, once it is cleared."""
@@ -1608,28 +1703,30 @@ class Streamer:
                 self._write(REALTIME_HOLD)
                 tool = self._safe_stop(str(fault), wait=2.0)
                 if self._hold_alarm is None:
-                    fault.args = (f"{fault}{tool}; {silent_next(self.options.profile)}",)
+                    fault.args = (
+                        f"{fault}{tool}; {silent_next(self.options.profile, self._homing())}",
+                    )
                 else:  # it answered after all, with an alarm
                     fault.args = (f"{fault}; {self._held_text()}{tool}; {self._go_on()}",)
             elif fault.kind == "alarm":
                 # the alarm already stopped motion and flushed the queue; a critical alarm
                 # answers nothing until reset
+                leave = self._unlock_advice(self._alarm_lost) or "home it ($H)" + (
+                    " (its position may be lost: not just unlock it)"
+                    if self._alarm_lost
+                    else " or unlock it ($X)"
+                )
                 lifted = self._no_lift(
                     "after an alarm GRBL is locked and the sender never unlocks it; check the "
-                    "machine, home it ($H)"
-                    + (
-                        " (its position may be lost: not just unlock it)"
-                        if self._alarm_lost
-                        else " or unlock it ($X)"
-                    )
-                    + " yourself, then jog Z up"
+                    f"machine, {leave} yourself, then jog Z up"
                 )
                 self._reset(str(fault), self.status, lifted)
                 fault.args = (str(fault) + _clause(lifted),)
             elif fault.kind == "lock":
+                leave = self._unlock_advice(True) or "home it ($H) or unlock it ($X)"
                 lifted = self._no_lift(
-                    "the controller is in Alarm and its position may be lost; home it ($H) "
-                    "or unlock it ($X) yourself, then jog Z up"
+                    "the controller is in Alarm and its position may be lost; "
+                    f"{leave} yourself, then jog Z up"
                 )
                 self._reset(str(fault), None, lifted)  # a reset may have lost the position
                 fault.args = (str(fault) + _clause(lifted),)
@@ -1661,7 +1758,7 @@ class Streamer:
                     f"{fault}; a controller that kept power goes on running the lines it had "
                     "received (up to a planner full of moves, spindle on): wait until it stops "
                     f"or press its reset before going near it{_clause(lifted)}; "
-                    f"{link_lost_next(self.options.profile)}",
+                    f"{link_lost_next(self.options.profile, self._homing())}",
                 )
         except _Fault:
             self._journal.write(
@@ -1782,9 +1879,12 @@ class Streamer:
         status = self._status_after_reset()
         state = status.state
         if state.startswith("Alarm"):
+            leave = self._unlock_advice(True) or (
+                "home it ($H), or unlock it ($X) yourself if the position is known"
+            )
             return self._not_raised(
-                f"the controller is in {state} after the reset (position lost); home it "
-                "($H), or unlock it ($X) yourself if the position is known, then jog Z up"
+                f"the controller is in {state} after the reset (position lost); {leave}, "
+                "then jog Z up"
             )
         if state.startswith("Door"):
             return self._not_raised(
@@ -1956,7 +2056,8 @@ class Streamer:
                         return (
                             f"ALARM:{code} ({alarm_meaning(code)}) on {text!r}; soft reset "
                             "sent, the controller stays locked: check the machine, then "
-                            "home it ($H) or unlock it ($X) yourself"
+                            f"{self._unlock_advice() or 'home it ($H) or unlock it ($X)'} "
+                            "yourself"
                         )
                     elif line.startswith("<"):
                         self._note_status(line)

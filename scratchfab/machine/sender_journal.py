@@ -5,7 +5,8 @@ line, which the reader skips). Events:
 
 - ``{"ev": "start", "file": ..., "sha256": ..., "blocks": N, "resume": bool, ...}``; the
   file relative to the job folder when both lie in one job (:meth:`Journal.recorded`), for
-  messages only: a resume knows its file by ``sha256``
+  messages only: a resume knows its file by ``sha256``; ``"homing"``: GRBL's ``$22``
+  (true, false, null where not read), for a resume's advice on finding the position
 - ``{"ev": "ack", "i": block, "line": file_line}`` for each ``ok`` of a file block
   (``{"ev": "ack", "pre": k}`` for the k-th resume preamble block)
 - ``{"ev": "error", "i": block, "line": file_line, "code": N}`` (``"pre": k`` for a resume
@@ -33,7 +34,9 @@ line, which the reader skips). Events:
   may not have run. Resume trusts the acknowledgements unless asked to re-cut those blocks.
   ``"mpos"`` and ``"wco"`` (mm, where a status report told them): where the machine stood
   by the last report; a resume that finds the controller at machine zero though ``mpos``
-  was not (it reset: an Arduino resets when its port is opened) asks whether it was homed.
+  was not (it reset: an Arduino resets when its port is opened) asks whether it was homed,
+  and so does one whose ``lost`` event holds no ``mpos`` (no report came before the drop,
+  or a journal written before it was recorded): whether it reset cannot be told.
 - ``{"ev": "end", "complete": true}``
 
 A block is *done* when a session acknowledged it and did not later flush it with a reset;
@@ -169,6 +172,7 @@ class Journal:
         g92: Sequence[float] | None = None,
         inches: bool = False,
         steps_mm: Sequence[float] | None = None,
+        homing: bool | None = None,
     ) -> None:
         """Begin a run of ``program`` at block ``start`` (a fresh one, or a resume).
 
@@ -178,7 +182,9 @@ class Journal:
         (mm, None: unknown) let a resume see that the work zero moved (:func:`run_zero`);
         ``inches``: they were read in GRBL's inch reports (``$13=1``), a coarser digit.
         ``steps_mm``: GRBL's step per axis (mm, ``$100``-``$102``; 0 or None: not known),
-        for the moves it may drop (:func:`last_surely_run`).
+        for the moves it may drop (:func:`last_surely_run`). ``homing``: GRBL's ``$22``
+        (None: not read), so that a resume's advice before connecting knows whether ``$H``
+        can find the position (:func:`run_homing`).
         """
         self.write(
             "start",
@@ -196,6 +202,7 @@ class Journal:
             g92=None if g92 is None else [round(float(v), 4) for v in g92],
             inches=inches,
             steps=None if steps_mm is None else [float(v) for v in steps_mm],
+            homing=homing,
         )
 
     def recorded(self, file: str | os.PathLike[str]) -> str:
@@ -297,6 +304,8 @@ def check_event(ev: dict[str, Any], blocks: int | None, where: str) -> int | Non
         for key in ("wco", "g92"):
             if ev.get(key) is not None and xyz_of(ev[key]) is None:
                 raise _expected(where, key, "null or [x, y, z] in mm", ev[key])
+        if ev.get("homing") not in (True, False, None):
+            raise _expected(where, "homing", "true, false or null (GRBL's $22)", ev.get("homing"))
         steps = ev.get("steps")
         if steps is not None and not all(0.0 <= v < math.inf for v in xyz_of(steps) or [-1.0]):
             raise _expected(where, "steps", "null or [x, y, z] mm per step, each 0 or more", steps)
@@ -336,6 +345,13 @@ def run_zero_in_inches(events: Sequence[dict[str, Any]]) -> bool:
     """Whether the journal's last run read its work offset in inch reports (``$13=1``)."""
     starts = [ev for ev in events if ev.get("ev") == "start"]
     return bool(starts) and starts[-1].get("inches") is True
+
+
+def run_homing(events: Sequence[dict[str, Any]]) -> bool | None:
+    """GRBL's homing cycle (``$22``) as the journal's last run read it; None: not recorded."""
+    starts = [ev for ev in events if ev.get("ev") == "start"]
+    homing = starts[-1].get("homing") if starts else None
+    return homing if isinstance(homing, bool) else None
 
 
 def xyz_of(value: Any) -> tuple[float, float, float] | None:

@@ -25,8 +25,9 @@ from scratchfab.machine.sender import (
     StreamFault,
     StreamOptions,
     StreamProgress,
-    machine_coordinates,
+    homing_of,
     open_port,
+    refind,
     xyz_text,
 )
 from scratchfab.machine.sender_checks import ZERO_KEPT, compare, eta_settings, same_offset
@@ -38,6 +39,7 @@ from scratchfab.machine.sender_journal import (
     interrupted,
     last_fresh_start,
     read_journal,
+    run_homing,
     run_zero,
     run_zero_in_inches,
     xyz_of,
@@ -118,8 +120,8 @@ class StreamCallbacks:
             is asked (``--yes``): what needs a person's word is refused (a partial board on
             a machine, a G-code of an earlier plan or of a toolpath planned from other
             inputs than there are now, a stream from the top over an unfinished one, a
-            resume after an alarm or a controller reset that may have lost the position
-            unless ``homed``).
+            resume after an alarm, a controller reset or a lost link that may have lost
+            the position unless ``homed``).
         result: Called with the outcome lines (resume point, done); default ``say``.
     """
 
@@ -366,6 +368,7 @@ def _stream_locked(
     preamble: list[str] = []
     events = None
     lost = False  # warn of a lost position once connected and at the end
+    homing: bool | None = None  # GRBL's $22 (None: not known)
     asked = False  # the journal's alarm or stop already put the lost-position question
     if req.resume and journal.created:
         raise ConfigError(
@@ -415,8 +418,9 @@ def _stream_locked(
                 f"{req.gcode}: every line is done according to {journal_file}; nothing to do"
             )
             return
-        lost = ask_if_homed(events, req.homed, req.port, cb.confirm, cb.say, profile)
-        asked = lost_position_warning(events, profile) is not None
+        homing = run_homing(events)  # GRBL's $22 as the run resumed read it
+        lost = ask_if_homed(events, req.homed, req.port, cb.confirm, cb.say, profile, homing)
+        asked = _lost_event(events) is not None
         preamble = resume_preamble(program, start)
         n_done = sum(1 for a, b in program.strokes if all(i in done for i in range(a, b + 1)))
         cb.outcome(
@@ -447,12 +451,16 @@ def _stream_locked(
         if resume and events is not None:
             inches = info.inch_reports
             _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
+            if homing is None:  # not recorded (an older journal): as read now
+                homing = homing_of(info.settings)
             reset = None if asked else reset_since_lost_link(events, info.status.mpos)
             if reset is not None:  # asked here, connected, before anything moves
                 events = [*events, reset]
-                lost = ask_if_homed(events, req.homed, req.port, cb.confirm, cb.say, profile)
+                lost = ask_if_homed(
+                    events, req.homed, req.port, cb.confirm, cb.say, profile, homing
+                )
             if lost:
-                _say_lost_position(events, cb.say, profile=profile)
+                _say_lost_position(events, cb.say, profile=profile, homing=homing)
         program = program.timed_for(eta_settings(info.settings, profile))  # the ETA's times
         wpos = info.status.wpos if start == 0 else None  # a fresh stream starts there
         findings = compare(
@@ -491,7 +499,7 @@ def _stream_locked(
         finally:
             if lost:
                 assert events is not None
-                _say_lost_position(events, cb.say, again=True, profile=profile)
+                _say_lost_position(events, cb.say, again=True, profile=profile, homing=homing)
     finally:
         ser.close()
 
@@ -828,15 +836,30 @@ def _last_session(events: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def _lost_event(events: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The journal's last session's last ``alarm`` or ``stop`` event with ``lost``, else None.
+    """The journal's last session's last event that may have lost the position, else None.
 
-    A ``stop`` holds ``lost`` where the controller reset itself (its banner came: a power
-    or USB glitch, its reset button), which may have lost the position; a ``lost`` event
-    (a dropped link) holds ``lost`` once :func:`reset_since_lost_link` found a reset since.
+    An ``alarm`` or ``stop`` with ``lost`` (a ``stop`` holds it where the controller reset
+    itself: its banner came, a power or USB glitch, its reset button); a ``lost`` event (a
+    dropped link) with ``lost``, once :func:`reset_since_lost_link` found a reset since, or
+    with no ``mpos`` (:func:`_unplaced_drop`): whether it reset cannot be told.
     """
     kinds = ("alarm", "stop", "lost")
-    lost = [ev for ev in _last_session(events) if ev.get("ev") in kinds and ev.get("lost")]
+    lost = [
+        ev
+        for ev in _last_session(events)
+        if ev.get("ev") in kinds and (ev.get("lost") or _unplaced_drop(ev))
+    ]
     return lost[-1] if lost else None
+
+
+def _unplaced_drop(event: dict[str, Any]) -> bool:
+    """A ``lost`` event (a dropped link) without the position the machine had by then.
+
+    No status report came before the drop, or the journal was written before ``lost``
+    events recorded ``mpos``: a controller that reset since (an Arduino resets when its
+    port is opened) cannot be told from one that kept power, so a resume asks.
+    """
+    return event.get("ev") == "lost" and xyz_of(event.get("mpos")) is None
 
 
 def reset_since_lost_link(
@@ -874,34 +897,17 @@ def _lost_by(event: dict[str, Any]) -> str:
     """What ended the run in ``event`` (:func:`_lost_event`): ``ALARM:2``, a reset."""
     if event.get("ev") == "stop":
         return "a reset of the controller it did not send (its banner came)"
+    if event.get("ev") == "lost" and "mpos_now" not in event:
+        return "a lost link, with no position of the machine recorded before it"
     if event.get("ev") == "lost":
         return "a lost link, and the controller reset since (it stands at machine zero)"
     return f"ALARM:{event.get('code')}"
 
 
-def _rehomed(profile: MachineProfile | None) -> tuple[str, str]:
-    """(what was done since, what to do) after a lost position, for ``profile``'s frame.
-
-    A machine-coordinate profile (``[envelope] coordinates = "machine"``) is found again
-    by homing alone: it refuses a work offset, so setting a work zero is not advice for it.
-    A work-coordinate profile, or none known (a foreign file, no ``--machine``): homing,
-    or the work zero set again on the board's origin.
-    """
-    if machine_coordinates(profile):
-        return (
-            "homed ($H)",
-            "home the machine ($H) (its profile works in GRBL's machine coordinates: set no "
-            "work zero)",
-        )
-    return (
-        "homed ($H), or its work zero set again on the board's origin",
-        "home the machine ($H), or unlock it ($X) and set the work zero again on the "
-        "board's origin",
-    )
-
-
 def lost_position_warning(
-    events: list[dict[str, Any]], profile: MachineProfile | None = None
+    events: list[dict[str, Any]],
+    profile: MachineProfile | None = None,
+    homing: bool | None = None,
 ) -> str | None:
     """The warning where the interrupted run ended in a way that may have lost the position.
 
@@ -912,26 +918,37 @@ def lost_position_warning(
     locked until homed or unlocked, and the sender cannot tell which was done (Grbl 1.1
     answers ``$H`` and ``$X`` alike): an unlock keeps the lost position, so the resumed
     strokes would land off. The last session's ``stop`` with ``lost``: the controller
-    reset itself (what to do as :func:`_rehomed` says for ``profile``). None where neither
-    ended it.
+    reset itself; its ``lost`` event: the link dropped, and the controller reset since or
+    no position tells (:func:`_lost_event`). What was to be done since is said for
+    ``profile``'s frame and GRBL's ``homing`` (``$22``; None: not known), as
+    :func:`~scratchfab.machine.sender.refind` words it. None where none of these ended it.
     """
     alarm = _lost_event(events)
     if alarm is None:
         return None
+    done = refind(profile, homing).done
+    if alarm.get("ev") == "lost" and "mpos_now" not in alarm:
+        return (
+            "the run before this resume ended with a lost link before any position of the "
+            "machine was recorded (no status report came, or the journal is older than such "
+            "records): whether the controller reset since cannot be told (an Arduino resets "
+            "when its port is opened; a board powered over the cable lost power), which "
+            f"loses the position; go on only if the machine was {done} since, or you know "
+            "its controller kept power and was not reset"
+        )
     if alarm.get("ev") == "lost":
         return (
             "the run before this resume ended with a lost link, and the controller now stands "
             f"at machine zero (MPos {xyz_text(alarm['mpos_now'])}; it stood at "
             f"{xyz_text(alarm['mpos'])} when the link dropped): it reset since (an Arduino "
             "resets when its port is opened; a board powered over the cable lost power), "
-            f"which loses the position; go on only if the machine was {_rehomed(profile)[0]} "
-            "since"
+            f"which loses the position; go on only if the machine was {done} since"
         )
     if alarm.get("ev") == "stop":
         return (
             f"the run before this resume ended with {_lost_by(alarm)}: a power or USB glitch "
             "loses the position (a reset button pressed while the machine stood still keeps "
-            f"it); go on only if the machine was {_rehomed(profile)[0]} since"
+            f"it); go on only if the machine was {done} since"
         )
     code = alarm.get("code")
     if alarm["lost"] == "maybe":
@@ -948,10 +965,11 @@ def lost_position_warning(
         2: "a soft limit while a feed hold slowed the machine down",
         3: "a reset while the machine moved",
     }.get(code if isinstance(code, int) else -1, "an alarm")
+    since = done if homing is False else "homed ($H)"
     return (
         f"the run before this resume ended with ALARM:{code}, which stopped the motors at "
         f"speed ({why}), so its position was likely lost: go on only if the machine was "
-        "homed ($H) since; after an unlock ($X) alone the strokes would land off"
+        f"{since} since; after an unlock ($X) alone the strokes would land off"
     )
 
 
@@ -962,16 +980,19 @@ def ask_if_homed(
     confirm: Confirm | None,
     say: Say,
     profile: MachineProfile | None = None,
+    homing: bool | None = None,
 ) -> bool:
     """Before a resume after an alarm or a reset that may have lost the position: homed since?
 
     GRBL needs ``$H`` or ``$X`` after such an alarm and answers both alike, and a
-    controller that reset itself (:func:`lost_position_warning`) may boot at another
-    position, so only a person can tell; after ``$X`` alone the strokes land off. ``homed`` (``--homed``) says
-    the machine was homed, or its work zero set again, since. Otherwise, on a machine, the
-    person is asked before anything is sent, and under ``--yes`` (``confirm`` None) the
-    resume is refused. The emulator moves nothing: it is neither asked nor refused. What
-    to do is said for ``profile``'s coordinates (:func:`_rehomed`).
+    controller that reset itself, or may have after a lost link
+    (:func:`lost_position_warning`), may boot at another position, so only a person can
+    tell; after ``$X`` alone the strokes land off. ``homed`` (``--homed``) says the machine
+    was homed, or its work zero set again, since. Otherwise, on a machine, the person is
+    asked before anything is sent, and under ``--yes`` (``confirm`` None) the resume is
+    refused. The emulator moves nothing: it is neither asked nor refused. What to do is
+    said for ``profile``'s coordinates and GRBL's ``homing`` (``$22``; None: not known),
+    as :func:`~scratchfab.machine.sender.refind` words it.
 
     Returns:
         True where :func:`lost_position_warning` is to be said once connected and again at
@@ -981,27 +1002,32 @@ def ask_if_homed(
         ScratchfabError: Under ``--yes`` on a machine without ``homed``, or the person
             said no; nothing was sent.
     """
-    warning = lost_position_warning(events, profile)
+    warning = lost_position_warning(events, profile, homing)
     if warning is None:
         return False
-    since, do = _rehomed(profile)
+    how = refind(profile, homing)
     if homed:
         by = _lost_by(_lost_event(events) or {})
         say(
             f"note: the run before this resume ended with {by}, which may have lost the "
-            f"position; --homed: the machine was {since} since"
+            f"position; --homed: the machine was {how.done} since"
         )
         return False
     if is_emulator(port):
         return True
-    then = f"{do}, then run the same command with --homed"
+    then = f"{how.do}, then run the same command with --homed"
     if confirm is None:
         raise ScratchfabError(
             f"refusing to resume with --yes: {warning}; {then} (or without --yes to be "
             "asked); nothing was sent"
         )
+    kept = ""
+    event = _lost_event(events)
+    if event is not None and event.get("ev") == "lost" and "mpos_now" not in event:
+        kept = ", or did its controller keep power and was not reset"
     if not confirm(
-        f"{warning[0].upper()}{warning[1:]}. Was the machine {since} since then (--homed says so)?"
+        f"{warning[0].upper()}{warning[1:]}. Was the machine {how.done} since then{kept} "
+        "(--homed says so)?"
     ):
         raise ScratchfabError(f"not confirmed; nothing was sent: {then}")
     return False
@@ -1012,13 +1038,14 @@ def _say_lost_position(
     say: Say,
     again: bool = False,
     profile: MachineProfile | None = None,
+    homing: bool | None = None,
 ) -> None:
     """Say :func:`lost_position_warning`, where there is one; ``again`` in the closing lines.
 
     Said once connected, and again when the resumed stream ends (done, stopped or failed):
     with ``--yes`` nothing waits after the first, which scrolls past under the progress.
     """
-    warning = lost_position_warning(events, profile)
+    warning = lost_position_warning(events, profile, homing)
     if warning is not None:
         say(f"warning{' (repeated)' if again else ''}: {warning}")
 
