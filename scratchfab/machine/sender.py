@@ -179,12 +179,12 @@ def refind(profile: MachineProfile | None, homing: bool | None = None) -> Refind
     if machine_coordinates(profile):
         frame = "its profile works in GRBL's machine coordinates"
         if homing is False:
-            again = f"turn homing on ($22=1) and home it ($H) ({frame}, which homing sets)"
+            on = "turn homing on ($22=1) and home"
             return Refind(
                 "turn homing on ($22=1) and re-home",
                 "homed ($H) with homing turned on ($22=1)",
-                f"{again}: set no work zero",
-                again,
+                f"{on} the machine ($H) ({frame}, which homing sets: set no work zero)",
+                f"{on} it ($H) ({frame}, which homing sets)",
             )
         do = f"home the machine ($H) ({frame}: set no work zero)"
         return Refind("re-home", "homed ($H)", do, "home it ($H)")

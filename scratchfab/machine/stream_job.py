@@ -1024,7 +1024,7 @@ def ask_if_homed(
     kept = ""
     event = _lost_event(events)
     if event is not None and event.get("ev") == "lost" and "mpos_now" not in event:
-        kept = ", or did its controller keep power and was not reset"
+        kept = ", or did its controller keep power without a reset"
     if not confirm(
         f"{warning[0].upper()}{warning[1:]}. Was the machine {how.done} since then{kept} "
         "(--homed says so)?"
