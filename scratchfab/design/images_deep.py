@@ -77,12 +77,15 @@ def open_image(stream: io.BytesIO) -> ImageFile.ImageFile:
     """
     try:
         return Image.open(stream)
-    except UnidentifiedImageError:
+    except UnidentifiedImageError as exc:
         stream.seek(0)
         if stream.read(4) not in TIFF_MAGIC:
             raise
+        refused = exc
     stream.seek(0)
-    table = TiffImagePlugin.OPEN_INFO
+    table = getattr(TiffImagePlugin, "OPEN_INFO", None)
+    if not isinstance(table, dict):  # another Pillow: refused as Pillow refuses it
+        raise refused
     with _OPEN_INFO_LOCK:
         added = [key for key in _GREY_AND_ALPHA_16 if key not in table]
         table.update({key: _GREY_AND_ALPHA_16[key] for key in added})
