@@ -174,3 +174,33 @@ def test_a_centred_board_is_set_at_its_centre(tmp_path):
     assert f"the board's centre at X {x:g} Y {y:g}" in step
     assert f"Jog the tool to the board's centre and send G10 L20 P0 X{x:g} Y{y:g}" in step
     assert "corner" not in step
+
+
+@pytest.mark.parametrize(
+    ("offset", "shift"),
+    [
+        ((20.0, 20.0), "20 mm +X and 20 mm +Y"),
+        ((0.00001, 123.4567891), "123.457 mm +Y"),
+        ((-10.5, 0.0), "10.5 mm -X"),
+        ((0.0, 0.0), None),
+    ],
+)
+def test_the_set_up_step_cannot_be_read_as_zeroing_on_the_board(tmp_path, offset, shift):
+    """A plotter owner zeroed X0 Y0 at the board's corner: the step names the corner with
+    its numbers and says where a zero there moves the cuts (by the offset, each axis)."""
+    job = fake_job(tmp_path)
+    base = load_profile("grbl-plotter-scribe")
+    profile = replace(base, board=replace(base.board, offset_mm=offset))
+    _plan(job, profile)
+    step = _words(_setup_step(job))
+    x, y = (f"{round(v, 3):g}" for v in offset)  # as the G-code writes them (3 decimals)
+    assert f"send G10 L20 P0 X{x} Y{y} there" in step
+    if shift is None:  # the corner is X0 Y0: nothing to warn of
+        assert "not X0 Y0" not in step and "G10 L20 P0 X0 Y0 there." in step
+    else:
+        said = (
+            f"there: the board's -X -Y corner is X {x} Y {y} in the G-code, not X0 Y0 "
+            f"(zeroing X and Y there, with G10 L20 P0 X0 Y0, would move every cut {shift} "
+            "from where the design puts it)."
+        )
+        assert said in step, step

@@ -45,7 +45,7 @@ def test_a_failed_stream_after_an_earlier_finished_one_is_not_read_as_cut(tmp_pa
     page = write_report(job, port="/dev/ttyUSB0").read_text()
     verdict, head, lines = _verdict(page)
     assert (verdict, head) == ("not-ready", "Not ready: the stream failed")
-    assert ("fail", f"✘ no the last stream finished: it failed: {REASON}") in lines
+    assert ("fail", f"✘ no stream: the last one failed: {REASON}") in lines
     assert any(s == "info" and t.startswith("ℹ info an earlier run's session: ") for s, t in lines)
     kind, steps = _steps(page)
     assert kind == "fix" and "The board is cut" not in page

@@ -18,7 +18,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -33,6 +33,9 @@ from scratchfab.model.design import Design, Vec3, load_design, polar_from_positi
 from scratchfab.model.job import JobLayout
 from scratchfab.verify.noise import diff_noise_advice, noise_advice, noise_explains
 from scratchfab.verify.outshine import outshine_advice, shoulder_shares
+
+if TYPE_CHECKING:
+    from scratchfab.machine.sender_program import Program
 
 _MIME = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
 
@@ -590,8 +593,8 @@ def _stream_check(state: _Stream, outcome: _Stopped | None = None) -> list[_Chec
         checks.append(
             _Check(
                 "fail",
-                # a claim like every other line, so that "✘ no" reads as its answer
-                f"the last stream finished: it {html.escape(outcome.said)}"
+                # said after its topic, as the other lines are, so that "✘ no" reads right
+                f"stream: the last one {html.escape(outcome.said)}"
                 + (f": {html.escape(outcome.why)}" if outcome.why else ""),
                 f"the stream {outcome.said}",
                 "Deal with what stopped the stream: its line above says what happened "
@@ -600,6 +603,11 @@ def _stream_check(state: _Stream, outcome: _Stopped | None = None) -> list[_Chec
         )
     if state.kind == "none":
         return [*checks, _Check("info", f"not streamed{state.note}")]
+    if outcome is None and state.kind == "real" and not state.finished:
+        # the manifest does not say it stopped (a stream by hand, or a stage that ended)
+        stopped = f"the cut stopped after {state.done} of {state.total} lines"
+        # its steps are resume's (:func:`_next_steps`), so no fix
+        checks.append(_Check("fail", f"stream: {stopped} (its journal records no end)", stopped))
     end = "to the end" if state.finished else f"{state.done} of {state.total} lines, unfinished"
     text = {
         "emulator": f"streamed to the built-in GRBL emulator ({end}): nothing was cut",
@@ -609,18 +617,47 @@ def _stream_check(state: _Stream, outcome: _Stopped | None = None) -> list[_Chec
     return [*checks, _Check("info", _SESSION[state.session] + text)]
 
 
-def _verdict(checks: list[_Check]) -> str:
+def _cut_head(state: _Stream, outcome: _Stopped | None, cuts: int | None) -> str:
+    """The verdict's heading after the job's G-code was streamed to its end ("" if not).
+
+    Only where the latest run's stream did not fail or stop (``outcome`` None, else its
+    failure comes first); ``cuts``: the G-code's cutting moves (None: not counted).
+    """
+    if outcome is not None or not state.finished or state.session != "latest":
+        return ""
+    scratches = "" if cuts is None else f"{cuts} scratch{'' if cuts == 1 else 'es'}, "
+    if state.kind == "real":
+        return (
+            f"The board is cut: {scratches}all {state.total} G-code lines streamed to the "
+            f"machine on {state.port}"
+        )
+    if state.kind == "unknown":
+        return (
+            f"Streamed to the end ({scratches}{state.total} G-code lines) to a port this "
+            "report does not know: the board is cut if that port is your machine"
+        )
+    return ""  # the emulator: nothing was cut, the board is still to cut
+
+
+def _verdict(checks: list[_Check], cut: str = "") -> str:
+    """The verdict box: its heading, then every check's line.
+
+    ``cut``: :func:`_cut_head`'s heading where the G-code was streamed to its end; a
+    check that fails is named after it.
+    """
     fails = [c for c in checks if c.status == "fail"]
     warns = [c for c in checks if c.status == "warn"]
-    if fails:
-        head = "Not ready: " + html.escape("; ".join(c.reason for c in fails))
+    reasons = html.escape("; ".join(c.reason for c in fails))
+    read = f" (read the {len(warns)} warning{'s' if len(warns) > 1 else ''} below)" if warns else ""
+    if cut:
+        failing = f"{len(fails)} checks below fail" if len(fails) > 1 else "1 check below fails"
+        head = html.escape(cut) + (f", though {failing}: {reasons}" if fails else read)
+        cls, verdict = "notready" if fails else "ready", "cut"
+    elif fails:
+        head = "Not ready: " + reasons
         cls, verdict = "notready", "not-ready"
     else:
-        head = "Ready to cut" + (
-            f" (read the {len(warns)} warning{'s' if len(warns) > 1 else ''} below)"
-            if warns
-            else ""
-        )
+        head = "Ready to cut" + read
         cls, verdict = "ready", "ready"
     lines = "".join(
         f"<li data-check='{c.status}'><span class='{_CSS[c.status]}'>{_MARK[c.status]}</span> "
@@ -988,22 +1025,25 @@ def _toolpath_section(job: Path, data: Any, stopped: Mapping[str, str]) -> str:
 
 
 def gcode_statistics(path: Path) -> dict[str, Any]:
-    """The exporter's statistics of a G-code file, plus its G0 and G1 counts.
+    """The exporter's statistics of a G-code file, plus its moves as the sender reads them.
 
     ``sent``: the lines the sender sends (its count, which ``stream`` and the journal
-    give: comments and blank lines are not sent), or why it refuses the file.
+    give: comments and blank lines are not sent), or why it refuses the file. Where it
+    reads the file, :func:`move_counts` (rapid, feed and cutting moves) follow.
     """
     from scratchfab.export.gcode import gcode_stats
     from scratchfab.machine.sender_program import load_program
 
     lines = path.read_text(encoding="utf-8").splitlines()
     stats = gcode_stats(lines)
+    moves: dict[str, int] = {}
     try:
-        sent: int | str = len(load_program(path).blocks)
+        program = load_program(path)
+        sent: int | str = len(program.blocks)
+        moves = move_counts(program)
     except ConfigError as exc:
         # the file's name alone: the page names no absolute path (the folder may move)
         sent = f"none: stream refuses the file ({str(exc).replace(str(path), path.name)})"
-    words = [ln.split(";")[0].split("(")[0].upper() for ln in lines]
     extent = {
         k.removesuffix("_mm").upper(): f"{v[0]:g} .. {v[1]:g} mm"
         for k, v in stats["bbox"].items()
@@ -1015,9 +1055,39 @@ def gcode_statistics(path: Path) -> dict[str, Any]:
         "bytes": stats["bytes"],
         "longest_line": stats["max_line_length"],
         **{f"{axis} range": text for axis, text in extent.items()},
-        "G0": sum(1 for w in words if w.startswith("G0 ") or w == "G0"),
-        "G1": sum(1 for w in words if w.startswith("G1 ") or w == "G1"),
+        **moves,
     }
+
+
+def move_counts(program: Program) -> dict[str, int]:
+    """A program's rapid moves (``G0``), feed moves (``G1``) and cutting moves (``cuts``).
+
+    Moves in the modal motion mode (a line without its G word counts too); G28/G30 (to a
+    stored position) are neither. A cutting move goes in XY with the tool down: after the
+    block of a stroke that puts the tool down and before the one that lifts it (the
+    sender's strokes, :attr:`Program.strokes`: Z below the cutting height, or a servo's
+    M3). A plunge and a lift are feed or rapid moves, not cuts; so is travel at a feed
+    (a servo plotter's ``[feeds] travel_mm_min``). No ``cuts`` where the sender cannot
+    tell the tool's state (no Z below a travel height, no M3 without Z).
+    """
+    from scratchfab.machine.sender_program import block_words
+
+    blocks = program.blocks
+    counts = {"G0": 0, "G1": 0}
+    for b in blocks:
+        stored = any(w == ("G", 28.0) or w == ("G", 30.0) for w in block_words(b.text))
+        if b.motion and not stored and b.modal.motion in ("G0", "G1"):
+            counts[b.modal.motion] += 1
+    if program.z_threshold is None and not program.pen_mode:
+        return counts  # the sender cannot tell its strokes: no count of cuts
+    counts["cuts"] = 0
+    for first, last in program.strokes:
+        for i in range(first + 1, last):
+            now, before = blocks[i].modal, blocks[i - 1].modal
+            moved = now.motion in ("G2", "G3") or None in (now.x, now.y)
+            if blocks[i].motion and (moved or (now.x, now.y) != (before.x, before.y)):
+                counts["cuts"] += 1
+    return counts
 
 
 _GCODE_LABELS = {
@@ -1027,11 +1097,14 @@ _GCODE_LABELS = {
     "bytes": "size (bytes)",
     "longest_line": "longest line (characters)",
     "G0": "rapid moves (G0)",
-    "G1": "cutting moves (G1)",
+    "G1": "feed moves (G1: the cuts, and the plunges or any travel at a feed)",
+    "cuts": "cutting moves (in X and Y with the tool down, as <code>stream</code> finds the "
+    "strokes)",
 }
 
 
-def _files_section(job: Path, stopped: Mapping[str, str]) -> str:
+def _files_section(job: Path, stopped: Mapping[str, str], stats: dict[str, Any] | None) -> str:
+    """The job's exported files, then ``stats`` (:func:`gcode_statistics` of its G-code)."""
     layout = JobLayout(job)
     what = {
         "gcode": "for the machine",
@@ -1052,10 +1125,8 @@ def _files_section(job: Path, stopped: Mapping[str, str]) -> str:
             items.append(f"<li>{_link(job, path)}: {text}</li>")
     if not items:
         return _absent("export", stopped)
-    gcode = layout.export_file("gcode")
     table = ""
-    if gcode.is_file():
-        stats = gcode_statistics(gcode)
+    if stats is not None:
         table = (
             "<table>"
             + "".join(
@@ -1325,11 +1396,25 @@ def _setup_step(job: Path) -> str:
         f"lie a little below that height (e.g. {_code('G10 L20 P0 Z0')} there, with [z] "
         "<code>engrave_mm</code> a little below 0)."
     )
+    # where the point is not X0 Y0, a zero there (a habit) moves every cut by the offset
+    shift = [
+        f"{v.lstrip('-')} mm {'-' if v.startswith('-') else '+'}{axis}"
+        for axis, v in (("X", x), ("Y", y))
+        if float(v) != 0
+    ]
+    not_zero = (
+        f": {jog_to} is X {x} Y {y} in the G-code, not X0 Y0 (zeroing X and Y there, with "
+        f"{_code('G10 L20 P0 X0 Y0')}, would move every cut {' and '.join(shift)} from where the "
+        "design puts it)"
+        if shift
+        else ""
+    )
     advice = (
         "These are work coordinates: set them on the board before streaming. Jog the tool "
-        f"to {jog_to} and send {_code(f'G10 L20 P0 X{x} Y{y}')} there (that point becomes "
-        f"X {x} Y {y} in the work system in use, P0, which the G-code runs in as it selects "
-        f"none; G10 L20, not {_code('G92')}, whose zero every soft reset clears).{z_zero}"
+        f"to {jog_to} and send {_code(f'G10 L20 P0 X{x} Y{y}')} there{not_zero}. That "
+        f"command makes the point X {x} Y {y} in the work system in use, P0, which the "
+        f"G-code runs in as it selects none; G10 L20, not {_code('G92')}, whose zero every "
+        f"soft reset clears.{z_zero}"
     )
     return text + placed + advice + marked
 
@@ -1464,12 +1549,15 @@ def write_report(
         + _stream_check(state, outcome)
         if c.not_run not in stopped
     ]
+    gcode = layout.export_file("gcode")
+    gcode_stats = gcode_statistics(gcode) if gcode.is_file() else None
+    cuts = (gcode_stats or {}).get("cuts")
     body = [
         f"<h1>{html.escape(title)}</h1><p class='muted'>job folder "
         f"{_code(job.resolve().name)}; every path below is relative to it.</p>"
         + _copied_title(title, pipeline_file),
         "<span id='image-check' hidden></span>",
-        _verdict(checks),
+        _verdict(checks, _cut_head(state, outcome, cuts)),
         "<h2>What to do next</h2>",
         _next_steps(job, checks, state, pipeline_file),
         "<h2>Where to stand</h2>",
@@ -1484,7 +1572,7 @@ def write_report(
         "<h2>Toolpath</h2>",
         _toolpath_section(job, toolpath, stopped),
         "<h2>Files</h2>",
-        _files_section(job, stopped),
+        _files_section(job, stopped, gcode_stats),
         "<h2>Stream</h2>",
         stream_text,
     ]
