@@ -36,7 +36,7 @@ class FiniteFloat(click.FloatRange):
         return super()._describe_range()
 
 
-_SIZE_RE = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*[xX*]\s*([0-9]*\.?[0-9]+)\s*(mm)?\s*$")
+_SIZE_RE = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]+)\s*[xX*]\s*([-+]?[0-9]*\.?[0-9]+)\s*(mm)?\s*$")
 
 
 class SizePair(click.ParamType):
