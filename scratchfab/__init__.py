@@ -4,15 +4,23 @@ The core library works without the command line (``scratchfab.cli`` is a thin cl
 layer over it). Lengths are millimetres, images (H, W) numpy arrays of linear radiance.
 A notebook's path from a design to a machine, in memory where it can be:
 
-- design: :func:`scratchfab.model.design.design_from_mapping` (a dict, as the TOML file's
-  tables) or :func:`~scratchfab.model.design.load_design` (a file);
-- targets: :func:`scratchfab.design.targets.fit_to_board` (an array) or
+- design: :func:`scratchfab.design.quick.quick_design` (a list of image files, one view
+  each, as ``scratchfab design IMAGE...``),
+  :func:`scratchfab.model.design.design_from_mapping` (a dict, as the TOML file's
+  tables) or :func:`~scratchfab.model.design.load_design` (a file); the checks ``design``
+  makes on a job (a black or too bright target, what the scratches can show) are
+  :func:`scratchfab.design.feasibility.check_feasibility` in memory;
+- targets: :func:`scratchfab.design.targets.view_targets` (every view of a design whose
+  targets are files), or :func:`scratchfab.design.targets.fit_to_board` (an array) or
   :func:`~scratchfab.design.targets.board_image` (a file), then
   :func:`~scratchfab.design.targets.warp_to_view` for each view's camera pixels;
 - initial layout: :func:`scratchfab.design.layout.initial_layout` -> a
   :class:`scratchfab.model.scratches.ScratchSet`;
 - optimize: :class:`scratchfab.optimize.optimizer.LayoutOptimizer` (``step()``, then
-  ``scratches()``), its Dr.Jit module from :func:`scratchfab.backend.array_module`;
+  ``scratches()``), its Dr.Jit module from :func:`scratchfab.backend.array_module`; its
+  ``Settings.of(OptimizeOptions(...))`` (:class:`~scratchfab.optimize.options.OptimizeOptions`
+  holds the ``[optimize]`` table's keys); ``drjit.set_thread_count(1)``
+  first for bit-identical runs;
 - render: :func:`scratchfab.render.renderer.render_scratches` -> ``{view: (H, W)}``;
 - toolpath: :func:`scratchfab.machine.profile.load_profile` (a bundled name or a file)
   and :func:`scratchfab.toolpath.plan_toolpath`;

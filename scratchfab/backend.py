@@ -100,8 +100,10 @@ def array_module(backend: BackendName = "llvm") -> ModuleType:
     """The Dr.Jit AD array namespace of ``backend`` (``drjit.llvm.ad`` or ``drjit.cuda.ad``).
 
     Raises:
-        BackendError: When the backend cannot run here, with the fix.
+        BackendError: When the backend cannot run here, with the fix, or is no backend.
     """
+    if backend not in ("llvm", "cuda"):
+        raise BackendError(f"unknown backend {backend!r}: expected 'llvm' (CPU) or 'cuda' (GPU)")
     if backend == "llvm":
         ensure_llvm_path()
     import drjit as dr

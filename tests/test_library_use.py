@@ -16,12 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from scratchfab.backend import array_module
 from scratchfab.design.layout import initial_layout
 from scratchfab.design.targets import fit_to_board, warp_to_view
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.profile import load_profile
 from scratchfab.model.design import design_from_mapping
 from scratchfab.model.scratches import ScratchSet
+from scratchfab.optimize.optimizer import Settings
 from scratchfab.toolpath import plan_toolpath
 
 TABLES = {
@@ -430,3 +432,43 @@ def test_verify_job_names_a_stale_or_damaged_target_file(tmp_path, capsys, damag
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith(f"error: {target}: ") and "Traceback" not in "".join(err)
     assert not (tmp_path / "v").exists()  # refused before anything was rendered or written
+
+
+def test_a_single_image_path_is_not_read_as_a_list_of_views(tmp_path):
+    """``quick_design("a.png")`` once made one view per character of the path."""
+    from scratchfab.design.quick import quick_design
+
+    for path in ("/tmp/disc.png", tmp_path / "disc.png"):
+        with pytest.raises(ScratchfabError, match=r"expected a list of image paths.*pass \["):
+            quick_design(path, (40.0, 40.0))  # type: ignore[arg-type]
+
+
+def test_an_unknown_backend_is_named_as_such():
+    from scratchfab.errors import BackendError
+
+    with pytest.raises(BackendError, match=r"unknown backend 'cpu': expected 'llvm'"):
+        array_module("cpu")  # type: ignore[arg-type]
+
+
+def test_initial_layout_needs_a_seed(design):
+    targets = {v.name: np.ones((v.height, v.width)) for v in design.views}
+    with pytest.raises(ValueError, match="seed"):
+        initial_layout(design, targets, seed=None)  # type: ignore[arg-type]
+    first, again = (initial_layout(design, targets, seed=3) for _ in range(2))
+    assert np.array_equal(first.p0, again.p0) and np.array_equal(first.p1, again.p1)
+
+
+def test_settings_of_the_options_are_the_stages():
+    """``Settings.of`` gives a loop what the optimize stage gives it: each field from its
+    option, the schedule the options make unless one is given."""
+    from scratchfab.optimize.options import OptimizeOptions, StepSchedule
+
+    options = OptimizeOptions(iterations=30, refresh_every=5, space="perceptual",
+                              merge_weight=0.5, lr_schedule="linear")  # fmt: skip
+    settings = Settings.of(options)
+    assert settings.lr == options.learning_rates() and settings.refresh_every == 5
+    assert settings.space == "perceptual" and settings.merge_weight == 0.5
+    assert settings.schedule == options.schedule() and settings.schedule is not None
+    longer = StepSchedule("linear", 4.0, 1.0, 60)
+    assert Settings.of(options, longer).schedule == longer
+    assert Settings.of(OptimizeOptions(lr_schedule="constant")).schedule is None

@@ -293,6 +293,8 @@ def layout_by_view(
     Returns:
         View name -> its scratches (possibly none); ``count`` scratches in all.
     """
+    if seed is None:  # numpy would draw fresh entropy: another layout each run
+        raise ValueError("seed: expected a whole number (the same seed lays the same layout)")
     rng = np.random.default_rng(seed)
     tool = design.scratch
     hw, hh = design.board.half_extent

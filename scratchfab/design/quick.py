@@ -189,6 +189,15 @@ def quick_design(
     count: int | None = None,
     resolution: tuple[int, int] | None = None,
 ) -> Design:
-    """A resolved design placing one view per image (see the module docstring)."""
+    """A resolved design placing one view per image (see the module docstring).
+
+    Raises:
+        ConfigError: ``images`` is one path rather than a list of them, or a value is bad.
+    """
+    if isinstance(images, str | Path):
+        raise ConfigError(
+            f"{SOURCE}: images: expected a list of image paths, one per view, got the single "
+            f"path {str(images)!r} (pass [{str(images)!r}])"
+        )
     data = quick_mapping(images, board_mm, count, resolution)
     return design_from_mapping(data, SOURCE, Path.cwd())

@@ -54,7 +54,7 @@ from scratchfab.model.design import Design
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.optimize.glint import view_glint
 from scratchfab.optimize.loss import Space, merge_penalty, neighbour_pairs, view_error
-from scratchfab.optimize.options import StepSchedule
+from scratchfab.optimize.options import OptimizeOptions, StepSchedule
 from scratchfab.optimize.params import (
     KEYS,
     BoundedAdam,
@@ -156,6 +156,23 @@ class Settings:
     bound_weight: float = 1.0
     schedule: StepSchedule | None = None
 
+    @classmethod
+    def of(cls, options: OptimizeOptions, schedule: StepSchedule | None = None) -> Settings:
+        """The settings the stage's ``options`` give the loop.
+
+        Args:
+            options: The optimize options (the ``[optimize]`` table, the CLI's flags).
+            schedule: The step-size schedule, where not ``options.schedule()`` (a resume
+                past the planned iterations extends it).
+        """
+        return cls(
+            lr=options.learning_rates(),
+            refresh_every=options.refresh_every,
+            space=options.space,
+            merge_weight=options.merge_weight,
+            schedule=schedule if schedule is not None else options.schedule(),
+        )
+
     def pair_budget(self) -> int:
         """Steps at ``lr`` that the pair margin covers: K, or more for a larger scale."""
         if self.schedule is None:
@@ -199,6 +216,11 @@ class LayoutOptimizer:
 
     The image error leaves out each view's pixels where the bare board glints
     (:mod:`scratchfab.optimize.glint`), as it does those off the board.
+
+    Bit-identical steps from the same inputs need one Dr.Jit thread
+    (``drjit.set_thread_count(1)`` first, as :func:`scratchfab.optimize.stage.run_optimize`
+    does by default): with several, its CPU kernels add floats in a varying order and two
+    runs agree only to rounding (about 1e-13 mm).
 
     Args:
         design: The resolved design.

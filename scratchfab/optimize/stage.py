@@ -874,13 +874,7 @@ def _run(
             kept := _finished(paths, design, design_files, done, meta.get("elapsed_s"), options)
         ):
             return kept
-    settings = Settings(
-        lr=options.learning_rates(),
-        refresh_every=options.refresh_every,
-        space=options.space,
-        merge_weight=options.merge_weight,
-        schedule=schedule,
-    )
+    settings = Settings.of(options, schedule)
     report(Progress(0, options.iterations, math.nan, 0.0, math.nan, "compiling kernels"))
     opt = LayoutOptimizer(design, targets, start_layout, settings, m)
     # the pixels the image error leaves out, as this run's checkpoints keep them
