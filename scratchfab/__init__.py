@@ -7,9 +7,9 @@ A notebook's path from a design to a machine, in memory where it can be:
 - design: :func:`scratchfab.design.quick.quick_design` (a list of image files, one view
   each, as ``scratchfab design IMAGE...``),
   :func:`scratchfab.model.design.design_from_mapping` (a dict, as the TOML file's
-  tables) or :func:`~scratchfab.model.design.load_design` (a file); the checks ``design``
-  makes on a job (a black or too bright target, what the scratches can show) are
-  :func:`scratchfab.design.feasibility.check_feasibility` in memory;
+  tables) or :func:`~scratchfab.model.design.load_design` (a file); what the scratches
+  can show is :func:`scratchfab.design.feasibility.check_feasibility` (``design`` on a job
+  also refuses a black target and warns of a too bright one);
 - targets: :func:`scratchfab.design.targets.view_targets` (every view of a design whose
   targets are files), or :func:`scratchfab.design.targets.fit_to_board` (an array) or
   :func:`~scratchfab.design.targets.board_image` (a file), then
