@@ -71,7 +71,6 @@ after N blocks (the host vanishes; the controller still runs what it had receive
 from __future__ import annotations
 
 import collections
-import copy
 import dataclasses
 import itertools
 import json
@@ -621,15 +620,25 @@ class GrblSim:
                 self._restore_until = math.inf
                 self._door_resume(t)
             elif t == self._land_at:
-                self._segment_end(t)
+                self._run_on(self._segment_end, t)
             elif t == self._wake_at:
                 self._wake_at = math.inf
             elif t == self._head_end():
-                self._finish_head(t)
+                self._run_on(self._finish_head, t)
             elif self._pending is not None and t == self._pending.until:
                 self._pending.until = 0.0
                 self._pending.planning = False
             self._main(t)
+
+    def _run_on(self, step: Callable[[float], None], t: float) -> None:
+        """A change landing or the head's end: the motion runs on as :meth:`_ahead`'s copies ran it.
+
+        When a block frees stays what a copy found: it ran these very steps (a new block,
+        override, stop or start is what changes it, and finds it again).
+        """
+        free = self._free_at
+        step(t)
+        self._free_at = free
 
     # ------------------------------------------------------------------ receive side
 
@@ -1063,7 +1072,8 @@ class GrblSim:
         Grbl frees a block once ``st_prep_buffer`` has prepared its last segment
         (``plan_discard_current_block``: 40-50 ms before it ends, sooner for short blocks),
         not when it ends. Waiting, the line looks again when the next block frees
-        (``_wake_at``), found again after any change of the plan (:meth:`_schedule`).
+        (``_wake_at``), found again after a change of the plan that the copies finding it
+        did not run (a new block, override, stop or start: :meth:`_schedule`, :meth:`_run_on`).
         """
         if self._blocks() < PLANNER_BLOCKS:
             return True
@@ -1144,13 +1154,13 @@ class GrblSim:
             the segment ends counted and, when the last of ``blocks`` ended, the time of the
             segment end 5 before its end where its last profile has it (else None).
         """
-        ahead = copy.copy(self)
-        queued = {id(b): copy.copy(b) for b in self._planner}
+        ahead = _clone(self)
+        queued = {id(b): _clone(b) for b in self._planner}
         ahead._planner = collections.deque(queued[id(b)] for b in self._planner)
         ahead._deferred = [
             [n, kind, queued.get(id(what), what)] for n, kind, what in self._deferred
         ]
-        ahead._gc = dataclasses.replace(self._gc)
+        ahead._gc = _clone(self._gc)
         ahead.record = []
         ahead.link_up = False  # it says nothing
         found: list[tuple[float, float]] = []
@@ -1958,6 +1968,16 @@ class GrblSim:
             f"S{g.spindle_speed:g}",
         ]
         return "[GC:" + " ".join(parts) + "]\r\n"
+
+
+_T = typing.TypeVar("_T")
+
+
+def _clone(obj: _T) -> _T:
+    """A shallow copy of a plain object (``copy.copy``'s result, without its dispatch)."""
+    new = object.__new__(type(obj))
+    new.__dict__.update(obj.__dict__)
+    return new
 
 
 def _override(value: int, k: int) -> int:
