@@ -298,6 +298,31 @@ def test_16bit_tiff_orientation_tag_turns_it_upright(tmp_path):
     np.testing.assert_allclose(load_image(path), np.rot90(reference(samples), -1), atol=1e-12)
 
 
+#: Each TIFF/EXIF orientation as numpy turns the stored (rows, cols) picture upright.
+UPRIGHT = {
+    1: lambda a: a,
+    2: lambda a: a[:, ::-1],
+    3: lambda a: a[::-1, ::-1],
+    4: lambda a: a[::-1, :],
+    5: lambda a: a.swapaxes(0, 1),
+    6: lambda a: np.rot90(a, -1),
+    7: lambda a: a[::-1, ::-1].swapaxes(0, 1),
+    8: lambda a: np.rot90(a, 1),
+}
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["chunky", "planar"])
+@pytest.mark.parametrize("turn", sorted(UPRIGHT))
+def test_16bit_tiff_each_orientation_in_either_layout(tmp_path, planar, turn):
+    """Planes read from the file's bytes are turned too (a reviewer: Pillow's TIFF load
+    turns what it decodes and drops the tag, so separate planes came back as stored)."""
+    samples = random_samples(3, shape=(5, 9))
+    path = tmp_path / "turned.tif"
+    write_tiff(path, samples, "<", rows_per_strip=2, planar=planar, orientation=turn)
+    expected = UPRIGHT[turn](reference(samples))
+    np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize(
     "samples",
     [

@@ -60,6 +60,7 @@ from scratchfab.design.images_deep import (
     deep_samples,
     naive_rgb,
     open_image,
+    orientation,
     tiff_tag,
     upright,
 )
@@ -112,10 +113,18 @@ def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
             warnings.simplefilter("ignore")
             image = open_image(stream)
             read = deep_read(image)  # before load(), which drops the tiles
+            # a TIFF's load() turns what it decodes and drops the tag (a PNG's getexif()
+            # would load it here, with the wrong tiles)
+            stored = orientation(image) if read is not None and read.planes else None
             if read is not None:
                 image.tile = read.high
             image.load()
-            deep = None if read is None else upright(deep_samples(data, image, read), image)
+            deep = None
+            if read is not None:
+                # Pillow's decoder turned what it read of a TIFF; planes read from the
+                # file's bytes are as stored
+                turn = stored if read.planes else orientation(image)
+                deep = upright(deep_samples(data, image, read), turn)
             # In place (a copy of a 12-MP photo is 48 MB), once upright has read the tag.
             ImageOps.exif_transpose(image, in_place=True)
             return image, deep

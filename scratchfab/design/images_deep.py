@@ -264,10 +264,19 @@ def naive_rgb(cmyk: np.ndarray) -> np.ndarray:
     return rgb
 
 
-def upright(samples: np.ndarray, opened: Image.Image) -> np.ndarray:
-    """Samples turned as ``ImageOps.exif_transpose`` turns ``opened`` (each channel by it)."""
+def orientation(opened: Image.Image) -> int | None:
+    """The image's orientation (EXIF, TIFF tag or XMP), None where it has none.
+
+    A TIFF's ``load()`` turns the picture it decodes and drops the tag; read before it, it
+    says how to turn samples read from the file's bytes (:func:`_planes`).
+    """
+    found = opened.getexif().get(ExifTags.Base.Orientation)
+    return int(found) if found is not None else None
+
+
+def upright(samples: np.ndarray, orientation: int | None) -> np.ndarray:
+    """Samples turned as ``ImageOps.exif_transpose`` turns an image of that orientation."""
     exif = Image.Exif()
-    orientation = opened.getexif().get(ExifTags.Base.Orientation)  # EXIF, TIFF tag or XMP
     if orientation is None:
         return samples
     exif[ExifTags.Base.Orientation] = orientation
