@@ -80,8 +80,9 @@ def test_design_and_toolpath_name_a_profile_file_alike(tmp_path, capsys):
 
 def test_design_machine_option_times_the_cut_on_that_machine(tmp_path, capsys):
     """The quick form's ``--machine`` (a plotter owner's finding: design timed a plotter job
-    on the 3018): the line names that profile, its seconds are toolpath's estimate for it,
-    and a typo is refused before anything is written."""
+    on the 3018): the line names that profile and differs from the 3018's (that the time is
+    toolpath's estimate is test_design_cut_cost's), and a typo is refused before anything
+    is written."""
     plotter = bundled_dir("machine_profiles") / "grbl-plotter-scribe.toml"
     name = tomllib.loads(plotter.read_text(encoding="utf-8"))["name"]
     quick = [str(DEMO / "sun.png"), "--board", "40x30", "--count", "40", "--resolution", "16"]
