@@ -8,9 +8,11 @@ lines (and ``%``) are not sent.
 A *stroke* is what cuts. The tool is **down** after a block when the programmed Z is below
 ``z_threshold`` (given, or read from the program: between the Z of its cutting moves and the
 Z of its rapids, :func:`auto_threshold`), or, in a job that moves at one Z level at most (a
-servo/plotter job), when the spindle output is on (M3/M4). A stroke is the run of blocks
-from the block that puts the tool down up to and including the block that lifts it (Z back
-up, or M5); :func:`stroke_spans` is the one definition used by streaming and resuming.
+servo/plotter job), when the spindle output is on (M3/M4), at another S than the one that
+holds a servo up where the job lifts it so (``M3 S90``, :func:`lift_state`). A stroke is
+the run of blocks from the block that puts the tool down up to and including the block
+that lifts it (Z back up, M5, or the up S); :func:`stroke_spans` is the one definition
+used by streaming and resuming.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import collections
 import hashlib
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import NamedTuple
@@ -141,6 +143,9 @@ class Program:
     z_threshold: float | None  # None: the program does not show which Z cuts
     pen_mode: bool
     rapid_mm_min: tuple[float, float, float] = DEFAULT_RAPID_MM_MIN
+    # a servo job held up with the output on: the S that holds it up (None: M5 lifts it)
+    lift_speed: float | None = None
+    tool_up: str = "M5"  # the block that lifts a servo job's tool (M5, or M3/M4 at lift_speed)
 
     @property
     def total_seconds(self) -> float:
@@ -585,14 +590,25 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     return _Step(s, seconds, motion, flags, unfollowed, box, rapid)
 
 
-def _tool_down(modal: Modal, z_threshold: float, pen_mode: bool) -> bool:
+def _tool_down(
+    modal: Modal, z_threshold: float, pen_mode: bool, lift_speed: float | None = None
+) -> bool:
+    """Whether the tool is down after a block with state ``modal`` (see the module docstring).
+
+    In pen mode: the output on (M3/M4), and where the job holds the servo up with the
+    output on (``lift_speed``, :func:`lift_state`), at another S than that one and S0.
+    """
     if pen_mode:
-        return modal.spindle in ("M3", "M4")
+        on = modal.spindle in ("M3", "M4")
+        return on and (lift_speed is None or modal.speed not in (0.0, lift_speed))
     return modal.z is not None and modal.z < z_threshold - 1e-9
 
 
 def stroke_spans(
-    blocks: Sequence[Block], z_threshold: float, pen_mode: bool
+    blocks: Sequence[Block],
+    z_threshold: float,
+    pen_mode: bool,
+    lift_speed: float | None = None,
 ) -> list[tuple[int, int]]:
     """The strokes: (first, last) block indices from tool-down to tool-up, both included.
 
@@ -600,11 +616,13 @@ def stroke_spans(
         blocks: The program's blocks (their ``modal`` is the state after each block).
         z_threshold: Z (work mm) below which the tool cuts.
         pen_mode: Use the spindle output (M3/M4 on) instead of Z as the tool state.
+        lift_speed: In pen mode, the S that holds the tool up with the output on (None:
+            M5 lifts it, any M3/M4 is down; :func:`lift_state`).
     """
     spans: list[tuple[int, int]] = []
     first = -1
     for b in blocks:
-        down = _tool_down(b.modal, z_threshold, pen_mode)
+        down = _tool_down(b.modal, z_threshold, pen_mode, lift_speed)
         if down and first < 0:
             first = b.index
         elif not down and first >= 0:
@@ -613,6 +631,61 @@ def stroke_spans(
     if first >= 0:
         spans.append((first, len(blocks) - 1))
     return spans
+
+
+def _followed_moves(blocks: Sequence[Block]) -> Iterator[tuple[Block, bool]]:
+    """The motion blocks the sender follows, each with whether it moves in X or Y (an arc does)."""
+    prev_xy: tuple[float | None, float | None] = (0.0, 0.0)
+    for b in blocks:
+        xy = (b.modal.x, b.modal.y)
+        if b.motion and not b.unfollowed:
+            yield b, xy != prev_xy or b.arc_box is not None
+        prev_xy = xy
+
+
+def lift_state(blocks: Sequence[Block], tool_up: str | None = None) -> tuple[str, float] | None:
+    """The M3/M4 and S with which a servo job holds its tool up, where not by M5; else None.
+
+    Many hobby servo plotters hold the pen up with the output on (``M3 S90``) and lower it
+    at another S (``M3 S35``). Told by the S levels the job's XY moves run under with the
+    output on (M3/M4): the machine profile's up command (``tool_up``, its ``[tool_control]
+    off``) where it sets an S the job moves under; else, where the job moves under exactly
+    two levels above 0, the one its rapids (G0) run under where they run under one only
+    and no feed move does, or, in a job whose rapids run under neither, the one its first
+    XY move runs under (a job travels to its first stroke with the tool up); else S0
+    (GRBL's output off, as M5) where the job moves under it and one level above it. None
+    (M5 lifts the tool, any M3/M4 is down) where the job moves under one level only or
+    does not tell which one is up. The M code is the one the job first moves under that S
+    with.
+    """
+    levels: dict[float, str] = {}  # S level -> its M code
+    rapid: set[float] = set()  # the levels above 0 rapids and feed moves run under
+    feed: set[float] = set()
+    first: float | None = None  # the level of the first XY move (None: the output off)
+    seen = False
+    for b, moved_xy in _followed_moves(blocks):
+        if not moved_xy:
+            continue
+        m = b.modal
+        on = m.spindle in ("M3", "M4")
+        if not seen:
+            seen, first = True, m.speed if on else None
+        if on:
+            levels.setdefault(m.speed, m.spindle)
+            if m.speed > 0:
+                (rapid if m.motion == "G0" else feed).add(m.speed)
+    words = block_words(strip_block(tool_up or ""))
+    up = next((v for letter, v in words if letter == "S"), None)
+    above = len(levels) - (0.0 in levels)
+    if ("M", 5.0) in words or up not in levels:
+        if above == 2:
+            if rapid:
+                up = next(iter(rapid)) if len(rapid) == 1 and not rapid & feed else None
+            else:
+                up = first if first else None
+        else:
+            up = 0.0 if above == 1 and 0.0 in levels else None
+    return None if up is None else (levels[up], up)
 
 
 def auto_threshold(blocks: Sequence[Block]) -> float | None:
@@ -626,16 +699,14 @@ def auto_threshold(blocks: Sequence[Block]) -> float | None:
     """
     rapid_z: set[float] = set()
     feed_z: set[float] = set()
-    prev_xy: tuple[float | None, float | None] = (0.0, 0.0)
-    for b in blocks:
+    for b, moved_xy in _followed_moves(blocks):
         m = b.modal
-        xy = (m.x, m.y)
-        if b.motion and m.z is not None and not b.unfollowed:
-            if m.motion == "G0":
-                rapid_z.add(round(m.z, 6))
-            elif m.motion in ("G1", "G2", "G3") and (xy != prev_xy or b.arc_box is not None):
-                feed_z.add(round(m.z, 6))
-        prev_xy = xy
+        if m.z is None:
+            continue
+        if m.motion == "G0":
+            rapid_z.add(round(m.z, 6))
+        elif m.motion in ("G1", "G2", "G3") and moved_xy:
+            feed_z.add(round(m.z, 6))
     if rapid_z:
         travel = min(rapid_z)
         cuts = [z for z in feed_z if z < travel]
@@ -672,6 +743,7 @@ def load_program(
     path: str | Path,
     z_threshold: float | None = None,
     rapid_mm_min: Sequence[float] = DEFAULT_RAPID_MM_MIN,
+    tool_up: str | None = None,
 ) -> Program:
     """Read and check a G-code file.
 
@@ -680,6 +752,9 @@ def load_program(
         z_threshold: Z (work mm) below which the tool is down; None: :func:`auto_threshold`
             (a program that does not show it has no strokes, unless it is a servo job).
         rapid_mm_min: G0 rates per axis for the time estimate (GRBL's $110-$112).
+        tool_up: A servo machine profile's up command (``[tool_control] off``), where
+            known: a servo job held up with the output on (``M3 S90``) is read by it
+            before the program's own clues (:func:`lift_state`).
 
     Raises:
         ConfigError: Unreadable file, or a line GRBL would reject before parsing (over 79
@@ -754,9 +829,11 @@ def load_program(
     else:
         goes_below = any(b.modal.z is not None and b.modal.z < z_threshold - 1e-9 for b in blocks)
         pen_mode = not goes_below and servo
+    lift = lift_state(blocks, tool_up) if pen_mode else None
+    lift_speed = None if lift is None else lift[1]
     strokes: list[tuple[int, int]] = []  # no strokes where the program does not show them
     if z_threshold is not None or pen_mode:
-        strokes = stroke_spans(blocks, z_threshold or 0.0, pen_mode)
+        strokes = stroke_spans(blocks, z_threshold or 0.0, pen_mode, lift_speed)
     return Program(
         path=p,
         sha256=hashlib.sha256(data).hexdigest(),
@@ -765,6 +842,8 @@ def load_program(
         z_threshold=z_threshold,
         pen_mode=pen_mode,
         rapid_mm_min=(float(rapid_mm_min[0]), float(rapid_mm_min[1]), float(rapid_mm_min[2])),
+        lift_speed=lift_speed,
+        tool_up="M5" if lift is None else f"{lift[0]}S{gcode_number(lift[1], 4)}",
     )
 
 
@@ -796,16 +875,20 @@ def check_tool_up_at_end(program: Program) -> None:
         return
     last = program.blocks[-1]
     threshold = program.z_threshold or 0.0
-    if not _tool_down(last.modal, threshold, program.pen_mode):
+    lift = program.lift_speed
+    if not _tool_down(last.modal, threshold, program.pen_mode, lift):
         return
-    state = (
-        f"spindle output {last.modal.spindle}"
-        if program.pen_mode
-        else f"Z {last.modal.z:g} mm, below the cutting threshold {threshold:g}"
-    )
+    if not program.pen_mode:
+        state = f"Z {last.modal.z:g} mm, below the cutting threshold {threshold:g}"
+    elif lift is None:
+        state = f"spindle output {last.modal.spindle}"
+    else:
+        state = f"spindle output {last.modal.spindle} S{last.modal.speed:g}, not the S{lift:g} "
+        state += "its servo is held up with"
+    up = "Z up or M5" if lift is None else f"{program.tool_up}, or M5"
     raise ConfigError(
         f"{program.path}:{last.lineno}: the program ends with the tool down ({state}); the "
-        "file may be cut short: expected its last stroke to lift the tool (Z up or M5)"
+        f"file may be cut short: expected its last stroke to lift the tool ({up})"
     )
 
 
@@ -983,7 +1066,8 @@ def resume_preamble(program: Program, start: int) -> list[str]:
     selected them); Z up to the highest Z the file used so far in the frame Z is counted
     in there (a stop may have left the bit in the board: the spindle must not start
     there; a Z of an earlier frame may lie anywhere in this one), or, in a job without Z
-    (a servo), the tool output off (pen up) before any move; then spindle/servo and
+    (a servo), its up command before any move (M5, or the S that holds it up,
+    :attr:`Program.tool_up`); then spindle/servo and
     coolant as the file had them, with the spin-up dwell the file used after its spindle
     start (:func:`spin_up_dwell`; the tool is up before a stroke by definition); XY to
     where the file was, Z down to the file's travel height there, then the file's units,
@@ -1039,12 +1123,14 @@ def resume_preamble(program: Program, start: int) -> list[str]:
     if zs:
         lines.append(f"{move}Z{gcode_number(max(zs), 4)}")
     else:
-        lines.append("M5")  # no Z: the output lifts the tool
+        lines.append(program.tool_up)  # no Z: the output lifts the tool
     if before.spindle == "M5":
         if zs:
             lines.append("M5")
     else:
-        lines.append(f"{before.spindle}S{gcode_number(before.speed, 4)}")
+        spindle = f"{before.spindle}S{gcode_number(before.speed, 4)}"
+        if spindle != lines[-1]:  # (the servo's up command, already sent)
+            lines.append(spindle)
         dwell = spin_up_dwell(program, start)
         if dwell > 0:
             lines.append(f"G4P{gcode_number(dwell, 4)}")
