@@ -162,15 +162,44 @@ def test_16bit_cmyk_tiff_with_profile_converts_its_high_bytes(tmp_path):
     np.testing.assert_array_equal(got, load_image(eight))
 
 
+@pytest.mark.parametrize("order", ["<", ">"])
 @pytest.mark.parametrize("deflate", [False, True])
-def test_16bit_white_is_zero_grey_tiff_is_inverted_like_8bit(tmp_path, deflate):
-    # PhotometricInterpretation 0: code 0 is white. Pillow inverts 8-bit such files itself.
+def test_16bit_white_is_zero_grey_tiff_is_inverted_like_8bit(tmp_path, deflate, order):
+    # PhotometricInterpretation 0: code 0 is white. Pillow inverts 8-bit such files itself
+    # and refuses big-endian 16-bit ones.
     codes = np.array([[[0], [10], [200], [255]]], np.uint8)
-    write_tiff(tmp_path / "w8.tif", codes, "<", deflate, photometric=0)
-    write_tiff(tmp_path / "w16.tif", codes.astype(np.uint16) * 257, "<", deflate, photometric=0)
+    write_tiff(tmp_path / "w8.tif", codes, order, deflate, photometric=0)
+    write_tiff(tmp_path / "w16.tif", codes.astype(np.uint16) * 257, order, deflate, photometric=0)
     expected = [eotf(1.0 - c / 255) for c in codes.ravel()]
     np.testing.assert_allclose(load_image(tmp_path / "w8.tif")[0], expected, rtol=0, atol=1e-12)
     np.testing.assert_allclose(load_image(tmp_path / "w16.tif")[0], expected, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_16bit_white_is_zero_grey_tiff_keeps_its_16_bits(tmp_path, order):
+    codes = np.array([[[0], [1], [257], [40000], [65534], [65535]]], np.uint16)
+    path = tmp_path / "w16.tif"
+    write_tiff(path, codes, order, rows_per_strip=1, photometric=0)
+    expected = [eotf(1.0 - int(c) / 65535) for c in codes.ravel()]
+    np.testing.assert_allclose(load_image(path)[0], expected, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_float_white_is_zero_grey_tiff_is_inverted(tmp_path, order):
+    # A float v in [0, 1] stands for 1 - v, as 8-bit code c for 255 - c.
+    values = np.array([[[0.0], [0.04], [0.5], [0.9], [1.0]]], np.float32)
+    path = tmp_path / "wf.tif"
+    write_tiff(path, values, order, photometric=0)
+    expected = [eotf(1.0 - float(v)) for v in values.ravel()]
+    np.testing.assert_allclose(load_image(path)[0], expected, rtol=0, atol=1e-7)
+
+
+@needs_lcms
+def test_float_white_is_zero_grey_tiff_with_linear_profile(tmp_path):
+    values = np.linspace(0.0, 1.0, 11, dtype=np.float32)[None, :, None]
+    path = tmp_path / "wfl.tif"
+    write_tiff(path, values, "<", photometric=0, icc=gray_icc(curv_gamma(1.0)))
+    np.testing.assert_allclose(load_image(path)[0], 1.0 - values.ravel(), rtol=0, atol=3e-5)
 
 
 def test_16bit_white_is_zero_grey_and_alpha_tiff_inverts_only_the_grey(tmp_path):

@@ -26,8 +26,9 @@ with its table of TIFF layouts extended for the call; an uncompressed TIFF of se
 16-bit planes, whose bytes Pillow reads as 8-bit samples, is read from the file's bytes
 (a compressed one keeps 8 bits: libtiff hands Pillow each plane's high bytes). EXIF
 orientation turns them as it turns the image. A TIFF's associated (premultiplied) alpha
-is divided out of the 16-bit colour where alpha > 0, and 16-bit WhiteIsZero grey is
-inverted (Pillow inverts only 8-bit grey). 16-bit CMYK without a profile becomes RGB as
+is divided out of the 16-bit colour where alpha > 0, and 16-bit and float WhiteIsZero
+grey is inverted (Pillow inverts only 8-bit grey; it refuses big-endian 16-bit such
+files, which are opened as grey-with-alpha TIFFs are). 16-bit CMYK without a profile becomes RGB as
 Pillow converts CMYK, ``(1 - C)(1 - K)``, at 16 bits; with one, its high bytes go
 through littleCMS as 8-bit CMYK (Pillow's ImageCms has no 16-bit CMYK mode).
 
@@ -533,10 +534,16 @@ def _lab_luminance(image: Image.Image) -> np.ndarray | None:
 
 
 def _high_bit_gray(image: Image.Image, file: Path, decoding: _Decoding) -> np.ndarray | None:
-    """Linear gray values of 32-bit integer and float images, else None."""
+    """Linear gray values of 32-bit integer and float images, else None.
+
+    WhiteIsZero (a TIFF's PhotometricInterpretation 0) turns a value v in [0, 1] into
+    1 - v before it is decoded, as 16-bit codes c become 65535 - c.
+    """
+    white_is_zero = tiff_tag(image, PHOTOMETRIC) == 0
     if image.mode == "I":  # beyond 16 bits (_gray16 takes the rest): scaled to its maximum
         arr = np.asarray(image, dtype=np.int64)
-        return decoding.unit(np.clip(arr / float(max(arr.max(), 1)), 0.0, 1.0))
+        unit = np.clip(arr / float(max(arr.max(), 1)), 0.0, 1.0)
+        return decoding.unit(1.0 - unit if white_is_zero else unit)
     if image.mode == "F":
         values = np.asarray(image, dtype=np.float64)
         with np.errstate(invalid="ignore"):
@@ -558,7 +565,8 @@ def _high_bit_gray(image: Image.Image, file: Path, decoding: _Decoding) -> np.nd
                     f"{file}: pixel (row {row}, column {col}) is {values[row, col]:.6g}; "
                     f"expected {expected.format(len(where))}"
                 )
-        return decoding.unit(np.clip(values, 0.0, 1.0))
+        unit = np.clip(values, 0.0, 1.0)
+        return decoding.unit(1.0 - unit if white_is_zero else unit)
     return None
 
 

@@ -3,8 +3,9 @@
 Pillow has no 16-bit colour mode: it opens 16-bit RGB, RGBA and CMYK (and grey with
 alpha in a PNG) at 8 bits, keeping each sample's high byte. Its own decoders (PNG filters
 and interlacing, TIFF compressions) read the file a second time with rawmodes that keep
-the low bytes instead. A 16-bit grey-and-alpha TIFF, which Pillow refuses, is opened with
-its table of TIFF layouts extended for the call; an uncompressed TIFF of separate planes,
+the low bytes instead. A 16-bit grey-and-alpha TIFF and a big-endian 16-bit WhiteIsZero
+grey one, which Pillow refuses, are opened with its table of TIFF layouts extended for
+the call; an uncompressed TIFF of separate planes,
 whose bytes Pillow reads as 8-bit samples, is read from the file's bytes. A TIFF's
 associated alpha is divided out of the colour, and EXIF orientation turns the samples as
 it turns the image.
@@ -60,20 +61,29 @@ TIFF_MAGIC = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
 #: Pillow's TIFF format keys (byte order, photometric, sample format, fill order, bits,
 #: extra samples) for 16-bit grey with a second sample, which it does not list: read as
 #: "RGBA" pixels of 4 stored bytes, which :func:`deep_samples` pairs up.
-_GREY_AND_ALPHA_16 = {
+_TiffKey = tuple[bytes, int, tuple[int, ...], int, tuple[int, ...], tuple[int, ...]]
+_GREY_AND_ALPHA_16: dict[_TiffKey, tuple[str, str]] = {
     (prefix, photometric, (1,), 1, (16, 16), (extra,)): ("RGBA", "RGBA")
     for prefix in (b"II", b"MM")
     for photometric in (0, 1)
     for extra in (0, 1, 2)
 }
+#: Big-endian 16-bit WhiteIsZero grey, which Pillow lists only little-endian: read as the
+#: BlackIsZero layout is (``load_image`` inverts 16-bit WhiteIsZero grey itself).
+_WHITE_IS_ZERO_16: dict[_TiffKey, tuple[str, str]] = {
+    (b"MM", 0, (1,), 1, (16,), ()): ("I;16B", "I;16B")
+}
+#: The TIFF layouts :func:`open_image` adds to Pillow's table for a file it refuses.
+_ADDED_LAYOUTS = {**_GREY_AND_ALPHA_16, **_WHITE_IS_ZERO_16}
 _OPEN_INFO_LOCK = threading.Lock()
 
 
 def open_image(stream: io.BytesIO) -> ImageFile.ImageFile:
     """The file opened by Pillow (not loaded), 16-bit grey-and-alpha TIFFs included.
 
-    Pillow refuses those; they are opened with its table of TIFF layouts extended for the
-    call (under a lock: the table is Pillow's, shared by every thread).
+    Pillow refuses those, and big-endian 16-bit WhiteIsZero grey; they are opened with its
+    table of TIFF layouts extended for the call (under a lock: the table is Pillow's,
+    shared by every thread).
     """
     try:
         return Image.open(stream)
@@ -87,8 +97,8 @@ def open_image(stream: io.BytesIO) -> ImageFile.ImageFile:
     if not isinstance(table, dict):  # another Pillow: refused as Pillow refuses it
         raise refused
     with _OPEN_INFO_LOCK:
-        added = [key for key in _GREY_AND_ALPHA_16 if key not in table]
-        table.update({key: _GREY_AND_ALPHA_16[key] for key in added})
+        added = [key for key in _ADDED_LAYOUTS if key not in table]
+        table.update({key: _ADDED_LAYOUTS[key] for key in added})
         try:
             return Image.open(stream)
         finally:
