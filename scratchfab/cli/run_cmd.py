@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from scratchfab.cli.options import confirm
+from scratchfab.errors import ScratchfabError
 from scratchfab.model.job import JobLayout
 from scratchfab.pipeline.config import STAGES, load_pipeline
 from scratchfab.pipeline.runner import run_pipeline
@@ -66,6 +67,7 @@ def run(
     """
     pipe = load_pipeline(pipeline)
     job = pipe.job_dir(out)
+    report = JobLayout(job).report_html
     try:
         result = run_pipeline(
             pipe,
@@ -77,9 +79,16 @@ def run(
             confirm=None if yes else confirm,
             homed=homed,
         )
-    finally:
-        report = JobLayout(job).report_html
+    except ScratchfabError as exc:
+        # the error first, then where the report is: the CLI prints the error's text
+        if report.is_file() and len(exc.args) == 1:
+            exc.args = (f"{exc.args[0]}\nreport: {report}",)
+        raise
+    except BaseException:
         if report.is_file():
             click.echo(f"report: {report}")
+        raise
+    if report.is_file():
+        click.echo(f"report: {report}")
     ran = ", ".join(result.ran) or "nothing"
     click.echo(f"job {job}: ran {ran}; skipped {len(result.skipped)} in {result.seconds:.1f} s")

@@ -13,6 +13,7 @@ the next run starts again at that stage.
 from __future__ import annotations
 
 import contextlib
+import re
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -53,14 +54,29 @@ def is_emulator(port: str) -> bool:
     return emulator(port)
 
 
+#: The sender's words where a stop may have lost the machine's position (a reset, a link).
+_POSITION_LOST = re.compile(
+    r"los(?:t|es) (?:its|the) position|position (?:may be|is likely|was likely) lost"
+)
+
+
 def as_run_advice(text: str) -> str:
-    """The sender's advice as it applies in ``run``, which resumes a stream by running again."""
+    """The sender's advice as it applies in ``run``, which resumes a stream by running again.
+
+    The note goes on a line of its own where the sender's message has several (a fault's
+    clauses, :func:`~scratchfab.machine.stream_job.fault_lines`), and names ``--homed``
+    where the position may be lost: the resume then asks, and ``run --yes`` refuses
+    without it.
+    """
     later = "continue later with --resume"
     if later in text:
         return text.replace(later, "run the same command again later: it resumes")
-    if "--resume" in text:
-        return text + " (here `scratchfab run` has no --resume: run it again and it resumes)"
-    return text
+    if "--resume" not in text:
+        return text
+    note = "(here `scratchfab run` has no --resume: run it again and it resumes)"
+    if _POSITION_LOST.search(text):
+        note = f"once the position is found again as said above, add --homed {note}"
+    return text + ("\n  " if "\n" in text else " ") + note
 
 
 @dataclass
