@@ -321,3 +321,34 @@ def test_a_report_counts_the_step_on_the_tick_that_takes_it_not_the_distance_run
     assert "ALARM:3" in machine.text and machine.sim.mpos == pytest.approx(end, abs=1e-12)
     partial = [e for e in machine.sim.record if e["ev"] == "partial"]
     assert [e["to"] for e in partial] == [pytest.approx(list(end), abs=1e-9)]
+
+
+def test_the_amass_level_is_the_segments_not_the_instants():
+    """``st_prep_buffer`` picks a segment's AMASS level from its step rate: the events it runs
+    over its time (``cycles_per_tick``; its first event starts on a whole step here, so no
+    partial step carries over). G1 X10 Y7 at 1000 steps/mm from rest at $120 = $121 = 90:
+    X runs at 90 t mm/s, 45000 t^2 events by t; the segment from 40 to 50 ms runs events
+    72 to 112.5, 4050 a second: AMASS level 1 (16 MHz / 4050 = 3951 cycles, under
+    ``AMASS_LEVEL2`` 4000), though until 44.4 ms X runs under 4000 a second (level 2).
+    Reports there tick Y at level 1: ticks_taken at the segment's average speed, at 4
+    points of each event from 73 on."""
+    spm, accel = 1000.0, 90.0
+    settings = {100 + k: spm for k in range(3)} | {110: 6000.0, 111: 6000.0}
+    machine = _Machine(settings | {120: accel, 121: accel})
+    machine.at(0.0, b"G1X10Y7F6000\n")
+    end = (10.0, 7.0, 0.0)
+    length = math.hypot(10.0, 7.0)
+    per_mm = 10000 / length  # X's events per mm of the move
+    average = (112.5 - 72.0) / per_mm / 0.01  # mm/s over the segment
+    assert 16e6 / (average * per_mm) == pytest.approx(3950.6, abs=0.1)
+    differs = 0
+    for e in [k + f for k in range(72, 88) for f in (0.1, 0.35, 0.6, 0.85)]:
+        t = math.sqrt(e / 45000.0)
+        if 90.0 * t * 1000.0 >= 4000.0:
+            break  # X's speed reached level 1 too
+        want = ticks_taken((0.0,) * 3, end, e / per_mm, average, (spm,) * 3)
+        assert machine.report(t)[1] == pytest.approx(want, abs=1e-9), e
+        speed = 90.0 * t * length / 10.0  # along the move
+        instant = ticks_taken((0.0,) * 3, end, e / per_mm, speed, (spm,) * 3)
+        differs += instant != pytest.approx(want, abs=1e-9)
+    assert differs >= 3  # the instant's level (2) would tick Y elsewhere

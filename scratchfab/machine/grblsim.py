@@ -1546,10 +1546,11 @@ class GrblSim:
         an event at once: while moving, event ``k`` has run from ``k - 1`` events' distance
         on, up to the events the stepper gets (``count``, or ``count - ceil(steps left)``
         where a hold ends inside the block); at rest ``count - ceil(steps left)`` have run.
-        Below 8 kHz AMASS splits an event into 2, 4 or 8 ticks (:func:`_amass_level`), its
-        Bresenham counters scaled by 8 (``stepper.c``'s ISR: each axis's counter starts at
-        half the events, adds its steps each tick and steps the axis when it exceeds the
-        events), so a minor axis may step within an event before the major one does.
+        Below 8 kHz AMASS splits an event into 2, 4 or 8 ticks (the segment's level:
+        :meth:`_segment_level`), its Bresenham counters scaled by 8 (``stepper.c``'s ISR:
+        each axis's counter starts at half the events, adds its steps each tick and steps
+        the axis when it exceeds the events), so a minor axis may step within an event
+        before the major one does.
         A report so leads the distance run, as Grbl's does (the interrupt counts a step on
         the tick that decides it; its pulse goes out on the next): the major axis's step
         ``k`` counts once ``k - 1`` events ran (``k - 1/2`` under AMASS), not at ``k``.
@@ -1569,7 +1570,7 @@ class GrblSim:
         if speed > 0.0 and self._running() and self.options.time_scale > 0.0:
             left = head.length - head.done
             last = count if head.span >= left else math.floor((head.done + head.span) * per_mm)
-            level = _amass_level(speed * per_mm)
+            level = self._segment_level(t, per_mm)
             ticks = max(
                 whole << level,
                 min(math.floor(events * (1 << level) + 1e-9) + 1, max(last, 0) << level),
@@ -1586,6 +1587,20 @@ class GrblSim:
             for p, q in zip(a, b, strict=True)
         )
         return self._from_steps(now)  # type: ignore[arg-type]
+
+    def _segment_level(self, t: float, per_mm: float) -> int:
+        """The AMASS level of the head's segment running at ``t`` (:func:`_amass_level`).
+
+        ``st_prep_buffer`` picks it per segment from the segment's step rate (its events
+        over its time), not from the speed of the instant: a segment accelerating through
+        a level's rate runs at one level all along.
+        """
+        start = self._ends(self._seg_last, t)[1]
+        stop = self._ends(start, math.inf, 1)[1]
+        if stop <= start:  # the profile's end: no segment after it
+            return _amass_level(self._head_progress(t)[1] * per_mm)
+        mm = self._head_progress(stop)[0] - self._head_progress(start)[0]
+        return _amass_level(mm * per_mm * self.options.time_scale / (stop - start))
 
     # ------------------------------------------------------------------ resets and alarms
 
@@ -1993,7 +2008,7 @@ def _amass_level(events_per_s: float) -> int:
     ``st_prep_buffer`` compares a segment's cycles per step at 16 MHz with ``AMASS_LEVEL1``
     to ``3`` (``F_CPU`` / 8000, / 4000, / 2000); level ``L`` runs ``2^L`` ticks an event.
     """
-    cycles = 16e6 / events_per_s
+    cycles = 16e6 / events_per_s if events_per_s > 0.0 else math.inf
     return 0 if cycles < 2000 else 1 if cycles < 4000 else 2 if cycles < 8000 else 3
 
 
