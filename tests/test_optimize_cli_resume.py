@@ -246,3 +246,27 @@ def test_an_unavailable_backend_given_on_resume_is_refused_with_the_fix(
     assert "the CUDA backend needs an NVIDIA GPU and driver; use --backend llvm" in said
     assert "which cannot run here" not in said
     assert ckpt.read_bytes() == before
+
+
+def test_a_resume_on_more_threads_goes_on_with_a_note(
+    stopped: tuple[Path, Path, Path], job: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--threads`` changes only the rounding (Dr.Jit's atomics add in another order): a
+    resume on every core is not refused but noted, and ends where the run never stopped
+    ends, to rounding; the checkpoint then records the threads it went on with."""
+    from scratchfab.model.scratches import load_scratches
+
+    code, said = cli_said(["optimize", str(job), "--resume", "--threads", "2"], capsys)
+    assert code == 0, said
+    ckpt = job / "optimize" / "checkpoint.npz"
+    assert (
+        f"note: {ckpt} was made with threads = 1; its steps go on with threads = 2, which "
+        "rounds differently" in said
+    )
+    assert "made with different settings" not in said
+    tool = load_job_design(job / "design" / "design.toml").scratch
+    got, want = (load_scratches(j / "optimize" / "scratches.csv", tool) for j in (job, stopped[2]))
+    assert len(got) == len(want)
+    for a, b in ((got.p0, want.p0), (got.p1, want.p1)):
+        assert abs(a - b).max() < 1e-6
+    assert load_checkpoint(ckpt)[1]["fingerprint"]["threads"] == 2

@@ -110,7 +110,7 @@ def _bar() -> Callable[[Progress], None]:
     help="Continue from JOB/optimize/checkpoint.npz with the run's own options where not "
     "given (its total, step sizes, schedule, seed and --prune), as `scratchfab run` "
     "started it too; its backend too, but llvm where a cuda run finds no GPU (--backend "
-    "may differ: noted).",
+    "and --threads may differ: noted).",
 )
 @click.option(
     "--prune",

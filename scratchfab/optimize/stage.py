@@ -67,8 +67,9 @@ TRAJECTORY_KEYS = (
     "threads",
 )
 #: Trajectory keys a resume may change, with a note: the steps' arithmetic is the same, only
-#: its rounding differs (a run made on CUDA goes on where no GPU is, or on the CPU as asked).
-ROUNDING_KEYS = ("backend",)
+#: its rounding differs (a run made on CUDA goes on where no GPU is, or on the CPU as asked;
+#: one thread's run goes on on every core, or the other way).
+ROUNDING_KEYS = ("backend", "threads")
 
 
 @dataclass(frozen=True)
@@ -553,9 +554,13 @@ SCHEDULE_OPTIONS = {
 
 def _rounding_notes(made: dict[str, Any], options: OptimizeOptions, ckpt: Path) -> list[str]:
     """A note per :data:`ROUNDING_KEYS` option a resume changes from its checkpoint's value."""
+    said = {
+        "backend": lambda was, now: f"on the {was} backend; its steps go on on {now}",
+        "threads": lambda was, now: f"with threads = {was}; its steps go on with threads = {now}",
+    }
     return [
-        f"note: {ckpt} was made on the {made[k]} {k}; its steps go on on {getattr(options, k)}, "
-        f"which rounds differently: the layout is not bit-identical to one run on either alone."
+        f"note: {ckpt} was made {said[k](made[k], getattr(options, k))}, which rounds "
+        "differently: the layout is not bit-identical to one run with either alone."
         for k in ROUNDING_KEYS
         if k in made and made[k] != getattr(options, k)
     ]
