@@ -246,9 +246,10 @@ def test_a_soft_limit_is_journaled_lost_unless_the_machine_was_last_seen_standin
     """With a fast deceleration a hold the sender did not send may start and end between
     two status reports: where the last one showed the machine moving, the position is
     maybe lost (GRBL may have stopped the motors at speed), as where it showed Hold:1."""
-    from scratchfab.machine.sender import Status
+    from scratchfab.machine.sender import ControllerInfo, Status
 
     streamer = Streamer.__new__(Streamer)  # the alarm's rule alone: no port
+    streamer.info = ControllerInfo()  # no $$ read: $22 not known
     streamer.status = Status(state=state)
     streamer._hold_unseen = own
     streamer._journal = Journal(tmp_path / "j.jsonl").open()

@@ -48,7 +48,10 @@ def test_the_homing_advice_follows_the_profiles_coordinates(
     assert code == 2 and "Traceback" not in err
     last = err.rstrip().splitlines()[-1]
     assert "home the machine ($H)" in last and "--homed" in last
-    assert (WORK_ZERO in last) == (not frame), last
+    # a work-coordinate profile names its exact command (the plotter's board at X20 Y20)
+    zero = WORK_ZERO if machine is None else "jog to the board's lower-left corner and send"
+    assert (zero in last) == (not frame), last
+    assert ("G10 L20 P0 X20 Y20" in last) == (machine == "grbl-plotter-scribe"), last
     assert ("unlock it ($X) and set" in last) == (not frame), last
     if frame:
         assert "(its profile works in GRBL's machine coordinates: set no work zero)" in last

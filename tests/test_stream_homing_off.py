@@ -34,6 +34,22 @@ from scratchfab.machine.stream_job import lost_position_warning
 PROFILES = ["grbl-3018-diamond", "grbl-plotter-scribe", None]
 OFF = "homing is off, $22=0: $H answers error:5"
 ZERO = "set the work zero again on the board's origin"
+#: The bundled plotter's board: its lower-left corner at [board] offset_mm = [20, 20].
+PLOTTER_ZERO = (
+    "set the work zero again: jog to the board's lower-left corner and send "
+    "G10 L20 P0 X20 Y20 there"
+)
+
+
+def _zero(name):
+    """How the work zero is set again: the profile's exact command, else the words."""
+    if name is None:
+        return ZERO
+    if name != "grbl-plotter-scribe":
+        return "set the work zero again: jog to the board's"
+    board = load_profile(name).board
+    assert (board.offset_mm, board.origin) == ((20.0, 20.0), "lower-left")  # as bundled
+    return PLOTTER_ZERO
 
 
 @pytest.mark.parametrize("name", PROFILES)
@@ -47,7 +63,8 @@ def test_the_advice_homes_only_where_homing_is_on_or_unknown(name, homing):
         # as before $22 was read: the profile's frame alone decides
         assert how == refind(profile, None)
         assert "home the machine ($H)" in how.do and OFF not in how.do
-        assert (ZERO in how.do) == (not frame)
+        assert (_zero(name) in how.do) == (not frame)
+        assert "X0 Y0" not in how.do
         assert unlock_advice(profile, homing) is None
         return
     advice = unlock_advice(profile, homing)
@@ -56,7 +73,7 @@ def test_the_advice_homes_only_where_homing_is_on_or_unknown(name, homing):
         assert all("$22=1" in text for text in (how.do, how.done, advice)), how
         assert ZERO not in how.do and "set no work zero" in how.do
     else:
-        assert how.do == f"unlock it ($X) and {ZERO} ({OFF})"
+        assert how.do == f"unlock it ($X) and {_zero(name)} ({OFF})"
         assert "$H" not in how.done and "$X" in how.done
         assert all("re-home" not in text for text in texts[2:]), texts
         assert all("re-zero" in text for text in texts[2:]), texts

@@ -22,7 +22,7 @@ from scratchfab.cli import main
 from scratchfab.machine.grblsim import SimOptions
 from scratchfab.machine.grblsim_pty import GrblPty
 from scratchfab.machine.sender_journal import default_journal_path, read_journal
-from scratchfab.machine.stream_job import reset_since_lost_link
+from scratchfab.machine.stream_job import reset_since_last_run
 
 COMMON = ["--banner-timeout", "0.3"]
 QUICK = {"baud": 0, "time_scale": 0.002}
@@ -153,16 +153,16 @@ def test_emulator_after_a_lost_link_warns_and_repeats(tmp_path, capsys):
         (None, (0.0, 0.0, 0.0), None, False),  # an older journal: no position recorded
     ],
 )
-def test_reset_since_lost_link_bounds(was, now, steps, reset):
+def test_reset_since_last_run_bounds(was, now, steps, reset):
     lost = {"ev": "lost", "reason": "x", "executed_through": 3}
     if was is not None:
         lost["mpos"] = was
     events = [{"ev": "start", "steps": steps}, {"ev": "ack", "i": 0}, lost]
-    found = reset_since_lost_link(events, now)
+    found = reset_since_last_run(events, now)
     assert (found is not None) == reset
     if reset:
         assert found["lost"] is True and found["mpos_now"] == list(now)
-    assert reset_since_lost_link(events, None) is None
+    assert reset_since_last_run(events, None) is None
 
 
 def _without_position(job) -> None:

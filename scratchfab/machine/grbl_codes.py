@@ -49,12 +49,12 @@ ERROR_CODES: dict[int, str] = {
 
 #: ``ALARM:N`` -> meaning.
 ALARM_CODES: dict[int, str] = {
-    1: "hard limit triggered; machine position is likely lost, re-home",
+    1: "hard limit triggered; machine position is likely lost, {again}",
     2: (
         "soft limit: the target exceeds the machine travel; position kept unless a feed hold "
         "was slowing the machine down, reset then unlock"
     ),
-    3: "reset while in motion; position is likely lost, re-home",
+    3: "reset while in motion; position is likely lost, {again}",
     4: "probe fail: the probe is not in the expected initial state",
     5: "probe fail: the probe did not contact the workpiece",
     6: "homing fail: reset during the homing cycle",
@@ -70,6 +70,12 @@ def error_meaning(code: int) -> str:
     return ERROR_CODES.get(code, f"unknown error code {code} (not a Grbl 1.1 code)")
 
 
-def alarm_meaning(code: int) -> str:
-    """The meaning of ``ALARM:code``."""
-    return ALARM_CODES.get(code, f"unknown alarm code {code} (not a Grbl 1.1 code)")
+def alarm_meaning(code: int, again: str = "re-home") -> str:
+    """The meaning of ``ALARM:code``.
+
+    ``again``: how a lost position is found again, where the meaning says so (ALARM:1 and
+    ALARM:3): ``re-home``, or ``re-zero`` where homing is off (``$22=0``, where ``$H``
+    answers ``error:5``; :func:`~scratchfab.machine.sender.rehome` words it).
+    """
+    text = ALARM_CODES.get(code, f"unknown alarm code {code} (not a Grbl 1.1 code)")
+    return text.replace("{again}", again)

@@ -172,10 +172,11 @@ def refind(profile: MachineProfile | None, homing: bool | None = None) -> Refind
     by homing alone: it refuses a work offset, so setting a work zero is no advice for it;
     with homing off it needs homing turned on first. A work-coordinate profile, or none
     known (a foreign file, no ``--machine``): homing, or the work zero set again on the
-    board's origin; with homing off (``$22=0``, where ``$H`` answers ``error:5``) only the
-    work zero, after an unlock (``$X``).
+    board's origin (with a profile, its exact command: :func:`work_zero_again`); with
+    homing off (``$22=0``, where ``$H`` answers ``error:5``) only the work zero, after an
+    unlock (``$X``).
     """
-    zero = "set the work zero again on the board's origin"
+    zero, zeroed = work_zero_again(profile)
     if machine_coordinates(profile):
         frame = "its profile works in GRBL's machine coordinates"
         if homing is False:
@@ -191,15 +192,44 @@ def refind(profile: MachineProfile | None, homing: bool | None = None) -> Refind
     if homing is False:
         return Refind(
             "re-zero",
-            "unlocked ($X) and its work zero set again on the board's origin",
+            f"unlocked ($X) and its work zero set again {zeroed}",
             f"unlock it ($X) and {zero} ({HOMING_OFF})",
             zero,
         )
     return Refind(
         "re-home or re-zero",
-        "homed ($H), or its work zero set again on the board's origin",
+        f"homed ($H), or its work zero set again {zeroed}",
         f"home the machine ($H), or unlock it ($X) and {zero}",
         zero,
+    )
+
+
+def work_zero_command(profile: MachineProfile) -> tuple[str, str]:
+    """The board point the profile's G-code counts from, and the command that zeroes there.
+
+    ``("lower-left corner", "G10 L20 P0 X20 Y20")`` for a board's lower-left corner at
+    ``[board] offset_mm = [20, 20]``: the numbers as the G-code writes them, in the work
+    system in use (P0, which the G-code runs in as it selects none). Sending ``X0 Y0``
+    there, a habit, would move every cut by the offset.
+    """
+    place = profile.board
+    x, y = (gcode_number(v, profile.gcode.decimals) for v in place.offset_mm)
+    return place.origin_text, f"G10 L20 P0 X{x} Y{y}"
+
+
+def work_zero_again(profile: MachineProfile | None) -> tuple[str, str]:
+    """How the work zero is set again on the board: (to do, as done), for messages.
+
+    With a profile known, the exact command at the board's origin point
+    (:func:`work_zero_command`); without one, the words alone:
+    ``("set the work zero again on the board's origin", "on the board's origin")``.
+    """
+    if profile is None:
+        return "set the work zero again on the board's origin", "on the board's origin"
+    point, command = work_zero_command(profile)
+    return (
+        f"set the work zero again: jog to the board's {point} and send {command} there",
+        f"({command} at the board's {point})",
     )
 
 
@@ -698,7 +728,8 @@ class Streamer:
                     raise StreamFault(f"{text}: error:{code} ({error_meaning(code)})")
                 if line.startswith("ALARM:"):
                     code = int(line[6:]) if line[6:].isdigit() else -1
-                    raise StreamFault(f"{text}: ALARM:{code} ({alarm_meaning(code)})")
+                    meaning = alarm_meaning(code, self._find_again())
+                    raise StreamFault(f"{text}: ALARM:{code} ({meaning})")
                 if line.startswith("<"):
                     self._note_status(line)
                 else:
@@ -929,7 +960,8 @@ class Streamer:
             with _signals_stop(self):
                 return self._check(program, report)
         except _Fault as fault:
-            raise StreamFault(str(fault)) from None
+            # (a controller left in check mode leaves it at the next connect's soft reset)
+            raise StreamFault(f"{fault}; nothing was cut (check mode)") from None
         except BaseException as exc:
             # Ctrl-C, a signal or a bug: do not leave the controller in check mode ($C)
             self._stopping = True
@@ -1362,7 +1394,7 @@ class Streamer:
         if code == 2 and slowing and not own:
             lost = "maybe"
         self._alarm_lost = bool(lost)
-        meaning = alarm_meaning(code)
+        meaning = alarm_meaning(code, self._find_again())
         if code == 2 and own:
             meaning = (
                 "soft limit: a target beyond the machine travel, read while the feed hold "
@@ -1601,6 +1633,27 @@ class Streamer:
             "itself and is locked, and the sender soft-reset it (spindle off)"
         )
 
+    def _servo(self) -> bool:
+        """Whether the tool is a servo scribe (the profile's, else the program's pen mode)."""
+        profile = self.options.profile
+        if profile is not None:
+            return profile.tool_control.mode == "servo"
+        program = getattr(self, "_program", None)
+        return program is not None and program.pen_mode
+
+    def _raise_it(self) -> str:
+        """How a person raises a tool the sender did not: ``jog Z up``, or a servo's up command.
+
+        A servo scribe has no Z to jog: its up command is the profile's ``off`` (M5 without
+        a profile), which a soft reset has already sent where it is M5.
+        """
+        if not self._servo():
+            return "jog Z up"
+        profile = self.options.profile
+        up = "M5" if profile is None else profile.tool_control.command("off")
+        done = " (a reset switches the spindle output off: check that it is up)"
+        return f"raise the scribe with its up command {up}{done if up == 'M5' else ''}"
+
     def _homing(self) -> bool | None:
         """GRBL's ``$22`` as the connect's ``$$`` gave it (None: not read)."""
         return homing_of(self.info.settings)
@@ -1608,6 +1661,13 @@ class Streamer:
     def _rehome(self) -> str:
         """:func:`rehome` for this machine's profile and ``$22``."""
         return rehome(self.options.profile, self._homing())
+
+    def _find_again(self) -> str:
+        """How an alarm's meaning says a lost position is found again.
+
+        ``re-home``; where homing is off (``$22=0``), :func:`rehome`'s words instead.
+        """
+        return self._rehome() if self._homing() is False else "re-home"
 
     def _unlock_advice(self, lost: bool | None = None) -> str | None:
         """:func:`unlock_advice` for this machine (None: homing on or not known)."""
@@ -1668,12 +1728,16 @@ class Streamer:
                 **_where(self.status),
             )
             return
-        why = f"{reason} cut the stop short; jog Z up"
+        why = f"{reason} cut the stop short; {self._raise_it()}"
         lifted = self._no_lift(why)
         if lifted is not None:  # no message carries its clause
             self._tell(f"the tool was NOT raised: {why}")
         self._journal_quietly(
-            "stop", reason=reason, executed_through=self._executed_guess(held), **_journaled(lifted)
+            "stop",
+            reason=reason,
+            executed_through=self._executed_guess(held),
+            **_where(self.status),
+            **_journaled(lifted),
         )
         self._tell(self._held_text())
 
@@ -1718,7 +1782,7 @@ class Streamer:
                 )
                 lifted = self._no_lift(
                     "after an alarm GRBL is locked and the sender never unlocks it; check the "
-                    f"machine, {leave} yourself, then jog Z up"
+                    f"machine, {leave} yourself, then {self._raise_it()}"
                 )
                 self._reset(str(fault), self.status, lifted)
                 fault.args = (str(fault) + _clause(lifted),)
@@ -1726,20 +1790,21 @@ class Streamer:
                 leave = self._unlock_advice(True) or "home it ($H) or unlock it ($X)"
                 lifted = self._no_lift(
                     "the controller is in Alarm and its position may be lost; "
-                    f"{leave} yourself, then jog Z up"
+                    f"{leave} yourself, then {self._raise_it()}"
                 )
                 self._reset(str(fault), None, lifted)  # a reset may have lost the position
                 fault.args = (str(fault) + _clause(lifted),)
             elif fault.kind == "reset":
                 self._wait_banner(self.options.banner_timeout)  # the reset sent on the banner
                 lifted = self._no_lift(
-                    "the controller reset itself and its position may be lost; jog Z up"
+                    "the controller reset itself and its position may be lost; " + self._raise_it()
                 )
                 self._journal.write(
                     "stop",
                     reason=str(fault),
                     executed_through=self._executed_guess(None),
                     lost=True,  # a resume asks whether it was homed since
+                    **_where(self.status),
                     **_journaled(lifted),
                 )
                 fault.args = (str(fault) + _clause(lifted),)
@@ -1818,7 +1883,13 @@ class Streamer:
         seen = held if self._hold_alarm is None else self.status
         through = self._stopped_through = self._executed_guess(seen)
         lifted = self._lift(held, banner, frame)
-        self._journal.write("stop", reason=reason, executed_through=through, **_journaled(lifted))
+        self._journal.write(
+            "stop",
+            reason=reason,
+            executed_through=through,
+            **_where(self.status),
+            **_journaled(lifted),
+        )
         return _clause(lifted)
 
     # ------------------------------------------------------------------ lifting the tool
@@ -1884,18 +1955,17 @@ class Streamer:
             )
             return self._not_raised(
                 f"the controller is in {state} after the reset (position lost); {leave}, "
-                "then jog Z up"
+                f"then {self._raise_it()}"
             )
         if state.startswith("Door"):
             return self._not_raised(
                 f"the safety door is open ({state}) and GRBL moves nothing while it is; "
-                "close it, then jog Z up"
+                f"close it, then {self._raise_it()}"
             )
         if state != "Idle":
             return self._not_raised(f"the controller reports {state} after the reset, not Idle")
         profile = self.options.profile
-        servo = self._program.pen_mode if profile is None else profile.tool_control.mode == "servo"
-        if servo:
+        if self._servo():
             return self._lift_servo(profile)
         if held is None:
             return self._not_raised(
@@ -2054,7 +2124,8 @@ class Streamer:
                             self._write(REALTIME_RESET)
                             self._wait_banner(self.options.banner_timeout)
                         return (
-                            f"ALARM:{code} ({alarm_meaning(code)}) on {text!r}; soft reset "
+                            f"ALARM:{code} ({alarm_meaning(code, self._find_again())}) on {text!r}; "
+                            "soft reset "
                             "sent, the controller stays locked: check the machine, then "
                             f"{self._unlock_advice() or 'home it ($H) or unlock it ($X)'} "
                             "yourself"
@@ -2110,7 +2181,13 @@ class Streamer:
         self._write(REALTIME_RESET)
         self._wait_banner(self.options.banner_timeout)
         through = self._executed_guess(report)
-        self._journal.write("stop", reason=reason, executed_through=through, **_journaled(lifted))
+        self._journal.write(
+            "stop",
+            reason=reason,
+            executed_through=through,
+            **_where(self.status),
+            **_journaled(lifted),
+        )
 
     def _executed_guess(self, report: Status | None) -> int:
         """The last acknowledged block that surely ran, judged from the position at the stop.
@@ -2623,10 +2700,11 @@ def _journaled(lifted: _Lifted | None) -> dict[str, Any]:
 
 
 def _where(status: Status | None) -> dict[str, Any]:
-    """The ``lost`` event's ``mpos`` and ``wco`` (mm) by the last status report, where known.
+    """A ``lost`` or ``stop`` event's ``mpos`` and ``wco`` (mm) by the last report, where known.
 
-    A resume compares ``mpos`` with where the controller stands once connected: one that
-    reset (an Arduino resets when its port is opened) boots at machine zero.
+    A resume compares them with where the controller stands once connected: one that
+    reset (an Arduino resets when its port is opened) boots at machine zero
+    (:func:`~scratchfab.machine.stream_job.reset_since_last_run`).
     """
     if status is None:
         return {}

@@ -453,7 +453,9 @@ def _stream_locked(
             _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
             if homing is None:  # not recorded (an older journal): as read now
                 homing = homing_of(info.settings)
-            reset = None if asked else reset_since_lost_link(events, info.status.mpos)
+            inches = inches or run_zero_in_inches(events)
+            found = reset_since_last_run(events, info.status.mpos, info.wco, homing, inches)
+            reset = None if asked else found
             if reset is not None:  # asked here, connected, before anything moves
                 events = [*events, reset]
                 lost = ask_if_homed(
@@ -714,7 +716,9 @@ def ask_before_an_earlier_export(
     layout) leaves ``export/board.gcode`` as it was until ``export`` runs: streaming it
     would cut the earlier plan. The header's strokes id
     (:attr:`~scratchfab.toolpath.plan.Toolpath.strokes_id`) tells; a file without one (an
-    earlier version's export, a foreign file) is not checked.
+    earlier version's export, a foreign file) is not checked. No earlier plan's id is kept,
+    so a G-code of another job copied into ``JOB/export/`` is told by its time: a file
+    newer than ``toolpath.json`` was not exported from it, nor from a plan before it.
 
     Raises:
         ScratchfabError: Under ``--yes`` on a machine, or when the person says no; nothing
@@ -725,17 +729,35 @@ def ask_before_an_earlier_export(
     if made_from is None or made_from == toolpath.strokes_id:
         return
     export = command_line(["scratchfab", "export", layout.root, "--format", "gcode"])
-    earlier = (
-        f"{gcode} was exported from another plan than {layout.toolpath_json} (planned again since)"
-    )
+    if _newer(gcode, layout.toolpath_json):
+        what = (
+            f"{gcode} was not exported from this job's toolpath: its header names other "
+            f"strokes than {layout.toolpath_json}, and the file is newer than that plan (a "
+            "G-code of another job copied here?)"
+        )
+        cuts, plan = "it cuts what it was exported from, not this job's plan", "that G-code"
+    else:
+        what = (
+            f"{gcode} was exported from another plan than {layout.toolpath_json} (planned "
+            "again since)"
+        )
+        cuts, plan = "it cuts that plan, not the current one", "the earlier plan"
     _ask_on_a_machine(
-        f"{earlier}: it cuts that plan, not the current one; `{export}` writes the current one",
-        f"refusing to stream with --yes: {earlier}; run `{export}` first",
-        f"{earlier}. Stream the earlier plan anyway?",
+        f"{what}: {cuts}; `{export}` writes the current one",
+        f"refusing to stream with --yes: {what}; run `{export}` first",
+        f"{what}. Stream {plan} anyway?",
         port,
         confirm,
         say,
     )
+
+
+def _newer(file: Path, than: Path) -> bool:
+    """Whether ``file`` was modified after ``than`` (False where either cannot be read)."""
+    try:
+        return file.stat().st_mtime_ns > than.stat().st_mtime_ns
+    except OSError:
+        return False
 
 
 def _ask_on_a_machine(
@@ -840,7 +862,7 @@ def _lost_event(events: list[dict[str, Any]]) -> dict[str, Any] | None:
 
     An ``alarm`` or ``stop`` with ``lost`` (a ``stop`` holds it where the controller reset
     itself: its banner came, a power or USB glitch, its reset button); a ``lost`` event (a
-    dropped link) with ``lost``, once :func:`reset_since_lost_link` found a reset since, or
+    dropped link) with ``lost``, once :func:`reset_since_last_run` found a reset since, or
     with no ``mpos`` (:func:`_unplaced_drop`): whether it reset cannot be told.
     """
     kinds = ("alarm", "stop", "lost")
@@ -862,45 +884,86 @@ def _unplaced_drop(event: dict[str, Any]) -> bool:
     return event.get("ev") == "lost" and xyz_of(event.get("mpos")) is None
 
 
-def reset_since_lost_link(
-    events: list[dict[str, Any]], mpos: tuple[float, float, float] | None
+def reset_since_last_run(
+    events: list[dict[str, Any]],
+    mpos: tuple[float, float, float] | None,
+    wco: tuple[float, float, float] | None = None,
+    homing: bool | None = None,
+    inches: bool = False,
 ) -> dict[str, Any] | None:
-    """The last session's ``lost`` event marked ``lost``, where the controller reset since.
+    """The last session's closing ``lost`` or ``stop``, where the machine may have lost its zero.
 
     A controller without homing (``$22=0``), or unlocked with ``$X``, boots at machine
-    zero: an Arduino resets when its port is opened, a board powered over the cable lost
-    power with it. It then answers as if nothing happened; only where it stood when the
-    link dropped (the event's ``mpos``) tells. One that kept power ran its queue and stands
-    at a move's end, so being elsewhere alone says nothing: a reset is told by ``mpos``
-    (now) within two steps of machine zero on every axis while the recorded one was not
-    (steps from the session's ``start``, else 0.025 mm, plus a report digit).
+    zero wherever the tool stands: an Arduino resets when its port is opened (a reconnect
+    after an ordinary stop too), a board powered over the cable lost power with it. It then
+    answers as if nothing happened, and its work offset (kept in EEPROM) now counts from
+    that new machine zero: the rest of the board would be cut shifted. Only where it stood
+    when the run ended (the event's ``mpos``, and a stop's ``wco``) tells:
+
+    - ``mpos`` now within two steps of machine zero in X and Y while the recorded one was
+      not (Z is left out: a tool the stop could not raise is jogged up): a reset
+      (``"zero"``), after a lost link or a stop alike;
+    - after a stop only (the machine stood still, so a controller that kept power stands
+      where it stopped): X or Y elsewhere by more than two steps (``"moved"``), unless
+      homing is on (``$22=1``: a controller that reset boots locked in Alarm, and only
+      ``$H`` or ``$X`` opens it, so a machine found Idle elsewhere was jogged). A jog keeps
+      machine zero and the work offset, but a reset followed by a jog looks the same;
+    - after a stop only: the work offset now differs from the one recorded after the
+      stop's reset (``"wco"``): the work zero was set again, or lost.
+
+    One that kept power after a lost link ran its queue and stands at a move's end, so
+    being elsewhere alone says nothing there. Steps come from the session's ``start``
+    (else 0.025 mm), plus a report digit; offsets compare with :func:`same_offset`, at the
+    inch reports' digit where either run read them (``inches``).
 
     Returns:
-        A copy of the event with ``"lost": true`` and ``"mpos_now"``, else None (no
-        ``lost`` event, either position unknown, or no reset seen).
+        A copy of the event with ``"lost": true``, ``"mpos_now"``, ``"why"`` (``"zero"``,
+        ``"moved"`` or ``"wco"``) and for ``"wco"`` ``"wco_now"``, else None (no closing
+        ``lost`` or ``stop``, positions unknown, or nothing changed).
     """
     session = _last_session(events)
-    dropped = [ev for ev in session if ev.get("ev") == "lost"]
-    was = xyz_of(dropped[-1].get("mpos")) if dropped else None
-    if was is None or mpos is None:
+    closing = [ev for ev in session if ev.get("ev") in ("lost", "stop")]
+    if not closing or mpos is None:
+        return None
+    event = closing[-1]
+    was = xyz_of(event.get("mpos"))
+    if was is None:
         return None
     steps = xyz_of(session[0].get("steps")) or (0.0, 0.0, 0.0)
     near = [2.0 * (step or 0.025) + 0.001 for step in steps]
-    if not all(abs(v) <= d for v, d in zip(mpos, near, strict=True)):
+    found = {**event, "lost": True, "mpos_now": [round(v, 3) for v in mpos]}
+
+    def within(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+        return all(abs(u - v) <= d for u, v, d in zip(a[:2], b[:2], near[:2], strict=True))
+
+    zero = (0.0, 0.0, 0.0)
+    if within(mpos, zero) and not within(was, zero):
+        return {**found, "why": "zero"}
+    if event.get("ev") != "stop":
         return None
-    if all(abs(v) <= d for v, d in zip(was, near, strict=True)):
-        return None
-    return {**dropped[-1], "lost": True, "mpos_now": [round(v, 3) for v in mpos]}
+    if homing is not True and not within(mpos, was):
+        return {**found, "why": "moved"}
+    wco_was = xyz_of(event.get("wco"))
+    if wco_was is not None and wco is not None and not same_offset(wco_was, wco, inches):
+        return {**found, "why": "wco", "wco_now": [round(v, 3) for v in wco]}
+    return None
 
 
 def _lost_by(event: dict[str, Any]) -> str:
     """What ended the run in ``event`` (:func:`_lost_event`): ``ALARM:2``, a reset."""
+    since = {
+        "zero": "the controller reset since (it stands at machine zero)",
+        "moved": "the machine moved since (a jog, or a reset and a jog)",
+        "wco": "the work offset changed since",
+    }.get(event.get("why", ""), "")
+    if event.get("ev") == "stop" and since:
+        return f"a stop, and {since}"
     if event.get("ev") == "stop":
         return "a reset of the controller it did not send (its banner came)"
     if event.get("ev") == "lost" and "mpos_now" not in event:
         return "a lost link, with no position of the machine recorded before it"
     if event.get("ev") == "lost":
-        return "a lost link, and the controller reset since (it stands at machine zero)"
+        return f"a lost link, and {since}"
     return f"ALARM:{event.get('code')}"
 
 
@@ -936,14 +999,8 @@ def lost_position_warning(
             f"loses the position; go on only if the machine was {done} since, or you know "
             "its controller kept power and was not reset"
         )
-    if alarm.get("ev") == "lost":
-        return (
-            "the run before this resume ended with a lost link, and the controller now stands "
-            f"at machine zero (MPos {xyz_text(alarm['mpos_now'])}; it stood at "
-            f"{xyz_text(alarm['mpos'])} when the link dropped): it reset since (an Arduino "
-            "resets when its port is opened; a board powered over the cable lost power), "
-            f"which loses the position; go on only if the machine was {done} since"
-        )
+    if "mpos_now" in alarm:
+        return _moved_warning(alarm, done)
     if alarm.get("ev") == "stop":
         return (
             f"the run before this resume ended with {_lost_by(alarm)}: a power or USB glitch "
@@ -970,6 +1027,38 @@ def lost_position_warning(
         f"the run before this resume ended with ALARM:{code}, which stopped the motors at "
         f"speed ({why}), so its position was likely lost: go on only if the machine was "
         f"{since} since; after an unlock ($X) alone the strokes would land off"
+    )
+
+
+def _moved_warning(event: dict[str, Any], done: str) -> str:
+    """:func:`lost_position_warning` for an event :func:`reset_since_last_run` found."""
+    stopped = event.get("ev") == "stop"
+    ended = "was stopped" if stopped else "ended with a lost link"
+    when = "when it stopped" if stopped else "when the link dropped"
+    where = f"MPos {xyz_text(event['mpos_now'])}; it stood at {xyz_text(event['mpos'])} {when}"
+    reboot = "an Arduino resets when its port is opened" + (
+        "" if stopped else "; a board powered over the cable lost power"
+    )
+    if event.get("why") == "moved":
+        return (
+            f"the run before this resume {ended}, and the machine stands elsewhere now "
+            f"({where}): a jog keeps the work zero, but a reset ({reboot}) followed by a jog "
+            "makes machine zero where the tool stood and moves the work zero with it, and "
+            f"without homing nothing tells the two apart; go on only if the machine was {done} "
+            "since, or it was only jogged and its controller never reset"
+        )
+    if event.get("why") == "wco":
+        return (
+            f"the run before this resume {ended}, and the work offset changed since (was "
+            f"{xyz_text(event['wco'])}, now {xyz_text(event['wco_now'])} mm): the work zero "
+            f"must be the same point on the board as before; go on only if the machine was "
+            f"{done} since"
+        )
+    return (
+        f"the run before this resume {ended}, and the controller now stands at machine zero "
+        f"({where}): it reset since ({reboot}), which makes machine zero where the tool stood "
+        "and moves the work zero with it; go on only if the machine was "
+        f"{done} since"
     )
 
 
@@ -1025,6 +1114,8 @@ def ask_if_homed(
     event = _lost_event(events)
     if event is not None and event.get("ev") == "lost" and "mpos_now" not in event:
         kept = ", or did its controller keep power without a reset"
+    elif event is not None and event.get("why") == "moved":
+        kept = ", or was it only jogged and its controller never reset"
     if not confirm(
         f"{warning[0].upper()}{warning[1:]}. Was the machine {how.done} since then{kept} "
         "(--homed says so)?"
