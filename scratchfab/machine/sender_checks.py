@@ -9,7 +9,14 @@ from typing import Protocol
 
 from scratchfab.console import duration_text
 from scratchfab.machine.grbl_codes import MM_PER_INCH
-from scratchfab.machine.sender_program import Block, Modal, Program, known_xyz, work_xyz
+from scratchfab.machine.sender_program import (
+    Block,
+    Modal,
+    Program,
+    known_xyz,
+    work_xyz,
+    z_levels,
+)
 
 _AXES = "XYZ"
 #: One digit of GRBL's coordinate reports in mm: 3 decimals in mm, 4 in inches under
@@ -246,7 +253,10 @@ def compare(
         out.warnings.append(
             "GRBL soft limits are off ($20=0): nothing stops a move past the travel"
         )
-    if settings and not settings.get(22, 0):
+    # a work-coordinate profile counts from the work zero set on the board: homing is no
+    # need there, and the warning came on every stream of a plotter that has none
+    work_frame = profile is not None and profile.envelope.coordinates != "machine"
+    if settings and not settings.get(22, 0) and not work_frame:
         out.warnings.append("GRBL homing is off ($22=0): machine coordinates are not referenced")
     lo, hi = job_extent(program)
     unset = ""  # axes refused where a work-coordinate profile meets a work offset of 0
@@ -271,6 +281,8 @@ def compare(
         env = profile.envelope
         refusals, unset = _envelope_refusals(own, program, profile, start_xy, wco, tolerance)
         out.refusals += refusals
+        # a job that never moves Z (a servo plotter's) is not slowed by GRBL's Z rates
+        moves_z = len(z_levels(program.blocks)) > 1
         for k, axis in enumerate(_AXES):
             need = env.max_travel_mm[k]
             have = travel[k]
@@ -297,6 +309,8 @@ def compare(
                     f"is yours to keep); if not, set ${130 + k}={need:g} so that GRBL's soft "
                     "limits stop where it ends"
                 )
+            if k == 2 and not moves_z:
+                continue
             rate = rates[k]
             want = profile.motion.max_rate_mm_min[k]
             if rate is not None and rate + tolerance < want:
