@@ -150,9 +150,12 @@ def test_an_s_lift_job_cut_short_is_refused(tmp_path):
     last_cut = max(i for i, t in enumerate(lines) if t.startswith("G1") and "F1200" in t)
     short = tmp_path / "short.gcode"
     short.write_text("\n".join(lines[: last_cut + 1]) + "\n")
+    # alone, the file cannot tell its up state (it ends on a cut): every M3 is down
+    with pytest.raises(ConfigError, match=r"ends with the tool down \(spindle output M3\)"):
+        check_tool_up_at_end(load_program(short))
     expected = rf"ends with the tool down \(spindle output M3 S{DOWN:g}, not the S{UP:g} "
     with pytest.raises(ConfigError, match=expected):
-        check_tool_up_at_end(load_program(short))
+        check_tool_up_at_end(load_program(short, tool_up=f"M3 S{UP:g}"))
 
 
 def drop_and_resume(tmp_path, capsys, off: str, fault: str, machine: bool):
@@ -259,3 +262,24 @@ def test_a_job_that_does_not_tell_its_up_state_keeps_m3_as_down(tmp_path):
         off = next(b.index for b in prog.blocks[on:] if b.modal.spindle == "M5")
         assert prog.tool_up == "M5" and prog.lift_speed is None
         assert prog.strokes == [(on, off)]
+
+
+def test_a_file_that_starts_drawing_at_once_is_not_guessed(tmp_path):
+    """A reviewer's foreign file: its first XY move draws (S30) and its last travels home
+    (S90). The first move's level alone named S30 the up state: strokes and travels
+    swapped, a resume lowering the pen before its move back. The two ends disagree, so
+    nothing is guessed: every M3 counts as down (one stroke), a resume refused."""
+    lines = ["G21 G90 G17 G94", "M3 S30", "G1 X10 Y10 F1000", "M3 S90", "G1 X20 Y10",
+             "M3 S30", "G1 X20 Y20", "M3 S90", "G1 X30 Y20", "M3 S30", "G1 X30 Y30",
+             "M3 S90", "G1 X0 Y0", "M5", "M2"]  # fmt: skip
+    prog = load_program(write(tmp_path, "drawn.gcode", lines))
+    assert prog.tool_up == "M5" and prog.lift_speed is None
+    on = next(b.index for b in prog.blocks if b.modal.spindle == "M3")
+    off = next(b.index for b in prog.blocks[on:] if b.modal.spindle == "M5")
+    assert prog.strokes == [(on, off)]
+    # with the profile's up command the same file is read right: S30 draws
+    told = load_program(write(tmp_path, "told.gcode", lines), tool_up="M3 S90")
+    assert told.tool_up == "M3S90" and told.lift_speed == 90
+    drawn = [told.blocks[a : b + 1] for a, b in told.strokes]
+    assert all(any(x.modal.speed == 30 for x in span) for span in drawn)
+    assert not any(b.modal.speed == 30 and b.modal.x == 0 for b in told.blocks if b.motion)

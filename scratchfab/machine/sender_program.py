@@ -651,8 +651,10 @@ def lift_state(blocks: Sequence[Block], tool_up: str | None = None) -> tuple[str
     output on (M3/M4): the machine profile's up command (``tool_up``, its ``[tool_control]
     off``) where it sets an S the job moves under; else, where the job moves under exactly
     two levels above 0, the one its rapids (G0) run under where they run under one only
-    and no feed move does, or, in a job whose rapids run under neither, the one its first
-    XY move runs under (a job travels to its first stroke with the tool up); else S0
+    and no feed move does, or, in a job whose rapids run under neither, the one both its
+    first and its last XY move run under (a job travels to its first stroke and back home
+    with the tool up; a file that starts drawing at once shows two levels there and is
+    not guessed); else S0
     (GRBL's output off, as M5) where the job moves under it and one level above it. None
     (M5 lifts the tool, any M3/M4 is down) where the job moves under one level only or
     does not tell which one is up. The M code is the one the job first moves under that S
@@ -662,14 +664,16 @@ def lift_state(blocks: Sequence[Block], tool_up: str | None = None) -> tuple[str
     rapid: set[float] = set()  # the levels above 0 rapids and feed moves run under
     feed: set[float] = set()
     first: float | None = None  # the level of the first XY move (None: the output off)
+    last: float | None = None  # and of the last
     seen = False
     for b, moved_xy in _followed_moves(blocks):
         if not moved_xy:
             continue
         m = b.modal
         on = m.spindle in ("M3", "M4")
+        last = m.speed if on else None
         if not seen:
-            seen, first = True, m.speed if on else None
+            seen, first = True, last
         if on:
             levels.setdefault(m.speed, m.spindle)
             if m.speed > 0:
@@ -682,7 +686,7 @@ def lift_state(blocks: Sequence[Block], tool_up: str | None = None) -> tuple[str
             if rapid:
                 up = next(iter(rapid)) if len(rapid) == 1 and not rapid & feed else None
             else:
-                up = first if first else None
+                up = first if first and first == last else None
         else:
             up = 0.0 if above == 1 and 0.0 in levels else None
     return None if up is None else (levels[up], up)
