@@ -37,7 +37,7 @@ ZERO = "set the work zero again on the board's origin"
 #: The bundled plotter's board: its lower-left corner at [board] offset_mm = [20, 20].
 PLOTTER_ZERO = (
     "set the work zero again: jog to the board's lower-left corner and send "
-    "G10 L20 P0 X20 Y20 there"
+    "`G10 L20 P0 X20 Y20` there"
 )
 
 

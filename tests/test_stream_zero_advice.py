@@ -45,9 +45,9 @@ def test_a_known_profile_names_the_command_at_the_boards_origin(
     offset, origin, decimals, command, point, homing
 ):
     how = refind(_placed(offset, origin, decimals), homing)
-    assert f"jog to the board's {point} and send {command} there" in how.do
-    assert f"jog to the board's {point} and send {command} there" in how.again
-    assert f"({command} at the board's {point})" in how.done
+    assert f"jog to the board's {point} and send `{command}` there" in how.do
+    assert f"jog to the board's {point} and send `{command}` there" in how.again
+    assert f"(`{command}` at the board's {point})" in how.done
     assert "X0 Y0" not in how.do + how.done
 
 
@@ -135,3 +135,21 @@ def test_a_drop_during_check_mode_says_nothing_was_cut(tmp_path):
     assert code == 3, err
     error = next(line for line in err.splitlines() if line.startswith("error: "))
     assert error.startswith("error: connection lost") and "nothing was cut (check mode)" in error
+
+
+@pytest.mark.parametrize("name", ["grbl-plotter-scribe", None])
+def test_a_cleared_g92_zero_is_set_again_with_the_profiles_command(tmp_path, name):
+    """The resume's refusal where a reset cleared the run's G92 zero names the command."""
+    from scratchfab.errors import ScratchfabError
+    from scratchfab.machine.stream_job import _check_same_zero
+
+    events = [{"ev": "start", "wco": [25.0, 25.0, 0.0], "g92": [5.0, 5.0, 0.0]}]
+    profile = None if name is None else load_profile(name)
+    with pytest.raises(ScratchfabError) as exc:
+        _check_same_zero(events, (20.0, 20.0, 0.0), None, tmp_path / "j", print, False, profile)
+    text = str(exc.value)
+    if name is None:
+        assert "set the same zero again with `G10 L20 P0` (P0: the work system in use" in text
+    else:
+        assert "set the same zero again: jog to the board's lower-left corner and send " in text
+        assert "`G10 L20 P0 X20 Y20` there (P0: the work system in use; a reset keeps it" in text

@@ -41,8 +41,9 @@ from scratchfab.pipeline.runner import run_pipeline
 @click.option(
     "--homed",
     is_flag=True,
-    help="The stream being resumed ended in an alarm that may have lost the position, and "
-    "the machine was homed ($H), or unlocked ($X) and its work zero set again, since (else "
+    help="The stream being resumed ended in a way that may have lost the position (an "
+    "alarm, a lost link, a stop after which the controller was found reset), and the "
+    "machine was homed ($H), or unlocked ($X) and its work zero set again, since (else "
     "asked; refused under --yes).",
 )
 def run(

@@ -119,8 +119,9 @@ def _job_gcode(path: Path) -> Path:
 @click.option(
     "--homed",
     is_flag=True,
-    help="With --resume after an alarm or a controller reset that may have lost the "
-    "position: the machine was homed ($H) since, or (a work-coordinate profile) unlocked "
+    help="With --resume after an alarm, a lost link or a stop that may have lost the "
+    "position (a controller found reset since: at machine zero, moved, another work "
+    "offset): the machine was homed ($H) since, or (a work-coordinate profile) unlocked "
     "($X) and its work zero set again (else asked; refused under --yes).",
 )
 @click.option(

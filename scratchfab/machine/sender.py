@@ -228,9 +228,28 @@ def work_zero_again(profile: MachineProfile | None) -> tuple[str, str]:
         return "set the work zero again on the board's origin", "on the board's origin"
     point, command = work_zero_command(profile)
     return (
-        f"set the work zero again: jog to the board's {point} and send {command} there",
-        f"({command} at the board's {point})",
+        f"set the work zero again: {_jog_and_send(profile)}",
+        f"(`{command}` at the board's {point})",
     )
+
+
+def _jog_and_send(profile: MachineProfile) -> str:
+    """``jog to the board's lower-left corner and send `G10 L20 P0 X20 Y20` there``."""
+    point, command = work_zero_command(profile)
+    return f"jog to the board's {point} and send `{command}` there"
+
+
+def zero_kept_advice(profile: MachineProfile | None, verb: str = "set the work zero again") -> str:
+    """How to set the work zero again where a reset cleared a G92 zero: one a reset keeps.
+
+    With a work-coordinate profile, its exact command at the board's origin point
+    (:func:`work_zero_command`); else G10 L20 P0 in words
+    (:data:`~scratchfab.machine.sender_checks.ZERO_KEPT`). ``verb`` starts the advice.
+    """
+    if profile is None or machine_coordinates(profile):
+        return f"{verb} {ZERO_KEPT}"
+    kept = "P0: the work system in use; a reset keeps it, unlike a G92 zero"
+    return f"{verb}: {_jog_and_send(profile)} ({kept})"
 
 
 def unlock_advice(
@@ -1043,8 +1062,8 @@ class Streamer:
         raise StreamFault(
             f"{program.path}: leaving check mode soft-resets GRBL, which cleared its G92 or "
             f"tool length offset: the work offset was {xyz_text(before)}, now {now} mm, so "
-            f"the job would run elsewhere; set the work zero again {ZERO_KEPT} and stream "
-            "again; nothing moved"
+            f"the job would run elsewhere; {zero_kept_advice(self.options.profile)} and "
+            "stream again; nothing moved"
         )
 
     # ------------------------------------------------------------------ streaming

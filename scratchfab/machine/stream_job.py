@@ -29,8 +29,9 @@ from scratchfab.machine.sender import (
     open_port,
     refind,
     xyz_text,
+    zero_kept_advice,
 )
-from scratchfab.machine.sender_checks import ZERO_KEPT, compare, eta_settings, same_offset
+from scratchfab.machine.sender_checks import compare, eta_settings, same_offset
 from scratchfab.machine.sender_journal import (
     Journal,
     check_journal_file,
@@ -450,7 +451,7 @@ def _stream_locked(
         )
         if resume and events is not None:
             inches = info.inch_reports
-            _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches)
+            _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches, profile)
             if homing is None:  # not recorded (an older journal): as read now
                 homing = homing_of(info.settings)
             inches = inches or run_zero_in_inches(events)
@@ -787,6 +788,7 @@ def _check_same_zero(
     journal_file: Path,
     say: Say,
     inches: bool = False,
+    profile: MachineProfile | None = None,
 ) -> None:
     """Before a resume: the work zero must be where the interrupted run had it.
 
@@ -813,8 +815,9 @@ def _check_same_zero(
             raise ScratchfabError(
                 f"{journal_file}: the interrupted run's work zero included a G92 offset "
                 f"({xyz_text(g92_before)} mm) that a reset since then cleared (work offset "
-                f"was {was}, now {now} mm): the resumed strokes would land elsewhere; set the "
-                f"same zero again {ZERO_KEPT}, then --resume; nothing was sent"
+                f"was {was}, now {now} mm): the resumed strokes would land elsewhere; "
+                f"{zero_kept_advice(profile, 'set the same zero again')}, then --resume; "
+                "nothing was sent"
             )
     say(
         f"warning: the work offset changed since the interrupted run (was {was}, now {now} "
