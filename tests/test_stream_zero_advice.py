@@ -11,6 +11,7 @@ servo plotter, which has no Z, to jog it.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import pytest
 from stream_helpers import stream_program
@@ -153,3 +154,17 @@ def test_a_cleared_g92_zero_is_set_again_with_the_profiles_command(tmp_path, nam
     else:
         assert "set the same zero again: jog to the board's lower-left corner and send " in text
         assert "`G10 L20 P0 X20 Y20` there (P0: the work system in use; a reset keeps it" in text
+
+
+def test_a_long_check_mode_shows_its_progress(tmp_path, monkeypatch):
+    monkeypatch.setattr("scratchfab.machine.sender.CHECK_QUIET_S", 0.0)
+    job = tmp_path / "job.gcode"
+    job.write_text("G21 G90\n" + "".join(f"G1 X{k % 50} Y1 F300\n" for k in range(99)) + "M2\n")
+    code, _, err = _stream([str(job), "--port", PORT, "--check", "--yes"], "")
+    assert code == 0, err
+    shown = [line for line in err.splitlines() if line.startswith("check mode: ")]
+    assert [line.split(" lines")[0] for line in shown] == [
+        # the first count that reaches each tenth of the 101 lines
+        *(f"check mode: {10 * t}% {math.ceil(t * 101 / 10)}/101" for t in range(1, 10)),
+        "check mode: 101",
+    ]

@@ -83,6 +83,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import serial
 
+from scratchfab.console import clock
 from scratchfab.errors import Interrupted, ScratchfabError
 from scratchfab.machine.grbl_codes import MM_PER_INCH, alarm_meaning, error_meaning
 from scratchfab.machine.profile import Z_UNLIMITED_MM, gcode_number
@@ -127,6 +128,9 @@ END_WAIT = "G4P0"
 #: not known: 40 steps/mm, a coarse belt drive. Wider only matches an earlier move (cut
 #: again); never used to tell a move ended (there an unknown step counts as none).
 COARSE_STEP_MM = 0.025
+#: Seconds of check mode before its progress lines start (a short file's says nothing).
+CHECK_QUIET_S = 2.0
+
 #: GRBL's ``error:9``: G-code locked out, which it answers only in Alarm (or a jog).
 GC_LOCKED = 9
 
@@ -1006,9 +1010,20 @@ class Streamer:
                 f"{program.path}: the controller did not enter check mode ($C answered "
                 "without [MSG:Enabled]); nothing was checked or sent"
             )
+        total = sum(not block.system for block in program.blocks)
+        began, checked, told = time.monotonic(), 0, 0
         for block in program.blocks:
             if block.system:
                 continue
+            tenth = 10 * checked // total
+            # a line at each tenth once it takes a while: a long file checks for minutes
+            if tenth > told and time.monotonic() - began >= CHECK_QUIET_S:
+                told = tenth
+                self.on_message(
+                    f"check mode: {tenth * 10}% {checked}/{total} lines  elapsed "
+                    f"{clock(time.monotonic() - began)}"
+                )
+            checked += 1
             self._write(block.text.encode("ascii") + b"\n")
             answered = False
             deadline = time.monotonic() + 5.0
