@@ -13,8 +13,11 @@ scratches (:func:`knee_spp`). Measured on the demo (from 264 spp) and a maker's 
 mm board (from 70 spp), aiming at the noise that 4 to 16 times the samples measured: the
 count 1 / spp names was 1.2 to 4.7 times the one that measured it, the knee's model's
 0.87 to 1.03 times (on the tests' coarse 32 px board up to 1.3 times, the noise falling
-faster still); read from the gain two standard errors up (:data:`KNEE_ERRORS`), 0.9 to
-1.3 times on the demo from 256 spp. Below 64 spp one render does not fix the knee (:data:`MIN_KNEE_BATCH`):
+faster still); read from the gain 2.5 standard errors up (:data:`KNEE_ERRORS`) and over
+the little the strata remove at any count (:data:`GAIN_FLOOR`), 0.9 to 1.5 times on the
+demo from 256 spp, and on coarse boards, whose noise falls as 1 / spp for thousands of
+samples, no knee where a render does not show one. Below 64 spp one render does not fix
+the knee (:data:`MIN_KNEE_BATCH`):
 on the demo the knee read from 32 spp named 0.6 to 0.9 times the count needed, and from
 16 spp half the renders showed none, the others one at random (0.5 to 2.5 times); the
 advice takes 1 / spp there, as for a metrics.json from before the knee, and names 1.4 to
@@ -48,22 +51,36 @@ QUIET_MAP_SHARE = 0.2
 #: than the knee that holds past them says: the count named 0.6 to 0.9 times the one needed).
 MIN_KNEE_BATCH = 32
 #: The knee is read from the gain this many standard errors above the one measured (a gain
-#: within the render's own noise of none says 1 / spp): from 64 spp on the demo the count
-#: named fell below 0.9 times the one needed for 5 to 11 % of the renders (31 to 56 % at
-#: the gain measured), at about 1.35 times it in the median (0.95); from 256 spp at 1.0.
-KNEE_ERRORS = 2.0
+#: within the render's own noise of :data:`GAIN_FLOOR` says 1 / spp).
+KNEE_ERRORS = 2.5
+#: The gain that tells no knee: the sampler's strata remove some of the noise at any count
+#: (the parts of a pixel that vary smoothly: 0.93 to 0.95 of it is left from 64 spp on, on
+#: the demo and on a 32 px board of 200 scratches, besides the knee's own fall), so a gain
+#: down to this is no sign of a knee. Read from a gain of 1 (and the pixels' spread alone
+#: for its error, at two of them), that board's knee at 64 to 256 spp came out at 0.1 to
+#: 0.4 times the 7000 spp its noise falls by from 1000 spp on: the count named for the
+#: noise that 8 to 64 times the samples measured fell to 0.45 times the one needed, for the
+#: 10 to 40 % of the renders that read one. With this floor and :data:`KNEE_ERRORS`, on it,
+#: a second such board, the demo and the tests' 12 mm board (whose knee is 150 to 300 spp)
+#: the count named was at least 0.85 times the one needed (0.35 before; 1 / spp names as
+#: little from the same renders: their own spread). In the mean it named 1.3 to 1.7 times
+#: the count from 256 spp (1.1 to 1.5 before), 1.7 to 2.2 from 128 (1.2 to 1.6), and from
+#: 64 spp 1.5 on the coarse boards, 3.2 on the demo and 11 on the tests' board, which few
+#: renders there show a knee in (1.4, 1.8 and 7 before; 1 / spp names 1.5, 3.5 and 13).
+GAIN_FLOOR = 0.97
 
 
 def knee_spp(spp: int, variance: float, unstratified: float, error: float = 0.0) -> float | None:
     """The sample count past which a render's noise falls faster than 1 / spp.
 
     The multi-jitter sampler stratifies each pixel: while its strata are wider than the
-    scratches' lobes a pixel's noise falls as unstratified samples' would, as 1 / spp;
-    once they resolve the lobes it falls faster. The noise's variance at n spp is taken
-    as V(n) = U(n) / (1 + n / knee), U(n) the variance that n unstratified samples
-    leave (their own spread over n), so one render, which measures both V and U, fixes
-    the knee. Fitted on the demo and a maker's 100 x 80 mm board, 16 to 16560 spp: the
-    fall steepens from 1 / spp^1.05 to 1 / spp^1.7 near 4096 spp, as this does.
+    scratches' lobes a pixel's noise falls as unstratified samples' would, as 1 / spp
+    (less the little the strata remove at once, :data:`GAIN_FLOOR`); once they resolve
+    the lobes it falls faster. The noise's variance at n spp is taken as
+    V(n) = G U(n) / (1 + n / knee), U(n) the variance that n unstratified samples leave
+    (their own spread over n) and G the floor, so one render, which measures both V and
+    U, fixes the knee. Fitted on the demo and a maker's 100 x 80 mm board, 16 to 16560
+    spp: the fall steepens from 1 / spp^1.05 to 1 / spp^1.7 near 4096 spp, as this does.
 
     Args:
         spp: The samples per pixel of the render's two batches.
@@ -73,11 +90,12 @@ def knee_spp(spp: int, variance: float, unstratified: float, error: float = 0.0)
             read from the gain :data:`KNEE_ERRORS` of them above it.
 
     Returns:
-        The knee in samples per pixel; None where the render shows no gain over 1 / spp.
+        The knee in samples per pixel; None where the render shows no gain over 1 / spp
+        beyond the floor.
     """
     if not (unstratified > 0 and variance > 0):
         return None
-    gain = variance / unstratified + KNEE_ERRORS * error
+    gain = (variance / unstratified + KNEE_ERRORS * error) / GAIN_FLOOR
     return spp * gain / (1 - gain) if gain < 1 else None
 
 
@@ -107,8 +125,11 @@ def render_knee(parts: Sequence[PartNoise]) -> tuple[float | None, float]:
     (k b samples overstated it k / 2 times), and k batches leave more noise than two of
     k b / 2 samples: the advice counts from the count of two batches that leave as much,
     by the knee's model. Each part counts as two of its batches would; the gain's
-    standard error is taken over the pixels (:data:`KNEE_ERRORS`), and batches of fewer
-    than :data:`MIN_KNEE_BATCH` samples fix no knee.
+    standard error (:data:`KNEE_ERRORS`) is the larger of its spread over the pixels and
+    the one the batches' own spread gives it (:func:`gain_error`), and batches of fewer
+    than :data:`MIN_KNEE_BATCH` samples fix no knee. The smooth flat part of a spec
+    render (:class:`~scratchfab.verify.verify.BoardRenderer`) counts with its own batch
+    size: it holds about 0.1 % of the noise, so its gain moves the knee by as little.
 
     Args:
         parts: The render's parts, the first the one whose batches make its spp.
@@ -123,13 +144,32 @@ def render_knee(parts: Sequence[PartNoise]) -> tuple[float | None, float]:
     total, free = float(np.sum(variance)), float(np.sum(loose))
     knee = None
     if parts[0].batch >= MIN_KNEE_BATCH and free > 0:
-        error = math.sqrt(float(np.sum((variance - total / free * loose) ** 2))) / free
-        knee = knee_spp(spp, total, free, error)
+        knee = knee_spp(spp, total, free, gain_error(variance, loose, parts[0].batches))
     # Summed as ``total`` is, so that two batches of every part count as the spp exactly.
     measured = float(np.sum(sum(np.asarray(p.variance, np.float64) for p in parts)))
     if not measured > 0:
         return knee, float(parts[0].batch * parts[0].batches)
     return knee, spp_for(spp, total / measured, knee)
+
+
+def gain_error(
+    variance: np.ndarray | float, unstratified: np.ndarray | float, batches: int
+) -> float:
+    """The standard error of a render's gain ``sum(variance) / sum(unstratified)``.
+
+    The larger of two estimates: the pixels' spread about the gain (each pixel's variance
+    against its unstratified one times the gain), and the spread that the batches' own
+    estimate of a pixel's variance has (k batches: k - 1 degrees of freedom, so a standard
+    deviation of sqrt(2 / (k - 1)) times the variance, the gain times the unstratified
+    one). A few bright pixels carry much of a small board's noise; where their batches
+    happen to agree, the first estimate falls with the gain and the knee came out too low.
+    """
+    v, u = np.asarray(variance, np.float64), np.asarray(unstratified, np.float64)
+    free = float(np.sum(u))
+    gain = float(np.sum(v)) / free
+    spread = math.sqrt(float(np.sum((v - gain * u) ** 2)))
+    own = gain * math.sqrt(2.0 / max(1, batches - 1) * float(np.sum(u**2)))
+    return max(spread, own) / free
 
 
 def variance_ratio(spp: float, more: float, knee: float | None) -> float:
