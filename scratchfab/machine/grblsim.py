@@ -1317,8 +1317,9 @@ class GrblSim:
         that is less than ``REQ_MM_INCREMENT_SCALAR`` (1.25) steps of the block (slow
         moves, a start from rest: its "very slow segments" rule), and at the profile's end.
         The speed of a profile is least at the ends of any span of it, so where both ends
-        are fast enough the 10 ms segments are counted at once (the last grid point fast
-        enough found by bisection: the speed rises, then falls).
+        are fast enough (1.25 steps in 10 ms of the machine's own time, ``time_scale`` aside)
+        the 10 ms segments are counted at once (the last grid point fast enough found by
+        bisection: the speed rises, then falls).
         """
         head = self._planner[0]
         scale = self.options.time_scale
@@ -1344,13 +1345,13 @@ class GrblSim:
         while count < most:
             stop = min(until, end)
             far = math.floor((stop - self._seg_origin) / dt + 1e-9)  # the last whole grid point
-            if far > k + 1 and speed * dt >= need:
-                if at(self._seg_origin + far * dt)[1] * dt < need:
+            if far > k + 1 and speed * SEGMENT_SECONDS >= need:
+                if at(self._seg_origin + far * dt)[1] * SEGMENT_SECONDS < need:
                     # the speed rises, then falls: the grid points fast enough lead the span
                     lo, hi = k, far
                     while hi - lo > 1:
                         mid = (lo + hi) // 2
-                        if at(self._seg_origin + mid * dt)[1] * dt >= need:
+                        if at(self._seg_origin + mid * dt)[1] * SEGMENT_SECONDS >= need:
                             lo = mid
                         else:
                             hi = mid
