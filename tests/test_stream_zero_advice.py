@@ -14,7 +14,7 @@ import dataclasses
 import math
 
 import pytest
-from stream_helpers import stream_program
+from stream_helpers import FAST, stream_program
 from test_stream_cli_input import _stream
 from test_stream_lift import servo_job
 
@@ -24,6 +24,7 @@ from scratchfab.machine.sender import StreamFault, open_port, refind
 from scratchfab.machine.sender_program import load_program
 
 PORT = "grblsim://?baud=0&time_scale=0.02"
+LIFT = dataclasses.replace(FAST, lift=True)
 
 
 def _placed(offset, origin="lower-left", decimals=3):
@@ -168,3 +169,24 @@ def test_a_long_check_mode_shows_its_progress(tmp_path, monkeypatch):
         *(f"check mode: {10 * t}% {math.ceil(t * 101 / 10)}/101" for t in range(1, 10)),
         "check mode: 101",
     ]
+
+
+def test_a_foreign_file_held_up_by_s_is_lifted_with_its_own_up_command(tmp_path):
+    """Without a profile the lift after a stop is the file's own up state (M3 S90 here),
+    not M5, which a reset has done and which leaves such a servo where PWM 0 puts it."""
+    from test_stream_servo_lift import export_job, servo_profile
+
+    job, _ = export_job(tmp_path, servo_profile(tmp_path), n=12)
+    prog = load_program(job)  # no profile: the up state read from the file
+    assert prog.pen_mode and prog.tool_up == "M3S90"
+    said: list[str] = []
+    port = open_port(f"{PORT}&error_at=40&record={tmp_path / 'rec.jsonl'}", 115200)
+    try:
+        with pytest.raises(StreamFault) as exc:
+            stream_program(port, prog, tmp_path / "j.jsonl", LIFT, on_message=said.append)
+    finally:
+        port.close()
+    assert "raising the scribe with the file's up command 'M3S90'" in said, said
+    assert "scribe raised (M3S90)" in str(exc.value)
+    spindle = [e for e in port.sim.record if e["ev"] == "spindle"]
+    assert (spindle[-1]["spindle"], spindle[-1]["s"]) == ("M3", 90.0)  # up, as the file holds it

@@ -1683,10 +1683,17 @@ class Streamer:
         """
         if not self._servo():
             return "jog Z up"
-        profile = self.options.profile
-        up = "M5" if profile is None else profile.tool_control.command("off")
+        up = self._servo_up()
         done = " (a reset switches the spindle output off: check that it is up)"
         return f"raise the scribe with its up command {up}{done if up == 'M5' else ''}"
+
+    def _servo_up(self) -> str:
+        """A servo's up command: the profile's ``off``, else the file's own (M5, or M3 S<up>)."""
+        profile = self.options.profile
+        if profile is not None:
+            return profile.tool_control.command("off")
+        program = getattr(self, "_program", None)
+        return "M5" if program is None else program.tool_up
 
     def _homing(self) -> bool | None:
         """GRBL's ``$22`` as the connect's ``$$`` gave it (None: not read)."""
@@ -2027,7 +2034,7 @@ class Streamer:
 
     def _lift_servo(self, profile: MachineProfile | None) -> _Lifted:
         """The servo's up command after the reset (which switched the spindle output off)."""
-        up = "M5" if profile is None else profile.tool_control.command("off")
+        up = self._servo_up()
         block = strip_block(up)
         if block_words(block) == [("M", 5.0)]:
             self._tell(
@@ -2036,7 +2043,8 @@ class Streamer:
             )
             return _Lifted("; the reset's M5 lifted the scribe", {"result": "reset", "up": "M5"})
         dwell = profile.tool_control.dwell_s if profile is not None else 0.0
-        self._tell(f"raising the scribe with the profile's up command {up!r}")
+        whose = "the file's" if profile is None else "the profile's"
+        self._tell(f"raising the scribe with {whose} up command {up!r}")
         failure = self._send_lift(
             [block, f"G4P{gcode_number(dwell, 3)}"], self.options.command_timeout + dwell
         )
