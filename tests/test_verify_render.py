@@ -187,7 +187,7 @@ def test_sweep_frames_nearest_each_view_show_that_views_image(half_job, tmp_path
         progress=said.append,
     )
     # progress names each view's place and the sweep's frames, with the time left
-    views = [line for line in said if line.startswith("verify ") and " spp, " in line]
+    views = [line for line in said if line.startswith("verify ") and " px, " in line]
     assert [v.split(" ")[2] for v in views] == ["(1/2):", "(2/2):"]
     assert views[-1].endswith("views left about 00:00")
     sweeps = [line for line in said if line.startswith("sweep: ")]
