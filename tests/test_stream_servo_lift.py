@@ -283,3 +283,34 @@ def test_a_file_that_starts_drawing_at_once_is_not_guessed(tmp_path):
     drawn = [told.blocks[a : b + 1] for a, b in told.strokes]
     assert all(any(x.modal.speed == 30 for x in span) for span in drawn)
     assert not any(b.modal.speed == 30 and b.modal.x == 0 for b in told.blocks if b.motion)
+
+
+def test_a_stop_without_a_profile_lifts_with_the_files_up_command(tmp_path, capsys):
+    """``scratchfab stream`` with no --machine: a stop's lift after the reset is the file's
+    own up state (M3 S90), the first line the controller gets after the Ctrl-X."""
+    path, _ = export_job(tmp_path, servo_profile(tmp_path), n=20)
+    rec = tmp_path / "r.jsonl"
+    port = f"{SIM}&error_at=40&record={rec}"
+    with pytest.raises(SystemExit):
+        main(["stream", str(path), "--port", port, "--yes", "--banner-timeout", "0.3"])
+    capsys.readouterr()
+    r = read_record(rec)
+    reset = max(k for k, e in enumerate(r) if e["ev"] == "rt" and e["ch"] == 0x18)
+    assert [e["text"] for e in r[reset:] if e["ev"] == "rx"][:1] == [f"M3S{UP:g}"]
+
+
+def test_the_profile_tells_the_stream_what_the_file_does_not(tmp_path, capsys):
+    """A file that does not show which S lifts (its first move runs under M5) resumes at
+    its stroke when streamed with a servo profile whose ``off`` is ``M3 S90``: the stream
+    reads the file with the profile's up command, as the exporter wrote it."""
+    path = write(
+        tmp_path, "j.gcode", plotter_lines("M3 S90", "M3 S35", ["M5", "G1 X1 Y1 F4000", "M3 S90"])
+    )
+    rec = tmp_path / "r.jsonl"
+    common = ["--yes", "--banner-timeout", "0.3", "--machine", str(servo_profile(tmp_path))]
+    with pytest.raises(SystemExit):
+        main(["stream", str(path), "--port", f"{SIM}&error_at=12&record={rec}", *common])
+    capsys.readouterr()
+    main(["stream", str(path), "--port", f"{SIM}&record={rec}", "--resume", *common])
+    out = capsys.readouterr().out
+    assert "resuming at line" in out and "preamble: G21G90G17G94 M3S90" in out, out

@@ -341,7 +341,9 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     z_threshold = req.z_threshold
     if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
         z_threshold = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
-    program = load_program(req.gcode, z_threshold=z_threshold)
+    servo = profile is not None and profile.tool_control.mode == "servo"
+    tool_up = profile.tool_control.command("off") if servo else None
+    program = load_program(req.gcode, z_threshold=z_threshold, tool_up=tool_up)
     if not program.blocks:
         raise ScratchfabError(f"{req.gcode}: no G-code lines to send")
     check_tool_up_at_end(program)
