@@ -604,7 +604,11 @@ def _run_stages(
             except BaseException as exc:
                 # a user's mistake in its own words; anything else with its kind
                 why = (
-                    str(exc) if isinstance(exc, ScratchfabError) else f"{type(exc).__name__}: {exc}"
+                    str(exc)
+                    if isinstance(exc, ScratchfabError)
+                    else "interrupted (Ctrl-C)"
+                    if isinstance(exc, KeyboardInterrupt)
+                    else f"{type(exc).__name__}: {exc}"
                 )
                 manifest.invalidate(stage, why)
                 raise
