@@ -69,6 +69,10 @@ def test_the_advice_homes_only_where_homing_is_on_or_unknown(name, homing):
         return
     advice = unlock_advice(profile, homing)
     assert advice is not None and advice.startswith("unlock it ($X)") and OFF in advice
+    for lost in (True, False):  # a tool that may be down is raised before the zeroing
+        ordered = unlock_advice(profile, homing, lost, raise_it="RAISE")
+        assert ordered is not None and ordered.startswith("unlock it ($X) yourself, RAISE, then")
+        assert ordered.endswith(f"{how.again} ({OFF})"), ordered
     if frame:  # machine coordinates: only homing finds them, so homing is to be turned on
         assert all("$22=1" in text for text in (how.do, how.done, advice)), how
         assert ZERO not in how.do and "set no work zero" in how.do

@@ -95,14 +95,18 @@ def test_an_alarm_at_speed_names_re_zero_where_homing_is_off(tmp_path):
     try:
         with pytest.raises(StreamFault) as exc:
             stream_program(
-                port, load_program(job), tmp_path / "j.jsonl", on_progress=reset_mid_move
+                port, load_program(job), tmp_path / "j.jsonl", LIFT, on_progress=reset_mid_move
             )
     finally:
         port.close()
     text = str(exc.value)
     assert "ALARM:3 (reset while in motion; position is likely lost, re-zero)" in text, text
-    assert "re-home" not in text and "$H" not in text
+    assert "re-home" not in text and "($H)" not in text  # "$H answers error:5" told
     assert alarm_meaning(3).endswith("likely lost, re-home")  # $22 not known: as before
+    # the tool raised before the move to the board's origin, not dragged there
+    steps = ["unlock it ($X)", "jog Z up", "set the work zero again on the board's origin"]
+    at = [text.find(step) for step in steps]
+    assert -1 not in at and at == sorted(at), text
 
 
 PLOTTER_GRBL = "$110=5000&$111=5000&$112=400&$120=500&$121=500&$122=10&$130=300&$131=200"

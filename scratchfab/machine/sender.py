@@ -257,19 +257,28 @@ def zero_kept_advice(profile: MachineProfile | None, verb: str = "set the work z
 
 
 def unlock_advice(
-    profile: MachineProfile | None, homing: bool | None, lost: bool | None = None
+    profile: MachineProfile | None,
+    homing: bool | None,
+    lost: bool | None = None,
+    raise_it: str | None = None,
 ) -> str | None:
     """How to leave an Alarm where homing is off (``$22=0``): unlock, find the position again.
 
-    ``lost``: True, the position is likely lost; otherwise it may be. None where homing
-    is on or not known: ``home it ($H)`` holds, in the caller's own words.
+    ``lost``: True, the position is likely lost; otherwise it may be. ``raise_it``: how the
+    tool is raised, where it may be down: said between the unlock and the work zero, as
+    moving to the board's origin with the tool down drags it across the board. None where
+    homing is on or not known: ``home it ($H)`` holds, in the caller's own words.
     """
     if homing is not False:
         return None
     again = refind(profile, False).again
+    unlock = "unlock it ($X)" if raise_it is None else f"unlock it ($X) yourself, {raise_it},"
     if lost:
-        return f"unlock it ($X) and {again} ({HOMING_OFF})"
-    return f"unlock it ($X), and if its position may be lost {again} ({HOMING_OFF})"
+        join = " and" if raise_it is None else " then"
+        return f"{unlock}{join} {again} ({HOMING_OFF})"
+    if raise_it is None:
+        return f"unlock it ($X), and if its position may be lost {again} ({HOMING_OFF})"
+    return f"{unlock} then, if its position may be lost, {again} ({HOMING_OFF})"
 
 
 def rehome(profile: MachineProfile | None, homing: bool | None = None) -> str:
@@ -1714,6 +1723,16 @@ class Streamer:
         """:func:`unlock_advice` for this machine (None: homing on or not known)."""
         return unlock_advice(self.options.profile, self._homing(), lost)
 
+    def _leave_alarm(self, lost: bool | None, homed: str) -> str:
+        """How a person leaves an Alarm and raises a tool that may be down, in that order.
+
+        Where homing is off (``$22=0``): unlock, raise the tool, then set the work zero
+        (:func:`unlock_advice`); else ``homed`` (homing, or an unlock) and the raise.
+        """
+        raise_it = self._raise_it()
+        off = unlock_advice(self.options.profile, self._homing(), lost, raise_it)
+        return off if off is not None else f"{homed} yourself, then {raise_it}"
+
     def _go_on(self) -> str:
         """The stop's advice on going on: after an alarm, once it is cleared."""
         if self._hold_alarm is None:
@@ -1816,22 +1835,25 @@ class Streamer:
             elif fault.kind == "alarm":
                 # the alarm already stopped motion and flushed the queue; a critical alarm
                 # answers nothing until reset
-                leave = self._unlock_advice(self._alarm_lost) or "home it ($H)" + (
-                    " (its position may be lost: not just unlock it)"
-                    if self._alarm_lost
-                    else " or unlock it ($X)"
+                leave = self._leave_alarm(
+                    self._alarm_lost,
+                    "home it ($H)"
+                    + (
+                        " (its position may be lost: not just unlock it)"
+                        if self._alarm_lost
+                        else " or unlock it ($X)"
+                    ),
                 )
                 lifted = self._no_lift(
                     "after an alarm GRBL is locked and the sender never unlocks it; check the "
-                    f"machine, {leave} yourself, then {self._raise_it()}"
+                    f"machine, {leave}"
                 )
                 self._reset(str(fault), self.status, lifted)
                 fault.args = (str(fault) + _clause(lifted),)
             elif fault.kind == "lock":
-                leave = self._unlock_advice(True) or "home it ($H) or unlock it ($X)"
+                leave = self._leave_alarm(True, "home it ($H) or unlock it ($X)")
                 lifted = self._no_lift(
-                    "the controller is in Alarm and its position may be lost; "
-                    f"{leave} yourself, then {self._raise_it()}"
+                    f"the controller is in Alarm and its position may be lost; {leave}"
                 )
                 self._reset(str(fault), None, lifted)  # a reset may have lost the position
                 fault.args = (str(fault) + _clause(lifted),)
@@ -1991,12 +2013,11 @@ class Streamer:
         status = self._status_after_reset()
         state = status.state
         if state.startswith("Alarm"):
-            leave = self._unlock_advice(True) or (
-                "home it ($H), or unlock it ($X) yourself if the position is known"
+            leave = self._leave_alarm(
+                True, "home it ($H) (or unlock it ($X) if the position is known)"
             )
             return self._not_raised(
-                f"the controller is in {state} after the reset (position lost); {leave}, "
-                f"then {self._raise_it()}"
+                f"the controller is in {state} after the reset (position lost); {leave}"
             )
         if state.startswith("Door"):
             return self._not_raised(
@@ -2168,9 +2189,8 @@ class Streamer:
                         return (
                             f"ALARM:{code} ({alarm_meaning(code, self._find_again())}) on {text!r}; "
                             "soft reset "
-                            "sent, the controller stays locked: check the machine, then "
-                            f"{self._unlock_advice() or 'home it ($H) or unlock it ($X)'} "
-                            "yourself"
+                            "sent, the controller stays locked: check the machine: "
+                            f"{self._leave_alarm(None, 'home it ($H) or unlock it ($X)')}"
                         )
                     elif line.startswith("<"):
                         self._note_status(line)
