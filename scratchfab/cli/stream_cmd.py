@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import click
@@ -51,6 +52,25 @@ class _ProgressLine:
             self._line.last_len = 0
             click.echo("", err=True)
             self._open = False
+
+
+def ask_resume_or_stop(say: Callable[[str], None]) -> str:
+    """After Ctrl-C (the machine held): ``"resume"`` or ``"stop"``, asked on a terminal.
+
+    Off a terminal nobody can answer in time, and a pipe's answers were written for other
+    questions (``yes |`` gives ``y``, which click would refuse and ask again for ever while
+    the machine is held): stop, the safe answer, said once, stdin not read.
+    """
+    if not sys.stdin.isatty():
+        say("stdin is not a terminal, so nobody can answer [r]esume or [s]top: stopping")
+        return "stop"
+    answer = click.prompt(
+        "machine held: [r]esume or [s]top (stop = wait for the hold, then soft reset)",
+        type=click.Choice(["r", "s"]),
+        default="s",
+        err=True,
+    )
+    return "resume" if answer == "r" else "stop"
 
 
 def _job_gcode(path: Path) -> Path:
@@ -234,13 +254,7 @@ def stream(
 
     def ask_interrupt() -> str:
         bar.end()
-        answer = click.prompt(
-            "machine held: [r]esume or [s]top (stop = wait for the hold, then soft reset)",
-            type=click.Choice(["r", "s"]),
-            default="s",
-            err=True,
-        )
-        return "resume" if answer == "r" else "stop"
+        return ask_resume_or_stop(message)
 
     try:
         progress = emulator_progress(port, baud, gcode, bar, message)
