@@ -121,3 +121,20 @@ def test_a_narrow_header_keeps_the_bare_mark(job, capsys):
     assert read_header(lines).not_optimized
     # Planned in memory (no file to read the record's paths against): no mark.
     assert initial_layout(replace(tp, file=None)) is None
+
+
+def test_export_says_how_many_lines_stream_will_send(job, capsys):
+    """A maker read 7510 lines from export and 7506 from stream: export now gives both,
+    the file's lines and those sent (every line but comments and blank ones, counted
+    here by hand; the sender's own count is the reference stream prints)."""
+    from scratchfab.machine.sender_program import load_program
+
+    assert plan(capsys, str(job))[0] == 0
+    gcode = JobLayout(job).export_file("gcode")
+    code, said = cli_said(["export", str(job), "-f", "gcode"], capsys)
+    assert code == 0, said
+    lines = gcode.read_text().splitlines()
+    by_hand = [line for line in lines if line.strip() and not line.startswith("(")]
+    assert len(by_hand) < len(lines)  # the header's comments
+    assert len(by_hand) == len(load_program(gcode).blocks)
+    assert f"{len(lines)} lines ({len(by_hand)} sent to the machine), " in said

@@ -73,6 +73,7 @@ def export(
     # Imported here, not for --help: the toolpath package and the profiles.
     from scratchfab.export import export as export_toolpath
     from scratchfab.machine.profile import load_profile
+    from scratchfab.machine.sender_program import strip_block
     from scratchfab.toolpath import Toolpath
     from scratchfab.toolpath.inputs import initial_layout, planned_for
     from scratchfab.toolpath.plan import partial_text
@@ -94,8 +95,11 @@ def export(
     if "lines" in stats:
         box = stats["bbox"]
         extent = ", ".join(f"{k[0].upper()} {v[0]:g}..{v[1]:g}" for k, v in box.items() if v)
+        # the count stream gives: it sends no comment or blank line
+        text = Path(output).read_text(encoding="utf-8").splitlines()
+        sent = sum(1 for line in text if strip_block(line))
         detail = (
-            f"{stats['lines']} lines, {stats['bytes']} bytes, "
+            f"{stats['lines']} lines ({sent} sent to the machine), {stats['bytes']} bytes, "
             f"longest line {stats['max_line_length']}; {extent}"
         )
     else:
