@@ -132,19 +132,19 @@ def confirm(question: str) -> bool:
     for ``stream``. A Ctrl-C at the question stays click's abort (exit 130).
 
     Raises:
-        ScratchfabError: stdin closed before an answer came (nothing to read, or a pipe
-            that ran out): how to answer; nothing was sent.
+        NoAnswer: stdin closed before an answer came (nothing to read, or a pipe that ran
+            out); the one who asked says how to answer
+            (:class:`~scratchfab.machine.stream_job.NoAnswer`).
     """
+    from scratchfab.machine.stream_job import NoAnswer
+
     try:
         return click.confirm(question, default=False, err=True)
     except click.exceptions.Abort as exc:
         if not isinstance(exc.__context__, EOFError):
             raise  # Ctrl-C at the question: "aborted", exit 130
         click.echo("", err=True)  # end the question's line
-        raise ScratchfabError(
-            "no answer came to the question (stdin closed): answer y, or pass --yes to "
-            "stream without asking; nothing was sent"
-        ) from None
+        raise NoAnswer("stdin closed") from None
 
 
 #: The widest and the narrowest bar :func:`fit_line` draws (characters inside the brackets).

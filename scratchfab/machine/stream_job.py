@@ -486,11 +486,16 @@ def _stream_locked(
             raise ScratchfabError(findings.refusals[-1] + " (nothing was sent)")
         if req.check:
             _check(streamer, program, req.gcode, cb.say)
-        if cb.confirm is not None and not cb.confirm(
+        # check mode sent every line, and nothing moved
+        spared = "nothing was cut (check mode moves nothing)" if req.check else "nothing was sent"
+        if cb.confirm is not None and not _ask(
+            cb.confirm,
             f"Stream {len(program.blocks) - start} lines of {req.gcode} to {req.port}{again}? "
-            "The machine moves: board clamped and set up as README step 5 says, area clear"
+            "The machine moves: board clamped and set up as README step 5 says, area clear",
+            "answer y, or pass --yes to stream without asking",
+            spared,
         ):
-            raise ScratchfabError("not confirmed; nothing was sent")
+            raise ScratchfabError(f"not confirmed; {spared}")
         try:
             try:
                 streamer.stream(program, journal, start=start, preamble=preamble, resume=resume)
@@ -599,6 +604,32 @@ def _refuse_from_the_top(before: _Unfinished, journal_file: Path, confirm: Confi
         "it with --resume (after re-homing or re-zeroing if its position was lost), or "
         f"{over}"
     )
+
+
+class NoAnswer(ScratchfabError):
+    """A question got no answer: ``why`` (stdin closed before one came).
+
+    Raised by a ``confirm`` callback (the CLI's); the one who asked says how to answer
+    (:func:`_ask`), as each question has its own way.
+    """
+
+    def __init__(self, why: str) -> None:
+        super().__init__(f"no answer came to the question ({why})")
+
+
+def _ask(confirm: Confirm, question: str, how: str, spared: str = "nothing was sent") -> bool:
+    """``confirm(question)``; no answer (:class:`NoAnswer`): an error naming ``how``.
+
+    ``how``: how this question is answered; ``spared``: what was not done.
+    """
+    try:
+        return confirm(question)
+    except NoAnswer as exc:
+        raise ScratchfabError(f"{exc}: {how}; {spared}") from None
+
+
+#: How a question that ``--yes`` refuses is answered.
+ASKED_ONLY = "answer y on a terminal or through a pipe (--yes refuses this question)"
 
 
 def is_emulator(port: str) -> bool:
@@ -779,7 +810,7 @@ def _ask_on_a_machine(
         return
     if confirm is None:
         raise ScratchfabError(f"{refusal}, or run without --yes to be asked; nothing was sent")
-    if not confirm(question):
+    if not _ask(confirm, question, ASKED_ONLY):
         raise ScratchfabError("not confirmed; nothing was sent")
 
 
@@ -1121,9 +1152,11 @@ def ask_if_homed(
         kept = ", or did its controller keep power without a reset"
     elif event is not None and event.get("why") == "moved":
         kept = ", or was it only jogged and its controller never reset"
-    if not confirm(
+    if not _ask(
+        confirm,
         f"{warning[0].upper()}{warning[1:]}. Was the machine {how.done} since then{kept} "
-        "(--homed says so)?"
+        "(--homed says so)?",
+        f"{then} (--yes refuses this question), or answer it on a terminal",
     ):
         raise ScratchfabError(f"not confirmed; nothing was sent: {then}")
     return False

@@ -1,0 +1,104 @@
+"""A question that gets no answer (stdin closed) names how that question is answered.
+
+"answer y, or pass --yes" holds only for the ordinary "Stream ...?" question: --yes
+refuses the lost-position, partial-board and stale-plan questions, so their message
+names their own way (--homed; an answer on a terminal or through a pipe). After --check
+the controller got every line in check mode, which moves nothing: "nothing was cut".
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+from stream_helpers import alarmed_job
+from test_stream import SIM, read_record, write_job
+from test_stream_cli_input import _gcode_received, _stream
+from test_stream_restart import _partial_job
+
+from scratchfab.cli import main
+
+
+@pytest.fixture
+def real_port(monkeypatch):
+    """The emulator taken for a machine: it is asked what a machine is asked."""
+    monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: False)
+
+
+def _last(err: str) -> str:
+    return err.rstrip().splitlines()[-1]
+
+
+def test_no_answer_to_the_homed_question_names_homed(tmp_path, real_port):
+    job = tmp_path / "job.gcode"
+    alarmed_job(job, True, 1)
+    code, _, err = _stream([str(job), "--port", SIM, "--resume"], "")
+    last = _last(err)
+    assert code == 2 and last.startswith("error: no answer came to the question (stdin closed)")
+    assert "then run the same command with --homed" in last and "nothing was sent" in last
+    assert "pass --yes" not in last and "Traceback" not in err
+
+
+def test_no_answer_to_the_partial_board_question_does_not_name_yes_as_the_way(tmp_path, real_port):
+    layout, _ = _partial_job(tmp_path / "made", outside=3, clipped=1)
+    copy = tmp_path / "board-copy.gcode"
+    shutil.copy(layout.export_file("gcode"), copy)
+    rec = tmp_path / "rec.jsonl"
+    code, _, err = _stream([str(copy), "--port", f"{SIM}&record={rec}"], "")
+    last = _last(err)
+    assert code == 2 and "Cut a partial board?" in err
+    assert last.startswith("error: no answer came to the question (stdin closed)")
+    assert "answer y on a terminal or through a pipe (--yes refuses this question)" in last
+    assert "pass --yes" not in last and "nothing was sent" in last
+    assert not rec.exists() or not _gcode_received(read_record(rec))
+
+
+@pytest.mark.parametrize("answer", ["n\n", ""])
+def test_after_check_mode_a_refused_stream_says_nothing_was_cut(tmp_path, real_port, answer):
+    job = tmp_path / "job.gcode"
+    write_job(job, 3)
+    rec = tmp_path / "rec.jsonl"
+    code, _, err = _stream([str(job), "--port", f"{SIM}&record={rec}", "--check"], answer)
+    last = _last(err)
+    assert code == 2 and "nothing was cut (check mode moves nothing)" in last, err
+    assert "nothing was sent" not in last
+    # every line went to the controller, in check mode ($C), and nothing after it
+    record = read_record(rec)
+    assert any(e["ev"] == "rx" and e["text"] == "$C" for e in record)
+    assert _gcode_received(record)
+
+
+def test_run_without_an_answer_to_the_homed_question_names_homed(tmp_path, monkeypatch, capsys):
+    """`run` asks through the same question: a closed stdin names --homed there too."""
+    from click.testing import CliRunner
+    from conftest import write_pipeline
+
+    from scratchfab.machine.sender_journal import read_journal
+    from scratchfab.pipeline.config import load_pipeline
+    from scratchfab.pipeline.runner import run_pipeline
+
+    path = write_pipeline(tmp_path)
+    job = tmp_path / "job"
+    run_pipeline(load_pipeline(path), job, say=lambda _: None)
+    journal = job / "stream" / "journal.jsonl"
+    events = read_journal(journal)
+    last = max(k for k, e in enumerate(events) if e["ev"] == "start")
+    acks = [e for e in events[last:] if e["ev"] == "ack" and "i" in e][:40]
+    alarm = {"ev": "alarm", "code": 1, "lost": True, "time": "2026-01-01T00:00:00"}
+    stop = {"ev": "stop", "reason": "ALARM:1", "executed_through": acks[-1]["i"]}
+    with journal.open("a") as handle:  # as if the stream met a hard limit after 40 lines
+        for event in [events[last], *acks, alarm, stop]:
+            handle.write(json.dumps(event) + "\n")
+    monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: False)
+    monkeypatch.setattr("scratchfab.pipeline.runner.is_emulator", lambda port: False)
+    text = journal.read_bytes()
+    with CliRunner().isolation(input="") as (_, stderr, _):
+        with pytest.raises(SystemExit) as exc:
+            main(["run", str(path), "--out", str(job), "--from", "stream"])
+        err = stderr.getvalue().decode()
+    assert exc.value.code == 2, err
+    error = next(line for line in err.splitlines() if line.startswith("error: "))
+    assert error.startswith("error: no answer came to the question (stdin closed)")
+    assert "--homed" in error and "pass --yes" not in error
+    assert journal.read_bytes() == text  # nothing was sent
