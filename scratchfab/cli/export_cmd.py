@@ -72,7 +72,7 @@ def export(
     """
     # Imported here, not for --help: the toolpath package and the profiles.
     from scratchfab.export import export as export_toolpath
-    from scratchfab.machine.profile import load_profile
+    from scratchfab.machine.profile import load_profile, machine_named
     from scratchfab.machine.sender_program import strip_block
     from scratchfab.toolpath import Toolpath
     from scratchfab.toolpath.inputs import initial_layout, planned_for
@@ -106,7 +106,7 @@ def export(
         detail = f"{len(tp)} scratches, {stats['bytes']} bytes"
     target = planned_for(tp)
     if profile is not None:
-        target = f"machine '{profile.name}' ({machine}), planned for {target}"
+        target = f"{machine_named(profile.name, machine)}, planned for {target}"
     if initial_layout(tp) is not None:
         target += ", from the design's initial layout (not optimized)"
     click.echo(f"wrote {output} for {target}: {detail}")

@@ -67,13 +67,14 @@ def check_same_plan(toolpath: Toolpath, profile: MachineProfile) -> None:
     Raises:
         ScratchfabError: Naming what differs and the command that plans for the profile.
     """
+    from scratchfab.machine.profile import machine_named
     from scratchfab.toolpath.inputs import profile_changes
 
     planned = toolpath.profile
     differ = profile_changes(planned, profile, ("board", "tool"))
     if differ:
         raise ScratchfabError(
-            f"machine '{profile.name}' ({profile.source}) places or cuts the board otherwise "
+            f"{machine_named(profile.name, profile.source)} places or cuts the board otherwise "
             f"than the toolpath was planned for ('{planned.name}'): {'; '.join(differ)}; "
             "rerun `scratchfab toolpath JOB --machine` with this profile, then export; "
             "nothing written"

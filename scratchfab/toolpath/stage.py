@@ -7,7 +7,7 @@ from pathlib import Path
 
 from scratchfab.console import Say, command_line, duration_text
 from scratchfab.errors import ConfigError, ScratchfabError
-from scratchfab.machine.profile import MachineProfile, load_profile
+from scratchfab.machine.profile import MachineProfile, load_profile, machine_named
 from scratchfab.model.design import load_design
 from scratchfab.model.job import JobLayout, job_inputs, stale_layout, stale_layout_warning
 from scratchfab.model.scratches import load_scratches
@@ -84,7 +84,7 @@ def run_toolpath(
         travel = profile.envelope.max_travel_mm
         advice = fit_advice(profile, board)
         lost = (
-            f"machine '{profile.name}' ({profile.source}) cannot reach the whole "
+            f"{machine_named(profile.name, profile.source)} cannot reach the whole "
             f"{board[0]:g} x {board[1]:g} mm board: {lost}; its travel is {travel[0]:g} x "
             f"{travel[1]:g} mm ({profile.envelope.xy_text()}). {advice[0].upper()}{advice[1:]}"
         )
