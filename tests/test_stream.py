@@ -2619,11 +2619,17 @@ def test_check_mode_refuses_when_its_reset_clears_the_work_zero(tmp_path, zero, 
             with pytest.raises(StreamFault, match=r"job\.gcode: leaving check mode .* G92") as exc:
                 streamer.check(prog)
             # the advice sets the system the job runs in (it selects none), as every stream
-            # message words it
-            assert "set the work zero again with `G10 L20 P0` (P0: the work system in use" in (
-                str(exc.value)
-            )
-            assert "P1" not in str(exc.value)
+            # message words it, with axis words (G10 L20 P0 alone is error:26)
+            text = str(exc.value)
+            assert "`G10 L20 P0 X0 Y0 Z0` there (P0: the work system in use" in text
+            assert "P1" not in text
+            # and it names the command that sets the same zero again: sent, it does
+            restore = re.search(r"`(G21 G10 L2 P0 [^`]*)`", text)
+            assert restore is not None, text
+            streamer._command(restore[1])
+            streamer._read_work_offset()
+            assert streamer.info.wco == pytest.approx((-5.0, 3.0, 0.0))
+            kept = True  # the emulator runs at it again
         with port.sim._cond:
             wco = port.sim._wco()
         assert (wco == pytest.approx((-5.0, 3.0, 0.0))) is kept  # what the emulator runs at
@@ -2667,7 +2673,22 @@ def test_resume_refuses_when_a_reset_cleared_the_g92_zero(tmp_path, monkeypatch,
     if rezero:
         streamer._command(rezero)
     sent = len(_received_gcode(port.sim.record))
-    monkeypatch.setattr("scratchfab.machine.stream_job.open_port", lambda name, baud: port)
+
+    class _Kept:
+        """The port, left open by a stream that ends: the next one finds it as it was."""
+
+        def __getattr__(self, name):
+            return getattr(port, name)
+
+        def close(self):
+            pass
+
+    # the refused stream leaves the port open for the zero named and the resume after it
+    kept = resumed is False
+    monkeypatch.setattr(
+        "scratchfab.machine.stream_job.open_port",
+        lambda name, baud: _Kept() if kept else port,
+    )
     args = ["stream", str(job), "--port", "grblsim://?baud=0", "--resume", "--yes"]
     if resumed:
         main([*args, "--banner-timeout", "0.3"])
@@ -2681,9 +2702,16 @@ def test_resume_refuses_when_a_reset_cleared_the_g92_zero(tmp_path, monkeypatch,
     assert exc.value.code == 2
     err = capsys.readouterr().err.splitlines()[-1]
     assert err.startswith(f"error: {journal}: the interrupted run's work zero included a G92")
-    assert "set the same zero again with `G10 L20 P0` (P0: the work system in use" in err
+    assert "`G10 L20 P0 X0 Y0 Z0` there (P0: the work system in use" in err
     assert "P1" not in err
     assert len(_received_gcode(port.sim.record)) == sent  # nothing was sent
+    # the exact command it names sets the same zero again: the resume goes on
+    restore = re.search(r"set the same zero again with `(G21 G10 L2 P0 [^`]*)`", err)
+    assert restore is not None, err
+    streamer._command(restore[1])
+    kept = False  # the resume closes it
+    main([*args, "--banner-timeout", "0.3"])
+    assert read_journal(journal)[-1]["ev"] == "end"
 
 
 def test_a_dwell_longer_than_the_stall_timeout_is_not_a_stall(tmp_path):

@@ -154,10 +154,14 @@ def test_a_cleared_g92_zero_is_set_again_with_the_profiles_command(tmp_path, nam
     with pytest.raises(ScratchfabError) as exc:
         _check_same_zero(events, (20.0, 20.0, 0.0), None, tmp_path / "j", print, False, profile)
     text = str(exc.value)
-    if name is None:
-        assert "set the same zero again with `G10 L20 P0` (P0: the work system in use" in text
+    # first the earlier offset itself (the machine position kept), in GRBL's words
+    assert "set the same zero again with `G21 G10 L2 P0 X25 Y25 Z0` (the earlier" in text
+    if name is None:  # the G-code's origin, with the axis words G10 needs
+        assert "`G10 L20 P0 X0 Y0 Z0` there (P0: the work system in use" in text
     else:
-        assert "set the same zero again: jog to the board's lower-left corner and send " in text
+        assert (
+            "else set the same zero again: jog to the board's lower-left corner and send " in text
+        )
         assert "`G10 L20 P0 X20 Y20` there (P0: the work system in use; a reset keeps it" in text
 
 

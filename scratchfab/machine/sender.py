@@ -87,7 +87,7 @@ from scratchfab.console import clock
 from scratchfab.errors import Interrupted, ScratchfabError
 from scratchfab.machine.grbl_codes import MM_PER_INCH, alarm_meaning, error_meaning
 from scratchfab.machine.profile import Z_UNLIMITED_MM, gcode_number
-from scratchfab.machine.sender_checks import REPORT_DIGIT_MM, ZERO_KEPT, same_offset
+from scratchfab.machine.sender_checks import KEPT, REPORT_DIGIT_MM, ZERO_KEPT, same_offset
 from scratchfab.machine.sender_journal import Journal, last_surely_run
 from scratchfab.machine.sender_program import (
     DEFAULT_RAPID_MM_MIN,
@@ -243,17 +243,30 @@ def _jog_and_send(profile: MachineProfile) -> str:
     return f"jog to the board's {point} and send `{command}` there"
 
 
-def zero_kept_advice(profile: MachineProfile | None, verb: str = "set the work zero again") -> str:
+def zero_kept_advice(
+    profile: MachineProfile | None,
+    verb: str = "set the work zero again",
+    offset: tuple[float, float, float] | None = None,
+) -> str:
     """How to set the work zero again where a reset cleared a G92 zero: one a reset keeps.
 
-    With a work-coordinate profile, its exact command at the board's origin point
-    (:func:`work_zero_command`); else G10 L20 P0 in words
+    ``offset``: the work offset before the reset (machine mm), where known: ``G10 L2 P0``
+    with it restores the same zero exactly, the machine position kept (a reset at rest
+    keeps it). Else, or besides, with a work-coordinate profile its exact command at the
+    board's origin point (:func:`work_zero_command`); without one the G-code's origin
     (:data:`~scratchfab.machine.sender_checks.ZERO_KEPT`). ``verb`` starts the advice.
     """
     if profile is None or machine_coordinates(profile):
-        return f"{verb} {ZERO_KEPT}"
-    kept = "P0: the work system in use; a reset keeps it, unlike a G92 zero"
-    return f"{verb}: {_jog_and_send(profile)} ({kept})"
+        again = f"{verb} {ZERO_KEPT}"
+    else:
+        again = f"{verb}: {_jog_and_send(profile)} ({KEPT})"
+    if offset is None:
+        return again
+    x, y, z = (gcode_number(v, 3) for v in offset)
+    return (
+        f"{verb} with `G21 G10 L2 P0 X{x} Y{y} Z{z}` (the earlier work offset in machine "
+        f"mm; {KEPT}) where the machine has not lost its position since; else {again}"
+    )
 
 
 def unlock_advice(
@@ -1086,7 +1099,8 @@ class Streamer:
         raise StreamFault(
             f"{program.path}: leaving check mode soft-resets GRBL, which cleared its G92 or "
             f"tool length offset: the work offset was {xyz_text(before)}, now {now} mm, so "
-            f"the job would run elsewhere; {zero_kept_advice(self.options.profile)} and "
+            f"the job would run elsewhere; {zero_kept_advice(self.options.profile, offset=before)}"
+            " and "
             "stream again; nothing moved"
         )
 

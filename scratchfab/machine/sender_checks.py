@@ -461,10 +461,18 @@ def _envelope_refusals(
     return [*out, f"{text}; {advice}"], ""
 
 
-#: How to set a work zero again so that a reset keeps it: G10 L20 sets the offset of a
-#: work system (G54-G59), which GRBL stores, where a reset clears G92; P0 is the system in
-#: use, the one a scratchfab G-code runs in (it selects none).
-ZERO_KEPT = "with `G10 L20 P0` (P0: the work system in use; a reset keeps it, unlike a G92 zero)"
+#: Why G10 sets a work zero a reset keeps: it sets the offset of a work system (G54-G59),
+#: which GRBL stores, where a reset clears G92; P0 is the system in use, the one a
+#: scratchfab G-code runs in (it selects none).
+KEPT = "P0: the work system in use; a reset keeps it, unlike a G92 zero"
+
+#: How to set a work zero again so that a reset keeps it, where the board point is not
+#: known: the G-code's own origin, with the axis words GRBL needs (``G10 L20 P0`` alone
+#: answers error:26, no axis words).
+ZERO_KEPT = (
+    "with the tool at the point the G-code counts from (its X0 Y0, Z0 where its Z counts "
+    f"from), send `G10 L20 P0 X0 Y0 Z0` there ({KEPT})"
+)
 
 
 def _zero(offset: float) -> bool:

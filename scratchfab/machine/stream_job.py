@@ -849,7 +849,7 @@ def _check_same_zero(
                 f"{journal_file}: the interrupted run's work zero included a G92 offset "
                 f"({xyz_text(g92_before)} mm) that a reset since then cleared (work offset "
                 f"was {was}, now {now} mm): the resumed strokes would land elsewhere; "
-                f"{zero_kept_advice(profile, 'set the same zero again')}, then --resume; "
+                f"{zero_kept_advice(profile, 'set the same zero again', before)}, then --resume; "
                 "nothing was sent"
             )
     say(
