@@ -75,6 +75,13 @@ def test_the_advice_homes_only_where_homing_is_on_or_unknown(name, homing):
         assert ordered.endswith(f"{how.again} ({OFF})"), ordered
     if frame:  # machine coordinates: only homing finds them, so homing is to be turned on
         assert all("$22=1" in text for text in (how.do, how.done, advice)), how
+        # a 3018 often has no homing switches: $22=1 only where it has them
+        switches = "if it has homing switches, turn homing on ($22=1)"
+        assert all(switches in text for text in (how.do, how.verb, advice)), how
+        assert (
+            'without switches a work-coordinate profile fits it ([envelope] coordinates = "work"'
+            in how.do
+        )
         assert ZERO not in how.do and "set no work zero" in how.do
     else:
         assert how.do == f"unlock it ($X) and {_zero(name)} ({OFF})"

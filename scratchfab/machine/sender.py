@@ -184,12 +184,17 @@ def refind(profile: MachineProfile | None, homing: bool | None = None) -> Refind
     if machine_coordinates(profile):
         frame = "its profile works in GRBL's machine coordinates"
         if homing is False:
-            on = "turn homing on ($22=1) and home"
+            # a 3018 often has no homing switches: $22=1 without them fails every $H
+            on = "if it has homing switches, turn homing on ($22=1) and home"
+            switchless = (
+                "; without switches a work-coordinate profile fits it ([envelope] "
+                'coordinates = "work", the work zero set on the board)'
+            )
             return Refind(
-                "turn homing on ($22=1) and re-home",
+                "if it has homing switches, turn homing on ($22=1) and re-home",
                 "homed ($H) with homing turned on ($22=1)",
-                f"{on} the machine ($H) ({frame}, which homing sets: set no work zero)",
-                f"{on} it ($H) ({frame}, which homing sets)",
+                f"{on} the machine ($H) ({frame}, which homing sets: set no work zero){switchless}",
+                f"{on} it ($H) ({frame}, which homing sets){switchless}",
             )
         do = f"home the machine ($H) ({frame}: set no work zero)"
         return Refind("re-home", "homed ($H)", do, "home it ($H)")
