@@ -31,7 +31,7 @@ from scratchfab.machine.sender import (
     xyz_text,
     zero_kept_advice,
 )
-from scratchfab.machine.sender_checks import compare, eta_settings, same_offset
+from scratchfab.machine.sender_checks import compare, eta_settings, job_extent, same_offset
 from scratchfab.machine.sender_journal import (
     Journal,
     check_journal_file,
@@ -67,7 +67,7 @@ class StreamRequest:
     """What to stream where, and how.
 
     Attributes:
-        gcode: The G-code file.
+        gcode: The G-code file (a ``str`` is taken as a path, as is ``journal``'s).
         port: Serial device, pty path or pyserial URL (``grblsim://...``).
         baud: Baud rate (None: the machine profile's, else 115200).
         protocol: ``"counting"`` or ``"simple"``.
@@ -107,6 +107,12 @@ class StreamRequest:
     z_threshold: float | None = None
     lift: bool = True
     homed: bool = False
+
+    def __post_init__(self) -> None:
+        """Take a path given as ``str`` (a Python caller's habit) as a :class:`Path`."""
+        object.__setattr__(self, "gcode", Path(self.gcode))
+        if self.journal is not None:
+            object.__setattr__(self, "journal", Path(self.journal))
 
 
 @dataclass(frozen=True)
@@ -483,7 +489,9 @@ def _stream_locked(
         if findings.refusals:
             for text in findings.refusals[:-1]:
                 cb.say(f"refused: {text}")
-            raise ScratchfabError(findings.refusals[-1] + " (nothing was sent)")
+            travel = any("travel" in text for text in findings.refusals)
+            hint = emulator_travel_hint(req.port, info.settings, program, profile) if travel else ""
+            raise ScratchfabError(f"{findings.refusals[-1]} (nothing was sent){hint}")
         if req.check:
             _check(streamer, program, req.gcode, cb.say)
         # check mode sent every line, and nothing moved
@@ -630,6 +638,36 @@ def _ask(confirm: Confirm, question: str, how: str, spared: str = "nothing was s
 
 #: How a question that ``--yes`` refuses is answered.
 ASKED_ONLY = "answer y on a terminal or through a pipe (--yes refuses this question)"
+
+
+def emulator_travel_hint(
+    port: str, settings: dict[int, float], program: Program, profile: MachineProfile | None
+) -> str:
+    """On the emulator, the URL keys that give it the travel a job needs; "" elsewhere.
+
+    The emulator's travel (``$130``-``$132``) is GRBL's default unless its URL sets it, so
+    a job for a bigger machine is refused there. The travel named is the profile's
+    envelope, else the job's own span, for each axis that lacks it (whole mm, rounded up).
+    """
+    if not is_emulator(port):
+        return ""
+    if profile is not None:
+        env = profile.envelope
+        spans = [hi - lo for lo, hi in (env.x_mm, env.y_mm, env.z_mm)]
+        whose = "the profile's envelope"
+    else:
+        lo, hi = job_extent(program)
+        spans = [b - a if a <= b else 0.0 for a, b in zip(lo, hi, strict=True)]
+        whose = "the job's span"
+    keys = [
+        f"${130 + k}={math.ceil(span - 1e-9)}"
+        for k, span in enumerate(spans)
+        if span > settings.get(130 + k, math.inf) and span < 1000.0
+    ]
+    if not keys:
+        return ""
+    url = f"{port}{'&' if '?' in port else '?'}{'&'.join(keys)}"
+    return f"; the emulator takes its travel from its URL: --port '{url}' ({whose})"
 
 
 def is_emulator(port: str) -> bool:
