@@ -314,3 +314,28 @@ def test_the_profile_tells_the_stream_what_the_file_does_not(tmp_path, capsys):
     main(["stream", str(path), "--port", f"{SIM}&record={rec}", "--resume", *common])
     out = capsys.readouterr().out
     assert "resuming at line" in out and "preamble: G21G90G17G94 M3S90" in out, out
+
+
+@pytest.mark.parametrize(
+    ("off", "laser", "machine", "warned"),
+    [
+        (f"M3 S{UP:g}", 1, True, True),  # the profile's up command keeps the output on
+        (f"M3 S{UP:g}", 1, False, True),  # the file's own up state tells the same
+        (f"M3 S{UP:g}", 0, True, False),  # laser mode off: the hold keeps the output
+        ("M5", 1, True, False),  # lifted by switching the output off: nothing to drop
+    ],
+)
+def test_laser_mode_with_a_servo_held_up_by_s_is_warned(
+    tmp_path, capsys, off, laser, machine, warned
+):
+    """GRBL's laser mode ($32=1) switches the output off in a feed hold and in G0 moves:
+    a servo held up by M3 S90 drops the scribe there. Said at connect."""
+    profile = servo_profile(tmp_path, off=off)
+    path, _ = export_job(tmp_path, profile, n=3)
+    args = ["stream", str(path), "--port", f"{SIM}&$32={laser}", "--yes"]
+    main([*args, "--banner-timeout", "0.3", *(["--machine", str(profile)] if machine else [])])
+    err = capsys.readouterr().err
+    said = "GRBL laser mode is on ($32=1) and the scribe is held up by 'M3S90'" in err
+    said = said or "GRBL laser mode is on ($32=1) and the scribe is held up by 'M3 S90'" in err
+    assert said == warned, err
+    assert ("turn laser mode off ($32=0)" in err) == warned

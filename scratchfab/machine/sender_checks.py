@@ -13,7 +13,9 @@ from scratchfab.machine.sender_program import (
     Block,
     Modal,
     Program,
+    block_words,
     known_xyz,
+    strip_block,
     work_xyz,
     z_levels,
 )
@@ -258,6 +260,9 @@ def compare(
     work_frame = profile is not None and profile.envelope.coordinates != "machine"
     if settings and not settings.get(22, 0) and not work_frame:
         out.warnings.append("GRBL homing is off ($22=0): machine coordinates are not referenced")
+    laser = laser_mode_warning(settings, program, profile)
+    if laser is not None:
+        out.warnings.append(laser)
     lo, hi = job_extent(program)
     unset = ""  # axes refused where a work-coordinate profile meets a work offset of 0
     if profile is not None or settings:
@@ -473,6 +478,37 @@ ZERO_KEPT = (
     "with the tool at the point the G-code counts from (its X0 Y0, Z0 where its Z counts "
     f"from), send `G10 L20 P0 X0 Y0 Z0` there ({KEPT})"
 )
+
+
+def laser_mode_warning(
+    settings: Mapping[int, float], program: Program, profile: MachineLike | None
+) -> str | None:
+    """A servo held up with the spindle output on (``M3 S90``) under GRBL's laser mode.
+
+    With ``$32=1`` GRBL switches the output off in a feed hold (every stop starts with
+    one) and runs G0 moves with it off: the servo goes where PWM 0 puts it, and the
+    scribe drops onto the board. The up command is the servo profile's ``off``, else
+    the file's own (:attr:`Program.tool_up`). None where laser mode is off or not read,
+    or the tool is lifted another way.
+    """
+    if not settings.get(32, 0):
+        return None
+    tool = getattr(profile, "tool_control", None)  # a MachineProfile's (not every MachineLike's)
+    if tool is not None and tool.mode == "servo":
+        up = tool.command("off")
+    elif program.pen_mode:
+        up = program.tool_up
+    else:
+        return None
+    words = dict(block_words(strip_block(up)))
+    if not ("M" in words and words["M"] in (3.0, 4.0) and words.get("S", 0.0) > 0.0):
+        return None
+    return (
+        f"GRBL laser mode is on ($32=1) and the scribe is held up by {up!r} with the output "
+        "on: laser mode switches it off in a feed hold (every stop, Ctrl-C) and during G0 "
+        "moves, where the servo drops the scribe onto the board; turn laser mode off "
+        "($32=0) for a servo"
+    )
 
 
 def _zero(offset: float) -> bool:
