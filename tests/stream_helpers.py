@@ -182,3 +182,10 @@ class HeldUntilFeedHold(PortProxy):
             self.held += data
             return len(data)
         return self.inner.write(data)
+
+
+@pytest.fixture
+def at_a_terminal(monkeypatch):
+    """stdin taken for a terminal: a person answers even the questions a pipe may not
+    (was the machine homed?), as the tests' piped input does for them."""
+    monkeypatch.setattr("scratchfab.cli.options.stdin_is_a_terminal", lambda: True)

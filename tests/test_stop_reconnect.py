@@ -14,6 +14,7 @@ unasked.
 from __future__ import annotations
 
 import pytest
+from stream_helpers import at_a_terminal  # noqa: F401  (the fixture)
 from test_stream import SIM, write_job
 from test_stream_cli_input import _stream
 from test_stream_lost_link_reset import _gcode_rx
@@ -82,6 +83,7 @@ def test_a_controller_that_may_have_lost_its_zero_is_refused_under_yes(tmp_path,
     assert not _gcode_rx(rec)  # nothing but the connect's queries
 
 
+@pytest.mark.usefixtures("at_a_terminal")  # a person answers
 def test_a_rebooted_controller_asks_and_a_no_sends_nothing(tmp_path):
     job, _, _ = _stopped(tmp_path)
     rec = tmp_path / "r1.jsonl"
@@ -94,6 +96,7 @@ def test_a_rebooted_controller_asks_and_a_no_sends_nothing(tmp_path):
     assert not _gcode_rx(rec)
 
 
+@pytest.mark.usefixtures("at_a_terminal")  # a person answers
 def test_a_jogged_machine_is_asked_whether_it_was_only_jogged(tmp_path):
     job, where, _ = _stopped(tmp_path)
     rec = tmp_path / "r1.jsonl"

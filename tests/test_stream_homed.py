@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from stream_helpers import alarmed_job
+from stream_helpers import alarmed_job, at_a_terminal  # noqa: F401
 from test_stream import SIM, read_record
 from test_stream_cli_input import _gcode_received, _stream
 
@@ -33,6 +33,7 @@ def _sessions(job) -> int:
     return sum(ev["ev"] == "start" for ev in read_journal(default_journal_path(job)))
 
 
+@pytest.mark.usefixtures("at_a_terminal")  # a person answers
 @pytest.mark.parametrize(
     ("flags", "answers", "refusal"),
     [

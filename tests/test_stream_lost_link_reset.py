@@ -15,6 +15,7 @@ import re
 import time
 
 import pytest
+from stream_helpers import at_a_terminal  # noqa: F401  (the fixture)
 from test_stream import SIM, read_record, write_job
 from test_stream_cli_input import _stream
 
@@ -96,6 +97,7 @@ def test_machine_that_rebooted_is_refused_under_yes_and_resumes_with_homed(tmp_p
     assert _gcode_rx(rec2)
 
 
+@pytest.mark.usefixtures("at_a_terminal")  # a person answers
 def test_machine_that_rebooted_asks_and_a_no_sends_nothing(tmp_path):
     job, pty, _ = _drop_link(tmp_path)
     pty.close()
@@ -179,6 +181,7 @@ def _without_position(job) -> None:
 NO_POSITION = "ended with a lost link before any position of the machine was recorded"
 
 
+@pytest.mark.usefixtures("at_a_terminal")  # a person answers
 @pytest.mark.parametrize(
     ("flags", "answers", "refusal"),
     [

@@ -30,14 +30,25 @@ def _last(err: str) -> str:
     return err.rstrip().splitlines()[-1]
 
 
-def test_no_answer_to_the_homed_question_names_homed(tmp_path, real_port):
+@pytest.mark.parametrize(("terminal", "answers"), [(True, ""), (False, "y\ny\n")])
+def test_no_answer_to_the_homed_question_names_homed(
+    tmp_path, monkeypatch, real_port, terminal, answers
+):
+    """On a terminal closed before the answer, or from a pipe (`yes |` would answer a
+    question only a person can: was the machine homed?), the resume is refused before
+    connecting, naming --homed; a pipe still answers the other questions."""
+    monkeypatch.setattr("scratchfab.cli.options.stdin_is_a_terminal", lambda: terminal)
     job = tmp_path / "job.gcode"
     alarmed_job(job, True, 1)
-    code, _, err = _stream([str(job), "--port", SIM, "--resume"], "")
+    rec = tmp_path / "rec.jsonl"
+    code, _, err = _stream([str(job), "--port", f"{SIM}&record={rec}", "--resume"], answers)
     last = _last(err)
-    assert code == 2 and last.startswith("error: no answer came to the question (stdin closed)")
+    why = "stdin closed" if terminal else "stdin is not a terminal"
+    assert code == 2 and last.startswith(f"error: no answer came to the question ({why}"), err
+    assert "Was the machine homed ($H)" in err  # the question, said
     assert "then run the same command with --homed" in last and "nothing was sent" in last
     assert "pass --yes" not in last and "Traceback" not in err
+    assert not rec.exists()  # refused before connecting
 
 
 def test_no_answer_to_the_partial_board_question_does_not_name_yes_as_the_way(tmp_path, real_port):
@@ -93,12 +104,12 @@ def test_run_without_an_answer_to_the_homed_question_names_homed(tmp_path, monke
     monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: False)
     monkeypatch.setattr("scratchfab.pipeline.runner.is_emulator", lambda port: False)
     text = journal.read_bytes()
-    with CliRunner().isolation(input="") as (_, stderr, _):
+    with CliRunner().isolation(input="y\ny\n") as (_, stderr, _):  # a pipe: not taken
         with pytest.raises(SystemExit) as exc:
             main(["run", str(path), "--out", str(job), "--from", "stream"])
         err = stderr.getvalue().decode()
     assert exc.value.code == 2, err
     error = next(line for line in err.splitlines() if line.startswith("error: "))
-    assert error.startswith("error: no answer came to the question (stdin closed)")
+    assert error.startswith("error: no answer came to the question (stdin is not a terminal")
     assert "--homed" in error and "pass --yes" not in error
     assert journal.read_bytes() == text  # nothing was sent

@@ -59,7 +59,7 @@ def test_ctrl_c_under_yes_stops_once(tmp_path):
 def test_the_question_off_a_terminal_is_stop_without_reading_stdin(monkeypatch):
     said: list[str] = []
     read: list[str] = []
-    monkeypatch.setattr("sys.stdin.isatty", lambda: False, raising=False)
+    monkeypatch.setattr("scratchfab.cli.stream_cmd.stdin_is_a_terminal", lambda: False)
     monkeypatch.setattr("click.prompt", lambda *a, **k: read.append("asked") or "r")
     assert ask_resume_or_stop(said.append) == "stop"
     assert len(said) == 1 and not read

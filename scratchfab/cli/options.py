@@ -125,19 +125,29 @@ def job_or_files(
     return design_file, scratch_file, out_dir
 
 
+def stdin_is_a_terminal() -> bool:
+    """Whether stdin is a terminal (a person may answer), not a pipe or a file."""
+    return sys.stdin.isatty()
+
+
 def confirm(question: str) -> bool:
     """Ask ``question`` on stderr; the answer comes from stdin, a terminal or a pipe.
 
     ``stream`` and ``run`` ask alike: ``echo y | scratchfab run ...`` answers as it does
-    for ``stream``. A Ctrl-C at the question stays click's abort (exit 130).
+    for ``stream``, except a question only a person at a terminal answers
+    (:class:`~scratchfab.machine.stream_job.TerminalQuestion`: was the machine homed?).
+    A Ctrl-C at the question stays click's abort (exit 130).
 
     Raises:
         NoAnswer: stdin closed before an answer came (nothing to read, or a pipe that ran
             out); the one who asked says how to answer
             (:class:`~scratchfab.machine.stream_job.NoAnswer`).
     """
-    from scratchfab.machine.stream_job import NoAnswer
+    from scratchfab.machine.stream_job import NoAnswer, TerminalQuestion
 
+    if isinstance(question, TerminalQuestion) and not stdin_is_a_terminal():
+        click.echo(question, err=True)
+        raise NoAnswer("stdin is not a terminal, and only a person there can answer it")
     try:
         return click.confirm(question, default=False, err=True)
     except click.exceptions.Abort as exc:

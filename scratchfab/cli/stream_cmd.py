@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from scratchfab.cli.options import FiniteFloat, RedrawnLine, confirm
+from scratchfab.cli.options import FiniteFloat, RedrawnLine, confirm, stdin_is_a_terminal
 from scratchfab.errors import ScratchfabError
 from scratchfab.machine.sender import StreamProgress
 from scratchfab.machine.stream_job import (
@@ -61,7 +61,7 @@ def ask_resume_or_stop(say: Callable[[str], None]) -> str:
     questions (``yes |`` gives ``y``, which click would refuse and ask again for ever while
     the machine is held): stop, the safe answer, said once, stdin not read.
     """
-    if not sys.stdin.isatty():
+    if not stdin_is_a_terminal():
         say("stdin is not a terminal, so nobody can answer [r]esume or [s]top: stopping")
         return "stop"
     answer = click.prompt(

@@ -625,6 +625,15 @@ class NoAnswer(ScratchfabError):
         super().__init__(f"no answer came to the question ({why})")
 
 
+class TerminalQuestion(str):
+    """A question only a person at a terminal answers: whether the machine was homed.
+
+    Only a person can tell, and an answer read from a pipe was written before the
+    question was (``yes | scratchfab stream``): a ``confirm`` that reads a pipe answers
+    it with :class:`NoAnswer` (the CLI's does); ``--homed`` says it without a question.
+    """
+
+
 def _ask(confirm: Confirm, question: str, how: str, spared: str = "nothing was sent") -> bool:
     """``confirm(question)``; no answer (:class:`NoAnswer`): an error naming ``how``.
 
@@ -1192,8 +1201,10 @@ def ask_if_homed(
         kept = ", or was it only jogged and its controller never reset"
     if not _ask(
         confirm,
-        f"{warning[0].upper()}{warning[1:]}. Was the machine {how.done} since then{kept} "
-        "(--homed says so)?",
+        TerminalQuestion(
+            f"{warning[0].upper()}{warning[1:]}. Was the machine {how.done} since then{kept} "
+            "(--homed says so)?"
+        ),
         f"{then} (--yes refuses this question), or answer it on a terminal",
     ):
         raise ScratchfabError(f"not confirmed; nothing was sent: {then}")
