@@ -552,6 +552,7 @@ class ControllerInfo:
     g92: tuple[float, float, float] | None = None  # the G92 part of it in mm (None: unknown)
     wcs: str | None = None  # the active work system at connect ($G: "G54"...; None: unknown)
     tlo: float = 0.0  # the tool length offset on Z at connect (mm, $#'s [TLO:]; 0: unknown)
+    booted: bool = False  # its banner came as the port opened: it booted then (no reset sent)
 
     @property
     def laser_mode(self) -> bool | None:
@@ -811,6 +812,7 @@ class Streamer:
         """
         try:
             after = self._wait_banner(self.options.banner_timeout)
+            self.info.booted = after is not None
             if after is None:
                 self._wait_until_still()
                 self.on_message("no banner; sending a soft reset")

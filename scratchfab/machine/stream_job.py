@@ -21,6 +21,7 @@ from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
 from scratchfab.machine.protocol_grblsim import grblsim_query, sim_options
 from scratchfab.machine.sender import (
+    ControllerInfo,
     Streamer,
     StreamFault,
     StreamOptions,
@@ -472,6 +473,9 @@ def _stream_locked(
                 )
             if lost:
                 _say_lost_position(events, cb.say, profile=profile, homing=homing)
+        booted = None if resume else booted_zero_warning(info)
+        if booted is not None:
+            cb.say(f"warning: {booted}")
         program = program.timed_for(eta_settings(info.settings, profile))  # the ETA's times
         wpos = info.status.wpos if start == 0 else None  # a fresh stream starts there
         findings = compare(
@@ -647,6 +651,33 @@ def _ask(confirm: Confirm, question: str, how: str, spared: str = "nothing was s
 
 #: How a question that ``--yes`` refuses is answered.
 ASKED_ONLY = "answer y on a terminal or through a pipe (--yes refuses this question)"
+
+
+def booted_zero_warning(info: ControllerInfo) -> str | None:
+    """A controller without homing that booted as the port opened, with a work offset.
+
+    Without homing (``$22=0``) GRBL's machine zero is where the tool stood at boot, and an
+    Arduino-based controller boots when the port opens (its banner came unasked). The work
+    offset it keeps (G54, in EEPROM) was set in an earlier session's frame, so the work
+    zero lies that far from the tool now: the board's zero only where the tool stands
+    where the controller booted last. A resume asks its own question
+    (:func:`reset_since_last_run`). None where homing is on or not read, no banner came
+    at opening, or the offset is zero.
+    """
+    wco = info.wco
+    if not info.booted or homing_of(info.settings) is not False or wco is None:
+        return None
+    if same_offset(wco, (0.0, 0.0, 0.0), info.inch_reports):
+        return None
+    return (
+        "the controller booted as the port opened (its banner came) and homing is off "
+        f"($22=0): its machine zero is where the tool stands now, so the work offset it "
+        f"keeps ({xyz_text(wco)} mm, set in an earlier session) puts the work zero that far "
+        "from here, the board's zero only if the tool stood where the controller booted "
+        "before; with such a controller park the tool at the work zero with the offset "
+        "cleared (`G10 L2 P0 X0 Y0 Z0`) before streaming, so that each boot's machine zero "
+        "is the work zero"
+    )
 
 
 def emulator_travel_hint(
