@@ -198,3 +198,43 @@ def test_a_foreign_file_held_up_by_s_is_lifted_with_its_own_up_command(tmp_path)
     assert "scribe raised (M3S90)" in str(exc.value)
     spindle = [e for e in port.sim.record if e["ev"] == "spindle"]
     assert (spindle[-1]["spindle"], spindle[-1]["s"]) == ("M3", 90.0)  # up, as the file holds it
+
+
+def test_a_lost_alarm_where_homing_is_off_raises_the_tool_before_the_zero(tmp_path):
+    """A controller found in Alarm mid-job (its ALARM message lost on the line): where
+    homing is off ($22=0, as the connect's $$ would say) every advice in the stop's
+    message unlocks, raises the tool, then sets the work zero again, in that order."""
+    import re
+    import time
+
+    from test_stream import _Deaf, write_job
+
+    from scratchfab.machine.sender import Streamer
+    from scratchfab.machine.sender_journal import Journal
+
+    job = tmp_path / "job.gcode"
+    write_job(job, 30)
+    url = "grblsim://?baud=0&time_scale=0.01&soft_limits=1&homed=1&wco=-100,-100,-10&reset_after=60"
+    port = open_port(url, 115200)
+    streamer = Streamer(port, LIFT)
+    streamer.connect()
+    streamer.info.settings[22] = 0.0  # the advice words follow $22 as read at connect
+    streamer.port = _Deaf(port)
+    j = Journal(tmp_path / "j.jsonl").open()
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(StreamFault) as exc:
+            streamer.stream(load_program(job), j)
+    finally:
+        j.close()
+        port.close()
+    assert time.monotonic() - t0 < 20
+    text = str(exc.value)
+    assert "so the controller is in Alarm" in text or "reports Alarm after line" in text, text
+    advice = [m.start() for m in re.finditer(r"unlock it \(\$X\)", text)]
+    assert len(advice) == 2, text  # the fault's and the stop's
+    for at in advice:
+        rest = text[at:]
+        raised, zeroed = rest.find("jog Z up"), rest.find("set the work zero again")
+        assert 0 < raised < zeroed, text
+    assert "home it ($H)" not in text

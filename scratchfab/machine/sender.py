@@ -1495,7 +1495,8 @@ class Streamer:
             if error
             else f"the controller reports Alarm {after}"
         )
-        off = self._unlock_advice()
+        # homing off: unlock, raise the tool, then re-zero (not dragged to the origin)
+        off = unlock_advice(self.options.profile, self._homing(), None, self._raise_it())
         find = off or (
             "home it" if machine_coordinates(self.options.profile) else "home it or check the zero"
         )
