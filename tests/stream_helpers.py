@@ -189,3 +189,29 @@ def at_a_terminal(monkeypatch):
     """stdin taken for a terminal: a person answers even the questions a pipe may not
     (was the machine homed?), as the tests' piped input does for them."""
     monkeypatch.setattr("scratchfab.cli.options.stdin_is_a_terminal", lambda: True)
+
+
+def hard_limit_run(tmp_path):
+    """A pipeline (:func:`conftest.write_pipeline`) run to its end, then journaled as if its
+    stream met a hard limit (``ALARM:1``, position lost) after 40 acknowledged lines:
+    (the pipeline file, the job folder, its stream journal)."""
+    import json
+
+    from conftest import write_pipeline
+
+    from scratchfab.pipeline.config import load_pipeline
+    from scratchfab.pipeline.runner import run_pipeline
+
+    path = write_pipeline(tmp_path)
+    job = tmp_path / "job"
+    run_pipeline(load_pipeline(path), job, say=lambda _: None)
+    journal = job / "stream" / "journal.jsonl"
+    events = read_journal(journal)
+    last = max(k for k, e in enumerate(events) if e["ev"] == "start")
+    acks = [e for e in events[last:] if e["ev"] == "ack" and "i" in e][:40]
+    alarm = {"ev": "alarm", "code": 1, "lost": True, "time": "2026-01-01T00:00:00"}
+    stop = {"ev": "stop", "reason": "ALARM:1", "executed_through": acks[-1]["i"]}
+    with journal.open("a") as handle:  # as if the stream met a hard limit after 40 lines
+        for event in [events[last], *acks, alarm, stop]:
+            handle.write(json.dumps(event) + "\n")
+    return path, job, journal

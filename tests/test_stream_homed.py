@@ -9,10 +9,8 @@ moves nothing, only warns (test_stream_resume_warning).
 
 from __future__ import annotations
 
-import json
-
 import pytest
-from stream_helpers import alarmed_job, at_a_terminal  # noqa: F401
+from stream_helpers import alarmed_job, at_a_terminal, hard_limit_run  # noqa: F401
 from test_stream import SIM, read_record
 from test_stream_cli_input import _gcode_received, _stream
 
@@ -81,24 +79,12 @@ def test_homed_only_applies_with_resume(tmp_path):
 def test_run_resumes_after_a_lost_position_only_with_homed(tmp_path, monkeypatch, capsys):
     """The pipeline's stream stage resumes an interrupted stream by itself: after an alarm
     that may have lost the position, `run --yes` refuses until `run --yes --homed`."""
-    from conftest import write_pipeline
 
     from scratchfab.cli import main
     from scratchfab.pipeline.config import load_pipeline
     from scratchfab.pipeline.runner import run_pipeline
 
-    path = write_pipeline(tmp_path)
-    job = tmp_path / "job"
-    run_pipeline(load_pipeline(path), job, say=lambda _: None)
-    journal = job / "stream" / "journal.jsonl"
-    events = read_journal(journal)
-    last = max(k for k, e in enumerate(events) if e["ev"] == "start")
-    acks = [e for e in events[last:] if e["ev"] == "ack" and "i" in e][:40]
-    alarm = {"ev": "alarm", "code": 1, "lost": True, "time": "2026-01-01T00:00:00"}
-    stop = {"ev": "stop", "reason": "ALARM:1", "executed_through": acks[-1]["i"]}
-    with journal.open("a") as handle:  # as if the stream met a hard limit after 40 lines
-        for event in [events[last], *acks, alarm, stop]:
-            handle.write(json.dumps(event) + "\n")
+    path, job, journal = hard_limit_run(tmp_path)
     warning = lost_position_warning(read_journal(journal))
     assert warning is not None
     monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: False)

@@ -8,11 +8,10 @@ the controller got every line in check mode, which moves nothing: "nothing was c
 
 from __future__ import annotations
 
-import json
 import shutil
 
 import pytest
-from stream_helpers import alarmed_job
+from stream_helpers import alarmed_job, hard_limit_run
 from test_stream import SIM, read_record, write_job
 from test_stream_cli_input import _gcode_received, _stream
 from test_stream_restart import _partial_job
@@ -83,24 +82,8 @@ def test_after_check_mode_a_refused_stream_says_nothing_was_cut(tmp_path, real_p
 def test_run_without_an_answer_to_the_homed_question_names_homed(tmp_path, monkeypatch, capsys):
     """`run` asks through the same question: a closed stdin names --homed there too."""
     from click.testing import CliRunner
-    from conftest import write_pipeline
 
-    from scratchfab.machine.sender_journal import read_journal
-    from scratchfab.pipeline.config import load_pipeline
-    from scratchfab.pipeline.runner import run_pipeline
-
-    path = write_pipeline(tmp_path)
-    job = tmp_path / "job"
-    run_pipeline(load_pipeline(path), job, say=lambda _: None)
-    journal = job / "stream" / "journal.jsonl"
-    events = read_journal(journal)
-    last = max(k for k, e in enumerate(events) if e["ev"] == "start")
-    acks = [e for e in events[last:] if e["ev"] == "ack" and "i" in e][:40]
-    alarm = {"ev": "alarm", "code": 1, "lost": True, "time": "2026-01-01T00:00:00"}
-    stop = {"ev": "stop", "reason": "ALARM:1", "executed_through": acks[-1]["i"]}
-    with journal.open("a") as handle:  # as if the stream met a hard limit after 40 lines
-        for event in [events[last], *acks, alarm, stop]:
-            handle.write(json.dumps(event) + "\n")
+    path, job, journal = hard_limit_run(tmp_path)
     monkeypatch.setattr("scratchfab.machine.stream_job.is_emulator", lambda port: False)
     monkeypatch.setattr("scratchfab.pipeline.runner.is_emulator", lambda port: False)
     text = journal.read_bytes()
