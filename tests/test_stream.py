@@ -1358,8 +1358,10 @@ def test_an_unknown_work_offset_is_refused_under_soft_limits(tmp_path):
 # --------------------------------------------------------------------------- strokes of real jobs
 
 
-def _profile_job(tmp_path: Path, name: str, n: int = 30, seed: int = 3):
-    """G-code from the exporter for ``n`` random strokes inside profile ``name``'s envelope."""
+def _profile_job(tmp_path: Path, name, n: int = 30, seed: int = 3, box=None, stem=None):
+    """G-code from the exporter for ``n`` random strokes inside profile ``name``'s envelope
+    (a bundled name, a file or a loaded profile), 20 mm in from its edges, or in ``box``
+    ((lo, hi) corners); written to ``stem``.gcode (default: ``name``)."""
     from scratchfab.export.gcode import gcode_lines
     from scratchfab.toolpath.plan import Toolpath
 
@@ -1368,11 +1370,13 @@ def _profile_job(tmp_path: Path, name: str, n: int = 30, seed: int = 3):
     rng = np.random.default_rng(seed)
     lo = np.array([env.x_mm[0], env.y_mm[0]]) + 20.0
     hi = np.array([env.x_mm[1], env.y_mm[1]]) - 20.0
+    if box is not None:
+        lo, hi = (np.array(corner, float) for corner in box)
     a = rng.uniform(lo, hi, (n, 2))
     strokes = np.stack([a, a + rng.uniform(-5.0, 5.0, (n, 2))], axis=1).round(3)
     outline = np.array([lo, [hi[0], lo[1]], hi, [lo[0], hi[1]]])
     tp = Toolpath(strokes, np.arange(n), (100.0, 100.0), outline, profile, {})
-    path = tmp_path / f"{name}.gcode"
+    path = tmp_path / f"{stem or name}.gcode"
     path.write_text("\n".join(gcode_lines(tp)) + "\n")
     return path, tp
 

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from stream_helpers import FAST
+from test_stream import _profile_job
 
 from scratchfab.cli import main
 from scratchfab.errors import ConfigError
-from scratchfab.export.gcode import gcode_lines
 from scratchfab.machine.profile import find_bundled, load_profile
 from scratchfab.machine.sender import StreamOptions
 from scratchfab.machine.sender_program import (
@@ -26,7 +26,6 @@ from scratchfab.machine.sender_program import (
     resume_point,
     resume_preamble,
 )
-from scratchfab.toolpath.plan import Toolpath
 
 UP, DOWN = 90.0, 35.0
 SIM = "grblsim://?baud=0&time_scale=0.002&$130=300&$131=200"
@@ -58,14 +57,8 @@ def export_job(tmp_path: Path, profile_path: Path, n: int = 12, seed: int = 5, t
         from dataclasses import replace
 
         profile = replace(profile, feeds=replace(profile.feeds, travel_mm_min=None))
-    rng = np.random.default_rng(seed)
-    lo, hi = np.array([30.0, 30.0]), np.array([150.0, 120.0])
-    a = rng.uniform(lo, hi, (n, 2))
-    strokes = np.stack([a, a + rng.uniform(-5.0, 5.0, (n, 2))], axis=1).round(3)
-    outline = np.array([lo, [hi[0], lo[1]], hi, [lo[0], hi[1]]])
-    tp = Toolpath(strokes, np.arange(n), (100.0, 100.0), outline, profile, {})
-    path = tmp_path / f"job-{seed}.gcode"
-    path.write_text("\n".join(gcode_lines(tp)) + "\n")
+    box = ((30.0, 30.0), (150.0, 120.0))
+    path, tp = _profile_job(tmp_path, profile, n, seed, box=box, stem=f"job-{seed}")
     return path, tp.strokes
 
 
