@@ -44,7 +44,9 @@ only the sessions since the last fresh (non-resume) start count. A session with 
 event (``stop``, ``lost`` or ``end``: the sender was killed or crashed) is read like one
 that ended in a reset with no known position: the next connection resets the controller
 (our soft reset, an Arduino's DTR reset), so its last acknowledged blocks, up to a planner
-full and the few its stepper still runs, may never have run (:func:`last_surely_run`).
+full and the few its stepper still runs, may never have run (:func:`last_surely_run`). A resume that finds the controller at machine
+zero though the last acknowledged block ended elsewhere asks whether it was homed, as after
+a lost link (it reset since).
 """
 
 from __future__ import annotations

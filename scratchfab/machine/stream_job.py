@@ -464,7 +464,9 @@ def _stream_locked(
             if homing is None:  # not recorded (an older journal): as read now
                 homing = homing_of(info.settings)
             inches = inches or run_zero_in_inches(events)
-            found = reset_since_last_run(events, info.status.mpos, info.wco, homing, inches)
+            found = reset_since_last_run(
+                events, info.status.mpos, info.wco, homing, inches, program
+            )
             reset = None if asked else found
             if reset is not None:  # asked here, connected, before anything moves
                 events = [*events, reset]
@@ -979,7 +981,7 @@ def _lost_event(events: list[dict[str, Any]]) -> dict[str, Any] | None:
     dropped link) with ``lost``, once :func:`reset_since_last_run` found a reset since, or
     with no ``mpos`` (:func:`_unplaced_drop`): whether it reset cannot be told.
     """
-    kinds = ("alarm", "stop", "lost")
+    kinds = ("alarm", "stop", "lost", "killed")
     lost = [
         ev
         for ev in _last_session(events)
@@ -998,12 +1000,40 @@ def _unplaced_drop(event: dict[str, Any]) -> bool:
     return event.get("ev") == "lost" and xyz_of(event.get("mpos")) is None
 
 
+def _killed_end(
+    session: list[dict[str, Any]], program: Program | None
+) -> tuple[float, float, float] | None:
+    """Where a session with no closing event (the sender killed) left the machine, in MPos.
+
+    A controller that kept power ran its queue to the end of the last acknowledged block:
+    its work position (the program's) plus the offset the session's ``start`` read. None
+    where the session closed (``stop``, ``lost``, ``end``), acknowledged nothing, or the
+    position is not known: no program or offset, or a block up to it that the sender
+    cannot follow (a G92, another work system) or counted from an assumed start.
+    """
+    if program is None or any(ev.get("ev") in ("stop", "lost", "end") for ev in session):
+        return None
+    acked = [ev["i"] for ev in session if ev.get("ev") == "ack" and isinstance(ev.get("i"), int)]
+    wco = xyz_of(session[0].get("wco")) if session else None
+    if not acked or wco is None or not 0 <= acked[-1] < len(program.blocks):
+        return None
+    blocks = program.blocks[: acked[-1] + 1]
+    modal = blocks[-1].modal
+    if any(b.unfollowed for b in blocks) or modal.x is None or modal.y is None:
+        return None
+    if "X" in modal.assumed or "Y" in modal.assumed:
+        return None
+    z = 0.0 if modal.z is None else modal.z
+    return (modal.x + wco[0], modal.y + wco[1], z + wco[2])
+
+
 def reset_since_last_run(
     events: list[dict[str, Any]],
     mpos: tuple[float, float, float] | None,
     wco: tuple[float, float, float] | None = None,
     homing: bool | None = None,
     inches: bool = False,
+    program: Program | None = None,
 ) -> dict[str, Any] | None:
     """The last session's closing ``lost`` or ``stop``, where the machine may have lost its zero.
 
@@ -1026,7 +1056,9 @@ def reset_since_last_run(
       stop's reset (``"wco"``): the work zero was set again, or lost.
 
     One that kept power after a lost link ran its queue and stands at a move's end, so
-    being elsewhere alone says nothing there. Steps come from the session's ``start``
+    being elsewhere alone says nothing there. A session with no closing event (the sender
+    was killed or crashed) is read like a lost link, its position the end of the last
+    acknowledged block in ``program`` (:func:`_killed_end`; ``"ev": "killed"``). Steps come from the session's ``start``
     (else 0.025 mm), plus a report digit; offsets compare with :func:`same_offset`, at the
     inch reports' digit where either run read them (``inches``).
 
@@ -1037,9 +1069,15 @@ def reset_since_last_run(
     """
     session = _last_session(events)
     closing = [ev for ev in session if ev.get("ev") in ("lost", "stop")]
-    if not closing or mpos is None:
+    killed = _killed_end(session, program)
+    if mpos is None:
         return None
-    event = closing[-1]
+    if closing:
+        event = closing[-1]
+    elif killed is not None:
+        event = {"ev": "killed", "mpos": [round(v, 3) for v in killed]}
+    else:
+        return None
     was = xyz_of(event.get("mpos"))
     if was is None:
         return None
@@ -1078,6 +1116,8 @@ def _lost_by(event: dict[str, Any]) -> str:
         return "a lost link, with no position of the machine recorded before it"
     if event.get("ev") == "lost":
         return f"a lost link, and {since}"
+    if event.get("ev") == "killed":
+        return f"the sender killed (no stop recorded), and {since}"
     return f"ALARM:{event.get('code')}"
 
 
@@ -1147,9 +1187,15 @@ def lost_position_warning(
 def _moved_warning(event: dict[str, Any], done: str) -> str:
     """:func:`lost_position_warning` for an event :func:`reset_since_last_run` found."""
     stopped = event.get("ev") == "stop"
-    ended = "was stopped" if stopped else "ended with a lost link"
+    killed = event.get("ev") == "killed"
+    ended = {
+        "stop": "was stopped",
+        "killed": "ended with the sender killed or crashed (its journal records no stop)",
+    }.get(event["ev"], "ended with a lost link")
     when = "when it stopped" if stopped else "when the link dropped"
-    where = f"MPos {xyz_text(event['mpos_now'])}; it stood at {xyz_text(event['mpos'])} {when}"
+    was = "the last acknowledged line ended at" if killed else "it stood at"
+    where = f"MPos {xyz_text(event['mpos_now'])}; {was} {xyz_text(event['mpos'])}"
+    where += "" if killed else f" {when}"
     reboot = "an Arduino resets when its port is opened" + (
         "" if stopped else "; a board powered over the cable lost power"
     )
