@@ -112,7 +112,8 @@ def test_a_soft_limit_read_in_a_cycle_is_not_told_as_surely_lost(tmp_path):
     assert len(said) == 1 and "unless you know" not in said[0]
     assert "or you know the hold was GRBL's own" in said[0] and "homed ($H) since" in said[0]
     # an earlier session's alarm is not this run's: only the last session counts
-    later = [{"ev": "start"}, {"ev": "stop", "reason": "stopped by the user"}]
+    stop = {"ev": "stop", "reason": "stopped by the user", "mpos": [1.0, 2.0, 0.0]}
+    later = [{"ev": "start"}, stop]
     said.clear()
     _say_lost_position([*events, *later], said.append)
     assert said == []

@@ -1,10 +1,11 @@
-"""A resume after a killed sender checks that the controller did not reset since.
+"""A resume after a killed sender, or a stop with no position, checks for a reset since.
 
 A sender killed or crashed mid-job leaves its journal's session without a ``stop`` or
 ``lost`` event, so no position was recorded. A controller that kept power ran its queue to
 the end of the last acknowledged line; one found at machine zero though that line ended
 elsewhere reset since (an Arduino resets when its port is opened): the resume asks as after
-a reset (refused under --yes before any G-code line; --homed goes on).
+a reset (refused under --yes before any G-code line; --homed goes on). A stop whose
+reports gave no machine position cannot tell: the resume asks, on the safe side.
 """
 
 from __future__ import annotations
@@ -13,11 +14,14 @@ import json
 import re
 
 import pytest
-from test_stop_reconnect import COMMON, WCO, _controller, _stopped
+from test_stop_reconnect import COMMON, QUICK, WCO, _controller, _stopped
+from test_stream import write_job
 from test_stream_cli_input import _stream
 from test_stream_lost_link_reset import _gcode_rx
 
 from scratchfab.cli import main
+from scratchfab.machine.grblsim import SimOptions
+from scratchfab.machine.grblsim_pty import GrblPty
 from scratchfab.machine.sender_journal import default_journal_path, read_journal
 from scratchfab.machine.sender_program import load_program
 from scratchfab.machine.stream_job import reset_since_last_run
@@ -93,3 +97,34 @@ def test_a_closed_session_is_not_read_as_killed(tmp_path, closing):
     assert reset_since_last_run([start, *acks], (0.0, 0.0, 0.0)) is None  # no program
     closed = [start, *acks, {"ev": closing, "reason": "x", "executed_through": 3}]
     assert reset_since_last_run(closed, (0.0, 0.0, 0.0), program=program) is None
+
+
+@pytest.mark.parametrize("s10", [0, 2])
+def test_a_stop_recorded_without_a_position_asks_on_resume(tmp_path, s10):
+    """Reports in WPos only ($10=0 or 2) on a build that sends no WCO: the stop records no
+    machine position, so a resume cannot tell a reset: it asks, refused under --yes."""
+    job = tmp_path / "job.gcode"
+    write_job(job, 40)
+    sim = {**QUICK, "wco": WCO, "wco_field": False, "settings": {10: s10}}
+    with GrblPty(SimOptions(**sim, error_at=151)) as pty:
+        pty.start()
+        code, _, err = _stream([str(job), "--port", pty.path, "--yes"], "")
+    assert code == 3, err
+    stop = read_journal(default_journal_path(job))[-1]
+    assert stop["ev"] == "stop" and "mpos" not in stop
+    rec = tmp_path / "r1.jsonl"
+    with GrblPty(SimOptions(**sim, record=str(rec))) as pty:
+        pty.start()
+        code, _, err = _stream([str(job), "--port", pty.path, "--resume", "--yes"], "")
+    assert code == 2 and "Traceback" not in err
+    last = err.rstrip().splitlines()[-1]
+    assert last.startswith("error: refusing to resume with --yes: the run before this resume")
+    assert "no position of the machine recorded" in last and "--homed" in last
+    assert not _gcode_rx(rec)
+    # --homed goes on, with a note naming why it asked
+    rec2 = tmp_path / "r2.jsonl"
+    with GrblPty(SimOptions(**sim, record=str(rec2))) as pty:
+        pty.start()
+        code, _, err = _stream([str(job), "--port", pty.path, "--resume", "--yes", "--homed"], "")
+    assert code == 0, err
+    assert "a stop, with no position of the machine recorded" in err and _gcode_rx(rec2)

@@ -979,25 +979,36 @@ def _lost_event(events: list[dict[str, Any]]) -> dict[str, Any] | None:
     An ``alarm`` or ``stop`` with ``lost`` (a ``stop`` holds it where the controller reset
     itself: its banner came, a power or USB glitch, its reset button); a ``lost`` event (a
     dropped link) with ``lost``, once :func:`reset_since_last_run` found a reset since, or
-    with no ``mpos`` (:func:`_unplaced_drop`): whether it reset cannot be told.
+    with no ``mpos`` (:func:`_unplaced_drop`): whether it reset cannot be told. Else an
+    ordinary ``stop`` with no ``mpos`` (:func:`_unplaced_stop`), for the same reason.
     """
     kinds = ("alarm", "stop", "lost", "killed")
+    session = _last_session(events)
     lost = [
         ev
-        for ev in _last_session(events)
-        if ev.get("ev") in kinds and (ev.get("lost") or _unplaced_drop(ev))
+        for ev in session
+        if ev.get("ev") in kinds
+        and (ev.get("lost") or _unplaced_drop(ev))
+        and not _unplaced_stop(ev)
     ]
+    lost = lost or [ev for ev in session if _unplaced_stop(ev)]
     return lost[-1] if lost else None
 
 
 def _unplaced_drop(event: dict[str, Any]) -> bool:
-    """A ``lost`` event (a dropped link) without the position the machine had by then.
+    """A ``lost`` or ``stop`` event without the position the machine had by then.
 
-    No status report came before the drop, or the journal was written before ``lost``
-    events recorded ``mpos``: a controller that reset since (an Arduino resets when its
-    port is opened) cannot be told from one that kept power, so a resume asks.
+    No status report came before it, its reports gave no machine position (``$10`` without
+    MPos on a build that sends no ``WCO:``), or the journal was written before these events
+    recorded ``mpos``: a controller that reset since (an Arduino resets when its port is
+    opened) cannot be told from one that kept power, so a resume asks.
     """
-    return event.get("ev") == "lost" and xyz_of(event.get("mpos")) is None
+    return event.get("ev") in ("lost", "stop") and xyz_of(event.get("mpos")) is None
+
+
+def _unplaced_stop(event: dict[str, Any]) -> bool:
+    """A ``stop`` the controller did not reset by itself, recorded without a position."""
+    return event.get("ev") == "stop" and not event.get("lost") and _unplaced_drop(event)
 
 
 def _killed_end(
@@ -1110,6 +1121,8 @@ def _lost_by(event: dict[str, Any]) -> str:
     }.get(event.get("why", ""), "")
     if event.get("ev") == "stop" and since:
         return f"a stop, and {since}"
+    if _unplaced_stop(event):
+        return "a stop, with no position of the machine recorded"
     if event.get("ev") == "stop":
         return "a reset of the controller it did not send (its banner came)"
     if event.get("ev") == "lost" and "mpos_now" not in event:
@@ -1152,6 +1165,16 @@ def lost_position_warning(
             "when its port is opened; a board powered over the cable lost power), which "
             f"loses the position; go on only if the machine was {done} since, or you know "
             "its controller kept power and was not reset"
+        )
+    if _unplaced_stop(alarm):
+        return (
+            "the run before this resume was stopped with no position of the machine recorded "
+            "(its status reports gave no machine position, $10 without MPos on a build that "
+            "sends no WCO:, or none came): whether the controller reset since cannot be told "
+            "(an Arduino resets when its port is opened), which makes machine zero where the "
+            f"tool stood and moves the work zero with it; go on only if the machine was {done} "
+            "since, or you know its controller kept power, was not reset and was not moved "
+            "(reports with machine position, $10=1, let a resume tell)"
         )
     if "mpos_now" in alarm:
         return _moved_warning(alarm, done)
@@ -1272,7 +1295,9 @@ def ask_if_homed(
         )
     kept = ""
     event = _lost_event(events)
-    if event is not None and event.get("ev") == "lost" and "mpos_now" not in event:
+    if event is not None and _unplaced_stop(event):
+        kept = ", or did its controller keep power without a reset or a move"
+    elif event is not None and event.get("ev") == "lost" and "mpos_now" not in event:
         kept = ", or did its controller keep power without a reset"
     elif event is not None and event.get("why") == "moved":
         kept = ", or was it only jogged and its controller never reset"
