@@ -857,8 +857,8 @@ class Streamer:
         except _Fault as fault:
             raise StreamFault(str(fault)) from None
         if self.info.status.state.startswith(("Alarm", "Sleep")):
-            leave = self._unlock_advice() or (
-                "home it ($H) or, if the position is known, unlock it ($X) first"
+            leave = self._leave_alarm(
+                None, "home it ($H) or, if the position is known, unlock it ($X)"
             )
             raise StreamFault(
                 f"controller is in {self.info.status.state}: {leave}; nothing was sent"
@@ -1741,19 +1741,27 @@ class Streamer:
         """
         return self._rehome() if self._homing() is False else "re-home"
 
-    def _unlock_advice(self, lost: bool | None = None) -> str | None:
-        """:func:`unlock_advice` for this machine (None: homing on or not known)."""
-        return unlock_advice(self.options.profile, self._homing(), lost)
-
     def _leave_alarm(self, lost: bool | None, homed: str) -> str:
         """How a person leaves an Alarm and raises a tool that may be down, in that order.
 
         Where homing is off (``$22=0``): unlock, raise the tool, then set the work zero
-        (:func:`unlock_advice`); else ``homed`` (homing, or an unlock) and the raise.
+        (:func:`unlock_advice`). Else with a servo scribe: unlock, raise it, then home
+        (``$H`` moves X and Y with the scribe as it stands, and GRBL in Alarm takes no
+        G-code, the up command included); with a Z tool ``homed`` (homing, which lifts Z
+        first, or an unlock) and the raise.
         """
         raise_it = self._raise_it()
         off = unlock_advice(self.options.profile, self._homing(), lost, raise_it)
-        return off if off is not None else f"{homed} yourself, then {raise_it}"
+        if off is not None:
+            return off
+        if self._servo():
+            home = "home it ($H)" + (
+                " (its position may be lost: not just unlock it)"
+                if lost
+                else " if its position may be lost"
+            )
+            return f"unlock it ($X) yourself, {raise_it}, then {home}"
+        return f"{homed} yourself, then {raise_it}"
 
     def _go_on(self) -> str:
         """The stop's advice on going on: after an alarm, once it is cleared."""
