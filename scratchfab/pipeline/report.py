@@ -1034,7 +1034,8 @@ def gcode_statistics(path: Path) -> dict[str, Any]:
     from scratchfab.export.gcode import gcode_stats
     from scratchfab.machine.sender_program import load_program
 
-    lines = path.read_text(encoding="utf-8").splitlines()
+    # errors="replace": a Latin-1 comment is counted; the sender says why it refuses it
+    lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
     stats = gcode_stats(lines)
     moves: dict[str, int] = {}
     try:
