@@ -20,7 +20,13 @@ from test_stream_lift import servo_job
 
 from scratchfab.machine.grbl_codes import alarm_meaning
 from scratchfab.machine.profile import load_profile
-from scratchfab.machine.sender import StreamFault, open_port, refind
+from scratchfab.machine.sender import (
+    StreamFault,
+    open_port,
+    refind,
+    work_zero_command,
+    zero_kept_advice,
+)
 from scratchfab.machine.sender_program import load_program
 
 PORT = "grblsim://?baud=0&time_scale=0.02"
@@ -238,3 +244,26 @@ def test_a_lost_alarm_where_homing_is_off_raises_the_tool_before_the_zero(tmp_pa
         raised, zeroed = rest.find("jog Z up"), rest.find("set the work zero again")
         assert 0 < raised < zeroed, text
     assert "home it ($H)" not in text
+
+
+def _z_tool_in_work_coordinates():
+    diamond = load_profile("grbl-3018-diamond")
+    envelope = dataclasses.replace(diamond.envelope, coordinates="work")
+    return dataclasses.replace(diamond, envelope=envelope)
+
+
+@pytest.mark.parametrize("homing", [False, None])
+def test_a_z_tool_is_told_to_zero_z_on_the_boards_surface(homing):
+    """A work-coordinate profile with a Z tool counts its [z] heights from the board's
+    surface: the re-zero advice sets Z there too, after X and Y; a servo's has no Z step."""
+    profile = _z_tool_in_work_coordinates()
+    assert profile.tool_control.mode == "z"
+    point, command = work_zero_command(profile)
+    how = refind(profile, homing)
+    for text in (how.do, how.again, zero_kept_advice(profile)):
+        steps = [f"send `{command}`", "board's surface", "`G10 L20 P0 Z0`"]
+        at = [text.find(step) for step in steps]
+        assert -1 not in at and at == sorted(at), text
+    assert f"(`{command}` at the board's {point}) and Z on the board's surface" in how.done
+    servo = refind(_placed((20.0, 20.0)), homing)
+    assert "Z0" not in servo.do + servo.again + servo.done
