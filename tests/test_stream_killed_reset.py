@@ -128,3 +128,23 @@ def test_a_stop_recorded_without_a_position_asks_on_resume(tmp_path, s10):
         code, _, err = _stream([str(job), "--port", pty.path, "--resume", "--yes", "--homed"], "")
     assert code == 0, err
     assert "a stop, with no position of the machine recorded" in err and _gcode_rx(rec2)
+
+
+@pytest.mark.parametrize("homing", [True, False, None])
+def test_a_stop_without_a_position_asks_unless_the_machine_homes(homing):
+    """A stop journaled without ``mpos`` (as every stop before this version) asks on resume
+    where the session's homing was off or not recorded (a journal that old records none);
+    with homing on a controller that reset boots locked in Alarm, which the connect
+    refuses, so it resumes unasked."""
+    from scratchfab.machine.stream_job import lost_position_warning
+
+    start = {"ev": "start", "sha256": "x", "blocks": 60}
+    if homing is not None:
+        start["homing"] = homing
+    acks = [{"ev": "ack", "i": i} for i in range(40)]
+    stop = {"ev": "stop", "reason": "stopped by Ctrl-C", "executed_through": 39}
+    warning = lost_position_warning([start, *acks, stop], homing=homing)
+    assert (warning is None) == (homing is True)
+    if warning is not None:
+        assert "no position of the machine recorded" in warning
+        assert "the journal is older than such records" in warning

@@ -980,10 +980,13 @@ def _lost_event(events: list[dict[str, Any]]) -> dict[str, Any] | None:
     itself: its banner came, a power or USB glitch, its reset button); a ``lost`` event (a
     dropped link) with ``lost``, once :func:`reset_since_last_run` found a reset since, or
     with no ``mpos`` (:func:`_unplaced_drop`): whether it reset cannot be told. Else an
-    ordinary ``stop`` with no ``mpos`` (:func:`_unplaced_stop`), for the same reason.
+    ordinary ``stop`` with no ``mpos`` (:func:`_unplaced_stop`), for the same reason, unless
+    the session's ``start`` recorded homing on: a controller that resets then boots locked
+    in Alarm, which the connect refuses.
     """
     kinds = ("alarm", "stop", "lost", "killed")
     session = _last_session(events)
+    homed_machine = bool(session) and session[0].get("homing") is True
     lost = [
         ev
         for ev in session
@@ -991,7 +994,7 @@ def _lost_event(events: list[dict[str, Any]]) -> dict[str, Any] | None:
         and (ev.get("lost") or _unplaced_drop(ev))
         and not _unplaced_stop(ev)
     ]
-    lost = lost or [ev for ev in session if _unplaced_stop(ev)]
+    lost = lost or [ev for ev in session if _unplaced_stop(ev) and not homed_machine]
     return lost[-1] if lost else None
 
 
@@ -1170,7 +1173,7 @@ def lost_position_warning(
         return (
             "the run before this resume was stopped with no position of the machine recorded "
             "(its status reports gave no machine position, $10 without MPos on a build that "
-            "sends no WCO:, or none came): whether the controller reset since cannot be told "
+            "sends no WCO:, none came, or the journal is older than such records): whether the controller reset since cannot be told "
             "(an Arduino resets when its port is opened), which makes machine zero where the "
             f"tool stood and moves the work zero with it; go on only if the machine was {done} "
             "since, or you know its controller kept power, was not reset and was not moved "
