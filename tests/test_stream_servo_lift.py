@@ -332,3 +332,30 @@ def test_laser_mode_with_a_servo_held_up_by_s_is_warned(
     said = said or "GRBL laser mode is on ($32=1) and the scribe is held up by 'M3 S90'" in err
     assert said == warned, err
     assert ("turn laser mode off ($32=0)" in err) == warned
+
+
+@pytest.mark.parametrize(
+    ("up", "off", "expected"),
+    [
+        ("M3 S90", "M5", "M3S90"),  # the file holds up by S90 although the profile says M5
+        ("M3 S90", "M3 S90", "M3S90"),
+        ("M5", "M5", "M5"),
+        ("M5", None, "M5"),
+        ("M3 S90", None, "M3S90"),
+    ],
+)
+def test_a_stop_lifts_with_what_the_file_moves_under(tmp_path, up, off, expected):
+    """A reviewer: a file held up by M3 S90 streamed with the bundled plotter (off = M5):
+    the resume lifted with S90 but a stop with the profile's M5 (PWM 0: the servo goes
+    wherever that puts it) and the laser-mode warning stayed silent. One rule serves all."""
+    from scratchfab.machine.sender_checks import laser_mode_warning
+    from scratchfab.machine.sender_program import servo_up
+
+    prog = load_program(write(tmp_path, "j.gcode", plotter_lines(up, "M3 S35", [up])), tool_up=off)
+    assert servo_up(prog, off) == expected
+    assert servo_up(None, off) == (off or "M5")
+    plotter = load_profile("grbl-plotter-scribe")
+    assert plotter.tool_control.command("off") == "M5"
+    warned = laser_mode_warning({32: 1}, prog, plotter)
+    assert (warned is not None) == (expected != "M5")
+    assert laser_mode_warning({32: 0}, prog, plotter) is None

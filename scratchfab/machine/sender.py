@@ -101,6 +101,7 @@ from scratchfab.machine.sender_program import (
     followed_move,
     known_xyz,
     resume_point,
+    servo_up,
     stands_at_end,
     strip_block,
     travel_height,
@@ -1732,12 +1733,10 @@ class Streamer:
         return f"raise the scribe with its up command {up}{done if up == 'M5' else ''}"
 
     def _servo_up(self) -> str:
-        """A servo's up command: the profile's ``off``, else the file's own (M5, or M3 S<up>)."""
+        """A servo's up command (:func:`~scratchfab.machine.sender_program.servo_up`)."""
         profile = self.options.profile
-        if profile is not None:
-            return profile.tool_control.command("off")
-        program = getattr(self, "_program", None)
-        return "M5" if program is None else program.tool_up
+        off = profile.tool_control.command("off") if profile is not None else None
+        return servo_up(getattr(self, "_program", None), off)
 
     def _homing(self) -> bool | None:
         """GRBL's ``$22`` as the connect's ``$$`` gave it (None: not read)."""

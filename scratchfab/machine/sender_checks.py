@@ -15,6 +15,7 @@ from scratchfab.machine.sender_program import (
     Program,
     block_words,
     known_xyz,
+    servo_up,
     strip_block,
     work_xyz,
     z_levels,
@@ -494,12 +495,10 @@ def laser_mode_warning(
     if not settings.get(32, 0):
         return None
     tool = getattr(profile, "tool_control", None)  # a MachineProfile's (not every MachineLike's)
-    if tool is not None and tool.mode == "servo":
-        up = tool.command("off")
-    elif program.pen_mode:
-        up = program.tool_up
-    else:
+    off = tool.command("off") if tool is not None and tool.mode == "servo" else None
+    if off is None and not program.pen_mode:
         return None
+    up = servo_up(program, off)
     words = dict(block_words(strip_block(up)))
     if not ("M" in words and words["M"] in (3.0, 4.0) and words.get("S", 0.0) > 0.0):
         return None

@@ -643,6 +643,21 @@ def _followed_moves(blocks: Sequence[Block]) -> Iterator[tuple[Block, bool]]:
         prev_xy = xy
 
 
+def servo_up(program: Program | None, profile_off: str | None) -> str:
+    """The command that raises a servo job's tool, for a stop's lift and its advice.
+
+    The file's own where it holds the tool up with the output on (``M3 S90``: it moves
+    under that S, whatever the profile's ``off`` says, and M5 would leave the servo where
+    PWM 0 puts it); else the servo profile's ``off`` (``profile_off``); else the file's
+    (M5).
+    """
+    if program is not None and program.lift_speed is not None:
+        return program.tool_up
+    if profile_off is not None:
+        return profile_off
+    return "M5" if program is None else program.tool_up
+
+
 def lift_state(blocks: Sequence[Block], tool_up: str | None = None) -> tuple[str, float] | None:
     """The M3/M4 and S with which a servo job holds its tool up, where not by M5; else None.
 
