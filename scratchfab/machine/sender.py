@@ -1834,13 +1834,7 @@ class Streamer:
         lifted = self._no_lift(why)
         if lifted is not None:  # no message carries its clause
             self._tell(f"the tool was NOT raised: {why}")
-        self._journal_quietly(
-            "stop",
-            reason=reason,
-            executed_through=self._executed_guess(held),
-            **_where(self.status),
-            **_journaled(lifted),
-        )
+        self._journal_stop(reason, self._executed_guess(held), lifted, quietly=True)
         self._tell(self._held_text())
 
     def _write_surely(self, data: bytes) -> None:
@@ -1851,6 +1845,27 @@ class Streamer:
                 return
             except KeyboardInterrupt:
                 continue
+
+    def _journal_stop(
+        self,
+        reason: str,
+        through: int,
+        lifted: _Lifted | None,
+        lost: bool = False,
+        quietly: bool = False,
+    ) -> None:
+        """Journal a ``stop``, with where the machine stood by the last report.
+
+        Its reason, the last block surely run, :func:`_where` and what became of the tool;
+        ``lost`` where the controller reset itself (a resume then asks whether it was homed
+        since); ``quietly`` where the journal's own failure must not hide the stop's cause.
+        """
+        data = {"reason": reason, "executed_through": through, **({"lost": True} if lost else {})}
+        data |= {**_where(self.status), **_journaled(lifted)}
+        if quietly:
+            self._journal_quietly("stop", **data)
+        else:
+            self._journal.write("stop", **data)
 
     def _journal_quietly(self, event: str, **data: Any) -> None:
         try:
@@ -1904,14 +1919,7 @@ class Streamer:
                 lifted = self._no_lift(
                     "the controller reset itself and its position may be lost; " + self._raise_it()
                 )
-                self._journal.write(
-                    "stop",
-                    reason=str(fault),
-                    executed_through=self._executed_guess(None),
-                    lost=True,  # a resume asks whether it was homed since
-                    **_where(self.status),
-                    **_journaled(lifted),
-                )
+                self._journal_stop(str(fault), self._executed_guess(None), lifted, lost=True)
                 fault.args = (str(fault) + _clause(lifted),)
             elif fault.kind == "link":
                 # nothing can be sent. A powered controller runs what it acknowledged;
@@ -1988,13 +1996,7 @@ class Streamer:
         seen = held if self._hold_alarm is None else self.status
         through = self._stopped_through = self._executed_guess(seen)
         lifted = self._lift(held, banner, frame)
-        self._journal.write(
-            "stop",
-            reason=reason,
-            executed_through=through,
-            **_where(self.status),
-            **_journaled(lifted),
-        )
+        self._journal_stop(reason, through, lifted)
         return _clause(lifted)
 
     # ------------------------------------------------------------------ lifting the tool
@@ -2284,14 +2286,7 @@ class Streamer:
     ) -> None:
         self._write(REALTIME_RESET)
         self._wait_banner(self.options.banner_timeout)
-        through = self._executed_guess(report)
-        self._journal.write(
-            "stop",
-            reason=reason,
-            executed_through=through,
-            **_where(self.status),
-            **_journaled(lifted),
-        )
+        self._journal_stop(reason, self._executed_guess(report), lifted)
 
     def _executed_guess(self, report: Status | None) -> int:
         """The last acknowledged block that surely ran, judged from the position at the stop.
