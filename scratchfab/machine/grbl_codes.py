@@ -74,8 +74,9 @@ def alarm_meaning(code: int, again: str = "re-home") -> str:
     """The meaning of ``ALARM:code``.
 
     ``again``: how a lost position is found again, where the meaning says so (ALARM:1 and
-    ALARM:3): ``re-home``, or ``re-zero`` where homing is off (``$22=0``, where ``$H``
-    answers ``error:5``; :func:`~scratchfab.machine.sender.rehome` words it).
+    ALARM:3), as :func:`~scratchfab.machine.sender.rehome` words it for the profile and
+    ``$22``: ``re-home``, ``re-home or re-zero``, ``re-zero`` where homing is off (``$H``
+    answers ``error:5``), or turning homing on first.
     """
     text = ALARM_CODES.get(code, f"unknown alarm code {code} (not a Grbl 1.1 code)")
     return text.replace("{again}", again)

@@ -314,7 +314,12 @@ def unlock_advice(
 
 
 def rehome(profile: MachineProfile | None, homing: bool | None = None) -> str:
-    """``re-home`` for a machine-coordinate profile, else ``re-home or re-zero`` (:func:`refind`)."""
+    """How a lost position is found again, as a verb (:func:`refind`'s ``verb``).
+
+    ``re-home`` for a machine-coordinate profile with homing, ``re-home or re-zero`` for a
+    work-coordinate or unknown one, ``re-zero`` where homing is off (``$22=0``), and for a
+    machine-coordinate profile without it, to turn homing on first (if it has switches).
+    """
     return refind(profile, homing).verb
 
 

@@ -1049,7 +1049,9 @@ def reset_since_last_run(
     inches: bool = False,
     program: Program | None = None,
 ) -> dict[str, Any] | None:
-    """The last session's closing ``lost`` or ``stop``, where the machine may have lost its zero.
+    """The last session's closing event, where the machine may have lost its zero.
+
+    The closing ``lost`` or ``stop``, or a ``killed`` one made up for a session with none.
 
     A controller without homing (``$22=0``), or unlocked with ``$X``, boots at machine
     zero wherever the tool stands: an Arduino resets when its port is opened (a reconnect
@@ -1072,14 +1074,16 @@ def reset_since_last_run(
     One that kept power after a lost link ran its queue and stands at a move's end, so
     being elsewhere alone says nothing there. A session with no closing event (the sender
     was killed or crashed) is read like a lost link, its position the end of the last
-    acknowledged block in ``program`` (:func:`_killed_end`; ``"ev": "killed"``). Steps come from the session's ``start``
-    (else 0.025 mm), plus a report digit; offsets compare with :func:`same_offset`, at the
-    inch reports' digit where either run read them (``inches``).
+    acknowledged block in ``program`` (:func:`_killed_end`; ``"ev": "killed"``). Steps come
+    from the session's ``start`` (else 0.025 mm), plus a report digit; offsets compare
+    with :func:`same_offset`, at the inch reports' digit where either run read them
+    (``inches``).
 
     Returns:
-        A copy of the event with ``"lost": true``, ``"mpos_now"``, ``"why"`` (``"zero"``,
-        ``"moved"`` or ``"wco"``) and for ``"wco"`` ``"wco_now"``, else None (no closing
-        ``lost`` or ``stop``, positions unknown, or nothing changed).
+        A copy of the event (or the made-up ``killed`` one) with ``"lost": true``,
+        ``"mpos_now"``, ``"why"`` (``"zero"``, ``"moved"`` or ``"wco"``) and for ``"wco"``
+        ``"wco_now"``, else None (no closing ``lost`` or ``stop`` and no killed session's
+        end, positions unknown, or nothing changed).
     """
     session = _last_session(events)
     closing = [ev for ev in session if ev.get("ev") in ("lost", "stop")]
@@ -1257,11 +1261,12 @@ def ask_if_homed(
     profile: MachineProfile | None = None,
     homing: bool | None = None,
 ) -> bool:
-    """Before a resume after an alarm or a reset that may have lost the position: homed since?
+    """Before a resume where the position may be lost since the run: homed since?
 
+    After an alarm, a reset, or a stop, lost link or killed sender where the controller
+    may have reset since or that recorded no position (:func:`lost_position_warning`).
     GRBL needs ``$H`` or ``$X`` after such an alarm and answers both alike, and a
-    controller that reset itself, or may have after a lost link
-    (:func:`lost_position_warning`), may boot at another position, so only a person can
+    controller that reset itself, or may have, may boot at another position, so only a person can
     tell; after ``$X`` alone the strokes land off. ``homed`` (``--homed``) says the machine
     was homed, or its work zero set again, since. Otherwise, on a machine, the person is
     asked before anything is sent, and under ``--yes`` (``confirm`` None) the resume is
