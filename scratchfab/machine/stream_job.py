@@ -676,9 +676,10 @@ def booted_zero_warning(info: ControllerInfo) -> str | None:
         f"($22=0): its machine zero is where the tool stands now, so the work offset it "
         f"keeps ({xyz_text(wco)} mm, set in an earlier session) puts the work zero that far "
         "from here, the board's zero only if the tool stood where the controller booted "
-        "before; with such a controller park the tool at the work zero with the offset "
-        "cleared (`G10 L2 P0 X0 Y0 Z0`) before streaming, so that each boot's machine zero "
-        "is the work zero"
+        "before (right where the zero was set from a connection opened at that spot, with "
+        "the tool not moved since: then go on); else park the tool at the work zero with "
+        "the offset cleared (`G10 L2 P0 X0 Y0 Z0`) before streaming, so that each boot's "
+        "machine zero is the work zero"
     )
 
 
