@@ -123,17 +123,23 @@ def test_a_controller_that_kept_power_resumes_unasked(tmp_path, capsys, z_jog):
     assert "done:" in out.out + out.err
 
 
-def test_homed_resumes_a_rebooted_controller_with_a_note(tmp_path, capsys):
-    job, _, _ = _stopped(tmp_path)
+def resume_homed_on_a_rebooted_controller(job, tmp_path, capsys):
+    """``stream JOB --resume --yes --homed`` on a controller that rebooted (at machine zero,
+    its work offset kept): what it said, and whether G-code reached the controller."""
     capsys.readouterr()
     rec = tmp_path / "r1.jsonl"
     with _controller(rec) as pty:
         pty.start()
         main(["stream", str(job), "--port", pty.path, "--resume", "--yes", "--homed", *COMMON])
-    out = capsys.readouterr()
+    return capsys.readouterr(), _gcode_rx(rec)
+
+
+def test_homed_resumes_a_rebooted_controller_with_a_note(tmp_path, capsys):
+    job, _, _ = _stopped(tmp_path)
+    out, sent = resume_homed_on_a_rebooted_controller(job, tmp_path, capsys)
     assert "the controller reset since (it stands at machine zero)" in out.err
     assert "--homed: the machine was" in out.err
-    assert "done:" in out.out + out.err and _gcode_rx(rec)
+    assert "done:" in out.out + out.err and sent
 
 
 def test_the_emulator_warns_after_a_stop(tmp_path, capsys):

@@ -14,7 +14,14 @@ import json
 import re
 
 import pytest
-from test_stop_reconnect import COMMON, QUICK, WCO, _controller, _stopped
+from test_stop_reconnect import (
+    COMMON,
+    QUICK,
+    WCO,
+    _controller,
+    _stopped,
+    resume_homed_on_a_rebooted_controller,
+)
 from test_stream import write_job
 from test_stream_cli_input import _stream
 from test_stream_lost_link_reset import _gcode_rx
@@ -73,14 +80,9 @@ def test_a_controller_that_ran_its_queue_resumes_unasked(tmp_path, capsys):
 
 def test_homed_resumes_after_a_killed_sender_with_a_note(tmp_path, capsys):
     job, _ = _killed(tmp_path)
-    capsys.readouterr()
-    rec = tmp_path / "r1.jsonl"
-    with _controller(rec) as pty:
-        pty.start()
-        main(["stream", str(job), "--port", pty.path, "--resume", "--yes", "--homed", *COMMON])
-    out = capsys.readouterr()
+    out, sent = resume_homed_on_a_rebooted_controller(job, tmp_path, capsys)
     assert "the sender killed (no stop recorded)" in out.err
-    assert "done:" in out.out + out.err and _gcode_rx(rec)
+    assert "done:" in out.out + out.err and sent
 
 
 @pytest.mark.parametrize("closing", ["stop", "lost", "end"])
