@@ -987,7 +987,7 @@ def _lost_event(events: list[dict[str, Any]]) -> dict[str, Any] | None:
     """
     kinds = ("alarm", "stop", "lost", "killed")
     session = _last_session(events)
-    homed_machine = bool(session) and session[0].get("homing") is True
+    homed_machine = run_homing(events) is True  # the session's start recorded $22=1
     lost = [
         ev
         for ev in session
@@ -1178,11 +1178,12 @@ def lost_position_warning(
         return (
             "the run before this resume was stopped with no position of the machine recorded "
             "(its status reports gave no machine position, $10 without MPos on a build that "
-            "sends no WCO:, none came, or the journal is older than such records): whether the controller reset since cannot be told "
-            "(an Arduino resets when its port is opened), which makes machine zero where the "
-            f"tool stood and moves the work zero with it; go on only if the machine was {done} "
-            "since, or you know its controller kept power, was not reset and was not moved "
-            "(reports with machine position, $10=1, let a resume tell)"
+            "sends no WCO:, none came, or the journal is older than such records): whether "
+            "the controller reset since cannot be told (an Arduino resets when its port is "
+            "opened), which makes machine zero where the tool stood and moves the work zero "
+            f"with it; go on only if the machine was {done} since, or you know its controller "
+            "kept power, was not reset and was not moved (reports with machine position, "
+            "$10=1, let a resume tell)"
         )
     if "mpos_now" in alarm:
         return _moved_warning(alarm, done)
