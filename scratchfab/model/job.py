@@ -450,10 +450,11 @@ def own_board_pictures(design: Design) -> Design:
     picture of that name, as a copied job has, that copy is the target. A target anywhere
     else stays as the user named it.
     """
+    boards = DesignFolder(design.base_dir).boards_dir
     views = []
     for view in design.views:
         path = design.target_path(view)
-        own = design.base_dir / "board" / path.name if path is not None else None
+        own = boards / path.name if path is not None else None
         in_a_job = (
             path is not None
             and path.parent.name == "board"
