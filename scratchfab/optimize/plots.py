@@ -326,8 +326,7 @@ def block_means(values: np.ndarray, factor: int) -> np.ndarray:
     finite = np.isfinite(values)
     total = _block_sums(np.where(finite, values, 0.0), factor)
     count = _block_sums(finite, factor)
-    h, w = values.shape  # pixels in each block: factor^2 but at the edges
-    real = np.outer(_block_sums(np.ones((h, 1)), factor), _block_sums(np.ones((1, w)), factor))
+    real = _block_sums(np.ones(values.shape), factor)  # pixels in each block: fewer at the edges
     return np.where(2 * count > real, total / np.maximum(count, 1), np.nan)
 
 

@@ -98,10 +98,6 @@ class RunResult:
     seconds: float = 0.0
 
 
-#: What lets the toolpath stage plan a board the machine's envelope cuts short.
-PARTIAL_OVERRIDE = TOOLPATH_FORCE
-
-
 def partial_by_pipeline_force(path: Path) -> str:
     """The note of a partial board planned under ``[pipeline] force`` alone (its older meaning)."""
     return (
@@ -347,7 +343,7 @@ class _Stages:
             self.pipe.profile,
             options,
             say=self._say_in,
-            refuse_partial=None if key else PARTIAL_OVERRIDE,
+            refuse_partial=None if key else TOOLPATH_FORCE,
         )
         if key == PIPELINE_FORCE and partial_text(plan.stats) is not None:
             self._say_in(partial_by_pipeline_force(self.pipe.path))
@@ -503,7 +499,7 @@ def _board_overhang(pipe: Pipeline) -> str | None:
     when = (
         f"will leave out the scratches beyond it and clip those across its edge ({key}{older})"
         if key
-        else f"will stop there if a scratch lies beyond it, unless {PARTIAL_OVERRIDE}, "
+        else f"will stop there if a scratch lies beyond it, unless {TOOLPATH_FORCE}, "
         "which cuts only the part it reaches"
     )
     return (
