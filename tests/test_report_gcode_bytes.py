@@ -17,3 +17,21 @@ def test_a_latin1_comment_is_counted_and_the_refusal_named(tmp_path):
     # the same file in ASCII is read and sent, its comment left out
     path.write_bytes(path.read_bytes().replace(b"\xe9", b"e"))
     assert gcode_statistics(path)["sent"] == 7
+
+
+def test_cutting_moves_are_counted_as_stream_tells_them_for_the_profile(tmp_path):
+    """A servo job held up by M3 S90 whose first move runs under M5 does not tell its up
+    state alone (one stroke: every M3 down), but stream, given the profile (off = M3 S90),
+    finds its two strokes; the report counts them as stream does for the toolpath's machine."""
+    from test_stream_servo_lift import plotter_lines, servo_profile, write
+
+    from scratchfab.machine.profile import load_profile
+    from scratchfab.machine.stream_job import load_program_for
+
+    lines = plotter_lines("M3 S90", "M3 S35", ["M5", "G1 X1 Y1 F4000", "M3 S90"])
+    path = write(tmp_path, "board.gcode", lines)
+    profile = load_profile(servo_profile(tmp_path))
+    alone, told = gcode_statistics(path), gcode_statistics(path, profile)
+    assert len(load_program_for(path, profile).strokes) == 2  # the reference: stream's reading
+    assert told["cuts"] == 2  # X10 to X11, X20 to X21
+    assert alone["cuts"] != told["cuts"]

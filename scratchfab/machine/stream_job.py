@@ -345,12 +345,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
         loaded = None if req.machine is None or isinstance(req.machine, str) else profile
         ask_before_a_stale_toolpath(planned, req.gcode, req.port, cb.confirm, cb.say, loaded)
         ask_before_an_earlier_export(planned, header, req.gcode, req.port, cb.confirm, cb.say)
-    z_threshold = req.z_threshold
-    if z_threshold is None and profile is not None and profile.tool_control.mode != "servo":
-        z_threshold = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
-    servo = profile is not None and profile.tool_control.mode == "servo"
-    tool_up = profile.tool_control.command("off") if servo else None
-    program = load_program(req.gcode, z_threshold=z_threshold, tool_up=tool_up)
+    program = load_program_for(req.gcode, profile, req.z_threshold)
     if not program.blocks:
         raise ScratchfabError(f"{req.gcode}: no G-code lines to send")
     check_tool_up_at_end(program)
@@ -865,6 +860,22 @@ def ask_before_an_earlier_export(
         confirm,
         say,
     )
+
+
+def load_program_for(
+    gcode: Path, profile: MachineProfile | None, z_threshold: float | None = None
+) -> Program:
+    """``gcode`` read as it is streamed for ``profile``: its strokes by the profile's tool.
+
+    A Z tool cuts below halfway between its safe and engrave heights (``z_threshold``
+    where given); a servo is up under its ``off`` command. Without a profile the program
+    tells both itself (:func:`~scratchfab.machine.sender_program.load_program`).
+    """
+    servo = profile is not None and profile.tool_control.mode == "servo"
+    if z_threshold is None and profile is not None and not servo:
+        z_threshold = 0.5 * (profile.z.safe_mm + profile.z.engrave_mm)
+    tool_up = profile.tool_control.command("off") if servo and profile is not None else None
+    return load_program(gcode, z_threshold=z_threshold, tool_up=tool_up)
 
 
 def _newer(file: Path, than: Path) -> bool:

@@ -495,14 +495,14 @@ def _weakest_check(
     if not margin < top - rho:
         return [_Check("info", said)]
     outshone = _outshone(weakest, glint, shoulders, feasibility)
-    how = "; ".join(outshone) if outshone else _RAISE
+    how = html.escape("; ".join(outshone)) if outshone else _RAISE  # _RAISE: nothing to escape
     return [
         _Check(
             "warn",
             f"{said}: nearer min_rho than the best view, so {html.escape(weakest)} will show "
-            f"its picture least clearly; to raise it, {html.escape(how) if outshone else how}",
+            f"its picture least clearly; to raise it, {how}",
             fix=f"The board passes as it is. If view {html.escape(weakest)} should look as "
-            f"clear as {html.escape(best)}: {html.escape(how) if outshone else how}.",
+            f"clear as {html.escape(best)}: {how}.",
         )
     ]
 
@@ -1024,22 +1024,23 @@ def _toolpath_section(job: Path, data: Any, stopped: Mapping[str, str]) -> str:
     return f"<div class='row'>{''.join(parts)}</div>" if parts else _absent("toolpath", stopped)
 
 
-def gcode_statistics(path: Path) -> dict[str, Any]:
+def gcode_statistics(path: Path, profile: MachineProfile | None = None) -> dict[str, Any]:
     """The exporter's statistics of a G-code file, plus its moves as the sender reads them.
 
     ``sent``: the lines the sender sends (its count, which ``stream`` and the journal
     give: comments and blank lines are not sent), or why it refuses the file. Where it
-    reads the file, :func:`move_counts` (rapid, feed and cutting moves) follow.
+    reads the file, :func:`move_counts` (rapid, feed and cutting moves) follow, its
+    strokes told as ``stream`` tells them for ``profile`` (the toolpath's machine).
     """
     from scratchfab.export.gcode import gcode_stats
-    from scratchfab.machine.sender_program import load_program
+    from scratchfab.machine.stream_job import load_program_for
 
     # errors="replace": a Latin-1 comment is counted; the sender says why it refuses it
     lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
     stats = gcode_stats(lines)
     moves: dict[str, int] = {}
     try:
-        program = load_program(path)
+        program = load_program_for(path, profile)
         sent: int | str = len(program.blocks)
         moves = move_counts(program)
     except ConfigError as exc:
@@ -1291,13 +1292,9 @@ _MACHINE_CORNER = {
     "upper-left": ("-X", "+Y", "back left"),
     "upper-right": ("+X", "+Y", "back right"),
 }
-#: The picture's corners (its top edge up, the design's +y) in the board frame's signs.
-_PICTURE_CORNER = {
-    "bottom-left": (-1, -1),
-    "bottom-right": (1, -1),
-    "top-left": (-1, 1),
-    "top-right": (1, 1),
-}
+#: The picture's corners (its top edge up, the design's +y) in the order of
+#: :meth:`~scratchfab.machine.profile.MachineProfile.board_outline`.
+_PICTURE_CORNERS = ("bottom-left", "bottom-right", "top-right", "top-left")
 
 
 def _toward(axis: str) -> str:
@@ -1310,11 +1307,9 @@ def _toward(axis: str) -> str:
 
 def _picture_corner(profile: MachineProfile, board_mm: tuple[float, float]) -> str:
     """The picture's corner that the board's ``[board] origin`` corner is, once turned."""
-    w, h = board_mm
-    corners = np.array([(sx * w / 2, sy * h / 2) for sx, sy in _PICTURE_CORNER.values()])
-    placed = profile.board_to_machine(corners, board_mm)
+    placed = profile.board_outline(board_mm)
     at = np.linalg.norm(placed - np.asarray(profile.board.offset_mm), axis=1)
-    return list(_PICTURE_CORNER)[int(np.argmin(at))]
+    return _PICTURE_CORNERS[int(np.argmin(at))]
 
 
 def _origin_words(profile: MachineProfile, board_mm: tuple[float, float]) -> tuple[str, str]:
@@ -1336,6 +1331,18 @@ def _origin_words(profile: MachineProfile, board_mm: tuple[float, float]) -> tup
         + ")"
     )
     return what, f"the board's {x} {y} corner"
+
+
+def _planned_profile(toolpath: Any) -> MachineProfile | None:
+    """The machine profile ``toolpath.json`` (read) records; None without a usable one."""
+    from scratchfab.machine.profile import profile_from_mapping
+
+    if not isinstance(toolpath, dict):
+        return None
+    try:
+        return profile_from_mapping(toolpath.get("machine"), "toolpath.json: machine")
+    except ConfigError:  # no toolpath yet, or a damaged one
+        return None
 
 
 def _setup_step(job: Path) -> str:
@@ -1551,7 +1558,7 @@ def write_report(
         if c.not_run not in stopped
     ]
     gcode = layout.export_file("gcode")
-    gcode_stats = gcode_statistics(gcode) if gcode.is_file() else None
+    gcode_stats = gcode_statistics(gcode, _planned_profile(toolpath)) if gcode.is_file() else None
     cuts = (gcode_stats or {}).get("cuts")
     body = [
         f"<h1>{html.escape(title)}</h1><p class='muted'>job folder "
