@@ -141,12 +141,13 @@ def render_knee(parts: Sequence[PartNoise]) -> tuple[float | None, float]:
     spp = 2 * parts[0].batch
     variance = sum(p.batches / 2 * np.asarray(p.variance, np.float64) for p in parts)
     loose = sum(p.batches / 2 * np.asarray(p.unstratified, np.float64) for p in parts)
-    total, free = float(np.sum(variance)), float(np.sum(loose))
+    sums = [float(np.sum(p.variance, dtype=np.float64)) for p in parts]
+    # Summed part by part for both, so that two batches of every part count as the spp exactly.
+    total = sum(p.batches / 2 * s for p, s in zip(parts, sums, strict=True))
+    measured, free = sum(sums), float(np.sum(loose))
     knee = None
     if parts[0].batch >= MIN_KNEE_BATCH and free > 0:
         knee = knee_spp(spp, total, free, gain_error(variance, loose, parts[0].batches))
-    # Summed as ``total`` is, so that two batches of every part count as the spp exactly.
-    measured = float(np.sum(sum(np.asarray(p.variance, np.float64) for p in parts)))
     if not measured > 0:
         return knee, float(parts[0].batch * parts[0].batches)
     return knee, spp_for(spp, total / measured, knee)

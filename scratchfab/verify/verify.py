@@ -302,15 +302,14 @@ class BoardRenderer:
             image = means[0] + np.maximum(means[1], 0.0)
         else:
             image = means[0]
-        variance = np.sum([p.variance for p in parts], axis=0)
+        variance = np.asarray(np.sum([p.variance for p in parts], axis=0), np.float64)
         norm = float(np.linalg.norm(image))
         noise = math.sqrt(float(np.sum(variance))) / norm if norm > 0 else 0.0
         seconds = time.perf_counter() - start
-        per_pixel = np.broadcast_to(np.asarray(variance, np.float64), image.shape).copy()
         taken = max(p.batch * p.batches for p in parts)
         knee, equal = render_knee(parts)
         return ViewRender(
-            image.astype(np.float32), noise, taken, seconds, per_pixel, per_spp, knee, equal
+            image.astype(np.float32), noise, taken, seconds, variance, per_spp, knee, equal
         )
 
     def _batches(
