@@ -95,6 +95,26 @@ def write_png16(
     path.write_bytes(b"\x89PNG\r\n\x1a\n" + head + before + idat + after + _chunk(b"IEND", b""))
 
 
+def _packbits(data: bytes) -> bytes:
+    """PackBits (TIFF 6.0 section 9): literal runs of up to 128 bytes, each after its length - 1."""
+    return b"".join(
+        bytes([len(run) - 1]) + run for run in (data[i : i + 128] for i in range(0, len(data), 128))
+    )
+
+
+def _lzw(data: bytes) -> bytes:
+    """TIFF LZW (section 13), each byte its own 9-bit code: a Clear code every 250 codes keeps
+    the decoder's table (one entry a code) short of 511, where codes would widen to 10 bits.
+    """
+    codes = []
+    for i in range(0, len(data), 250):
+        codes += [256, *data[i : i + 250]]
+    codes.append(257)  # EndOfInformation
+    bits = "".join(f"{code:09b}" for code in codes)
+    bits += "0" * (-len(bits) % 8)
+    return int(bits, 2).to_bytes(len(bits) // 8, "big") if bits else b""
+
+
 def write_tiff(
     path: Path,
     samples: np.ndarray,
@@ -107,47 +127,51 @@ def write_tiff(
     icc: bytes | None = None,
     planar: bool = False,
     tile: tuple[int, int] | None = None,
+    compression: str | None = None,
 ) -> None:
     """A TIFF of the samples' type written by hand (Pillow cannot write 16-bit colour).
 
-    Deflate comes with horizontal differencing (integer samples only); a fourth (second)
-    sample is ``extra_samples`` (TIFF 6.0: 0 unspecified, 1 associated alpha, 2 alpha)
-    unless ``photometric`` is 5 (CMYK: four inks); ``icc`` is an embedded ICC profile.
+    ``compression`` is "deflate" (``deflate=True``) or "lzw", each with horizontal
+    differencing (integer samples only), or "packbits"; a fourth (second) sample is
+    ``extra_samples`` (TIFF 6.0: 0 unspecified, 1 associated alpha, 2 alpha) unless
+    ``photometric`` is 5 (CMYK: four inks); ``icc`` is an embedded ICC profile.
     ``planar`` stores each sample's plane after the other's (PlanarConfiguration 2);
     ``tile`` (width, length) stores tiles, padded where they overhang, not strips.
     """
     h, w, c = samples.shape
-    assert not (deflate and tile), "the predictor here differences whole rows, not tiles"
+    compression = compression or ("deflate" if deflate else None)
+    predictor = compression in ("deflate", "lzw")
     rows_per_strip = rows_per_strip or h
-    arr = samples.astype(np.int64) if deflate else samples
-    if deflate:  # predictor 2: each sample minus its left neighbour, modulo 2**16
-        arr[:, 1:] = (arr[:, 1:] - arr[:, :-1]) % 65536
-    planes = [arr[..., i : i + 1] for i in range(c)] if planar else [arr]
+    planes = [samples[..., i : i + 1] for i in range(c)] if planar else [samples]
     if tile:
         tw, th = tile
         blocks = []
         for plane in planes:
             for y in range(0, h, th):
                 for x in range(0, w, tw):
-                    block = np.zeros((th, tw, plane.shape[2]), arr.dtype)
+                    block = np.zeros((th, tw, plane.shape[2]), samples.dtype)
                     part = plane[y : y + th, x : x + tw]
                     block[: part.shape[0], : part.shape[1]] = part
                     blocks.append(block)
     else:
         blocks = [p[r : r + rows_per_strip] for p in planes for r in range(0, h, rows_per_strip)]
+    if predictor:  # predictor 2: each sample minus its left neighbour (in its block), mod 2**16
+        blocks = [b.astype(np.int64) for b in blocks]
+        for block in blocks:
+            block[:, 1:] = (block[:, 1:] - block[:, :-1]) % 65536
     strips = [block.astype(samples.dtype.newbyteorder(order)).tobytes() for block in blocks]
-    if deflate:
-        strips = [zlib.compress(strip) for strip in strips]
+    encode = {"deflate": zlib.compress, "lzw": _lzw, "packbits": _packbits, None: bytes}
+    strips = [encode[compression](strip) for strip in strips]
     n = len(strips)
     tags = {
         256: (4, [w]),
         257: (4, [h]),
         258: (3, [samples.dtype.itemsize * 8] * c),
-        259: (3, [8 if deflate else 1]),
+        259: (3, [{"deflate": 8, "lzw": 5, "packbits": 32773, None: 1}[compression]]),
         262: (3, [(2 if c >= 3 else 1) if photometric is None else photometric]),
         277: (3, [c]),
         284: (3, [2 if planar else 1]),
-        317: (3, [2 if deflate else 1]),
+        317: (3, [2 if predictor else 1]),
         339: (3, [3 if samples.dtype.kind == "f" else 1] * c),
     }
     offsets_tag = 324 if tile else 273
@@ -311,14 +335,26 @@ UPRIGHT = {
 }
 
 
-@pytest.mark.parametrize("planar", [False, True], ids=["chunky", "planar"])
+@pytest.mark.parametrize(
+    ("planar", "compression"),
+    [(False, None), (True, None), (True, "deflate")],
+    ids=["chunky", "planar", "planar-deflate"],
+)
 @pytest.mark.parametrize("turn", sorted(UPRIGHT))
-def test_16bit_tiff_each_orientation_in_either_layout(tmp_path, planar, turn):
-    """Planes read from the file's bytes are turned too (a reviewer: Pillow's TIFF load
-    turns what it decodes and drops the tag, so separate planes came back as stored)."""
+def test_16bit_tiff_each_orientation_in_either_layout(tmp_path, planar, compression, turn):
+    """Separate planes, read again plane by plane, are turned too (a reviewer: Pillow's
+    TIFF load turns what it decodes and drops the tag, so they came back as stored)."""
     samples = random_samples(3, shape=(5, 9))
     path = tmp_path / "turned.tif"
-    write_tiff(path, samples, "<", rows_per_strip=2, planar=planar, orientation=turn)
+    write_tiff(
+        path,
+        samples,
+        "<",
+        rows_per_strip=2,
+        planar=planar,
+        orientation=turn,
+        compression=compression,
+    )
     expected = UPRIGHT[turn](reference(samples))
     np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=1e-12)
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image, TiffImagePlugin, UnidentifiedImageError
 from test_images import cmyk_k_only_icc, curv_gamma, eotf, gamma_of, gray_icc, needs_lcms
-from test_images_deep import random_samples, reference, write_tiff
+from test_images_deep import random_samples, reference, write_png16, write_tiff
 
 from scratchfab.design.images import load_image
 
@@ -245,10 +245,29 @@ def test_uncompressed_16bit_cmyk_planes(tmp_path):
     np.testing.assert_allclose(load_image(path), naive_cmyk_luminance(cmyk), rtol=0, atol=2e-5)
 
 
-def test_compressed_16bit_planes_are_read_at_8_bits(tmp_path):
-    # libtiff hands Pillow each plane's high bytes, whatever it is asked for (a known limit).
-    samples = random_samples(3, seed=16)
-    path = tmp_path / "planar_z.tif"
-    write_tiff(path, samples, ">", deflate=True, rows_per_strip=4, planar=True)
-    expected = reference((samples >> 8) * 257)
-    np.testing.assert_allclose(load_image(path), expected, rtol=0, atol=1e-12)
+@pytest.mark.parametrize("compression", ["deflate", "lzw", "packbits"])
+@pytest.mark.parametrize(
+    ("order", "rows", "tile", "c"),
+    [("<", 4, None, 3), (">", None, None, 4), (">", None, (16, 16), 3), ("<", None, (16, 32), 4)],
+)
+def test_compressed_16bit_planes_read_like_the_same_16bit_png(
+    tmp_path, compression, order, rows, tile, c
+):
+    # libtiff hands Pillow each compressed plane's high bytes, whatever it is asked for.
+    samples = random_samples(c, shape=(20, 35), seed=16)
+    tif, png = tmp_path / "planar_z.tif", tmp_path / "same.png"
+    write_tiff(
+        tif, samples, order, rows_per_strip=rows, planar=True, tile=tile, compression=compression
+    )
+    write_png16(png, samples)
+    got = load_image(tif)
+    np.testing.assert_array_equal(got, load_image(png))
+    # Not the 8-bit picture: the low bytes count.
+    assert np.abs(got - reference((samples >> 8) * 257)).max() > 1e-4
+
+
+def test_compressed_16bit_cmyk_planes(tmp_path):
+    cmyk = random_samples(4, seed=17)
+    path = tmp_path / "planar_cmyk_z.tif"
+    write_tiff(path, cmyk, ">", rows_per_strip=2, photometric=5, planar=True, compression="lzw")
+    np.testing.assert_allclose(load_image(path), naive_cmyk_luminance(cmyk), rtol=0, atol=2e-5)

@@ -22,9 +22,9 @@ the default):
 16-bit PNGs and TIFFs keep their 16 bits: grey ones Pillow reads as such; colour ones
 (RGB, RGBA, CMYK) and grey-with-alpha PNGs, which Pillow opens at 8 bits, are read a
 second time for the low bytes; grey-with-alpha TIFFs, which Pillow refuses, are opened
-with its table of TIFF layouts extended for the call; an uncompressed TIFF of separate
-16-bit planes, whose bytes Pillow reads as 8-bit samples, is read from the file's bytes
-(a compressed one keeps 8 bits: libtiff hands Pillow each plane's high bytes). EXIF
+with its table of TIFF layouts extended for the call; a TIFF of separate 16-bit planes
+(Pillow reads an uncompressed one's bytes as 8-bit samples, and libtiff hands it each
+compressed plane's high bytes) is read again plane by plane, as 16-bit grey images. EXIF
 orientation turns them as it turns the image. A TIFF's associated (premultiplied) alpha
 is divided out of the 16-bit colour where alpha > 0, and 16-bit and float WhiteIsZero
 grey is inverted (Pillow inverts only 8-bit grey; it refuses big-endian 16-bit such
@@ -122,8 +122,8 @@ def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
             image.load()
             deep = None
             if read is not None:
-                # Pillow's decoder turned what it read of a TIFF; planes read from the
-                # file's bytes are as stored
+                # Pillow's decoder turned what it read of a TIFF; planes read again one
+                # by one are as stored
                 turn = stored if read.planes else orientation(image)
                 deep = upright(deep_samples(data, image, read), turn)
             # In place (a copy of a 12-MP photo is 48 MB), once upright has read the tag.

@@ -5,15 +5,16 @@ alpha in a PNG) at 8 bits, keeping each sample's high byte. Its own decoders (PN
 and interlacing, TIFF compressions) read the file a second time with rawmodes that keep
 the low bytes instead. A 16-bit grey-and-alpha TIFF and a big-endian 16-bit WhiteIsZero
 grey one, which Pillow refuses, are opened with its table of TIFF layouts extended for
-the call; an uncompressed TIFF of separate planes,
-whose bytes Pillow reads as 8-bit samples, is read from the file's bytes. A TIFF's
-associated alpha is divided out of the colour, and EXIF orientation turns the samples as
-it turns the image.
+the call; a TIFF of separate 16-bit planes (Pillow reads an uncompressed one's bytes as
+8-bit samples, and libtiff hands it a compressed one's high bytes) is read again plane by
+plane, each as a 16-bit grey image. A TIFF's associated alpha is divided out of the
+colour, and EXIF orientation turns the samples as it turns the image.
 """
 
 from __future__ import annotations
 
 import io
+import struct
 import sys
 import threading
 from typing import Any, NamedTuple
@@ -55,8 +56,15 @@ _DEEP_RAWMODES = {
 #: separate planes), and where the pixels are.
 _BITS_PER_SAMPLE, PHOTOMETRIC, _EXTRA_SAMPLES, _PLANAR = 258, 262, 338, 284
 _IMAGE_WIDTH, _IMAGE_LENGTH, _COMPRESSION, _SAMPLES_PER_PIXEL = 256, 257, 259, 277
-_STRIP_OFFSETS, _ROWS_PER_STRIP = 273, 278
-_TILE_WIDTH, _TILE_LENGTH, _TILE_OFFSETS = 322, 323, 324
+_STRIP_OFFSETS, _ROWS_PER_STRIP, _STRIP_COUNTS = 273, 278, 279
+_TILE_WIDTH, _TILE_LENGTH, _TILE_OFFSETS, _TILE_COUNTS = 322, 323, 324, 325
+_SAMPLE_FORMAT = 339
+_STRIPS = _STRIP_OFFSETS, _STRIP_COUNTS
+#: Tags a separate plane's directory (:func:`_planes`) takes from the file's: compression,
+#: fill order, predictor, JPEG tables; and those written as LONG (the rest are SHORT).
+_PLANE_TAGS = (_COMPRESSION, 266, 317, 347)
+_LONG_TAGS = {_IMAGE_WIDTH, _IMAGE_LENGTH, _ROWS_PER_STRIP, _TILE_WIDTH, _TILE_LENGTH}
+_LONG_TAGS |= {_STRIP_OFFSETS, _STRIP_COUNTS, _TILE_OFFSETS, _TILE_COUNTS}
 TIFF_MAGIC = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
 #: Pillow's TIFF format keys (byte order, photometric, sample format, fill order, bits,
 #: extra samples) for 16-bit grey with a second sample, which it does not list: read as
@@ -111,9 +119,9 @@ class DeepRead(NamedTuple):
 
     high: list[Any]
     #: None when the first read takes every byte (a 16-bit grey-and-alpha TIFF) or when
-    #: the samples are read from the file's bytes (``planes``).
+    #: the samples are read plane by plane (``planes``).
     low: list[Any] | None
-    #: An uncompressed TIFF of separate 16-bit planes, which Pillow misreads.
+    #: A TIFF of separate 16-bit planes, which Pillow reads at 8 bits or misreads.
     planes: bool = False
 
 
@@ -140,12 +148,10 @@ def deep_read(opened: Image.Image) -> DeepRead | None:
     """The tiles that read the image's 16 bits, or None unless it is 16-bit colour or LA."""
     tiles = list(getattr(opened, "tile", []))
     if tiff_tag(opened, _PLANAR) == 2 and len(opened.getbands()) > 1:
-        deep = set(tiff_tag(opened, _BITS_PER_SAMPLE) or ()) == {16}
-        raw = tiff_tag(opened, _COMPRESSION) in (None, 1)
-        # Compressed, libtiff reads each plane's high bytes whatever the rawmode: 8 bits.
-        if not (raw and deep and tiles):
+        if set(tiff_tag(opened, _BITS_PER_SAMPLE) or ()) != {16} or not tiles:
             return None
-        # The first plane's tiles alone: Pillow has no rawmode for some others ("a").
+        # The first plane's tiles alone (Pillow has no rawmode for some others, "a"); a
+        # compressed file's one tile reads every plane's high bytes.
         first = [tile for tile in tiles if _rawmode(tile) == _rawmode(tiles[0])]
         return DeepRead(first, None, planes=True)
     if tiff_tag(opened, _BITS_PER_SAMPLE) == (16, 16):  # opened by _GREY_AND_ALPHA_16
@@ -221,35 +227,91 @@ def _unassociated(samples: np.ndarray, opened: Image.Image) -> np.ndarray:
 
 
 def _planes(data: bytes, opened: TiffImagePlugin.TiffImageFile) -> np.ndarray:
-    """An uncompressed TIFF's separate 16-bit planes, (h, w, planes) uint16.
+    """A TIFF's separate 16-bit planes, (h, w, planes) uint16, each decoded by Pillow.
 
-    Pillow reads their bytes as 8-bit samples (a wrong picture). Each plane's strips or
-    tiles follow the one before's (TIFF 6.0, PlanarConfiguration 2); a tile's rows are
-    stored whole where it overhangs the image's right edge.
+    Pillow reads an uncompressed file's planes as 8-bit samples (a wrong picture) and gets
+    a compressed one's high bytes from libtiff. Each plane is a 16-bit grey image: the
+    file is read again with a directory for each plane appended, naming that plane's
+    strips or tiles (TIFF 6.0, PlanarConfiguration 2: each plane's follow the one
+    before's) and the file's compression and predictor, so Pillow's decoders (libtiff's
+    for a compressed file) read every byte.
     """
     tags = opened.tag_v2
     width, height = tags[_IMAGE_WIDTH], tags[_IMAGE_LENGTH]
-    if _TILE_OFFSETS in tags:
-        across, down, offsets = tags[_TILE_WIDTH], tags[_TILE_LENGTH], tags[_TILE_OFFSETS]
+    tiled = _TILE_OFFSETS in tags
+    where: dict[int, int]
+    if tiled:
+        across, down = tags[_TILE_WIDTH], tags[_TILE_LENGTH]
+        where = {_TILE_WIDTH: across, _TILE_LENGTH: down}
     else:
-        across, down, offsets = width, tags.get(_ROWS_PER_STRIP, height), tags[_STRIP_OFFSETS]
+        across, down = width, tags.get(_ROWS_PER_STRIP, height)
+        where = {_ROWS_PER_STRIP: down}
     if not across > 0 < down:
         raise ValueError(f"strips or tiles of {across} x {down} pixels")
-    per_row = -(-width // across)
-    per_plane = per_row * -(-height // down)
+    per_plane = -(-width // across) * -(-height // down)
     planes = tags.get(_SAMPLES_PER_PIXEL, 1)
-    if len(offsets) < planes * per_plane:
+    offsets_tag, counts_tag = (_TILE_OFFSETS, _TILE_COUNTS) if tiled else _STRIPS
+    offsets = tags[offsets_tag]
+    # Pillow's own reader (uncompressed) does not need the byte counts, libtiff does.
+    counts = tags.get(counts_tag) or (2 * across * down,) * len(offsets)
+    if min(len(offsets), len(counts)) < planes * per_plane:
         raise ValueError(f"{len(offsets)} strip or tile offsets for {planes} planes")
-    dtype = np.dtype("<u2" if tags.prefix == b"II" else ">u2")
+    kept = {tag: tags[tag] for tag in _PLANE_TAGS if tag in tags}
+    if _SAMPLE_FORMAT in tags:
+        kept[_SAMPLE_FORMAT] = tags[_SAMPLE_FORMAT][:1]
+    order = "<" if tags.prefix == b"II" else ">"
+    at = len(data) + len(data) % 2  # the first directory, on a word boundary
+    directories = []
+    for plane in range(planes):
+        part = slice(plane * per_plane, (plane + 1) * per_plane)
+        fields = {
+            **kept,
+            _IMAGE_WIDTH: width,
+            _IMAGE_LENGTH: height,
+            _BITS_PER_SAMPLE: 16,
+            PHOTOMETRIC: 1,
+            _SAMPLES_PER_PIXEL: 1,
+            _PLANAR: 1,
+            **where,
+            offsets_tag: offsets[part],
+            counts_tag: counts[part],
+        }
+        directory = _directory(fields, order, at, last=plane == planes - 1)
+        directories.append(directory)
+        at += len(directory)
+    # A classic header (a BigTIFF's pixels stay where they are) before the file's bytes.
+    head = tags.prefix + struct.pack(order + "HI", 42, len(data) + len(data) % 2)
+    again = b"".join([head, memoryview(data)[8:], bytes(len(data) % 2), *directories])
     samples = np.empty((height, width, planes), np.uint16)
-    for i, offset in enumerate(offsets[: planes * per_plane]):
-        plane, k = divmod(i, per_plane)
-        row, col = divmod(k, per_row)
-        y0, x0 = row * down, col * across
-        rows = min(down, height - y0)  # those in the image (a tile stores `down`)
-        block = np.frombuffer(data, dtype, rows * across, offset).reshape(rows, across)
-        samples[y0 : y0 + down, x0 : x0 + across, plane] = block[: height - y0, : width - x0]
+    with Image.open(io.BytesIO(again)) as pages:
+        for plane in range(planes):
+            pages.seek(plane)
+            samples[..., plane] = np.asarray(pages)
     return samples
+
+
+def _directory(fields: dict[int, Any], order: str, at: int, last: bool) -> bytes:
+    """A TIFF directory written at ``at``, its values after its entries, then the next.
+
+    Values are SHORT or LONG by tag (:data:`_LONG_TAGS`), bytes UNDEFINED.
+    """
+    entries, values = b"", b""
+    values_at = at + 2 + 12 * len(fields) + 4
+    for tag, value in sorted(fields.items()):
+        if isinstance(value, bytes):
+            kind, count, raw = 7, len(value), value
+        else:
+            items = tuple(value) if isinstance(value, tuple) else (value,)
+            code = "I" if tag in _LONG_TAGS else "H"
+            kind, count = 4 if code == "I" else 3, len(items)
+            raw = struct.pack(f"{order}{count}{code}", *items)
+        if len(raw) <= 4:
+            entries += struct.pack(order + "HHI", tag, kind, count) + raw.ljust(4, b"\0")
+        else:
+            entries += struct.pack(order + "HHII", tag, kind, count, values_at + len(values))
+            values += raw + bytes(len(raw) % 2)
+    following = struct.pack(order + "I", 0 if last else values_at + len(values))
+    return struct.pack(order + "H", len(fields)) + entries + following + values
 
 
 def _unpremultiply(samples: np.ndarray) -> None:
