@@ -145,6 +145,14 @@ def _job_gcode(path: Path) -> Path:
     "($X) and its work zero set again (else asked; refused under --yes).",
 )
 @click.option(
+    "--zero-here",
+    is_flag=True,
+    help="The tool stands at the board's origin point (the profile's, e.g. its lower-left "
+    "corner): once connected, set the work zero there (X and Y, the profile's G10 L20 "
+    "command) before streaming. For a controller without homing that resets as its port "
+    "opens; with --resume it stands for --homed. Asked to confirm unless --yes.",
+)
+@click.option(
     "--check",
     "check_first",
     is_flag=True,
@@ -205,6 +213,7 @@ def stream(
     resume: bool,
     recut_unsure: bool,
     homed: bool,
+    zero_here: bool,
     check_first: bool,
     machine: str | None,
     margin: int,
@@ -241,6 +250,7 @@ def stream(
         z_threshold=z_threshold,
         lift=lift,
         homed=homed,
+        zero_here=zero_here,
     )
     bar = _ProgressLine()
 

@@ -1022,6 +1022,24 @@ class Streamer:
                     return self.status
         raise _Fault("no status report from the controller", kind="silent")
 
+    def set_work_zero(self, command: str) -> tuple[float, float, float] | None:
+        """Send ``command`` (a ``G10 L20`` that zeroes where the tool stands), read the offset.
+
+        Returns:
+            The work offset read back (mm; None where neither ``$#`` nor a report tells).
+
+        Raises:
+            StreamFault: The controller refused the line or did not answer; nothing moved.
+        """
+        try:
+            self._command(command)
+            self._wco = self.info.wco = None  # read anew, not the offset before the line
+            self._read_work_offset()
+            self.info.status = self._status_now()
+        except _Fault as fault:
+            raise StreamFault(f"{command}: {fault}; nothing moved") from None
+        return self.info.wco
+
     # ------------------------------------------------------------------ check mode
 
     def check(self, program: Program) -> CheckReport:
@@ -1139,10 +1157,12 @@ class Streamer:
         start: int = 0,
         preamble: Sequence[str] = (),
         resume: bool = False,
+        zeroed: str | None = None,
     ) -> None:
         """Send ``program.blocks[start:]`` after ``preamble``; returns when the job is done.
 
-        ``resume`` marks the journal session as a continuation of the earlier ones.
+        ``resume`` marks the journal session as a continuation of the earlier ones;
+        ``zeroed``: the work zero command sent at connect (``--zero-here``), journaled.
 
         Raises:
             StreamFault: A controller error, alarm, reset, stall or lost connection (the
@@ -1173,6 +1193,7 @@ class Streamer:
             self.info.inch_reports,
             self._step_mm(),
             self._homing(),
+            zeroed,
         )
         self._journal = journal
         self._program = program

@@ -6,7 +6,9 @@ line, which the reader skips). Events:
 - ``{"ev": "start", "file": ..., "sha256": ..., "blocks": N, "resume": bool, ...}``; the
   file relative to the job folder when both lie in one job (:meth:`Journal.recorded`), for
   messages only: a resume knows its file by ``sha256``; ``"homing"``: GRBL's ``$22``
-  (true, false, null where not read), for a resume's advice on finding the position
+  (true, false, null where not read), for a resume's advice on finding the position;
+  ``"zeroed"`` (only where sent): the ``G10 L20`` command ``--zero-here`` sent once
+  connected, where the tool stood
 - ``{"ev": "ack", "i": block, "line": file_line}`` for each ``ok`` of a file block
   (``{"ev": "ack", "pre": k}`` for the k-th resume preamble block)
 - ``{"ev": "error", "i": block, "line": file_line, "code": N}`` (``"pre": k`` for a resume
@@ -175,6 +177,7 @@ class Journal:
         inches: bool = False,
         steps_mm: Sequence[float] | None = None,
         homing: bool | None = None,
+        zeroed: str | None = None,
     ) -> None:
         """Begin a run of ``program`` at block ``start`` (a fresh one, or a resume).
 
@@ -186,7 +189,8 @@ class Journal:
         ``steps_mm``: GRBL's step per axis (mm, ``$100``-``$102``; 0 or None: not known),
         for the moves it may drop (:func:`last_surely_run`). ``homing``: GRBL's ``$22``
         (None: not read), so that a resume's advice before connecting knows whether ``$H``
-        can find the position (:func:`run_homing`).
+        can find the position (:func:`run_homing`). ``zeroed``: the work zero command
+        sent where the tool stood once connected (``--zero-here``), recorded where given.
         """
         self.write(
             "start",
@@ -205,6 +209,7 @@ class Journal:
             inches=inches,
             steps=None if steps_mm is None else [float(v) for v in steps_mm],
             homing=homing,
+            **({} if zeroed is None else {"zeroed": zeroed}),
         )
 
     def recorded(self, file: str | os.PathLike[str]) -> str:
@@ -308,6 +313,8 @@ def check_event(ev: dict[str, Any], blocks: int | None, where: str) -> int | Non
                 raise _expected(where, key, "null or [x, y, z] in mm", ev[key])
         if ev.get("homing") not in (True, False, None):
             raise _expected(where, "homing", "true, false or null (GRBL's $22)", ev.get("homing"))
+        if not isinstance(ev.get("zeroed", ""), str):
+            raise _expected(where, "zeroed", "a G10 L20 command (a string)", ev.get("zeroed"))
         steps = ev.get("steps")
         if steps is not None and not all(0.0 <= v < math.inf for v in xyz_of(steps) or [-1.0]):
             raise _expected(where, "steps", "null or [x, y, z] mm per step, each 0 or more", steps)
@@ -354,6 +361,13 @@ def run_homing(events: Sequence[dict[str, Any]]) -> bool | None:
     starts = [ev for ev in events if ev.get("ev") == "start"]
     homing = starts[-1].get("homing") if starts else None
     return homing if isinstance(homing, bool) else None
+
+
+def run_zeroed(events: Sequence[dict[str, Any]]) -> str | None:
+    """The work zero command the journal's last run sent where the tool stood, else None."""
+    starts = [ev for ev in events if ev.get("ev") == "start"]
+    zeroed = starts[-1].get("zeroed") if starts else None
+    return zeroed if isinstance(zeroed, str) else None
 
 
 def xyz_of(value: Any) -> tuple[float, float, float] | None:

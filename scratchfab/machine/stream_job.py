@@ -27,8 +27,10 @@ from scratchfab.machine.sender import (
     StreamOptions,
     StreamProgress,
     homing_of,
+    machine_coordinates,
     open_port,
     refind,
+    work_zero_command,
     xyz_text,
     zero_kept_advice,
 )
@@ -44,6 +46,7 @@ from scratchfab.machine.sender_journal import (
     run_homing,
     run_zero,
     run_zero_in_inches,
+    run_zeroed,
     xyz_of,
 )
 from scratchfab.machine.sender_program import (
@@ -90,6 +93,9 @@ class StreamRequest:
             (:attr:`StreamOptions.lift`).
         homed: The machine was homed, or its work zero set again, since an alarm or a
             reset of the controller that may have lost its position (:func:`ask_if_homed`).
+        zero_here: The tool stands at the board's origin point: once connected, set the
+            work zero there with the profile's command (:func:`zero_here_command`), X and
+            Y only; on a resume it stands for ``homed``.
     """
 
     gcode: Path
@@ -108,6 +114,7 @@ class StreamRequest:
     z_threshold: float | None = None
     lift: bool = True
     homed: bool = False
+    zero_here: bool = False
 
     def __post_init__(self) -> None:
         """Take a path given as ``str`` (a Python caller's habit) as a :class:`Path`."""
@@ -337,6 +344,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     check_journal_file(journal_file, req.gcode)
     planned = _planned(req)
     profile = _profile_for(req, planned, cb.say)
+    zero = zero_here_command(profile) if req.zero_here else None
     header = _read_header(req.gcode)
     if header.not_optimized:  # planned so on purpose, or not: said, never refused
         cb.say(f"note: {req.gcode}: this G-code cuts the design's initial layout (not optimized)")
@@ -351,7 +359,7 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     check_tool_up_at_end(program)
     journal = Journal(journal_file).open()  # locked: a second stream of this job refuses
     try:
-        _stream_locked(req, cb, journal, program, profile)
+        _stream_locked(req, cb, journal, program, profile, zero)
     except BaseException:
         with contextlib.suppress(ScratchfabError):
             journal.close(remove_if_empty=True)
@@ -366,8 +374,12 @@ def _stream_locked(
     journal: Journal,
     program: Program,
     profile: MachineProfile | None,
+    zero: tuple[str, str] | None = None,
 ) -> None:
-    """:func:`stream_file` once the journal is open and locked."""
+    """:func:`stream_file` once the journal is open and locked.
+
+    ``zero``: ``--zero-here``'s (point, command) (:func:`zero_here_command`), else None.
+    """
     journal_file = journal.path
     start = 0
     preamble: list[str] = []
@@ -424,7 +436,7 @@ def _stream_locked(
             )
             return
         homing = run_homing(events)  # GRBL's $22 as the run resumed read it
-        lost = ask_if_homed(events, req.homed, req.port, cb.confirm, cb.say, profile, homing)
+        lost = ask_if_homed(events, req.homed, req.port, cb.confirm, cb.say, profile, homing, zero)
         asked = _lost_event(events) is not None
         preamble = resume_preamble(program, start)
         n_done = sum(1 for a, b in program.strokes if all(i in done for i in range(a, b + 1)))
@@ -455,7 +467,8 @@ def _stream_locked(
         )
         if resume and events is not None:
             inches = info.inch_reports
-            _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches, profile)
+            if zero is None:  # (--zero-here sets it anew)
+                _check_same_zero(events, info.wco, info.g92, journal_file, cb.say, inches, profile)
             if homing is None:  # not recorded (an older journal): as read now
                 homing = homing_of(info.settings)
             inches = inches or run_zero_in_inches(events)
@@ -466,18 +479,21 @@ def _stream_locked(
             if reset is not None:  # asked here, connected, before anything moves
                 events = [*events, reset]
                 lost = ask_if_homed(
-                    events, req.homed, req.port, cb.confirm, cb.say, profile, homing
+                    events, req.homed, req.port, cb.confirm, cb.say, profile, homing, zero
                 )
             if lost:
                 _say_lost_position(events, cb.say, profile=profile, homing=homing)
-        booted = None if resume else booted_zero_warning(info)
+        booted = None if resume or zero is not None else booted_zero_warning(info)
         if booted is not None:
             cb.say(f"warning: {booted}")
         program = program.timed_for(eta_settings(info.settings, profile))  # the ETA's times
-        wpos = info.status.wpos if start == 0 else None  # a fresh stream starts there
+        wco, wpos = info.wco, info.status.wpos
+        if zero is not None:
+            wco, wpos = _zeroed_here(info, zero[1], profile, cb.say)
+        wpos = wpos if start == 0 else None  # a fresh stream starts there
         findings = compare(
             info.settings,
-            info.wco,
+            wco,
             program,
             profile,
             grbl_seconds=program.total_seconds,
@@ -497,6 +513,8 @@ def _stream_locked(
             _check(streamer, program, req.gcode, cb.say)
         # check mode sent every line, and nothing moved
         spared = "nothing was cut (check mode moves nothing)" if req.check else "nothing was sent"
+        if zero is not None and cb.confirm is not None:
+            _ask_zero_here(zero, cb.confirm, spared)
         if cb.confirm is not None and not _ask(
             cb.confirm,
             f"Stream {len(program.blocks) - start} lines of {req.gcode} to {req.port}{again}? "
@@ -505,9 +523,19 @@ def _stream_locked(
             spared,
         ):
             raise ScratchfabError(f"not confirmed; {spared}")
+        if zero is not None:
+            assert wco is not None  # (:func:`_zeroed_here` gave it)
+            _set_zero_here(streamer, zero[1], wco, info.inch_reports, cb.say)
         try:
             try:
-                streamer.stream(program, journal, start=start, preamble=preamble, resume=resume)
+                streamer.stream(
+                    program,
+                    journal,
+                    start=start,
+                    preamble=preamble,
+                    resume=resume,
+                    zeroed=None if zero is None else zero[1],
+                )
             except StreamFault as exc:
                 exc.args = (fault_lines(str(exc)), *exc.args[1:])
                 raise
@@ -521,6 +549,105 @@ def _stream_locked(
                 _say_lost_position(events, cb.say, again=True, profile=profile, homing=homing)
     finally:
         ser.close()
+
+
+def zero_here_command(profile: MachineProfile | None) -> tuple[str, str]:
+    """``--zero-here``'s board point and command: ``("lower-left corner", "G10 L20 P0 X20 Y20")``.
+
+    The profile's own work zero command (X and Y at the board's origin point, as the
+    G-code writes them): where the tool stands once connected becomes that point, which
+    holds on a controller without homing that resets as its port opens (its machine zero
+    is where the tool stands then).
+
+    Raises:
+        ScratchfabError: No profile is known (the board's point and its numbers are not),
+            or the profile works in machine coordinates (homing sets it; no work zero).
+    """
+    if profile is None:
+        raise ScratchfabError(
+            "--zero-here sets the work zero with the machine profile's command at the board's "
+            "origin point: give --machine (or stream a job's G-code, which names its "
+            "machine); nothing was sent"
+        )
+    if machine_coordinates(profile):
+        raise ScratchfabError(
+            f"--zero-here: machine '{profile.name}' works in GRBL's machine coordinates "
+            '([envelope] coordinates = "machine"), which homing sets ($H): it takes no '
+            "work zero; home it and stream without --zero-here; nothing was sent"
+        )
+    return work_zero_command(profile)
+
+
+def _ask_zero_here(zero: tuple[str, str], confirm: Confirm, spared: str) -> None:
+    """Ask whether the tool stands at ``--zero-here``'s point (under ``--yes`` the flag says so).
+
+    Raises:
+        ScratchfabError: The person said no, or no answer came; ``spared`` was not done.
+    """
+    point, command = zero
+    question = (
+        f"--zero-here: does the tool stand at the board's {point}? The work zero is set "
+        f"there (`{command}`) before streaming"
+    )
+    if not _ask(confirm, question, ASKED_ONLY, spared):
+        raise ScratchfabError(
+            f"not confirmed; {spared}: jog the tool to the board's {point} first (or stream "
+            "without --zero-here)"
+        )
+
+
+def _zeroed_here(
+    info: ControllerInfo, command: str, profile: MachineProfile | None, say: Say
+) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The work offset and position ``command`` (``G10 L20 P0 X.. Y..``) will give, unsent.
+
+    So that the checks before anything is sent (the travel, the board's place) see the
+    zero that will be set. A Z tool is told that Z keeps its offset.
+
+    Raises:
+        ScratchfabError: The controller's machine position or work offset is not known
+            (nothing to check the zero against); nothing was sent.
+    """
+    mpos, wco = info.status.mpos, info.wco
+    if mpos is None or wco is None:
+        raise ScratchfabError(
+            "--zero-here: the controller's status reports give no machine position or work "
+            "offset ($10=1 makes them give MPos), so the zero it sets cannot be checked; "
+            "nothing was sent"
+        )
+    words = dict((w[0], float(w[1:])) for w in command.split()[3:])
+    x, y = words["X"], words["Y"]
+    if profile is not None and profile.tool_control.mode == "z":
+        say(
+            f"note: --zero-here sets X and Y only: work Z keeps its offset ({wco[2]:g} mm), so "
+            "Z0 must be the board's surface already (touch it and send `G10 L20 P0 Z0`)"
+        )
+    wpos = (x, y, mpos[2] - wco[2])
+    return (mpos[0] - x, mpos[1] - y, wco[2]), wpos
+
+
+def _set_zero_here(
+    streamer: Streamer,
+    command: str,
+    expected: tuple[float, float, float],
+    inches: bool,
+    say: Say,
+) -> None:
+    """Send ``--zero-here``'s ``command`` and check the work offset it gave.
+
+    Raises:
+        ScratchfabError: The controller refused it, or its offset is not ``expected``
+            (the tool moved since connecting?); nothing moved.
+    """
+    got = streamer.set_work_zero(f"G21 {command}")
+    if got is None or not same_offset(got, expected, inches):
+        now = "unknown" if got is None else f"{xyz_text(got)} mm"
+        raise ScratchfabError(
+            f"--zero-here: after `{command}` the work offset is {now}, not "
+            f"{xyz_text(expected)} mm as the position at connect gave (did the machine move "
+            "since?); check the board's zero before streaming again; nothing moved"
+        )
+    say(f"work zero set here: `{command}` (work offset now {xyz_text(got)} mm)")
 
 
 @dataclass(frozen=True)
@@ -1273,6 +1400,7 @@ def ask_if_homed(
     say: Say,
     profile: MachineProfile | None = None,
     homing: bool | None = None,
+    zero: tuple[str, str] | None = None,
 ) -> bool:
     """Before a resume where the position may be lost since the run: homed since?
 
@@ -1285,7 +1413,10 @@ def ask_if_homed(
     asked before anything is sent, and under ``--yes`` (``confirm`` None) the resume is
     refused. The emulator moves nothing: it is neither asked nor refused. What to do is
     said for ``profile``'s coordinates and GRBL's ``homing`` (``$22``; None: not known),
-    as :func:`~scratchfab.machine.sender.refind` words it.
+    as :func:`~scratchfab.machine.sender.refind` words it. ``zero`` (``--zero-here``'s
+    point and command, :func:`zero_here_command`) answers as ``homed`` does: the work zero
+    is set again where the tool stands; where the journal's run was zeroed so, a refusal
+    names it as a way.
 
     Returns:
         True where :func:`lost_position_warning` is to be said once connected and again at
@@ -1299,16 +1430,28 @@ def ask_if_homed(
     if warning is None:
         return False
     how = refind(profile, homing)
-    if homed:
+    if homed or zero is not None:
         by = _lost_by(_lost_event(events) or {})
+        since = (
+            f"--homed: the machine was {how.done} since"
+            if zero is None
+            else f"--zero-here: the work zero is set again here (`{zero[1]}` at the board's "
+            f"{zero[0]})"
+        )
         say(
             f"note: the run before this resume ended with {by}, which may have lost the "
-            f"position; --homed: the machine was {how.done} since"
+            f"position; {since}"
         )
         return False
     if is_emulator(port):
         return True
     then = f"{how.do}, then run the same command with --homed"
+    zeroed = run_zeroed(events)
+    if zeroed is not None and not machine_coordinates(profile):
+        then += (
+            " (the run was zeroed with --zero-here: jogging the tool back to that point and "
+            "resuming with --zero-here instead does both)"
+        )
     if confirm is None:
         raise ScratchfabError(
             f"refusing to resume with --yes: {warning}; {then} (or without --yes to be "

@@ -1,0 +1,149 @@
+"""``stream --zero-here``: the work zero set where the tool stands, once connected.
+
+A controller without homing that resets as its port opens (most Arduino boards) makes
+machine zero wherever the tool stands then, and a work offset kept in its EEPROM from an
+earlier session puts the work zero that far away. ``--zero-here`` sends the profile's own
+``G10 L20 P0 X.. Y..`` after the reset, so the point where the tool stands becomes the
+board's origin point. Every ``grblsim://`` open is such a boot at machine zero, its
+``wco=`` the EEPROM's offset; the emulator records each move in work coordinates, so the
+first move's start is where the tool stood, as the G-code counts it.
+"""
+
+from __future__ import annotations
+
+import pytest
+from test_stream import read_record
+from test_stream_cli_input import _stream
+from test_stream_lift import servo_job
+
+from scratchfab.errors import ConfigError, ScratchfabError
+from scratchfab.machine.profile import load_profile
+from scratchfab.machine.sender import work_zero_command
+from scratchfab.machine.sender_journal import check_event, read_journal
+from scratchfab.machine.stream_job import ask_if_homed
+
+PLOTTER = "grbl-plotter-scribe"
+GRBL = "$130=300&$131=200"
+
+
+def _port(tmp_path, name: str, extra: str = "") -> tuple[str, object]:
+    rec = tmp_path / f"{name}.jsonl"
+    return f"grblsim://?baud=0&time_scale=0.01&wco=12,-7,0&{GRBL}&record={rec}{extra}", rec
+
+
+def _first_exec(record: list[dict]) -> dict:
+    return next(e for e in record if e["ev"] == "exec")
+
+
+def _received(record: list[dict]) -> list[str]:
+    return [e["text"] for e in record if e["ev"] == "rx"]
+
+
+def test_zero_here_makes_the_tools_place_the_boards_origin(tmp_path):
+    job = tmp_path / "plot.gcode"
+    servo_job(job, strokes=2)
+    x, y = load_profile(PLOTTER).board.offset_mm  # where the G-code puts the board's corner
+    port, rec = _port(tmp_path, "zeroed")
+    args = [str(job), "--machine", PLOTTER, "--yes"]
+    code, _, err = _stream([*args, "--port", port, "--zero-here"], "")
+    assert code == 0, err
+    record = read_record(rec)
+    start = _first_exec(record)["frm"]
+    assert start[:2] == pytest.approx([x, y])  # the tool stood at the board's corner
+    sent = _received(record)
+    zero = next(k for k, t in enumerate(sent) if t.startswith("G21G10L20P0"))
+    first_move = next(k for k, t in enumerate(sent) if t.startswith(("G0", "G1")))
+    assert zero < first_move
+    assert sent[zero] == "G21" + work_zero_command(load_profile(PLOTTER))[1].replace(" ", "")
+    assert "warning: the controller booted as the port opened" not in err
+    assert f"work offset now X{-x:g} Y{-y:g} Z0 mm" in err
+    (start_event,) = [e for e in read_journal(f"{job}.journal.jsonl") if e["ev"] == "start"]
+    assert start_event["zeroed"] == work_zero_command(load_profile(PLOTTER))[1]
+    assert start_event["wco"][:2] == pytest.approx([-x, -y])
+    # without the flag the EEPROM's offset holds: the job counts from elsewhere
+    port, rec = _port(tmp_path, "kept")
+    code, _, err = _stream([*args, "--port", port, "--journal", str(tmp_path / "j2.jsonl")], "")
+    assert code == 0, err
+    assert _first_exec(read_record(rec))["frm"][:2] == pytest.approx([-12.0, 7.0])
+    assert "warning: the controller booted as the port opened" in err
+
+
+@pytest.mark.parametrize(("answer", "sent"), [("n\n", False), ("y\ny\n", True)])
+def test_without_yes_the_tools_place_is_asked_first(tmp_path, answer, sent):
+    job = tmp_path / "plot.gcode"
+    servo_job(job, strokes=1)
+    port, rec = _port(tmp_path, "asked")
+    code, _, err = _stream([str(job), "--port", port, "--machine", PLOTTER, "--zero-here"], answer)
+    assert "--zero-here: does the tool stand at the board's lower-left corner?" in err
+    received = _received(read_record(rec))
+    assert any(t.startswith("G21G10") for t in received) is sent
+    assert any(t.startswith(("G0", "G1")) for t in received) is sent
+    if not sent:
+        assert code == 2
+        assert "jog the tool to the board's lower-left corner first" in err
+        assert "nothing was sent" in err.rstrip().splitlines()[-1]
+    else:
+        assert code == 0, err
+
+
+@pytest.mark.parametrize(
+    ("machine", "expected"),
+    [(None, "give --machine"), ("grbl-3018-diamond", "works in GRBL's machine coordinates")],
+)
+def test_zero_here_without_a_work_coordinate_profile_is_refused_before_connecting(
+    tmp_path, machine, expected
+):
+    job = tmp_path / "plot.gcode"
+    servo_job(job, strokes=1)
+    port, rec = _port(tmp_path, "refused")
+    args = [str(job), "--port", port, "--yes", "--zero-here"]
+    code, _, err = _stream(args + (["--machine", machine] if machine else []), "")
+    assert code == 2 and expected in err and "nothing was sent" in err
+    assert not rec.exists()  # the port was never opened
+
+
+def test_a_resume_after_a_reset_with_zero_here_zeroes_again_and_goes_on(tmp_path):
+    """The controller reset itself mid-job (its machine zero lost); the user jogs back to
+    the corner: ``--resume --zero-here`` stands for --homed and sets the zero again."""
+    job = tmp_path / "plot.gcode"
+    servo_job(job, strokes=3)
+    x, y = load_profile(PLOTTER).board.offset_mm
+    port, _ = _port(tmp_path, "first", "&reset_after=40")
+    base = [str(job), "--machine", PLOTTER, "--yes", "--zero-here"]
+    code, _, err = _stream([*base, "--port", port], "")
+    assert code == 3, err
+    events = read_journal(f"{job}.journal.jsonl")
+    assert events[-1]["ev"] == "stop" and events[-1]["lost"] is True
+    # the EEPROM keeps the offset the first run set; the tool stands at the corner again
+    port, rec = _port(tmp_path, "resumed")
+    port = port.replace("wco=12,-7,0", f"wco={-x:g},{-y:g},0")
+    code, out, err = _stream([*base, "--port", port, "--resume"], "")
+    assert code == 0, err
+    assert "--zero-here: the work zero is set again here" in err
+    assert "warning (repeated)" not in err  # answered, as --homed answers it
+    assert "resuming at line" in out
+    record = read_record(rec)
+    assert _first_exec(record)["frm"][:2] == pytest.approx([x, y])
+    starts = [e for e in read_journal(f"{job}.journal.jsonl") if e["ev"] == "start"]
+    assert [s["resume"] for s in starts] == [False, True]
+    assert all(s["zeroed"].startswith("G10 L20 P0") for s in starts)
+
+
+def test_a_refused_resume_of_a_run_zeroed_here_names_zero_here(tmp_path):
+    """On a machine, under --yes, a resume after a reset is refused; where the run was
+    zeroed with --zero-here the refusal names that way too."""
+    profile = load_profile(PLOTTER)
+    start = {"ev": "start", "sha256": "0", "blocks": 3, "resume": False, "homing": False}
+    stop = {"ev": "stop", "executed_through": 1, "lost": True, "mpos": [5.0, 5.0, 0.0]}
+    for zeroed, named in ((None, False), ("G10 L20 P0 X20 Y20", True)):
+        first = {**start, **({} if zeroed is None else {"zeroed": zeroed})}
+        with pytest.raises(ScratchfabError) as exc:
+            ask_if_homed([first, stop], False, "/dev/ttyUSB0", None, print, profile, False)
+        assert ("resuming with --zero-here instead" in str(exc.value)) is named
+
+
+def test_a_journal_zeroed_field_must_be_a_command():
+    start = {"ev": "start", "sha256": "0", "blocks": 3, "resume": False}
+    assert check_event({**start, "zeroed": "G10 L20 P0 X0 Y0"}, None, "j:1") == 3
+    with pytest.raises(ConfigError, match=r"j:1: 'zeroed': expected a G10 L20 command.*got 5"):
+        check_event({**start, "zeroed": 5}, None, "j:1")
