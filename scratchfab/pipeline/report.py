@@ -11,6 +11,7 @@ Images are inlined as data URIs so the page survives moving the folder; numbers 
 from __future__ import annotations
 
 import base64
+import contextlib
 import csv
 import html
 import math
@@ -25,8 +26,8 @@ import numpy as np
 from scratchfab.bundled import bundled_name
 from scratchfab.console import command_line, duration_text
 from scratchfab.design.stand import side, stand_text
-from scratchfab.errors import ConfigError
-from scratchfab.fileio import decode_json, write_text
+from scratchfab.errors import ConfigError, ScratchfabError
+from scratchfab.fileio import decode_json, write_json, write_text
 from scratchfab.machine.profile import MachineProfile, gcode_number
 from scratchfab.metrics import CROSSTALK_MEANING, rho_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
@@ -1061,6 +1062,61 @@ def gcode_statistics(path: Path, profile: MachineProfile | None = None) -> dict[
     }
 
 
+#: The job's cache of its G-code's :func:`gcode_statistics` (hidden, no stage's output:
+#: deleting it costs the next report the reading of the file again).
+GCODE_STATS_CACHE = ".report-gcode-stats.json"
+
+
+def _statistics_key(gcode: Path, profile: MachineProfile | None) -> dict[str, str]:
+    """What :func:`gcode_statistics` of ``gcode`` for ``profile`` depends on, hashed.
+
+    The file's bytes and name, the profile (its repr: every field), and the code that
+    reads the file (this module, the sender's parser, the exporter's statistics): a
+    changed reader counts again rather than show an earlier version's figures.
+    """
+    import hashlib
+
+    from scratchfab.export import gcode as exporter
+    from scratchfab.fileio import file_sha256
+    from scratchfab.machine import sender_program, stream_job
+
+    readers = hashlib.sha256()
+    for module in (exporter, sender_program, stream_job):
+        readers.update(Path(str(module.__file__)).read_bytes())
+    readers.update(Path(__file__).read_bytes())
+    return {
+        "gcode": file_sha256(gcode),
+        "name": gcode.name,
+        "profile": hashlib.sha256(repr(profile).encode()).hexdigest(),
+        "readers": readers.hexdigest(),
+    }
+
+
+def cached_gcode_statistics(job: Path, profile: MachineProfile | None) -> dict[str, Any]:
+    """:func:`gcode_statistics` of the job's G-code, kept in the job's :data:`GCODE_STATS_CACHE`.
+
+    Reading a big file as the sender does takes seconds (about 6 s at 96k lines), at every
+    report. The cache is keyed by what the figures depend on (:func:`_statistics_key`:
+    the G-code's SHA-256, never its time), so it is never stale; figures counted while
+    the file changed are not kept. A cache that cannot be read or written is counted
+    around; so is a reader whose source cannot be read.
+    """
+    gcode = JobLayout(job).export_file("gcode")
+    cache = job / GCODE_STATS_CACHE
+    try:
+        key = _statistics_key(gcode, profile)
+    except OSError:  # a reader's source not at hand (a frozen build): read, keep nothing
+        return gcode_statistics(gcode, profile)
+    kept = _read_json(cache) if cache.is_file() else None
+    if isinstance(kept, dict) and kept.get("key") == key and isinstance(kept.get("stats"), dict):
+        return dict(kept["stats"])
+    stats = gcode_statistics(gcode, profile)
+    if _statistics_key(gcode, profile) == key:  # not changed while it was read
+        with contextlib.suppress(ScratchfabError):  # a read-only folder: counted again
+            write_json(cache, {"key": key, "stats": stats})
+    return stats
+
+
 def move_counts(program: Program) -> dict[str, int]:
     """A program's rapid moves (``G0``), feed moves (``G1``) and cutting moves (``cuts``).
 
@@ -1558,7 +1614,8 @@ def write_report(
         if c.not_run not in stopped
     ]
     gcode = layout.export_file("gcode")
-    gcode_stats = gcode_statistics(gcode, _planned_profile(toolpath)) if gcode.is_file() else None
+    stats_for = _planned_profile(toolpath)
+    gcode_stats = cached_gcode_statistics(job, stats_for) if gcode.is_file() else None
     cuts = (gcode_stats or {}).get("cuts")
     body = [
         f"<h1>{html.escape(title)}</h1><p class='muted'>job folder "
