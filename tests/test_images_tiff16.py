@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from PIL import Image, TiffImagePlugin, UnidentifiedImageError
@@ -9,6 +11,8 @@ from test_images import cmyk_k_only_icc, curv_gamma, eotf, gamma_of, gray_icc, n
 from test_images_deep import random_samples, reference, write_png16, write_tiff
 
 from scratchfab.design.images import load_image
+from scratchfab.design.images_deep import LibtiffSaid
+from scratchfab.errors import ConfigError
 
 #: Byte order, deflate (libtiff decodes) or not (Pillow's raw reader), rows per strip.
 LAYOUTS = [("<", False, None), (">", False, 2), ("<", True, None), (">", True, 4)]
@@ -271,3 +275,36 @@ def test_compressed_16bit_cmyk_planes(tmp_path):
     path = tmp_path / "planar_cmyk_z.tif"
     write_tiff(path, cmyk, ">", rows_per_strip=2, photometric=5, planar=True, compression="lzw")
     np.testing.assert_allclose(load_image(path), naive_cmyk_luminance(cmyk), rtol=0, atol=2e-5)
+
+
+@pytest.mark.parametrize("planar", [False, True])
+def test_corrupt_compressed_tiff_says_libtiffs_reason_in_the_one_line(tmp_path, capfd, planar):
+    # libtiff writes its errors to stderr (Pillow turns off only its warnings): after the
+    # one-line message, unterminated.
+    samples = random_samples(3, shape=(40, 50), seed=3)
+    path = tmp_path / "cut.tif"
+    write_tiff(path, samples, "<", rows_per_strip=8, planar=planar, compression="lzw")
+    whole = path.read_bytes()
+    path.write_bytes(whole[:-100])
+    strips = -(-40 // 8) * (3 if planar else 1)
+    with pytest.raises(
+        ConfigError, match=rf"cut.tif: .*libtiff: TIFFFillStrip: .*strip {strips - 1}"
+    ):
+        load_image(path)
+    assert capfd.readouterr().err == ""
+
+
+def test_libtiff_messages_are_kept_for_an_error_and_written_back_otherwise(capfd):
+    with LibtiffSaid(True) as said:
+        os.write(2, b"TIFFReadDirectory: a message.\nanother thread's line\n")
+    assert said.text == "" and capfd.readouterr().err == (
+        "TIFFReadDirectory: a message.\nanother thread's line\n"
+    )
+    with pytest.raises(OSError), LibtiffSaid(True) as said:
+        os.write(2, b"ZIPDecode: Decoding error at scanline 16.")
+        raise OSError("decoder error -2")
+    assert said.text == "ZIPDecode: Decoding error at scanline 16"
+    assert capfd.readouterr().err == ""
+    with LibtiffSaid(False) as said:  # not a TIFF: stderr untouched
+        os.write(2, b"left alone\n")
+    assert capfd.readouterr().err == "left alone\n"

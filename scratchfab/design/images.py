@@ -57,6 +57,7 @@ from scratchfab.design.images_deep import (
     CHUNK_ROWS,
     PHOTOMETRIC,
     TIFF_MAGIC,
+    LibtiffSaid,
     deep_read,
     deep_samples,
     naive_rgb,
@@ -106,9 +107,10 @@ def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
     data = read_input(path, "an image file", missing="image file not found")
     if not data:
         raise ConfigError(f"{path}: empty file, expected an image")
+    said = LibtiffSaid(data[:4] in TIFF_MAGIC)
     try:
         # Closed on the way out: Pillow keeps the stream it is given, and with it the bytes.
-        with warnings.catch_warnings(), io.BytesIO(data) as stream:
+        with warnings.catch_warnings(), io.BytesIO(data) as stream, said:
             # Pillow warns of what it skips (a corrupt EXIF block, a tag past the end) and
             # of large images; the pixels decode or the file is refused below, in one line.
             warnings.simplefilter("ignore")
@@ -134,7 +136,8 @@ def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
     except Image.DecompressionBombError:
         raise ConfigError(f"{path}: image is too large (decompression bomb check)") from None
     except (OSError, ValueError, SyntaxError, EOFError) as exc:
-        raise ConfigError(f"{path}: corrupt or truncated image ({exc})") from None
+        why = f"{exc}; libtiff: {said.text}" if said.text else exc
+        raise ConfigError(f"{path}: corrupt or truncated image ({why})") from None
 
 
 #: ISO media brands of still images (HEIF, HEIC as iPhones write it, AVIF).

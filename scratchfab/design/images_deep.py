@@ -14,9 +14,12 @@ colour, and EXIF orientation turns the samples as it turns the image.
 from __future__ import annotations
 
 import io
+import os
 import struct
 import sys
+import tempfile
 import threading
+from types import TracebackType
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -112,6 +115,63 @@ def open_image(stream: io.BytesIO) -> ImageFile.ImageFile:
         finally:
             for key in added:
                 del table[key]
+
+
+class LibtiffSaid:
+    """What libtiff writes to stderr while a TIFF decodes, caught (``text``) when it fails.
+
+    Pillow turns libtiff's warnings off but not its errors: a corrupt TIFF's reason
+    ("TIFFFillStrip: Read error on strip 4; ...") came after our one-line message, without
+    a line end. Inside the block the process's stderr (file descriptor 2) goes to a
+    temporary file; when the block raises, what it caught is ``text``, for the message;
+    otherwise it is written back to stderr (another thread's output is not lost). With
+    ``active`` false, or no stderr to redirect, it does nothing.
+    """
+
+    def __init__(self, active: bool) -> None:
+        self.active = active
+        self.text = ""
+        self._saved: int | None = None
+        self._sink: Any = None
+
+    def __enter__(self) -> LibtiffSaid:
+        if not self.active:
+            return self
+        try:
+            if sys.stderr is not None:
+                sys.stderr.flush()  # Python's own lines stay before and out of the capture
+            saved = os.dup(2)
+        except (OSError, ValueError):
+            return self
+        self._sink = tempfile.TemporaryFile()
+        os.dup2(self._sink.fileno(), 2)
+        self._saved = saved
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        if self._saved is None:
+            return
+        try:
+            if sys.stderr is not None:
+                sys.stderr.flush()
+        except (OSError, ValueError):
+            pass
+        os.dup2(self._saved, 2)
+        os.close(self._saved)
+        self._saved = None
+        with self._sink as sink:
+            sink.seek(0)
+            said = sink.read()
+        if kind is None:
+            while said:
+                said = said[os.write(2, said) :]
+        else:  # its first lines: libtiff stops at the first error it meets
+            lines = [
+                line.strip().rstrip(".") for line in said.decode("utf-8", "replace").split("\n")
+            ]
+            self.text = "; ".join([line for line in lines if line][:3])
 
 
 class DeepRead(NamedTuple):
