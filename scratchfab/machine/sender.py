@@ -642,10 +642,16 @@ class StreamOptions:
 
 @dataclass
 class CheckReport:
-    """Errors found by check mode: (block, code) pairs, and an alarm if one came."""
+    """Errors found by check mode: (block, code) pairs, and an alarm if one came.
+
+    ``meaning``: the alarm's, worded for the machine's ``$22`` as a streamed alarm's is;
+    ``locked``: how to leave the Alarm the controller stays in after it ("" if it does not).
+    """
 
     errors: list[tuple[Block, int]]
     alarm: tuple[Block, int] | None = None
+    meaning: str = ""
+    locked: str = ""
 
 
 @dataclass
@@ -1116,6 +1122,9 @@ class Streamer:
             if report.alarm is not None:
                 self._write(REALTIME_RESET)
                 self._wait_banner(self.options.banner_timeout)
+                report.meaning = alarm_meaning(report.alarm[1], self._find_again())
+                if self._status_now().state.startswith("Alarm"):  # ALARM:1 and 2 lock it
+                    report.locked = self._leave_alarm(False, "unlock it ($X)")
                 return report
         self._write(b"$C\n")
         if self._wait_banner(self.options.banner_timeout) is None:

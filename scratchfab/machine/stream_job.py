@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from scratchfab.console import Confirm, Say, clock, command_line
 from scratchfab.errors import ConfigError, ScratchfabError
-from scratchfab.machine.grbl_codes import alarm_meaning, error_meaning
+from scratchfab.machine.grbl_codes import error_meaning
 from scratchfab.machine.protocol_grblsim import grblsim_query, sim_options
 from scratchfab.machine.sender import (
     ControllerInfo,
@@ -1581,10 +1581,12 @@ def _check(streamer: Streamer, program: Any, gcode: Path, say: Say) -> None:
         say(f"{gcode}:{block.lineno}: error:{code} ({error_meaning(code)}): {block.text}")
     if report.alarm is not None:
         block, code = report.alarm
-        say(f"{gcode}:{block.lineno}: ALARM:{code} ({alarm_meaning(code)}): {block.text}")
+        say(f"{gcode}:{block.lineno}: ALARM:{code} ({report.meaning}): {block.text}")
     if report.errors or report.alarm is not None:
         n = len(report.errors) + (report.alarm is not None)
-        raise ScratchfabError(f"{gcode}: check mode found {n} problem(s); nothing moved")
+        # check mode moved nothing: the position is kept, the controller may stay locked
+        locked = f"; the controller stays in Alarm: {report.locked}" if report.locked else ""
+        raise ScratchfabError(f"{gcode}: check mode found {n} problem(s); nothing moved{locked}")
     say(f"check mode: {len(program.blocks)} lines, no errors")
 
 
