@@ -204,3 +204,22 @@ def test_the_set_up_step_cannot_be_read_as_zeroing_on_the_board(tmp_path, offset
             "from where the design puts it)."
         )
         assert said in step, step
+
+
+def test_the_report_gives_the_command_stream_sends_at_the_profile_s_decimals(tmp_path):
+    """The set-up step's numbers and command are the ones ``stream --zero-here`` sends
+    (one formatter of the work offset): at 2 decimals, no ``-0`` for a tiny negative."""
+    from scratchfab.machine.stream_job import zero_here_command
+
+    job = fake_job(tmp_path)
+    base = load_profile("grbl-plotter-scribe")
+    profile = replace(
+        base,
+        board=replace(base.board, offset_mm=(-0.001, 12.3456)),
+        gcode=replace(base.gcode, decimals=2),
+    )
+    _plan(job, profile)
+    step = _words(_setup_step(job))
+    assert zero_here_command(profile)[1] == "G10 L20 P0 X0 Y12.35"  # by hand: 2 decimals
+    assert "send G10 L20 P0 X0 Y12.35 there" in step, step
+    assert "corner) at X 0 Y 12.35," in step and "X -0" not in step

@@ -499,6 +499,16 @@ class MachineProfile:
         )
         return x, y
 
+    def origin_xy_text(self) -> tuple[str, str]:
+        """``[board] offset_mm`` as the G-code writes numbers (``("20", "20")``; no ``1e-05``).
+
+        The X and Y the board's origin point has in the G-code's work coordinates: the
+        numbers of its work zero command (:func:`~scratchfab.machine.sender.work_zero_command`)
+        and of the report's setup step.
+        """
+        x, y = (gcode_number(v, self.gcode.decimals) for v in self.board.offset_mm)
+        return x, y
+
     def board_top(self) -> str:
         """The machine direction the board's top edge (the design's +y) faces: ``"+Y"``, ``"-X"``..."""
         return ("+Y", "-X", "-Y", "+X")[self.board.rotation_deg // 90]

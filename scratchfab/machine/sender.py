@@ -222,9 +222,8 @@ def work_zero_command(profile: MachineProfile) -> tuple[str, str]:
     system in use (P0, which the G-code runs in as it selects none). Sending ``X0 Y0``
     there, a habit, would move every cut by the offset.
     """
-    place = profile.board
-    x, y = (gcode_number(v, profile.gcode.decimals) for v in place.offset_mm)
-    return place.origin_text, f"G10 L20 P0 X{x} Y{y}"
+    x, y = profile.origin_xy_text()
+    return profile.board.origin_text, f"G10 L20 P0 X{x} Y{y}"
 
 
 def work_zero_again(profile: MachineProfile | None) -> tuple[str, str]:

@@ -28,7 +28,7 @@ from scratchfab.console import command_line, duration_text
 from scratchfab.design.stand import side, stand_text
 from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.fileio import decode_json, write_json, write_text
-from scratchfab.machine.profile import MachineProfile, gcode_number
+from scratchfab.machine.profile import MachineProfile
 from scratchfab.metrics import CROSSTALK_MEANING, rho_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
 from scratchfab.model.job import JobLayout
@@ -1420,9 +1420,10 @@ def _setup_step(job: Path) -> str:
         toolpath = Toolpath.load(JobLayout(job).toolpath_json)
     except ConfigError:  # no toolpath yet, or a damaged one: the pointer alone
         return text + "."
+    from scratchfab.machine.sender import work_zero_command
+
     profile = toolpath.profile
-    # as the G-code writes numbers (a command to send; no 1e-05)
-    x, y = (gcode_number(v, profile.gcode.decimals) for v in profile.board.offset_mm)
+    x, y = profile.origin_xy_text()  # the numbers of the command to send (no 1e-05)
     corner, jog_to = _origin_words(profile, toolpath.board_mm)
     servo = profile.tool_control.mode == "servo"
     tool = (
@@ -1475,7 +1476,7 @@ def _setup_step(job: Path) -> str:
     )
     advice = (
         "These are work coordinates: set them on the board before streaming. Jog the tool "
-        f"to {jog_to} and send {_code(f'G10 L20 P0 X{x} Y{y}')} there{not_zero}. That "
+        f"to {jog_to} and send {_code(work_zero_command(profile)[1])} there{not_zero}. That "
         f"command makes the point X {x} Y {y} in the work system in use, P0, which the "
         f"G-code runs in as it selects none; G10 L20, not {_code('G92')}, whose zero every "
         f"soft reset clears.{z_zero}"
