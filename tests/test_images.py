@@ -425,13 +425,18 @@ def test_png_chrm_primaries_set_the_luminance_weights(tmp_path):
 
 
 def cmyk_k_only_icc() -> bytes:
-    """A CMYK printer profile whose lut8 A2B0 makes L* = 100 (1 - K), a* = b* = 0.
-
-    2-point grid per ink (C slowest, K fastest), identity input and output tables.
-    """
+    """A CMYK printer profile whose lut8 A2B0 makes L* = 100 (1 - K), a* = b* = 0."""
     grid = np.zeros((2, 2, 2, 2, 3), np.uint8)
     grid[..., 0, 0] = 255  # no black ink: L* = 100
     grid[..., 1:] = 128  # a* = b* = 0
+    return cmyk_lut_icc(grid)
+
+
+def cmyk_lut_icc(grid: np.ndarray) -> bytes:
+    """A CMYK printer profile whose lut8 A2B0 is ``grid``: L*, a*, b* codes at each corner.
+
+    2-point grid per ink (C slowest, K fastest), identity input and output tables.
+    """
     identity = np.arange(256, dtype=np.uint8).tobytes()
     matrix = b"".join(_s15(float(i == j)) for i in range(3) for j in range(3))
     a2b0 = b"mft1" + bytes(4) + bytes([4, 3, 2, 0]) + matrix

@@ -494,6 +494,28 @@ def test_lut_profile_keeps_alpha_and_16bit_colour_key(tmp_path):
     np.testing.assert_allclose(load_image(tmp_path / "k.png")[0], expected, rtol=0, atol=5e-3)
 
 
+@needs_lcms
+def test_16bit_rgb_with_lut_profile_reads_between_8bit_codes(tmp_path):
+    # littleCMS converts 8-bit codes: 16-bit ones 257 c read as the 8-bit file, and those
+    # between move in a straight line from one code's picture to the next's.
+    profile = icc(b"RGB ", {b"wtpt": xyz_tag(D50), b"A2B0": _mft2_linear(srgb_colorants(), True)})
+    iccp = (b"iCCP", b"x\0\0" + zlib.compress(profile))
+    codes = np.random.default_rng(23).integers(0, 256, (4, 9, 4), dtype=np.uint8)
+    Image.fromarray(codes).save(tmp_path / "rgba8.png", icc_profile=profile)
+    write_png16(tmp_path / "rgba16.png", codes.astype(np.uint16) * 257, iccp)
+    eight = load_image(tmp_path / "rgba8.png")
+    np.testing.assert_array_equal(load_image(tmp_path / "rgba16.png"), eight)
+    green = np.arange(0, 65536, 61, dtype=np.uint16)
+    ramp16 = np.zeros((1, len(green), 3), np.uint16)
+    ramp16[..., 0], ramp16[..., 1], ramp16[..., 2] = 257 * 30, green, 257 * 220
+    write_png16(tmp_path / "ramp16.png", ramp16, iccp)
+    ramp8 = np.zeros((1, 256, 3), np.uint8)
+    ramp8[..., 0], ramp8[..., 1], ramp8[..., 2] = 30, np.arange(256), 220
+    Image.fromarray(ramp8).save(tmp_path / "ramp8.png", icc_profile=profile)
+    expected = np.interp(green / 257.0, np.arange(256), load_image(tmp_path / "ramp8.png")[0])
+    np.testing.assert_allclose(load_image(tmp_path / "ramp16.png")[0], expected, rtol=0, atol=1e-12)
+
+
 def test_16bit_png_is_read_without_spare_copies(tmp_path):
     # Python-visible memory at the peak: the file's bytes (6 bytes a pixel, incompressible)
     # and the 16-bit samples (6) with two 8-bit planes (3 each) while decoding, then the

@@ -2,12 +2,21 @@
 
 from __future__ import annotations
 
+import itertools
 import os
 
 import numpy as np
 import pytest
 from PIL import Image, TiffImagePlugin, UnidentifiedImageError
-from test_images import cmyk_k_only_icc, curv_gamma, eotf, gamma_of, gray_icc, needs_lcms
+from test_images import (
+    cmyk_k_only_icc,
+    cmyk_lut_icc,
+    curv_gamma,
+    eotf,
+    gamma_of,
+    gray_icc,
+    needs_lcms,
+)
 from test_images_deep import random_samples, reference, write_png16, write_tiff
 
 from scratchfab.design.images import load_image
@@ -144,26 +153,86 @@ def test_16bit_cmyk_tiff_without_profile_keeps_every_bit(tmp_path, order, deflat
     assert got[0, 0] > got[0, 1]
 
 
+def colourful_cmyk_icc() -> bytes:
+    """A CMYK profile in which every ink darkens and tints (a 2-point grid, multilinear)."""
+    c, m, y, k = np.meshgrid(*[np.arange(2)] * 4, indexing="ij")
+    grid = np.stack(
+        [
+            255 - 60 * c - 45 * m - 25 * y - 120 * k,
+            128 - 50 * c + 60 * m,
+            128 - 30 * c - 70 * y + 10 * m,
+        ],
+        axis=-1,
+    )
+    return cmyk_lut_icc(grid.astype(np.uint8))
+
+
+def cmyk8_file(path, codes: np.ndarray, profile: bytes):
+    """An 8-bit CMYK TIFF written by Pillow (read by the 8-bit path: an independent one)."""
+    h, w, _ = codes.shape
+    Image.frombytes("CMYK", (w, h), codes.astype(np.uint8).tobytes()).save(
+        path, icc_profile=profile
+    )
+    return path
+
+
 @needs_lcms
-def test_16bit_cmyk_tiff_with_profile_converts_its_high_bytes(tmp_path):
+def test_16bit_cmyk_tiff_with_profile_goes_through_its_table(tmp_path):
     k = np.arange(0, 65536, 4369, dtype=np.uint16)  # 16 steps, each 17 8-bit codes
     cmyk = np.zeros((3, len(k), 4), np.uint16)
     cmyk[..., 3] = k
-    cmyk[1, :, 3] |= 0x7F  # low bytes that the 8-bit conversion does not see
     path = tmp_path / "cmyk_icc.tif"
     write_tiff(path, cmyk, ">", deflate=True, photometric=5, icc=cmyk_k_only_icc())
     # The profile makes L* = 100 (1 - K); CIE 1976 L* back to relative luminance Y.
-    lstar = 100.0 * (1.0 - (k >> 8) / 255.0)
+    lstar = 100.0 * (1.0 - k / 65535.0)
     expected = np.where(lstar > 8.0, ((lstar + 16.0) / 116.0) ** 3, lstar / 903.3)
     got = load_image(path)
     np.testing.assert_allclose(got, np.repeat(expected[None], 3, 0), atol=0.005)
     assert np.abs(got[0] - naive_cmyk_luminance(cmyk[:1])[0]).max() > 0.02
-    # Through the same 8-bit path as an 8-bit CMYK file of the high bytes.
-    eight = tmp_path / "cmyk8.tif"
-    Image.frombytes("CMYK", (len(k), 3), (cmyk >> 8).astype(np.uint8).tobytes()).save(
-        eight, icc_profile=cmyk_k_only_icc()
-    )
-    np.testing.assert_array_equal(got, load_image(eight))
+
+
+@needs_lcms
+def test_16bit_cmyk_with_profile_of_8bit_codes_reads_as_the_8bit_file(tmp_path):
+    codes = np.random.default_rng(21).integers(0, 256, (7, 11, 4))
+    codes[0, :4] = [[0, 0, 0, 0], [255, 255, 255, 255], [0, 255, 0, 255], [255, 0, 255, 0]]
+    path = tmp_path / "cmyk16.tif"
+    write_tiff(path, codes.astype(np.uint16) * 257, "<", photometric=5, icc=colourful_cmyk_icc())
+    eight = cmyk8_file(tmp_path / "cmyk8.tif", codes, colourful_cmyk_icc())
+    np.testing.assert_array_equal(load_image(path), load_image(eight))
+
+
+@needs_lcms
+def test_16bit_cmyk_with_profile_moves_linearly_between_codes_of_one_ink(tmp_path):
+    # Only black varies: between two 8-bit codes the picture moves in a straight line.
+    k = np.arange(0, 65536, 97, dtype=np.uint16)
+    cmyk = np.zeros((1, len(k), 4), np.uint16)
+    cmyk[..., :3] = (257 * 77, 257 * 10, 257 * 200)
+    cmyk[..., 3] = k
+    path = tmp_path / "ramp16.tif"
+    write_tiff(path, cmyk, ">", deflate=True, photometric=5, icc=colourful_cmyk_icc())
+    ramp = np.zeros((1, 256, 4), np.int64)
+    ramp[..., :3] = (77, 10, 200)
+    ramp[..., 3] = np.arange(256)
+    at_codes = load_image(cmyk8_file(tmp_path / "ramp8.tif", ramp, colourful_cmyk_icc()))[0]
+    expected = np.interp(k / 257.0, np.arange(256), at_codes)
+    np.testing.assert_allclose(load_image(path)[0], expected, rtol=0, atol=1e-12)
+
+
+@needs_lcms
+def test_16bit_cmyk_with_profile_stays_within_its_8bit_cell(tmp_path):
+    cmyk = random_samples(4, shape=(5, 40), seed=22)
+    path = tmp_path / "cell16.tif"
+    write_tiff(path, cmyk, "<", photometric=5, icc=colourful_cmyk_icc())
+    got = load_image(path).ravel()
+    # The 16 corners of each pixel's cell of 8-bit codes, read as an 8-bit file.
+    below = np.minimum(cmyk.reshape(-1, 4) // 257, 254)
+    steps = np.array(list(itertools.product((0, 1), repeat=4)))
+    corners = below[:, None, :] + steps[None]
+    at = load_image(cmyk8_file(tmp_path / "cell8.tif", corners, colourful_cmyk_icc()))
+    assert np.all(got >= at.min(axis=1) - 1e-12) and np.all(got <= at.max(axis=1) + 1e-12)
+    # Not the high bytes' picture: the low bytes move it within the cell.
+    high = load_image(cmyk8_file(tmp_path / "high8.tif", cmyk >> 8, colourful_cmyk_icc())).ravel()
+    assert np.mean(got != high) > 0.9
 
 
 @pytest.mark.parametrize("order", ["<", ">"])

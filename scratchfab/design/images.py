@@ -28,15 +28,17 @@ compressed plane's high bytes) is read again plane by plane, as 16-bit grey imag
 orientation turns them as it turns the image. A TIFF's associated (premultiplied) alpha
 is divided out of the 16-bit colour where alpha > 0, and 16-bit and float WhiteIsZero
 grey is inverted (Pillow inverts only 8-bit grey; it refuses big-endian 16-bit such
-files, which are opened as grey-with-alpha TIFFs are). 16-bit CMYK without a profile becomes RGB as
-Pillow converts CMYK, ``(1 - C)(1 - K)``, at 16 bits; with one, its high bytes go
-through littleCMS as 8-bit CMYK (Pillow's ImageCms has no 16-bit CMYK mode).
+files, which are opened as grey-with-alpha TIFFs are). 16-bit CMYK without a profile
+becomes RGB as Pillow converts CMYK, ``(1 - C)(1 - K)``, at 16 bits.
 
 RGB pixels with a matrix/TRC profile (sRGB, Adobe RGB, Display P3, ProPhoto), 8- or
 16-bit, are decoded from per-channel tables of their luminance, without rounding to
 8-bit sRGB or clipping to its gamut (so 8 and 16 bits agree); a LUT-based RGB profile
-(or one with both a table and a matrix, which littleCMS converts by the table) converts
-8 bits (a 16-bit image's high bytes) to 8-bit sRGB.
+(or one with both a table and a matrix, which littleCMS converts by the table) and a
+CMYK profile convert 8 bits to 8-bit sRGB. Pillow's ImageCms has no 16-bit RGB or CMYK
+mode: a 16-bit pixel's luminance is interpolated between those of the 8-bit codes
+around it, so 16-bit codes 257 c read as the 8-bit codes c do and the low bytes still
+count.
 A PNG ``tRNS`` colour key makes its pixels transparent at 16 bits too; a CIELAB TIFF is
 read by its L* channel.
 """
@@ -405,8 +407,6 @@ def _to_srgb(image: Image.Image, file: Path, profile: ImageCmsProfile) -> Image.
     0.52 of an 8-bit code, the output's own rounding (half a code, i.e. at most 0.0045 of
     linear full scale, near white).
     """
-    from PIL import ImageCms
-
     if image.mode == "CMYK":
         rgb, alpha = image, None
     else:
@@ -415,16 +415,75 @@ def _to_srgb(image: Image.Image, file: Path, profile: ImageCmsProfile) -> Image.
         alpha = (
             Image.fromarray(np.ascontiguousarray(codes[..., 3])) if codes.shape[2] == 4 else None
         )
-    srgb = ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB"))
-    transform = _build(file, profile, srgb, (rgb.mode, "RGB"), exact=False)
-    try:
-        out = ImageCms.applyTransform(rgb, transform)
-    except ImageCms.PyCMSError as exc:
-        raise ConfigError(f"{file}: littleCMS cannot convert the image to sRGB ({exc})") from None
-    assert out is not None
+    out = _converted(rgb, file, _srgb_transform(file, profile, rgb.mode))
     if alpha is not None:
         out.putalpha(alpha)
     return out
+
+
+def _srgb_transform(file: Path, profile: ImageCmsProfile, mode: str) -> ImageCmsTransform:
+    """The optimised littleCMS transform of 8-bit ``mode`` pixels to 8-bit sRGB."""
+    from PIL import ImageCms
+
+    srgb = ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB"))
+    return _build(file, profile, srgb, (mode, "RGB"), exact=False)
+
+
+def _converted(image: Image.Image, file: Path, transform: ImageCmsTransform) -> Image.Image:
+    """The image converted to 8-bit sRGB, a littleCMS failure as one line naming the file."""
+    from PIL import ImageCms
+
+    try:
+        out = ImageCms.applyTransform(image, transform)
+    except ImageCms.PyCMSError as exc:
+        raise ConfigError(f"{file}: littleCMS cannot convert the image to sRGB ({exc})") from None
+    assert out is not None
+    return out
+
+
+def _between_codes(
+    samples: np.ndarray, kind: str, file: Path, profile: ImageCmsProfile
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Linear luminance (and alpha) of 16-bit RGB or CMYK samples through a LUT profile.
+
+    Pillow's ImageCms has no 16-bit RGB or CMYK mode: each pixel is interpolated between
+    the 8-bit codes around it (code v / 257) on a simplex of the cell (Kuhn's: the corner
+    below, then one channel more at a time, largest fraction first), the corners
+    converted as an 8-bit image is (:func:`_to_srgb`) and their luminance weighed. A
+    file of 8-bit codes c stored as 257 c reads as the 8-bit file; the low bytes move
+    the picture between the codes, where the high bytes alone would band.
+    """
+    n = 4 if kind == "CMYK" else 3
+    transform = _srgb_transform(file, profile, kind)
+    lin = np.empty(samples.shape[:2])
+    rows = max(1, 65536 // samples.shape[1])  # some 64 K pixels: ~20 float copies of them
+    for r0 in range(0, samples.shape[0], rows):
+        block = samples[r0 : r0 + rows, :, :n]
+        below = np.minimum(block // 257, 254).astype(np.uint8)
+        fraction = (block - below * np.uint16(257)) / 257.0
+        order = np.argsort(-fraction, axis=-1, kind="stable")
+        steps = np.take_along_axis(fraction, order, axis=-1)
+        # Corner k's weight: the k-th largest fraction less the next (1 before the first).
+        weights = np.concatenate(
+            [1.0 - steps[..., :1], -np.diff(steps, axis=-1), steps[..., -1:]], -1
+        )
+        corner = below
+        lum = np.zeros(block.shape[:2])
+        for k in range(n + 1):
+            if k:  # one step along the channel with the k-th largest fraction
+                np.put_along_axis(
+                    corner,
+                    order[..., k - 1 : k],
+                    np.take_along_axis(corner, order[..., k - 1 : k], -1) + 1,
+                    -1,
+                )
+            height, width = corner.shape[:2]
+            pixels = Image.frombytes(kind, (width, height), np.ascontiguousarray(corner).tobytes())
+            rgb = np.asarray(_converted(pixels, file, transform))
+            lum += weights[..., k] * (_LUT8[rgb] @ LUMA_709)
+        lin[r0 : r0 + rows] = lum
+    alpha = samples[..., n] / 65535.0 if samples.shape[2] > n else None
+    return lin, alpha
 
 
 # -- PNG gAMA / cHRM ----------------------------------------------------------------------
@@ -651,6 +710,8 @@ def load_image(path: str | Path, invert: bool = False) -> np.ndarray:
         deep = _keyed(deep, image)
     kind = _kind(image, deep)
     decoding: _Decoding | None = _Decoding()
+    lin: np.ndarray | None = None
+    alpha: np.ndarray | None = None
     profile = _embedded_profile(image, file, kind)
     if profile is None and kind == "CMYK" and deep is not None:
         deep = naive_rgb(deep)
@@ -658,30 +719,24 @@ def load_image(path: str | Path, invert: bool = False) -> np.ndarray:
         decoding = _gray_decoding(file, profile)
     elif profile is not None:
         decoding = _matrix_shaper_decoding(file, profile) if kind == "RGB" else None
-        if decoding is None:  # 8 bits through littleCMS
-            if deep is not None:  # the high bytes, with the alpha a 16-bit colour key gave
-                codes = (deep >> 8).astype(np.uint8)
-                image = (
-                    Image.frombytes("CMYK", image.size, codes.tobytes())
-                    if kind == "CMYK"
-                    else Image.fromarray(codes)
-                )
-            image, deep, decoding = _to_srgb(image, file, profile), None, _Decoding()
+        if decoding is None:  # through littleCMS's 8-bit transform
+            if deep is not None:  # with the alpha a 16-bit colour key gave
+                lin, alpha = _between_codes(deep, kind, file, profile)
+            else:
+                image = _to_srgb(image, file, profile)
+            deep, decoding = None, _Decoding()
         elif deep is None:  # 8-bit codes c are the 16-bit codes 257 c, on the tables' grid
             deep = _rgb_codes(image, file).astype(np.uint16) * np.uint16(257)
     else:
         decoding = _png_decoding(image, file, kind) or _Decoding()
-    alpha: np.ndarray | None = None
-    if deep is not None:
+    if lin is None and deep is not None:
         lin, alpha = _luminance_16bit(deep, decoding)
-    else:
-        high = _high_bit_gray(image, file, decoding)
-        if high is None:
-            high = _lab_luminance(image)
-        if high is not None:
-            lin = high
-        else:
-            lin, alpha = _luminance_8bit(image, file, decoding)
+    if lin is None:
+        lin = _high_bit_gray(image, file, decoding)
+    if lin is None:
+        lin = _lab_luminance(image)
+    if lin is None:
+        lin, alpha = _luminance_8bit(image, file, decoding)
     if lin.ndim != 2 or lin.size == 0:
         raise ConfigError(f"{file}: image has no pixels")
     if invert:
