@@ -83,6 +83,11 @@ def default_journal_path(gcode: str | os.PathLike[str]) -> Path:
     return p.with_name(p.name + ".journal.jsonl")
 
 
+def timestamp() -> str:
+    """Local time to the second, as the journal and the job's manifest record it."""
+    return time.strftime("%Y-%m-%dT%H:%M:%S")
+
+
 class Journal:
     """Appends events to a journal file, flushing each one."""
 
@@ -149,7 +154,7 @@ class Journal:
             return
         record = {"ev": event, **data}
         if event in ("start", "stop", "lost", "end", "error", "alarm"):
-            record["time"] = time.strftime("%Y-%m-%dT%H:%M:%S")
+            record["time"] = timestamp()
         try:
             lead = "\n" if self._torn else ""
             self._handle.write(lead + json.dumps(record, separators=(",", ":")) + "\n")
@@ -343,31 +348,42 @@ def run_zero(
 
     ``(None, None)`` where the journal did not record them (older journals, unread).
     """
-    starts = [ev for ev in events if ev.get("ev") == "start"]
-    if not starts:
-        return None, None
-    last = starts[-1]
+    last = last_start(events)
     return xyz_of(last.get("wco")), xyz_of(last.get("g92"))
 
 
 def run_zero_in_inches(events: Sequence[dict[str, Any]]) -> bool:
     """Whether the journal's last run read its work offset in inch reports (``$13=1``)."""
-    starts = [ev for ev in events if ev.get("ev") == "start"]
-    return bool(starts) and starts[-1].get("inches") is True
+    return last_start(events).get("inches") is True
 
 
 def run_homing(events: Sequence[dict[str, Any]]) -> bool | None:
     """GRBL's homing cycle (``$22``) as the journal's last run read it; None: not recorded."""
-    starts = [ev for ev in events if ev.get("ev") == "start"]
-    homing = starts[-1].get("homing") if starts else None
+    homing = last_start(events).get("homing")
     return homing if isinstance(homing, bool) else None
 
 
 def run_zeroed(events: Sequence[dict[str, Any]]) -> str | None:
     """The work zero command the journal's last run sent where the tool stood, else None."""
-    starts = [ev for ev in events if ev.get("ev") == "start"]
-    zeroed = starts[-1].get("zeroed") if starts else None
+    zeroed = last_start(events).get("zeroed")
     return zeroed if isinstance(zeroed, str) else None
+
+
+def _start_indices(events: Sequence[dict[str, Any]]) -> list[int]:
+    """Where the journal's ``start`` events are (each begins a session)."""
+    return [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
+
+
+def last_session(events: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The journal's events from its last ``start`` on (all of them without one)."""
+    starts = _start_indices(events)
+    return list(events[starts[-1] :] if starts else events)
+
+
+def last_start(events: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The journal's last ``start`` event; ``{}`` where there is none."""
+    session = last_session(events)
+    return session[0] if session and session[0].get("ev") == "start" else {}
 
 
 def xyz_of(value: Any) -> tuple[float, float, float] | None:
@@ -384,7 +400,7 @@ def last_fresh_start(events: Sequence[dict[str, Any]]) -> int:
 
     The runs before it no longer count for a resume (a fresh start cut the board anew).
     """
-    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
+    starts = _start_indices(events)
     fresh = [k for k in starts if not events[k].get("resume")]
     return fresh[-1] if fresh else (starts[0] if starts else 0)
 
@@ -565,7 +581,7 @@ def done_blocks(
         ConfigError: The journal has no start event, or its runs since the last fresh
             start were for a different file content (sha256 mismatch).
     """
-    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
+    starts = _start_indices(events)
     if not starts:
         raise ConfigError(f"{path}: journal has no start event")
     first = last_fresh_start(events)  # runs before a fresh start no longer count
@@ -614,10 +630,9 @@ def done_blocks(
 
 def interrupted(events: list[dict[str, Any]], sha256: str) -> bool:
     """True if the journal's last session streamed this file content and did not finish."""
-    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
-    if not starts or events[starts[-1]].get("sha256") != sha256:
+    if last_start(events).get("sha256") != sha256:
         return False
-    return not any(ev.get("ev") == "end" for ev in events[starts[-1] :])
+    return not any(ev.get("ev") == "end" for ev in last_session(events))
 
 
 def _is_empty(path: Path) -> bool:

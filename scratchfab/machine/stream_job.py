@@ -42,6 +42,7 @@ from scratchfab.machine.sender_journal import (
     done_blocks,
     interrupted,
     last_fresh_start,
+    last_session,
     read_journal,
     run_homing,
     run_zero,
@@ -1106,12 +1107,6 @@ def _check_strokes(program: Program, gcode: Path) -> None:
     )
 
 
-def _last_session(events: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The journal's events from its last ``start`` on (all of them without one)."""
-    starts = [k for k, ev in enumerate(events) if ev.get("ev") == "start"]
-    return events[starts[-1] :] if starts else events
-
-
 def _lost_event(events: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The journal's last session's last event that may have lost the position, else None.
 
@@ -1124,7 +1119,7 @@ def _lost_event(events: list[dict[str, Any]]) -> dict[str, Any] | None:
     in Alarm, which the connect refuses.
     """
     kinds = ("alarm", "stop", "lost", "killed")
-    session = _last_session(events)
+    session = last_session(events)
     homed_machine = run_homing(events) is True  # the session's start recorded $22=1
     lost = [
         ev
@@ -1224,7 +1219,7 @@ def reset_since_last_run(
         ``"wco_now"``, else None (no closing ``lost`` or ``stop`` and no killed session's
         end, positions unknown, or nothing changed).
     """
-    session = _last_session(events)
+    session = last_session(events)
     closing = [ev for ev in session if ev.get("ev") in ("lost", "stop")]
     killed = _killed_end(session, program)
     if mpos is None:

@@ -15,13 +15,13 @@ whose bytes change is still seen.
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 from scratchfab.fileio import decode_json, file_sha256, write_text
+from scratchfab.machine.sender_journal import timestamp
 
 MANIFEST_NAME = "manifest.json"
 
@@ -31,11 +31,6 @@ absolute path and mixed their modification times into the digests."""
 
 Legacy = Callable[[Any], bool]
 """Whether a stage's inputs as recorded in format 1 describe its inputs now."""
-
-
-def _now() -> str:
-    """Local time as the manifest and the stream's journal record it (to the second)."""
-    return time.strftime("%Y-%m-%dT%H:%M:%S")
 
 
 def file_digest(path: Path, with_mtime: bool = False) -> str:
@@ -238,7 +233,7 @@ class Manifest:
             "inputs": dict(inputs),
             "outputs": sorted(outputs),
             "seconds": round(seconds, 3),
-            "finished": _now(),
+            "finished": timestamp(),
         }
         if digests := {_key(f, self.job): file_digest(f) for f in written}:
             self.stages[stage]["written"] = digests
@@ -250,7 +245,7 @@ class Manifest:
         Its ``started`` time is kept while it fails or is interrupted, so a reader can tell
         this run's output (a stream's journal session) from an earlier run's.
         """
-        self.stages[stage] = {"status": "running", "inputs": dict(inputs), "started": _now()}
+        self.stages[stage] = {"status": "running", "inputs": dict(inputs), "started": timestamp()}
         self.save()
 
     def _started(self, stage: str) -> dict[str, str]:
