@@ -147,3 +147,29 @@ def test_a_journal_zeroed_field_must_be_a_command():
     assert check_event({**start, "zeroed": "G10 L20 P0 X0 Y0"}, None, "j:1") == 3
     with pytest.raises(ConfigError, match=r"j:1: 'zeroed': expected a G10 L20 command.*got 5"):
         check_event({**start, "zeroed": 5}, None, "j:1")
+
+
+def test_run_passes_zero_here_to_its_stream_stage(tmp_path, capsys):
+    """`scratchfab run --zero-here` zeroes as `stream --zero-here` does, before any move."""
+    from conftest import write_pipeline
+
+    from scratchfab.cli import main
+
+    port = f'port = "grblsim://?time_scale=0&wco=12,-7,0&{GRBL}"'
+    path = write_pipeline(
+        tmp_path,
+        formats='["gcode"]',
+        edits={
+            'machine = "grbl-3018-diamond"': f'machine = "{PLOTTER}"',
+            'port = "grblsim://?time_scale=0&$130=300&$131=180&$132=45"': port,
+        },
+    )
+    job = tmp_path / "job"
+    with pytest.raises(SystemExit) as exc:
+        main(["run", str(path), "--out", str(job), "--yes", "--zero-here"])
+        raise SystemExit(0)
+    assert exc.value.code == 0, capsys.readouterr().err
+    x, y = load_profile(PLOTTER).board.offset_mm
+    (start,) = [e for e in read_journal(job / "stream" / "journal.jsonl") if e["ev"] == "start"]
+    assert start["zeroed"] == work_zero_command(load_profile(PLOTTER))[1]
+    assert start["wco"][:2] == pytest.approx([-x, -y])  # the tool stood at machine 0, 0

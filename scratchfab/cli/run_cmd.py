@@ -46,6 +46,13 @@ from scratchfab.pipeline.runner import run_pipeline
     "machine was homed ($H), or unlocked ($X) and its work zero set again, since (else "
     "asked; refused under --yes).",
 )
+@click.option(
+    "--zero-here",
+    is_flag=True,
+    help="When the stream stage runs: the tool stands at the board's origin point; set the "
+    "work zero there once connected (as stream --zero-here), and on a resume it stands "
+    "for --homed.",
+)
 def run(
     pipeline: str,
     out: Path | None,
@@ -54,6 +61,7 @@ def run(
     force: bool,
     yes: bool,
     homed: bool,
+    zero_here: bool,
 ) -> None:
     """Run design -> optimize -> verify-render -> toolpath -> export (-> stream) into a job.
 
@@ -79,6 +87,7 @@ def run(
             say=click.echo,
             confirm=None if yes else confirm,
             homed=homed,
+            zero_here=zero_here,
         )
     except ScratchfabError as exc:
         # the error first, then where the report is: the CLI prints the error's text

@@ -1596,6 +1596,7 @@ def run_stream_job(
     homed: bool = False,
     say: Say = lambda _: None,
     confirm: Confirm | None = lambda _: True,
+    zero_here: bool = False,
 ) -> Path:
     """The pipeline's stream stage: JOB/export/board.gcode to ``port``.
 
@@ -1605,6 +1606,7 @@ def run_stream_job(
     (:func:`ask_before_a_partial_board`). A Ctrl-C stops safely. A run after an
     interrupted stream of the same G-code resumes it from the journal; after an alarm or a
     controller reset that may have lost the position only with ``homed`` or a person's word (:func:`ask_if_homed`).
+    ``zero_here``: :attr:`StreamRequest.zero_here` (``run --zero-here``).
     """
     lines = ProgressLines()
     layout = JobLayout(job)
@@ -1628,5 +1630,6 @@ def run_stream_job(
         check=check,
         machine=machine,
         homed=homed,
+        zero_here=zero_here,
     )
     return stream_file(req, StreamCallbacks(progress, say, lambda: "stop", confirm))

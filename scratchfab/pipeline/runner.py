@@ -125,7 +125,13 @@ class _Stages:
     """The stage table: inputs, action and outputs of each stage of one pipeline."""
 
     def __init__(
-        self, pipe: Pipeline, job: Path, say: Say, confirm: Confirm | None, homed: bool = False
+        self,
+        pipe: Pipeline,
+        job: Path,
+        say: Say,
+        confirm: Confirm | None,
+        homed: bool = False,
+        zero_here: bool = False,
     ) -> None:
         self.pipe = pipe
         self.job = job
@@ -133,6 +139,7 @@ class _Stages:
         self.say = say
         self.confirm = confirm
         self.homed = homed  # the stream stage's resume after a lost position (--homed)
+        self.zero_here = zero_here  # the stream stage zeroes where the tool stands
         self.resume = False  # continue the stage's interrupted work (optimize's checkpoint)
 
     # -- inputs -----------------------------------------------------------------------
@@ -382,6 +389,7 @@ class _Stages:
                 machine=self.pipe.profile,
                 recut_unsure=s.recut_unsure,
                 homed=self.homed,
+                zero_here=self.zero_here,
                 say=self._say_in,
                 # None (--yes): nobody is asked, and a partial board is refused
                 confirm=(lambda _: True) if is_emulator(s.port) else self.confirm,
@@ -402,6 +410,7 @@ def run_pipeline(
     say: Say = lambda _: None,
     confirm: Confirm | None = None,
     homed: bool = False,
+    zero_here: bool = False,
 ) -> RunResult:
     """Run the pipeline's stages into ``job``.
 
@@ -418,6 +427,8 @@ def run_pipeline(
         homed: The machine was homed, or its work zero set again, since an alarm that may
             have lost its position in the stream being resumed (``run --homed``; without
             it the stream stage asks, and refuses where ``confirm`` is None).
+        zero_here: The stream stage sets the work zero where the tool stands once
+            connected (``run --zero-here``; :attr:`~scratchfab.machine.stream_job.StreamRequest.zero_here`).
 
     A stage is marked running in the manifest before it starts, so one killed midway is
     run again next time. An optimize stopped by Ctrl-C (or killed) on the same inputs
@@ -435,7 +446,7 @@ def run_pipeline(
         raise ScratchfabError(f"--from {start} comes after --until {until}; nothing to run")
     job.mkdir(parents=True, exist_ok=True)
     with _job_lock(JobLayout(job).run_lock):
-        return _run_stages(pipe, job, start, until, force, say, confirm, homed)
+        return _run_stages(pipe, job, start, until, force, say, confirm, homed, zero_here)
 
 
 @contextlib.contextmanager
@@ -530,11 +541,12 @@ def _run_stages(
     say: Say,
     confirm: Confirm | None,
     homed: bool,
+    zero_here: bool = False,
 ) -> RunResult:
     """The body of :func:`run_pipeline`, under the job's lock."""
     t0 = time.perf_counter()
     manifest = Manifest.load(job)
-    stages = _Stages(pipe, job, say, confirm, homed)
+    stages = _Stages(pipe, job, say, confirm, homed, zero_here)
     result = RunResult(job)
     last = STAGES.index(until) if until else len(STAGES) - 1
     # Said once, before the first stage of the run that comes ahead of toolpath (the
