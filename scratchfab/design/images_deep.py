@@ -61,11 +61,11 @@ _BITS_PER_SAMPLE, PHOTOMETRIC, _EXTRA_SAMPLES, _PLANAR = 258, 262, 338, 284
 _IMAGE_WIDTH, _IMAGE_LENGTH, _COMPRESSION, _SAMPLES_PER_PIXEL = 256, 257, 259, 277
 _STRIP_OFFSETS, _ROWS_PER_STRIP, _STRIP_COUNTS = 273, 278, 279
 _TILE_WIDTH, _TILE_LENGTH, _TILE_OFFSETS, _TILE_COUNTS = 322, 323, 324, 325
-_SAMPLE_FORMAT = 339
 _STRIPS = _STRIP_OFFSETS, _STRIP_COUNTS
 #: Tags a separate plane's directory (:func:`_planes`) takes from the file's: compression,
-#: fill order, predictor, JPEG tables; and those written as LONG (the rest are SHORT).
-_PLANE_TAGS = (_COMPRESSION, 266, 317, 347)
+#: predictor, JPEG tables (samples read as unsigned; Pillow refuses 16-bit FillOrder 2 at
+#: open); and those written as LONG (the rest are SHORT).
+_PLANE_TAGS = (_COMPRESSION, 317, 347)
 _LONG_TAGS = {_IMAGE_WIDTH, _IMAGE_LENGTH, _ROWS_PER_STRIP, _TILE_WIDTH, _TILE_LENGTH}
 _LONG_TAGS |= {_STRIP_OFFSETS, _STRIP_COUNTS, _TILE_OFFSETS, _TILE_COUNTS}
 TIFF_MAGIC = (b"II*\0", b"MM\0*", b"II+\0", b"MM\0+")
@@ -164,7 +164,7 @@ class LibtiffSaid:
         with self._sink as sink:
             sink.seek(0)
             said = sink.read()
-        if kind is None:
+        if kind is None or not issubclass(kind, Exception):  # an interrupt: no message
             while said:
                 said = said[os.write(2, said) :]
         else:  # its first lines: libtiff stops at the first error it meets
@@ -317,8 +317,6 @@ def _planes(data: bytes, opened: TiffImagePlugin.TiffImageFile) -> np.ndarray:
     if min(len(offsets), len(counts)) < planes * per_plane:
         raise ValueError(f"{len(offsets)} strip or tile offsets for {planes} planes")
     kept = {tag: tags[tag] for tag in _PLANE_TAGS if tag in tags}
-    if _SAMPLE_FORMAT in tags:
-        kept[_SAMPLE_FORMAT] = tags[_SAMPLE_FORMAT][:1]
     order = "<" if tags.prefix == b"II" else ">"
     at = len(data) + len(data) % 2  # the first directory, on a word boundary
     directories = []
