@@ -1,8 +1,9 @@
-"""report.html's G-code statistics kept in the job folder: a big file is read once.
+"""report.html's G-code statistics kept in the page: a big file is read once.
 
-The sender's reading of a 96k-line G-code took seconds at every report. The figures are
-kept beside the report, keyed by the file's SHA-256 (never its size or time), the
-profile and the code that reads it, so a kept figure is never an earlier file's.
+The sender's reading of a 96k-line G-code took seconds at every report. The page keeps
+its figures with what they were counted from (the file's SHA-256, never its size or
+time, the profile and the code that reads it), so a kept figure is never an earlier
+file's, and the next report reads them back.
 """
 
 from __future__ import annotations
@@ -11,22 +12,17 @@ import os
 
 import pytest
 
-from scratchfab.errors import ScratchfabError
+from scratchfab.machine.profile import load_profile
 from scratchfab.pipeline import report
-from scratchfab.pipeline.report import (
-    GCODE_STATS_CACHE,
-    cached_gcode_statistics,
-    gcode_statistics,
-    write_report,
-)
+from scratchfab.pipeline.report import cached_gcode_statistics, gcode_statistics, write_report
 
 LINES = ["G21 G90", "G0 Z5", "G0 X1 Y1", "G1 Z-0.1 F200", "G1 X5 Y5 F600", "G0 Z5", "M2"]
 
 
-def _job(tmp_path, lines=LINES):
+def _job(tmp_path):
     gcode = tmp_path / "job" / "export" / "board.gcode"
     gcode.parent.mkdir(parents=True)
-    gcode.write_text("\n".join(lines) + "\n")
+    gcode.write_text("\n".join(LINES) + "\n")
     return tmp_path / "job", gcode
 
 
@@ -44,55 +40,65 @@ def reads(monkeypatch):
     return calls
 
 
+def _report(job, profile=None):
+    """write_report, its page's figures as cached_gcode_statistics reads them back."""
+    page = job / "report.html"
+    stats, record = cached_gcode_statistics(job, profile)
+    page.write_text(f"<html><head>{record}</head></html>")
+    return stats
+
+
 def test_a_second_report_reads_the_kept_figures_which_are_the_reading_s(tmp_path, reads):
     job, gcode = _job(tmp_path)
     write_report(job)
     first = (job / "report.html").read_text()
+    assert "<script type='application/json' id='gcode-statistics'>" in first
     write_report(job)
     assert len(reads) == 1  # the second report read no G-code
     assert (job / "report.html").read_text() == first
-    # the reference: the sender's reading itself, no cache
-    assert cached_gcode_statistics(job, None) == gcode_statistics(gcode)
-    assert (job / GCODE_STATS_CACHE).is_file()
+    # the reference: the sender's reading itself, no record
+    assert cached_gcode_statistics(job, None)[0] == gcode_statistics(gcode)
+    assert sorted(p.name for p in job.iterdir()) == ["export", "report.html"]  # no new file
 
 
 def test_a_changed_file_of_the_same_size_and_time_is_read_again(tmp_path, reads):
     job, gcode = _job(tmp_path)
-    before = cached_gcode_statistics(job, None)
+    before = _report(job)
     stamp = gcode.stat()
     # the same length, the same time: the cut made a comment, which is not sent
     gcode.write_text(gcode.read_text().replace("G1 X5 Y5 F600", "(1 X5 Y5 F60)"))
     os.utime(gcode, ns=(stamp.st_atime_ns, stamp.st_mtime_ns))
     assert gcode.stat().st_size == stamp.st_size
-    after = cached_gcode_statistics(job, None)
+    after = _report(job)
     assert len(reads) == 2
     assert after == gcode_statistics(gcode)
     assert after["sent"] == before["sent"] - 1
 
 
 def test_another_profile_is_counted_for_itself(tmp_path, reads):
-    from scratchfab.machine.profile import load_profile
-
     job, gcode = _job(tmp_path)
     profile = load_profile("grbl-3018-diamond")
-    alone = cached_gcode_statistics(job, None)
-    told = cached_gcode_statistics(job, profile)
+    alone = _report(job)
+    told = _report(job, profile)
     assert len(reads) == 2
     assert told["cuts"] != alone["cuts"]  # its Z heights: X5 Y5 cuts nothing on it
     assert told == gcode_statistics(gcode, profile)
-    cached_gcode_statistics(job, profile)
+    _report(job, profile)
     assert len(reads) == 2  # now kept for that profile
 
 
-def test_a_damaged_or_foreign_cache_is_counted_around(tmp_path, reads):
+def test_a_damaged_or_foreign_record_is_counted_around(tmp_path, reads):
     job, gcode = _job(tmp_path)
-    cache = job / GCODE_STATS_CACHE
-    cache.write_text("{not json")
-    assert cached_gcode_statistics(job, None) == gcode_statistics(gcode)
+    page = job / "report.html"
+    opening = "<script type='application/json' id='gcode-statistics'>"
+    page.write_text(f"{opening}{{not json</script>")
+    assert cached_gcode_statistics(job, None)[0] == gcode_statistics(gcode)
     # right shape, figures another key's: not shown
-    cache.write_text('{"key": {"gcode": "0"}, "stats": {"lines": 99}}')
-    assert cached_gcode_statistics(job, None)["lines"] == len(LINES)
-    assert len(reads) == 2
+    page.write_text(f'{opening}{{"key": {{"gcode": "0"}}, "stats": {{"lines": 99}}}}</script>')
+    assert cached_gcode_statistics(job, None)[0]["lines"] == len(LINES)
+    page.write_bytes(b"\xff\xfe not UTF-8")
+    assert cached_gcode_statistics(job, None)[0]["lines"] == len(LINES)
+    assert len(reads) == 3
 
 
 def test_figures_counted_while_the_file_changed_are_not_kept(tmp_path, monkeypatch):
@@ -105,17 +111,18 @@ def test_figures_counted_while_the_file_changed_are_not_kept(tmp_path, monkeypat
         return stats
 
     monkeypatch.setattr(report, "gcode_statistics", changing)
-    cached_gcode_statistics(job, None)
-    assert not (job / GCODE_STATS_CACHE).exists()
+    assert cached_gcode_statistics(job, None)[1] == ""
     monkeypatch.setattr(report, "gcode_statistics", real)
-    assert cached_gcode_statistics(job, None)["lines"] == len(LINES) + 1
+    assert _report(job)["lines"] == len(LINES) + 1
 
 
-def test_a_folder_it_cannot_write_still_gets_its_figures(tmp_path, monkeypatch):
+def test_a_quoted_line_cannot_end_the_record(tmp_path, monkeypatch):
+    """A refusal quoting a G-code line with ``</script>`` stays inside the record."""
     job, gcode = _job(tmp_path)
-
-    def refused(path, data):
-        raise ScratchfabError(f"{path}: cannot write (Read-only file system)")
-
-    monkeypatch.setattr(report, "write_json", refused)
-    assert cached_gcode_statistics(job, None) == gcode_statistics(gcode)
+    said = {"lines": 7, "sent": "none: stream refuses the file (line 2: '(</script><b>x)')"}
+    monkeypatch.setattr(report, "gcode_statistics", lambda path, profile=None: dict(said))
+    stats, record = cached_gcode_statistics(job, None)
+    assert record.count("</script>") == 1 and record.endswith("</script>")
+    (job / "report.html").write_text(record)
+    monkeypatch.setattr(report, "gcode_statistics", None)  # read back, not counted
+    assert cached_gcode_statistics(job, None)[0] == stats == said

@@ -11,11 +11,12 @@ Images are inlined as data URIs so the page survives moving the folder; numbers 
 from __future__ import annotations
 
 import base64
-import contextlib
 import csv
 import html
+import json
 import math
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,8 +27,8 @@ import numpy as np
 from scratchfab.bundled import bundled_name
 from scratchfab.console import command_line, duration_text
 from scratchfab.design.stand import side, stand_text
-from scratchfab.errors import ConfigError, ScratchfabError
-from scratchfab.fileio import decode_json, write_json, write_text
+from scratchfab.errors import ConfigError
+from scratchfab.fileio import decode_json, write_text
 from scratchfab.machine.profile import MachineProfile
 from scratchfab.metrics import CROSSTALK_MEANING, rho_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
@@ -1062,11 +1063,6 @@ def gcode_statistics(path: Path, profile: MachineProfile | None = None) -> dict[
     }
 
 
-#: The job's cache of its G-code's :func:`gcode_statistics` (hidden, no stage's output:
-#: deleting it costs the next report the reading of the file again).
-GCODE_STATS_CACHE = ".report-gcode-stats.json"
-
-
 def _statistics_key(gcode: Path, profile: MachineProfile | None) -> dict[str, str]:
     """What :func:`gcode_statistics` of ``gcode`` for ``profile`` depends on, hashed.
 
@@ -1092,29 +1088,50 @@ def _statistics_key(gcode: Path, profile: MachineProfile | None) -> dict[str, st
     }
 
 
-def cached_gcode_statistics(job: Path, profile: MachineProfile | None) -> dict[str, Any]:
-    """:func:`gcode_statistics` of the job's G-code, kept in the job's :data:`GCODE_STATS_CACHE`.
+#: The ``id`` of report.html's record of its G-code figures (:func:`cached_gcode_statistics`).
+_STATS_RECORD = "gcode-statistics"
 
-    Reading a big file as the sender does takes seconds (about 6 s at 96k lines), at every
-    report. The cache is keyed by what the figures depend on (:func:`_statistics_key`:
-    the G-code's SHA-256, never its time), so it is never stale; figures counted while
-    the file changed are not kept. A cache that cannot be read or written is counted
-    around; so is a reader whose source cannot be read.
+
+def _kept_statistics(page: Path) -> Any:
+    """The record an earlier report.html kept of its G-code figures (None without one)."""
+    try:
+        text = page.read_text(encoding="utf-8")
+    except (OSError, ValueError):
+        return None
+    found = re.search(f"<script type='application/json' id='{_STATS_RECORD}'>(.*?)</script>", text)
+    try:
+        return decode_json(found.group(1)) if found else None
+    except ValueError:
+        return None
+
+
+def cached_gcode_statistics(
+    job: Path, profile: MachineProfile | None
+) -> tuple[dict[str, Any], str]:
+    """:func:`gcode_statistics` of the job's G-code, and the page's record of them.
+
+    Reading a big file as the sender does takes seconds (about 5 s at 96k lines), at every
+    report. The page keeps its figures in a record with what they depend on
+    (:func:`_statistics_key`: the G-code's SHA-256, never its time), which the next report
+    reads back where every part of the key is the same: never stale, and no file beside
+    the page. Figures counted while the file changed get no record ("").
     """
-    gcode = JobLayout(job).export_file("gcode")
-    cache = job / GCODE_STATS_CACHE
+    layout = JobLayout(job)
+    gcode = layout.export_file("gcode")
     try:
         key = _statistics_key(gcode, profile)
     except OSError:  # a reader's source not at hand (a frozen build): read, keep nothing
-        return gcode_statistics(gcode, profile)
-    kept = _read_json(cache) if cache.is_file() else None
+        return gcode_statistics(gcode, profile), ""
+    kept = _kept_statistics(layout.report_html)
     if isinstance(kept, dict) and kept.get("key") == key and isinstance(kept.get("stats"), dict):
-        return dict(kept["stats"])
-    stats = gcode_statistics(gcode, profile)
-    if _statistics_key(gcode, profile) == key:  # not changed while it was read
-        with contextlib.suppress(ScratchfabError):  # a read-only folder: counted again
-            write_json(cache, {"key": key, "stats": stats})
-    return stats
+        stats = kept["stats"]
+    else:
+        stats = gcode_statistics(gcode, profile)
+        if _statistics_key(gcode, profile) != key:  # changed while it was read
+            return stats, ""
+    # "<" escaped: a quoted G-code line cannot end the script element
+    data = json.dumps({"key": key, "stats": stats}).replace("<", "\\u003c")
+    return stats, f"<script type='application/json' id='{_STATS_RECORD}'>{data}</script>"
 
 
 def move_counts(program: Program) -> dict[str, int]:
@@ -1616,7 +1633,7 @@ def write_report(
     ]
     gcode = layout.export_file("gcode")
     stats_for = _planned_profile(toolpath)
-    gcode_stats = cached_gcode_statistics(job, stats_for) if gcode.is_file() else None
+    gcode_stats, record = cached_gcode_statistics(job, stats_for) if gcode.is_file() else (None, "")
     cuts = (gcode_stats or {}).get("cuts")
     body = [
         f"<h1>{html.escape(title)}</h1><p class='muted'>job folder "
@@ -1645,7 +1662,7 @@ def write_report(
     page = (
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
         f"<title>{html.escape(title)}</title><style>{_STYLE}</style>"
-        f"<script>{_SCRIPT}</script></head><body>{''.join(body)}</body></html>\n"
+        f"<script>{_SCRIPT}</script>{record}</head><body>{''.join(body)}</body></html>\n"
     )
     out = JobLayout(job).report_html
     write_text(out, page)
