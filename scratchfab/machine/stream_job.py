@@ -11,7 +11,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -473,8 +473,9 @@ def _stream_locked(
             if homing is None:  # not recorded (an older journal): as read now
                 homing = homing_of(info.settings)
             inches = inches or run_zero_in_inches(events)
+            spans = (info.settings.get(130), info.settings.get(131))  # homing's X/Y space
             found = reset_since_last_run(
-                events, info.status.mpos, info.wco, homing, inches, program
+                events, info.status.mpos, info.wco, homing, inches, program, spans
             )
             reset = None if asked else found
             if reset is not None:  # asked here, connected, before anything moves
@@ -1182,6 +1183,7 @@ def reset_since_last_run(
     homing: bool | None = None,
     inches: bool = False,
     program: Program | None = None,
+    travel: Sequence[float | None] = (None, None),
 ) -> dict[str, Any] | None:
     """The last session's closing event, where the machine may have lost its zero.
 
@@ -1203,7 +1205,14 @@ def reset_since_last_run(
       ``$H`` or ``$X`` opens it, so a machine found Idle elsewhere was jogged). A jog keeps
       machine zero and the work offset, but a reset followed by a jog looks the same;
     - after a stop only: the work offset now differs from the one recorded after the
-      stop's reset (``"wco"``): the work zero was set again, or lost.
+      stop's reset (``"wco"``): the work zero was set again, or lost;
+    - homing on (``$22=1``), after any of them: X or Y outside the space homing gives
+      (``-$130..0``, ``-$131..0``; ``travel``, None: not known, only above 0 counts) while
+      the recorded position lay inside it (``"unhomed"``): a homed machine cannot stand
+      there, so the controller reset and was unlocked (``$X``) and jogged, not homed. A
+      recorded position outside that space (a build that homes to machine zero,
+      ``HOMING_FORCE_SET_ORIGIN``) tells nothing. Inside it, ``$H`` and ``$X`` with a jog
+      still look alike.
 
     One that kept power after a lost link ran its queue and stands at a move's end, so
     being elsewhere alone says nothing there. A session with no closing event (the sender
@@ -1243,6 +1252,8 @@ def reset_since_last_run(
     zero = (0.0, 0.0, 0.0)
     if within(mpos, zero) and not within(was, zero):
         return {**found, "why": "zero"}
+    if homing is True and _homed_space(was, travel, near) and not _homed_space(mpos, travel, near):
+        return {**found, "why": "unhomed"}
     if event.get("ev") != "stop":
         return None
     if homing is not True and not within(mpos, was):
@@ -1253,12 +1264,27 @@ def reset_since_last_run(
     return None
 
 
+def _homed_space(
+    mpos: Sequence[float], travel: Sequence[float | None], near: Sequence[float]
+) -> bool:
+    """Whether X and Y lie where homing puts a machine: ``-travel..0``, within ``near``.
+
+    GRBL 1.1 counts machine space negative from the home corner (``-$13x <= MPos <= 0``)
+    whatever the homing direction (``$23``); a travel None bounds only the top.
+    """
+    for m, t, d in zip(mpos[:2], travel[:2], near[:2], strict=True):
+        if m > d or (t is not None and m < -t - d):
+            return False
+    return True
+
+
 def _lost_by(event: dict[str, Any]) -> str:
     """What ended the run in ``event`` (:func:`_lost_event`): ``ALARM:2``, a reset."""
     since = {
         "zero": "the controller reset since (it stands at machine zero)",
         "moved": "the machine moved since (a jog, or a reset and a jog)",
         "wco": "the work offset changed since",
+        "unhomed": "the machine stands where homing never puts it (reset, unlocked, jogged)",
     }.get(event.get("why", ""), "")
     if event.get("ev") == "stop" and since:
         return f"a stop, and {since}"
@@ -1371,6 +1397,15 @@ def _moved_warning(event: dict[str, Any], done: str) -> str:
             "makes machine zero where the tool stood and moves the work zero with it, and "
             f"without homing nothing tells the two apart; go on only if the machine was {done} "
             "since, or it was only jogged and its controller never reset"
+        )
+    if event.get("why") == "unhomed":
+        return (
+            f"the run before this resume {ended}, and the machine now stands outside the "
+            f"space homing gives it ({where}; a homed GRBL counts X and Y from -$130 and "
+            "-$131 up to 0): the controller reset since "
+            f"({reboot}) and was unlocked ($X) and jogged, not homed, so machine zero is where "
+            f"the tool stood at the reset and the work zero moved with it; go on only if the "
+            f"machine was {done} since"
         )
     if event.get("why") == "wco":
         return (
