@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from scratchfab.toolpath.order import OrderOptions, OrderResult, order_strokes
+from scratchfab.toolpath.order import OrderOptions, OrderProgress, OrderResult, order_strokes
 
 if TYPE_CHECKING:
     from scratchfab.toolpath.plan import Toolpath, estimate_time, plan_toolpath, write_preview
@@ -16,6 +16,7 @@ _FROM_PLAN = ("Toolpath", "estimate_time", "plan_toolpath", "write_preview")
 
 __all__ = [
     "OrderOptions",
+    "OrderProgress",
     "OrderResult",
     "Toolpath",
     "estimate_time",

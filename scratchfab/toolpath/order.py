@@ -30,7 +30,10 @@ The result is never worse than the input order (it is returned instead if it is 
 
 from __future__ import annotations
 
+import math
 import reprlib
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -106,6 +109,52 @@ class OrderResult:
     travel_greedy_mm: float
     moves: int
     kept_input: bool
+
+
+@dataclass(frozen=True)
+class OrderProgress:
+    """One progress report of :func:`order_strokes` (and of the planning around it).
+
+    Attributes:
+        phase: The phase just finished: ``"greedy"``, ``"regions"`` (the perturbation
+            trials region by region, on tours of more than ``window`` strokes) or
+            ``"local search"``; ``""`` for a message.
+        step: Phases finished.
+        total: Phases this ordering runs (1 with ``passes`` 0, else 2, or 3 with
+            regions; 0 where not yet known, in a message said before ordering).
+        travel_mm: Pen-up travel of the tour after the phase (NaN for a message).
+        elapsed_s: Seconds since the ordering began.
+        message: A status line instead of a phase ("" for phases).
+    """
+
+    phase: str
+    step: int
+    total: int
+    travel_mm: float
+    elapsed_s: float
+    message: str = ""
+
+    @classmethod
+    def note(
+        cls, message: str, step: int = 0, total: int = 0, elapsed_s: float = 0.0
+    ) -> OrderProgress:
+        """A status line, said after ``step`` of ``total`` phases."""
+        return cls("", step, total, math.nan, elapsed_s, message)
+
+
+#: A ``progress`` callback of :func:`order_strokes` and :func:`~scratchfab.toolpath.plan_toolpath`.
+OrderProgressCallback = Callable[[OrderProgress], None]
+
+
+def order_phases(n: int, options: OrderOptions) -> tuple[str, ...]:
+    """The phases :func:`order_strokes` runs on ``n`` strokes (none below two strokes)."""
+    if n < 2:
+        return ()
+    if options.passes == 0:
+        return ("greedy",)
+    return (
+        ("greedy", "local search") if n <= options.window else ("greedy", "regions", "local search")
+    )
 
 
 def compile_note(options: OrderOptions) -> str | None:
@@ -287,6 +336,7 @@ def order_strokes(
     p1: np.ndarray,
     start: tuple[float, float] | np.ndarray,
     options: OrderOptions | None = None,
+    progress: OrderProgressCallback | None = None,
 ) -> OrderResult:
     """Order strokes to minimise pen-up travel from ``start`` and back (see module docstring).
 
@@ -295,6 +345,9 @@ def order_strokes(
         p1: (N, 2) stroke end points in mm.
         start: The machine's start position (x, y) in mm.
         options: Tuning; defaults to :class:`OrderOptions`.
+        progress: Called after each phase (:func:`order_phases`), and first with the
+            :func:`compile_note` where numba compiles before ordering. The result is the
+            same with it or without.
 
     Returns:
         The order, per-stroke reversal and travel figures.
@@ -305,6 +358,7 @@ def order_strokes(
     """
     from scipy.spatial import cKDTree
 
+    began = time.perf_counter()
     opts = options or OrderOptions()
     p0, p1, origin = (_floats(v, name) for v, name in ((p0, "p0"), (p1, "p1"), (start, "start")))
     if p0.ndim != 2 or p0.shape[1:] != (2,) or p1.shape != p0.shape:
@@ -324,6 +378,17 @@ def order_strokes(
     no_flip = np.zeros(n, dtype=bool)
     if n < 2:
         return OrderResult(identity, no_flip, travel_input, travel_input, travel_input, 0, True)
+    phases = order_phases(n, opts)
+
+    def report(phase: str, ent: np.ndarray) -> None:
+        """Tell ``progress`` that ``phase`` finished with the tour ``ent``."""
+        if progress is not None:
+            step = phases.index(phase) + 1
+            elapsed = time.perf_counter() - began
+            progress(OrderProgress(phase, step, len(phases), _tour_travel(points, ent), elapsed))
+
+    if progress is not None and (note := compile_note(opts)) is not None:
+        progress(OrderProgress.note(note, 0, len(phases), time.perf_counter() - began))
     points = np.empty((2 * n + 2, 2))
     points[0 : 2 * n : 2] = p0
     points[1 : 2 * n : 2] = p1
@@ -332,6 +397,7 @@ def order_strokes(
     _, near = cKDTree(points).query(points, k=k + 1, workers=-1)
     ent = np.concatenate([[2 * n], _greedy(points, near)]).astype(np.int64)
     travel_greedy = _tour_travel(points, ent)
+    report("greedy", ent)
     moves = 0
     if opts.passes > 0:
         from scratchfab.toolpath.local_search import SETTLED_ITEMS_PER_MOVE, improve
@@ -339,9 +405,10 @@ def order_strokes(
         kicks = opts.kicks
         if kicks is None:
             kicks = min(int(opts.kicks_per_stroke * n), opts.max_kicks)
-        whole = n <= opts.window
+        whole = "regions" not in phases
         if not whole:
             ent, moves = _improve_regions(points, ent, kicks, opts)
+            report("regions", ent)
         moves += improve(
             points,
             ent,
@@ -353,6 +420,7 @@ def order_strokes(
             opts.depth,
             SETTLED_ITEMS_PER_MOVE,
         )
+        report("local search", ent)
     order, reverse = _stroke_order(ent, n)
     travel = tour_travel(
         np.where(reverse[:, None], p1[order], p0[order]),

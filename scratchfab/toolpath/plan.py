@@ -36,7 +36,13 @@ from scratchfab.model.design import Board, ScratchTool
 from scratchfab.model.scratches import ON_BOARD_TOLERANCE_MM, ScratchSet
 from scratchfab.toolpath.geometry import clip_strokes, merge_collinear, onto_box
 from scratchfab.toolpath.inputs import checked_record
-from scratchfab.toolpath.order import OrderOptions, order_strokes, tour_travel
+from scratchfab.toolpath.order import (
+    OrderOptions,
+    OrderProgress,
+    OrderProgressCallback,
+    order_strokes,
+    tour_travel,
+)
 from scratchfab.toolpath.timing import path_times
 
 FORMAT = "scratchfab-toolpath"
@@ -404,6 +410,7 @@ def plan_toolpath(
     profile: MachineProfile,
     design_tool: ScratchTool | None = None,
     options: OrderOptions | None = None,
+    progress: OrderProgressCallback | None = None,
 ) -> Toolpath:
     """Turn a board's scratches into ordered machine strokes.
 
@@ -415,6 +422,10 @@ def plan_toolpath(
         design_tool: The design's ``[scratch]`` table; its width and depth must match the
             profile's tool.
         options: Ordering options (deterministic for given options).
+        progress: Called with :class:`~scratchfab.toolpath.order.OrderProgress` reports:
+            first a message naming the scratches and the machine, then the ordering's
+            (:func:`~scratchfab.toolpath.order.order_strokes`); the toolpath is the same
+            with it or without.
 
     Returns:
         The toolpath; ``stats`` holds ``input_count``, ``off_board_count`` (no part on
@@ -428,6 +439,8 @@ def plan_toolpath(
         ScratchfabError: The tools differ, an end point is NaN or infinite, or the board
             does not meet the envelope.
     """
+    if progress is not None:
+        progress(OrderProgress.note(f"ordering {len(scratches)} scratches for {profile.name} ..."))
     check_tool(profile, design_tool, scratches)
     bad = np.flatnonzero(~np.all(np.isfinite(np.hstack([scratches.p0, scratches.p1])), axis=1))
     if len(bad):
@@ -480,7 +493,7 @@ def plan_toolpath(
         [keep[g[np.argmax(lengths[long_enough][g])]] for g in groups], dtype=np.int64
     ).reshape(-1)
     # Merged strokes may be a little shorter than the tool allows only if a member was.
-    result = order_strokes(r0, r1, profile.start_mm, options)
+    result = order_strokes(r0, r1, profile.start_mm, options, progress)
     first = np.where(result.reverse[:, None], r1[result.order], r0[result.order])
     last = np.where(result.reverse[:, None], r0[result.order], r1[result.order])
     strokes = np.stack([first, last], axis=1).reshape(-1, 2, 2)

@@ -18,7 +18,7 @@ from scratchfab.toolpath.inputs import (
     profile_changes,
     record_inputs,
 )
-from scratchfab.toolpath.order import OrderOptions, compile_note
+from scratchfab.toolpath.order import OrderOptions, OrderProgress, OrderProgressCallback
 from scratchfab.toolpath.plan import (
     Toolpath,
     fit_advice,
@@ -45,6 +45,19 @@ def summary(toolpath: Toolpath) -> str:
         f"(input order {s['travel_input_order_mm']:.1f} mm); "
         f"about {duration_text(s['estimated_time_s'])}"
     )
+
+
+def progress_lines(say: Say) -> OrderProgressCallback:
+    """A ``progress`` callback of :func:`plan_toolpath` that says its messages.
+
+    The phases say nothing: the ordering takes seconds, and :func:`summary` follows.
+    """
+
+    def tell(p: OrderProgress) -> None:
+        if p.message:
+            say(p.message)
+
+    return tell
 
 
 def run_toolpath(
@@ -74,10 +87,9 @@ def run_toolpath(
     profile = load_profile(machine)
     design = load_design(design_file, require_views=False)
     scratches = load_scratches(scratch_file, design.scratch, design.board)
-    say(f"ordering {len(scratches)} scratches for {profile.name} ...")
-    if (note := compile_note(options or OrderOptions())) is not None:
-        say(note)
-    result = plan_toolpath(scratches, design.board, profile, design.scratch, options)
+    result = plan_toolpath(
+        scratches, design.board, profile, design.scratch, options, progress_lines(say)
+    )
     lost = partial_text(result.stats)
     if lost is not None:
         board = (design.board.width_mm, design.board.height_mm)
