@@ -35,3 +35,25 @@ def test_cutting_moves_are_counted_as_stream_tells_them_for_the_profile(tmp_path
     assert len(load_program_for(path, profile).strokes) == 2  # the reference: stream's reading
     assert told["cuts"] == 2  # X10 to X11, X20 to X21
     assert alone["cuts"] != told["cuts"]
+
+
+def test_the_ranges_are_where_the_moves_go_as_the_sender_reads_them(tmp_path):
+    """Words without spaces, inches, an arc's sweep and an axis named in a comment: the
+    ranges are the moves' (work mm), not the file's words (a comment's X5 made a traceback,
+    and G0X1Y2 gave no range)."""
+    path = tmp_path / "board.gcode"
+    path.write_text("G20G90\nG0X1Y2 (to X5)\nG1Z-0.01F10\nG2X3Y2I1J0\nM2\n")
+    stats = gcode_statistics(path)
+    # by hand, in mm: X 1..3 in; Y 2 in, and the clockwise arc about (2, 2) tops at Y 3 in
+    assert stats["X range"] == "25.4 .. 76.2 mm"
+    assert stats["Y range"] == "50.8 .. 76.2 mm"
+    assert stats["Z range"] == "-0.254 .. -0.254 mm"
+    assert stats["sent"] == 5 and stats["lines"] == 5
+
+
+def test_the_size_is_the_file_s_bytes(tmp_path):
+    path = tmp_path / "board.gcode"
+    path.write_text("(gravure sur métal)\nG0 X1\n", encoding="utf-8")  # é: two bytes
+    stats = gcode_statistics(path)
+    assert stats["bytes"] == len("(gravure sur métal)\nG0 X1\n".encode()) == 27
+    assert stats["longest_line"] == len("(gravure sur métal)") == 19

@@ -1027,38 +1027,41 @@ def _toolpath_section(job: Path, data: Any, stopped: Mapping[str, str]) -> str:
 
 
 def gcode_statistics(path: Path, profile: MachineProfile | None = None) -> dict[str, Any]:
-    """The exporter's statistics of a G-code file, plus its moves as the sender reads them.
+    """A G-code file's size, and its lines, moves and extent as the sender reads them.
 
     ``sent``: the lines the sender sends (its count, which ``stream`` and the journal
     give: comments and blank lines are not sent), or why it refuses the file. Where it
-    reads the file, :func:`move_counts` (rapid, feed and cutting moves) follow, its
-    strokes told as ``stream`` tells them for ``profile`` (the toolpath's machine).
+    reads the file, the X, Y and Z ranges its moves reach (work mm, arcs swept: a word
+    the sender reads, ``G0X1Y2`` or ``G20`` inches too) and :func:`move_counts` (rapid,
+    feed and cutting moves) follow, its strokes told as ``stream`` tells them for
+    ``profile`` (the toolpath's machine).
     """
-    from scratchfab.export.gcode import gcode_stats
+    from scratchfab.machine.sender_checks import job_extent
     from scratchfab.machine.stream_job import load_program_for
 
     # errors="replace": a Latin-1 comment is counted; the sender says why it refuses it
     lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
-    stats = gcode_stats(lines)
+    extent: dict[str, str] = {}
     moves: dict[str, int] = {}
     try:
         program = load_program_for(path, profile)
         sent: int | str = len(program.blocks)
+        lo, hi = job_extent(program)
+        extent = {
+            f"{axis} range": f"{a:g} .. {b:g} mm"
+            for axis, a, b in zip("XYZ", lo, hi, strict=True)
+            if a <= b
+        }
         moves = move_counts(program)
     except ConfigError as exc:
         # the file's name alone: the page names no absolute path (the folder may move)
         sent = f"none: stream refuses the file ({str(exc).replace(str(path), path.name)})"
-    extent = {
-        k.removesuffix("_mm").upper(): f"{v[0]:g} .. {v[1]:g} mm"
-        for k, v in stats["bbox"].items()
-        if v is not None
-    }
     return {
-        "lines": stats["lines"],
+        "lines": len(lines),
         "sent": sent,
-        "bytes": stats["bytes"],
-        "longest_line": stats["max_line_length"],
-        **{f"{axis} range": text for axis, text in extent.items()},
+        "bytes": path.stat().st_size,
+        "longest_line": max((len(line) for line in lines), default=0),
+        **extent,
         **moves,
     }
 
@@ -1067,17 +1070,16 @@ def _statistics_key(gcode: Path, profile: MachineProfile | None) -> dict[str, st
     """What :func:`gcode_statistics` of ``gcode`` for ``profile`` depends on, hashed.
 
     The file's bytes and name, the profile (its repr: every field), and the code that
-    reads the file (this module, the sender's parser, the exporter's statistics): a
-    changed reader counts again rather than show an earlier version's figures.
+    reads the file (this module, the sender's parser and its extent): a changed reader
+    counts again rather than show an earlier version's figures.
     """
     import hashlib
 
-    from scratchfab.export import gcode as exporter
     from scratchfab.fileio import file_sha256
-    from scratchfab.machine import sender_program, stream_job
+    from scratchfab.machine import sender_checks, sender_program, stream_job
 
     readers = hashlib.sha256()
-    for module in (exporter, sender_program, stream_job):
+    for module in (sender_checks, sender_program, stream_job):
         readers.update(Path(str(module.__file__)).read_bytes())
     readers.update(Path(__file__).read_bytes())
     return {
