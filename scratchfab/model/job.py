@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -281,22 +282,30 @@ def design_digest(job: str | Path) -> dict[str, str]:
     }
 
 
-def design_content_sha256(path: Path) -> str:
-    """SHA-256 of a design file's :func:`~scratchfab.model.design.design_fields`, as JSON.
+def design_content_sha256(
+    path: Path, pick: Callable[[Design], dict[str, Any]] = design_fields
+) -> str:
+    """SHA-256 of what ``pick`` takes of a design file, as JSON.
 
-    What optimize's resume compares and a toolpath's plan depends on, so that a rerun of
-    design that rewrites only the file's comments and target paths changes nothing; the
-    bytes' SHA-256 when the file does not load (a broken file differs from any design).
+    So that a rerun of design that rewrites only the file's comments and target paths
+    changes nothing; the bytes' SHA-256 when the file does not load (a broken file differs
+    from any design). A file without views loads (the toolpath stage plans it).
+
+    Args:
+        path: The design file.
+        pick: What counts: by default what optimize's steps depend on
+            (:func:`~scratchfab.model.design.design_fields`); a toolpath's record takes
+            what its plan reads (:func:`~scratchfab.toolpath.inputs.plan_fields`).
     """
     try:
-        design = load_design(path)
+        design = load_design(path, require_views=False)
     except ConfigError:
         return file_sha256(path)
-    return _fields_sha256(design)
+    return _fields_sha256(design, pick)
 
 
-def _fields_sha256(design: Design) -> str:
-    text = json.dumps(design_fields(design), sort_keys=True)
+def _fields_sha256(design: Design, pick: Callable[[Design], dict[str, Any]] = design_fields) -> str:
+    text = json.dumps(pick(design), sort_keys=True)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 

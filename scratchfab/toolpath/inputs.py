@@ -2,9 +2,10 @@
 
 ``toolpath.json`` records its inputs under ``"inputs"``: the scratch CSV and the design
 (each by its path relative to the toolpath's own folder and its SHA-256; the design also
-by what the plan depends on, ``fields_sha256``: a rerun of design that rewrites only its
-comments and target paths changes nothing; a record of an earlier scratchfab, without it,
-is compared by the board's size and the tool the plan holds), the machine
+by what the plan depends on, ``fields_sha256`` (:func:`depends_on`): a rerun of design
+that rewrites only its comments and target paths changes nothing, nor does an edit to
+what neither the plan nor the layout's optimize read; a record of an earlier scratchfab,
+without it, is compared by the board's size and the tool the plan holds), the machine
 profile (a bundled one by name, a file by its path), and the job folder when the job
 picked the layout (its optimized one, else the initial one). Paths are relative so that
 a job moved or copied whole keeps its record. ``export`` compares the record with the
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -24,11 +26,42 @@ from scratchfab.console import command_line
 from scratchfab.errors import ConfigError
 from scratchfab.fileio import decode_json, file_sha256
 from scratchfab.machine.profile import MachineProfile, load_profile, machine_named
-from scratchfab.model.design import load_design, same_to_rounding
+from scratchfab.model.design import Design, design_fields, load_design, same_to_rounding
 from scratchfab.model.job import JobLayout, design_content_sha256, job_inputs
 
 if TYPE_CHECKING:
     from scratchfab.toolpath.plan import Toolpath
+
+
+#: The design's fields a toolpath's plan reads, by table: the board's size (its outline on
+#: the machine, the scratch CSV's on-board check) and the tool's dent (the CSV's width and
+#: depth where it has none, the check against the machine's tool).
+PLAN_READS: dict[str, tuple[str, ...]] = {
+    "board": ("width_mm", "height_mm"),
+    "scratch": ("width_mm", "depth_mm"),
+}
+
+
+def plan_fields(design: Design) -> dict[str, Any]:
+    """What a toolpath's plan reads of ``design`` (:data:`PLAN_READS`), by table."""
+    return {
+        table: {key: getattr(getattr(design, table), key) for key in keys}
+        for table, keys in PLAN_READS.items()
+    }
+
+
+def depends_on(scratch_file: Path, job: Path | None) -> Callable[[Design], dict[str, Any]]:
+    """What a plan of ``scratch_file`` depends on of its design, as a toolpath records it.
+
+    What the plan reads (:func:`plan_fields`); where the scratches are ``job``'s optimized
+    layout, what optimize read too (:func:`~scratchfab.model.design.design_fields`): a
+    design changed since makes that layout, and so the plan, out of date (optimize is
+    named first, then toolpath).
+    """
+    optimized = job is not None and os.path.abspath(scratch_file) == os.path.abspath(
+        JobLayout(job).optimized_scratches
+    )
+    return design_fields if optimized else plan_fields
 
 
 def _relative(path: Path, folder: Path) -> str:
@@ -76,7 +109,8 @@ def record_inputs(
         role: {"file": _relative(file, folder), "sha256": file_sha256(file)}
         for role, file in (("scratches", scratch_file), ("design", design_file))
     }
-    record["design"]["fields_sha256"] = design_content_sha256(design_file)
+    pick = depends_on(scratch_file, job)
+    record["design"]["fields_sha256"] = design_content_sha256(design_file, pick)
     machine = _machine_record(profile, folder)
     if machine is not None:
         record["machine"] = machine
@@ -185,11 +219,13 @@ def _same_design(
     file: Path,
     planned: MachineProfile,
     board_mm: tuple[float, float] | None,
+    pick: Callable[[Design], dict[str, Any]],
 ) -> bool:
     """Whether the design ``file``, its bytes changed, is still the one a plan was made from.
 
-    A record with ``fields_sha256`` compares what it resolves to (a rerun of design that
-    rewrites its comments and target paths changes nothing). One of an earlier scratchfab
+    A record with ``fields_sha256`` compares what ``pick`` takes, what the plan depends on
+    (:func:`depends_on`: a rerun of design that rewrites its comments and target paths
+    changes nothing). One of an earlier scratchfab
     holds the bytes' digest alone, and the first rerun of design rewrites them (``fov_deg
     = "auto"`` for auto's number): then the file is compared with what the plan holds of
     it, the board's size (floats to rounding,
@@ -197,7 +233,7 @@ def _same_design(
     the design's must match); neither known (``board_mm`` None), it has changed.
     """
     if "fields_sha256" in entry:
-        return bool(entry["fields_sha256"] == design_content_sha256(file))
+        return bool(entry["fields_sha256"] == design_content_sha256(file, pick))
     if board_mm is None:
         return False
     from scratchfab.toolpath.plan import tool_mismatch  # plan imports this module
@@ -244,8 +280,9 @@ def input_changes(
     changes: list[str] = []
     notes: list[str] = []
     picked: tuple[Path, Path] | None = None  # the job's (design, layout) now
-    if "job" in inputs:
-        job = _resolve(inputs["job"], folder)
+    job = _resolve(inputs["job"], folder) if "job" in inputs else None
+    pick = depends_on(_resolve(inputs["scratches"]["file"], folder), job)
+    if job is not None:
         if not JobLayout(job).design.design_toml.is_file():  # moved away from its job
             notes.append(
                 f"the job folder it names, {os.path.abspath(job)}, holds no "
@@ -265,7 +302,7 @@ def input_changes(
         elif not now.is_file():  # a file given, not the job's: moved away with its toolpath
             notes.append(f"{file}, planned from, is not found: not checked")
         elif file_sha256(now) != entry["sha256"] and (
-            role != "design" or not _same_design(entry, now, planned, board_mm)
+            role != "design" or not _same_design(entry, now, planned, board_mm, pick)
         ):
             changes.append(f"{now} changed since")
     machine = inputs.get("machine")
