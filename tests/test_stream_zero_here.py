@@ -68,22 +68,43 @@ def test_zero_here_makes_the_tools_place_the_boards_origin(tmp_path):
     assert "warning: the controller booted as the port opened" in err
 
 
-@pytest.mark.parametrize(("answer", "sent"), [("n\n", False), ("y\ny\n", True)])
-def test_without_yes_the_tools_place_is_asked_first(tmp_path, answer, sent):
+@pytest.mark.parametrize(
+    ("answer", "zeroed", "moved"),
+    [("n\n", False, False), ("y\nn\n", True, False), ("y\ny\n", True, True)],
+)
+def test_without_yes_the_tools_place_is_asked_first(tmp_path, answer, zeroed, moved):
+    """The zero is set once the tool's place is confirmed, before check mode and the
+    stream's own question (check mode's soft limits count from it)."""
     job = tmp_path / "plot.gcode"
     servo_job(job, strokes=1)
     port, rec = _port(tmp_path, "asked")
     code, _, err = _stream([str(job), "--port", port, "--machine", PLOTTER, "--zero-here"], answer)
     assert "--zero-here: does the tool stand at the board's lower-left corner?" in err
     received = _received(read_record(rec))
-    assert any(t.startswith("G21G10") for t in received) is sent
-    assert any(t.startswith(("G0", "G1")) for t in received) is sent
-    if not sent:
-        assert code == 2
-        assert "jog the tool to the board's lower-left corner first" in err
-        assert "nothing was sent" in err.rstrip().splitlines()[-1]
+    assert any(t.startswith("G21G10") for t in received) is zeroed
+    assert any(t.startswith(("G0", "G1")) for t in received) is moved
+    last = err.rstrip().splitlines()[-1]
+    if not zeroed:
+        assert code == 2 and "jog the tool to the board's lower-left corner first" in last
+        assert "nothing was sent" in last
+    elif not moved:
+        assert code == 2 and "nothing moved (the work zero was set: `G10 L20 P0" in last
     else:
         assert code == 0, err
+
+
+def test_the_checks_before_sending_count_from_the_zero_to_be_set(tmp_path):
+    """A homed machine (MPos -1, -1) zeroed at the board's corner would put the job at
+    positive machine X: soft limits refuse it before the zero or anything else is sent."""
+    job = tmp_path / "plot.gcode"
+    servo_job(job, strokes=1)
+    rec = tmp_path / "rec.jsonl"
+    port = f"grblsim://?baud=0&time_scale=0.01&soft_limits=1&homed=1&{GRBL}&record={rec}"
+    args = [str(job), "--port", port, "--machine", PLOTTER, "--yes", "--zero-here"]
+    code, _, err = _stream(args, "")
+    x = load_profile(PLOTTER).board.offset_mm[0]
+    assert code == 2 and f"(work offset {-1 - x:g})" in err and "nothing was sent" in err
+    assert all(t.startswith("$") for t in _received(read_record(rec)))
 
 
 @pytest.mark.parametrize(
@@ -173,3 +194,38 @@ def test_run_passes_zero_here_to_its_stream_stage(tmp_path, capsys):
     (start,) = [e for e in read_journal(job / "stream" / "journal.jsonl") if e["ev"] == "start"]
     assert start["zeroed"] == work_zero_command(load_profile(PLOTTER))[1]
     assert start["wco"][:2] == pytest.approx([-x, -y])  # the tool stood at machine 0, 0
+
+
+def test_a_z_tool_is_told_that_z_keeps_its_offset(tmp_path):
+    """--zero-here sets X and Y only: a Z tool's work Z stays where the controller has it."""
+    import dataclasses
+
+    from test_stream import write_job
+
+    from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
+
+    mill = load_profile("grbl-3018-diamond")
+    # the 3018 as a work-coordinate mill: its envelope around the work zero
+    mill = dataclasses.replace(
+        mill,
+        envelope=dataclasses.replace(
+            mill.envelope,
+            coordinates="work",
+            x_mm=(-300.0, 300.0),
+            y_mm=(-180.0, 180.0),
+            z_mm=(-45.0, 45.0),
+        ),
+    )
+    assert mill.tool_control.mode == "z"
+    job = tmp_path / "job.gcode"
+    write_job(job, 2)
+    rec = tmp_path / "rec.jsonl"
+    port = f"grblsim://?baud=0&time_scale=0&wco=12,-7,-10&$130=300&$131=180&$132=45&record={rec}"
+    said: list[str] = []
+    request = StreamRequest(job, port, machine=mill, zero_here=True, banner_timeout=0.3)
+    stream_file(request, StreamCallbacks(lambda _: None, said.append, lambda: "stop", None))
+    note = next(line for line in said if line.startswith("note: --zero-here"))
+    assert "sets X and Y only: work Z keeps its offset (-10 mm)" in note
+    x, y = mill.board.offset_mm
+    start = _first_exec(read_record(rec))["frm"]
+    assert start == pytest.approx([x, y, 10.0])  # Z: machine 0 less the kept -10

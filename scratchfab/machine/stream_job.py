@@ -511,12 +511,17 @@ def _stream_locked(
             travel = any("travel" in text for text in findings.refusals)
             hint = emulator_travel_hint(req.port, info.settings, program, profile) if travel else ""
             raise ScratchfabError(f"{findings.refusals[-1]} (nothing was sent){hint}")
+        if zero is not None:  # before check mode, whose soft limits count from the zero
+            if cb.confirm is not None:
+                _ask_zero_here(zero, cb.confirm, "nothing was sent")
+            assert wco is not None  # (:func:`_zeroed_here` gave it)
+            _set_zero_here(streamer, zero[1], wco, info.inch_reports, cb.say)
         if req.check:
             _check(streamer, program, req.gcode, cb.say)
         # check mode sent every line, and nothing moved
         spared = "nothing was cut (check mode moves nothing)" if req.check else "nothing was sent"
-        if zero is not None and cb.confirm is not None:
-            _ask_zero_here(zero, cb.confirm, spared)
+        if zero is not None:
+            spared = f"nothing moved (the work zero was set: `{zero[1]}`)"
         if cb.confirm is not None and not _ask(
             cb.confirm,
             f"Stream {len(program.blocks) - start} lines of {req.gcode} to {req.port}{again}? "
@@ -525,9 +530,6 @@ def _stream_locked(
             spared,
         ):
             raise ScratchfabError(f"not confirmed; {spared}")
-        if zero is not None:
-            assert wco is not None  # (:func:`_zeroed_here` gave it)
-            _set_zero_here(streamer, zero[1], wco, info.inch_reports, cb.say)
         try:
             try:
                 streamer.stream(
