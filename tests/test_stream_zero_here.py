@@ -133,6 +133,8 @@ def test_a_resume_after_a_reset_with_zero_here_zeroes_again_and_goes_on(tmp_path
     base = [str(job), "--machine", PLOTTER, "--yes", "--zero-here"]
     code, _, err = _stream([*base, "--port", port], "")
     assert code == 3, err
+    advice = "before --resume jog the tool back to the board's lower-left corner and add"
+    assert advice in err  # the stop's own advice
     events = read_journal(f"{job}.journal.jsonl")
     assert events[-1]["ev"] == "stop" and events[-1]["lost"] is True
     # the EEPROM keeps the offset the first run set; the tool stands at the corner again

@@ -26,6 +26,7 @@ from scratchfab.machine.sender import (
     StreamFault,
     StreamOptions,
     StreamProgress,
+    StreamStopped,
     homing_of,
     machine_coordinates,
     open_port,
@@ -540,8 +541,10 @@ def _stream_locked(
                     resume=resume,
                     zeroed=None if zero is None else zero[1],
                 )
-            except StreamFault as exc:
-                exc.args = (fault_lines(str(exc)), *exc.args[1:])
+            except (StreamFault, StreamStopped) as exc:
+                text = str(exc) if zero is None else f"{exc}; {_zeroed_resume(zero[0])}"
+                lines = fault_lines(text) if isinstance(exc, StreamFault) else text
+                exc.args = (lines, *exc.args[1:])
                 raise
             journal.close()
             cb.outcome(
@@ -580,6 +583,15 @@ def zero_here_command(profile: MachineProfile | None) -> tuple[str, str]:
             "work zero; home it and stream without --zero-here; nothing was sent"
         )
     return work_zero_command(profile)
+
+
+def _zeroed_resume(point: str) -> str:
+    """How a run zeroed with ``--zero-here`` is resumed: at the same point, zeroed again."""
+    return (
+        "this run's work zero was set with --zero-here, which a controller that resets as "
+        "its port opens loses at the next connection: before --resume jog the tool back to "
+        f"the board's {point} and add --zero-here"
+    )
 
 
 def _ask_zero_here(zero: tuple[str, str], confirm: Confirm, spared: str) -> None:
