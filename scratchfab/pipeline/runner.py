@@ -22,7 +22,7 @@ from typing import Any
 
 from scratchfab.console import Confirm, Say
 from scratchfab.errors import ConfigError, Interrupted, ScratchfabError
-from scratchfab.fileio import try_lock
+from scratchfab.fileio import decode_json, try_lock
 from scratchfab.model.job import JobLayout
 from scratchfab.pipeline.config import (
     PIPELINE_FORCE,
@@ -79,6 +79,141 @@ def as_run_advice(text: str) -> str:
     return text + ("\n  " if "\n" in text else " ") + note
 
 
+def _number(value: Any) -> float | None:
+    """A JSON number as a float (NaN and infinity as written); None for anything else."""
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+@dataclass(frozen=True)
+class ViewMetrics:
+    """One view's verify measurements.
+
+    Attributes:
+        name: The view.
+        rho: Pearson correlation of the verify render with the view's target (rho_kk,
+            1 = perfect); None for a view without a target.
+        psnr: PSNR of the render against the target, in dB (the render scaled by its
+            best exposure, peak 1); None without a target.
+        passed: Whether ``rho`` reaches the gate's ``min_rho``; None without a gate, or
+            for a view without a target (the gate does not check it).
+    """
+
+    name: str
+    rho: float | None
+    psnr: float | None
+    passed: bool | None
+
+
+@dataclass(frozen=True)
+class VerifyMetrics:
+    """The verify stage's measurements, as ``JOB/verify/metrics.json`` holds them.
+
+    Attributes:
+        views: Each view's, in the design's order.
+        min_rho: The gate verify ran with (None: no gate).
+        passed: Whether every view checked reached ``min_rho`` (None: no gate).
+        file: The ``metrics.json`` read, which holds every other measurement.
+    """
+
+    views: tuple[ViewMetrics, ...]
+    min_rho: float | None
+    passed: bool | None
+    file: Path
+
+    def view(self, name: str) -> ViewMetrics:
+        """The view named ``name``.
+
+        Raises:
+            KeyError: No view of that name was verified.
+        """
+        for view in self.views:
+            if view.name == name:
+                return view
+        raise KeyError(f"no view {name!r} in {self.file}; views: {[v.name for v in self.views]}")
+
+    @classmethod
+    def read(cls, path: Path) -> VerifyMetrics | None:
+        """The measurements in ``path`` (a ``metrics.json``); None where it is unreadable."""
+        try:
+            data = decode_json(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        views = data.get("views") if isinstance(data, dict) else None
+        if not isinstance(views, dict):
+            return None
+        gate = data.get("gate")
+        gate = gate if isinstance(gate, dict) else {}
+        failing = set(gate.get("failing") or ())
+        unchecked = set(gate.get("unchecked") or ())
+        names = data.get("names")
+        order = [str(n) for n in names] if isinstance(names, list) else list(views)
+        found = []
+        for name in order:
+            entry = views.get(name)
+            entry = entry if isinstance(entry, dict) else {}
+            rho = _number(entry.get("rho"))
+            passed = None if not gate or rho is None or name in unchecked else name not in failing
+            found.append(ViewMetrics(name, rho, _number(entry.get("psnr")), passed))
+        passed = gate.get("passed")
+        return cls(
+            tuple(found),
+            _number(gate.get("min_rho")),
+            passed if isinstance(passed, bool) else None,
+            path,
+        )
+
+
+@dataclass(frozen=True)
+class ToolpathFigures:
+    """The toolpath stage's figures, as ``JOB/toolpath/toolpath.json`` holds them.
+
+    Attributes:
+        strokes: Strokes to cut.
+        scratches: Scratches it was planned from.
+        left_out: Scratches not cut: off the board, outside the machine's travel or
+            shorter than the tool's minimum (duplicates merged into one stroke are cut).
+        clipped: Strokes the machine's travel cuts short.
+        cut_mm: Length cut.
+        travel_mm: Pen-up travel, from the start position and back to it.
+        estimated_s: Estimated machining time.
+        strokes_id: The ordered strokes' id, which the G-code's header carries.
+        file: The ``toolpath.json`` read.
+    """
+
+    strokes: int
+    scratches: int
+    left_out: int
+    clipped: int
+    cut_mm: float
+    travel_mm: float
+    estimated_s: float
+    strokes_id: str
+    file: Path
+
+    @classmethod
+    def read(cls, path: Path) -> ToolpathFigures | None:
+        """The figures of ``path`` (a ``toolpath.json``); None where it is unreadable."""
+        from scratchfab.toolpath import Toolpath
+
+        try:
+            toolpath = Toolpath.load(path)
+            s = toolpath.stats
+            scratches = int(s["input_count"])
+            return cls(
+                len(toolpath),
+                scratches,
+                scratches - len(toolpath) - int(s["merged_count"]),
+                int(s["clipped_count"]),
+                float(s["cut_length_mm"]),
+                float(s["travel_length_mm"]),
+                float(s["estimated_time_s"]),
+                toolpath.strokes_id,
+                path,
+            )
+        except (ConfigError, KeyError, TypeError, ValueError):
+            return None
+
+
 @dataclass
 class RunResult:
     """What a pipeline run did.
@@ -89,6 +224,9 @@ class RunResult:
         skipped: Stages skipped because their inputs did not change.
         report: The report written at the end (also after a failure).
         seconds: Wall time of the whole run.
+        verify: The verify metrics, where verify ran or was up to date (else None, as
+            when ``--until`` stopped before it or it is not in the pipeline).
+        toolpath: The toolpath's figures, where toolpath ran or was up to date.
     """
 
     job: Path
@@ -96,6 +234,8 @@ class RunResult:
     skipped: list[str] = field(default_factory=list)
     report: Path | None = None
     seconds: float = 0.0
+    verify: VerifyMetrics | None = None
+    toolpath: ToolpathFigures | None = None
 
 
 def partial_by_pipeline_force(path: Path) -> str:
@@ -636,4 +776,9 @@ def _run_stages(
             pipeline_file=pipe.path,
         )
         result.seconds = time.perf_counter() - t0
+    this_run = {*result.ran, *result.skipped}  # the outputs in the folder are current
+    if "verify" in this_run:
+        result.verify = VerifyMetrics.read(stages.layout.verify_metrics)
+    if "toolpath" in this_run:
+        result.toolpath = ToolpathFigures.read(stages.layout.toolpath_json)
     return result
