@@ -54,3 +54,36 @@ def test_each_end_of_the_range_fits_and_one_digit_past_it_does_not(decimals, boa
         assert lo <= first - half and last + half <= hi, (axis, first, last)
         # tight: one written digit further, the board leaves the envelope
         assert first - unit - half < lo and last + unit + half > hi, (axis, first, last)
+
+
+@pytest.mark.parametrize(
+    ("board", "x_mm", "clear"),
+    [((100.0, 100.0), (-300.0, 0.0), True), ((299.5, 40.0), (-300.0, 0.0), True)]
+    + [((300.0, 40.0), (-300.0, 0.0), False)],
+)
+def test_the_offset_named_lies_in_the_range_and_the_text_says_why_not_at_its_end(
+    board, x_mm, clear
+):
+    """Whole-millimetre range ends put the board on the envelope's edge: the offset named
+    lies inside them, and the text says it keeps the board clear of the edges (where it
+    does: a board as wide as the travel has one offset, on both edges)."""
+    profile = centred(3, x_mm)
+    advice = fit_advice(profile, board)
+    found = re.search(
+        rf"offset_mm = \[{NUMBER}, {NUMBER}\] \(the nearest to its \[50, 50\]"
+        rf"( that keeps the board clear of the envelope's edges)?\).* from X {NUMBER} to "
+        rf"{NUMBER} and Y {NUMBER} to {NUMBER}",
+        advice,
+    )
+    assert found, advice
+    x, y, said_clear, *ends = found.groups()
+    offset = (float(x), float(y))
+    envelope = (x_mm, profile.envelope.y_mm)
+    placed_clear = []
+    for axis in range(2):
+        first, last = float(ends[2 * axis]), float(ends[2 * axis + 1])
+        assert first <= offset[axis] <= last, advice
+        lo, hi = envelope[axis]
+        half = board[axis] / 2
+        placed_clear.append(lo < offset[axis] - half and offset[axis] + half < hi)
+    assert all(placed_clear) is clear is (said_clear is not None), advice

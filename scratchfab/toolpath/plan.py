@@ -114,7 +114,10 @@ def fit_advice(profile: MachineProfile, board_size: tuple[float, float]) -> str:
     offset_mm`` nearest the profile's that fits
     (:meth:`~scratchfab.machine.profile.MachineProfile.fitting_offset`) and the range
     of those that do, in the profile's convention (its origin corner, its rotation); for
-    a board that lies inside the envelope as placed, that no offset is to change.
+    a board that lies inside the envelope as placed, that no offset is to change. The
+    offset named keeps the board clear of the envelope's edges where it can: a range's
+    end in whole millimetres puts the board on an edge, so the offset lies a unit inside
+    it, and the text says why.
     """
     too_big = oversize_text(profile, board_size)
     offset = profile.fitting_offset(board_size)
@@ -133,8 +136,11 @@ def fit_advice(profile: MachineProfile, board_size: tuple[float, float]) -> str:
     corner = place.origin_text
     turned = f" (turned by rotation_deg = {place.rotation_deg})" if place.rotation_deg else ""
     dec = profile.gcode.decimals
+    clear = all(lo < v < hi for v, (lo, hi) in zip(offset, ((x0, x1), (y0, y1)), strict=True))
+    why = " that keeps the board clear of the envelope's edges" if clear else ""
     return (
-        f"set the profile's [board] offset_mm = {_offset_text(offset)}, where the "
+        f"set the profile's [board] offset_mm = {_offset_text(offset)} (the nearest to "
+        f"its {_offset_text(now)}{why}), where the "
         f"board's {corner}{turned} then lies: the whole board fits with any offset_mm "
         f"from X {_range_text(x0, x1, dec)} and Y {_range_text(y0, y1, dec)}"
     ) + _copy_advice(profile)
