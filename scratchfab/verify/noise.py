@@ -21,8 +21,8 @@ the knee (:data:`MIN_KNEE_BATCH`):
 on the demo the knee read from 32 spp named 0.6 to 0.9 times the count needed, and from
 16 spp half the renders showed none, the others one at random (0.5 to 2.5 times); the
 advice takes 1 / spp there, as for a metrics.json from before the knee, and names 1.4 to
-3.7 times the count (about 2 times for the demo's own gate). A render with a noise
-target's added batches counts as two batches of fewer samples (:func:`render_knee`).
+3.7 times the count (about 2 times for the demo's own gate). A render whose noise
+target added batches counts as two batches of fewer samples (:func:`render_knee`).
 """
 
 from __future__ import annotations
@@ -104,16 +104,25 @@ class PartNoise:
     """One part of a render, as its noise tells the knee.
 
     Attributes:
-        batch: Samples per pixel of each batch.
-        batches: How many batches were taken.
-        variance: Per pixel, the squared standard error of the batches' mean.
+        batch: Samples per pixel of each batch (of the largest, where a noise target
+            added batches of another size).
+        batches: How many batches of that size.
+        variance: Per pixel, the squared standard error of those batches' mean.
         unstratified: Per pixel, what as many unstratified samples would leave.
+        rendered: Per pixel, the squared standard error of the part's image, where it
+            also holds earlier rounds (None: ``variance``).
     """
 
     batch: int
     batches: int
     variance: np.ndarray
     unstratified: np.ndarray
+    rendered: np.ndarray | None = None
+
+    @property
+    def leaves(self) -> np.ndarray:
+        """Per pixel, the squared standard error of the part's image."""
+        return self.variance if self.rendered is None else self.rendered
 
 
 def render_knee(parts: Sequence[PartNoise]) -> tuple[float | None, float]:
@@ -124,7 +133,10 @@ def render_knee(parts: Sequence[PartNoise]) -> tuple[float | None, float]:
     leave, at the same gain over unstratified samples, so two batches of b fix the knee
     (k b samples overstated it k / 2 times), and k batches leave more noise than two of
     k b / 2 samples: the advice counts from the count of two batches that leave as much,
-    by the knee's model. Each part counts as two of its batches would; the gain's
+    by the knee's model; so does a render whose noise target added batches of another
+    size (the part describes the largest, and ``rendered`` the image's noise). Each part
+    counts as two of its
+    batches would; the gain's
     standard error (:data:`KNEE_ERRORS`) is the larger of its spread over the pixels and
     the one the batches' own spread gives it (:func:`gain_error`), and batches of fewer
     than :data:`MIN_KNEE_BATCH` samples fix no knee. The smooth flat part of a spec
@@ -144,7 +156,11 @@ def render_knee(parts: Sequence[PartNoise]) -> tuple[float | None, float]:
     sums = [float(np.sum(p.variance, dtype=np.float64)) for p in parts]
     # Summed part by part for both, so that two batches of every part count as the spp exactly.
     total = sum(p.batches / 2 * s for p, s in zip(parts, sums, strict=True))
-    measured, free = sum(sums), float(np.sum(loose))
+    measured = sum(
+        s if p.rendered is None else float(np.sum(p.rendered, dtype=np.float64))
+        for p, s in zip(parts, sums, strict=True)
+    )
+    free = float(np.sum(loose))
     knee = None
     if parts[0].batch >= MIN_KNEE_BATCH and free > 0:
         knee = knee_spp(spp, total, free, gain_error(variance, loose, parts[0].batches))

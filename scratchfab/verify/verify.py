@@ -1,9 +1,9 @@
 """The ``verify-render`` stage: render the board in Mitsuba 3 and compare.
 
-Every view is rendered in independent batches (two at half the sample count each, more
-while a noise target is not met). The output image is their mean and the batches'
-spread gives its standard error (for two, ``|A - B| / 2``), so the reported noise level
-costs no extra samples. The comparison target is the analytic
+Every view is rendered in independent batches (two at half the sample count each, two
+larger ones while a noise target is not met). The output image is their mean and the
+batches' spread gives its standard error (for two, ``|A - B| / 2``), so the reported
+noise level costs no extra samples. The comparison target is the analytic
 ``render`` of the same board (``JOB/optimize/renders`` or
 :func:`scratchfab.render.renderer.render_scratches`); it is only read, never used to
 render. Quality measures follow SPEC section 7 (:mod:`scratchfab.metrics`).
@@ -16,7 +16,7 @@ import math
 import os
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +46,7 @@ from scratchfab.verify.noise import (
     noise_advice,
     noise_explains,
     render_knee,
+    variance_ratio,
 )
 from scratchfab.verify.outshine import outshine_advice, shoulder_shares
 from scratchfab.verify.scene import Sky, board_bsdf, render_view_spread, scene_dict, use_variant
@@ -205,8 +206,8 @@ class ViewRender:
             does not, as far as this render shows).
         equivalent_spp: The samples per pixel at which two batches leave this render's
             noise: ``spp`` unless batches were added for a noise target (each batch is
-            stratified on its own, so more of them leave more noise than two of the same
-            total); the noise advice counts from it.
+            stratified on its own, so the first ones, of a coarser grid, leave more noise
+            than two of the same total); the noise advice counts from it.
     """
 
     image: np.ndarray
@@ -284,29 +285,31 @@ class BoardRenderer:
             spp: Samples per pixel of the first two batches together.
             seed: Base seed; batch k of part p uses ``4096 * seed + 64 * p + k``.
             max_noise: Add batches until the estimated noise is at most this (or
-                ``MAX_SPP_FACTOR * spp`` is reached).
+                ``MAX_SPP_FACTOR * spp`` is reached), two at a time, of the size that
+                reaches it.
         """
         start = time.perf_counter()
         means = []
         parts: list[PartNoise] = []
         per_spp = 0.0
+        taken = 0
         for p, (bsdf, fraction) in enumerate(self.parts):
             part_spp = max(MIN_PART_SPP, round(fraction * spp))
-            mean, part, per_sample = self._batches(
+            mean, part, per_sample, samples = self._batches(
                 view, bsdf, part_spp, 4096 * seed + 64 * p, max_noise if p == 0 else None
             )
             means.append(mean)
             parts.append(part)
+            taken = max(taken, samples)
             per_spp += fraction * per_sample  # a part takes ``fraction`` of each spp
         if self.mode == "spec":
             image = means[0] + np.maximum(means[1], 0.0)
         else:
             image = means[0]
-        variance = np.asarray(np.sum([p.variance for p in parts], axis=0), np.float64)
+        variance = np.asarray(np.sum([p.leaves for p in parts], axis=0), np.float64)
         norm = float(np.linalg.norm(image))
         noise = math.sqrt(float(np.sum(variance))) / norm if norm > 0 else 0.0
         seconds = time.perf_counter() - start
-        taken = max(p.batch * p.batches for p in parts)
         knee, equal = render_knee(parts)
         return ViewRender(
             image.astype(np.float32), noise, taken, seconds, variance, per_spp, knee, equal
@@ -314,39 +317,60 @@ class BoardRenderer:
 
     def _batches(
         self, view: View, bsdf: Any, spp: int, seed: int, max_noise: float | None
-    ) -> tuple[np.ndarray, PartNoise, float]:
-        """The batches' mean, their noise (:class:`PartNoise`), and seconds per sample.
+    ) -> tuple[np.ndarray, PartNoise, float, int]:
+        """The batches' mean, their noise (:class:`PartNoise`), seconds per sample, samples.
 
         Per pixel the batches' mean, its squared standard error, and that error as
         unstratified samples would leave it (the samples' own spread over their count).
         The seconds per sample are timed on the batches after the first, whose time also
         holds compiling the kernels and the scene's first use.
+
+        Batches come in rounds of two of one size, the first of ``spp`` samples. While
+        the noise is above ``max_noise`` a round of the size that the knee's model says
+        meets it is added (:func:`_next_round`, within ``MAX_SPP_FACTOR * spp`` in all):
+        each batch is stratified on its own, so two larger batches leave less noise than
+        more of the first size (a fine board's 2.5 times less noise than 256 spp took
+        1749 spp so, 1198 now, where two batches need 813). The batches of each size
+        are one round, and the rounds are weighed by their samples (:func:`_combine`);
+        the returned part describes the round of the largest batches, the knee's
+        reading (its ``rendered``: the whole image's error).
         """
         mi = self.mi
         half = half_spp(spp)
         scene = mi.load_dict(
             scene_dict(self.design, self.scratches, view, half, sky=self.sky, bsdf=bsdf)
         )
-        batches: list[np.ndarray] = []
-        spread: np.ndarray | float = 0.0  # per pixel, the samples' own variance, summed
-        limit = max(2, (MAX_SPP_FACTOR * spp) // half)
-        later = 0.0  # the batches after the first: no compiling, no first use of the scene
+        budget = max(2, (MAX_SPP_FACTOR * spp) // half) * half  # all batches' samples
+        groups: dict[int, list[np.ndarray]] = {}  # by size, the batches taken
+        spreads: dict[int, np.ndarray | float] = {}  # per pixel, the samples' variance, summed
+        size, taken, later = half, 0, 0.0  # later: the batches after the first one's time
         while True:
-            start = time.perf_counter()
-            image, samples = render_view_spread(scene, half, (seed + len(batches)) % (1 << 32))
-            batches.append(image)
-            spread = spread + np.asarray(samples, np.float64)
-            if len(batches) > 1:
-                later += time.perf_counter() - start
-            if len(batches) < 2:
-                continue
-            mean, var = _batch_stats(batches)
-            norm = float(np.linalg.norm(mean))
-            noise = math.sqrt(float(np.sum(var))) / norm if norm > 0 else 0.0
-            if max_noise is None or noise <= max_noise or len(batches) >= limit:
+            for _ in range(2):
+                start = time.perf_counter()
+                seen = sum(len(g) for g in groups.values())
+                image, samples = render_view_spread(scene, size, (seed + seen) % (1 << 32))
+                groups.setdefault(size, []).append(image)
+                spreads[size] = spreads.get(size, 0.0) + np.asarray(samples, np.float64)
+                if taken:
+                    later += time.perf_counter() - start
+                taken += size
+            means, rounds = {}, {}
+            for n, batches in groups.items():
                 k = len(batches)
-                loose = np.asarray(spread) / k / (half * k)
-                return mean, PartNoise(half, k, var, loose), later / (half * (k - 1))
+                means[n], var = _batch_stats(batches)
+                rounds[n] = PartNoise(n, k, var, np.asarray(spreads[n]) / k / (n * k))
+            mean, rendered = _combine(list(rounds.values()), list(means.values()))
+            norm = float(np.linalg.norm(mean))
+            noise = math.sqrt(float(np.sum(rendered))) / norm if norm > 0 else 0.0
+            if max_noise is not None and noise > max_noise:
+                most = _grid_below((budget - taken) // 2)
+                goal = (max_noise * norm) ** 2
+                size = _next_round(rounds[size], taken, float(np.sum(rendered)), goal, 2 * most)
+                size = min(max(size, half_spp(half)), most)
+            if max_noise is None or noise <= max_noise or size < 1:
+                last = rounds[max(rounds)]
+                part = replace(last, rendered=None if len(rounds) == 1 else rendered)
+                return mean, part, later / (taken - half), taken
 
 
 def _batch_stats(batches: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -355,6 +379,59 @@ def _batch_stats(batches: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     mean = sum(batches[1:], batches[0]) / k
     spread = sum((np.asarray(b, np.float64) - mean) ** 2 for b in batches)
     return mean, np.asarray(spread) / (k * (k - 1))
+
+
+def _combine(rounds: list[PartNoise], means: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The rounds' mean (each: the batches of one size), weighed by samples, and its error.
+
+    The error: per pixel, the squared standard error of that mean.
+
+    Weights fixed in advance keep the error unbiased (weighed by their measured noise, the
+    rounds whose noise came out low would count more, and the error with them); one
+    round is returned as it is.
+    """
+    if len(rounds) == 1:
+        return means[0], rounds[0].variance
+    weights = np.array([r.batch * r.batches for r in rounds], np.float64)
+    weights /= np.sum(weights)
+    mean = sum(w * np.asarray(m, np.float64) for w, m in zip(weights, means, strict=True))
+    variance = sum(w**2 * r.variance for w, r in zip(weights, rounds, strict=True))
+    return np.asarray(mean), np.asarray(variance, np.float64)
+
+
+def _next_round(last: PartNoise, taken: int, variance: float, goal: float, most: int) -> int:
+    """Samples of each batch of the round that brings a render's summed variance to ``goal``.
+
+    The fewest samples ``n`` (two batches, at most ``most``) that, weighed as
+    :func:`_combine` weighs them against the ``taken`` samples that leave ``variance``,
+    reach it: the knee's model, read from ``last`` (the last round's size), says what
+    two batches of ``n`` samples leave.
+
+    Returns:
+        The samples of each batch, on the sampler's grid (``most`` where none reach it).
+    """
+    knee, _ = render_knee([last])
+    pair, spp = last.batches / 2 * float(np.sum(last.variance)), 2 * last.batch  # two batches
+
+    def left(n: int) -> float:
+        added = n**2 * pair / variance_ratio(spp, n, knee)
+        return (taken**2 * variance + added) / (taken + n) ** 2
+
+    low, high = 1, max(1, most)
+    if left(high) > goal:
+        return half_spp(high)
+    while low < high:
+        mid = (low + high) // 2
+        low, high = (mid + 1, high) if left(mid) > goal else (low, mid)
+    return half_spp(low)
+
+
+def _grid_below(spp: int) -> int:
+    """The most samples at most ``spp`` that the multi-jitter sampler's a x b grid takes."""
+    if spp < 1:
+        return 0
+    a = math.isqrt(spp)
+    return a * (spp // a)
 
 
 def relative_l2(image: np.ndarray, reference: np.ndarray) -> float:
