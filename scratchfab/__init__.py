@@ -28,8 +28,9 @@ memory where it can be:
 - render: :func:`scratchfab.render.renderer.render_scratches` -> ``{view: (H, W)}``;
 - toolpath: :func:`scratchfab.machine.profile.load_profile` (a bundled name or a file)
   and :func:`scratchfab.toolpath.plan_toolpath` (tuned by
-  :class:`scratchfab.toolpath.OrderOptions`) -> a
-  :class:`scratchfab.toolpath.Toolpath` (``Toolpath.load`` reads a ``toolpath.json``);
+  :class:`scratchfab.toolpath.OrderOptions`; its ``progress`` callback gets the
+  ordering's phases) -> a :class:`scratchfab.toolpath.Toolpath` (``Toolpath.load``
+  reads a ``toolpath.json``);
 - export: :func:`scratchfab.export.gcode.gcode_text`, :func:`scratchfab.export.svg.svg_text`,
   :func:`scratchfab.export.dxf.dxf_text` (text in memory) or
   :func:`scratchfab.export.export` (a file; not in ``__all__``, where the name is the
@@ -41,12 +42,14 @@ memory where it can be:
 
 A whole job as ``scratchfab run`` does it: :func:`scratchfab.pipeline.config.load_pipeline`
 and :func:`scratchfab.pipeline.runner.run_pipeline` -> a
-:class:`scratchfab.pipeline.runner.RunResult` (the stages that ran and skipped, the report). The ``run_*`` functions of each stage's ``stage`` module do
-one stage on a job folder (SPEC section 6). Mistakes in files, tables, settings and
-targets raise :class:`scratchfab.errors.ScratchfabError` (one line naming the file and
-key or row); the building blocks made in code raise ``ValueError``: the dataclasses
-(``Board``, ``Light``, ``ScratchTool``, ``View``, ``OptimizeOptions``, a profile's tables)
-for a value outside a file's bounds, ``tone_map`` for an exposure that is not > 0, and
+:class:`scratchfab.pipeline.runner.RunResult` (the stages that ran and skipped, each
+view's verify rho, PSNR and pass/fail, and the toolpath's figures). The ``run_*``
+functions of each stage's ``stage`` module do one stage on a job folder (SPEC section 6).
+Mistakes in files, tables, settings and targets raise
+:class:`scratchfab.errors.ScratchfabError` (one line naming the file and key or row);
+the building blocks made in code raise ``ValueError``: the dataclasses (``Board``,
+``Light``, ``ScratchTool``, ``View``, ``OptimizeOptions``, a profile's tables) for a
+value outside a file's bounds, ``tone_map`` for an exposure that is not > 0, and
 ``ScratchSet``, ``fit_to_board``, ``warp_to_view``, ``order_strokes`` for arrays of the
 wrong shape or range. Nothing in the core prints: progress goes to the callbacks a
 caller passes.
