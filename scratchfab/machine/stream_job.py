@@ -631,7 +631,7 @@ def _zeroed_here(
             "offset ($10=1 makes them give MPos), so the zero it sets cannot be checked; "
             "nothing was sent"
         )
-    words = dict((w[0], float(w[1:])) for w in command.split()[3:])
+    words = {w[0]: float(w[1:]) for w in command.split() if w[0] in "XY"}
     x, y = words["X"], words["Y"]
     if profile is not None and profile.tool_control.mode == "z":
         say(
