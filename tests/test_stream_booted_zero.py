@@ -35,3 +35,4 @@ def test_a_booted_controller_with_an_offset_is_warned_once(tmp_path, query, warn
         line = next(x for x in err.splitlines() if x.startswith(WARNING))
         assert "keeps (X12 Y-7 Z0 mm, set in an earlier session)" in line
         assert "`G10 L2 P0 X0 Y0 Z0`" in line
+        assert "--zero-here" not in line  # no profile: no board point to zero at

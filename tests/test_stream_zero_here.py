@@ -66,6 +66,7 @@ def test_zero_here_makes_the_tools_place_the_boards_origin(tmp_path):
     assert code == 0, err
     assert _first_exec(read_record(rec))["frm"][:2] == pytest.approx([-12.0, 7.0])
     assert "warning: the controller booted as the port opened" in err
+    assert "jog the tool to the board's lower-left corner and stream with --zero-here" in err
 
 
 @pytest.mark.parametrize(

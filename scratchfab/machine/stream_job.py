@@ -486,7 +486,7 @@ def _stream_locked(
                 )
             if lost:
                 _say_lost_position(events, cb.say, profile=profile, homing=homing)
-        booted = None if resume or zero is not None else booted_zero_warning(info)
+        booted = None if resume or zero is not None else booted_zero_warning(info, profile)
         if booted is not None:
             cb.say(f"warning: {booted}")
         program = program.timed_for(eta_settings(info.settings, profile))  # the ETA's times
@@ -793,7 +793,7 @@ def _ask(confirm: Confirm, question: str, how: str, spared: str = "nothing was s
 ASKED_ONLY = "answer y on a terminal or through a pipe (--yes refuses this question)"
 
 
-def booted_zero_warning(info: ControllerInfo) -> str | None:
+def booted_zero_warning(info: ControllerInfo, profile: MachineProfile | None = None) -> str | None:
     """A controller without homing that booted as the port opened, with a work offset.
 
     Without homing (``$22=0``) GRBL's machine zero is where the tool stood at boot, and an
@@ -801,14 +801,21 @@ def booted_zero_warning(info: ControllerInfo) -> str | None:
     offset it keeps (G54, in EEPROM) was set in an earlier session's frame, so the work
     zero lies that far from the tool now: the board's zero only where the tool stands
     where the controller booted last. A resume asks its own question
-    (:func:`reset_since_last_run`). None where homing is on or not read, no banner came
-    at opening, or the offset is zero.
+    (:func:`reset_since_last_run`). With a work-coordinate ``profile`` the warning names
+    ``--zero-here`` at its board's point too. None where homing is on or not read, no
+    banner came at opening, or the offset is zero.
     """
     wco = info.wco
     if not info.booted or homing_of(info.settings) is not False or wco is None:
         return None
     if same_offset(wco, (0.0, 0.0, 0.0), info.inch_reports):
         return None
+    here = ""
+    if profile is not None and not machine_coordinates(profile):
+        here = (
+            f", or jog the tool to the board's {profile.board.origin_text} and stream with "
+            "--zero-here, which zeroes X and Y there once connected"
+        )
     return (
         "the controller booted as the port opened (its banner came) and homing is off "
         f"($22=0): its machine zero is where the tool stands now, so the work offset it "
@@ -817,7 +824,7 @@ def booted_zero_warning(info: ControllerInfo) -> str | None:
         "before (right where the zero was set from a connection opened at that spot, with "
         "the tool not moved since: then go on); else park the tool at the work zero with "
         "the offset cleared (`G10 L2 P0 X0 Y0 Z0`) before streaming, so that each boot's "
-        "machine zero is the work zero"
+        f"machine zero is the work zero{here}"
     )
 
 
