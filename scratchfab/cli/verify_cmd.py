@@ -27,7 +27,8 @@ from scratchfab.verify.verify import DEFAULT_SPP, bad_sweep_frames
     "--max-noise",
     type=FiniteFloat(min=0, min_open=True),
     default=None,
-    help="Add sample batches until the estimated relative noise is at most this (up to 8x --spp).",
+    help="Add sample batches until the estimated relative noise is at most this (two at a "
+    "time, of the size the noise so far says reaches it; up to 8x --spp in all).",
 )
 @click.option(
     "--seed",
