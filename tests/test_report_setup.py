@@ -46,6 +46,9 @@ def test_machine_coordinates_profile_says_do_not_zero_on_the_board(tmp_path):
     assert "board's corner at machine -X -Y (front left where machine +Y runs away" in step
     assert f"the picture's bottom-left corner) at X {x:g} Y {y:g}" in step
     assert f"Z {profile.z.engrave_mm:g} mm" in step
+    # the travel height, which the first move from home runs at too (a 3018 owner's clamps)
+    assert f"travelling at Z {profile.z.safe_mm:g} mm (every travel, the first one" in step
+    assert "clamps and anything else on the bed must lie lower" in step
 
 
 def test_work_coordinates_profile_is_told_to_set_the_zero_on_the_board(tmp_path):

@@ -1448,7 +1448,10 @@ def _setup_step(job: Path) -> str:
     tool = (
         f"the tool lowered by its on command ({_code(profile.tool_control.command('on'))})"
         if servo
-        else f"the tool cutting at Z <span data-stat='setup.z'>{profile.z.engrave_mm:g}</span> mm"
+        else f"the tool cutting at Z <span data-stat='setup.z'>{profile.z.engrave_mm:g}</span> mm "
+        f"and travelling at Z <span data-stat='setup.safe'>{profile.z.safe_mm:g}</span> mm "
+        "(every travel, the first one from where the tool stands too: clamps and anything "
+        "else on the bed must lie lower)"
     )
     placed = (
         f" ('{html.escape(profile.name)}'): the board's {corner} at X "
