@@ -128,6 +128,7 @@ def write_tiff(
     planar: bool = False,
     tile: tuple[int, int] | None = None,
     compression: str | None = None,
+    byte_counts: bool = True,
 ) -> None:
     """A TIFF of the samples' type written by hand (Pillow cannot write 16-bit colour).
 
@@ -137,6 +138,7 @@ def write_tiff(
     ``photometric`` is 5 (CMYK: four inks); ``icc`` is an embedded ICC profile.
     ``planar`` stores each sample's plane after the other's (PlanarConfiguration 2);
     ``tile`` (width, length) stores tiles, padded where they overhang, not strips.
+    Without ``byte_counts`` the strips' or tiles' byte counts are left out.
     """
     h, w, c = samples.shape
     compression = compression or ("deflate" if deflate else None)
@@ -179,6 +181,8 @@ def write_tiff(
         tags.update({322: (4, [tile[0]]), 323: (4, [tile[1]]), 325: (4, [len(x) for x in strips])})
     else:
         tags.update({278: (4, [rows_per_strip]), 279: (4, [len(x) for x in strips])})
+    if not byte_counts:
+        del tags[325 if tile else 279]
     tags[offsets_tag] = (4, [0] * n)
     if c % 2 == 0 and photometric != 5:
         tags[338] = (3, [extra_samples])

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import itertools
-import os
+import struct
+import tracemalloc
 
 import numpy as np
 import pytest
@@ -20,7 +21,6 @@ from test_images import (
 from test_images_deep import random_samples, reference, write_png16, write_tiff
 
 from scratchfab.design.images import load_image
-from scratchfab.design.images_deep import LibtiffSaid
 from scratchfab.errors import ConfigError
 
 #: Byte order, deflate (libtiff decodes) or not (Pillow's raw reader), rows per strip.
@@ -347,33 +347,80 @@ def test_compressed_16bit_cmyk_planes(tmp_path):
 
 
 @pytest.mark.parametrize("planar", [False, True])
-def test_corrupt_compressed_tiff_says_libtiffs_reason_in_the_one_line(tmp_path, capfd, planar):
-    # libtiff writes its errors to stderr (Pillow turns off only its warnings): after the
-    # one-line message, unterminated.
+def test_corrupt_compressed_tiff_fails_with_one_line(tmp_path, planar):
+    # libtiff may still print its own reason on stderr after our line (Pillow turns off
+    # only its warnings): the process's stderr is left alone.
     samples = random_samples(3, shape=(40, 50), seed=3)
     path = tmp_path / "cut.tif"
     write_tiff(path, samples, "<", rows_per_strip=8, planar=planar, compression="lzw")
-    whole = path.read_bytes()
-    path.write_bytes(whole[:-100])
-    strips = -(-40 // 8) * (3 if planar else 1)
-    with pytest.raises(
-        ConfigError, match=rf"cut.tif: .*libtiff: TIFFFillStrip: .*strip {strips - 1}"
-    ):
+    path.write_bytes(path.read_bytes()[:-100])
+    with pytest.raises(ConfigError, match=r"cut.tif: corrupt or truncated image \(") as info:
         load_image(path)
-    assert capfd.readouterr().err == ""
+    assert "\n" not in str(info.value)
 
 
-def test_libtiff_messages_are_kept_for_an_error_and_written_back_otherwise(capfd):
-    with LibtiffSaid(True) as said:
-        os.write(2, b"TIFFReadDirectory: a message.\nanother thread's line\n")
-    assert said.text == "" and capfd.readouterr().err == (
-        "TIFFReadDirectory: a message.\nanother thread's line\n"
-    )
-    with pytest.raises(OSError), LibtiffSaid(True) as said:
-        os.write(2, b"ZIPDecode: Decoding error at scanline 16.")
-        raise OSError("decoder error -2")
-    assert said.text == "ZIPDecode: Decoding error at scanline 16"
-    assert capfd.readouterr().err == ""
-    with LibtiffSaid(False) as said:  # not a TIFF: stderr untouched
-        os.write(2, b"left alone\n")
-    assert capfd.readouterr().err == "left alone\n"
+@pytest.mark.parametrize("tile", [None, (16, 16)])
+def test_16bit_planes_without_byte_counts_read_like_the_same_png(tmp_path, tile):
+    # Pillow's raw reader needs no StripByteCounts; rows per strip 2**32 - 1 is one strip.
+    samples = random_samples(3, shape=(20, 35), seed=18)
+    tif, png = tmp_path / "nocounts.tif", tmp_path / "same.png"
+    rows = None if tile else 2**32 - 1
+    write_tiff(tif, samples, ">", rows_per_strip=rows, planar=True, tile=tile, byte_counts=False)
+    write_png16(png, samples)
+    np.testing.assert_array_equal(load_image(tif), load_image(png))
+
+
+@pytest.mark.parametrize(
+    ("tag", "value", "says"),
+    [
+        (273, 10**6, "truncated"),  # a strip past the file's end
+        (323, 0, "strips or tiles of 16 x 0 pixels"),  # TileLength
+        (278, 3, "12 strip or tile offsets for 3 planes"),  # RowsPerStrip 3, not 6
+    ],
+)
+def test_malformed_16bit_planes_fail_with_one_line(tmp_path, tag, value, says):
+    path = tmp_path / "bad.tif"
+    tile = (16, 16) if tag == 323 else None
+    samples = random_samples(3, shape=(20, 35))
+    write_tiff(path, samples, "<", rows_per_strip=6, planar=True, tile=tile)
+    data = bytearray(path.read_bytes())
+    count = struct.unpack_from("<H", data, 8)[0]
+    entries = [10 + 12 * i for i in range(count)]
+    at = next(e for e in entries if struct.unpack_from("<H", data, e)[0] == tag)
+    kind, n, where = struct.unpack_from("<HII", data, at + 2)
+    # the last strip, or the tag's one value
+    struct.pack_into("<I", data, where + 4 * (n - 1) if n > 1 else at + 8, value)
+    path.write_bytes(bytes(data))
+    with pytest.raises(ConfigError, match=rf"bad.tif: corrupt or truncated image \(.*{says}"):
+        load_image(path)
+
+
+@pytest.mark.parametrize("compression", [None, "deflate"])
+def test_16bit_grey_and_alpha_planes_read_like_the_same_png(tmp_path, compression):
+    # Compressed, libtiff refused Pillow's decode of the whole ("decoder error -2").
+    samples = random_samples(2, shape=(20, 35), seed=19)
+    tif, png = tmp_path / "planar_la.tif", tmp_path / "same.png"
+    write_tiff(tif, samples, "<", rows_per_strip=6, planar=True, compression=compression)
+    write_png16(png, samples)
+    np.testing.assert_array_equal(load_image(tif), load_image(png))
+
+
+@pytest.mark.parametrize("compression", [None, "deflate"])
+def test_16bit_planes_are_read_without_spare_copies(tmp_path, compression):
+    # Python-visible memory at the peak: the file's bytes and the 16-bit samples (6 bytes
+    # a pixel each), one plane's small TIFF (2, or less compressed) and a band of rows;
+    # later the samples, the luminance (8) and a few rows. A copy of the whole file (the
+    # planes' directories appended to it: 22 bytes a pixel) would pass the budget.
+    h, w = 4000, 250
+    samples = random_samples(3, shape=(h, w), seed=20)
+    path = tmp_path / "big_planes.tif"
+    write_tiff(path, samples, "<", rows_per_strip=64, planar=True, compression=compression)
+    expected = load_image(path)
+    tracemalloc.start()
+    try:
+        got = load_image(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_array_equal(got, expected)
+    assert peak < path.stat().st_size + h * w * 11

@@ -59,7 +59,6 @@ from scratchfab.design.images_deep import (
     CHUNK_ROWS,
     PHOTOMETRIC,
     TIFF_MAGIC,
-    LibtiffSaid,
     deep_read,
     deep_samples,
     naive_rgb,
@@ -105,31 +104,33 @@ def invert_picture(picture: np.ndarray) -> np.ndarray:
 
 
 def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
-    """The upright image, and its 16-bit samples where Pillow keeps only 8 bits."""
+    """The upright image, and its 16-bit samples where Pillow keeps only 8 bits.
+
+    A TIFF of separate 16-bit planes comes back unloaded: its samples are all in the
+    array, read plane by plane, and Pillow's own decode of the whole (8-bit, or refused
+    by libtiff for grey and alpha) would be wasted work.
+    """
     data = read_input(path, "an image file", missing="image file not found")
     if not data:
         raise ConfigError(f"{path}: empty file, expected an image")
-    said = LibtiffSaid(data[:4] in TIFF_MAGIC)
     try:
         # Closed on the way out: Pillow keeps the stream it is given, and with it the bytes.
-        with warnings.catch_warnings(), io.BytesIO(data) as stream, said:
+        with warnings.catch_warnings(), io.BytesIO(data) as stream:
             # Pillow warns of what it skips (a corrupt EXIF block, a tag past the end) and
             # of large images; the pixels decode or the file is refused below, in one line.
             warnings.simplefilter("ignore")
             image = open_image(stream)
             read = deep_read(image)  # before load(), which drops the tiles
-            # a TIFF's load() turns what it decodes and drops the tag (a PNG's getexif()
-            # would load it here, with the wrong tiles)
-            stored = orientation(image) if read is not None and read.planes else None
+            if read is not None and read.planes:  # as stored: load() is what turns a TIFF
+                return image, upright(deep_samples(data, image, read), orientation(image))
             if read is not None:
                 image.tile = read.high
             image.load()
             deep = None
             if read is not None:
-                # Pillow's decoder turned what it read of a TIFF; planes read again one
-                # by one are as stored
-                turn = stored if read.planes else orientation(image)
-                deep = upright(deep_samples(data, image, read), turn)
+                # Pillow's decoder turned what it read of a TIFF and dropped the tag (a
+                # PNG's getexif() before load() would have loaded it with the wrong tiles)
+                deep = upright(deep_samples(data, image, read), orientation(image))
             # In place (a copy of a 12-MP photo is 48 MB), once upright has read the tag.
             ImageOps.exif_transpose(image, in_place=True)
             return image, deep
@@ -137,9 +138,8 @@ def _open(path: Path) -> tuple[Image.Image, np.ndarray | None]:
         raise ConfigError(f"{path}: not an image file Pillow can read{_hint(data)}") from None
     except Image.DecompressionBombError:
         raise ConfigError(f"{path}: image is too large (decompression bomb check)") from None
-    except (OSError, ValueError, SyntaxError, EOFError) as exc:
-        why = f"{exc}; libtiff: {said.text}" if said.text else exc
-        raise ConfigError(f"{path}: corrupt or truncated image ({why})") from None
+    except (OSError, ValueError, SyntaxError, EOFError, struct.error) as exc:
+        raise ConfigError(f"{path}: corrupt or truncated image ({exc})") from None
 
 
 #: ISO media brands of still images (HEIF, HEIC as iPhones write it, AVIF).

@@ -14,12 +14,9 @@ colour, and EXIF orientation turns the samples as it turns the image.
 from __future__ import annotations
 
 import io
-import os
 import struct
 import sys
-import tempfile
 import threading
-from types import TracebackType
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -117,66 +114,10 @@ def open_image(stream: io.BytesIO) -> ImageFile.ImageFile:
                 del table[key]
 
 
-class LibtiffSaid:
-    """What libtiff writes to stderr while a TIFF decodes, caught (``text``) when it fails.
-
-    Pillow turns libtiff's warnings off but not its errors: a corrupt TIFF's reason
-    ("TIFFFillStrip: Read error on strip 4; ...") came after our one-line message, without
-    a line end. Inside the block the process's stderr (file descriptor 2) goes to a
-    temporary file; when the block raises, what it caught is ``text``, for the message;
-    otherwise it is written back to stderr (another thread's output is not lost). With
-    ``active`` false, or no stderr to redirect, it does nothing.
-    """
-
-    def __init__(self, active: bool) -> None:
-        self.active = active
-        self.text = ""
-        self._saved: int | None = None
-        self._sink: Any = None
-
-    def __enter__(self) -> LibtiffSaid:
-        if not self.active:
-            return self
-        try:
-            if sys.stderr is not None:
-                sys.stderr.flush()  # Python's own lines stay before and out of the capture
-            saved = os.dup(2)
-        except (OSError, ValueError):
-            return self
-        self._sink = tempfile.TemporaryFile()
-        os.dup2(self._sink.fileno(), 2)
-        self._saved = saved
-        return self
-
-    def __exit__(
-        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        if self._saved is None:
-            return
-        try:
-            if sys.stderr is not None:
-                sys.stderr.flush()
-        except (OSError, ValueError):
-            pass
-        os.dup2(self._saved, 2)
-        os.close(self._saved)
-        self._saved = None
-        with self._sink as sink:
-            sink.seek(0)
-            said = sink.read()
-        if kind is None or not issubclass(kind, Exception):  # an interrupt: no message
-            while said:
-                said = said[os.write(2, said) :]
-        else:  # its first lines: libtiff stops at the first error it meets
-            lines = [
-                line.strip().rstrip(".") for line in said.decode("utf-8", "replace").split("\n")
-            ]
-            self.text = "; ".join([line for line in lines if line][:3])
-
-
 class DeepRead(NamedTuple):
     """How Pillow reads a 16-bit image's bytes: tiles for the high bytes, then the low."""
 
+    #: Empty for ``planes``.
     high: list[Any]
     #: None when the first read takes every byte (a 16-bit grey-and-alpha TIFF) or when
     #: the samples are read plane by plane (``planes``).
@@ -210,10 +151,7 @@ def deep_read(opened: Image.Image) -> DeepRead | None:
     if tiff_tag(opened, _PLANAR) == 2 and len(opened.getbands()) > 1:
         if set(tiff_tag(opened, _BITS_PER_SAMPLE) or ()) != {16} or not tiles:
             return None
-        # The first plane's tiles alone (Pillow has no rawmode for some others, "a"); a
-        # compressed file's one tile reads every plane's high bytes.
-        first = [tile for tile in tiles if _rawmode(tile) == _rawmode(tiles[0])]
-        return DeepRead(first, None, planes=True)
+        return DeepRead([], None, planes=True)  # no tiles: Pillow decodes no plane whole
     if tiff_tag(opened, _BITS_PER_SAMPLE) == (16, 16):  # opened by _GREY_AND_ALPHA_16
         every = tiles and all(_rawmode(tile) == "RGBA" for tile in tiles)
         return DeepRead(tiles, None) if every else None
@@ -290,38 +228,53 @@ def _planes(data: bytes, opened: TiffImagePlugin.TiffImageFile) -> np.ndarray:
     """A TIFF's separate 16-bit planes, (h, w, planes) uint16, each decoded by Pillow.
 
     Pillow reads an uncompressed file's planes as 8-bit samples (a wrong picture) and gets
-    a compressed one's high bytes from libtiff. Each plane is a 16-bit grey image: the
-    file is read again with a directory for each plane appended, naming that plane's
-    strips or tiles (TIFF 6.0, PlanarConfiguration 2: each plane's follow the one
-    before's) and the file's compression and predictor, so Pillow's decoders (libtiff's
-    for a compressed file) read every byte.
+    a compressed one's high bytes from libtiff. Each plane is a 16-bit grey image: a small
+    TIFF of that plane's strips or tiles alone (TIFF 6.0, PlanarConfiguration 2: each
+    plane's follow the one before's) under a directory naming the file's compression and
+    predictor, so Pillow's decoders (libtiff's for a compressed file) read every byte.
+    Malformed tags raise ValueError.
     """
     tags = opened.tag_v2
     width, height = tags[_IMAGE_WIDTH], tags[_IMAGE_LENGTH]
     tiled = _TILE_OFFSETS in tags
-    where: dict[int, int]
     if tiled:
         across, down = tags[_TILE_WIDTH], tags[_TILE_LENGTH]
-        where = {_TILE_WIDTH: across, _TILE_LENGTH: down}
-    else:
-        across, down = width, tags.get(_ROWS_PER_STRIP, height)
-        where = {_ROWS_PER_STRIP: down}
+    else:  # rows per strip beyond the height (often 2**32 - 1): one strip
+        across, down = width, min(tags.get(_ROWS_PER_STRIP, height), height)
     if not across > 0 < down:
         raise ValueError(f"strips or tiles of {across} x {down} pixels")
+    where = {_TILE_WIDTH: across, _TILE_LENGTH: down} if tiled else {_ROWS_PER_STRIP: down}
     per_plane = -(-width // across) * -(-height // down)
     planes = tags.get(_SAMPLES_PER_PIXEL, 1)
     offsets_tag, counts_tag = (_TILE_OFFSETS, _TILE_COUNTS) if tiled else _STRIPS
     offsets = tags[offsets_tag]
-    # Pillow's own reader (uncompressed) does not need the byte counts, libtiff does.
-    counts = tags.get(counts_tag) or (2 * across * down,) * len(offsets)
+    # Uncompressed, each strip's rows or each tile whole at 2 bytes a sample, as Pillow's
+    # own reader takes them whatever the byte counts say; compressed, the byte counts
+    # (libtiff's), else those sizes up to the file's end at most.
+    stored = tags.get(counts_tag)
+    raw = tags.get(_COMPRESSION, 1) == 1
+    counts = (
+        stored
+        if stored and not raw
+        else [
+            2 * across * (down if tiled else min(down, height - k % per_plane * down))
+            for k in range(len(offsets))
+        ]
+    )
     if min(len(offsets), len(counts)) < planes * per_plane:
         raise ValueError(f"{len(offsets)} strip or tile offsets for {planes} planes")
     kept = {tag: tags[tag] for tag in _PLANE_TAGS if tag in tags}
     order = "<" if tags.prefix == b"II" else ">"
-    at = len(data) + len(data) % 2  # the first directory, on a word boundary
-    directories = []
+    view = memoryview(data)
+    samples = np.empty((height, width, planes), np.uint16)
     for plane in range(planes):
-        part = slice(plane * per_plane, (plane + 1) * per_plane)
+        part = range(plane * per_plane, (plane + 1) * per_plane)
+        pieces = [view[offsets[k] : offsets[k] + counts[k]] for k in part]  # no copies
+        short = [k for k, piece in zip(part, pieces, strict=True) if len(piece) < counts[k]]
+        if short and (raw or stored):
+            raise ValueError(f"truncated: strip or tile {short[0]} ends past the file's end")
+        starts = np.cumsum([8] + [len(piece) for piece in pieces])
+        at = int(starts[-1] + starts[-1] % 2)  # the directory, on a word boundary
         fields = {
             **kept,
             _IMAGE_WIDTH: width,
@@ -331,25 +284,20 @@ def _planes(data: bytes, opened: TiffImagePlugin.TiffImageFile) -> np.ndarray:
             _SAMPLES_PER_PIXEL: 1,
             _PLANAR: 1,
             **where,
-            offsets_tag: offsets[part],
-            counts_tag: counts[part],
+            offsets_tag: tuple(int(start) for start in starts[:-1]),
+            counts_tag: tuple(len(piece) for piece in pieces),
         }
-        directory = _directory(fields, order, at, last=plane == planes - 1)
-        directories.append(directory)
-        at += len(directory)
-    # A classic header (a BigTIFF's pixels stay where they are) before the file's bytes.
-    head = tags.prefix + struct.pack(order + "HI", 42, len(data) + len(data) % 2)
-    again = b"".join([head, memoryview(data)[8:], bytes(len(data) % 2), *directories])
-    samples = np.empty((height, width, planes), np.uint16)
-    with Image.open(io.BytesIO(again)) as pages:
-        for plane in range(planes):
-            pages.seek(plane)
-            samples[..., plane] = np.asarray(pages)
+        head = tags.prefix + struct.pack(order + "HI", 42, at)
+        tail = bytes(at - int(starts[-1])) + _directory(fields, order, at)
+        with Image.open(io.BytesIO(b"".join([head, *pieces, tail]))) as page:
+            for r0 in range(0, height, CHUNK_ROWS):  # a band at a time: no plane-sized copy
+                band = page.crop((0, r0, width, min(r0 + CHUNK_ROWS, height)))
+                samples[r0 : r0 + CHUNK_ROWS, :, plane] = np.asarray(band)
     return samples
 
 
-def _directory(fields: dict[int, Any], order: str, at: int, last: bool) -> bytes:
-    """A TIFF directory written at ``at``, its values after its entries, then the next.
+def _directory(fields: dict[int, Any], order: str, at: int) -> bytes:
+    """A TIFF's one directory written at ``at``, its values after its entries.
 
     Values are SHORT or LONG by tag (:data:`_LONG_TAGS`), bytes UNDEFINED.
     """
@@ -368,8 +316,7 @@ def _directory(fields: dict[int, Any], order: str, at: int, last: bool) -> bytes
         else:
             entries += struct.pack(order + "HHII", tag, kind, count, values_at + len(values))
             values += raw + bytes(len(raw) % 2)
-    following = struct.pack(order + "I", 0 if last else values_at + len(values))
-    return struct.pack(order + "H", len(fields)) + entries + following + values
+    return struct.pack(order + "H", len(fields)) + entries + bytes(4) + values
 
 
 def _unpremultiply(samples: np.ndarray) -> None:
