@@ -24,7 +24,7 @@ import re
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -38,12 +38,21 @@ MAX_BLOCK_CHARS = 79
 DEFAULT_RAPID_MM_MIN = (500.0, 500.0, 500.0)  # G0 rates for the estimate until $110-$112 are known
 _REALTIME = set("?!~")
 _LINE_END = re.compile(r"\r\n|[\r\n]")
+#: Control characters GRBL does not take as a tab (a line holds no CR or LF).
+_CONTROL = re.compile(r"[\x00-\x08\x0a-\x1f\x7f]")
 #: ``$`` lines a job may hold: reports that move nothing and change no setting or state.
 _QUERIES = frozenset({"$", "$$", "$#", "$G", "$I", "$N"})
+#: GRBL's comments: ``(`` up to ``)`` or the line's end, and ``;`` to the line's end.
+_COMMENT = re.compile(r"\([^)]*\)?|;.*", re.DOTALL)
+#: What GRBL's pre-processing drops outside comments: whitespace, control characters, ``/``.
+_DROPPED = str.maketrans("", "", "".join(map(chr, range(33))) + "/")
 
 
 def strip_block(raw: str) -> str:
     """GRBL's pre-processing: drop comments, whitespace and ``/``; upper-case the rest."""
+    if raw.isascii():
+        text = _COMMENT.sub("", raw).translate(_DROPPED).upper()
+        return "" if text == "%" else text
     out: list[str] = []
     depth = False
     for ch in raw:
@@ -278,13 +287,18 @@ def work_xyz(modal: Modal) -> tuple[float | None, float | None, float | None]:
 
 def _estimate_xyz(modal: Modal) -> tuple[float, float, float]:
     """The work position for time estimates: an unknown axis taken as 0."""
-    x, y, z = (v if v is not None else 0.0 for v in work_xyz(modal))
+    return _or_zero(work_xyz(modal))
+
+
+def _or_zero(xyz: Sequence[float | None]) -> tuple[float, float, float]:
+    """``xyz`` with an unknown (None) axis taken as 0."""
+    x, y, z = (v if v is not None else 0.0 for v in xyz)
     return x, y, z
 
 
 def block_words(text: str) -> list[tuple[str, float]]:
     """The words of a block as :func:`strip_block` leaves it: (letter, value) pairs."""
-    return [(m.group(1), float(m.group(2))) for m in GCODE_WORD.finditer(text)]
+    return [(letter, float(value)) for letter, value in GCODE_WORD.findall(text)]
 
 
 class _Sync(NamedTuple):
@@ -367,41 +381,49 @@ def _block_arc_box(
     return _arc_box(start[:2], end[:2], arc, after.motion == "G2", after.mm_per_unit)
 
 
-def _unfollowed(nonmodal: str, axes: dict[str, float], before: Modal, after: Modal) -> str:
-    """Why the sender loses the position or the coordinate frame at a block ("" if not)."""
+def _unfollowed(
+    nonmodal: str, axes: dict[str, float], wcs_before: str, after: Mapping[str, Any]
+) -> str:
+    """Why the sender loses the position or the coordinate frame at a block ("" if not).
+
+    ``after`` is the state after the block (:class:`Modal`'s fields by name).
+    """
     if nonmodal == "G92.1" or (nonmodal in ("G92", "G10") and axes):
         return f"{nonmodal} changes the work coordinates"
     if nonmodal in ("G28", "G30"):
         return f"{nonmodal} moves through a stored machine position"
     if nonmodal == "G53" and axes:
         return "G53 moves in machine coordinates"
-    if after.wcs != before.wcs:
-        return f"{after.wcs} selects another work coordinate system"
-    if axes and after.motion in ("G2", "G3") and after.plane != "G17":
-        return f"an arc in the {after.plane} plane"
+    if after["wcs"] != wcs_before:
+        return f"{after['wcs']} selects another work coordinate system"
+    if axes and after["motion"] in ("G2", "G3") and after["plane"] != "G17":
+        return f"an arc in the {after['plane']} plane"
     return ""
 
 
 _WCS = ("G54", "G55", "G56", "G57", "G58", "G59")
 
 
-def _changes_tlo(s: Modal, tlo: float | None) -> bool:
+def _changes_tlo(current: float | None, tlo: float | None) -> bool:
     """Whether setting the tool length offset to ``tlo`` (mm; None: not set) may move work Z.
 
-    Where the file has set no offset (:attr:`Modal.tlo` None) a 0 (G49, common in
-    headers) is taken for GRBL's own after a reset: no change.
+    ``current`` is the offset in force (:attr:`Modal.tlo`). Where the file has set none
+    (None) a 0 (G49, common in headers) is taken for GRBL's own after a reset: no change.
     """
-    return tlo is not None and tlo != (s.tlo or 0.0)
+    return tlo is not None and tlo != (current or 0.0)
 
 
 def _frame_change(
-    s: Modal,
-    state: Modal,
+    w: dict[str, Any],
+    wcs_before: str,
     nonmodal: str,
     words: list[tuple[str, float]],
     tlo: float | None = None,
-) -> Modal:
+) -> None:
     """The work position after a block's change of the work frame, before its motion.
+
+    ``w`` is the block's working state (:class:`Modal`'s fields by name, the block's modal
+    words applied), changed in place; ``wcs_before`` the work system before the block.
 
     GRBL changes the frame before the block's motion (``gc_execute_line``: G54-G59 at
     step 12, G43.1/G49 at step 14, G10, G53, G92 at step 19, the motion at step 20). Where
@@ -415,40 +437,41 @@ def _frame_change(
     the block's units, whatever G90/G91 says): known. A lost axis stays unknown until a
     block gives it in absolute mode (G90).
     """
-    given = {letter: value * s.mm_per_unit for letter, value in words if letter in "XYZ"}
+    if not nonmodal and tlo is None and w["wcs"] == wcs_before:
+        return  # (the common block: no change of the frame)
+    scale = MM_PER_INCH if w["inches"] else 1.0
+    given = {letter: value * scale for letter, value in words if letter in "XYZ"}
     lost: set[str] = set()
     found: dict[str, float] = {}
-    g92 = "" if nonmodal == "G92.1" else s.g92
-    if s.wcs != state.wcs or nonmodal in ("G92.1", "G28", "G30"):
+    if nonmodal == "G92.1":
+        w["g92"] = ""
+    if w["wcs"] != wcs_before or nonmodal in ("G92.1", "G28", "G30"):
         lost = {"X", "Y", "Z"}
     elif nonmodal == "G53":
         lost = set(given)
     elif nonmodal in ("G10", "G92"):
         level = next((v for letter, v in words if letter == "L"), None)
         system = next((v for letter, v in words if letter == "P"), None)
-        current = system in (0.0, float(_WCS.index(s.wcs) + 1))
+        current = system in (0.0, float(_WCS.index(w["wcs"]) + 1))
         if nonmodal == "G92" or (level == 20.0 and current):
             found = given
         elif level == 2.0 and current:
             lost = set(given)
         if nonmodal == "G92":
-            g92 = "".join(a for a in "XYZ" if a in g92 or a in given)
-    if _changes_tlo(s, tlo):
+            w["g92"] = "".join(a for a in "XYZ" if a in w["g92"] or a in given)
+    if _changes_tlo(w["tlo"], tlo):
         lost.add("Z")
-    x, y, z = (
-        None if a in lost else found.get(a, v) for a, v in zip("XYZ", work_xyz(s), strict=True)
-    )
-    assumed = "".join(a for a in s.assumed if a not in found and a not in lost)
-    return replace(
-        s,
-        x=x,
-        y=y,
-        z=z,
-        assumed=assumed,
-        tlo=s.tlo if tlo is None else tlo,
-        z_frame=s.z_frame + ("Z" in lost or "Z" in found),
-        g92=g92,
-    )
+    if tlo is not None:
+        w["tlo"] = tlo
+    if not lost and not found:
+        return
+    for a in "XYZ":
+        if a in lost:
+            w[a.lower()] = None
+        elif a in found:
+            w[a.lower()] = found[a]
+    w["assumed"] = "".join(a for a in w["assumed"] if a not in found and a not in lost)
+    w["z_frame"] += "Z" in lost or "Z" in found
 
 
 def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
@@ -477,7 +500,7 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
     if text.startswith("$"):
         return _Step(state, 0.0, False)
     words = block_words(text)
-    s = state
+    w = dict(vars(state))  # the working state: :class:`Modal`'s fields, frozen at the end
     axes: dict[str, float] = {}
     arc: dict[str, float] = {}
     nonmodal = ""
@@ -491,17 +514,17 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
         if letter == "G":
             code = f"G{value:g}"
             if code in ("G0", "G1", "G2", "G3", "G80"):
-                s = replace(s, motion=code)
+                w["motion"] = code
             elif code in ("G20", "G21"):
-                s = replace(s, inches=code == "G20")
+                w["inches"] = code == "G20"
             elif code in ("G90", "G91"):
-                s = replace(s, relative=code == "G91")
+                w["relative"] = code == "G91"
             elif code in ("G17", "G18", "G19"):
-                s = replace(s, plane=code)
+                w["plane"] = code
             elif code in ("G93", "G94"):
-                s = replace(s, feed_mode=code)
+                w["feed_mode"] = code
             elif code in _WCS:
-                s = replace(s, wcs=code)
+                w["wcs"] = code
             elif code in ("G4", "G10", "G28", "G30", "G53", "G92", "G28.1", "G30.1", "G92.1"):
                 nonmodal = code
             elif code in ("G43.1", "G49"):
@@ -510,33 +533,35 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
         elif letter == "M":
             code = f"M{value:g}"
             if code in ("M3", "M4", "M5"):
-                s = replace(s, spindle=code)
+                w["spindle"] = code
                 sync = sync or code != state.spindle
             elif code in ("M7", "M8", "M9"):
                 # Grbl keeps M7 and M8 as two bits: only a change from all off surely syncs
-                s = replace(s, coolant=code)
+                w["coolant"] = code
                 sync = sync or (code == "M9") != (state.coolant == "M9")
             elif code in ("M0", "M2", "M30"):
                 ending = code
         elif letter == "F":
-            s = replace(s, feed=value)
+            w["feed"] = value
         elif letter == "S":
             speed_changed = state.spindle != "M5" and value != state.speed
-            s = replace(s, speed=value)
+            w["speed"] = value
         elif letter == "P" and nonmodal == "G4":
             dwell = value
         elif letter in "XYZ":
             axes[letter] = value
         elif letter in "IJKR":
             arc[letter] = value
+    scale = MM_PER_INCH if w["inches"] else 1.0  # the block's units (Modal.mm_per_unit)
     if nonmodal in ("G4", "G10", "G28.1", "G30.1", "G92.1") or (nonmodal == "G92" and axes):
         sync = True
     if offset == "G43.1":  # Z only, else error:37
-        tlo = next((v * s.mm_per_unit for letter, v in words if letter == "Z"), None)
-    sync = sync or s.wcs != state.wcs or (state.tlo is not None and _changes_tlo(state, tlo))
+        tlo = next((v * scale for letter, v in words if letter == "Z"), None)
+    sync = sync or w["wcs"] != state.wcs
+    sync = sync or (state.tlo is not None and _changes_tlo(state.tlo, tlo))
     # GRBL's laser mode passes an S change in a block whose axis words drive a motion mode
     drives = bool(axes) and not offset and nonmodal not in ("G10", "G28", "G30", "G92")
-    feeding, was_feeding = (m.motion in ("G1", "G2", "G3") for m in (s, state))
+    feeding, was_feeding = (m in ("G1", "G2", "G3") for m in (w["motion"], state.motion))
     forced = state.spindle == "M3" and feeding != was_feeding
     sync = sync or (speed_changed and not drives)
     flags = _Sync(
@@ -545,49 +570,49 @@ def _advance(state: Modal, text: str, rapid_mm_min: Sequence[float]) -> _Step:
         speed=speed_changed and not sync,
         laser=forced and not drives and not sync,
     )
-    scale = s.mm_per_unit
     motion = False
     seconds = dwell
     box = None
     rapid = None
     moving = not offset and nonmodal not in ("G10", "G92", "G28", "G30", "G53")
-    s = _frame_change(s, state, nonmodal, words, tlo)
-    if axes and moving and s.motion != "G80":
+    _frame_change(w, state.wcs, nonmodal, words, tlo)
+    mode, relative = w["motion"], w["relative"]
+    if axes and moving and mode != "G80":
         # the estimate takes an unknown start as 0; a G91 move from it stays unknown
-        start = _estimate_xyz(s)
+        known = [w["x"], w["y"], w["z"]]
+        start = _or_zero(known)
         end = list(start)
-        known = list(work_xyz(s))
         for k, a in enumerate("XYZ"):
             if a in axes:
                 v = axes[a] * scale
-                end[k] = start[k] + v if s.relative else v
-                known[k] = None if s.relative and known[k] is None else end[k]
-        if s.motion == "G0":
+                end[k] = start[k] + v if relative else v
+                known[k] = None if relative and known[k] is None else end[k]
+        if mode == "G0":
             rapid = (abs(end[0] - start[0]), abs(end[1] - start[1]), abs(end[2] - start[2]))
             seconds += _rapid_seconds(rapid, rapid_mm_min)
         else:
             dist = math.dist(start, end)
-            rate = s.feed_mm if s.feed_mode == "G94" else dist * s.feed
+            rate = w["feed"] * scale if w["feed_mode"] == "G94" else dist * w["feed"]
             seconds += dist / rate * 60.0 if rate > 0 and math.isfinite(rate) else 0.0
-        if s.motion in ("G2", "G3") and s.plane == "G17":
-            box = _arc_box(start[:2], (end[0], end[1]), arc, s.motion == "G2", scale)
-        assumed = "".join(a for a in s.assumed if s.relative or a not in axes)
-        s = replace(s, x=known[0], y=known[1], z=known[2], assumed=assumed)
+        if mode in ("G2", "G3") and w["plane"] == "G17":
+            box = _arc_box(start[:2], (end[0], end[1]), arc, mode == "G2", scale)
+        w["assumed"] = "".join(a for a in w["assumed"] if relative or a not in axes)
+        w["x"], w["y"], w["z"] = known
         motion = True
     elif nonmodal in ("G28", "G30") or (axes and nonmodal == "G53"):
         motion = True  # G28/G30 move to the stored position, through the point given
-    unfollowed = _unfollowed(nonmodal, axes, state, s)
-    if _changes_tlo(state, tlo):
+    unfollowed = _unfollowed(nonmodal, axes, state.wcs, w)
+    if _changes_tlo(state.tlo, tlo):
         what = "changes" if offset == "G43.1" else "cancels"
         unfollowed = unfollowed or f"{offset} {what} the tool length offset (work Z)"
     if ending in ("M2", "M30"):  # after the motion
-        s = _frame_change(replace(s, wcs="G54"), s, "", [])
-        s = replace(
-            s, motion="G1", relative=False, plane="G17", feed_mode="G94", wcs="G54",
-            spindle="M5", coolant="M9",
-        )  # fmt: skip
-        unfollowed = unfollowed or _unfollowed("", {}, state, s)  # back to G54
-    return _Step(s, seconds, motion, flags, unfollowed, box, rapid)
+        wcs, w["wcs"] = w["wcs"], "G54"
+        _frame_change(w, wcs, "", [])
+        w.update(
+            motion="G1", relative=False, plane="G17", feed_mode="G94", spindle="M5", coolant="M9"
+        )
+        unfollowed = unfollowed or _unfollowed("", {}, state.wcs, w)  # back to G54
+    return _Step(Modal(**w), seconds, motion, flags, unfollowed, box, rapid)
 
 
 def _tool_down(
@@ -791,8 +816,9 @@ def load_program(
     # GRBL ends a line at LF or CR only (str.splitlines also splits at VT, FF and
     # \x1c-\x1e, which would send a comment's tail as a command).
     for lineno, raw in enumerate(_LINE_END.split(text.removesuffix("\n")), start=1):
-        control = next((c for c in raw if (c < " " and c != "\t") or c == "\x7f"), None)
-        if control is not None:
+        found = _CONTROL.search(raw)
+        if found is not None:
+            control = found.group()
             raise ConfigError(
                 f"{p}:{lineno}: control character {control!r} in G-code (0x18 is a soft "
                 "reset, others end a line for some senders and not for GRBL)"
