@@ -82,8 +82,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from scratchfab.errors import ConfigError
 from scratchfab.machine.grblsim_gcode import (
     MM_PER_INCH,
@@ -96,11 +94,11 @@ from scratchfab.machine.grblsim_gcode import (
 )
 from scratchfab.model.schema import check_bounds, parse_table, spec
 from scratchfab.toolpath.timing import (
-    corner_speed_sq,
     exit_speed_sq,
-    move_limits,
+    one_corner_speed_sq,
+    one_move_limits,
+    one_profile_seconds,
     profile_at,
-    profile_seconds,
 )
 
 VERSION = "1.1h"
@@ -1016,15 +1014,14 @@ class GrblSim:
         s = self.settings
         rates = (s[110], s[111], s[112])
         accels = (s[120], s[121], s[122])
-        delta = np.subtract(end, start)  # plan_buffer_line: from whole steps
-        length, unit, limit, accel = move_limits(delta, np.inf, rates, accels)
+        delta = (end[0] - start[0], end[1] - start[1], end[2] - start[2])  # from whole steps
+        length, u, limit, accel = one_move_limits(delta, rates, accels)
         if end == start:
-            length[0] = 0.0  # no step on any axis: Grbl drops it (PLAN_EMPTY_BLOCK)
-        u = (float(unit[0, 0]), float(unit[0, 1]), float(unit[0, 2]))
+            length = 0.0  # no step on any axis: Grbl drops it (PLAN_EMPTY_BLOCK)
         before = next((b for b in reversed(self._planner) if b.length > 0), None)
         corner_sq = 0.0
-        if before is not None and length[0] > 0:
-            corner_sq = float(corner_speed_sq(before.unit, unit, accels, s[11])[0])
+        if before is not None and length > 0:
+            corner_sq = one_corner_speed_sq(before.unit, u, accels, s[11])
         wco = self._wco()
         frm = self._planner[-1].target if self._planner else self._resting_target()
         to = act.target
@@ -1033,17 +1030,17 @@ class GrblSim:
                 start=start,
                 end=end,
                 target=act.target,
-                rate=float(limit[0]) * 60.0 if act.rapid else act.rate,
-                limit=float(limit[0]) * 60.0,
+                rate=limit * 60.0 if act.rapid else act.rate,
+                limit=limit * 60.0,
                 rapid=act.rapid,
                 jog=self._jogging,
                 line=line,
                 work_start=(frm[0] - wco[0], frm[1] - wco[1], frm[2] - wco[2]),
                 work_end=(to[0] - wco[0], to[1] - wco[1], to[2] - wco[2]),
                 spindle=self._spindle,
-                length=float(length[0]),
+                length=length,
                 unit=u,
-                accel=max(float(accel[0]), 1e-9),  # $120=0: a machine that barely moves
+                accel=max(accel, 1e-9),  # $120=0: a machine that barely moves
                 corner_sq=corner_sq,
             )
         )
@@ -1260,8 +1257,8 @@ class GrblSim:
             head.span = left
         head.v1 = math.sqrt(max(exit_sq, 0.0))
         if head.span > 0.0:
-            seconds = profile_seconds(head.span, head.v0, head.v1, head.vmax, head.accel)
-            head.duration = float(seconds) * self.options.time_scale
+            seconds = one_profile_seconds(head.span, head.v0, head.v1, head.vmax, head.accel)
+            head.duration = seconds * self.options.time_scale
         self._schedule()  # the segments follow the profile
 
     def _finish_head(self, t: float) -> None:

@@ -65,6 +65,49 @@ def move_limits(
     return length, unit, speed, accel
 
 
+Vector3 = tuple[float, float, float]
+
+
+def _axis_limit(comp: Vector3, limits: Sequence[float]) -> float:
+    """The least ``limit / comp`` over the axes a direction uses (``inf``: none)."""
+    return min((lim / c for c, lim in zip(comp, limits, strict=True) if c > 0), default=math.inf)
+
+
+def one_move_limits(
+    delta: Vector3, max_rate_mm_min: Sequence[float], acceleration_mm_s2: Sequence[float]
+) -> tuple[float, Vector3, float, float]:
+    """:func:`move_limits` of one rapid move in plain floats, equal to it to the bit.
+
+    The GRBL emulator plans a move at a time, where numpy's per-call cost is most of the
+    work. Returns length (mm), unit vector, the fastest speed (mm/s) and acceleration.
+    """
+    dx, dy, dz = delta
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    unit = (dx / length, dy / length, dz / length) if length > 0 else (0.0, 0.0, 0.0)
+    comp = (abs(unit[0]), abs(unit[1]), abs(unit[2]))
+    rates = [r / 60.0 for r in max_rate_mm_min]
+    return length, unit, _axis_limit(comp, rates), _axis_limit(comp, acceleration_mm_s2)
+
+
+def one_corner_speed_sq(
+    before: Vector3,
+    after: Vector3,
+    acceleration_mm_s2: Sequence[float],
+    junction_deviation_mm: float,
+) -> float:
+    """:func:`corner_speed_sq` of one corner in plain floats, equal to it to the bit."""
+    cos = -(before[0] * after[0] + before[1] * after[1] + before[2] * after[2])
+    if cos < -_STRAIGHT_COS:
+        return math.inf
+    if cos > _STRAIGHT_COS:
+        return 0.0
+    bx, by, bz = after[0] - before[0], after[1] - before[1], after[2] - before[2]
+    norm = math.sqrt(bx * bx + by * by + bz * bz)
+    a_corner = _axis_limit((abs(bx / norm), abs(by / norm), abs(bz / norm)), acceleration_mm_s2)
+    half = math.sqrt(min(max(0.5 * (1.0 - cos), 0.0), 1.0))
+    return a_corner * junction_deviation_mm * half / (1.0 - half)
+
+
 def corner_speed_sq(
     before: ArrayLike,
     after: ArrayLike,
@@ -83,7 +126,8 @@ def corner_speed_sq(
     """
     u0 = np.asarray(before, dtype=np.float64).reshape(-1, 3)
     u1 = np.asarray(after, dtype=np.float64).reshape(-1, 3)
-    cos = -np.einsum("ij,ij->i", u0, u1)
+    # Summed in order, as :func:`one_corner_speed_sq` does (einsum's order is the CPU's).
+    cos = -(u0[:, 0] * u1[:, 0] + u0[:, 1] * u1[:, 1] + u0[:, 2] * u1[:, 2])
     bisector = u1 - u0
     norm = np.sqrt((bisector * bisector).sum(axis=1))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -192,6 +236,21 @@ def profile_seconds(
             (2.0 * vmax - v0 - v1 + 2.0 * np.maximum(v0 - vmax, 0.0)) / accel + cruise / vmax,
             (2.0 * peak - v0 - v1) / accel,
         )
+
+
+def one_profile_seconds(length: float, v0: float, v1: float, vmax: float, accel: float) -> float:
+    """:func:`profile_seconds` of one move in plain floats, equal to it to the bit.
+
+    ``vmax`` and ``accel`` positive (the emulator's cruise is at least 1 mm/min).
+    """
+    up = abs(vmax * vmax - v0 * v0) / (2.0 * accel)
+    down = (vmax * vmax - v1 * v1) / (2.0 * accel)
+    cruise = length - up - down
+    if cruise >= 0:
+        return (2.0 * vmax - v0 - v1 + 2.0 * max(v0 - vmax, 0.0)) / accel + cruise / vmax
+    peak = math.sqrt(max(accel * length + 0.5 * (v0 * v0 + v1 * v1), 0.0))
+    peak = v0 if v0 > vmax else min(peak, vmax)
+    return (2.0 * peak - v0 - v1) / accel
 
 
 def profile_at(
