@@ -16,7 +16,9 @@ can still stop at the end of what it has planned. :func:`path_times` plans a who
 that way (whole-path look-ahead; GRBL sees 15 moves, which makes no difference where
 corners come every move or two, as in a scratch job). The GRBL emulator
 (:mod:`scratchfab.machine.grblsim`) plans over the blocks its planner holds with the same
-pieces (:func:`exit_speed_sq`, :func:`profile_seconds`, :func:`profile_at`).
+pieces, a move at a time in plain floats (:func:`one_move_limits`,
+:func:`one_corner_speed_sq`, :func:`exit_speed_sq`, :func:`one_profile_seconds`,
+:func:`profile_at`), each equal to its numpy form to the bit.
 """
 
 from __future__ import annotations
