@@ -55,12 +55,10 @@ wrong shape or range. Nothing in the core prints: progress goes to the callbacks
 caller passes.
 """
 
-from __future__ import annotations
+# Helpers under private names: ``dir(scratchfab)`` lists ``__all__`` and no helper.
+import typing as _typing
 
-import importlib
-from typing import TYPE_CHECKING, Any
-
-if TYPE_CHECKING:
+if _typing.TYPE_CHECKING:
     from scratchfab.backend import array_module
     from scratchfab.design.feasibility import check_feasibility
     from scratchfab.design.layout import initial_layout
@@ -149,14 +147,18 @@ _HOME = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    """A name of ``__all__``, imported from its module when first asked for."""
-    module = _HOME.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value  # asked once
-    return value
+if not _typing.TYPE_CHECKING:  # for mypy the names above: a misspelt one is an error, not Any
+
+    def __getattr__(name: str) -> object:
+        """A name of ``__all__``, imported from its module when first asked for."""
+        from importlib import import_module
+
+        module = _HOME.get(name)
+        if module is None:
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+        value = getattr(import_module(module), name)
+        globals()[name] = value  # asked once
+        return value
 
 
 def __dir__() -> list[str]:

@@ -68,3 +68,75 @@ def test_an_unknown_name_is_an_attribute_error():
     with pytest.raises(AttributeError, match="no_such_name"):
         scratchfab.no_such_name  # noqa: B018
     assert set(scratchfab.__all__) <= set(dir(scratchfab))
+
+
+def _type_checking_imports(module) -> dict[str, set[str]]:
+    """The names each ``from M import ...`` under the module's TYPE_CHECKING block imports."""
+    import ast
+    from pathlib import Path
+
+    tree = ast.parse(Path(module.__file__).read_text())
+    blocks = [
+        node
+        for node in tree.body
+        if isinstance(node, ast.If)
+        and ast.unparse(node.test).endswith("TYPE_CHECKING")
+        and not ast.unparse(node.test).startswith("not ")
+    ]
+    assert len(blocks) == 1, "one `if TYPE_CHECKING:` block of imports"
+    found: dict[str, set[str]] = {}
+    for node in blocks[0].body:
+        assert isinstance(node, ast.ImportFrom) and node.module
+        found.setdefault(node.module, set()).update(a.asname or a.name for a in node.names)
+    return found
+
+
+def test_the_names_mypy_sees_are_the_names_loaded_on_use():
+    """mypy reads the TYPE_CHECKING imports; the runtime, the lazy table: the same names."""
+    seen = _type_checking_imports(scratchfab)
+    table: dict[str, set[str]] = {}
+    for name, module in scratchfab._HOME.items():
+        table.setdefault(module, set()).add(name)
+    assert seen == table
+    assert sorted(scratchfab._HOME) == sorted(scratchfab.__all__)
+
+
+def test_the_toolpath_package_s_lazy_names_are_its_type_checking_imports():
+    import scratchfab.toolpath as toolpath
+
+    assert _type_checking_imports(toolpath) == {
+        "scratchfab.toolpath.plan": set(toolpath._FROM_PLAN)
+    }
+    assert set(toolpath._FROM_PLAN) <= set(toolpath.__all__)
+
+
+def test_dir_lists_the_api_and_no_helper():
+    import scratchfab.toolpath as toolpath
+
+    listed = fresh("import json, scratchfab\nprint(json.dumps(dir(scratchfab)))")
+    assert isinstance(listed, list)  # a fresh import: no submodule loaded yet
+    assert [n for n in listed if not n.startswith("_")] == sorted(scratchfab.__all__)
+    helpers = {"Any", "TYPE_CHECKING", "importlib", "annotations", "import_module"}
+    assert helpers.isdisjoint(dir(toolpath))
+    assert helpers.isdisjoint(vars(scratchfab))
+
+
+def test_mypy_is_not_told_every_name_exists():
+    """``__getattr__`` only outside type checking: mypy would type a misspelt name as Any."""
+    import ast
+    from pathlib import Path
+
+    import scratchfab.toolpath as toolpath
+
+    for module in (scratchfab, toolpath):
+        tree = ast.parse(Path(module.__file__).read_text())
+        top = [n.name for n in tree.body if isinstance(n, ast.FunctionDef)]
+        assert "__getattr__" not in top, module.__name__
+        guarded = [
+            n
+            for n in tree.body
+            if isinstance(n, ast.If)
+            and ast.unparse(n.test).startswith("not ")
+            and ast.unparse(n.test).endswith("TYPE_CHECKING")
+        ]
+        assert [f.name for g in guarded for f in g.body] == ["__getattr__"], module.__name__
