@@ -122,7 +122,10 @@ class OrderProgress:
         step: Phases finished.
         total: Phases this ordering runs (1 with ``passes`` 0, else 2, or 3 with
             regions; 0 where not yet known, in a message said before ordering).
-        travel_mm: Pen-up travel of the tour after the phase (NaN for a message).
+        travel_mm: Pen-up travel of the tour after the phase (NaN for a message). The
+            last phase's is the ordering's own: where the input order is shorter
+            (:attr:`OrderResult.kept_input`) the result keeps that and its
+            ``travel_mm``, which is then less than this.
         elapsed_s: Seconds since the ordering began.
         message: A status line instead of a phase ("" for phases).
     """
