@@ -510,7 +510,7 @@ def _stream_locked(
             for text in findings.refusals[:-1]:
                 cb.say(f"refused: {text}")
             travel = any("travel" in text for text in findings.refusals)
-            hint = emulator_travel_hint(req.port, info.settings, program, profile) if travel else ""
+            hint = travel_hint(req.port, info.settings, program, profile) if travel else ""
             raise ScratchfabError(f"{findings.refusals[-1]} (nothing was sent){hint}")
         if zero is not None:  # before check mode, whose soft limits count from the zero
             if cb.confirm is not None:
@@ -828,17 +828,21 @@ def booted_zero_warning(info: ControllerInfo, profile: MachineProfile | None = N
     )
 
 
-def emulator_travel_hint(
+def travel_hint(
     port: str, settings: dict[int, float], program: Program, profile: MachineProfile | None
 ) -> str:
-    """On the emulator, the URL keys that give it the travel a job needs; "" elsewhere.
+    """What to change where GRBL's travel refused a job; "" where nothing is named.
 
-    The emulator's travel (``$130``-``$132``) is GRBL's default unless its URL sets it, so
-    a job for a bigger machine is refused there. The travel named is the profile's
-    envelope, else the job's own span, for each axis that lacks it (whole mm, rounded up).
+    Where the profile's envelope asks more travel of an axis than GRBL's ``$130``-``$132``
+    give and the setting is the machine's own (a real controller, or an emulator URL that
+    sets the key), one of the two is wrong: the profile's ``[envelope]`` range or the
+    machine's setting, and the advice says to fix it first (an emulator told the profile's
+    travel would rehearse on a machine that matches the wrong profile). The emulator run
+    with its defaults (GRBL's, no such key in its URL) takes the travel from its URL: the
+    keys named are the profile's envelope, else the job's own span, whole mm rounded up,
+    never a key the URL has.
     """
-    if not is_emulator(port):
-        return ""
+    query = grblsim_query(port) if is_emulator(port) else None
     if profile is not None:
         env = profile.envelope
         spans = [hi - lo for lo, hi in (env.x_mm, env.y_mm, env.z_mm)]
@@ -847,15 +851,39 @@ def emulator_travel_hint(
         lo, hi = job_extent(program)
         spans = [b - a if a <= b else 0.0 for a, b in zip(lo, hi, strict=True)]
         whose = "the job's span"
-    keys = [
-        f"${130 + k}={math.ceil(span - 1e-9)}"
+    short = [
+        k
         for k, span in enumerate(spans)
         if span > settings.get(130 + k, math.inf) and span < 1000.0
     ]
-    if not keys:
-        return ""
-    url = f"{port}{'&' if '?' in port else '?'}{'&'.join(keys)}"
-    return f"; the emulator takes its travel from its URL: --port '{url}' ({whose})"
+    own = [k for k in short if query is None or f"${130 + k}" in query]
+    keys = [f"${130 + k}={math.ceil(spans[k] - 1e-9)}" for k in short if k not in own]
+    hints = []
+    if profile is not None and own:
+        where = "on the controller" if query is None else "in the emulator's URL"
+        hints.append(
+            "; ".join(_envelope_disagrees(profile, k, settings[130 + k], where) for k in own)
+        )
+    if keys and query is not None:
+        url = f"{port}{'&' if '?' in port else '?'}{'&'.join(keys)}"
+        hints.append(f"the emulator takes its travel from its URL: --port '{url}' ({whose})")
+    return "".join(f"; {text}" for text in hints)
+
+
+def _envelope_disagrees(profile: MachineProfile, k: int, have: float, where: str) -> str:
+    """The advice where profile ``profile``'s axis ``k`` spans more than GRBL's travel."""
+    axis = "XYZ"[k]
+    name = f"{axis.lower()}_mm"
+    a, b = (profile.envelope.x_mm, profile.envelope.y_mm, profile.envelope.z_mm)[k]
+    fit = (
+        f"[{-have:g}, 0]" if profile.envelope.coordinates == "machine" else f"[{a:g}, {a + have:g}]"
+    )
+    return (
+        f"the profile's [envelope] {name} = [{a:g}, {b:g}] ({b - a:g} mm) and GRBL's "
+        f"${130 + k}={have:g} disagree: fix whichever is wrong first: if the machine "
+        f"travels {have:g} mm, set the profile's {name} = {fit}; if it travels {b - a:g} mm, "
+        f"set ${130 + k}={math.ceil(b - a - 1e-9)} {where}"
+    )
 
 
 def is_emulator(port: str) -> bool:
