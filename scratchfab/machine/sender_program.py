@@ -296,6 +296,49 @@ def _or_zero(xyz: Sequence[float | None]) -> tuple[float, float, float]:
     return x, y, z
 
 
+#: A block Grbl 1.1 reads to its end: words only, each a letter and a number.
+_WORDS = re.compile(f"(?:{GCODE_WORD.pattern})*")
+#: What a character GRBL stops at may have meant, for its error message.
+_STOP_HINTS = {
+    ",": " (a decimal comma? GRBL reads a point: 1.5)",
+    ".": " (a second decimal point)",
+    "*": " (a checksum? GRBL 1.1 takes none)",
+}
+
+
+def _word_error(block: str) -> str | None:
+    """Why Grbl 1.1 would refuse a stripped block's words (error:1 or error:2), or None.
+
+    ``gc_execute_line`` (``grbl/gcode.c``) reads the block as words: a letter A-Z (else
+    error:1, expected command letter), then a number as ``read_float``
+    (``grbl/nuts_bolts.c``) reads it: an optional sign, then digits with at most one
+    decimal point, at least one digit (else error:2, bad number format). The number
+    ends at the first character that is neither, which must start the next word. So
+    ``X.5``, ``X-0.5``, ``X+1``, ``X1.`` and ``X0010`` are words; ``X1,5`` (the comma),
+    ``X1*71`` (a checksum) and a ``%`` within a block are error:1; ``X``, ``X-``, ``X.``
+    and ``XY1`` (X has no number) are error:2. GRBL checks a block only when it comes to
+    it, so it would refuse the line mid-job.
+    """
+    if _WORDS.fullmatch(block):
+        return None
+    start = end = 0  # the last word GRBL reads whole, and where it stops
+    while (m := GCODE_WORD.match(block, end)) is not None:
+        start, end = end, m.end()
+    stop = next((k for k in range(end + 1, len(block)) if "A" <= block[k] <= "Z"), len(block))
+    found = block[end]
+    if "A" <= found <= "Z":
+        return (
+            f"error:2 (bad number format) at {block[end:stop]!r}: it expects a number after "
+            f"the letter {found}: an optional sign, then digits with at most one decimal "
+            f"point ({found}1.5, {found}-0.5, {found}.5)"
+        )
+    return (
+        f"error:1 (expected command letter) at {block[start:stop]!r}: it expects each word "
+        f"to be a letter A-Z and a number, and finds {found!r} where a word's letter belongs"
+        + _STOP_HINTS.get(found, "")
+    )
+
+
 def block_words(text: str) -> list[tuple[str, float]]:
     """The words of a block as :func:`strip_block` leaves it: (letter, value) pairs."""
     return [(letter, float(value)) for letter, value in GCODE_WORD.findall(text)]
@@ -802,7 +845,8 @@ def load_program(
 
     Raises:
         ConfigError: Unreadable file, or a line GRBL would reject before parsing (over 79
-            characters after stripping, realtime characters, non-ASCII), naming the line.
+            characters after stripping, realtime characters, non-ASCII) or whose words it
+            cannot read (error:1 or error:2, :func:`_word_error`), naming the line.
     """
     p = Path(path)
     data = read_input(p, "a G-code file")
@@ -842,6 +886,12 @@ def load_program(
             raise ConfigError(
                 f"{p}:{lineno}: line has {len(block)} characters after stripping; "
                 f"GRBL 1.1 accepts at most {MAX_BLOCK_CHARS} (error:11)"
+            )
+        refused = None if block.startswith("$") else _word_error(block)
+        if refused is not None:
+            raise ConfigError(
+                f"{p}:{lineno}: GRBL 1.1 would refuse this line ({block!r} as sent) mid-job "
+                f"with {refused}"
             )
         step = _advance(state, block, rapid_mm_min)
         state = step.modal
