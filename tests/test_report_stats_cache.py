@@ -9,6 +9,9 @@ file's, and the next report reads them back.
 from __future__ import annotations
 
 import os
+import shutil
+import threading
+from pathlib import Path
 
 import pytest
 
@@ -126,3 +129,94 @@ def test_a_quoted_line_cannot_end_the_record(tmp_path, monkeypatch):
     (job / "report.html").write_text(record)
     monkeypatch.setattr(report, "gcode_statistics", None)  # read back, not counted
     assert cached_gcode_statistics(job, None)[0] == stats == said
+
+
+def test_an_edited_reader_anywhere_in_the_package_counts_again(tmp_path, reads, monkeypatch):
+    """The reading goes through the unit codes, the profile's words, the file reader...
+
+    so the key hashes every module: an edit of one the sender's files do not name, here a
+    copy of the package standing for the installed one, is a new reader.
+    """
+    package = tmp_path / "package"
+    shutil.copytree(
+        Path(report.__file__).resolve().parent.parent,
+        package,
+        ignore=shutil.ignore_patterns("__pycache__"),
+    )
+    monkeypatch.setattr(report, "_PACKAGE", package)
+    job, _ = _job(tmp_path)
+    _report(job)
+    _report(job)
+    assert len(reads) == 1
+    for edited in ("machine/grbl_codes.py", "fileio.py", "machine/profile.py"):
+        module = package / edited
+        module.write_text(module.read_text() + "\n# edited\n")
+        _report(job)
+        _report(job)
+    assert len(reads) == 4  # once for each edit, then kept
+    (package / "machine" / "new_reader.py").write_text("")
+    _report(job)
+    assert len(reads) == 5
+
+
+def test_the_same_bytes_under_another_name_are_counted_for_it(tmp_path, reads, monkeypatch):
+    """A refusal names the file: the record of board.gcode is not another name's."""
+    from scratchfab.model import job as job_module
+
+    job, gcode = _job(tmp_path)
+    gcode.write_text("G21 G90\nG0 Z5\n$H\nM2\n")  # refused, the file named
+    assert "board.gcode:3" in _report(job)["sent"]
+    monkeypatch.setattr(job_module, "_EXPORT_STEM", "plate")
+    other = gcode.with_name("plate.gcode")
+    other.write_bytes(gcode.read_bytes())
+    told = _report(job)
+    assert len(reads) == 2
+    assert told == gcode_statistics(other)
+    assert "plate.gcode:3" in told["sent"]
+
+
+def _in_thread(call, seconds=20.0):
+    """``call()``'s value, or fails where it has not returned within ``seconds``."""
+    got: list[object] = []
+    worker = threading.Thread(target=lambda: got.append(call()), daemon=True)
+    worker.start()
+    worker.join(seconds)
+    return worker, got
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+def test_a_fifo_for_a_page_is_not_read(tmp_path, reads):
+    job, gcode = _job(tmp_path)
+    os.mkfifo(job / "report.html")
+    worker, got = _in_thread(lambda: cached_gcode_statistics(job, None))
+    if worker.is_alive():  # let the waiting reader go before failing
+        os.close(os.open(job / "report.html", os.O_WRONLY | os.O_NONBLOCK))
+        worker.join(5)
+    assert got, "the report waited for a writer of the FIFO report.html"
+    assert got[0][0] == gcode_statistics(gcode)
+    assert len(reads) == 1
+    # the page written over the FIFO (a file put in its place), then read back
+    worker, _ = _in_thread(lambda: write_report(job))
+    assert not worker.is_alive()
+    assert (job / "report.html").is_file()
+    cached_gcode_statistics(job, None)
+    assert len(reads) == 2
+
+
+def test_a_folder_for_a_page_is_counted_around(tmp_path, reads):
+    job, gcode = _job(tmp_path)
+    (job / "report.html").mkdir()
+    assert cached_gcode_statistics(job, None)[0] == gcode_statistics(gcode)
+
+
+def test_the_record_is_looked_for_in_the_page_s_head_only(tmp_path, reads):
+    job, gcode = _job(tmp_path)
+    _, record = cached_gcode_statistics(job, None)
+    page = job / "report.html"
+    near = report._RECORD_WITHIN - len(record) - 100
+    page.write_text("x" * near + record + "x" * 10_000_000)
+    assert cached_gcode_statistics(job, None)[0] == gcode_statistics(gcode)
+    assert len(reads) == 1  # found near the end of the head, the rest not read
+    page.write_text("x" * (report._RECORD_WITHIN + 1) + record)
+    assert cached_gcode_statistics(job, None)[0] == gcode_statistics(gcode)
+    assert len(reads) == 2  # past the head: counted again

@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import base64
 import csv
+import hashlib
 import html
 import json
 import math
 import os
 import re
+import stat
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -1066,43 +1068,73 @@ def gcode_statistics(path: Path, profile: MachineProfile | None = None) -> dict[
     }
 
 
+#: The package's folder: the G-code record's key hashes every module in it.
+_PACKAGE = Path(__file__).resolve().parent.parent
+
+
+def _source_digest(package: Path) -> str:
+    """SHA-256 of every module of ``package`` (its path and bytes), in a stable order.
+
+    Raises:
+        OSError: A module cannot be read, or there is none (a frozen build).
+    """
+    modules = sorted(package.rglob("*.py"), key=lambda p: p.relative_to(package).as_posix())
+    if not modules:
+        raise FileNotFoundError(f"no Python source in {package}")
+    digest = hashlib.sha256()
+    for module in modules:
+        digest.update(module.relative_to(package).as_posix().encode() + b"\0")
+        digest.update(hashlib.sha256(module.read_bytes()).digest())
+    return digest.hexdigest()
+
+
 def _statistics_key(gcode: Path, profile: MachineProfile | None) -> dict[str, str]:
     """What :func:`gcode_statistics` of ``gcode`` for ``profile`` depends on, hashed.
 
     The file's bytes and name, the profile (its repr: every field), and the code that
-    reads the file (this module, the sender's parser and its extent): a changed reader
-    counts again rather than show an earlier version's figures.
+    reads the file (every module of the package, about 8 ms: the sender's parser reads
+    through the profile's words, the unit codes, the file reader and the tool's commands):
+    a changed reader counts again rather than show an earlier version's figures.
     """
-    import hashlib
-
     from scratchfab.fileio import file_sha256
-    from scratchfab.machine import sender_checks, sender_program, stream_job
 
-    readers = hashlib.sha256()
-    for module in (sender_checks, sender_program, stream_job):
-        readers.update(Path(str(module.__file__)).read_bytes())
-    readers.update(Path(__file__).read_bytes())
     return {
         "gcode": file_sha256(gcode),
         "name": gcode.name,
         "profile": hashlib.sha256(repr(profile).encode()).hexdigest(),
-        "readers": readers.hexdigest(),
+        "readers": _source_digest(_PACKAGE),
     }
 
 
 #: The ``id`` of report.html's record of its G-code figures (:func:`cached_gcode_statistics`).
 _STATS_RECORD = "gcode-statistics"
+#: How much of report.html's head the record is looked for in (it lies about 2 KB in).
+_RECORD_WITHIN = 64 * 1024
 
 
 def _kept_statistics(page: Path) -> Any:
-    """The record an earlier report.html kept of its G-code figures (None without one)."""
-    try:
-        text = page.read_text(encoding="utf-8")
+    """The record an earlier report.html kept of its G-code figures (None without one).
+
+    Read only where the page is a regular file (a FIFO there would wait for a writer),
+    and only its first :data:`_RECORD_WITHIN` bytes.
+    """
+    try:  # not blocking: opening a FIFO for reading waits for a writer otherwise
+        fd = os.open(page, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except (OSError, ValueError):
         return None
-    found = re.search(f"<script type='application/json' id='{_STATS_RECORD}'>(.*?)</script>", text)
     try:
-        return decode_json(found.group(1)) if found else None
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
+        with open(fd, "rb", closefd=False) as handle:
+            head = handle.read(_RECORD_WITHIN)
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+    opening = f"<script type='application/json' id='{_STATS_RECORD}'>".encode()
+    found = re.search(re.escape(opening) + rb"(.*?)</script>", head)
+    try:
+        return decode_json(found.group(1).decode("utf-8")) if found else None
     except ValueError:
         return None
 
