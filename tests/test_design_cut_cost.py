@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 from conftest import cli_run, design_sun_and_moon
+from cut_said import cut_sentence
 
 from scratchfab.bundled import bundled_dir
 from scratchfab.design.stage import run_design
@@ -36,9 +37,7 @@ def _seconds(said: str) -> float:
 
 
 def _cut_line(out: str) -> str:
-    lines = [line for line in out.splitlines() if line.startswith("  cut: ")]
-    assert len(lines) == 1, out
-    return lines[0]
+    return cut_sentence(out.splitlines())
 
 
 def _toolpath_seconds(job: Path, machine: str | Path) -> float:
@@ -56,7 +55,7 @@ def test_design_tells_the_cut_length_and_time_at_the_bundled_profiles_feeds(tmp_
     # after the layout is made
     lines = out.splitlines()
     assert (
-        lines.index(line)
+        next(i for i, s in enumerate(lines) if s.startswith("  cut: "))
         == next(i for i, s in enumerate(lines) if s.startswith("  initial layout:")) + 1
     )
     design = load_design(job / "design" / "design.toml", require_views=False)

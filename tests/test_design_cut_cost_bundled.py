@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from conftest import cli_run
+from cut_said import cut_sentence
 
 from scratchfab.bundled import bundled_dir
 from scratchfab.design.stage import run_design
@@ -18,9 +19,7 @@ DEMO_PIPELINE = bundled_dir("pipelines") / "demo.toml"
 
 
 def _cut_line(lines: list[str]) -> str:
-    found = [line for line in lines if line.startswith("  cut: ")]
-    assert len(found) == 1, lines
-    return found[0]
+    return cut_sentence(lines)
 
 
 def test_design_demo_names_a_copy_of_the_bundled_pipeline(tmp_path, capsys):

@@ -14,6 +14,7 @@ from dataclasses import replace
 
 import tomli_w
 from conftest import cli_run
+from cut_said import cut_sentence
 
 from scratchfab.bundled import bundled_dir
 from scratchfab.design.stage import run_design
@@ -26,10 +27,9 @@ PROFILE = bundled_dir("machine_profiles") / "grbl-3018-diamond.toml"
 
 
 def _machine(lines: list[str]) -> str:
-    found = [line for line in lines if line.startswith("  cut: ")]
-    assert len(found) == 1, lines
-    named = re.search(r" on (machine '.*?' \([^;)]*);", found[0])
-    assert named, found[0]
+    cut = cut_sentence(lines)
+    named = re.search(r" on (machine '.*?' \([^;)]*);", cut)
+    assert named, cut
     return named.group(1)
 
 
@@ -70,7 +70,7 @@ def test_design_and_toolpath_name_a_profile_file_alike(tmp_path, capsys):
     run_design(design_file, job, resolution=(16, 16), progress=said.append, machine=str(mine))
     expected = f"machine 'my engraver' ({mine}"
     assert _machine(said) == expected
-    (cut,) = [line for line in said if line.startswith("  cut: ")]
+    cut = cut_sentence(said)
     assert "this initial layout, before optimize" in cut, cut
     code, out, _ = cli_run(["toolpath", str(job), "--machine", str(mine)], capsys)
     assert code == 0, out
@@ -92,7 +92,7 @@ def test_design_machine_option_times_the_cut_on_that_machine(tmp_path, capsys):
             ["design", *quick, "--machine", machine, "--out", str(tmp_path / machine)], capsys
         )
         assert code == 0, err
-        lines[machine] = [line for line in out.splitlines() if line.startswith("  cut: ")][0]
+        lines[machine] = cut_sentence(out.splitlines())
     assert _machine([lines["grbl-plotter-scribe"]]) == f"machine '{name}' ({plotter.stem}"
     assert lines["grbl-plotter-scribe"] != lines["grbl-3018-diamond"]
 

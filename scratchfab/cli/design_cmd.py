@@ -89,7 +89,8 @@ if TYPE_CHECKING:
     "-m",
     default=None,
     show_default="the file's toolpath.machine, else grbl-3018-diamond",
-    help=f"Machine whose time to cut the layout design tells: bundled profile "
+    help=f"Machine whose time to cut the layout design tells (and warns where it cannot "
+    f"reach the layout): bundled profile "
     f"({', '.join(bundled_names('machine_profiles'))}) or a profile TOML file.",
 )
 def design(

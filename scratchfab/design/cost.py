@@ -1,51 +1,95 @@
 """What a layout will cost to cut, said when it is made, before any toolpath is planned.
 
-The time is the toolpath stage's own estimate (:func:`scratchfab.toolpath.plan.estimate_time`)
-on a named machine profile, over the scratches in the toolpath's first ordering step
-(greedy nearest neighbour, :func:`scratchfab.toolpath.order.order_strokes` without its
-local search): the travel comes out a little longer than the planned toolpath's (under
-1 % more time for 400 scratches on 60 x 50 mm and 11,250 on 150 x 150 mm), and nothing
-is clipped to the machine's envelope (a board larger than it is timed whole).
+The time is the toolpath stage's own plan and estimate
+(:func:`scratchfab.toolpath.plan.plan_toolpath`) on a named machine profile, with the
+ordering's first step only (greedy nearest neighbour,
+:func:`scratchfab.toolpath.order.order_strokes` without its local search): the travel
+comes out a little longer than the planned toolpath's (under 1 % more time for 400
+scratches on 60 x 50 mm and 11,250 on 150 x 150 mm). As in the toolpath stage, what lies
+beyond the machine's envelope is left out or clipped, and a warning says so in the
+toolpath stage's words, with what to change (design still writes the layout: another
+machine, or this one's profile changed, may hold the board).
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from scratchfab.console import duration_text
-from scratchfab.errors import ConfigError
+from scratchfab.errors import ConfigError, ScratchfabError
 from scratchfab.machine.profile import MachineProfile, load_profile, machine_named, profile_ref
 from scratchfab.model.design import Board
 from scratchfab.model.scratches import ScratchSet
-from scratchfab.toolpath.order import OrderOptions, order_strokes
-from scratchfab.toolpath.plan import estimate_time
+from scratchfab.toolpath.order import OrderOptions
+from scratchfab.toolpath.plan import Toolpath, fit_advice, partial_text, plan_toolpath
 
 #: The toolpath's greedy ordering alone: no local search, no perturbation trials.
 _GREEDY = OrderOptions(passes=0, kicks=0)
 
 
-def cut_seconds(scratches: ScratchSet, board: Board, profile: MachineProfile) -> float:
-    """Seconds to cut every scratch on ``profile``, as the toolpath stage estimates a job.
+def cut_plan(scratches: ScratchSet, board: Board, profile: MachineProfile) -> Toolpath:
+    """The toolpath stage's plan of ``scratches`` on ``profile``, greedily ordered.
+
+    The scratches are planned as the machine's tool cuts them: a design for another tool
+    is the toolpath stage's to refuse, and the tool changes neither the time nor the reach.
 
     Args:
         scratches: Board coordinates (SPEC section 3).
         board: Their board, placed on the machine as the profile's ``[board]`` says.
-        profile: The machine (feeds, motion limits, tool control, start position).
+        profile: The machine (envelope, feeds, motion limits, tool control, start).
+
+    Raises:
+        ScratchfabError: The board lies wholly outside the machine's envelope (the
+            toolpath stage's own refusal, naming what to change).
     """
-    if len(scratches) == 0:
-        return 0.0
-    size = (board.width_mm, board.height_mm)
-    p0 = profile.board_to_machine(scratches.p0, size)
-    p1 = profile.board_to_machine(scratches.p1, size)
-    tour = order_strokes(p0, p1, profile.start_mm, _GREEDY)
-    flip = tour.reverse[:, None]
-    first = np.where(flip, p1[tour.order], p0[tour.order])
-    last = np.where(flip, p0[tour.order], p1[tour.order])
-    return estimate_time(np.stack([first, last], axis=1), profile)
+    tool, n = profile.tool, len(scratches)
+    as_cut = ScratchSet(
+        scratches.p0, scratches.p1, np.full(n, tool.width_mm), np.full(n, tool.depth_mm)
+    )
+    return plan_toolpath(as_cut, board, profile, None, _GREEDY)
 
 
-def cut_line(scratches: ScratchSet, board: Board, machine: str | MachineProfile, fewer: str) -> str:
-    """One line: the scratch count, the length of cut, and the time on ``machine``.
+def unreached_text(
+    profile: MachineProfile, board_size: tuple[float, float], stats: dict[str, Any]
+) -> str | None:
+    """What the machine cannot reach of a planned board and what to change, or None.
+
+    In the toolpath stage's words: the scratches its envelope leaves out or clips
+    (:func:`~scratchfab.toolpath.plan.partial_text`), its travel, and
+    :func:`~scratchfab.toolpath.plan.fit_advice`.
+
+    Args:
+        profile: The machine.
+        board_size: The board's width and height (mm).
+        stats: :func:`~scratchfab.toolpath.plan.plan_toolpath`'s counts.
+    """
+    lost = partial_text(stats)
+    if lost is None:
+        return None
+    travel = profile.envelope.max_travel_mm
+    advice = fit_advice(profile, board_size)
+    return (
+        f"{machine_named(profile.name, profile.source)} cannot reach the whole "
+        f"{board_size[0]:g} x {board_size[1]:g} mm board: {lost}; its travel is "
+        f"{travel[0]:g} x {travel[1]:g} mm ({profile.envelope.xy_text()}). "
+        f"{advice[0].upper()}{advice[1:]}"
+    )
+
+
+def cut_lines(
+    scratches: ScratchSet,
+    board: Board,
+    machine: str | MachineProfile,
+    fewer: str,
+    reach: bool = True,
+) -> list[str]:
+    """The scratch count and length of cut, then a line a clause: the time on ``machine``.
+
+    The first line is ``cut: N scratches, L m of cut``; each later one is indented by two
+    spaces (one clause of the sentence they make joined by ``"; "``), and with ``reach``
+    a last ``warning: ...`` line, unindented, says what the machine cannot reach.
 
     Args:
         scratches: The layout.
@@ -53,22 +97,35 @@ def cut_line(scratches: ScratchSet, board: Board, machine: str | MachineProfile,
         machine: A bundled profile's name or a profile file (``[toolpath] machine``), or
             the profile itself, loaded (``run`` reads its profile once).
         fewer: What sets the count (``--count``), named as the way to a shorter cut.
+        reach: Warn of a board the machine cannot reach whole (``run`` warned before its
+            first stage).
     """
-    n = len(scratches)
     length_m = float(np.hypot(*(scratches.p1 - scratches.p0).T).sum()) / 1000.0
-    head = f"cut: {n} scratches, {length_m:.1f} m of cut"
+    lines = [f"cut: {len(scratches)} scratches, {length_m:.1f} m of cut"]
     try:
         profile = load_profile(machine)
     except ConfigError as exc:
-        return f"{head}; no time estimate, toolpath.machine: {exc}"
-    seconds = cut_seconds(scratches, board, profile)
+        return [*lines, f"  no time estimate, toolpath.machine: {exc}"]
     feeds = [f"engrave {profile.feeds.engrave_mm_min:g} mm/min"]
     if profile.tool_control.mode != "servo":
         feeds.append(f"plunge {profile.feeds.plunge_mm_min:g} mm/min")
     machine_text = machine_named(profile.name, profile_ref(profile), ", ".join(feeds))
-    return (
-        f"{head}; about {duration_text(seconds)} ({seconds / max(n, 1):.1f} s a scratch with "
-        f"its travel) on {machine_text}, as toolpath estimates this initial layout, before "
-        f"optimize (which usually shortens the cut); {fewer} lays fewer, the time falls about "
-        "with the count"
-    )
+    try:
+        plan = cut_plan(scratches, board, profile)
+    except ScratchfabError as exc:  # the board lies wholly outside the envelope
+        lines.append(f"  no time estimate on {machine_text}")
+        unreached: str | None = f"the toolpath stage will refuse this layout: {exc}"
+    else:
+        seconds, cut = float(plan.stats["estimated_time_s"]), int(plan.stats["count"])
+        part = " of the part it reaches" if partial_text(plan.stats) is not None else ""
+        lines += [
+            f"  about {duration_text(seconds)}{part} ({seconds / max(cut, 1):.1f} s a scratch "
+            f"with its travel) on {machine_text}",
+            "  as toolpath estimates this initial layout, before optimize (which usually "
+            "shortens the cut)",
+            f"  {fewer} lays fewer, the time falls about with the count",
+        ]
+        unreached = unreached_text(profile, plan.board_mm, plan.stats)
+    if reach and unreached is not None:
+        lines.append(f"warning: {unreached}")
+    return lines

@@ -20,7 +20,7 @@ import numpy as np
 
 from scratchfab.bundled import bundled_name
 from scratchfab.console import Say
-from scratchfab.design.cost import cut_line
+from scratchfab.design.cost import cut_lines
 from scratchfab.design.feasibility import DESIGN_ANYWAY, FeasibilityReport, check_feasibility
 from scratchfab.design.images import invert_picture, load_image
 from scratchfab.design.layout import initial_layout
@@ -470,6 +470,7 @@ def run_design(
     progress: Say = lambda _: None,
     invert: bool = False,
     machine: str | MachineProfile | None = None,
+    reach: bool = True,
 ) -> DesignResult:
     """Run the design stage.
 
@@ -491,6 +492,8 @@ def run_design(
         machine: The machine whose time to cut the layout is told (a bundled profile's
             name, a profile file, or the profile loaded); default: a file's ``[toolpath] machine``, else the
             bundled default.
+        reach: Warn when ``machine`` cannot reach the whole layout (``run`` warns of
+            the board once itself, before its first stage).
 
     Raises:
         ConfigError: One line naming the file and what is wrong; nothing is written.
@@ -607,7 +610,8 @@ def run_design(
         ways.insert(0, "--count")
     fewer = " or ".join(ways)
     machine = machine if machine is not None else tables.toolpath.machine
-    progress(f"  {cut_line(scratches, design.board, machine, fewer)}")
+    for line in cut_lines(scratches, design.board, machine, fewer, reach):
+        progress(f"  {line}")
 
     # the board pictures are inverted already: a rerun from the file keeps them as they are
     resolved = design.with_views(

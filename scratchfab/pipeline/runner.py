@@ -408,6 +408,7 @@ class _Stages:
                 seed=opts.seed,
                 progress=self._say_in,
                 machine=self.pipe.profile,
+                reach=False,  # the run warned of the board before its first stage
             )
         except ScratchfabError as exc:  # `run --force` reruns stages: name the file's key
             if exc.args and DESIGN_ANYWAY in str(exc.args[0]):
@@ -689,9 +690,10 @@ def _run_stages(
     stages = _Stages(pipe, job, say, confirm, homed, zero_here)
     result = RunResult(job)
     last = STAGES.index(until) if until else len(STAGES) - 1
-    # Said once, before the first stage of the run that comes ahead of toolpath (the
-    # toolpath stage says what it left out itself; a run with nothing to do says nothing).
-    overhang = _board_overhang(pipe) if last >= STAGES.index("toolpath") else None
+    # Said once, before the first stage of the run that comes ahead of toolpath, also when
+    # --until stops before it (the board is for a later run's toolpath; the toolpath stage
+    # says what it left out itself; a run with nothing to do says nothing).
+    overhang = _board_overhang(pipe)
     rerun = force
     # A folder the single commands made (they keep no manifest): said once, where a stage
     # is checked, so that the run does not seem to redo their work for no reason.
