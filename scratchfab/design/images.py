@@ -460,25 +460,27 @@ def _between_codes(
     for r0 in range(0, samples.shape[0], rows):
         block = samples[r0 : r0 + rows, :, :n]
         below = np.minimum(block // 257, 254).astype(np.uint8)
-        fraction = (block - below * np.uint16(257)) / 257.0
-        order = np.argsort(-fraction, axis=-1, kind="stable")
-        steps = np.take_along_axis(fraction, order, axis=-1)
+        rest = block - below * np.uint16(257)  # 257 times the fraction, 0 to 257
+        # Each channel's place in the walk, largest fraction first (of equal ones, the
+        # earlier channel), by comparisons: an argsort and its takes cost twice the time.
+        place = np.zeros(block.shape, np.uint8)
+        for c in range(n):
+            for d in range(n):
+                place[..., c] += (
+                    rest[..., d] >= rest[..., c] if d < c else rest[..., d] > rest[..., c]
+                )
+        steps = np.sort(rest, axis=-1)[..., ::-1] / 257.0
         # Corner k's weight: the k-th largest fraction less the next (1 before the first).
         weights = np.concatenate(
             [1.0 - steps[..., :1], -np.diff(steps, axis=-1), steps[..., -1:]], -1
         )
-        corner = below
         lum = np.zeros(block.shape[:2])
-        for k in range(n + 1):
-            if k:  # one step along the channel with the k-th largest fraction
-                np.put_along_axis(
-                    corner,
-                    order[..., k - 1 : k],
-                    np.take_along_axis(corner, order[..., k - 1 : k], -1) + 1,
-                    -1,
-                )
-            height, width = corner.shape[:2]
-            pixels = Image.frombytes(kind, (width, height), np.ascontiguousarray(corner).tobytes())
+        height, width = block.shape[:2]
+        for k in range(n + 1):  # corner k: one step along each of the k placed first
+            if not weights[..., k].any():  # 8-bit codes stored as 257 c: corner 0 alone
+                continue
+            corner = below + (place < k)
+            pixels = Image.frombuffer(kind, (width, height), corner, "raw", kind, 0, 1)
             rgb = np.asarray(_converted(pixels, file, transform))
             lum += weights[..., k] * (_LUT8[rgb] @ LUMA_709)
         lin[r0 : r0 + rows] = lum
