@@ -11,6 +11,7 @@ import pytest
 import shapely
 from conftest import FULL
 
+from scratchfab.backend import jit_array
 from scratchfab.render.ndf import (
     scratch_footprint_ndf,
     scratch_footprint_ndf_gl,
@@ -209,18 +210,32 @@ def intersection_type(case):
     return int(in_s), int(in_p), bool(fp.intersects(rect))
 
 
-def evaluate(m, cases, fn=scratch_footprint_ndf, dtype="Float64", **kw):
-    F = getattr(m, dtype)
+def case_arrays(F, cases):
+    """The cases as Dr.Jit arrays of type F: corners x, corners y, the scalar arguments.
+
+    Aligned copies (:func:`jit_array`): numpy's own buffers make the same kernel hash
+    differently from run to run, so each run would compile it again.
+    """
+
+    def col(values):
+        return jit_array(F, values)
+
     quad = np.stack([c["quad"] for c in cases])
-    args = [
-        [F(quad[:, i, 0]) for i in range(4)],
-        [F(quad[:, i, 1]) for i in range(4)],
-        *(F(np.array([c[k][j] for c in cases])) for k in ("p0", "p1") for j in (0, 1)),
-        F(np.array([c["w"] for c in cases])),
-        F(np.array([c["wbar"] for c in cases])),
-        *(F(np.array([c["h"][j] for c in cases])) for j in range(3)),
-        F(np.array([c["alpha"] for c in cases])),
+    qx = [col(quad[:, i, 0]) for i in range(4)]
+    qy = [col(quad[:, i, 1]) for i in range(4)]
+    rest = [
+        *(col([c[k][j] for c in cases]) for k in ("p0", "p1") for j in (0, 1)),
+        col([c["w"] for c in cases]),
+        col([c["wbar"] for c in cases]),
+        *(col([c["h"][j] for c in cases]) for j in range(3)),
+        col([c["alpha"] for c in cases]),
     ]
+    return qx, qy, rest
+
+
+def evaluate(m, cases, fn=scratch_footprint_ndf, **kw):
+    qx, qy, rest = case_arrays(m.Float64, cases)
+    args = [qx, qy, *rest]
     dr.eval(args)
     ndf, area = fn(*args, **kw)
     dr.eval(ndf, area)
@@ -333,7 +348,7 @@ def test_graded_quadrature_converges_to_closed_form(m):
     rng = np.random.default_rng(17)
     cases = [random_case(rng) for _ in range(300)]
     exact, _ = evaluate(m, cases)
-    qx, qy, rest = _drjit_args(m, cases)
+    qx, qy, rest = case_arrays(m.Float64, cases)
     scale = scratch_footprint_ndf_magnitude(qx, qy, *rest)
     dr.eval(scale)
     scale = np.asarray(scale, dtype=np.float64)
@@ -346,21 +361,6 @@ def test_graded_quadrature_converges_to_closed_form(m):
     assert errors[0] > 1e-2  # the coarse rule is visibly wrong on sharp lobes: the test has power
     assert errors[1] < errors[0] / 10 and errors[2] < errors[1] / 100, errors
     assert errors[2] <= 1e-5, errors
-
-
-def _drjit_args(m, cases):
-    F = m.Float64
-    quad = np.stack([c["quad"] for c in cases])
-    qx = [F(quad[:, i, 0]) for i in range(4)]
-    qy = [F(quad[:, i, 1]) for i in range(4)]
-    rest = [
-        *(F(np.array([c[k][j] for c in cases])) for k in ("p0", "p1") for j in (0, 1)),
-        F(np.array([c["w"] for c in cases])),
-        F(np.array([c["wbar"] for c in cases])),
-        *(F(np.array([c["h"][j] for c in cases])) for j in range(3)),
-        F(np.array([c["alpha"] for c in cases])),
-    ]
-    return qx, qy, rest
 
 
 # differentiable inputs: 8 corner coordinates, 4 endpoint coordinates, h, alpha
@@ -378,7 +378,7 @@ _PARAMS += [
 
 
 def _gradients(m, cases):
-    qx, qy, rest = _drjit_args(m, cases)
+    qx, qy, rest = case_arrays(m.Float64, cases)
     diff = [*qx, *qy, *rest[:4], *rest[6:]]
     for v in diff:
         dr.enable_grad(v)

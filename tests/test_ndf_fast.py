@@ -15,9 +15,10 @@ import pytest
 import shapely
 from conftest import FULL, make_design
 from reference_render import reference_render
-from test_ndf import _drjit_args, check_against_differences, lit_cases, random_case, reference
+from test_ndf import case_arrays, check_against_differences, lit_cases, random_case, reference
 from test_render import random_scratches, rel_l2
 
+from scratchfab.backend import jit_array
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.render.ndf import (
     EDGE_SLOTS,
@@ -40,7 +41,7 @@ SLACK = 1e-8
 
 def _columns(m, cases):
     """Dr.Jit arrays of the cases: corner lists, then the scalar arguments in order."""
-    return np.stack([c["quad"] for c in cases]), *_drjit_args(m, cases)
+    return np.stack([c["quad"] for c in cases]), *case_arrays(m.Float64, cases)
 
 
 def _orient(quad):
@@ -67,8 +68,10 @@ def _terms(m, cases, slots, rest=None, custom=False):
     for n in range(slots.shape[1]):
         i, far = slots[:, n] // 2, slots[:, n] % 2
         a, b = quad[lanes, i], quad[lanes, (i + 1) % 4]
-        edges.append((F(a[:, 0]), F(a[:, 1]), F(b[:, 0]), F(b[:, 1]), m.Bool(far == 1)))
-    return scratch_edges_ndf(edges, F(_orient(quad)), *rest, custom_derivative=custom)
+        corners = (jit_array(F, x) for x in (a[:, 0], a[:, 1], b[:, 0], b[:, 1]))
+        edges.append((*corners, jit_array(m.Bool, far == 1, bool)))
+    orient = jit_array(F, _orient(quad))
+    return scratch_edges_ndf(edges, orient, *rest, custom_derivative=custom)
 
 
 def _kept_first(kept):
@@ -148,9 +151,10 @@ def test_dropped_terms_are_exact_zeros_with_zero_derivatives(m):
             dr.enable_grad(v)
         ndf, area = _terms(m, sub, np.full((len(sub), 1), slot), rest)
         for v in moving:
-            dr.set_grad(v, F(rng.uniform(-1.0, 1.0, len(sub))))
-        d_ndf, d_area = dr.forward_to(ndf, area)
-        for x in (dr.detach(ndf), dr.detach(area), d_ndf, d_area):
+            dr.set_grad(v, jit_array(F, rng.uniform(-1.0, 1.0, len(sub))))
+        outputs = (dr.detach(ndf), dr.detach(area), *dr.forward_to(ndf, area))
+        dr.eval(outputs)  # one kernel
+        for x in outputs:
             assert not np.any(np.asarray(x)), (slot, sel[np.flatnonzero(np.asarray(x))][:5])
         checked += len(sel)
     # and the kept terms are not all zero: the masks are not trivially "keep everything"
@@ -175,7 +179,9 @@ def test_kept_term_gradients_match_central_differences(m, custom):
         dr.enable_grad(v)
     ndf, _area = _terms(m, cases, _kept_first(kept)[:, :size], rest, custom)
     dr.backward(ndf)
-    ad = np.stack([np.asarray(dr.grad(v), dtype=np.float64) for v in variables])
+    grads = [dr.grad(v) for v in variables]
+    dr.eval(grads)  # one kernel for all of them
+    ad = np.stack([np.asarray(g, dtype=np.float64) for g in grads])
     assert check_against_differences(ad, cases, params, 1e-8, 1e-3) > 50
 
 
@@ -197,12 +203,14 @@ def test_written_out_derivative_equals_the_traced_one(m, mode):
         ndf, area = _terms(m, cases, slots, rest, custom)
         if mode == "backward":
             dr.backward(ndf)
-            grads = np.stack([np.asarray(dr.grad(v)) for v in variables])
+            grads = [dr.grad(v) for v in variables]
         else:
             for k, v in enumerate(variables):
-                dr.set_grad(v, F(np.linspace(0.2, 1.0, len(cases)) * (k + 1)))
-            grads = np.asarray(dr.forward_to(ndf))[None]
-        return np.asarray(dr.detach(ndf)), np.asarray(dr.detach(area)), grads
+                dr.set_grad(v, jit_array(F, np.linspace(0.2, 1.0, len(cases)) * (k + 1)))
+            grads = [dr.forward_to(ndf)]
+        values = dr.detach(ndf), dr.detach(area)
+        dr.eval(values, grads)  # one kernel for the values and all the derivatives
+        return (*(np.asarray(x) for x in values), np.stack([np.asarray(g) for g in grads]))
 
     ndf_t, area_t, grad_t = run(False)
     ndf_c, area_c, grad_c = run(True)
