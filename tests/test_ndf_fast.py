@@ -298,10 +298,13 @@ def test_render_classes_matches_render_pairs_reference_and_differences(m, rng, p
     if pad > 1:
         nulls = sum(0 if c is None else int(np.sum(np.asarray(c[1]) == NULL_CODE)) for c in classes)
         assert nulls > 0
-    weights = m.Float64(rng.uniform(0.5, 1.5, vr.pixel_count))
+    weights = jit_array(m.Float64, rng.uniform(0.5, 1.5, vr.pixel_count))
 
     def run(use_classes, values=None):
-        a = [m.Float64(v) for v in values] if values is not None else [type(x)(x) for x in arrays]
+        if values is None:
+            a = [type(x)(x) for x in arrays]
+        else:
+            a = [jit_array(m.Float64, v) for v in values]
         for x in a[:4]:
             dr.enable_grad(x)
         if use_classes:

@@ -22,6 +22,7 @@ import pytest
 from conftest import FULL, make_design, pasted_words
 from test_optimize_helpers import cross_of, make_job, make_layout, stopped_at_three_of_four
 
+from scratchfab.backend import jit_array
 from scratchfab.bundled import bundled_dir
 from scratchfab.cli import main
 from scratchfab.errors import ScratchfabError
@@ -322,13 +323,18 @@ def test_touching_pairs_give_the_loss_and_gradient_of_all_pairs(m, board) -> Non
     assert sum(opt.active_counts()) < 0.7 * sum(opt.pair_counts())
 
     def run(active):  # type: ignore[no-untyped-def]
-        raw = [m.Float64(np.array(opt.opt[k], dtype=np.float64)) for k in KEYS]
+        raw = [jit_array(m.Float64, opt.opt[k]) for k in KEYS]
         for a in raw:
             dr.enable_grad(a)
         loss, _errors, renders, _ = opt._forward(raw, active=active)
         dr.backward(loss)
-        grad = np.stack([np.asarray(dr.grad(a)) for a in raw])
-        return float(loss[0]), [np.asarray(x) for x in renders], grad
+        grads = [dr.grad(a) for a in raw]
+        dr.eval(loss, renders, grads)  # one kernel
+        return (
+            float(loss[0]),
+            [np.asarray(x) for x in renders],
+            np.stack([np.asarray(g) for g in grads]),
+        )
 
     loss_a, renders_a, grad_a = run(opt.active)
     loss_b, renders_b, grad_b = run(None)
@@ -388,22 +394,24 @@ def test_objective_gradient_matches_finite_differences(m, space) -> None:
     assert opt._neighbour_count > 0
     base = [np.array(opt.opt[k], dtype=np.float64, copy=True) for k in KEYS]
     base[0][2] = 30.0  # far off the board: the bound penalty is active
-    raw = [m.Float64(b) for b in base]
+    raw = [jit_array(m.Float64, b) for b in base]
     for a in raw:
         dr.enable_grad(a)
     # the step's path: only the pairs that touch at these parameters (the differences
     # below use every pair)
     with dr.suspend_grad():
-        ends = endpoints(*project(*(m.Float64(b) for b in base), opt.bounds))
+        ends = endpoints(*project(*(jit_array(m.Float64, b) for b in base), opt.bounds))
         masks = opt._touching(ends, opt._context())
     dr.eval(masks)
     loss, *_ = opt._forward(raw, active=opt._compress(masks))
     dr.backward(loss)
-    grad = [np.array(dr.grad(a), dtype=np.float64) for a in raw]
+    grads = [dr.grad(a) for a in raw]
+    dr.eval(grads)  # one kernel
+    grad = [np.array(g, dtype=np.float64) for g in grads]
 
     def loss_at(values: list[np.ndarray]) -> float:
         with dr.suspend_grad():
-            return float(np.asarray(opt._forward([m.Float64(v) for v in values])[0])[0])
+            return float(np.asarray(opt._forward([jit_array(m.Float64, v) for v in values])[0])[0])
 
     h = 1e-6
     scale = max(float(np.abs(g).max()) for g in grad)
