@@ -117,3 +117,85 @@ def test_an_unreadable_file_gives_none(tmp_path, text):
         file.write_text(text)
     assert VerifyMetrics.read(file) is None
     assert ToolpathFigures.read(file) is None
+
+
+def test_a_failing_gate_s_error_carries_the_metrics_a_result_would_hold(run, tmp_path):
+    """The gate ends the run with VerifyGateError, so no RunResult: the error holds them."""
+    import shutil
+
+    from scratchfab.verify.verify import VerifyGateError
+
+    path, job, _ = run
+    copy = tmp_path / "job"
+    shutil.copytree(job, copy)
+    strict = path.with_name("strict.toml")  # beside its targets
+    strict.write_text(path.read_text().replace("min_rho = -0.5", "min_rho = 0.9999"))
+    assert strict.read_text() != path.read_text()
+    with pytest.raises(VerifyGateError) as info:
+        run_pipeline(load_pipeline(strict), copy, until="toolpath")
+    metrics = info.value.metrics
+    assert isinstance(metrics, VerifyMetrics) and metrics.file == JobLayout(copy).verify_metrics
+    layout = JobLayout(copy)
+    names = [view.name for view in metrics.views]
+    renders = {n: np.load(layout.verify_dir / f"{n}.npy") for n in names}
+    targets = {n: np.load(layout.design.target_npy(n)) for n in names}
+    measured = quality_report(renders, targets)["views"]
+    for view in metrics.views:  # the reference: measured again, not metrics.json's figure
+        assert view.rho == pytest.approx(measured[view.name]["rho"], abs=1e-6)
+        assert view.passed is (measured[view.name]["rho"] >= 0.9999)
+    assert metrics.min_rho == 0.9999 and metrics.passed is False
+    assert info.value.view in [v.name for v in metrics.views if v.passed is False]
+
+
+def test_min_rho_minus_one_is_no_gate_however_verify_recorded_it(tmp_path):
+    """-1 passes every rho, so it gates nothing: passed None, as the report says "no gate"."""
+    views = {"a": {"rho": 0.9, "psnr": 20.0}, "b": {"rho": -0.2, "psnr": 3.0}}
+    for passed in (True, None):  # as verify wrote it before, and now
+        gate = {"min_rho": -1, "passed": passed, "failing": [], "unchecked": []}
+        got = VerifyMetrics.read(write_metrics(tmp_path, views, gate))
+        assert got is not None and got.min_rho == -1.0
+        assert got.passed is None and [v.passed for v in got.views] == [None, None]
+    gate = {"min_rho": -0.99, "passed": True, "failing": [], "unchecked": []}
+    got = VerifyMetrics.read(write_metrics(tmp_path, views, gate))
+    assert got is not None and got.passed is True and [v.passed for v in got.views] == [True] * 2
+
+
+@pytest.mark.parametrize(
+    ("gate", "key", "shown"),
+    [
+        ({"min_rho": 0.5, "failing": 5}, "gate.failing", "5"),
+        ({"min_rho": 0.5, "unchecked": [[1]]}, "gate.unchecked", "[[1]]"),
+        ({"min_rho": 0.5, "failing": ["a", 2]}, "gate.failing", "['a', 2]"),
+        ({"min_rho": 0.5, "failing": "a"}, "gate.failing", "'a'"),
+        (7, "gate", "7"),
+    ],
+)
+def test_a_damaged_gate_is_a_one_line_error_naming_file_and_key(tmp_path, gate, key, shown):
+    from scratchfab.errors import ConfigError
+
+    file = tmp_path / "metrics.json"
+    file.write_text(json.dumps({"views": {"a": {"rho": 0.9}}, "gate": gate}))
+    with pytest.raises(ConfigError) as info:
+        VerifyMetrics.read(file)
+    said = str(info.value)
+    assert said.startswith(f"{file}: {key}: expected ") and said.endswith(f"got {shown}")
+    assert "\n" not in said
+
+
+def test_a_run_at_min_rho_minus_one_gives_no_verdict(run, tmp_path):
+    """The pipeline's "-1 never stops": verify records no pass, and the result says none."""
+    import shutil
+
+    path, job, _ = run
+    copy = tmp_path / "job"
+    shutil.copytree(job, copy)
+    loose = path.with_name("loose.toml")  # beside its targets
+    loose.write_text(path.read_text().replace("min_rho = -0.5", "min_rho = -1.0"))
+    result = run_pipeline(load_pipeline(loose), copy, until="verify")
+    assert result.ran == ["verify"]
+    recorded = json.loads(JobLayout(copy).verify_metrics.read_text())["gate"]
+    assert recorded["min_rho"] == -1 and recorded["passed"] is None
+    assert result.verify is not None and result.verify.min_rho == -1.0
+    assert result.verify.passed is None
+    assert [v.passed for v in result.verify.views] == [None] * len(result.verify.views)
+    assert all(v.rho is not None for v in result.verify.views)

@@ -35,6 +35,7 @@ from scratchfab.machine.profile import MachineProfile
 from scratchfab.metrics import CROSSTALK_MEANING, rho_text
 from scratchfab.model.design import Design, Vec3, load_design, polar_from_position
 from scratchfab.model.job import JobLayout
+from scratchfab.verify.gate import gate_applies
 from scratchfab.verify.noise import diff_noise_advice, noise_advice, noise_explains
 from scratchfab.verify.outshine import outshine_advice, shoulder_shares
 
@@ -214,6 +215,20 @@ def _read_json(path: Path) -> Any:
         return decode_json(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
+
+
+def _recorded_gate(path: Path) -> float | None:
+    """The ``min_rho`` verify recorded in its ``metrics.json``, read as the run's result is.
+
+    None without one, or where the gate is damaged.
+    """
+    from scratchfab.pipeline.runner import VerifyMetrics  # runner imports this module
+
+    try:
+        recorded = VerifyMetrics.read(path)
+    except ConfigError:
+        return None
+    return recorded.min_rho if recorded is not None else None
 
 
 def _link(job: Path, path: Path) -> str:
@@ -398,8 +413,8 @@ def _rho_checks(
         noisy_html = f"; {html.escape(noisy)}" if noisy else ""
         if rho is None:
             checks.append(_Check("fail", f"{label} missing", f"{name}: no rho"))
-        elif min_rho is None or min_rho <= -1.0:  # -1: the gate is off, nothing passes it
-            why = "no min_rho set" if min_rho is None else "min_rho -1: no gate"
+        elif not gate_applies(min_rho):  # -1: the gate is off, nothing passes it
+            why = "no min_rho set" if min_rho is None else f"min_rho {min_rho:g}: no gate"
             checks.append(
                 _Check("info", f"{label} {rho_text(rho)} (1 = perfect; {why}){noisy_html}")
             )
@@ -481,7 +496,7 @@ def _weakest_check(
         rho = (views.get(name) or {}).get("rho")
         if isinstance(rho, int | float) and math.isfinite(rho):
             rhos[name] = float(rho)
-    gate = min_rho if min_rho is not None and min_rho > -1.0 else None  # -1: no gate
+    gate = min_rho if gate_applies(min_rho) else None  # -1: no gate
     if len(rhos) < 2 or (gate is not None and any(not r >= gate for r in rhos.values())):
         return []
     weakest = min(rhos, key=rhos.__getitem__)
@@ -795,7 +810,7 @@ def _metrics_table(
                 mark = (  # most of the difference is the Mitsuba render's own noise
                     f"<span class='muted'> (its sampling noise alone: {100 * noise:.2f} %)</span>"
                 )
-            if key == "rho" and min_rho is not None:
+            if key == "rho" and gate_applies(min_rho):
                 good = value >= min_rho
                 mark = (
                     f" <span class='{'ok' if good else 'bad'}'>{'✔ ok' if good else '✘ low'}</span>"
@@ -822,8 +837,11 @@ def _metrics_table(
     gate = (
         f"rho is marked ok at or above <span data-stat='min_rho'>{min_rho:g}</span> "
         "([verify] min_rho), low below it."
-        if min_rho is not None
+        if gate_applies(min_rho)
         else "No [verify] min_rho is set: rho is not judged."
+        if min_rho is None
+        else f"[verify] min_rho is <span data-stat='min_rho'>{min_rho:g}</span>, no gate: "
+        "rho is not judged."
     )
     table = (
         "<h3>Measured by the independent renderer (verify)</h3>"
@@ -1293,6 +1311,7 @@ def _journal_state(job: Path, port: str | None, outcome: _Stopped | None) -> tup
         default_journal_path,
         done_blocks,
         interrupted,
+        last_start,
         read_journal,
     )
     from scratchfab.pipeline.runner import is_emulator
@@ -1304,10 +1323,10 @@ def _journal_state(job: Path, port: str | None, outcome: _Stopped | None) -> tup
         return _Stream("none"), f"<p class='muted'>{said}.</p>"
     try:
         events = read_journal(journal)
-        starts = [ev for ev in events if ev.get("ev") == "start"]
-        if not starts:
+        start = last_start(events)
+        if not start:
             return _Stream("none"), "<p class='muted'>not streamed (the journal is empty).</p>"
-        sha256 = str(starts[-1].get("sha256"))
+        sha256 = str(start.get("sha256"))
         done = len(done_blocks(events, sha256, journal, recut_unclosed=False))
     except ConfigError as exc:
         return _Stream("none", note=" (the journal is damaged)"), (
@@ -1316,15 +1335,15 @@ def _journal_state(job: Path, port: str | None, outcome: _Stopped | None) -> tup
     if sha256 != file_sha256(gcode):
         note = " (the journal's last stream was of an earlier G-code)"
         return _Stream("none", note=note), f"<p>Not streamed{note}.</p>"
-    total = int(starts[-1].get("blocks") or 0)
+    total = int(start.get("blocks") or 0)
     finished = not interrupted(events, sha256)
-    streamed_to = starts[-1].get("port")
+    streamed_to = start.get("port")
     if isinstance(streamed_to, str):  # journals before this field: the pipeline's port
         port = streamed_to
     kind: Literal["emulator", "real", "unknown"] = (
         "unknown" if port is None else "emulator" if is_emulator(port) else "real"
     )
-    session = _session(starts[-1], outcome)
+    session = _session(start, outcome)
     state = _Stream(kind, finished, done, total, port, session=session)
     progress = "finished" if finished else "unfinished (the next run resumes it)"
     counted = (
@@ -1350,7 +1369,7 @@ def _journal_state(job: Path, port: str | None, outcome: _Stopped | None) -> tup
             "machine from the emulator.</p>"
         )
     if session != "latest":
-        began = html.escape(str(starts[-1].get("time") or "at a time it does not record"))
+        began = html.escape(str(start.get("time") or "at a time it does not record"))
         said = html.escape(outcome.said if outcome else "")
         head = (
             f"The journal's last session, started {began}, is an earlier run's, not the one "
@@ -1649,8 +1668,8 @@ def write_report(
     metrics = metrics if isinstance(metrics, dict) else None
     feasibility = _read_json(layout.design.feasibility_json)
     toolpath = _read_json(layout.toolpath_json)
-    if min_rho is None and metrics and isinstance(metrics.get("gate"), dict):
-        min_rho = metrics["gate"].get("min_rho")
+    if min_rho is None:
+        min_rho = _recorded_gate(layout.verify_metrics)
     design = _read_design(job)
     names = _view_order(design, metrics, job)
     stopped_stages = _stopped_stages(job)

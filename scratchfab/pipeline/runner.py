@@ -133,7 +133,17 @@ class VerifyMetrics:
 
     @classmethod
     def read(cls, path: Path) -> VerifyMetrics | None:
-        """The measurements in ``path`` (a ``metrics.json``); None where it is unreadable."""
+        """The measurements in ``path`` (a ``metrics.json``); None where it is unreadable.
+
+        A ``min_rho`` of -1 is no gate (:func:`~scratchfab.verify.gate.gate_applies`):
+        ``passed`` is None then, as without one.
+
+        Raises:
+            ConfigError: The file's ``gate`` is damaged (not an object, or its
+                ``failing`` or ``unchecked`` not a list of view names).
+        """
+        from scratchfab.verify.gate import gate_applies
+
         try:
             data = decode_json(path.read_text(encoding="utf-8"))
         except (OSError, ValueError):
@@ -142,9 +152,12 @@ class VerifyMetrics:
         if not isinstance(views, dict):
             return None
         gate = data.get("gate")
-        gate = gate if isinstance(gate, dict) else {}
-        failing = set(gate.get("failing") or ())
-        unchecked = set(gate.get("unchecked") or ())
+        if gate is not None and not isinstance(gate, dict):
+            raise ConfigError(f"{path}: gate: expected an object, got {gate!r}")
+        gate = gate or {}
+        failing, unchecked = (_view_names(path, gate, key) for key in ("failing", "unchecked"))
+        min_rho = _number(gate.get("min_rho"))
+        gated = gate_applies(min_rho)
         names = data.get("names")
         order = [str(n) for n in names] if isinstance(names, list) else list(views)
         found = []
@@ -152,15 +165,26 @@ class VerifyMetrics:
             entry = views.get(name)
             entry = entry if isinstance(entry, dict) else {}
             rho = _number(entry.get("rho"))
-            passed = None if not gate or rho is None or name in unchecked else name not in failing
+            passed = None if not gated or rho is None or name in unchecked else name not in failing
             found.append(ViewMetrics(name, rho, _number(entry.get("psnr")), passed))
         passed = gate.get("passed")
         return cls(
-            tuple(found),
-            _number(gate.get("min_rho")),
-            passed if isinstance(passed, bool) else None,
-            path,
+            tuple(found), min_rho, passed if gated and isinstance(passed, bool) else None, path
         )
+
+
+def _view_names(path: Path, gate: dict[str, Any], key: str) -> set[str]:
+    """The gate's ``key`` in ``path``: a list of view names (none where it is missing).
+
+    Raises:
+        ConfigError: It is something else.
+    """
+    value = gate.get(key)
+    if value is None:
+        return set()
+    if not isinstance(value, list) or not all(isinstance(n, str) for n in value):
+        raise ConfigError(f"{path}: gate.{key}: expected a list of view names, got {value!r}")
+    return set(value)
 
 
 @dataclass(frozen=True)
@@ -473,7 +497,9 @@ class _Stages:
         try:
             metrics = run_verify_job(self.job, VerifySettings(**settings), progress=self._say_in)
         except VerifyGateError as exc:  # named as the pipeline file names it
-            raise exc.named("[verify] min_rho =", str(self.pipe.path)) from None
+            named = exc.named("[verify] min_rho =", str(self.pipe.path))
+            named.metrics = VerifyMetrics.read(exc.metrics_file)  # no RunResult to hold them
+            raise named from None
         # The difference maps too (views with a target), so a deleted one reruns verify.
         diffs = [self.layout.verify_diff_png(name) for name in metrics["names"]]
         return self._relative(self.layout.verify_metrics, *(p for p in diffs if p.is_file()))

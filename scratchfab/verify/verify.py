@@ -18,7 +18,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -39,6 +39,7 @@ from scratchfab.model.job import (
 from scratchfab.model.scratches import ScratchSet, load_scratches
 from scratchfab.optimize.glint import ViewGlint, view_glint
 from scratchfab.verify.diffmap import write_diff_map
+from scratchfab.verify.gate import gate_applies
 from scratchfab.verify.jitter import Tolerance, jitter_scratches
 from scratchfab.verify.noise import (
     PartNoise,
@@ -51,6 +52,9 @@ from scratchfab.verify.noise import (
 from scratchfab.verify.outshine import outshine_advice, shoulder_shares
 from scratchfab.verify.scene import Sky, board_bsdf, render_view_spread, scene_dict, use_variant
 from scratchfab.verify.sweep import nearest_frames, sweep_gif, sweep_path
+
+if TYPE_CHECKING:
+    from scratchfab.pipeline.runner import VerifyMetrics
 
 #: Samples per pixel by default: about 1 % noise where a pixel's footprint spans up to
 #: eight scratch widths (the bundled demo), well below 1 % at four.
@@ -70,9 +74,17 @@ class VerifyGateError(ScratchfabError):
 
     It keeps the figures, so that each caller can name the threshold as its user set it
     (``--min-rho``, or a pipeline's ``[verify] min_rho``) with :meth:`named`.
+
+    Attributes:
+        metrics: Every view's measurements and the gate, as
+            :attr:`RunResult.verify <scratchfab.pipeline.runner.RunResult>` would have
+            held them, where :func:`~scratchfab.pipeline.runner.run_pipeline` raised it (a
+            failing gate ends the run, so the caller gets no ``RunResult``); None from
+            :func:`run_verify` itself, whose ``metrics.json`` is ``metrics_file``.
     """
 
     exit_code = 3
+    metrics: VerifyMetrics | None = None
 
     def __init__(
         self,
@@ -123,8 +135,8 @@ class VerifyGateError(ScratchfabError):
         )
 
     def named(self, setting: str, source: str) -> VerifyGateError:
-        """The same failure, its threshold named ``setting`` in the file ``source``."""
-        return VerifyGateError(
+        """The same failure (and :attr:`metrics`), its threshold ``setting`` in ``source``."""
+        named = VerifyGateError(
             self.view,
             self.rho,
             self.min_rho,
@@ -137,6 +149,8 @@ class VerifyGateError(ScratchfabError):
             self.entry,
             self.feasibility,
         )
+        named.metrics = self.metrics
+        return named
 
     @property
     def glinting(self) -> tuple[str, ...]:
@@ -654,14 +668,15 @@ def run_verify(
         metrics["sweep"], sweep_gif = _run_sweep(design, scratches, settings, say)
 
     failing: list[str] = []
-    if settings.min_rho is not None:
+    if settings.min_rho is not None:  # -1 recorded too, as no gate: passed null
+        gated = gate_applies(settings.min_rho)
         for name in names:
             rho = views[name].get("rho")
-            if rho is not None and not rho >= settings.min_rho:
+            if gated and rho is not None and not rho >= settings.min_rho:
                 failing.append(name)
         metrics["gate"] = {
             "min_rho": settings.min_rho,
-            "passed": not failing,
+            "passed": not failing if gated else None,
             "failing": failing,
             "unchecked": [n for n in names if views[n].get("rho") is None],
         }
