@@ -94,8 +94,9 @@ class ViewMetrics:
             1 = perfect); None for a view without a target.
         psnr: PSNR of the render against the target, in dB (the render scaled by its
             best exposure, peak 1); None without a target.
-        passed: Whether ``rho`` reaches the gate's ``min_rho``; None without a gate, or
-            for a view without a target (the gate does not check it).
+        passed: Whether ``rho`` reaches the gate's ``min_rho``; None without a gate (or
+            at -1, which gates nothing), or for a view without a target (the gate does
+            not check it).
     """
 
     name: str
@@ -111,7 +112,7 @@ class VerifyMetrics:
     Attributes:
         views: Each view's, in the design's order.
         min_rho: The gate verify ran with (None: no gate).
-        passed: Whether every view checked reached ``min_rho`` (None: no gate).
+        passed: Whether every view checked reached ``min_rho`` (None: no gate, or -1).
         file: The ``metrics.json`` read, which holds every other measurement.
     """
 
