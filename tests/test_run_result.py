@@ -119,18 +119,24 @@ def test_an_unreadable_file_gives_none(tmp_path, text):
     assert ToolpathFigures.read(file) is None
 
 
-def test_a_failing_gate_s_error_carries_the_metrics_a_result_would_hold(run, tmp_path):
-    """The gate ends the run with VerifyGateError, so no RunResult: the error holds them."""
+def _job_copy_at_min_rho(run, tmp_path, min_rho: str):
+    """A copy of the run's job and a pipeline file beside its targets with another min_rho."""
     import shutil
-
-    from scratchfab.verify.verify import VerifyGateError
 
     path, job, _ = run
     copy = tmp_path / "job"
     shutil.copytree(job, copy)
-    strict = path.with_name("strict.toml")  # beside its targets
-    strict.write_text(path.read_text().replace("min_rho = -0.5", "min_rho = 0.9999"))
-    assert strict.read_text() != path.read_text()
+    changed = path.with_name(f"min_rho_{min_rho}.toml")
+    changed.write_text(path.read_text().replace("min_rho = -0.5", f"min_rho = {min_rho}"))
+    assert changed.read_text() != path.read_text()
+    return changed, copy
+
+
+def test_a_failing_gate_s_error_carries_the_metrics_a_result_would_hold(run, tmp_path):
+    """The gate ends the run with VerifyGateError, so no RunResult: the error holds them."""
+    from scratchfab.verify.verify import VerifyGateError
+
+    strict, copy = _job_copy_at_min_rho(run, tmp_path, "0.9999")
     with pytest.raises(VerifyGateError) as info:
         run_pipeline(load_pipeline(strict), copy, until="toolpath")
     metrics = info.value.metrics
@@ -184,13 +190,7 @@ def test_a_damaged_gate_is_a_one_line_error_naming_file_and_key(tmp_path, gate, 
 
 def test_a_run_at_min_rho_minus_one_gives_no_verdict(run, tmp_path):
     """The pipeline's "-1 never stops": verify records no pass, and the result says none."""
-    import shutil
-
-    path, job, _ = run
-    copy = tmp_path / "job"
-    shutil.copytree(job, copy)
-    loose = path.with_name("loose.toml")  # beside its targets
-    loose.write_text(path.read_text().replace("min_rho = -0.5", "min_rho = -1.0"))
+    loose, copy = _job_copy_at_min_rho(run, tmp_path, "-1.0")
     result = run_pipeline(load_pipeline(loose), copy, until="verify")
     assert result.ran == ["verify"]
     recorded = json.loads(JobLayout(copy).verify_metrics.read_text())["gate"]
