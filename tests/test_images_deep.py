@@ -231,8 +231,6 @@ def random_samples(c: int, shape=(9, 13), seed=5) -> np.ndarray:
     return samples
 
 
-@pytest.mark.parametrize("interlace", [False, True])
-@pytest.mark.parametrize("colour_type", [2, 6, 4])
 def peak_of_a_second_load(path: Path) -> int:
     """Python's peak memory (bytes) while ``load_image`` reads ``path`` a second time.
 
@@ -249,6 +247,8 @@ def peak_of_a_second_load(path: Path) -> int:
     return int(peak)
 
 
+@pytest.mark.parametrize("interlace", [False, True])
+@pytest.mark.parametrize("colour_type", [2, 6, 4])
 def test_16bit_colour_png_keeps_every_bit(tmp_path, colour_type, interlace):
     c = CHANNELS[colour_type]
     samples = random_samples(c)
