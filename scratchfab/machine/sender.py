@@ -152,6 +152,8 @@ def homing_of(settings: Mapping[int, float]) -> bool | None:
 
 #: Why ``$H`` is no advice where GRBL's homing is off.
 HOMING_OFF = "homing is off, $22=0: $H answers error:5"
+#: How a Z tool is raised on a machine with homing on: Grbl's default HOMING_CYCLE_0 is Z.
+HOME_RAISES = "home it ($H): GRBL's homing raises Z first (its default cycle)"
 
 
 class Refind(NamedTuple):
@@ -1122,8 +1124,12 @@ class Streamer:
                 self._write(REALTIME_RESET)
                 self._wait_banner(self.options.banner_timeout)
                 report.meaning = alarm_meaning(report.alarm[1], self._find_again())
-                if self._status_now().state.startswith("Alarm"):  # ALARM:1 and 2 lock it
-                    report.locked = self._leave_alarm(False, "unlock it ($X)")
+                try:
+                    locked = self._status_now().state.startswith("Alarm")
+                except _Fault:  # no report: the ALARM's own error stands, as locked as it left it
+                    locked = True  # (ALARM:1 and 2, all check mode meets, lock it)
+                if locked:  # nothing moved: no raise to say
+                    report.locked = self._leave_alarm(False, "unlock it ($X)", moved=False)
                 return report
         self._write(b"$C\n")
         if self._wait_banner(self.options.banner_timeout) is None:
@@ -1787,19 +1793,28 @@ class Streamer:
         """
         return self._rehome() if self._homing() is False else "re-home"
 
-    def _leave_alarm(self, lost: bool | None, homed: str) -> str:
+    def _leave_alarm(self, lost: bool | None, homed: str, moved: bool = True) -> str:
         """How a person leaves an Alarm and raises a tool that may be down, in that order.
 
         Where homing is off (``$22=0``): unlock, raise the tool, then set the work zero
         (:func:`unlock_advice`). Else with a servo scribe: unlock, raise it, then home
         (``$H`` moves X and Y with the scribe as it stands, and GRBL in Alarm takes no
-        G-code, the up command included); with a Z tool ``homed`` (homing, which lifts Z
-        first, or an unlock) and the raise.
+        G-code, the up command included). With a Z tool where homing is on (``$22=1``):
+        home it, which raises Z first (:data:`HOME_RAISES`; GRBL in Alarm takes no jog),
+        or, where the position may be known (``lost`` not True), unlock it and jog Z up;
+        where homing is not known, ``homed`` (homing or an unlock) and the raise.
+        ``moved`` False (check mode, which moves nothing): no raise is said.
         """
-        raise_it = self._raise_it()
+        raise_it = self._raise_it() if moved else None
         off = unlock_advice(self.options.profile, self._homing(), lost, raise_it)
         if off is not None:
             return off
+        if raise_it is None:
+            return f"{homed} yourself"
+        if self._homing() and not self._servo():
+            if lost:
+                return f"{HOME_RAISES}, not just unlock it: its position may be lost"
+            return f"{HOME_RAISES}; or, if its position is known, unlock it ($X), then {raise_it}"
         if self._servo():
             home = "home it ($H)" + (
                 " (its position may be lost: not just unlock it)"
@@ -1808,6 +1823,17 @@ class Streamer:
             )
             return f"unlock it ($X) yourself, {raise_it}, then {home}"
         return f"{homed} yourself, then {raise_it}"
+
+    def _raise_after_reset(self) -> str:
+        """How a person raises the tool after a reset (:meth:`_raise_it`).
+
+        Where homing is on (``$22=1``) the controller is back in Alarm, which takes no jog
+        or G-code until unlocked: homing, which raises a Z tool first (:data:`HOME_RAISES`),
+        or a servo's unlock, up command and homing (:meth:`_leave_alarm`).
+        """
+        if not self._homing():
+            return self._raise_it()
+        return self._leave_alarm(True, "home it ($H)") if self._servo() else HOME_RAISES
 
     def _go_on(self) -> str:
         """The stop's advice on going on: after an alarm, once it is cleared."""
@@ -1864,7 +1890,7 @@ class Streamer:
                 **_where(self.status),
             )
             return
-        why = f"{reason} cut the stop short; {self._raise_it()}"
+        why = f"{reason} cut the stop short; {self._raise_after_reset()}"
         lifted = self._no_lift(why)
         if lifted is not None:  # no message carries its clause
             self._tell(f"the tool was NOT raised: {why}")
@@ -1951,7 +1977,8 @@ class Streamer:
             elif fault.kind == "reset":
                 self._wait_banner(self.options.banner_timeout)  # the reset sent on the banner
                 lifted = self._no_lift(
-                    "the controller reset itself and its position may be lost; " + self._raise_it()
+                    "the controller reset itself and its position may be lost; "
+                    + self._raise_after_reset()
                 )
                 self._journal_stop(str(fault), self._executed_guess(None), lifted, lost=True)
                 fault.args = (str(fault) + _clause(lifted),)
