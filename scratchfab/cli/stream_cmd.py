@@ -68,6 +68,7 @@ def ask_resume_or_stop(say: Callable[[str], None]) -> str:
         "machine held: [r]esume or [s]top (stop = wait for the hold, then soft reset)",
         type=click.Choice(["r", "s"]),
         default="s",
+        show_choices=False,  # the text names them: "(r, s)" after it said them twice
         err=True,
     )
     return "resume" if answer == "r" else "stop"
