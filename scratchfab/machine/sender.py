@@ -1993,9 +1993,12 @@ class Streamer:
                     **_where(self.status),
                     **_journaled(lifted),
                 )
+                # the spindle only where the file starts one (a Z drag bit's never does)
+                spins = any(b.modal.spindle in ("M3", "M4") for b in self._program.blocks)
                 fault.args = (
                     f"{fault}; a controller that kept power goes on running the lines it had "
-                    "received (up to a planner full of moves, spindle on): wait until it stops "
+                    f"received (up to a planner full of moves{', spindle on' if spins else ''}): "
+                    "wait until it stops "
                     f"or press its reset before going near it{_clause(lifted)}; "
                     f"{link_lost_next(self.options.profile, self._homing())}",
                 )
