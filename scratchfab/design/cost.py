@@ -13,8 +13,6 @@ machine, or this one's profile changed, may hold the board).
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from scratchfab.console import duration_text
@@ -23,7 +21,7 @@ from scratchfab.machine.profile import MachineProfile, load_profile, machine_nam
 from scratchfab.model.design import Board
 from scratchfab.model.scratches import ScratchSet
 from scratchfab.toolpath.order import OrderOptions
-from scratchfab.toolpath.plan import Toolpath, fit_advice, partial_text, plan_toolpath
+from scratchfab.toolpath.plan import Toolpath, partial_text, plan_toolpath, unreached_text
 
 #: The toolpath's greedy ordering alone: no local search, no perturbation trials.
 _GREEDY = OrderOptions(passes=0, kicks=0)
@@ -49,33 +47,6 @@ def cut_plan(scratches: ScratchSet, board: Board, profile: MachineProfile) -> To
         scratches.p0, scratches.p1, np.full(n, tool.width_mm), np.full(n, tool.depth_mm)
     )
     return plan_toolpath(as_cut, board, profile, None, _GREEDY)
-
-
-def unreached_text(
-    profile: MachineProfile, board_size: tuple[float, float], stats: dict[str, Any]
-) -> str | None:
-    """What the machine cannot reach of a planned board and what to change, or None.
-
-    In the toolpath stage's words: the scratches its envelope leaves out or clips
-    (:func:`~scratchfab.toolpath.plan.partial_text`), its travel, and
-    :func:`~scratchfab.toolpath.plan.fit_advice`.
-
-    Args:
-        profile: The machine.
-        board_size: The board's width and height (mm).
-        stats: :func:`~scratchfab.toolpath.plan.plan_toolpath`'s counts.
-    """
-    lost = partial_text(stats)
-    if lost is None:
-        return None
-    travel = profile.envelope.max_travel_mm
-    advice = fit_advice(profile, board_size)
-    return (
-        f"{machine_named(profile.name, profile.source)} cannot reach the whole "
-        f"{board_size[0]:g} x {board_size[1]:g} mm board: {lost}; its travel is "
-        f"{travel[0]:g} x {travel[1]:g} mm ({profile.envelope.xy_text()}). "
-        f"{advice[0].upper()}{advice[1:]}"
-    )
 
 
 def cut_lines(

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from scratchfab.console import Say, command_line, duration_text
 from scratchfab.errors import ConfigError, ScratchfabError
-from scratchfab.machine.profile import MachineProfile, load_profile, machine_named
+from scratchfab.machine.profile import MachineProfile, load_profile
 from scratchfab.model.design import load_design
 from scratchfab.model.job import JobLayout, job_inputs, stale_layout, stale_layout_warning
 from scratchfab.model.scratches import load_scratches
@@ -21,9 +21,8 @@ from scratchfab.toolpath.inputs import (
 from scratchfab.toolpath.order import OrderOptions, OrderProgress, OrderProgressCallback
 from scratchfab.toolpath.plan import (
     Toolpath,
-    fit_advice,
-    partial_text,
     plan_toolpath,
+    unreached_text,
     write_preview,
 )
 
@@ -90,16 +89,8 @@ def run_toolpath(
     result = plan_toolpath(
         scratches, design.board, profile, design.scratch, options, progress_lines(say)
     )
-    lost = partial_text(result.stats)
+    lost = unreached_text(profile, (design.board.width_mm, design.board.height_mm), result.stats)
     if lost is not None:
-        board = (design.board.width_mm, design.board.height_mm)
-        travel = profile.envelope.max_travel_mm
-        advice = fit_advice(profile, board)
-        lost = (
-            f"{machine_named(profile.name, profile.source)} cannot reach the whole "
-            f"{board[0]:g} x {board[1]:g} mm board: {lost}; its travel is {travel[0]:g} x "
-            f"{travel[1]:g} mm ({profile.envelope.xy_text()}). {advice[0].upper()}{advice[1:]}"
-        )
         if refuse_partial is not None:
             raise ScratchfabError(
                 f"{lost}; or give {refuse_partial} to plan only the part it reaches; "
