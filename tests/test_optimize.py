@@ -302,12 +302,15 @@ def test_pairs_the_step_skips_add_exact_zeros(m, board) -> None:
         drop = np.flatnonzero(~keep)
         dropped_total += len(drop)
         kept_total += int(keep.sum())
-        pix, sc = U(pairs.pixel_np[drop]), U(pairs.scratch_np[drop])
+        pix, sc = (jit_array(U, x[drop], np.uint32) for x in (pairs.pixel_np, pairs.scratch_np))
         ndf, covered = pair_footprints(r.state, r.alpha, *ends, opt._half_width, opt._wbar, pix, sc)
+        dr.eval(ndf, covered)  # one kernel
         assert not np.any(np.asarray(ndf)) and not np.any(np.asarray(covered))
         dr.backward(dr.sum(ndf) + dr.sum(covered))
-        for e in ends:
-            assert not np.any(np.asarray(dr.grad(e)))
+        grads = [dr.grad(e) for e in ends]
+        dr.eval(grads)  # one kernel
+        for g in grads:
+            assert not np.any(np.asarray(g))
     # the margin makes most pairs idle: the test drops a real share of them
     assert dropped_total > 0.3 * (dropped_total + kept_total)
 
