@@ -35,7 +35,13 @@ from scratchfab.machine.sender import (
     xyz_text,
     zero_kept_advice,
 )
-from scratchfab.machine.sender_checks import compare, eta_settings, job_extent, same_offset
+from scratchfab.machine.sender_checks import (
+    compare,
+    eta_settings,
+    job_extent,
+    offset_tolerance_mm,
+    same_offset,
+)
 from scratchfab.machine.sender_journal import (
     Journal,
     check_journal_file,
@@ -493,6 +499,9 @@ def _stream_locked(
         wco, wpos = info.wco, info.status.wpos
         if zero is not None:
             wco, wpos = _zeroed_here(info, zero[1], profile, cb.say)
+            if resume and events is not None and not info.booted:
+                kept = lost_position_warning(events, profile, homing) is None
+                _ask_zero_moved(events, wco, info, kept, cb.confirm)
         wpos = wpos if start == 0 else None  # a fresh stream starts there
         findings = compare(
             info.settings,
@@ -542,7 +551,9 @@ def _stream_locked(
                     zeroed=None if zero is None else zero[1],
                 )
             except (StreamFault, StreamStopped) as exc:
-                text = str(exc) if zero is None else f"{exc}; {_zeroed_resume(zero[0])}"
+                text = str(exc)
+                if zero is not None and info.booted:  # (a zero it keeps: resume as is)
+                    text = f"{text}; {_zeroed_resume(zero[0])}"
                 lines = fault_lines(text) if isinstance(exc, StreamFault) else text
                 exc.args = (lines, *exc.args[1:])
                 raise
@@ -592,6 +603,50 @@ def _zeroed_resume(point: str) -> str:
         "its port opens loses at the next connection: before --resume jog the tool back to "
         f"the board's {point} and add --zero-here"
     )
+
+
+def _ask_zero_moved(
+    events: list[dict[str, Any]],
+    wco: tuple[float, float, float],
+    info: ControllerInfo,
+    kept: bool,
+    confirm: Confirm | None,
+) -> None:
+    """Before ``--resume --zero-here`` on a controller that did not boot as the port opened.
+
+    Such a controller kept its machine position, and with it the run's work zero (a stop's
+    soft reset at rest keeps both): zeroing where the tool stands now would shift the rest
+    of the job from what was cut, unless the tool stands just where the run's zero was
+    set. ``wco``: the offset ``--zero-here`` would give; ``kept``: the journal shows no
+    lost position (where it does, a re-zero at the board's point is the way back). A shift
+    beyond two steps (and the reports' rounding) is refused under ``--yes`` and asked
+    otherwise.
+
+    Raises:
+        ScratchfabError: The shift, under ``--yes`` or not confirmed; nothing was sent.
+    """
+    before = run_zero(events)[0]
+    if before is None or not kept:
+        return
+    inches = info.inch_reports or run_zero_in_inches(events)
+    steps = [info.settings.get(k) for k in (100, 101)]
+    slack = max(offset_tolerance_mm(inches), *(2.0 / s for s in steps if s is not None and s > 0))
+    shift = [now - was for now, was in zip(wco[:2], before[:2], strict=True)]
+    if max(abs(d) for d in shift) <= slack:
+        return
+    moved = " ".join(f"{a}{round(d, 3):+g}" for a, d in zip("XY", shift, strict=True))
+    why = (
+        f"--zero-here would move the rest {moved} mm from what was cut; the controller kept "
+        "the run's zero (no banner came as the port opened: it did not reset)"
+    )
+    if confirm is None:
+        raise ScratchfabError(
+            f"refusing to resume with --yes: {why}: resume without --zero-here (or without "
+            "--yes to be asked); nothing was sent"
+        )
+    question = f"{why[0].upper()}{why[1:]}. Zero here anyway (only if the run's zero was wrong)?"
+    if not _ask(confirm, question, ASKED_ONLY):
+        raise ScratchfabError("not confirmed; nothing was sent: resume without --zero-here")
 
 
 def _ask_zero_here(zero: tuple[str, str], confirm: Confirm, spared: str) -> None:

@@ -1,0 +1,79 @@
+"""``--resume --zero-here`` on a controller that kept the run's zero (it did not reset).
+
+A controller that sends no banner as its port opens did not reset then: it kept its
+machine position, and the work zero the run set. Zeroing again where the tool stopped
+would shift the rest of the job from what was cut: refused under ``--yes`` and asked
+otherwise, unless the tool stands where the run's zero was set. The pty emulator keeps its
+state across connections and boots only once, before the first one.
+"""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+import serial
+from test_stream import read_record
+from test_stream_cli_input import _stream
+from test_stream_lift import servo_job
+
+from scratchfab.machine.grblsim import SimOptions
+from scratchfab.machine.grblsim_pty import GrblPty
+from scratchfab.machine.sender_journal import default_journal_path, read_journal
+
+PLOTTER = "grbl-plotter-scribe"
+
+
+def _jog(path: str, line: str) -> None:
+    """Send one jog to the pty controller as a person would, and wait until it is done."""
+    with serial.Serial(path, 115200, timeout=0.2) as port:
+        port.write(line.encode() + b"\n")
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            port.write(b"?")
+            if b"<Idle" in port.read(4000):
+                return
+        raise AssertionError("the jog did not end")
+
+
+@pytest.mark.parametrize("back", [False, True])
+def test_a_resume_does_not_zero_again_where_the_controller_kept_the_zero(tmp_path, back):
+    job = tmp_path / "plot.gcode"
+    servo_job(job, strokes=3)
+    rec = tmp_path / "rec.jsonl"
+    options = SimOptions(
+        baud=0, time_scale=0.01, wco=(12, -7, 0), error_at=60, record=str(rec),
+        settings={130: 300, 131: 200},
+    )  # fmt: skip
+    base = [str(job), "--port", "", "--machine", PLOTTER, "--zero-here"]
+    with GrblPty(options) as pty:
+        pty.start()
+        base[2] = pty.path
+        code, _, err = _stream([*base, "--yes"], "")
+        assert code == 3, err
+        assert "no banner" in err  # booted before the port opened: it keeps what it has
+        assert "add --zero-here" not in err  # no advice to zero again on resuming
+        events = read_journal(default_journal_path(job))
+        stop, was = events[-1], events[0]["wco"]
+        assert stop["ev"] == "stop" and not stop.get("lost")
+        if back:  # the tool back where the zero was set (machine 0, 0 at that connection)
+            _jog(pty.path, "$J=G53 G21 G90 X0 Y0 F3000")
+        for answer in ("", "n\n"):
+            args = [*base, "--resume"] + (["--yes"] if not answer else [])
+            code, out, err = _stream(args, answer)
+            if back:
+                assert code == 0, err
+                break
+            shift = [stop["mpos"][k] for k in (0, 1)]  # mpos less the zero's 0, 0
+            moved = f"move the rest X{round(shift[0], 3):+g} Y{round(shift[1], 3):+g} mm"
+            last = err.rstrip().splitlines()[-1]
+            assert code == 2 and moved in err and "Traceback" not in err, err
+            assert "resume without --zero-here" in last and "nothing was sent" in last
+            assert ("--yes" in last) is not answer
+        if not back:  # the resume without the flag: the kept zero, the strokes in place
+            code, out, err = _stream([*base[:-1], "--resume", "--yes"], "")
+            assert code == 0, err
+    starts = [e for e in read_journal(default_journal_path(job)) if e["ev"] == "start"]
+    assert starts[-1]["wco"][:2] == pytest.approx(was[:2], abs=0.01)
+    zeroes = [e for e in read_record(rec) if e["ev"] == "rx" and e["text"].startswith("G21G10")]
+    assert len(zeroes) == (2 if back else 1)  # a refusal sent none
