@@ -77,3 +77,40 @@ def test_a_resume_does_not_zero_again_where_the_controller_kept_the_zero(tmp_pat
     assert starts[-1]["wco"][:2] == pytest.approx(was[:2], abs=0.01)
     zeroes = [e for e in read_record(rec) if e["ev"] == "rx" and e["text"].startswith("G21G10")]
     assert len(zeroes) == (2 if back else 1)  # a refusal sent none
+
+
+def test_no_answer_to_the_zero_question_names_yes_as_its_answer(tmp_path):
+    """--yes answers --zero-here's question (it says the tool stands at the point)."""
+    job = tmp_path / "plot.gcode"
+    servo_job(job, strokes=1)
+    rec = tmp_path / "rec.jsonl"
+    port = f"grblsim://?baud=0&time_scale=0.01&wco=12,-7,0&$130=300&$131=200&record={rec}"
+    code, _, err = _stream([str(job), "--port", port, "--machine", PLOTTER, "--zero-here"], "")
+    last = err.rstrip().splitlines()[-1]
+    assert code == 2 and last.startswith("error: no answer came"), err
+    assert "--yes refuses" not in last and "pass --yes, which says the tool stands" in last
+    assert not any(e["text"].startswith("G21G10") for e in read_record(rec) if e["ev"] == "rx")
+    # and --yes indeed answers it: the zero is set, the job streamed
+    code, _, err = _stream(
+        [str(job), "--port", port, "--machine", PLOTTER, "--zero-here", "--yes"], ""
+    )
+    assert code == 0, err
+
+
+def test_run_names_zero_here_where_the_stream_says_to_add_it(tmp_path):
+    """`run` turns the stream's stop advice into its own: the stream's "add --zero-here"
+    stands, with no "add --homed" after it (--zero-here stands for --homed)."""
+    from scratchfab.pipeline.runner import as_run_advice
+
+    job = tmp_path / "plot.gcode"
+    servo_job(job, strokes=3)
+    port = "grblsim://?baud=0&time_scale=0.01&wco=12,-7,0&$130=300&$131=200&reset_after=40"
+    code, _, err = _stream(
+        [str(job), "--port", port, "--machine", PLOTTER, "--zero-here", "--yes"], ""
+    )
+    assert code == 3, err
+    text = err[err.index("error: ") + len("error: ") :].split("\nreport:")[0].rstrip()
+    assert "add --zero-here" in text and "may be lost" in text  # the stream's own advice
+    advice = as_run_advice(text)
+    assert "--homed" not in advice
+    assert "run it again with --zero-here and it resumes" in advice

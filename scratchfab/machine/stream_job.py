@@ -660,7 +660,11 @@ def _ask_zero_here(zero: tuple[str, str], confirm: Confirm, spared: str) -> None
         f"--zero-here: does the tool stand at the board's {point}? The work zero is set "
         f"there (`{command}`) before streaming"
     )
-    if not _ask(confirm, question, ASKED_ONLY, spared):
+    how = (  # --yes answers this question: it says the tool stands there
+        "answer y on a terminal or through a pipe, or pass --yes, which says the tool stands "
+        f"at the board's {point}"
+    )
+    if not _ask(confirm, question, how, spared):
         raise ScratchfabError(
             f"not confirmed; {spared}: jog the tool to the board's {point} first (or stream "
             "without --zero-here)"

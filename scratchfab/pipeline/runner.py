@@ -66,7 +66,8 @@ def as_run_advice(text: str) -> str:
     The note goes on a line of its own where the sender's message has several (a fault's
     clauses, :func:`~scratchfab.machine.stream_job.fault_lines`), and names ``--homed``
     where the position may be lost: the resume then asks, and ``run --yes`` refuses
-    without it.
+    without it; where the sender's advice is to add ``--zero-here`` (the tool jogged back to
+    the board's point and zeroed there again, which stands for ``--homed``), that flag.
     """
     later = "continue later with --resume"
     if later in text:
@@ -74,7 +75,11 @@ def as_run_advice(text: str) -> str:
     if "--resume" not in text:
         return text
     note = "(here `scratchfab run` has no --resume: run it again and it resumes)"
-    if _POSITION_LOST.search(text):
+    if "add --zero-here" in text:
+        note = (
+            "(here `scratchfab run` has no --resume: run it again with --zero-here and it resumes)"
+        )
+    elif _POSITION_LOST.search(text):
         note = f"once the position is found again as said above, add --homed {note}"
     return text + ("\n  " if "\n" in text else " ") + note
 
