@@ -199,17 +199,12 @@ def test_run_passes_zero_here_to_its_stream_stage(tmp_path, capsys):
     assert start["wco"][:2] == pytest.approx([-x, -y])  # the tool stood at machine 0, 0
 
 
-def test_a_z_tool_is_told_that_z_keeps_its_offset(tmp_path):
-    """--zero-here sets X and Y only: a Z tool's work Z stays where the controller has it."""
+def _work_mill(mode: str):
+    """The 3018 as a work-coordinate mill (its envelope around the work zero), ``mode``'s tool."""
     import dataclasses
 
-    from test_stream import write_job
-
-    from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
-
     mill = load_profile("grbl-3018-diamond")
-    # the 3018 as a work-coordinate mill: its envelope around the work zero
-    mill = dataclasses.replace(
+    return dataclasses.replace(
         mill,
         envelope=dataclasses.replace(
             mill.envelope,
@@ -218,17 +213,67 @@ def test_a_z_tool_is_told_that_z_keeps_its_offset(tmp_path):
             y_mm=(-180.0, 180.0),
             z_mm=(-45.0, 45.0),
         ),
+        tool_control=dataclasses.replace(mill.tool_control, mode=mode),
     )
-    assert mill.tool_control.mode == "z"
+
+
+@pytest.mark.parametrize("mode", ["z", "spindle"])
+def test_a_z_tool_is_zeroed_in_z_too_where_it_touches_the_board(tmp_path, mode):
+    """A Z tool (any but a servo) stands on the board's surface at the corner: Z0 there too,
+    not the Z offset an earlier boot left (-10 here)."""
+    from test_stream import write_job
+
+    from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
+
+    mill = _work_mill(mode)
     job = tmp_path / "job.gcode"
     write_job(job, 2)
     rec = tmp_path / "rec.jsonl"
     port = f"grblsim://?baud=0&time_scale=0&wco=12,-7,-10&$130=300&$131=180&$132=45&record={rec}"
     said: list[str] = []
+    asked: list[str] = []
+
+    def confirm(question: str) -> bool:
+        asked.append(question)
+        return True
+
     request = StreamRequest(job, port, machine=mill, zero_here=True, banner_timeout=0.3)
-    stream_file(request, StreamCallbacks(lambda _: None, said.append, lambda: "stop", None))
-    note = next(line for line in said if line.startswith("note: --zero-here"))
-    assert "sets X and Y only: work Z keeps its offset (-10 mm)" in note
+    stream_file(request, StreamCallbacks(lambda _: None, said.append, lambda: "stop", confirm))
+    assert "touching the board's surface?" in asked[0]
+    assert not any("keeps its offset" in line for line in said)
     x, y = mill.board.offset_mm
-    start = _first_exec(read_record(rec))["frm"]
-    assert start == pytest.approx([x, y, 10.0])  # Z: machine 0 less the kept -10
+    record = read_record(rec)
+    zero = next(e["text"] for e in record if e["ev"] == "rx" and e["text"].startswith("G21G10"))
+    assert zero.endswith("Z0")
+    start = _first_exec(record)
+    assert start["frm"] == pytest.approx([x, y, 0.0])  # Z: the board's surface, not 10
+    assert start["to"][:2] == pytest.approx([x, y])  # the first move raises Z alone
+    assert start["to"][2] > 0.0
+
+
+def test_a_z_tool_whose_first_move_is_not_a_rise_is_refused_before_connecting(tmp_path):
+    from test_stream import write_job
+
+    from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
+
+    job = tmp_path / "job.gcode"
+    write_job(job, 2)
+    lines = job.read_text().splitlines()
+    del lines[2:4]  # the header's and the first stroke's rise: it moves in X and Y first
+    job.write_text("\n".join(lines) + "\n")
+    rec = tmp_path / "rec.jsonl"
+    port = f"grblsim://?baud=0&time_scale=0&$130=300&$131=180&$132=45&record={rec}"
+    request = StreamRequest(job, port, machine=_work_mill("z"), zero_here=True)
+    with pytest.raises(ScratchfabError) as exc:
+        stream_file(request, StreamCallbacks(lambda _: None, print, lambda: "stop", None))
+    text = str(exc.value)
+    assert "first move must raise it alone" in text and "nothing was sent" in text
+    assert "`G0X" in text  # the first move as sent: X and Y at the tool's height
+    assert not rec.exists()
+
+
+@pytest.mark.parametrize(("mode", "z_zeroed"), [("z", True), ("spindle", True), ("servo", False)])
+def test_the_zero_advice_zeroes_z_for_every_tool_that_z_lowers(mode, z_zeroed):
+    from scratchfab.machine.sender import Z_ZERO, zero_kept_advice
+
+    assert (f"`{Z_ZERO}`" in zero_kept_advice(_work_mill(mode))) is z_zeroed

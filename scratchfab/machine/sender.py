@@ -238,7 +238,7 @@ def work_zero_again(profile: MachineProfile | None) -> tuple[str, str]:
     if profile is None:
         return "set the work zero again on the board's origin", "on the board's origin"
     point, command = work_zero_command(profile)
-    z = f" and Z on the board's surface (`{Z_ZERO}`)" if profile.tool_control.mode == "z" else ""
+    z = f" and Z on the board's surface (`{Z_ZERO}`)" if _z_tool(profile) else ""
     return (
         f"set the work zero again: {_jog_and_send(profile)}",
         f"(`{command}` at the board's {point}){z}",
@@ -249,15 +249,21 @@ def work_zero_again(profile: MachineProfile | None) -> tuple[str, str]:
 Z_ZERO = "G10 L20 P0 Z0"
 
 
+def _z_tool(profile: MachineProfile) -> bool:
+    """A tool that Z lowers onto the board (``mode`` "z" or "spindle"), not a servo's."""
+    return profile.tool_control.mode != "servo"
+
+
 def _jog_and_send(profile: MachineProfile) -> str:
     """``jog to the board's lower-left corner and send `G10 L20 P0 X20 Y20` there``.
 
-    A Z tool (``[tool_control] mode = "z"``) is zeroed in Z too, on the board's surface.
+    A Z tool (``[tool_control] mode`` "z" or "spindle") is zeroed in Z too, on the board's
+    surface.
     """
     point, command = work_zero_command(profile)
     z = (
         f", touch the tool on the board's surface and send `{Z_ZERO}`, then jog Z up"
-        if profile.tool_control.mode == "z"
+        if _z_tool(profile)
         else ""
     )
     return f"jog to the board's {point} and send `{command}` there{z}"

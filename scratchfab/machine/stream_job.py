@@ -365,6 +365,8 @@ def stream_file(req: StreamRequest, cb: StreamCallbacks) -> Path:
     if not program.blocks:
         raise ScratchfabError(f"{req.gcode}: no G-code lines to send")
     check_tool_up_at_end(program)
+    if zero is not None and " Z" in zero[1]:
+        _check_raised_first(program, req.gcode)
     journal = Journal(journal_file).open()  # locked: a second stream of this job refuses
     try:
         _stream_locked(req, cb, journal, program, profile, zero)
@@ -498,7 +500,7 @@ def _stream_locked(
         program = program.timed_for(eta_settings(info.settings, profile))  # the ETA's times
         wco, wpos = info.wco, info.status.wpos
         if zero is not None:
-            wco, wpos = _zeroed_here(info, zero[1], profile, cb.say)
+            wco, wpos = _zeroed_here(info, zero[1])
             if resume and events is not None and not info.booted:
                 kept = lost_position_warning(events, profile, homing) is None
                 _ask_zero_moved(events, wco, info, kept, cb.confirm)
@@ -553,7 +555,7 @@ def _stream_locked(
             except (StreamFault, StreamStopped) as exc:
                 text = str(exc)
                 if zero is not None and info.booted:  # (a zero it keeps: resume as is)
-                    text = f"{text}; {_zeroed_resume(zero[0])}"
+                    text = f"{text}; {_zeroed_resume(zero)}"
                 lines = fault_lines(text) if isinstance(exc, StreamFault) else text
                 exc.args = (lines, *exc.args[1:])
                 raise
@@ -573,7 +575,9 @@ def zero_here_command(profile: MachineProfile | None) -> tuple[str, str]:
     """``--zero-here``'s board point and command: ``("lower-left corner", "G10 L20 P0 X20 Y20")``.
 
     The profile's own work zero command (X and Y at the board's origin point, as the
-    G-code writes them): where the tool stands once connected becomes that point, which
+    G-code writes them; a Z tool's ``Z0`` too, the tool touching the board's surface
+    there, as the profile's heights count from it): where the tool stands once connected
+    becomes that point, which
     holds on a controller without homing that resets as its port opens (its machine zero
     is where the tool stands then).
 
@@ -593,15 +597,44 @@ def zero_here_command(profile: MachineProfile | None) -> tuple[str, str]:
             '([envelope] coordinates = "machine"), which homing sets ($H): it takes no '
             "work zero; home it and stream without --zero-here; nothing was sent"
         )
-    return work_zero_command(profile)
+    point, command = work_zero_command(profile)
+    if profile.tool_control.mode != "servo":  # a Z tool: Z0 where it touches the board
+        command += " Z0"
+    return point, command
 
 
-def _zeroed_resume(point: str) -> str:
+def _check_raised_first(program: Program, gcode: Path) -> None:
+    """Refuse a G-code whose first move is not a rise in Z, where ``--zero-here`` zeroes Z.
+
+    The tool then touches the board's surface as the stream begins: a first move in X or
+    Y (or down) would drag it across the board. The exporter's first move is
+    ``G0 Z<safe>``.
+
+    Raises:
+        ScratchfabError: Naming the first move's line; nothing was sent.
+    """
+    first = next((b for b in program.blocks if b.motion), None)
+    if first is None:
+        return
+    z = first.modal.z
+    up = not first.modal.relative and z is not None and z > 0.0
+    if up and "Z" in first.text and not any(a in first.text for a in "XYABC"):
+        return
+    raise ScratchfabError(
+        f"{gcode}:{first.lineno}: --zero-here zeroes Z where the tool touches the board's "
+        f"surface, so the G-code's first move must raise it alone (`G0 Z<safe>`, as the "
+        f"exporter writes it); its first move is `{first.text}`; nothing was sent"
+    )
+
+
+def _zeroed_resume(zero: tuple[str, str]) -> str:
     """How a run zeroed with ``--zero-here`` is resumed: at the same point, zeroed again."""
+    point, command = zero
+    touching = ", touching its surface," if " Z" in command else ""
     return (
         "this run's work zero was set with --zero-here, which a controller that resets as "
         "its port opens loses at the next connection: before --resume jog the tool back to "
-        f"the board's {point} and add --zero-here"
+        f"the board's {point}{touching} and add --zero-here"
     )
 
 
@@ -656,9 +689,10 @@ def _ask_zero_here(zero: tuple[str, str], confirm: Confirm, spared: str) -> None
         ScratchfabError: The person said no, or no answer came; ``spared`` was not done.
     """
     point, command = zero
+    touching = ", touching the board's surface" if " Z" in command else ""
     question = (
-        f"--zero-here: does the tool stand at the board's {point}? The work zero is set "
-        f"there (`{command}`) before streaming"
+        f"--zero-here: does the tool stand at the board's {point}{touching}? The work zero "
+        f"is set there (`{command}`) before streaming"
     )
     how = (  # --yes answers this question: it says the tool stands there
         "answer y on a terminal or through a pipe, or pass --yes, which says the tool stands "
@@ -672,12 +706,12 @@ def _ask_zero_here(zero: tuple[str, str], confirm: Confirm, spared: str) -> None
 
 
 def _zeroed_here(
-    info: ControllerInfo, command: str, profile: MachineProfile | None, say: Say
+    info: ControllerInfo, command: str
 ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
     """The work offset and position ``command`` (``G10 L20 P0 X.. Y..``) will give, unsent.
 
     So that the checks before anything is sent (the travel, the board's place) see the
-    zero that will be set. A Z tool is told that Z keeps its offset.
+    zero that will be set; Z keeps its offset where the command has no Z word.
 
     Raises:
         ScratchfabError: The controller's machine position or work offset is not known
@@ -690,15 +724,10 @@ def _zeroed_here(
             "offset ($10=1 makes them give MPos), so the zero it sets cannot be checked; "
             "nothing was sent"
         )
-    words = {w[0]: float(w[1:]) for w in command.split() if w[0] in "XY"}
+    words = {w[0]: float(w[1:]) for w in command.split() if w[0] in "XYZ"}
     x, y = words["X"], words["Y"]
-    if profile is not None and profile.tool_control.mode == "z":
-        say(
-            f"note: --zero-here sets X and Y only: work Z keeps its offset ({wco[2]:g} mm), so "
-            "Z0 must be the board's surface already (touch it and send `G10 L20 P0 Z0`)"
-        )
-    wpos = (x, y, mpos[2] - wco[2])
-    return (mpos[0] - x, mpos[1] - y, wco[2]), wpos
+    z = words.get("Z", mpos[2] - wco[2])  # without a Z word work Z keeps its offset
+    return (mpos[0] - x, mpos[1] - y, mpos[2] - z), (x, y, z)
 
 
 def _set_zero_here(
@@ -870,10 +899,14 @@ def booted_zero_warning(info: ControllerInfo, profile: MachineProfile | None = N
     if same_offset(wco, (0.0, 0.0, 0.0), info.inch_reports):
         return None
     here = ""
+    servo = profile is not None and profile.tool_control.mode == "servo"
     if profile is not None and not machine_coordinates(profile):
         here = (
-            f", or jog the tool to the board's {profile.board.origin_text} and stream with "
-            "--zero-here, which zeroes X and Y there once connected"
+            f", or jog the tool to the board's {profile.board.origin_text}"
+            + ("" if servo else ", touching its surface,")
+            + " and stream with --zero-here, which zeroes X and Y"
+            + ("" if servo else " and Z")
+            + " there once connected"
         )
     return (
         "the controller booted as the port opened (its banner came) and homing is off "
