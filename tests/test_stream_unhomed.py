@@ -36,9 +36,15 @@ def _events(ev: str, was: list[float]) -> list[dict]:
         ([-120.0, -80.0, -5.0], (-1.0, -1.0, -1.0), (200.0, 200.0), None),  # homed again
         ([-120.0, -80.0, -5.0], (-150.0, -20.0, 0.0), (200.0, 200.0), None),  # inside: alike
         ([-120.0, -80.0, -5.0], (20.0, -30.0, 0.0), (200.0, 200.0), "unhomed"),
-        ([-120.0, -80.0, -5.0], (-30.0, 0.05, 0.0), (200.0, 200.0), "unhomed"),  # > 2 steps
-        ([-120.0, -80.0, -5.0], (-30.0, 0.02, 0.0), (200.0, 200.0), None),  # within 2 steps
+        # above 0: a homed machine with soft limits off jogs up to its pull-off (1 mm by
+        # default) and a little more before its switch: 2 mm and two steps pass
+        ([-120.0, -80.0, -5.0], (-30.0, 2.1, 0.0), (200.0, 200.0), "unhomed"),
+        ([-120.0, -80.0, -5.0], (-30.0, 1.9, 0.0), (200.0, 200.0), None),
+        ([-120.0, -80.0, -5.0], (-30.0, 0.05, 0.0), (200.0, 200.0), None),
         ([-120.0, -80.0, -5.0], (-30.0, -230.0, 0.0), (200.0, 200.0), "unhomed"),
+        # below -$131: 5 mm (its far end's stop) pass
+        ([-120.0, -80.0, -5.0], (-30.0, -204.9, 0.0), (200.0, 200.0), None),
+        ([-120.0, -80.0, -5.0], (-30.0, -205.1, 0.0), (200.0, 200.0), "unhomed"),
         ([-120.0, -80.0, -5.0], (-30.0, -230.0, 0.0), (None, None), None),  # travel unknown
         ([10.0, 20.0, 0.0], (30.0, 40.0, 0.0), (200.0, 200.0), None),  # homes to zero
     ],
@@ -46,6 +52,10 @@ def _events(ev: str, was: list[float]) -> list[dict]:
 def test_a_position_outside_the_homed_space_is_a_reset(ev, was, now, travel, why):
     found = reset_since_last_run(_events(ev, was), now, None, True, travel=travel)
     assert (None if found is None else found["why"]) == why
+    # a larger pull-off ($27) widens the margin above 0 by as much
+    wide = reset_since_last_run(_events(ev, was), now, None, True, travel=travel, pulloff=3.0)
+    above = now[1] > 0.0 and now[0] <= 0.0
+    assert (None if wide is None else wide["why"]) == (None if above and now[1] < 4.0 else why)
     # homing off: the stop's "moved" rule as before, the homed space not consulted
     off = reset_since_last_run(_events(ev, was), now, None, False, travel=travel)
     moved = ev == "stop" and abs(now[0] - was[0]) + abs(now[1] - was[1]) > 0.05

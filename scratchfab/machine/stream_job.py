@@ -484,7 +484,14 @@ def _stream_locked(
             inches = inches or run_zero_in_inches(events)
             spans = (info.settings.get(130), info.settings.get(131))  # homing's X/Y space
             found = reset_since_last_run(
-                events, info.status.mpos, info.wco, homing, inches, program, spans
+                events,
+                info.status.mpos,
+                info.wco,
+                homing,
+                inches,
+                program,
+                spans,
+                info.settings.get(27),
             )
             reset = None if asked else found
             if reset is not None:  # asked here, connected, before anything moves
@@ -1325,6 +1332,7 @@ def reset_since_last_run(
     inches: bool = False,
     program: Program | None = None,
     travel: Sequence[float | None] = (None, None),
+    pulloff: float | None = None,
 ) -> dict[str, Any] | None:
     """The last session's closing event, where the machine may have lost its zero.
 
@@ -1350,7 +1358,10 @@ def reset_since_last_run(
     - homing on (``$22=1``), after any of them: X or Y outside the space homing gives
       (``-$130..0``, ``-$131..0``; ``travel``, None: not known, only above 0 counts) while
       the recorded position lay inside it (``"unhomed"``): a homed machine cannot stand
-      there, so the controller reset and was unlocked (``$X``) and jogged, not homed. A
+      there, so the controller reset and was unlocked (``$X``) and jogged, not homed. Its
+      margins: above 0 the pull-off (``$27``, ``pulloff``; None: GRBL's default 1 mm) and
+      1 mm, below ``-$13x`` 5 mm (a homed machine with soft limits off jogs a little past
+      either end before its switch or its stop). A
       recorded position outside that space (a build that homes to machine zero,
       ``HOMING_FORCE_SET_ORIGIN``) tells nothing. Inside it, ``$H`` and ``$X`` with a jog
       still look alike.
@@ -1393,7 +1404,9 @@ def reset_since_last_run(
     zero = (0.0, 0.0, 0.0)
     if within(mpos, zero) and not within(was, zero):
         return {**found, "why": "zero"}
-    if homing is True and _homed_space(was, travel, near) and not _homed_space(mpos, travel, near):
+    above = (pulloff if pulloff is not None else 1.0) + 1.0  # past 0: pull-off and 1 mm
+    homed = _homed_space(was, travel, near)
+    if homing is True and homed and not _homed_space(mpos, travel, near, above, 5.0):
         return {**found, "why": "unhomed"}
     if event.get("ev") != "stop":
         return None
@@ -1406,15 +1419,20 @@ def reset_since_last_run(
 
 
 def _homed_space(
-    mpos: Sequence[float], travel: Sequence[float | None], near: Sequence[float]
+    mpos: Sequence[float],
+    travel: Sequence[float | None],
+    near: Sequence[float],
+    above: float = 0.0,
+    below: float = 0.0,
 ) -> bool:
     """Whether X and Y lie where homing puts a machine: ``-travel..0``, within ``near``.
 
     GRBL 1.1 counts machine space negative from the home corner (``-$13x <= MPos <= 0``)
-    whatever the homing direction (``$23``); a travel None bounds only the top.
+    whatever the homing direction (``$23``); a travel None bounds only the top. ``above``,
+    ``below``: mm more allowed above 0 and below ``-travel``.
     """
     for m, t, d in zip(mpos[:2], travel[:2], near[:2], strict=True):
-        if m > d or (t is not None and m < -t - d):
+        if m > d + above or (t is not None and m < -t - d - below):
             return False
     return True
 
