@@ -133,3 +133,31 @@ def test_a_change_optimize_read_re_plans_its_layout(tmp_path):
     assert {(t, k) for t, k in seen if t} < set(stale)
     assert {("light", "position_mm"), ("board", "margin_mm"), ("views", "fov_deg")} <= set(stale)
     assert ("scratch", "count") in current  # the layout's CSV holds the scratches
+
+
+@pytest.mark.parametrize("how", ["initial", "given"])
+def test_a_record_of_every_optimize_field_stays_current_until_a_plan_field_changes(tmp_path, how):
+    """A toolpath made before the key was narrowed hashed every field optimize reads.
+
+    Its design rewritten by a rerun (a comment) keeps it current, as it did then; a field
+    the plan reads still makes it stale, and one it does not read no longer does.
+    """
+    import json
+
+    from scratchfab.model.job import design_content_sha256
+
+    job, _ = _plan(tmp_path, how)
+    file = job / "toolpath" / "toolpath.json"
+    record = json.loads(file.read_text())
+    design = job / "design" / "design.toml"
+    entry = record["inputs"]["design"]
+    assert entry["fields_sha256"] != design_content_sha256(design)  # narrowed today
+    entry["fields_sha256"] = design_content_sha256(design)  # as 4046bc2 wrote it
+    file.write_text(json.dumps(record))
+    toolpath = Toolpath.load(file)
+    text = design.read_text()
+    design.write_text("# Resolved by a rerun of design\n" + text)
+    assert input_changes(toolpath.inputs, toolpath.profile, job / "toolpath")[0] == []
+    stale, current = _stale_keys(job)
+    assert {(t, k) for t, keys in PLAN_READS.items() for k in keys} <= set(stale)
+    assert ("light", "position_mm") in stale  # the old key's own strictness, no less

@@ -233,7 +233,12 @@ def _same_design(
     the design's must match); neither known (``board_mm`` None), it has changed.
     """
     if "fields_sha256" in entry:
-        return bool(entry["fields_sha256"] == design_content_sha256(file, pick))
+        # A record made before the key was narrowed to ``pick`` hashed every field optimize
+        # reads, which holds all of ``pick``'s: its match proves them unchanged too.
+        return any(
+            entry["fields_sha256"] == design_content_sha256(file, fields)
+            for fields in dict.fromkeys((pick, design_fields))
+        )
     if board_mm is None:
         return False
     from scratchfab.toolpath.plan import tool_mismatch  # plan imports this module
