@@ -17,6 +17,7 @@ from test_stream import read_record
 from test_stream_cli_input import _stream
 from test_stream_lift import servo_job
 
+from scratchfab.errors import ScratchfabError
 from scratchfab.machine.grblsim import SimOptions
 from scratchfab.machine.grblsim_pty import GrblPty
 from scratchfab.machine.sender_journal import default_journal_path, read_journal
@@ -114,3 +115,29 @@ def test_run_names_zero_here_where_the_stream_says_to_add_it(tmp_path):
     advice = as_run_advice(text)
     assert "--homed" not in advice
     assert "run it again with --zero-here and it resumes" in advice
+
+
+def test_the_zero_question_says_where_the_first_travel_goes(tmp_path):
+    """The question names the job's first travel, from the board's point: which way the
+    tool moves once the zero is set."""
+    from scratchfab.machine.profile import load_profile
+    from scratchfab.machine.stream_job import StreamCallbacks, StreamRequest, stream_file
+
+    job = tmp_path / "plot.gcode"
+    servo_job(job, strokes=1)
+    first = next(line for line in job.read_text().splitlines() if " X" in line)
+    words = dict((w[0], float(w[1:])) for w in first.split()[1:] if w[0] in "XY")
+    x, y = load_profile(PLOTTER).board.offset_mm
+    port = "grblsim://?baud=0&time_scale=0&wco=12,-7,0&$130=300&$131=200"
+    asked: list[str] = []
+
+    def no(question: str) -> bool:
+        asked.append(question)
+        return False
+
+    request = StreamRequest(job, port, machine=PLOTTER, zero_here=True, banner_timeout=0.3)
+    with pytest.raises(ScratchfabError, match="not confirmed"):
+        stream_file(request, StreamCallbacks(lambda _: None, print, lambda: "stop", no))
+    dx, dy = words["X"] - x, words["Y"] - y
+    expected = f"first travel goes to X{words['X']:g} Y{words['Y']:g}, X{dx:+g} Y{dy:+g} mm from it"
+    assert expected in asked[0]

@@ -532,7 +532,8 @@ def _stream_locked(
             raise ScratchfabError(f"{findings.refusals[-1]} (nothing was sent){hint}")
         if zero is not None:  # before check mode, whose soft limits count from the zero
             if cb.confirm is not None:
-                _ask_zero_here(zero, cb.confirm, "nothing was sent")
+                first = _first_travel(program) if start == 0 else None
+                _ask_zero_here(zero, cb.confirm, "nothing was sent", first)
             assert wco is not None  # (:func:`_zeroed_here` gave it)
             _set_zero_here(streamer, zero[1], wco, info.inch_reports, cb.say)
         if req.check:
@@ -689,17 +690,42 @@ def _ask_zero_moved(
         raise ScratchfabError("not confirmed; nothing was sent: resume without --zero-here")
 
 
-def _ask_zero_here(zero: tuple[str, str], confirm: Confirm, spared: str) -> None:
+def _first_travel(program: Program) -> tuple[float, float] | None:
+    """Where the program's first move in X or Y goes (work mm); None where not known."""
+    for block in program.blocks:
+        if block.motion and ("X" in block.text or "Y" in block.text):
+            x, y = block.modal.x, block.modal.y
+            if block.modal.relative or x is None or y is None:
+                return None
+            return x, y
+    return None
+
+
+def _ask_zero_here(
+    zero: tuple[str, str],
+    confirm: Confirm,
+    spared: str,
+    first: tuple[float, float] | None = None,
+) -> None:
     """Ask whether the tool stands at ``--zero-here``'s point (under ``--yes`` the flag says so).
+
+    ``first``: where the job's first travel goes (work mm, :func:`_first_travel`), said
+    from the point, so that the person sees which way the tool will move.
 
     Raises:
         ScratchfabError: The person said no, or no answer came; ``spared`` was not done.
     """
     point, command = zero
     touching = ", touching the board's surface" if " Z" in command else ""
+    goes = ""
+    if first is not None:
+        words = {w[0]: float(w[1:]) for w in command.split() if w[0] in "XY"}
+        shift = (first[0] - words["X"], first[1] - words["Y"])
+        away = " ".join(f"{a}{round(d, 3):+g}" for a, d in zip("XY", shift, strict=True))
+        goes = f"; the job's first travel goes to X{first[0]:g} Y{first[1]:g}, {away} mm from it"
     question = (
         f"--zero-here: does the tool stand at the board's {point}{touching}? The work zero "
-        f"is set there (`{command}`) before streaming"
+        f"is set there (`{command}`) before streaming{goes}"
     )
     how = (  # --yes answers this question: it says the tool stands there
         "answer y on a terminal or through a pipe, or pass --yes, which says the tool stands "
