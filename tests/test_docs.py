@@ -114,3 +114,20 @@ def test_machine_profile_readme_lists_every_key():
         documented |= {prefix + name.strip() for name in names.split(",")}
     documented -= {"grbl-3018-diamond", "grbl-plotter-scribe"}  # the bundled list's rows
     assert documented == profile_keys(MachineProfile)
+
+
+def test_readme_exit_codes_are_the_errors_own():
+    """README's exit codes: each error class's own code, and the CLI's Ctrl-C code."""
+    from scratchfab.errors import Interrupted, ScratchfabError
+    from scratchfab.machine.sender import StreamFault
+    from scratchfab.verify.verify import VerifyGateError
+
+    readme = (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8")
+    said = " ".join(readme.split("Exit codes:", 1)[1].split("\n\n", 1)[0].split())
+    for code, what in (
+        (ScratchfabError.exit_code, "a refusal or a mistake"),
+        (VerifyGateError.exit_code, "the verify gate failed"),
+        (StreamFault.exit_code, "the stream stopped on a machine fault"),
+        (Interrupted.exit_code, "stopped by Ctrl-C"),
+    ):
+        assert re.search(rf"\b{code} [^;]*{re.escape(what)}", said), (code, what, said)
