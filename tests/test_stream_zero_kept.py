@@ -141,3 +141,18 @@ def test_the_zero_question_says_where_the_first_travel_goes(tmp_path):
     dx, dy = words["X"] - x, words["Y"] - y
     expected = f"first travel goes to X{words['X']:g} Y{words['Y']:g}, X{dx:+g} Y{dy:+g} mm from it"
     assert expected in asked[0]
+
+
+def test_a_failed_check_after_the_zero_was_set_says_so(tmp_path):
+    """--zero-here sets the zero before check mode: its failure says that the zero changed."""
+    job = tmp_path / "plot.gcode"
+    servo_job(job, strokes=1)
+    rec = tmp_path / "rec.jsonl"
+    port = f"grblsim://?baud=0&time_scale=0&wco=12,-7,0&$130=300&$131=200&error_at=3&record={rec}"
+    args = [str(job), "--port", port, "--machine", PLOTTER, "--zero-here", "--yes", "--check"]
+    code, _, err = _stream(args, "")
+    last = err.rstrip().splitlines()[-1]
+    assert code == 2 and "check mode found 1 problem(s)" in last, err
+    sent = next(e["text"] for e in read_record(rec) if e["ev"] == "rx" and "G10" in e["text"])
+    assert sent.startswith("G21G10L20P0")  # the zero went out before check mode
+    assert "nothing moved (the work zero was set: `G10 L20 P0 X" in last

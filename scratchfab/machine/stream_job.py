@@ -537,7 +537,7 @@ def _stream_locked(
             assert wco is not None  # (:func:`_zeroed_here` gave it)
             _set_zero_here(streamer, zero[1], wco, info.inch_reports, cb.say)
         if req.check:
-            _check(streamer, program, req.gcode, cb.say)
+            _check(streamer, program, req.gcode, cb.say, None if zero is None else zero[1])
         # check mode sent every line, and nothing moved
         spared = "nothing was cut (check mode moves nothing)" if req.check else "nothing was sent"
         if zero is not None:
@@ -1789,8 +1789,13 @@ def _profile_for(req: StreamRequest, planned: tuple[JobLayout, Toolpath] | None,
     return None
 
 
-def _check(streamer: Streamer, program: Any, gcode: Path, say: Say) -> None:
-    """Run check mode and raise when GRBL finds any problem, listing each with its line."""
+def _check(
+    streamer: Streamer, program: Any, gcode: Path, say: Say, zeroed: str | None = None
+) -> None:
+    """Run check mode and raise when GRBL finds any problem, listing each with its line.
+
+    ``zeroed``: the work zero command ``--zero-here`` sent before, which the error names.
+    """
     report = streamer.check(program)
     for block, code in report.errors:
         say(f"{gcode}:{block.lineno}: error:{code} ({error_meaning(code)}): {block.text}")
@@ -1801,7 +1806,10 @@ def _check(streamer: Streamer, program: Any, gcode: Path, say: Say) -> None:
         n = len(report.errors) + (report.alarm is not None)
         # check mode moved nothing: the position is kept, the controller may stay locked
         locked = f"; the controller stays in Alarm: {report.locked}" if report.locked else ""
-        raise ScratchfabError(f"{gcode}: check mode found {n} problem(s); nothing moved{locked}")
+        kept = "" if zeroed is None else f" (the work zero was set: `{zeroed}`)"
+        raise ScratchfabError(
+            f"{gcode}: check mode found {n} problem(s); nothing moved{kept}{locked}"
+        )
     say(f"check mode: {len(program.blocks)} lines, no errors")
 
 
