@@ -156,3 +156,23 @@ def test_a_failed_check_after_the_zero_was_set_says_so(tmp_path):
     sent = next(e["text"] for e in read_record(rec) if e["ev"] == "rx" and "G10" in e["text"])
     assert sent.startswith("G21G10L20P0")  # the zero went out before check mode
     assert "nothing moved (the work zero was set: `G10 L20 P0 X" in last
+
+
+def test_zero_here_reads_the_machine_position_from_wpos_reports_and_the_offset(tmp_path):
+    """$10=0 on a build whose reports carry no WCO: `$#`'s offset and WPos give MPos."""
+    from scratchfab.machine.profile import load_profile
+
+    job = tmp_path / "plot.gcode"
+    servo_job(job, strokes=1)
+    rec = tmp_path / "rec.jsonl"
+    port = (
+        "grblsim://?baud=0&time_scale=0&wco=12,-7,0&$130=300&$131=200&$10=0&wco_field=0"
+        f"&record={rec}"
+    )
+    code, _, err = _stream(
+        [str(job), "--port", port, "--machine", PLOTTER, "--zero-here", "--yes"], ""
+    )
+    assert code == 0, err
+    x, y = load_profile(PLOTTER).board.offset_mm
+    start = next(e for e in read_record(rec) if e["ev"] == "exec")["frm"]
+    assert start[:2] == pytest.approx([x, y])  # the tool stood at the board's corner

@@ -744,13 +744,16 @@ def _zeroed_here(
     """The work offset and position ``command`` (``G10 L20 P0 X.. Y..``) will give, unsent.
 
     So that the checks before anything is sent (the travel, the board's place) see the
-    zero that will be set; Z keeps its offset where the command has no Z word.
+    zero that will be set; Z keeps its offset where the command has no Z word. Reports
+    in WPos (``$10=0``) give the machine position with the offset (``$#`` or ``WCO:``).
 
     Raises:
         ScratchfabError: The controller's machine position or work offset is not known
             (nothing to check the zero against); nothing was sent.
     """
-    mpos, wco = info.status.mpos, info.wco
+    mpos, wco, wpos = info.status.mpos, info.wco, info.status.wpos
+    if mpos is None and wpos is not None and wco is not None:  # WPos reports ($10=0)
+        mpos = (wpos[0] + wco[0], wpos[1] + wco[1], wpos[2] + wco[2])
     if mpos is None or wco is None:
         raise ScratchfabError(
             "--zero-here: the controller's status reports give no machine position or work "
