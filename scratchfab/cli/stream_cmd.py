@@ -149,9 +149,10 @@ def _job_gcode(path: Path) -> Path:
     "--zero-here",
     is_flag=True,
     help="The tool stands at the board's origin point (the profile's, e.g. its lower-left "
-    "corner): once connected, set the work zero there (X and Y, the profile's G10 L20 "
-    "command) before streaming. For a controller without homing that resets as its port "
-    "opens; with --resume it stands for --homed. Asked to confirm unless --yes.",
+    "corner; a Z tool touching the board's surface): once connected, set the work zero there "
+    "(the profile's G10 L20 command: X and Y, and Z0 for a Z tool) before streaming. For a "
+    "controller without homing that resets as its port opens; with --resume it stands for "
+    "--homed (refused where the controller kept the run's zero). Asked unless --yes.",
 )
 @click.option(
     "--check",

@@ -102,8 +102,9 @@ class StreamRequest:
         homed: The machine was homed, or its work zero set again, since an alarm or a
             reset of the controller that may have lost its position (:func:`ask_if_homed`).
         zero_here: The tool stands at the board's origin point: once connected, set the
-            work zero there with the profile's command (:func:`zero_here_command`), X and
-            Y only; on a resume it stands for ``homed``.
+            work zero there with the profile's command (:func:`zero_here_command`: X and
+            Y, and Z0 for a tool that is not a servo, touching the surface); on a resume it
+            stands for ``homed``.
     """
 
     gcode: Path
