@@ -35,11 +35,13 @@ def _reference_run(
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_the_chunked_walk_matches_a_step_by_step_walk(seed: int) -> None:
+@pytest.mark.parametrize("dark", [0.003, 0.05, 0.3])
+def test_the_chunked_walk_matches_a_step_by_step_walk(seed: int, dark: float) -> None:
     rng = np.random.default_rng(seed)
-    rows, cols = rng.integers(5, 60, size=2)
-    # blobs of bright and dark so runs end anywhere from the first step to past the limit
-    grid = (rng.random((rows, cols)) < rng.uniform(0.02, 0.4)).astype(float)
+    rows, cols = rng.integers(5, 90, size=2)
+    # dark specks, sparse (most centres far from any: the walk skips them) to dense, so
+    # runs end anywhere from the first step to past the limit
+    grid = (rng.random((rows, cols)) < dark).astype(float)
     grid = 1.0 - grid * rng.uniform(0.5, 1.0)
     board = Board(width_mm=float(rng.uniform(10, 80)), height_mm=float(rng.uniform(10, 80)))
     n = 500
@@ -47,7 +49,7 @@ def test_the_chunked_walk_matches_a_step_by_step_walk(seed: int) -> None:
     centre = rng.uniform(-1, 1, (n, 2)) * [hw, hh]
     angle = rng.uniform(0, 2 * np.pi, n)
     direction = np.stack([np.cos(angle), np.sin(angle)], axis=1)
-    limit = rng.uniform(0.0, 0.6 * max(hw, hh), n)
+    limit = rng.uniform(0.0, rng.uniform(0.05, 0.6) * max(hw, hh), n)
     limit[:5] = 0.0
     got = _bright_run(grid, board, centre, direction, limit)
     want = _reference_run(grid, board, centre, direction, limit)

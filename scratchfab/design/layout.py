@@ -17,7 +17,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import replace
 
 import numpy as np
-from scipy import sparse
+from scipy import ndimage, sparse
 from scipy.spatial import cKDTree
 
 from scratchfab.console import Say
@@ -168,7 +168,14 @@ def _bright_run(
     flat = grid.ravel()
     half_bright = 0.5 * flat[r0 * cols + c0]
     run = np.array(limit, dtype=float)
-    todo = np.flatnonzero(limit > 0)
+    # only centres with a dark cell within reach (a step past the longest limit) walk
+    reach = limit.max() + step
+    size = [
+        2 * (int(np.ceil(reach / (board.height_mm / rows))) + 2) + 1,
+        2 * (int(np.ceil(reach / (board.width_mm / cols))) + 2) + 1,
+    ]
+    darkest = ndimage.minimum_filter(grid, size=size, mode="nearest").ravel()
+    todo = np.flatnonzero((limit > 0) & (darkest[r0 * cols + c0] < half_bright))
     for start in range(0, len(steps), _RUN_CHUNK):
         if todo.size == 0:
             break
