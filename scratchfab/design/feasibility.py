@@ -18,8 +18,8 @@ steepest wall 2 atan(2w / wbar) (SPEC section 3). Hence:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from itertools import combinations
 from typing import Any
 
@@ -429,10 +429,11 @@ def check_feasibility(
     density: tuple[np.ndarray, dict[str, np.ndarray]] | None = None
     if boards:
         # imported here: the layout imports this module's geometry
-        from scratchfab.design.layout import board_densities
+        from scratchfab.design.layout import board_densities, length_by_count
 
         density = board_densities(design, boards)
-        coverage, mean_length, fits, crowded = _coverage(design, *density)
+        lengths = length_by_count(design, *density)
+        coverage, mean_length, fits, crowded = _coverage(design, *density, lengths)
         drawn = (fits, mean_length)
         shoulder_deg = outshine_limit_deg(
             tool.width_mm, tool.depth_mm, design.board.roughness, min(coverage, 1.0)
@@ -470,7 +471,7 @@ def check_feasibility(
         if any(
             (found.shoulder_fraction or 0.0) >= SHOULDER_WARN_FRACTION for found in views.values()
         ):
-            advised = _outshining_count(design, views, glint_deg, *density, coverage)
+            advised = _outshining_count(design, views, glint_deg, lengths, coverage)
             shoulder_count = advised[0] if advised is not None else None
             warnings.append(
                 _shoulder_problem(design, views, pts, glint_deg, shoulder_deg, coverage, advised)
@@ -739,8 +740,7 @@ def _outshining_count(
     design: Design,
     views: Mapping[str, ViewFeasibility],
     glint_deg: float,
-    dpts: np.ndarray,
-    dens: dict[str, np.ndarray],
+    lengths: Callable[[int], float],
     coverage: float,
 ) -> tuple[int, float] | None:
     """The least ``[scratch] count`` whose grooves leave no warning past the glint.
@@ -759,9 +759,8 @@ def _outshining_count(
         design: The resolved design.
         views: The views' results (their tilt maps).
         glint_deg: :func:`glint_limit_deg` of the design.
-        dpts: The layout's density grid and ``dens`` the views' densities on it
-            (:func:`scratchfab.design.layout.board_densities`).
-        dens: See ``dpts``.
+        lengths: The layout's expected total length by count
+            (:func:`scratchfab.design.layout.length_by_count` on its density grid).
         coverage: The groove coverage at the design's count.
     """
     tool = design.scratch
@@ -770,7 +769,7 @@ def _outshining_count(
     need = float(outshine_ratio(least, tool.width_mm, tool.depth_mm, roughness))
 
     def covers(count: int) -> float:
-        return _groove_coverage(replace(design, scratch=replace(tool, count=count)), dpts, dens)[0]
+        return _groove_coverage(design, lengths, count)[0]
 
     count = max(tool.count + 1, math.ceil(tool.count * need / coverage))
     while count <= MAX_SCRATCHES:
@@ -916,27 +915,26 @@ def usable_area(board: Board) -> float:
 
 
 def _groove_coverage(
-    design: Design, pts: np.ndarray, dens: dict[str, np.ndarray]
+    design: Design, lengths: Callable[[int], float], count: int
 ) -> tuple[float, float]:
-    """The initial layout's groove coverage and its total scratch length (mm).
+    """The initial layout's groove coverage and its total scratch length (mm) at ``count``.
 
-    Coverage: groove area over the board inside the margin, from the layout's density grid
+    Coverage: groove area over the board inside the margin; ``lengths`` is
+    :func:`scratchfab.design.layout.length_by_count` on the layout's density grid
     (as :func:`_coverage` takes it).
     """
-    # imported here: the layout imports this module's geometry
-    from scratchfab.design.layout import expected_length
-
-    total = expected_length(design, pts, dens)
+    total = lengths(count)
     return total * design.scratch.width_mm / usable_area(design.board), total
 
 
 def _coverage(
-    design: Design, pts: np.ndarray, dens: dict[str, np.ndarray]
+    design: Design, pts: np.ndarray, dens: dict[str, np.ndarray], lengths: Callable[[int], float]
 ) -> tuple[float, float, int, list[str]]:
     """Groove coverage, mean length, the count keeping it to 1, and a warning above 1.
 
     All of the initial layout's, from its density grid ``pts`` and the views' densities
-    ``dens`` (:func:`scratchfab.design.layout.board_densities`).
+    ``dens`` (:func:`scratchfab.design.layout.board_densities`); ``lengths`` is
+    :func:`scratchfab.design.layout.length_by_count` on them.
 
     The layout's lengths follow the targets' brightness
     (:func:`scratchfab.design.layout.expected_length`); grooves covering more than the
@@ -948,7 +946,7 @@ def _coverage(
 
     tool = design.scratch
     usable = usable_area(design.board)
-    coverage, total = _groove_coverage(design, pts, dens)
+    coverage, total = _groove_coverage(design, lengths, tool.count)
     mean = total / tool.count
     fits = math.floor(tool.count / coverage) if coverage > 0 else tool.count
     if coverage <= 1.0:

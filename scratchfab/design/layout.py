@@ -433,21 +433,45 @@ def expected_length(design: Design, pts: np.ndarray, dens: dict[str, np.ndarray]
         pts: The density grid (:func:`view_densities` or :func:`board_densities`).
         dens: View name -> density on that grid.
     """
-    dens, counts = _shares(design, pts, dens)
+    return length_by_count(design, pts, dens)(design.scratch.count)
+
+
+def length_by_count(
+    design: Design, pts: np.ndarray, dens: dict[str, np.ndarray]
+) -> Callable[[int], float]:
+    """:func:`expected_length` as a function of ``[scratch] count``.
+
+    The count only shares the scratches among the views; each view's strokes are drawn
+    once, the first time a count gives it scratches.
+    """
+    tool = design.scratch
     inner = _inner_box(design)
-    total = 0.0
-    for name, n in counts.items():
-        if n == 0:
-            continue
-        rel, q = _centre_weights(dens[name].ravel(), design)
+    drawn: dict[str, tuple[float, float]] = {}
+
+    def view_drawn(name: str, grid: np.ndarray) -> tuple[float, float]:
+        """The view's weighed sum of stroke lengths over the grid, and the weights' sum."""
+        rel, q = _centre_weights(grid.ravel(), design)
         at = np.flatnonzero(q > 0)
-        drawn = 0.0
+        total = 0.0
         for part in np.array_split(at, -(-len(at) // EXPECTED_CHUNK)):
             centre = np.clip(pts.reshape(-1, 2)[part], -inner, inner)
-            p0, p1 = _strokes(design, design.view(name), dens[name], centre, rel[part])
-            drawn += float(q[part] @ np.linalg.norm(p1 - p0, axis=1))
-        total += n * drawn / float(q[at].sum())
-    return total
+            p0, p1 = _strokes(design, design.view(name), grid, centre, rel[part])
+            total += float(q[part] @ np.linalg.norm(p1 - p0, axis=1))
+        return total, float(q[at].sum())
+
+    def length(count: int) -> float:
+        shared, counts = _shares(replace(design, scratch=replace(tool, count=count)), pts, dens)
+        total = 0.0
+        for name, n in counts.items():
+            if n == 0:
+                continue
+            if name not in drawn:
+                drawn[name] = view_drawn(name, shared[name])
+            lengths, weight = drawn[name]
+            total += n * lengths / weight
+        return total
+
+    return length
 
 
 def longest_for_length(
